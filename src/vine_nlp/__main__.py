@@ -1,0 +1,3 @@
+from vine_nlp.front.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,1 @@
+"""Layer 5: figures, fabrication templates, sweeps and the command line."""
