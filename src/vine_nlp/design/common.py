@@ -1,0 +1,174 @@
+"""What every design method shares: point pairing, the fit error, bounds, initial guesses.
+
+Pairing (the paper's PathError): the N target points are cut into segments of n
+intervals (the last segment takes the remainder), M = ceil((N - 1) / n). Target
+point k = j n + i sits in segment j; it pairs with the model point at the
+fraction of segment j given by the target's own chord length inside that
+segment, so unevenly sampled targets (the trefoil is equally spaced in t, not in
+arc length) pair with matching model points. The tip target pairs with the end
+of the last segment.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from vine_nlp.design.problem import DesignProblem, Routing
+from vine_nlp.design.result import Result, Shape, error_metrics, routing_metrics
+from vine_nlp.model import shape_lines
+from vine_nlp.model.helix import center_rates, helix_from_curvature
+
+# Segment lengths stay within this factor of the target's chord length of the segment:
+# a loose box that keeps IPOPT away from dl -> 0 without constraining real designs.
+LENGTH_FACTOR = (0.2, 5.0)
+
+
+@dataclass(frozen=True)
+class Pairing:
+    segments: int  # M
+    n: int  # slots per segment (points per segment)
+    seg: np.ndarray  # (N,) segment of each target point
+    frac: np.ndarray  # (N,) fraction of that segment
+    bounds: np.ndarray  # (M+1,) target index of each segment end
+    chord: np.ndarray  # (N,) cumulative chord length of the target
+
+    @property
+    def segment_chord(self) -> np.ndarray:
+        return np.diff(self.chord[self.bounds])
+
+
+def pair_points(target: np.ndarray, n: int) -> Pairing:
+    target = np.asarray(target, float)
+    N = target.shape[0]
+    if N < 2:
+        raise ValueError("a target needs at least two points")
+    M = math.ceil((N - 1) / n)
+    chord = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(target, axis=0), axis=1))])
+    bounds = np.minimum(np.arange(M + 1) * n, N - 1)
+    k = np.arange(N)
+    seg = np.minimum(k // n, M - 1)
+    start, end = chord[bounds[seg]], chord[bounds[seg + 1]]
+    frac = (chord - start) / (end - start)
+    return Pairing(M, n, seg, frac, bounds, chord)
+
+
+def path_error(model_points, target_points, weights=None):
+    """Sum of squared distances between paired points: the smooth form of the paper's PathError."""
+    d2 = np.sum((np.asarray(model_points) - np.asarray(target_points)) ** 2, axis=1)
+    return float(d2.sum() if weights is None else (weights * d2).sum())
+
+
+def variable_bounds(problem: DesignProblem, pairing: Pairing):
+    """(lower, upper) arrays for theta, lam and length per segment (paper Sec. VI-A)."""
+    a = problem.actuator
+    c = pairing.segment_chord
+    th = np.full(pairing.segments, a.theta_max)
+    return (
+        (-th, np.full(pairing.segments, a.lambda_min), LENGTH_FACTOR[0] * c),
+        (th, np.ones(pairing.segments), LENGTH_FACTOR[1] * c),
+    )
+
+
+def clip_to_bounds(theta, lam, length, problem, pairing):
+    (tl, ll, dl), (tu, lu, du) = variable_bounds(problem, pairing)
+    return np.clip(theta, tl, tu), np.clip(lam, ll, lu), np.clip(length, dl, du)
+
+
+def evaluate(problem: DesignProblem, routing: Routing, pairing: Pairing, method: str, **kw) -> Result:
+    """Model the routing at the paired points and measure it against the target."""
+    center, inner, outer = shape_lines(
+        routing.theta, routing.lam, routing.length, problem.diameter, pairing.seg, pairing.frac, routing.initial_pose
+    )
+    metrics = error_metrics(center, problem.target) | routing_metrics(routing)
+    return Result(method=method, routing=routing, shape=Shape(center, inner, outer), metrics=metrics, diameter=problem.diameter, **kw)
+
+
+def _unit(v):
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(n > 0, n, 1.0)
+
+
+def _perpendicular(t):
+    """Some unit vector perpendicular to t (for straight targets where no normal is defined)."""
+    a = np.array([0.0, 0.0, 1.0]) if abs(t[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    return _unit(a - np.dot(a, t) * t)
+
+
+def _signed_angle(a, b, axis):
+    return math.atan2(float(np.dot(np.cross(a, b), axis)), float(np.dot(a, b)))
+
+
+@dataclass
+class Guess:
+    theta: np.ndarray
+    lam: np.ndarray
+    length: np.ndarray
+    initial_pose: np.ndarray  # (4, 4)
+    frames: np.ndarray  # (M+1, 4, 4) target-based frames at the segment ends
+
+    def routing(self) -> Routing:
+        return Routing(self.theta, self.lam, self.length, self.initial_pose)
+
+
+def geometric_guess(problem: DesignProblem, pairing: Pairing, flip_sign: float = 1.0) -> Guess:
+    """Initial design from the target's own geometry.
+
+    Per segment: the turning angle of the target's tangents gives the curvature, the
+    rotation of the bending direction about the tangent between neighbouring segments
+    gives the torsion, and Table I's inverse (helix_from_curvature) turns both into
+    theta and lambda, clipped to the bounds. A bending direction that flips (an
+    inflection, where the actuator must move to the other side of the tube) is a
+    rotation of +-pi about the tangent: ``flip_sign`` picks the side, which breaks
+    the theta -> -theta symmetry of planar targets (model notes, symmetry trap).
+    """
+    D = problem.diameter
+    tgt = problem.target
+    M, b = pairing.segments, pairing.bounds
+    tangent = _unit(np.gradient(tgt, pairing.chord, axis=0))
+    arc = np.maximum(pairing.segment_chord, 1e-12)
+    t0, t1 = tangent[b[:-1]], tangent[b[1:]]
+    turn = np.arccos(np.clip(np.sum(t0 * t1, axis=1), -1.0, 1.0))
+    kappa = turn / arc
+    # bending direction at each segment's middle: where the tangent turns to
+    tmid = _unit(t0 + t1)
+    bend = t1 - t0
+    bend = bend - np.sum(bend * tmid, axis=1, keepdims=True) * tmid
+    straight = np.linalg.norm(bend, axis=1) < 1e-9
+    normal = _unit(bend)
+    last = None
+    for j in range(M):  # straight segments keep the previous bending direction
+        if straight[j]:
+            normal[j] = _perpendicular(tmid[j]) if last is None else _unit(last - np.dot(last, tmid[j]) * tmid[j])
+        last = normal[j]
+    # torsion: rotation of the bending direction about the tangent from one segment middle to the next
+    psi = np.zeros(M + 1)
+    for j in range(M - 1):
+        axis = tangent[b[j + 1]]
+        n0 = _unit(normal[j] - np.dot(normal[j], axis) * axis)
+        n1 = _unit(normal[j + 1] - np.dot(normal[j + 1], axis) * axis)
+        ang = _signed_angle(n0, n1, axis)
+        if abs(ang) > 0.8 * math.pi:
+            # a near-reversal: the sign is arbitrary for planar targets, so choose it
+            ang = flip_sign * abs(ang)
+        psi[j + 1] = ang
+    # half of each boundary rotation belongs to each neighbouring segment
+    tau = 0.5 * (psi[:-1] + psi[1:]) / arc
+    theta, lam = helix_from_curvature(kappa, tau, D)
+    _, _, lambda_c = center_rates(theta, lam, D)
+    length = arc / lambda_c
+    theta, lam, length = clip_to_bounds(theta, lam, length, problem, pairing)
+    # frames at the segment ends, on the target: normal rotated back from the segment middle
+    frames = np.zeros((M + 1, 4, 4))
+    for j in range(M + 1):
+        t = tangent[b[j]]
+        nn = normal[min(j, M - 1)]
+        nn = _unit(nn - np.dot(nn, t) * t)
+        if np.linalg.norm(nn) < 0.5:
+            nn = _perpendicular(t)
+        frames[j, :3, 0], frames[j, :3, 1], frames[j, :3, 2] = t, nn, np.cross(t, nn)
+        frames[j, :3, 3] = tgt[b[j]]
+        frames[j, 3, 3] = 1.0
+    return Guess(theta, lam, length, frames[0].copy(), frames)

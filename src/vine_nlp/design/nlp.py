@@ -1,0 +1,316 @@
+"""Inverse design as ONE nonlinear program, solved with IPOPT.
+
+Multiple shooting over the chain (paper eq. iterativeTransform): the frames
+T^j_w at the segment ends are variables, and each segment adds the continuity
+constraint T^{j+1}_w = T^j_w T^{j+1}_j(theta_j, lam_j, dl_j). Variables are
+created in stage order (pose, then theta_j, lam_j, dl_j, T^{j+1}_w per segment),
+so the constraint Jacobian and the Lagrangian Hessian are block-banded and the
+cost of an IPOPT iteration grows linearly with the number of segments.
+
+Everything is scaled by the tube diameter D inside the NLP (D = 1), so one
+solver serves every tube and the tolerances mean the same thing for every problem.
+
+Objective (all terms dimensionless):
+  J = (1/N) sum_k w_k |r_c(k) - r_cd(k)|^2 / D^2
+      + w_theta (1/L) int (D dtheta/ds)^2 ds + w_lambda (1/L) int (D dlambda/ds)^2 ds,
+the derivative integrals taken on the target's arc length so the penalties mean the
+same whatever the discretization (they replace the paper's low-pass filter).
+
+The solver is built once per structure (M segments, n points per segment,
+shared or per-segment lambda) and cached; target, weights and guesses are
+parameters, so multi-start and sweeps reuse it.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from functools import lru_cache
+
+import casadi as ca
+import numpy as np
+
+from vine_nlp.design.common import (
+    LENGTH_FACTOR,
+    Guess,
+    Pairing,
+    evaluate,
+    geometric_guess,
+    pair_points,
+)
+from vine_nlp.design.problem import DesignProblem, Routing
+from vine_nlp.design.result import Result
+from vine_nlp.model.segment import segment_parts, so3_exp
+
+_STATUS = {
+    "Solve_Succeeded": "optimal",
+    "Solved_To_Acceptable_Level": "acceptable",
+    "Maximum_Iterations_Exceeded": "max_iter",
+    "Maximum_CpuTime_Exceeded": "max_time",
+    "Restoration_Failed": "restoration_failed",
+    "Infeasible_Problem_Detected": "infeasible",
+    "Invalid_Number_Detected": "invalid_number",
+    "Error_In_Step_Computation": "step_failed",
+}
+
+
+def _segment_function(n: int) -> ca.Function:
+    """One segment, SX: (frame X_j (12), theta, lam, dl, fractions u (n)) -> (X_{j+1}, points (3 x n))."""
+    X = ca.SX.sym("X", 12)  # rotation column-major (9), then position (3)
+    theta, lam, dl = ca.SX.sym("theta"), ca.SX.sym("lam"), ca.SX.sym("dl")
+    u = ca.SX.sym("u", n)
+    R = ca.reshape(X[:9], 3, 3)
+    p = X[9:]
+    Rs, ps = segment_parts(theta, lam, dl, 1.0)
+    Rstep = ca.vertcat(*[ca.horzcat(*row) for row in Rs])
+    Xn = ca.vertcat(ca.vec(ca.mtimes(R, Rstep)), p + ca.mtimes(R, ca.vertcat(*ps)))
+    pts = []
+    for i in range(n):
+        _, q = segment_parts(theta, lam, u[i] * dl, 1.0)
+        pts.append(p + ca.mtimes(R, ca.vertcat(*q)))
+    return ca.Function("segment", [X, theta, lam, dl, u], [Xn, ca.horzcat(*pts)], ["X", "theta", "lam", "dl", "u"], ["Xn", "pts"])
+
+
+@dataclass
+class _Layout:
+    """Where each quantity lives in the decision vector (stage order)."""
+
+    M: int
+    shared: bool
+
+    @property
+    def pose(self):
+        return slice(0, 6)  # rotation vector (relative to the guess's rotation), position
+
+    def stage(self, j):
+        start = 6 + (1 if self.shared else 0) + j * self.width
+        return start
+
+    @property
+    def width(self):
+        return (3 if not self.shared else 2) + 12
+
+    @property
+    def size(self):
+        return 6 + (1 if self.shared else 0) + self.M * self.width
+
+
+class NLPSolver:
+    """The NLP of one structure, built once; ``solve`` runs IPOPT from a given guess."""
+
+    def __init__(self, M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8):
+        t0 = time.perf_counter()
+        self.M, self.n, self.shared = M, n, shared_lambda
+        lay = self.layout = _Layout(M, shared_lambda)
+        x = ca.MX.sym("x", lay.size)
+        # parameters
+        P_tgt = ca.MX.sym("target", 3, n * M)  # paired target points (scaled), slot-major per segment
+        P_w = ca.MX.sym("w", 1, n * M)  # pairing weights (0 for unused slots), already / N
+        P_u = ca.MX.sym("u", n, M)  # fractions of each slot
+        P_tip = ca.MX.sym("tip", 3)
+        P_wtip = ca.MX.sym("wtip")
+        P_R0 = ca.MX.sym("R0", 9)  # rotation of the guess: the pose is a rotation vector relative to it
+        P_smooth = ca.MX.sym("smooth", 2)  # w_theta, w_lambda
+        P_h = ca.MX.sym("h", max(M - 1, 1))  # arc length between segment middles (scaled)
+        P_L = ca.MX.sym("L")  # total arc length (scaled)
+        params = [P_tgt, P_w, P_u, P_tip, P_wtip, P_R0, P_smooth, P_h, P_L]
+        self._param_shapes = [(p.size1(), p.size2()) for p in params]
+
+        w_rot, p0 = x[0:3], x[3:6]
+        R0 = ca.mtimes(ca.reshape(P_R0, 3, 3), so3_exp(w_rot))
+        X0 = ca.vertcat(ca.vec(R0), p0)
+        off = 6
+        lam_shared = None
+        if shared_lambda:
+            lam_shared = x[off]
+            off += 1
+        W = lay.width
+        stages = ca.reshape(x[off:], W, M)
+        theta = stages[0, :]
+        if shared_lambda:
+            lam = ca.repmat(lam_shared, 1, M)
+            dl = stages[1, :]
+            Xnext = stages[2:, :]
+        else:
+            lam = stages[1, :]
+            dl = stages[2, :]
+            Xnext = stages[3:, :]
+        Xstart = ca.horzcat(X0, Xnext[:, : M - 1])
+        F = _segment_function(n).map(M, "serial")
+        Xn, pts = F(Xstart, theta, lam, dl, P_u)
+        g = ca.vec(Xn - Xnext)
+        err = pts - P_tgt
+        fit = ca.sum2(P_w * ca.sum1(err * err)) + P_wtip * ca.sumsqr(Xnext[9:, M - 1] - P_tip)
+        smooth = 0
+        if M > 1:
+            smooth = P_smooth[0] * ca.sum1(ca.diff(theta.T) ** 2 / P_h) / P_L
+            if not shared_lambda:
+                smooth += P_smooth[1] * ca.sum1(ca.diff(lam.T) ** 2 / P_h) / P_L
+        f = fit + smooth
+        p = ca.vertcat(*[ca.vec(q) for q in params])
+        opts = {
+            "ipopt.print_level": 0,
+            "print_time": False,
+            "ipopt.sb": "yes",
+            "ipopt.max_iter": int(max_iter),
+            "ipopt.tol": float(tol),
+            "ipopt.acceptable_tol": 1e-6,
+            "ipopt.mu_strategy": "adaptive",
+        }
+        self.solver = ca.nlpsol("vine_nlp", "ipopt", {"x": x, "p": p, "f": f, "g": g}, opts)
+        self._terms = ca.Function("terms", [x, p], [fit, smooth])
+        self.build_time_s = time.perf_counter() - t0
+
+    def pack_params(self, values) -> np.ndarray:
+        return np.concatenate([np.asarray(v, float).reshape(s, order="F").ravel(order="F") for v, s in zip(values, self._param_shapes)])
+
+    def pack_x(self, w_rot, p0, theta, lam, dl, frames12) -> np.ndarray:
+        lay = self.layout
+        x = np.zeros(lay.size)
+        x[0:3], x[3:6] = w_rot, p0
+        off = 6
+        if self.shared:
+            x[off] = float(np.mean(lam))
+            off += 1
+            cols = [theta, dl]
+        else:
+            cols = [theta, lam, dl]
+        stages = np.vstack([np.atleast_2d(c) for c in cols] + [frames12[:, 1:]])
+        x[off:] = stages.ravel(order="F")
+        return x
+
+    def unpack_x(self, x):
+        lay = self.layout
+        off = 6
+        lam_shared = None
+        if self.shared:
+            lam_shared = x[off]
+            off += 1
+        stages = x[off:].reshape(lay.width, self.M, order="F")
+        theta = stages[0]
+        if self.shared:
+            lam = np.full(self.M, lam_shared)
+            dl = stages[1]
+        else:
+            lam, dl = stages[1], stages[2]
+        return x[0:3], x[3:6], theta, lam, dl
+
+    def bounds(self, lo, hi):
+        """Box bounds in stage order from per-segment (theta, lam, dl) bounds (scaled)."""
+        lay = self.layout
+        lbx = np.full(lay.size, -np.inf)
+        ubx = np.full(lay.size, np.inf)
+        off = 6
+        if self.shared:
+            lbx[off], ubx[off] = lo[1][0], hi[1][0]
+            off += 1
+            rows = [0, 2]
+        else:
+            rows = [0, 1, 2]
+        W = lay.width
+        for k, r in enumerate(rows):
+            lbx[off + k : off + W * self.M : W] = lo[r]
+            ubx[off + k : off + W * self.M : W] = hi[r]
+        return lbx, ubx
+
+
+@lru_cache(maxsize=16)
+def get_solver(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8) -> NLPSolver:
+    """Cached solver per structure: building costs more than one solve."""
+    return NLPSolver(M, n, shared_lambda, max_iter, tol)
+
+
+def _frames12(frames: np.ndarray) -> np.ndarray:
+    """(M+1, 4, 4) -> (12, M+1): rotation column-major, then position."""
+    R = frames[:, :3, :3].transpose(0, 2, 1).reshape(-1, 9)  # column-major flattening of each R
+    return np.hstack([R, frames[:, :3, 3]]).T
+
+
+def design_nlp(problem: DesignProblem, guess: Guess | None = None, pairing: Pairing | None = None, frames: str = "target") -> Result:
+    """Solve the inverse-design NLP for ``problem`` from ``guess`` (default: the geometric guess).
+
+    frames="target" starts the shooting frames on the target (multiple shooting's
+    advantage: the error does not accumulate along the chain in the first iterate);
+    frames="chain" starts them on the chain of the guessed design.
+    """
+    from vine_nlp.model import chain_frames
+
+    o = problem.options
+    D = problem.diameter
+    pairing = pairing or pair_points(problem.target, o.points_per_segment)
+    guess = guess or geometric_guess(problem, pairing)
+    M, n = pairing.segments, pairing.n
+    shared = problem.actuator.shared_lambda
+    t_build = time.perf_counter()
+    solver = get_solver(M, n, shared, o.max_iter, o.tol)
+    build_time = time.perf_counter() - t_build
+
+    # parameters, scaled by D
+    N = problem.target.shape[0]
+    tgt = problem.target / D
+    slots = np.zeros((3, n * M))
+    w = np.zeros(n * M)
+    u = np.zeros((n, M))
+    k = np.arange(N - 1)  # the tip (last point) is paired with the last frame
+    slot = pairing.seg[k] * n + (k - pairing.seg[k] * n)
+    slots[:, slot] = tgt[k].T
+    w[slot] = 1.0 / N
+    u[(k - pairing.seg[k] * n), pairing.seg[k]] = pairing.frac[k]
+    mids = 0.5 * (pairing.chord[pairing.bounds[:-1]] + pairing.chord[pairing.bounds[1:]]) / D
+    h = np.diff(mids) if M > 1 else np.ones(1)
+    Ltot = pairing.chord[-1] / D
+    R0g = guess.initial_pose[:3, :3]
+    p = solver.pack_params([slots, w, u, tgt[-1], 1.0 / N, R0g.ravel(order="F"), [o.smooth_theta, o.smooth_lambda], h, Ltot])
+
+    if frames == "target":
+        fr = guess.frames.copy()
+        fr[0] = guess.initial_pose
+    else:
+        fr = chain_frames(guess.theta, guess.lam, guess.length, D, guess.initial_pose)
+    fr = fr.copy()
+    fr[:, :3, 3] /= D
+    x0 = solver.pack_x(np.zeros(3), guess.initial_pose[:3, 3] / D, guess.theta, guess.lam, guess.length / D, _frames12(fr))
+    chord = pairing.segment_chord / D
+    lo = (np.full(M, -problem.actuator.theta_max), np.full(M, problem.actuator.lambda_min), LENGTH_FACTOR[0] * chord)
+    hi = (np.full(M, problem.actuator.theta_max), np.ones(M), LENGTH_FACTOR[1] * chord)
+    lbx, ubx = solver.bounds(lo, hi)
+    x0 = np.clip(x0, lbx, ubx)
+    t0 = time.perf_counter()
+    sol = solver.solver(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
+    solve_time = time.perf_counter() - t0
+    st = solver.solver.stats()
+    x = np.array(sol["x"]).ravel()
+    w_rot, p0, theta, lam, dl = solver.unpack_x(x)
+    T0 = np.eye(4)
+    T0[:3, :3] = R0g @ so3_exp(w_rot)
+    T0[:3, 3] = p0 * D
+    routing = Routing(theta, lam, dl * D, T0)
+    fit, smooth = (float(v) for v in solver._terms(x, p))
+    status = _STATUS.get(st.get("return_status", ""), str(st.get("return_status", "failed")))
+    if not np.all(np.isfinite(x)):
+        status = "invalid_number"
+    return evaluate(
+        problem,
+        routing,
+        pairing,
+        "nlp",
+        status=status,
+        solve_time_s=solve_time,
+        iterations=int(st.get("iter_count", 0)),
+        stats={
+            "solver": "ipopt",
+            "return_status": st.get("return_status", ""),
+            "build_time_s": solver.build_time_s if build_time > 1e-3 else 0.0,
+            "objective": float(sol["f"]),
+            "objective_fit": fit,
+            "objective_smooth": smooth,
+            "segments": M,
+            "points_per_segment": n,
+            "smooth_theta": o.smooth_theta,
+            "smooth_lambda": o.smooth_lambda,
+            "tol": o.tol,
+            "max_iter": o.max_iter,
+            "max_constraint_violation": float(np.abs(np.array(sol["g"])).max()) if M else 0.0,
+        },
+    )
