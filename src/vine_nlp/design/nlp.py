@@ -41,7 +41,8 @@ from vine_nlp.design.common import (
 )
 from vine_nlp.design.problem import DesignProblem, Routing
 from vine_nlp.design.result import Result
-from vine_nlp.model.segment import segment_parts, so3_exp
+from vine_nlp.model.helix import center_rates
+from vine_nlp.model.segment import so3_exp, twist_parts
 
 _STATUS = {
     "Solve_Succeeded": "optimal",
@@ -62,12 +63,15 @@ def _segment_function(n: int) -> ca.Function:
     u = ca.SX.sym("u", n)
     R = ca.reshape(X[:9], 3, 3)
     p = X[9:]
-    Rs, ps = segment_parts(theta, lam, dl, 1.0)
+    kappa_c, tau_c, lambda_c = center_rates(theta, lam, 1.0)
+    sigma = dl * lambda_c
+    Rs, ps = twist_parts(kappa_c, tau_c, sigma)
     Rstep = ca.vertcat(*[ca.horzcat(*row) for row in Rs])
     Xn = ca.vertcat(ca.vec(ca.mtimes(R, Rstep)), p + ca.mtimes(R, ca.vertcat(*ps)))
     pts = []
     for i in range(n):
-        _, q = segment_parts(theta, lam, u[i] * dl, 1.0)
+        # point positions only: the rotation entries of the partial motion are not needed
+        _, q = twist_parts(kappa_c, tau_c, u[i] * sigma)
         pts.append(p + ca.mtimes(R, ca.vertcat(*q)))
     return ca.Function("segment", [X, theta, lam, dl, u], [Xn, ca.horzcat(*pts)], ["X", "theta", "lam", "dl", "u"], ["Xn", "pts"])
 
@@ -99,7 +103,7 @@ class _Layout:
 class NLPSolver:
     """The NLP of one structure, built once; ``solve`` runs IPOPT from a given guess."""
 
-    def __init__(self, M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8):
+    def __init__(self, M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False):
         t0 = time.perf_counter()
         self.M, self.n, self.shared = M, n, shared_lambda
         lay = self.layout = _Layout(M, shared_lambda)
@@ -155,9 +159,23 @@ class NLPSolver:
             "ipopt.sb": "yes",
             "ipopt.max_iter": int(max_iter),
             "ipopt.tol": float(tol),
-            "ipopt.acceptable_tol": 1e-6,
+            "ipopt.acceptable_tol": 1e-4,
+            # stop on a plateau (corners of polyline targets): the objective no longer moves
+            "ipopt.acceptable_obj_change_tol": 1e-8,
+            "ipopt.acceptable_iter": 10,
             "ipopt.mu_strategy": "adaptive",
+            # return points inside the original bounds, not IPOPT's relaxed ones
+            "ipopt.honor_original_bounds": "yes",
         }
+        if warm:
+            # a warm start is near the answer already: do not push it back into the interior
+            opts.update({
+                "ipopt.warm_start_init_point": "yes",
+                "ipopt.mu_init": 1e-6,
+                "ipopt.warm_start_bound_push": 1e-9,
+                "ipopt.warm_start_mult_bound_push": 1e-9,
+                "ipopt.warm_start_slack_bound_push": 1e-9,
+            })
         self.solver = ca.nlpsol("vine_nlp", "ipopt", {"x": x, "p": p, "f": f, "g": g}, opts)
         self._terms = ca.Function("terms", [x, p], [fit, smooth])
         self.build_time_s = time.perf_counter() - t0
@@ -216,9 +234,9 @@ class NLPSolver:
 
 
 @lru_cache(maxsize=16)
-def get_solver(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8) -> NLPSolver:
+def get_solver(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False) -> NLPSolver:
     """Cached solver per structure: building costs more than one solve."""
-    return NLPSolver(M, n, shared_lambda, max_iter, tol)
+    return NLPSolver(M, n, shared_lambda, max_iter, tol, warm)
 
 
 def _frames12(frames: np.ndarray) -> np.ndarray:
@@ -227,8 +245,8 @@ def _frames12(frames: np.ndarray) -> np.ndarray:
     return np.hstack([R, frames[:, :3, 3]]).T
 
 
-def design_nlp(problem: DesignProblem, guess: Guess | None = None, pairing: Pairing | None = None, frames: str = "target") -> Result:
-    """Solve the inverse-design NLP for ``problem`` from ``guess`` (default: the geometric guess).
+def solve_from(problem: DesignProblem, guess: Guess | None = None, pairing: Pairing | None = None, frames: str = "target") -> Result:
+    """One IPOPT solve of the inverse-design NLP for ``problem`` from ``guess`` (default: the geometric guess).
 
     frames="target" starts the shooting frames on the target (multiple shooting's
     advantage: the error does not accumulate along the chain in the first iterate);
@@ -243,7 +261,7 @@ def design_nlp(problem: DesignProblem, guess: Guess | None = None, pairing: Pair
     M, n = pairing.segments, pairing.n
     shared = problem.actuator.shared_lambda
     t_build = time.perf_counter()
-    solver = get_solver(M, n, shared, o.max_iter, o.tol)
+    solver = get_solver(M, n, shared, o.max_iter, o.tol, frames == "chain")
     build_time = time.perf_counter() - t_build
 
     # parameters, scaled by D
@@ -314,3 +332,100 @@ def design_nlp(problem: DesignProblem, guess: Guess | None = None, pairing: Pair
             "max_constraint_violation": float(np.abs(np.array(sol["g"])).max()) if M else 0.0,
         },
     )
+
+
+def start_guesses(problem: DesignProblem, pairing: Pairing, starts: int) -> list[Guess]:
+    """The starts of a multi-start, deterministic for a given ``options.seed``.
+
+    Start 0 is the geometric guess; start 1 the same guess with the other choice of
+    side at bending reversals (its mirror for planar targets); further starts perturb
+    theta and lambda of start 0 or 1 randomly inside the bounds (the symmetry
+    breaking and the spread that decide more than solver options do).
+    """
+    guesses = [geometric_guess(problem, pairing, +1.0)]
+    if starts > 1:
+        guesses.append(geometric_guess(problem, pairing, -1.0))
+    rng = np.random.default_rng(problem.options.seed)
+    a = problem.actuator
+    for k in range(2, starts):
+        base = guesses[k % 2]
+        theta = np.clip(base.theta + rng.normal(0.0, 0.25, base.theta.shape), -a.theta_max, a.theta_max)
+        lam = np.clip(base.lam + rng.normal(0.0, 0.1, base.lam.shape), a.lambda_min, 1.0)
+        if a.shared_lambda:
+            lam = np.full_like(lam, np.clip(rng.uniform(a.lambda_min, 1.0), a.lambda_min, 1.0))
+        guesses.append(Guess(theta, lam, base.length, base.initial_pose, base.frames))
+    return guesses
+
+
+def _solve_start(args):
+    problem, guess, frames = args
+    return solve_from(problem, guess, frames=frames)
+
+
+def guess_from_routing(problem: DesignProblem, pairing: Pairing, routing: Routing) -> Guess:
+    """A warm start from an earlier design: resampled onto this problem's segments if their count differs."""
+    from vine_nlp.model import chain_frames
+
+    M = pairing.segments
+    if routing.segments == M:
+        theta, lam, length = routing.theta, routing.lam, routing.length
+    else:
+        s_old = (np.arange(routing.segments) + 0.5) / routing.segments
+        s_new = (np.arange(M) + 0.5) / M
+        theta = np.interp(s_new, s_old, routing.theta)
+        lam = np.interp(s_new, s_old, routing.lam)
+        length = np.full(M, routing.length.sum() / M)
+    a = problem.actuator
+    theta = np.clip(theta, -a.theta_max, a.theta_max)
+    lam = np.clip(lam, a.lambda_min, 1.0)
+    if a.shared_lambda:
+        lam = np.full(M, float(np.mean(lam)))
+    frames = chain_frames(theta, lam, length, problem.diameter, routing.initial_pose)
+    return Guess(theta, lam, length, routing.initial_pose.copy(), frames)
+
+
+def design_nlp(problem: DesignProblem, starts: int | None = None, workers: int = 1, warm: Routing | None = None, progress=None) -> Result:
+    """Inverse design as one NLP: multi-start (``options.starts``) keeping the lowest objective.
+
+    ``warm``: start from an earlier design instead (one start, frames on its chain).
+    ``workers`` > 1 runs the starts in parallel processes (each builds its own solver).
+    ``progress(done, total)`` is called after each start.
+    """
+    pairing = pair_points(problem.target, problem.options.points_per_segment)
+    if warm is not None:
+        jobs = [(problem, guess_from_routing(problem, pairing, warm), "chain")]
+    else:
+        n = max(1, problem.options.starts if starts is None else starts)
+        jobs = [(problem, g, "target") for g in start_guesses(problem, pairing, n)]
+    t0 = time.perf_counter()
+    results = []
+    if workers > 1 and len(jobs) > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
+            for r in pool.map(_solve_start, jobs):  # map keeps start order: deterministic choice
+                results.append(r)
+                if progress:
+                    progress(len(results), len(jobs))
+    else:
+        for job in jobs:
+            results.append(_solve_start(job))
+            if progress:
+                progress(len(results), len(jobs))
+
+    def rank(r):
+        return (0 if r.converged else 1, r.stats["objective"])
+
+    # the first start within round-off of the best objective wins: ties do not depend on timing
+    best_rank = min(rank(r) for r in results)
+    k_best = next(k for k, r in enumerate(results) if rank(r)[0] == best_rank[0] and rank(r)[1] <= best_rank[1] * (1 + 1e-9) + 1e-15)
+    best = results[k_best]
+    if len(results) > 1:
+        best.stats["starts"] = len(results)
+        best.stats["start_objectives"] = [r.stats["objective"] for r in results]
+        best.stats["best_start"] = k_best
+        best.solve_time_s = time.perf_counter() - t0
+        best.iterations = sum(r.iterations for r in results)
+    if warm is not None:
+        best.stats["warm_start"] = True
+    return best

@@ -11,14 +11,14 @@ from vine_nlp.model import phi_from_theta, shape_lines
 from vine_nlp.model.chain import segment_end_samples
 
 
-@dataclass
+@dataclass(eq=False)
 class Shape:
     center: np.ndarray  # (P, 3)
     inner: np.ndarray  # (P, 3) actuator line
     outer: np.ndarray  # (P, 3)
 
 
-@dataclass
+@dataclass(eq=False)
 class Result:
     method: str
     routing: Routing

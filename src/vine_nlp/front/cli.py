@@ -65,6 +65,141 @@ def cmd_forward(args) -> int:
     return EXIT_OK
 
 
+def _load(path, kind):
+    from vine_nlp.io.problem_file import load_problem
+
+    pf = load_problem(path)
+    if pf.kind != kind:
+        key = {"design": "target", "forward": "routing", "fit": "measured"}[kind]
+        raise InputError(path, key, f"a {kind} problem needs [{key}] (this is a {pf.kind} problem)")
+    return pf
+
+
+def _progress_bar(desc, unit):
+    """A tqdm bar on stderr for long work; returns (callback(done, total), close())."""
+    from tqdm import tqdm
+
+    bar = None
+
+    def update(done, total):
+        nonlocal bar
+        if total <= 1:
+            return
+        if bar is None:
+            # disable=None: a bar on a terminal, silence in logs and pipes
+            bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False, dynamic_ncols=True, disable=None)
+        bar.n = done
+        bar.refresh()
+
+    def close():
+        if bar is not None:
+            bar.close()
+
+    return update, close
+
+
+def _fmt_len(v, units):
+    return f"{v:.4g} {units}"
+
+
+def _report(name, r, units):
+    m = r.metrics
+    return (
+        f"{name}: {r.status}, RMSE {_fmt_len(m['rmse'], units)}, max error {_fmt_len(m['max_error'], units)}, "
+        f"solve time {r.solve_time_s:.3f} s, {r.iterations} iterations"
+    )
+
+
+def _run_method(pf, method, args):
+    from vine_nlp.design import run_design
+
+    kw = {}
+    if method == "nlp":
+        kw["workers"] = args.workers
+        if args.starts is not None:
+            kw["starts"] = args.starts
+        if getattr(args, "warm", None):
+            kw["warm"] = _warm_routing(args.warm)
+    update, close = _progress_bar(f"{pf.name} {method}", "starts" if method == "nlp" else "windows")
+    try:
+        return run_design(pf.problem, method, progress=update, **kw)
+    finally:
+        close()
+
+
+def _warm_routing(path):
+    from vine_nlp.io.archive import load_archive
+
+    try:
+        a = load_archive(path)
+    except (OSError, ValueError, KeyError) as e:
+        raise InputError(path, "--warm", f"cannot read the archive ({e})") from None
+    for name in ("nlp", "greedy", "forward", "fit"):
+        if name in a.runs:
+            return a.runs[name].routing
+    raise InputError(path, "--warm", "the archive has no design run")
+
+
+def cmd_design(args) -> int:
+    from vine_nlp.io.archive import write_archive
+
+    pf = _load(args.problem, "design")
+    out = _check_output(args.output, args.force)
+    fig = _check_output(args.plot, args.force, "--plot") if args.plot else None
+    method = args.method or pf.problem.options.method
+    result = _run_method(pf, method, args)
+    write_archive(out, _archive_from(pf, {method: result}, target=pf.problem.target))
+    print(_report(method, result, pf.units))
+    print(f"archive -> {out}")
+    if fig:
+        from vine_nlp.front.plot import plot_archive_file
+
+        plot_archive_file(out, fig)
+        print(f"figure -> {fig}")
+    return EXIT_OK if result.converged else EXIT_NOT_CONVERGED
+
+
+def cmd_compare(args) -> int:
+    from vine_nlp.io.archive import write_archive
+
+    pf = _load(args.problem, "design")
+    out = _check_output(args.output, args.force)
+    fig = _check_output(args.plot, args.force, "--plot") if args.plot else None
+    runs = {}
+    for method in ("nlp", "greedy"):
+        runs[method] = _run_method(pf, method, args)
+    try:
+        from vine_nlp.design.greedy import lowpass
+
+        runs["greedy_filtered"] = lowpass(runs["greedy"], pf.problem)
+    except ImportError:  # pragma: no cover - greedy module absent
+        pass
+    write_archive(out, _archive_from(pf, runs, target=pf.problem.target))
+    print(comparison_table(runs, pf.units))
+    print(f"archive -> {out}")
+    if fig:
+        from vine_nlp.front.plot import plot_archive_file
+
+        plot_archive_file(out, fig)
+        print(f"figure -> {fig}")
+    return EXIT_OK if all(r.converged for r in runs.values()) else EXIT_NOT_CONVERGED
+
+
+def comparison_table(runs, units) -> str:
+    head = f"{'run':<16}{'status':<12}{'RMSE [' + units + ']':>14}{'max [' + units + ']':>14}{'time [s]':>10}{'iter/solves':>13}{'TV theta':>10}{'TV lambda':>11}"
+    lines = [head, "-" * len(head)]
+    for name, r in runs.items():
+        m = r.metrics
+        count = r.stats.get("window_solves", r.iterations)
+        lines.append(
+            f"{name:<16}{r.status:<12}{m['rmse']:>14.5g}{m['max_error']:>14.5g}{r.solve_time_s:>10.3f}{count:>13}"
+            f"{m['tv_theta']:>10.4g}{m['tv_lambda']:>11.4g}"
+        )
+    if "nlp" in runs and "greedy" in runs and runs["nlp"].solve_time_s > 0:
+        lines.append(f"nlp is {runs['greedy'].solve_time_s / runs['nlp'].solve_time_s:.1f}x faster than greedy")
+    return "\n".join(lines)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(
         prog="vine-nlp",
@@ -80,6 +215,22 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--plot", metavar="FIG.png", help="also draw the shape (png or pdf)")
     f.add_argument("--force", action="store_true", help="overwrite existing output files")
     f.set_defaults(func=cmd_forward)
+
+    for name, func, text in (
+        ("design", cmd_design, "inverse design of a routing for a target curve -> result archive"),
+        ("compare", cmd_compare, "run nlp and greedy on one problem: one archive, a table on stdout"),
+    ):
+        d = sub.add_parser(name, help=text)
+        d.add_argument("problem", metavar="PROBLEM.toml")
+        d.add_argument("-o", "--output", required=True, metavar="OUT.h5")
+        if name == "design":
+            d.add_argument("--method", choices=("nlp", "greedy"), help="default: the problem's [design] method (nlp)")
+            d.add_argument("--warm", metavar="ARCHIVE.h5", help="nlp: start from the design in an earlier archive")
+        d.add_argument("--starts", type=int, metavar="N", help="nlp: number of starts of the multi-start (default: the problem's)")
+        d.add_argument("--workers", type=int, default=1, metavar="N", help="nlp: run the starts in N processes")
+        d.add_argument("--plot", metavar="FIG.png", help="also draw the result (png or pdf)")
+        d.add_argument("--force", action="store_true", help="overwrite existing output files")
+        d.set_defaults(func=func)
     return p
 
 

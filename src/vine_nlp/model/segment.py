@@ -52,15 +52,22 @@ def _exp_coefficients(x):
 def segment_parts(theta, lam, length, D):
     """Entries of T^{j+1}_j as a 3x3 nested list R and a 3-list p (numpy arrays or SX).
 
+    See :func:`twist_parts`; against the paper this is its rotation matrix and its
+    position vector with the erratum corrected (y = R (1 - cos(dl/L)), model notes).
+    """
+    kappa_c, tau_c, lambda_c = center_rates(theta, lam, D)
+    return twist_parts(kappa_c, tau_c, length * lambda_c)
+
+
+def twist_parts(kappa_c, tau_c, sigma):
+    """exp(sigma xi) for the Frenet twist xi = (v = (1,0,0), omega = (tau_c, 0, kappa_c)).
+
     With rotation vector sigma * (tau_c, 0, kappa_c) =: (c, 0, a), x = a^2 + c^2 and
     A, B, C the exp coefficients:
     R = [[1 - B a^2, -A a, B a c], [A a, 1 - B x, -A c], [B a c, A c, 1 - B c^2]],
     p = sigma (1 - C a^2, B a, C a c).
-    Against the paper: this is its rotation matrix and its position vector with the
-    erratum corrected (y = R (1 - cos(dl/L)), model notes).
+    Several points of one segment share kappa_c, tau_c: only sigma changes.
     """
-    kappa_c, tau_c, lambda_c = center_rates(theta, lam, D)
-    sigma = length * lambda_c
     a = sigma * kappa_c
     c = sigma * tau_c
     x = a * a + c * c

@@ -1,0 +1,1 @@
+"""Reading the files of the command-line contract (spec/formats.md)."""

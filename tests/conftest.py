@@ -1,0 +1,29 @@
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from vine_nlp.design.problem import Routing
+from vine_nlp.model import shape_lines
+from vine_nlp.model.chain import segment_end_samples
+
+
+def model_target(M=12, n=5, D=2.0, seed=0, spam=False, seg_len=2.0):
+    """A target made by the forward model: smooth random routing, random pose.
+
+    Returns (points (M n + 1, 3), the true Routing)."""
+    rng = np.random.default_rng(seed)
+    s = np.linspace(0, 1, M)
+    theta = 0.5 * np.sin(2 * np.pi * (s * rng.uniform(0.5, 1.5) + rng.uniform()))
+    lam = np.full(M, 0.7) if spam else 0.7 + 0.2 * np.sin(2 * np.pi * (s + rng.uniform()))
+    length = np.full(M, seg_len)
+    T0 = np.eye(4)
+    T0[:3, :3] = Rotation.random(random_state=seed).as_matrix()
+    T0[:3, 3] = rng.normal(size=3) * 5
+    seg, frac = segment_end_samples(length, n)
+    center, _, _ = shape_lines(theta, lam, length, D, seg, frac, T0)
+    return center, Routing(theta, lam, length, T0)
+
+
+@pytest.fixture
+def make_target():
+    return model_target
