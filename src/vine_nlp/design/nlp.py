@@ -245,12 +245,15 @@ def _frames12(frames: np.ndarray) -> np.ndarray:
     return np.hstack([R, frames[:, :3, 3]]).T
 
 
-def solve_from(problem: DesignProblem, guess: Guess | None = None, pairing: Pairing | None = None, frames: str = "target") -> Result:
+def solve_from(
+    problem: DesignProblem, guess: Guess | None = None, pairing: Pairing | None = None, frames: str = "target", warm: bool = False
+) -> Result:
     """One IPOPT solve of the inverse-design NLP for ``problem`` from ``guess`` (default: the geometric guess).
 
     frames="target" starts the shooting frames on the target (multiple shooting's
     advantage: the error does not accumulate along the chain in the first iterate);
-    frames="chain" starts them on the chain of the guessed design.
+    frames="chain" starts them on the chain of the guessed design. ``warm`` uses the
+    solver variant that keeps a start close to the answer (IPOPT warm-start options).
     """
     from vine_nlp.model import chain_frames
 
@@ -261,7 +264,7 @@ def solve_from(problem: DesignProblem, guess: Guess | None = None, pairing: Pair
     M, n = pairing.segments, pairing.n
     shared = problem.actuator.shared_lambda
     t_build = time.perf_counter()
-    solver = get_solver(M, n, shared, o.max_iter, o.tol, frames == "chain")
+    solver = get_solver(M, n, shared, o.max_iter, o.tol, warm)
     build_time = time.perf_counter() - t_build
 
     # parameters, scaled by D
@@ -358,8 +361,8 @@ def start_guesses(problem: DesignProblem, pairing: Pairing, starts: int) -> list
 
 
 def _solve_start(args):
-    problem, guess, frames = args
-    return solve_from(problem, guess, frames=frames)
+    problem, guess, frames, warm = args
+    return solve_from(problem, guess, frames=frames, warm=warm)
 
 
 def guess_from_routing(problem: DesignProblem, pairing: Pairing, routing: Routing) -> Guess:
@@ -393,10 +396,10 @@ def design_nlp(problem: DesignProblem, starts: int | None = None, workers: int =
     """
     pairing = pair_points(problem.target, problem.options.points_per_segment)
     if warm is not None:
-        jobs = [(problem, guess_from_routing(problem, pairing, warm), "chain")]
+        jobs = [(problem, guess_from_routing(problem, pairing, warm), "chain", True)]
     else:
         n = max(1, problem.options.starts if starts is None else starts)
-        jobs = [(problem, g, "target") for g in start_guesses(problem, pairing, n)]
+        jobs = [(problem, g, "target", False) for g in start_guesses(problem, pairing, n)]
     t0 = time.perf_counter()
     results = []
     if workers > 1 and len(jobs) > 1:

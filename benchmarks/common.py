@@ -1,0 +1,61 @@
+"""Shared helpers of the benchmark scripts: machine description and section files.
+
+Each benchmark writes its own section to results/benchmarks/<name>.md; collect.py
+joins the sections into results/BENCHMARKS.md. Absolute times on a shared 2-core
+machine are noisy: compare ratios measured in the same run.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import platform
+import subprocess
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SECTIONS = ROOT / "results" / "benchmarks"
+FIGURES = ROOT / "results" / "figures"
+
+
+def machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    import casadi
+    import numpy
+
+    mem = ""
+    try:
+        kb = int(next(l for l in Path("/proc/meminfo").read_text().splitlines() if l.startswith("MemTotal")).split()[1])
+        mem = f", {kb / 2**20:.0f} GiB"
+    except (OSError, StopIteration, ValueError):
+        pass
+    try:
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    except OSError:
+        rev = "?"
+    return (
+        f"{cpu}, {os.cpu_count()} cores{mem}; Python {platform.python_version()}, casadi {casadi.__version__}, "
+        f"numpy {numpy.__version__}; commit {rev}; {_dt.datetime.now(_dt.timezone.utc).isoformat(timespec='minutes')}"
+    )
+
+
+def write_section(name: str, text: str) -> Path:
+    SECTIONS.mkdir(parents=True, exist_ok=True)
+    path = SECTIONS / f"{name}.md"
+    tmp = path.with_suffix(".md.tmp")
+    tmp.write_text(text.rstrip() + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def table(header, rows) -> str:
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(out)

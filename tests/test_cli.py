@@ -1,0 +1,130 @@
+"""The command line: exit codes, one-line errors, nothing written on bad input, bundled problems run."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from vine_nlp.front.cli import main
+from vine_nlp.io.archive import load_archive
+from vine_nlp.io.problem_file import load_problem
+from vine_nlp.model import chain_frames
+
+ROOT = Path(__file__).resolve().parents[1]
+PROBLEMS = ROOT / "problems"
+FORWARD = sorted(p for p in PROBLEMS.glob("*.toml") if load_problem(p).kind == "forward")
+DESIGN = sorted(p for p in PROBLEMS.glob("*.toml") if load_problem(p).kind == "design")
+
+
+def test_bundled_problems_present():
+    names = {p.stem for p in PROBLEMS.glob("*.toml")}
+    assert {"static-helix", "three-section-helix", "polynomial-phi", "sinusoidal-spam"} <= names
+    assert {"trefoil-m4", "bezier-a", "bezier-b", "bezier-c", "polyline-d", "spam-helix"} <= names
+
+
+@pytest.mark.parametrize("path", FORWARD, ids=lambda p: p.stem)
+def test_forward_bundled(path, tmp_path, capsys):
+    out = tmp_path / "f.h5"
+    assert main(["forward", str(path), "-o", str(out)]) == 0
+    a = load_archive(out)
+    assert a.kind == "forward" and list(a.runs) == ["forward"]
+    r = a.runs["forward"]
+    pf = load_problem(path)
+    assert a.source == pf.source
+    frames = chain_frames(r.routing.theta, r.routing.lam, r.routing.length, a.diameter, r.routing.initial_pose)
+    # rows 0 and P-1 are the base and the tip
+    np.testing.assert_allclose(r.shape.center[0], frames[0, :3, 3], atol=1e-12)
+    np.testing.assert_allclose(r.shape.center[-1], frames[-1, :3, 3], atol=1e-10)
+    with h5py.File(out) as h5:
+        assert h5.attrs["format"] == "vine_nlp/result" and h5.attrs["format_version"] == 1
+        assert h5["runs/forward/design/phi"].shape == (r.routing.segments + 1,)
+
+
+def test_static_helix_matches_table_one(tmp_path):
+    from vine_nlp.model import helix_forward
+
+    out = tmp_path / "h.h5"
+    assert main(["forward", str(PROBLEMS / "static-helix.toml"), "-o", str(out)]) == 0
+    r = load_archive(out).runs["forward"]
+    h = helix_forward(np.radians(10), 0.7, 2.62)
+    # the inner line of the uniform chain has the actuator line's length: lambda x 30.5 cm actuated
+    seg = np.linalg.norm(np.diff(r.shape.inner, axis=0), axis=1).sum()
+    assert seg == pytest.approx(0.7 * 30.5, rel=2e-3)
+    assert r.shape.center.shape[0] > 31
+    assert h.R_c > 0
+
+
+def test_design_command_writes_archive_and_reports(tmp_path, capsys):
+    out = tmp_path / "d.h5"
+    code = main(["design", str(PROBLEMS / "spam-helix.toml"), "-o", str(out)])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "RMSE" in text and "iterations" in text and "optimal" in text
+    a = load_archive(out)
+    r = a.runs["nlp"]
+    assert r.shape.center.shape == a.target.shape
+    assert np.ptp(r.routing.lam) == 0
+
+
+def test_exit_1_when_not_converged(tmp_path):
+    src = (PROBLEMS / "trefoil-m4.toml").read_text().replace("lookahead = 4", "lookahead = 4\nmax_iter = 1")
+    p = tmp_path / "p.toml"
+    p.write_text(src)
+    out = tmp_path / "d.h5"
+    assert main(["design", str(p), "-o", str(out)]) == 1
+    assert load_archive(out).runs["nlp"].status == "max_iter"  # the best point is still archived
+
+
+def _run(*args):
+    return subprocess.run([sys.executable, "-m", "vine_nlp", *map(str, args)], capture_output=True, text=True)
+
+
+def test_bad_input_one_line_exit_2_nothing_written(tmp_path):
+    p = tmp_path / "bad.toml"
+    p.write_text('name = "x"\n[tube]\ndiameter = -1\n[routing]\nlength = 5\nsegment_length = 1\ntheta = 0\nlambda = 0.5\n')
+    out = tmp_path / "o.h5"
+    r = _run("forward", p, "-o", out)
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == [f"error: {p}: tube.diameter: must be > 0"]
+    assert not out.exists()
+
+
+def test_refuses_to_overwrite_without_force(tmp_path):
+    out = tmp_path / "o.h5"
+    out.write_bytes(b"keep me")
+    r = _run("forward", PROBLEMS / "static-helix.toml", "-o", out)
+    assert r.returncode == 2
+    assert r.stderr.strip() == f"error: {out}: -o: exists; pass --force to overwrite it"
+    assert out.read_bytes() == b"keep me"
+    assert _run("forward", PROBLEMS / "static-helix.toml", "-o", out, "--force").returncode == 0
+    assert load_archive(out).kind == "forward"
+
+
+def test_missing_output_directory(tmp_path):
+    out = tmp_path / "nope" / "o.h5"
+    r = _run("forward", PROBLEMS / "static-helix.toml", "-o", out)
+    assert r.returncode == 2
+    assert r.stderr.strip() == f"error: {out}: -o: directory {str(out.parent)!r} does not exist"
+
+
+def test_wrong_problem_kind(tmp_path):
+    r = _run("forward", PROBLEMS / "trefoil-m4.toml", "-o", tmp_path / "o.h5")
+    assert r.returncode == 2
+    assert r.stderr.strip() == f"error: {PROBLEMS / 'trefoil-m4.toml'}: routing: a forward problem needs [routing] (this is a design problem)"
+
+
+def test_usage_errors_exit_2():
+    r = _run("frobnicate")
+    assert r.returncode == 2 and r.stderr.startswith("error: command line:") and len(r.stderr.strip().splitlines()) == 1
+    r = _run("design")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_help_lists_only_real_commands():
+    r = _run("--help")
+    assert r.returncode == 0
+    for cmd in ("forward", "design", "compare"):
+        assert cmd in r.stdout
