@@ -56,7 +56,7 @@ _STATUS = {
 }
 
 
-def _segment_function(n: int) -> ca.Function:
+def segment_function(n: int) -> ca.Function:
     """One segment, SX: (frame X_j (12), theta, lam, dl, fractions u (n)) -> (X_{j+1}, points (3 x n))."""
     X = ca.SX.sym("X", 12)  # rotation column-major (9), then position (3)
     theta, lam, dl = ca.SX.sym("theta"), ca.SX.sym("lam"), ca.SX.sym("dl")
@@ -141,7 +141,7 @@ class NLPSolver:
             dl = stages[2, :]
             Xnext = stages[3:, :]
         Xstart = ca.horzcat(X0, Xnext[:, : M - 1])
-        F = _segment_function(n).map(M, "serial")
+        F = segment_function(n).map(M, "serial")
         Xn, pts = F(Xstart, theta, lam, dl, P_u)
         g = ca.vec(Xn - Xnext)
         err = pts - P_tgt

@@ -1,14 +1,140 @@
-"""Figures of result archives."""
+"""Figures of result archives (``vine-nlp plot``).
+
+One figure per archive, laid out like the paper's Figs. 9 and 11:
+
+(a) 3-D view, one panel per run: the target (dashed black), the tube drawn at its
+    true diameter D (a translucent surface of circles around the center line,
+    built from the archived inner/outer lines), the actuator line (blue), the
+    opposite line (red, thin), the segment ends (dots) and, for design runs, the
+    center line colored by its distance to the paired target point;
+(b) design archives: error against length along the unactuated tube, one line per run;
+(c)-(e) theta(s) [deg] and lambda(s) (per segment, steps) and phi(s) [rad]
+    against length along the unactuated tube, every run overlaid, legend with
+    each run's RMSE.
+
+Sized for a two-column paper (7.16 in wide; a single run fits one 3.5 in column),
+fonts 7-8 pt, equal axis scaling in 3-D, units on every axis.
+"""
 
 from __future__ import annotations
+
+import math
+from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.cm import ScalarMappable  # noqa: E402
+from matplotlib.colors import Normalize  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
+from mpl_toolkits.mplot3d.art3d import Line3DCollection  # noqa: E402
 
-from vine_nlp.io.archive import load_archive, write_atomic  # noqa: E402
+from vine_nlp.front.show import ordered_runs, source_table  # noqa: E402
+from vine_nlp.io.archive import Archive, load_archive, write_atomic  # noqa: E402
+from vine_nlp.model import chain_frames, chain_points  # noqa: E402
+
+FORMATS = ("png", "pdf", "svg")
+ERROR_CMAP = "plasma"
+ACTUATOR_COLOR = "tab:blue"
+OPPOSITE_COLOR = "tab:red"
+TUBE_COLOR = "0.72"
+RUN_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink")
+RUN_STYLES = ("-", "--", ":", "-.")
+STYLE = {
+    "font.size": 8,
+    "axes.titlesize": 8,
+    "axes.labelsize": 8,
+    "xtick.labelsize": 7,
+    "ytick.labelsize": 7,
+    "legend.fontsize": 7,
+    "figure.titlesize": 9,
+    "axes.linewidth": 0.6,
+    "lines.linewidth": 1.0,
+    "xtick.major.width": 0.6,
+    "ytick.major.width": 0.6,
+}
+COLUMN_IN, PAGE_IN = 3.5, 7.16  # IEEE column and text widths
+
+
+# ------------------------------------------------------------------ helpers
+
+
+def segment_edges(routing) -> np.ndarray:
+    """s_j, j = 0..M: length along the unactuated tube at the segment ends."""
+    return np.concatenate([[0.0], np.cumsum(routing.length)])
+
+
+def is_paired(archive: Archive, result) -> bool:
+    """Design runs: shape row i pairs with target row i."""
+    return archive.target is not None and result.shape.center.shape == np.shape(archive.target)
+
+
+def error_along(archive: Archive, result) -> np.ndarray:
+    """Distance of each modeled center point to its paired target point."""
+    return np.linalg.norm(result.shape.center - archive.target, axis=1)
+
+
+def point_s(archive: Archive, result) -> np.ndarray:
+    """Length along the unactuated tube of each archived shape point.
+
+    Design runs pair target point k with fraction frac_k of segment seg_k
+    (design.common.pair_points); the pairing is rebuilt from the archived
+    ``points_per_segment`` (or the n consistent with M and N) and accepted only
+    if the model reproduces the archived center line there. Otherwise s is
+    estimated from the target's chord length (proportional to the tube length).
+    """
+    from vine_nlp.design.common import pair_points
+
+    r = result.routing
+    center = result.shape.center
+    N, M = center.shape[0], r.segments
+    S = segment_edges(r)
+    candidates = []
+    n0 = result.stats.get("points_per_segment")
+    if isinstance(n0, (int, float)) and n0 >= 1:
+        candidates.append(int(n0))
+    candidates += [n for n in range(max(1, (N - 1) // max(M, 1) - 1), N) if math.ceil((N - 1) / n) == M and n not in candidates]
+    frames = chain_frames(r.theta, r.lam, r.length, archive.diameter, r.initial_pose)
+    tol = 1e-6 * max(1.0, float(np.abs(center).max()))
+    for n in candidates[:8]:
+        try:
+            p = pair_points(archive.target, n)
+        except ValueError:
+            continue
+        if p.segments != M:
+            continue
+        pts, _ = chain_points(r.theta, r.lam, r.length, archive.diameter, p.seg, p.frac, frames=frames)
+        if np.abs(pts - center).max() <= tol:
+            return S[p.seg] + p.frac * r.length[p.seg]
+    chord = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(archive.target, axis=0), axis=1))])
+    return chord / max(chord[-1], 1e-300) * S[-1]
+
+
+def tube_surface(shape, diameter: float, around: int = 24, max_rows: int = 500):
+    """(X, Y, Z) grids of the tube wall: circles of diameter D around the center line.
+
+    center = (inner + outer)/2, normal = (inner - outer)/D, tangent from the center
+    line (made normal to the normal), binormal = tangent x normal.
+    """
+    inner, outer = np.asarray(shape.inner, float), np.asarray(shape.outer, float)
+    rows = np.arange(inner.shape[0])
+    if rows.size > max_rows:
+        rows = np.unique(np.linspace(0, rows.size - 1, max_rows).round().astype(int))
+    inner, outer = inner[rows], outer[rows]
+    center = 0.5 * (inner + outer)
+    normal = (inner - outer) / diameter
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+    tangent = np.gradient(center, axis=0) if len(center) > 1 else np.tile([1.0, 0, 0], (1, 1))
+    tangent = tangent - np.sum(tangent * normal, axis=1, keepdims=True) * normal
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
+    binormal = np.cross(tangent, normal)
+    a = np.linspace(0.0, 2.0 * np.pi, around + 1)
+    ring = np.cos(a)[None, :, None] * normal[:, None, :] + np.sin(a)[None, :, None] * binormal[:, None, :]
+    wall = center[:, None, :] + 0.5 * diameter * ring
+    return wall[..., 0], wall[..., 1], wall[..., 2]
 
 
 def set_equal_3d(ax, points):
@@ -22,33 +148,221 @@ def set_equal_3d(ax, points):
     ax.set_box_aspect((1, 1, 1))
 
 
-def plot_shape_3d(ax, archive):
-    """Center line with the actuator (inner, blue) and opposite (outer, red) lines, as in the paper's Fig. 3."""
+def fmt_len(value: float, units: str) -> str:
+    return f"{value:.3g} {units}"
+
+
+# ------------------------------------------------------------------ panels
+
+
+def plot_shape_3d(ax, archive: Archive, name: str, norm=None, cmap=ERROR_CMAP, legend: bool = True):
+    """One run in 3-D: target, tube wall at true diameter, actuator/opposite lines, error-colored center line."""
     u = archive.units
-    everything = []
+    D = archive.diameter
+    r = archive.runs[name]
+    everything = [r.shape.inner, r.shape.outer]
+    handles = []
     if archive.target is not None:
-        ax.plot(*archive.target.T, "k--", lw=1.0, label="target")
+        handles += ax.plot(*archive.target.T, "k--", lw=0.9, label="target", zorder=4)
         everything.append(archive.target)
-    for name, r in archive.runs.items():
-        c = ax.plot(*r.shape.center.T, lw=2.0, label=f"{name}: center line")[0].get_color()
-        ax.plot(*r.shape.inner.T, color="tab:blue", lw=0.8, label=f"{name}: actuator line" if len(archive.runs) == 1 else None)
-        ax.plot(*r.shape.outer.T, color="tab:red", lw=0.5, alpha=0.6)
-        ax.scatter(*r.shape.center[0], color=c, marker="o", s=20)
-        everything += [r.shape.inner, r.shape.outer]
-    ax.set_xlabel(f"x [{u}]")
-    ax.set_ylabel(f"y [{u}]")
-    ax.set_zlabel(f"z [{u}]")
+    measured = archive.extra.get("measured/points")
+    if measured is not None:
+        handles.append(ax.scatter(*np.asarray(measured).T, s=2, color="0.35", depthshade=False, label="measured"))
+        everything.append(measured)
+    X, Y, Z = tube_surface(r.shape, D)
+    wall = ax.plot_surface(X, Y, Z, color=TUBE_COLOR, alpha=0.22, linewidth=0, edgecolor="none", antialiased=False,
+                           shade=True, rstride=1, cstride=1)
+    wall.set_rasterized(True)  # thousands of facets: an image inside vector (pdf) output
+    handles += ax.plot(*r.shape.inner.T, color=ACTUATOR_COLOR, lw=1.1, label="actuator line")
+    ax.plot(*r.shape.outer.T, color=OPPOSITE_COLOR, lw=0.5, alpha=0.7)
+    center = r.shape.center
+    if norm is not None and is_paired(archive, r):
+        err = error_along(archive, r)
+        segs = np.stack([center[:-1], center[1:]], axis=1)
+        lc = Line3DCollection(segs, cmap=cmap, norm=norm, linewidths=1.6)
+        lc.set_array(0.5 * (err[:-1] + err[1:]))
+        ax.add_collection3d(lc)
+    else:
+        ax.plot(*center.T, color="0.25", lw=0.8, label="center line")
+    ends = chain_frames(r.routing.theta, r.routing.lam, r.routing.length, D, r.routing.initial_pose)[:, :3, 3]
+    handles.append(ax.scatter(*ends.T, s=3, color="k", depthshade=False, label="segment ends"))
+    ax.scatter(*center[0], s=14, color="k", marker="s", depthshade=False)
+    ax.set_xlabel(f"x [{u}]", labelpad=-2)
+    ax.set_ylabel(f"y [{u}]", labelpad=-2)
+    ax.set_zlabel(f"z [{u}]", labelpad=-3)
+    ax.tick_params(axis="both", pad=-1)
+    for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+        axis.set_major_locator(MaxNLocator(5))
     set_equal_3d(ax, everything)
-    ax.legend(loc="upper left", fontsize=7)
+    for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+        axis.pane.set_alpha(0.0)
+        axis._axinfo["grid"]["linewidth"] = 0.3
+    if legend:
+        ax.legend(handles=handles, loc="upper left", fontsize=7, frameon=False, handlelength=1.5, borderaxespad=0.0)
+    return ax
+
+
+def run_label(archive: Archive, name: str) -> str:
+    r = archive.runs[name]
+    if "rmse" in r.metrics:
+        return f"{name} (RMSE {fmt_len(r.metrics['rmse'], archive.units)})"
+    return name
+
+
+def _bound_lines(ax, values, bounds):
+    """Dotted bound lines that do not stretch the axis: shown where the data come near them."""
+    lo, hi = float(np.min(values)), float(np.max(values))
+    pad = 0.08 * max(hi - lo, 1e-3 * max(abs(hi), 1.0), 1e-9)
+    lo, hi = lo - pad, hi + pad
+    for b in bounds:
+        if lo - 3 * pad <= b <= hi + 3 * pad:
+            ax.axhline(b, color="0.45", lw=0.7, ls=":")
+            lo, hi = min(lo, b - 0.5 * pad), max(hi, b + 0.5 * pad)
+    ax.set_ylim(lo, hi)
+
+
+def plot_parameters(axes, archive: Archive, names, colors, styles=None, legend: bool = True):
+    """theta(s), lambda(s) as per-segment steps and phi(s) (piecewise linear) for every run,
+    against length along the unactuated tube; dotted lines: the problem's bounds."""
+    ax_t, ax_l, ax_p = axes
+    styles = styles or {}
+    u = archive.units
+    thetas, lams = [], []
+    for name in names:
+        r = archive.runs[name]
+        S = segment_edges(r.routing)
+        kw = dict(color=colors[name], ls=styles.get(name, "-"), lw=1.0)
+        ax_t.stairs(np.degrees(r.routing.theta), S, baseline=None, label=run_label(archive, name), **kw)
+        ax_l.stairs(r.routing.lam, S, baseline=None, label=run_label(archive, name), **kw)
+        ax_p.plot(S, r.phi, label=run_label(archive, name), **kw)
+        thetas.append(np.degrees(r.routing.theta))
+        lams.append(r.routing.lam)
+    act = source_table(archive, "actuator")
+    th_max = act.get("theta_max_deg")
+    lam_min = act.get("lambda_min")
+    ax_t.axhline(0.0, color="0.6", lw=0.4)
+    if thetas:
+        _bound_lines(ax_t, np.concatenate(thetas), [s * float(th_max) for s in (-1, 1)] if _number(th_max) else [])
+        _bound_lines(ax_l, np.concatenate(lams + [[1.0]]), [float(lam_min)] if _number(lam_min) else [])
+    ax_l.axhline(1.0, color="0.6", lw=0.4)
+    ax_t.set_ylabel(r"$\theta$ [deg]")
+    ax_l.set_ylabel(r"$\lambda$ [-]")
+    ax_p.set_ylabel(r"$\phi$ [rad]")
+    for ax in axes:
+        ax.set_xlabel(f"s along unactuated tube [{u}]")
+        ax.set_xlim(left=0.0)
+        ax.grid(True, lw=0.3, color="0.85")
+    if legend:
+        ax_t.legend(loc="best", frameon=False, handlelength=1.8)
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def plot_error(ax, archive: Archive, names, colors, styles=None):
+    """Distance to the target against length along the unactuated tube (paper Fig. 12(d))."""
+    styles = styles or {}
+    u = archive.units
+    for name in names:
+        r = archive.runs[name]
+        if not is_paired(archive, r):
+            continue
+        ax.plot(point_s(archive, r), error_along(archive, r), color=colors[name], ls=styles.get(name, "-"), lw=1.0,
+                label=run_label(archive, name))
+    ax.set_xlabel(f"s along unactuated tube [{u}]")
+    ax.set_ylabel(f"error to target [{u}]")
+    ax.set_xlim(left=0.0)
+    ax.set_ylim(bottom=0.0)
+    ax.grid(True, lw=0.3, color="0.85")
+    ax.legend(loc="best", frameon=False, handlelength=1.8)
+
+
+# ------------------------------------------------------------------ figure
+
+
+def plot_archive(archive) -> Figure:
+    """The figure of an archive (an Archive or a path to one).
+
+    Layouts: one run without target (forward): a 3.5 in column, 3-D view over the
+    theta, lambda, phi panels. One design run: 7.16 in, 3-D view and error in the
+    first row, theta, lambda, phi in the second. Several runs (``compare``): one
+    3-D view per run (at most three) over error, theta, lambda, phi in a 2 x 2 grid.
+    """
+    if not isinstance(archive, Archive):
+        archive = load_archive(archive)
+    names = ordered_runs(archive)
+    colors = {n: RUN_COLORS[i % len(RUN_COLORS)] for i, n in enumerate(names)}
+    styles = {n: RUN_STYLES[i % len(RUN_STYLES)] for i, n in enumerate(names)}
+    paired = [n for n in names if is_paired(archive, archive.runs[n])]
+    shown3d = names[:3]
+    k = len(shown3d)
+    err_max = max((float(error_along(archive, archive.runs[n]).max()) for n in paired), default=0.0)
+    norm = Normalize(0.0, err_max if err_max > 0 else 1.0) if paired else None
+    with plt.rc_context(STYLE):
+        if k <= 1 and not paired:
+            fig = Figure(figsize=(COLUMN_IN, 2.9 + 3 * 1.45), layout="constrained")
+            gs = fig.add_gridspec(4, 1, height_ratios=[2.9, 1.45, 1.45, 1.45])
+            top, cells3d = gs[0], [gs[0]]
+            ax_e = None
+            cells = [gs[1], gs[2], gs[3]]
+        elif k <= 1:
+            fig = Figure(figsize=(PAGE_IN, 3.2 + 1.75), layout="constrained")
+            gs = fig.add_gridspec(2, 1, height_ratios=[3.2, 1.75])
+            row = gs[0].subgridspec(1, 2, width_ratios=[1.25, 1.0])
+            cells3d = [row[0]]
+            ax_e = fig.add_subplot(row[1])
+            low = gs[1].subgridspec(1, 3)
+            cells = [low[0], low[1], low[2]]
+        else:
+            h3d = 3.2 if k == 2 else 2.5
+            fig = Figure(figsize=(PAGE_IN, h3d + 2 * 1.55), layout="constrained")
+            gs = fig.add_gridspec(2, 1, height_ratios=[h3d, 2 * 1.55])
+            row = gs[0].subgridspec(1, k)
+            cells3d = [row[i] for i in range(k)]
+            low = gs[1].subgridspec(2, 2)
+            ax_e = fig.add_subplot(low[0, 0]) if paired else None
+            cells = [low[0, 1], low[1, 0], low[1, 1]] if paired else [low[0, 0], low[0, 1], low[1, 0]]
+        fig.get_layout_engine().set(h_pad=0.02, w_pad=0.02, hspace=0.04, wspace=0.04)
+        axes3d = []
+        for i, name in enumerate(shown3d):
+            ax = fig.add_subplot(cells3d[i], projection="3d")
+            plot_shape_3d(ax, archive, name, norm=norm, legend=(i == 0))
+            r = archive.runs[name]
+            title = f"({chr(ord('a') + i)}) {name}"
+            if "rmse" in r.metrics and "max_error" in r.metrics:
+                title += f": RMSE {fmt_len(r.metrics['rmse'], archive.units)}, max {fmt_len(r.metrics['max_error'], archive.units)}"
+            ax.set_title(title, pad=0)
+            axes3d.append(ax)
+        if norm is not None:
+            cb = fig.colorbar(ScalarMappable(norm=norm, cmap=ERROR_CMAP), ax=axes3d, shrink=0.7, pad=0.06, aspect=25)
+            cb.set_label(f"center-line error to target [{archive.units}]")
+        first = ax_e if ax_e is not None else None
+        ax_t = fig.add_subplot(cells[0], sharex=first)
+        ax_l = fig.add_subplot(cells[1], sharex=ax_t)
+        ax_p = fig.add_subplot(cells[2], sharex=ax_t)
+        panels = [ax_t, ax_l, ax_p]
+        if ax_e is not None:
+            plot_error(ax_e, archive, names, colors, styles)
+            panels.insert(0, ax_e)
+        plot_parameters((ax_t, ax_l, ax_p), archive, names, colors, styles, legend=ax_e is None)
+        for i, ax in enumerate(panels):
+            ax.set_title(f"({chr(ord('a') + k + i)})", loc="left", pad=2)
+        fig.suptitle(f"{archive.name} ({archive.kind}), D = {fmt_len(archive.diameter, archive.units)}")
+    return fig
+
+
+def figure_format(figure_path) -> str:
+    fmt = Path(figure_path).suffix.lower().lstrip(".")
+    if fmt not in FORMATS:
+        raise ValueError(f"{figure_path}: figure format must be one of {', '.join('.' + f for f in FORMATS)}")
+    return fmt
 
 
 def plot_archive_file(archive_path, figure_path):
-    archive = load_archive(archive_path)
-    fig = plt.figure(figsize=(6, 5.5))
-    ax = fig.add_subplot(111, projection="3d")
-    plot_shape_3d(ax, archive)
-    ax.set_title(f"{archive.name} ({archive.kind})", fontsize=9)
-    fig.tight_layout()
-    suffix = str(figure_path).rsplit(".", 1)[-1]
-    write_atomic(figure_path, lambda tmp: fig.savefig(tmp, dpi=150, format=suffix))
-    plt.close(fig)
+    """Draw the archive at ``archive_path`` into ``figure_path`` (.png or .pdf, chosen by suffix), atomically."""
+    fmt = figure_format(figure_path)
+    fig = plot_archive(load_archive(archive_path))
+    with plt.rc_context(STYLE):
+        write_atomic(figure_path, lambda tmp: fig.savefig(tmp, dpi=300, format=fmt))
+    return Path(figure_path)
