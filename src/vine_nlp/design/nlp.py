@@ -103,7 +103,9 @@ class _Layout:
 class NLPSolver:
     """The NLP of one structure, built once; ``solve`` runs IPOPT from a given guess."""
 
-    def __init__(self, M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False):
+    def __init__(
+        self, M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False, hessian: str = "exact"
+    ):
         t0 = time.perf_counter()
         self.M, self.n, self.shared = M, n, shared_lambda
         lay = self.layout = _Layout(M, shared_lambda)
@@ -153,6 +155,20 @@ class NLPSolver:
                 smooth += P_smooth[1] * ca.sum1(ca.diff(lam.T) ** 2 / P_h) / P_L
         f = fit + smooth
         p = ca.vertcat(*[ca.vec(q) for q in params])
+        if hessian == "gauss-newton":
+            # f = |r|^2 with r the weighted residuals; H ~ 2 J^T J ignores the constraint curvature
+            # (generalized Gauss-Newton): always positive semidefinite, cheap, linear convergence
+            # on large-residual targets
+            res = [ca.vec(ca.repmat(ca.sqrt(P_w), 3, 1) * err), ca.sqrt(P_wtip) * (Xnext[9:, M - 1] - P_tip)]
+            if M > 1:
+                res.append(ca.sqrt(P_smooth[0] / (P_h * P_L)) * ca.diff(theta.T))
+                if not shared_lambda:
+                    res.append(ca.sqrt(P_smooth[1] / (P_h * P_L)) * ca.diff(lam.T))
+            J = ca.jacobian(ca.vertcat(*res), x)
+            sigma = ca.MX.sym("lam_f")
+            lam_g = ca.MX.sym("lam_g", g.size1())
+            H = sigma * ca.triu(2 * ca.mtimes(J.T, J))
+            hess_fn = ca.Function("nlp_hess_l", [x, p, sigma, lam_g], [H], ["x", "p", "lam_f", "lam_g"], ["hess_gamma_x_x"])
         opts = {
             "ipopt.print_level": 0,
             "print_time": False,
@@ -176,6 +192,8 @@ class NLPSolver:
                 "ipopt.warm_start_mult_bound_push": 1e-9,
                 "ipopt.warm_start_slack_bound_push": 1e-9,
             })
+        if hessian == "gauss-newton":
+            opts["hess_lag"] = hess_fn
         self.solver = ca.nlpsol("vine_nlp", "ipopt", {"x": x, "p": p, "f": f, "g": g}, opts)
         self._terms = ca.Function("terms", [x, p], [fit, smooth])
         self.build_time_s = time.perf_counter() - t0
@@ -234,9 +252,11 @@ class NLPSolver:
 
 
 @lru_cache(maxsize=16)
-def get_solver(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False) -> NLPSolver:
+def get_solver(
+    M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False, hessian: str = "exact"
+) -> NLPSolver:
     """Cached solver per structure: building costs more than one solve."""
-    return NLPSolver(M, n, shared_lambda, max_iter, tol, warm)
+    return NLPSolver(M, n, shared_lambda, max_iter, tol, warm, hessian)
 
 
 def _frames12(frames: np.ndarray) -> np.ndarray:
@@ -264,7 +284,7 @@ def solve_from(
     M, n = pairing.segments, pairing.n
     shared = problem.actuator.shared_lambda
     t_build = time.perf_counter()
-    solver = get_solver(M, n, shared, o.max_iter, o.tol, warm)
+    solver = get_solver(M, n, shared, o.max_iter, o.tol, warm, o.hessian)
     build_time = time.perf_counter() - t_build
 
     # parameters, scaled by D

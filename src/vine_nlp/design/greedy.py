@@ -1,0 +1,541 @@
+"""The paper's greedy look-ahead design (Algorithm 1), as a faithful baseline for the NLP.
+
+Algorithm (Blumenschein et al., IEEE T-RO 2021, Sec. VI-B):
+
+* Window 1 fits the initial pose T^0_w (a rotation vector relative to the
+  geometric guess's rotation, via ``so3_exp``, plus a position) and segments
+  1..k together.
+* For each following segment j, a window of k segments starting at j is refit
+  with everything before it held fixed: the frame at segment j's start is a
+  fixed numeric parameter, computed from the already fixed segments. Near the
+  tip the windows shrink (segments j..M), so there are M windows in all.
+* After window j, segment j is fixed at its fitted values; the window's other
+  values become the initial values of the next window (paper: "subsequent
+  segments use the best fits from the look ahead"). The one segment that enters
+  a window for the first time starts from its fitted neighbour's theta and
+  lambda, with its length scaled to its own target chord.
+* First-window initial values as in the paper: lambda 0.75, theta 0,
+  dl = target chord of the segment; initial pose from ``geometric_guess``.
+
+Shared with the NLP (``design.nlp``) so that a comparison is about the algorithm:
+the point pairing (``common.pair_points``: target point k pairs with segment
+seg[k] at fraction frac[k], the tip with the end of the last segment), the
+bounds (``common.variable_bounds``), the segment model (``segment_parts`` on
+CasADi SX) and the error. The window error is the sum of SQUARED distances of
+all paired target points from the window's first segment start to its last
+segment end (inclusive): it replaces the paper's sum of distances, which is not
+differentiable at a perfect fit, and it is what the NLP minimizes
+(``common.path_error``). The paper's sum of distances is used only for the sPAM
+abandonment test, where its threshold is defined.
+
+Window solver: each window is a small single-shooting NLP (k segments x n
+slots, SX), built ONCE per window size (and per first-window / later-window and
+per-segment / shared lambda) as ``nlpsol("ipopt")`` with the target slots,
+fractions, weights and start frame as parameters, then reused for every window.
+Lengths are scaled by D inside, so the tolerances mean the same for every tube.
+
+Multi-start (stands in for MATLAB's GlobalSearch with 2000 / 300 trial points):
+each window is solved from ``options.greedy_starts`` starts (the first window
+from ``4 * greedy_starts``): start 0 is the carried-over initial values, the
+others draw theta and lambda uniformly inside the bounds, in a box of half-width
+``SPREAD`` x (bound range) around the carried-over values, from
+``numpy.random.default_rng(options.seed)``. The best start is kept.
+
+Cost: window solves = starts x windows = greedy_starts * (M + 3) for M segments
+(e.g. trefoil, 400 points, n = 10: M = 40, default greedy_starts = 8 -> 344
+small IPOPT solves). The sPAM variant multiplies this by the number of lambda
+candidates that are not abandoned early (11 + up to 4 refinement values).
+
+sPAM (one shared lambda): lambda is not a window variable. An outer loop runs
+the greedy for each candidate in linspace(lambda_min, 1, 11), then for 5 values
+within +-half a step of the best; a candidate is abandoned as soon as a window's
+sum of distances reaches n k D / 2 (the paper's early stop: on average the
+radius at each of the n k points). The best completed design is kept.
+
+``lowpass`` is the paper's optional low-pass filter of theta(s) and lambda(s)
+after the fit (zero-phase Butterworth), re-evaluated so its cost in RMSE shows.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from functools import lru_cache
+from typing import Callable
+
+import casadi as ca
+import numpy as np
+
+from vine_nlp.design.common import (
+    Pairing,
+    clip_to_bounds,
+    evaluate,
+    geometric_guess,
+    pair_points,
+    variable_bounds,
+)
+from vine_nlp.design.problem import DesignProblem, Routing
+from vine_nlp.design.result import Result
+from vine_nlp.model.segment import segment_parts, segment_transform, so3_exp
+
+__all__ = ["design_greedy", "lowpass", "window_error", "WindowSolver", "get_window_solver"]
+
+LAMBDA_START = 0.75  # paper: lambda_{1:k,0} = 0.75
+SPREAD = 0.5  # random starts: half-width of the box around the carried-over values, x bound range
+FIRST_WINDOW_FACTOR = 4  # the first window gets this many times the starts (paper: 2000 vs 300)
+WINDOW_MAX_ITER = 200  # a window has <= 3k + 6 variables: a start that needs more is a bad start
+SPAM_CANDIDATES = 11  # linspace(lambda_min, 1, 11)
+SPAM_REFINE = 5  # second pass: 5 values within +-half a step of the best
+FILTER_ORDER = 2
+
+_STATUS = {
+    "Solve_Succeeded": "optimal",
+    "Solved_To_Acceptable_Level": "acceptable",
+    "Maximum_Iterations_Exceeded": "max_iter",
+    "Maximum_CpuTime_Exceeded": "max_time",
+    "Restoration_Failed": "restoration_failed",
+    "Infeasible_Problem_Detected": "infeasible",
+    "Invalid_Number_Detected": "invalid_number",
+    "Error_In_Step_Computation": "step_failed",
+    "Search_Direction_Becomes_Too_Small": "small_step",
+}
+
+
+# ---------------------------------------------------------------------------------------------
+# The window NLP
+# ---------------------------------------------------------------------------------------------
+
+
+class WindowSolver:
+    """Single-shooting NLP of one window: K segments, n slots per segment, D = 1.
+
+    Decision vector: [w (3), dp (3)] if ``first`` (pose: rotation vector relative to
+    the parameter R0, position offset from the parameter p0), then per segment
+    theta, lambda (unless ``shared``), dl.
+    Parameters: R0 (9, column-major), p0 (3), slot targets (3 x nK), slot weights
+    (nK), slot fractions (n x K), end target (3), lambda (1; used when ``shared``).
+    Objective: sum_slots w |r - r_d|^2 + |r_end - r_end,d|^2 (D-scaled).
+    """
+
+    def __init__(self, K: int, n: int, first: bool, shared: bool, max_iter: int = WINDOW_MAX_ITER, tol: float = 1e-8):
+        t0 = time.perf_counter()
+        self.K, self.n, self.first, self.shared = K, n, first, shared
+        self.per_seg = 2 if shared else 3
+        self.npose = 6 if first else 0
+        self.size = self.npose + self.per_seg * K
+        x = ca.SX.sym("x", self.size)
+        P_R0 = ca.SX.sym("R0", 9)
+        P_p0 = ca.SX.sym("p0", 3)
+        P_tgt = ca.SX.sym("tgt", 3, n * K)
+        P_w = ca.SX.sym("w", n * K)
+        P_u = ca.SX.sym("u", n, K)
+        P_end = ca.SX.sym("end", 3)
+        P_lam = ca.SX.sym("lam")
+        params = [P_R0, P_p0, P_tgt, P_w, P_u, P_end, P_lam]
+        self._param_sizes = [q.numel() for q in params]
+
+        R = ca.reshape(P_R0, 3, 3)
+        p = P_p0
+        if first:
+            R = ca.mtimes(R, so3_exp(x[0:3]))
+            p = p + x[3:6]
+        sq = 0
+        dist = 0
+        for c in range(K):
+            off = self.npose + self.per_seg * c
+            theta = x[off]
+            lam = P_lam if shared else x[off + 1]
+            dl = x[off + self.per_seg - 1]
+            for s in range(n):
+                _, q = segment_parts(theta, lam, P_u[s, c] * dl, 1.0)
+                d = p + ca.mtimes(R, ca.vertcat(*q)) - P_tgt[:, c * n + s]
+                d2 = ca.dot(d, d)
+                sq += P_w[c * n + s] * d2
+                dist += P_w[c * n + s] * ca.sqrt(d2)
+            Rs, ps = segment_parts(theta, lam, dl, 1.0)
+            p = p + ca.mtimes(R, ca.vertcat(*ps))
+            R = ca.mtimes(R, ca.vertcat(*[ca.horzcat(*row) for row in Rs]))
+        d = p - P_end
+        sq += ca.dot(d, d)
+        dist += ca.sqrt(ca.dot(d, d))
+        pvec = ca.vertcat(*[ca.vec(q) for q in params])
+        # the n slots of a segment repeat its helix rates: merging them speeds up the build
+        sq, dist = ca.vertsplit(ca.cse(ca.vertcat(sq, dist)))
+        opts = {
+            "ipopt.print_level": 0,
+            "print_time": False,
+            "ipopt.sb": "yes",
+            "ipopt.max_iter": int(max_iter),
+            "ipopt.tol": float(tol),
+            "ipopt.acceptable_tol": 1e-6,
+        }
+        self.solver = ca.nlpsol(f"greedy_window_{K}", "ipopt", {"x": x, "p": pvec, "f": sq}, opts)
+        self.terms = ca.Function("window_terms", [x, pvec], [sq, dist])
+        self.build_time_s = time.perf_counter() - t0
+
+    # -- packing ---------------------------------------------------------------------------------
+
+    def pack_params(self, R0, p0, tgt, w, u, end, lam) -> np.ndarray:
+        vals = [np.asarray(R0, float).ravel(order="F"), p0, np.asarray(tgt, float).ravel(order="F"), w,
+                np.asarray(u, float).ravel(order="F"), end, [lam]]
+        out = np.concatenate([np.asarray(v, float).ravel() for v in vals])
+        assert out.size == sum(self._param_sizes)
+        return out
+
+    def pack_x(self, theta, lam, dl, pose=None) -> np.ndarray:
+        cols = [theta, dl] if self.shared else [theta, lam, dl]
+        x = np.vstack([np.asarray(c, float).reshape(-1) for c in cols]).ravel(order="F")
+        if self.first:
+            x = np.concatenate([np.zeros(6) if pose is None else pose, x])
+        return x
+
+    def unpack_x(self, x):
+        x = np.asarray(x, float).ravel()
+        pose = x[: self.npose]
+        st = x[self.npose :].reshape(self.per_seg, self.K, order="F")
+        theta, dl = st[0], st[-1]
+        lam = None if self.shared else st[1]
+        return pose, theta, lam, dl
+
+    def bounds(self, lo, hi):
+        """Box bounds from per-segment (theta, lam, dl) bounds of the window's segments (scaled)."""
+        rows = [0, 2] if self.shared else [0, 1, 2]
+        lbx = np.vstack([lo[r] for r in rows]).ravel(order="F")
+        ubx = np.vstack([hi[r] for r in rows]).ravel(order="F")
+        if self.first:
+            lbx = np.concatenate([np.full(6, -np.inf), lbx])
+            ubx = np.concatenate([np.full(6, np.inf), ubx])
+        return lbx, ubx
+
+
+@lru_cache(maxsize=64)
+def get_window_solver(K: int, n: int, first: bool, shared: bool, max_iter: int = WINDOW_MAX_ITER, tol: float = 1e-8) -> WindowSolver:
+    """Cached window solver: one per window size and variant, reused for every window."""
+    return WindowSolver(K, n, first, shared, max_iter, tol)
+
+
+def _window_data(problem: DesignProblem, pairing: Pairing, j: int, K: int):
+    """Slot targets, weights and fractions (D-scaled) of the window of segments j..j+K-1.
+
+    Segment i's slots hold the target points bounds[i] .. bounds[i+1]-1 (seg == i);
+    the window's end point bounds[j+K] pairs with the end of segment j+K-1 (for the
+    tip this is the pairing's own rule; elsewhere it is the start of segment j+K,
+    the same point).
+    """
+    n, D = pairing.n, problem.diameter
+    b = pairing.bounds
+    tgt = np.zeros((3, n * K))
+    w = np.zeros(n * K)
+    u = np.zeros((n, K))
+    for c in range(K):
+        i = j + c
+        idx = np.arange(b[i], b[i + 1])
+        assert np.all(pairing.seg[idx] == i)
+        s = idx - b[i]
+        tgt[:, c * n + s] = problem.target[idx].T / D
+        w[c * n + s] = 1.0
+        u[s, c] = pairing.frac[idx]
+    end = problem.target[b[j + K]] / D
+    return tgt, w, u, end
+
+
+def _window_solver_for(problem, n, K, first):
+    o = problem.options
+    return get_window_solver(K, n, first, problem.actuator.shared_lambda,
+                             min(int(o.max_iter), WINDOW_MAX_ITER), float(o.tol))
+
+
+def window_error(problem: DesignProblem, routing: Routing, j: int, K: int, pairing: Pairing | None = None):
+    """(sum of squared distances, sum of distances) of ``routing`` on the window j..j+K-1,
+    evaluated with the window NLP's own CasADi expression (unscaled, in problem units).
+
+    The first number is what the window solves minimize; it equals
+    ``common.path_error`` of the paired points bounds[j] .. bounds[j+K].
+    """
+    pairing = pairing or pair_points(problem.target, problem.options.points_per_segment)
+    D = problem.diameter
+    first = j == 0
+    solver = _window_solver_for(problem, pairing.n, K, first)
+    frames = _frames(routing, D, j)
+    T = frames[-1]
+    tgt, w, u, end = _window_data(problem, pairing, j, K)
+    lam_fixed = float(routing.lam[0]) if problem.actuator.shared_lambda else 0.0
+    p = solver.pack_params(T[:3, :3], T[:3, 3] / D, tgt, w, u, end, lam_fixed)
+    sl = slice(j, j + K)
+    x = solver.pack_x(routing.theta[sl], routing.lam[sl], routing.length[sl] / D)
+    sq, dist = solver.terms(x, p)
+    return float(sq) * D**2, float(dist) * D
+
+
+def _frames(routing: Routing, D: float, j: int):
+    """Frames T^0_w .. T^j_w of the routing's first j segments (numpy)."""
+    T = [np.asarray(routing.initial_pose, float)]
+    if j:
+        steps = segment_transform(routing.theta[:j], routing.lam[:j], routing.length[:j], D)
+        for s in steps:
+            T.append(T[-1] @ s)
+    return T
+
+
+# ---------------------------------------------------------------------------------------------
+# One greedy pass
+# ---------------------------------------------------------------------------------------------
+
+
+class _Counter:
+    def __init__(self, total: int, progress: Callable | None):
+        self.done, self.total, self.progress = 0, total, progress
+
+    def step(self, k: int = 1):
+        if k <= 0:
+            return
+        self.done = min(self.total, self.done + k)
+        if self.progress is not None:
+            self.progress(self.done, self.total)
+
+
+def _greedy_pass(problem: DesignProblem, pairing: Pairing, counter: _Counter, lam_fixed: float | None = None,
+                 abandon_at: float | None = None) -> dict:
+    """Algorithm 1 once (per-segment lambda, or a fixed shared lambda when ``lam_fixed`` is given)."""
+    o = problem.options
+    D = problem.diameter
+    M, k = pairing.segments, max(1, int(o.lookahead))
+    shared = lam_fixed is not None
+    rng = np.random.default_rng(o.seed)
+    (tl, ll, dlo), (tu, lu, dhi) = variable_bounds(problem, pairing)
+    chord = pairing.segment_chord
+
+    theta = np.zeros(M)
+    lam = np.full(M, float(lam_fixed) if shared else LAMBDA_START)
+    dl = chord.copy()
+    theta, lam, dl = clip_to_bounds(theta, lam, dl, problem, pairing)
+    guess = geometric_guess(problem, pairing)
+    T = guess.initial_pose.copy()  # frame at the current window's start (fixed numeric parameter)
+    T0 = T.copy()
+
+    starts_first = FIRST_WINDOW_FACTOR * max(1, int(o.greedy_starts))
+    starts_later = max(1, int(o.greedy_starts))
+    solves = iterations = 0
+    statuses: dict = {}
+    window_status = []
+    window_sq, window_dist = [], []
+    abandoned = False
+    for j in range(M):
+        K = min(k, M - j)
+        first = j == 0
+        solver = _window_solver_for(problem, pairing.n, K, first)
+        sl = slice(j, j + K)
+        tgt, w, u, end = _window_data(problem, pairing, j, K)
+        p = solver.pack_params(T[:3, :3], T[:3, 3] / D, tgt, w, u, end, lam_fixed if shared else 0.0)
+        lo = (tl[sl], ll[sl], dlo[sl] / D)
+        hi = (tu[sl], lu[sl], dhi[sl] / D)
+        lbx, ubx = solver.bounds(lo, hi)
+        x_carry = np.clip(solver.pack_x(theta[sl], lam[sl], dl[sl] / D), lbx, ubx)
+        best = None
+        for s in range(starts_first if first else starts_later):
+            x0 = x_carry.copy()
+            if s > 0:
+                # theta and lambda uniformly in a box around the carried-over values, inside the bounds
+                rows = [0] if shared else [0, 1]
+                for r in rows:
+                    idx = solver.npose + r + solver.per_seg * np.arange(K)
+                    half = SPREAD * (ubx[idx] - lbx[idx])
+                    x0[idx] = rng.uniform(np.maximum(lbx[idx], x_carry[idx] - half), np.minimum(ubx[idx], x_carry[idx] + half))
+            sol = solver.solver(x0=x0, p=p, lbx=lbx, ubx=ubx)
+            st = solver.solver.stats()
+            solves += 1
+            iterations += int(st.get("iter_count", 0))
+            rs = st.get("return_status", "failed")
+            statuses[rs] = statuses.get(rs, 0) + 1
+            f = float(sol["f"])
+            x = np.clip(np.array(sol["x"]).ravel(), lbx, ubx)  # IPOPT may relax bounds by ~1e-8
+            if not (np.isfinite(f) and np.all(np.isfinite(x))):
+                continue
+            if best is None or f < best[0]:
+                best = (f, x, rs)
+        if best is None:  # every start failed numerically: keep the carried-over values
+            f_c, _ = solver.terms(x_carry, p)
+            best = (float(f_c), x_carry, "Invalid_Number_Detected")
+        f, x, rs = best
+        window_status.append(_STATUS.get(rs, str(rs)))
+        pose, th_w, lam_w, dl_w = solver.unpack_x(x)
+        theta[sl] = th_w
+        if not shared:
+            lam[sl] = lam_w
+        dl[sl] = dl_w * D
+        if first:
+            T0 = np.eye(4)
+            T0[:3, :3] = guess.initial_pose[:3, :3] @ so3_exp(pose[:3])
+            T0[:3, 3] = guess.initial_pose[:3, 3] + pose[3:] * D
+            T = T0.copy()
+        sq, dist = (float(v) for v in solver.terms(x, p))
+        window_sq.append(sq * D**2)
+        window_dist.append(dist * D)
+        # fix segment j: the next window starts at its end
+        T = T @ segment_transform(theta[j], lam[j], dl[j], D)
+        # the segment entering the next window starts from its fitted neighbour
+        nxt = j + K
+        if nxt < M and K == k:
+            theta[nxt] = np.clip(theta[nxt - 1], tl[nxt], tu[nxt])
+            lam[nxt] = np.clip(lam[nxt - 1], ll[nxt], lu[nxt])
+            dl[nxt] = np.clip(chord[nxt] * dl[nxt - 1] / chord[nxt - 1], dlo[nxt], dhi[nxt])
+        counter.step()
+        if abandon_at is not None and window_dist[-1] >= abandon_at:
+            abandoned = True
+            counter.step(M - 1 - j)
+            break
+    return {
+        "routing": Routing(theta, lam, dl, T0),
+        "solves": solves,
+        "iterations": iterations,
+        "statuses": statuses,
+        "window_status": window_status,
+        "window_sq": window_sq,
+        "window_dist": window_dist,
+        "abandoned": abandoned,
+        "windows_done": len(window_status),
+        "starts": (starts_first, starts_later),
+    }
+
+
+def _overall_status(window_status) -> str:
+    bad = [s for s in window_status if s not in ("optimal", "acceptable")]
+    if bad:
+        return bad[0]
+    return "acceptable" if "acceptable" in window_status else "optimal"
+
+
+def _total_error(problem, pairing, routing) -> float:
+    from vine_nlp.design.common import path_error
+    from vine_nlp.model import chain_points
+
+    pts, _ = chain_points(routing.theta, routing.lam, routing.length, problem.diameter, pairing.seg, pairing.frac, routing.initial_pose)
+    return path_error(pts, problem.target)
+
+
+# ---------------------------------------------------------------------------------------------
+# Public API
+# ---------------------------------------------------------------------------------------------
+
+
+def design_greedy(problem: DesignProblem, pairing: Pairing | None = None, progress: Callable[[int, int], None] | None = None) -> Result:
+    """The paper's greedy Algorithm 1 (sPAM variant when ``problem.actuator.kind == "spam"``).
+
+    ``progress(done, total)``, if given, is called after each window solve round.
+    Returns a Result with method "greedy"; ``stats`` records window solves, windows,
+    starts per window, the lookahead and (sPAM) the lambda candidates.
+    """
+    t_start = time.perf_counter()
+    o = problem.options
+    pairing = pairing or pair_points(problem.target, o.points_per_segment)
+    M = pairing.segments
+    k = max(1, int(o.lookahead))
+    stats: dict = {"lookahead": k, "windows": M, "points_per_segment": pairing.n, "segments": M,
+                   "greedy_starts": int(o.greedy_starts), "seed": int(o.seed), "error": "sum of squared distances"}
+
+    if not problem.actuator.shared_lambda:
+        counter = _Counter(M, progress)
+        run = _greedy_pass(problem, pairing, counter)
+        runs = [run]
+        best = run
+    else:
+        a = problem.actuator
+        threshold = pairing.n * k * problem.diameter / 2.0
+        total = M * (SPAM_CANDIDATES + SPAM_REFINE)
+        counter = _Counter(total, progress)
+        runs, tried = [], []
+
+        def run_candidate(lam_c, abandon=True):
+            r = _greedy_pass(problem, pairing, counter, lam_fixed=float(lam_c), abandon_at=threshold if abandon else None)
+            r["lambda"] = float(lam_c)
+            r["error"] = math.inf if r["abandoned"] else _total_error(problem, pairing, r["routing"])
+            runs.append(r)
+            tried.append(float(lam_c))
+            return r
+
+        grid = np.linspace(a.lambda_min, 1.0, SPAM_CANDIDATES)
+        for lam_c in grid:
+            run_candidate(lam_c)
+        step = grid[1] - grid[0] if grid.size > 1 else 0.0
+        done = [r for r in runs if not r["abandoned"]]
+        refine_new = 0
+        if done and step > 0:
+            center = min(done, key=lambda r: r["error"])["lambda"]
+            for lam_c in np.linspace(center - step / 2, center + step / 2, SPAM_REFINE):
+                lam_c = float(np.clip(lam_c, a.lambda_min, 1.0))
+                if any(abs(lam_c - t) < 1e-12 for t in tried):
+                    continue
+                run_candidate(lam_c)
+                refine_new += 1
+        counter.step(M * (SPAM_REFINE - refine_new))  # skipped refinement values
+        done = [r for r in runs if not r["abandoned"]]
+        if not done:
+            # every candidate hit the threshold: finish the one that got furthest, without abandonment
+            far = max(runs, key=lambda r: (r["windows_done"], -r["window_dist"][-1]))
+            counter.total += M
+            run_candidate(far["lambda"], abandon=False)
+            done = [runs[-1]]
+        best = min(done, key=lambda r: r["error"])
+        stats.update({
+            "lambda": best["lambda"],
+            "lambda_candidates": [r["lambda"] for r in runs],
+            "lambda_candidate_errors": [None if r["abandoned"] else r["error"] for r in runs],  # sum sq.
+            "lambda_candidates_tried": len(runs),
+            "lambda_candidates_abandoned": int(sum(r["abandoned"] for r in runs)),
+            "abandoned_lambdas": [r["lambda"] for r in runs if r["abandoned"]],
+            "abandon_threshold": threshold,
+        })
+    statuses: dict = {}
+    for r in runs:
+        for key, v in r["statuses"].items():
+            statuses[key] = statuses.get(key, 0) + v
+    stats.update({
+        "window_solves": int(sum(r["solves"] for r in runs)),
+        "starts_per_window": best["starts"][1],
+        "starts_first_window": best["starts"][0],
+        "return_statuses": statuses,
+        "window_status": best["window_status"],
+        "window_error_max": float(max(best["window_sq"])) if best["window_sq"] else 0.0,
+        "solver": "ipopt (window)",
+    })
+    iterations = int(sum(r["iterations"] for r in runs))
+    elapsed = time.perf_counter() - t_start
+    if counter.done < counter.total:
+        counter.step(counter.total - counter.done)
+    return evaluate(problem, best["routing"], pairing, "greedy", status=_overall_status(best["window_status"]),
+                    solve_time_s=elapsed, iterations=iterations, stats=stats)
+
+
+def lowpass(result_or_routing, problem: DesignProblem, pairing: Pairing | None = None, cutoff: float = 0.5) -> Result:
+    """The paper's optional low-pass filter of theta(s) and lambda(s) (method "greedy_filtered").
+
+    Zero-phase Butterworth (``scipy.signal.butter`` order 2 + ``filtfilt``) along the
+    segment index, ``cutoff`` as a fraction of the Nyquist frequency. Segment lengths
+    and the initial pose are kept; a shared (sPAM) lambda stays as it is. A chain too
+    short for filtfilt's default padding is returned unfiltered (stats["filtered"] False).
+    Values are clipped to the bounds and the shape re-evaluated, so the RMSE cost shows.
+    """
+    from scipy.signal import butter, filtfilt
+
+    if not 0.0 < cutoff < 1.0:
+        raise ValueError("cutoff is a fraction of the Nyquist frequency: 0 < cutoff < 1")
+    src = result_or_routing
+    routing = src.routing if isinstance(src, Result) else src
+    pairing = pairing or pair_points(problem.target, problem.options.points_per_segment)
+    b, a = butter(FILTER_ORDER, cutoff)
+    padlen = 3 * max(len(a), len(b))
+    theta, lam = routing.theta.copy(), routing.lam.copy()
+    filtered = theta.size > padlen
+    if filtered:
+        theta = filtfilt(b, a, theta)
+        if not problem.actuator.shared_lambda:
+            lam = filtfilt(b, a, lam)
+    theta, lam, length = clip_to_bounds(theta, lam, routing.length, problem, pairing)
+    new = Routing(theta, lam, length, routing.initial_pose)
+    stats = dict(src.stats) if isinstance(src, Result) else {}
+    stats.update({"filter": "butterworth+filtfilt", "filter_order": FILTER_ORDER, "cutoff": float(cutoff),
+                  "filtered": bool(filtered)})
+    kw = {}
+    if isinstance(src, Result):
+        kw = {"status": src.status, "solve_time_s": src.solve_time_s, "iterations": src.iterations}
+    return evaluate(problem, new, pairing, "greedy_filtered", stats=stats, **kw)

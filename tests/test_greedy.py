@@ -1,0 +1,193 @@
+"""Greedy Algorithm 1 (paper Sec. VI-B): known answers, bounds, sPAM, filter, shared error."""
+
+import math
+
+import numpy as np
+import pytest
+
+from vine_nlp.design.common import pair_points, path_error, variable_bounds
+from vine_nlp.design.greedy import design_greedy, lowpass, window_error
+from vine_nlp.design.problem import Actuator, DesignOptions, DesignProblem, Routing
+from vine_nlp.design.result import total_variation
+from vine_nlp.model import chain_points
+from vine_nlp.model.chain import segment_end_samples
+
+N_PTS = 5  # points per segment
+D = 2.0
+
+
+def _pose():
+    """A non-trivial initial pose, so the first window's pose fit is exercised."""
+    from vine_nlp.model.segment import so3_exp
+
+    T = np.eye(4)
+    T[:3, :3] = so3_exp(np.array([0.2, -0.1, 0.3]))
+    T[:3, 3] = [1.0, -2.0, 0.5]
+    return T
+
+
+def _target(theta, lam, length, pose):
+    seg, frac = segment_end_samples(length, N_PTS)
+    pts, _ = chain_points(theta, lam, length, D, seg, frac, pose)
+    return pts
+
+
+def _problem(target, kind="tendon", lambda_min=0.4, starts=2, **kw):
+    opts = DesignOptions(method="greedy", points_per_segment=N_PTS, lookahead=4, greedy_starts=starts, **kw)
+    return DesignProblem("test", D, target, actuator=Actuator(kind, lambda_min=lambda_min), options=opts)
+
+
+@pytest.fixture(scope="module")
+def known():
+    """A smooth random routing of 10 segments and its forward-model target."""
+    rng = np.random.default_rng(7)
+    M = 10
+    s = np.linspace(0.0, 1.0, M)
+    a, ph = rng.uniform(0.2, 0.4), rng.uniform(0, 2 * np.pi)
+    theta = a * np.sin(2 * np.pi * s + ph) + rng.uniform(-0.1, 0.1)
+    lam = 0.72 + 0.12 * np.cos(2.5 * s + rng.uniform(0, 1))
+    length = rng.uniform(2.5, 3.5) * np.ones(M)
+    routing = Routing(theta, lam, length, _pose())
+    return routing, _target(theta, lam, length, routing.initial_pose)
+
+
+@pytest.fixture(scope="module")
+def known_result(known):
+    _, target = known
+    prob = _problem(target)
+    calls = []
+    res = design_greedy(prob, progress=lambda done, total: calls.append((done, total)))
+    return prob, res, calls
+
+
+def test_known_answer_recovered(known, known_result):
+    routing, target = known
+    prob, res, calls = known_result
+    assert res.method == "greedy"
+    assert res.status in ("optimal", "acceptable")
+    assert res.metrics["rmse"] < 1e-3 * D
+    np.testing.assert_allclose(res.routing.theta, routing.theta, atol=1e-3)
+    np.testing.assert_allclose(res.routing.lam, routing.lam, atol=1e-3)
+    # stats and progress
+    M = res.routing.segments
+    st = res.stats
+    assert st["windows"] == M and st["lookahead"] == 4 and st["starts_per_window"] == 2
+    assert st["starts_first_window"] == 8
+    assert st["window_solves"] == 8 + 2 * (M - 1)
+    assert res.iterations > 0 and res.solve_time_s > 0
+    assert [c[0] for c in calls] == list(range(1, M + 1)) and all(c[1] == M for c in calls)
+
+
+def _assert_in_bounds(prob, res):
+    pairing = pair_points(prob.target, prob.options.points_per_segment)
+    (tl, ll, dl), (tu, lu, du) = variable_bounds(prob, pairing)
+    r = res.routing
+    assert np.all(r.theta >= tl) and np.all(r.theta <= tu)
+    assert np.all(r.lam >= ll) and np.all(r.lam <= lu)
+    assert np.all(r.length >= dl) and np.all(r.length <= du)
+
+
+def test_bounds_hold(known_result):
+    prob, res, _ = known_result
+    _assert_in_bounds(prob, res)
+
+
+def test_bounds_hold_on_unreachable_target():
+    # a circle tighter than lambda_min allows: lambda must saturate at the bound, not beyond it
+    t = np.linspace(0.0, 1.5 * np.pi, 31)
+    R = 1.0 * D
+    target = np.column_stack([R * np.sin(t), R * (1 - np.cos(t)), 0.3 * t])
+    prob = _problem(target, starts=1)
+    res = design_greedy(prob)
+    _assert_in_bounds(prob, res)
+    assert res.routing.lam.min() == pytest.approx(prob.actuator.lambda_min, abs=1e-6)
+
+
+@pytest.fixture(scope="module")
+def spam():
+    M = 9
+    s = np.linspace(0.0, 1.0, M)
+    theta = 0.3 * np.sin(2 * np.pi * s + 0.3) + 0.1
+    lam_true = 0.73
+    length = np.full(M, 3.0)
+    target = _target(theta, np.full(M, lam_true), length, np.eye(4))
+    prob = _problem(target, kind="spam", lambda_min=0.5, starts=1)
+    return prob, design_greedy(prob), lam_true
+
+
+def test_spam_recovers_shared_lambda(spam):
+    prob, res, lam_true = spam
+    lam = res.routing.lam
+    assert np.all(lam == lam[0])
+    assert abs(lam[0] - lam_true) < 0.02
+    assert res.stats["lambda"] == lam[0]
+    assert res.metrics["rmse"] < 0.05 * D
+    grid = list(np.linspace(0.5, 1.0, 11))
+    assert res.stats["lambda_candidates"][:11] == pytest.approx(grid)
+    assert 11 < res.stats["lambda_candidates_tried"] <= 16  # plus the refinement pass
+    _assert_in_bounds(prob, res)
+
+
+def test_spam_early_abandonment(spam):
+    prob, res, _ = spam
+    st = res.stats
+    # lambda = 1 is a straight tube: hopeless for a curved target, abandoned early
+    assert 1.0 in st["abandoned_lambdas"]
+    assert st["lambda_candidates_abandoned"] == len(st["abandoned_lambdas"]) >= 1
+    assert st["abandon_threshold"] == pytest.approx(N_PTS * 4 * D / 2)
+    i = st["lambda_candidates"].index(1.0)
+    assert st["lambda_candidate_errors"][i] is None
+    # abandoned candidates stop early: fewer solves than 1 full pass per candidate
+    M = res.routing.segments
+    full = (4 + (M - 1)) * st["lambda_candidates_tried"]
+    assert st["window_solves"] < full
+
+
+def test_lowpass_reduces_theta_variation(known, known_result):
+    prob, res, _ = known_result
+    # add high-frequency wiggle to theta, as the paper sees at the ends of its designs
+    r = res.routing
+    wiggle = 0.05 * (-1.0) ** np.arange(r.segments)
+    noisy = Routing(r.theta + wiggle, r.lam, r.length, r.initial_pose)
+    filt = lowpass(noisy, prob)
+    assert filt.method == "greedy_filtered"
+    assert filt.stats["filtered"] and filt.stats["cutoff"] == 0.5
+    assert total_variation(filt.routing.theta) < total_variation(noisy.theta)
+    # and on the greedy result itself
+    filt2 = lowpass(res, prob)
+    assert total_variation(filt2.routing.theta) < total_variation(res.routing.theta)
+    assert "rmse" in filt2.metrics and filt2.status == res.status
+    _assert_in_bounds(prob, filt2)
+
+
+def test_lowpass_short_chain_unfiltered(spam):
+    prob, res, _ = spam  # 9 segments: too short for filtfilt's padding
+    filt = lowpass(res, prob)
+    assert not filt.stats["filtered"]
+    np.testing.assert_array_equal(filt.routing.theta, res.routing.theta)
+
+
+@pytest.mark.parametrize("j,K", [(0, 4), (3, 4), (7, 3), (9, 1)])
+def test_window_error_is_the_shared_path_error(known, j, K):
+    routing, target = known
+    rng = np.random.default_rng(j)
+    # a routing that does not fit, so the errors are not all zero
+    r = Routing(routing.theta + rng.normal(0, 0.05, routing.segments), routing.lam * 0.97,
+                routing.length * 1.02, routing.initial_pose)
+    prob = _problem(target)
+    pairing = pair_points(target, N_PTS)
+    sq, dist = window_error(prob, r, j, K, pairing)
+    idx = np.arange(pairing.bounds[j], pairing.bounds[j + K] + 1)
+    pts, _ = chain_points(r.theta, r.lam, r.length, D, pairing.seg[idx], pairing.frac[idx], r.initial_pose)
+    assert sq == pytest.approx(path_error(pts, target[idx]), rel=1e-10)
+    assert dist == pytest.approx(np.linalg.norm(pts - target[idx], axis=1).sum(), rel=1e-10)
+    assert sq > 0
+
+
+def test_single_segment_chain():
+    target = np.column_stack([np.linspace(0, 4, 6), np.zeros(6), np.zeros(6)])
+    prob = _problem(target, starts=1)
+    res = design_greedy(prob)
+    assert res.routing.segments == 1
+    assert res.metrics["rmse"] < 1e-4
+    assert math.isfinite(res.metrics["max_error"])
