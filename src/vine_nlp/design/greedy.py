@@ -74,6 +74,7 @@ from vine_nlp.design.common import (
     pair_points,
     variable_bounds,
 )
+from vine_nlp import interrupt
 from vine_nlp.design.problem import DesignProblem, Routing
 from vine_nlp.design.result import Result
 from vine_nlp.model.segment import segment_parts, segment_transform, so3_exp
@@ -343,6 +344,7 @@ def _greedy_pass(problem: DesignProblem, pairing: Pairing, counter: _Counter, la
                     x0[idx] = rng.uniform(np.maximum(lbx[idx], x_carry[idx] - half), np.minimum(ubx[idx], x_carry[idx] + half))
             sol = solver.solver(x0=x0, p=p, lbx=lbx, ubx=ubx)
             st = solver.solver.stats()
+            interrupt.check(st.get("return_status"))
             solves += 1
             iterations += int(st.get("iter_count", 0))
             rs = st.get("return_status", "failed")

@@ -31,6 +31,7 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
+from vine_nlp import interrupt
 from vine_nlp.design.common import (
     LENGTH_FACTOR,
     Guess,
@@ -321,6 +322,7 @@ def solve_from(
     sol = solver.solver(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
     solve_time = time.perf_counter() - t0
     st = solver.solver.stats()
+    interrupt.check(st.get("return_status"))
     x = np.array(sol["x"]).ravel()
     w_rot, p0, theta, lam, dl = solver.unpack_x(x)
     T0 = np.eye(4)

@@ -32,6 +32,30 @@ def _check_output(path: str, force: bool, arg: str = "-o") -> Path:
     return out
 
 
+def _check_figure(path, force):
+    if not path:
+        return None
+    from vine_nlp.front.plot import figure_format
+
+    out = _check_output(path, force, "--plot")
+    try:
+        figure_format(out)
+    except ValueError as e:
+        raise InputError(path, "--plot", str(e)) from None
+    return out
+
+
+def _read_archive(path, key="ARCHIVE"):
+    from vine_nlp.io.archive import load_archive
+
+    try:
+        return load_archive(path)
+    except FileNotFoundError:
+        raise InputError(path, key, "no such file") from None
+    except (OSError, ValueError, KeyError) as e:
+        raise InputError(path, key, f"cannot read the archive ({e})") from None
+
+
 def _archive_from(pf, runs, target=None):
     from vine_nlp.io.archive import Archive
 
@@ -49,7 +73,7 @@ def cmd_forward(args) -> int:
     if pf.kind != "forward":
         raise InputError(args.problem, "routing", f"a forward problem needs [routing] (this is a {pf.kind} problem)")
     out = _check_output(args.output, args.force)
-    fig = _check_output(args.plot, args.force, "--plot") if args.plot else None
+    fig = _check_figure(args.plot, args.force)
     result = run_forward(pf.problem)
     write_archive(out, _archive_from(pf, {"forward": result}))
     r = pf.problem.routing
@@ -128,12 +152,7 @@ def _run_method(pf, method, args):
 
 
 def _warm_routing(path):
-    from vine_nlp.io.archive import load_archive
-
-    try:
-        a = load_archive(path)
-    except (OSError, ValueError, KeyError) as e:
-        raise InputError(path, "--warm", f"cannot read the archive ({e})") from None
+    a = _read_archive(path, "--warm")
     for name in ("nlp", "greedy", "forward", "fit"):
         if name in a.runs:
             return a.runs[name].routing
@@ -145,7 +164,7 @@ def cmd_design(args) -> int:
 
     pf = _load(args.problem, "design")
     out = _check_output(args.output, args.force)
-    fig = _check_output(args.plot, args.force, "--plot") if args.plot else None
+    fig = _check_figure(args.plot, args.force)
     method = args.method or pf.problem.options.method
     result = _run_method(pf, method, args)
     write_archive(out, _archive_from(pf, {method: result}, target=pf.problem.target))
@@ -164,7 +183,7 @@ def cmd_compare(args) -> int:
 
     pf = _load(args.problem, "design")
     out = _check_output(args.output, args.force)
-    fig = _check_output(args.plot, args.force, "--plot") if args.plot else None
+    fig = _check_figure(args.plot, args.force)
     runs = {}
     for method in ("nlp", "greedy"):
         runs[method] = _run_method(pf, method, args)
@@ -183,6 +202,50 @@ def cmd_compare(args) -> int:
         plot_archive_file(out, fig)
         print(f"figure -> {fig}")
     return EXIT_OK if all(r.converged for r in runs.values()) else EXIT_NOT_CONVERGED
+
+
+def cmd_plot(args) -> int:
+    from vine_nlp.front.plot import plot_archive_file
+
+    archive = _read_archive(args.archive)
+    out = _check_output(args.output, args.force)
+    try:
+        from vine_nlp.front.plot import figure_format
+
+        figure_format(out)
+    except ValueError as e:
+        raise InputError(args.output, "-o", str(e)) from None
+    del archive  # read once to validate; the plot reads it again
+    plot_archive_file(args.archive, out)
+    print(f"figure -> {out}")
+    return EXIT_OK
+
+
+def cmd_template(args) -> int:
+    from vine_nlp.front.template import write_template
+
+    archive = _read_archive(args.archive)
+    out = _check_output(args.output, args.force)
+    csv = _check_output(args.csv, args.force, "--csv") if args.csv else None
+    try:
+        info = write_template(archive, out, csv_path=csv, paper=args.paper, run=args.run)
+    except ValueError as e:
+        raise InputError(args.archive, "--run" if args.run and args.run in str(e) else "template", str(e)) from None
+    print(
+        f"{info['pages']} page(s), {info['strips']} strip(s), {info['paper']} {info['orientation']}, run {info['run']}, "
+        f"{info['segments']} segments, tube {info['tube_length']:.4g} {archive.units} -> {out}"
+    )
+    if csv:
+        print(f"cuts -> {csv}")
+    print("print at 100 % (no 'fit to page') and check the 10 cm scale bar")
+    return EXIT_OK
+
+
+def cmd_show(args) -> int:
+    from vine_nlp.front.show import summarize
+
+    print(summarize(_read_archive(args.archive)))
+    return EXIT_OK
 
 
 def comparison_table(runs, units) -> str:
@@ -231,11 +294,34 @@ def build_parser() -> argparse.ArgumentParser:
         d.add_argument("--plot", metavar="FIG.png", help="also draw the result (png or pdf)")
         d.add_argument("--force", action="store_true", help="overwrite existing output files")
         d.set_defaults(func=func)
+
+    pl = sub.add_parser("plot", help="figures of an archive (png or pdf)")
+    pl.add_argument("archive", metavar="OUT.h5")
+    pl.add_argument("-o", "--output", required=True, metavar="FIG.png")
+    pl.add_argument("--force", action="store_true", help="overwrite an existing figure")
+    pl.set_defaults(func=cmd_plot)
+
+    t = sub.add_parser("template", help="1:1 fabrication template (PDF) and cut list (CSV) of a design")
+    t.add_argument("archive", metavar="OUT.h5")
+    t.add_argument("-o", "--output", required=True, metavar="TEMPLATE.pdf")
+    t.add_argument("--csv", metavar="CUTS.csv", help="also write one row per segment")
+    t.add_argument("--paper", choices=("A4", "Letter"), default="A4")
+    t.add_argument("--run", help="which run of the archive (default: nlp, greedy or forward)")
+    t.add_argument("--force", action="store_true", help="overwrite existing output files")
+    t.set_defaults(func=cmd_template)
+
+    sh = sub.add_parser("show", help="readable summary of an archive")
+    sh.add_argument("archive", metavar="OUT.h5")
+    sh.set_defaults(func=cmd_show)
     return p
 
 
 def main(argv=None) -> int:
+    from vine_nlp import interrupt
+
     parser = build_parser()
+    # SIGTERM unwinds like Ctrl-C: atomic writers remove their temporary files on the way out
+    restore = interrupt.install()
     try:
         args = parser.parse_args(argv)
         return args.func(args)
@@ -243,8 +329,13 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+        print("interrupted: nothing partial was written", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # output piped into head & co.
+        sys.stderr.close()
+        return EXIT_OK
+    finally:
+        restore()
 
 
 if __name__ == "__main__":

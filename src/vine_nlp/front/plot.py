@@ -137,7 +137,7 @@ def tube_surface(shape, diameter: float, around: int = 24, max_rows: int = 500):
     return wall[..., 0], wall[..., 1], wall[..., 2]
 
 
-def set_equal_3d(ax, points):
+def set_equal_3d(ax, points, zoom: float = 1.0):
     """Equal scaling on all three axes (a helix must look round)."""
     pts = np.concatenate([np.asarray(p).reshape(-1, 3) for p in points])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
@@ -145,7 +145,7 @@ def set_equal_3d(ax, points):
     ax.set_xlim(mid[0] - half, mid[0] + half)
     ax.set_ylim(mid[1] - half, mid[1] + half)
     ax.set_zlim(mid[2] - half, mid[2] + half)
-    ax.set_box_aspect((1, 1, 1))
+    ax.set_box_aspect((1, 1, 1), zoom=zoom)
 
 
 def fmt_len(value: float, units: str) -> str:
@@ -155,7 +155,7 @@ def fmt_len(value: float, units: str) -> str:
 # ------------------------------------------------------------------ panels
 
 
-def plot_shape_3d(ax, archive: Archive, name: str, norm=None, cmap=ERROR_CMAP, legend: bool = True):
+def plot_shape_3d(ax, archive: Archive, name: str, norm=None, cmap=ERROR_CMAP, legend: bool = True, zoom: float = 1.0):
     """One run in 3-D: target, tube wall at true diameter, actuator/opposite lines, error-colored center line."""
     u = archive.units
     D = archive.diameter
@@ -193,7 +193,7 @@ def plot_shape_3d(ax, archive: Archive, name: str, norm=None, cmap=ERROR_CMAP, l
     ax.tick_params(axis="both", pad=-1)
     for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
         axis.set_major_locator(MaxNLocator(5))
-    set_equal_3d(ax, everything)
+    set_equal_3d(ax, everything, zoom)
     for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
         axis.pane.set_alpha(0.0)
         axis._axinfo["grid"]["linewidth"] = 0.3
@@ -327,15 +327,15 @@ def plot_archive(archive) -> Figure:
         axes3d = []
         for i, name in enumerate(shown3d):
             ax = fig.add_subplot(cells3d[i], projection="3d")
-            plot_shape_3d(ax, archive, name, norm=norm, legend=(i == 0))
+            plot_shape_3d(ax, archive, name, norm=norm, legend=(i == 0), zoom=0.95 if k < 3 else 0.82)
             r = archive.runs[name]
             title = f"({chr(ord('a') + i)}) {name}"
             if "rmse" in r.metrics and "max_error" in r.metrics:
-                title += f": RMSE {fmt_len(r.metrics['rmse'], archive.units)}, max {fmt_len(r.metrics['max_error'], archive.units)}"
+                title += f"\nRMSE {fmt_len(r.metrics['rmse'], archive.units)}, max {fmt_len(r.metrics['max_error'], archive.units)}"
             ax.set_title(title, pad=0)
             axes3d.append(ax)
         if norm is not None:
-            cb = fig.colorbar(ScalarMappable(norm=norm, cmap=ERROR_CMAP), ax=axes3d, shrink=0.7, pad=0.06, aspect=25)
+            cb = fig.colorbar(ScalarMappable(norm=norm, cmap=ERROR_CMAP), ax=axes3d, shrink=0.7, pad=0.1 if k == 1 else 0.06, aspect=25)
             cb.set_label(f"center-line error to target [{archive.units}]")
         first = ax_e if ax_e is not None else None
         ax_t = fig.add_subplot(cells[0], sharex=first)

@@ -1,0 +1,76 @@
+"""A readable summary of a result archive (``vine-nlp show``)."""
+
+from __future__ import annotations
+
+import tomllib
+
+import numpy as np
+
+from vine_nlp.io.archive import Archive, load_archive
+
+RUN_ORDER = ("nlp", "greedy", "greedy_filtered", "forward", "fit")
+METRICS = ("rmse", "max_error", "r2", "tv_theta", "tv_lambda")
+LENGTH_METRICS = ("rmse", "max_error")
+
+
+def ordered_runs(archive: Archive) -> list[str]:
+    """Run names, the known methods first (nlp, greedy, greedy_filtered, forward, fit), then the rest."""
+    known = [r for r in RUN_ORDER if r in archive.runs]
+    return known + [r for r in archive.runs if r not in known]
+
+
+def source_table(archive: Archive, table: str) -> dict:
+    """A table of the archived problem file's text ({} when absent or unreadable)."""
+    try:
+        value = tomllib.loads(archive.source or "").get(table, {})
+    except (tomllib.TOMLDecodeError, TypeError, ValueError):
+        return {}
+    return value if isinstance(value, dict) else {}
+
+
+def _num(v: float) -> str:
+    return f"{v:.6g}"
+
+
+def summarize(archive) -> str:
+    """Multi-line summary of an archive (an Archive or a path): problem, software, target, and every run."""
+    a = archive if isinstance(archive, Archive) else load_archive(archive)
+    u = a.units
+    lines = [f"problem   {a.name} ({a.kind})"]
+    kind = source_table(a, "actuator").get("kind")
+    tube = f"tube      D = {_num(a.diameter)} {u}, units {u}"
+    if isinstance(kind, str):
+        tube += f", actuator {kind}"
+    lines.append(tube)
+    lines.append(f"software  vine_nlp {a.software_version}, format {a.format_version}, created {a.created or '-'}")
+    if a.target is not None:
+        t = np.asarray(a.target)
+        chord = float(np.linalg.norm(np.diff(t, axis=0), axis=1).sum()) if len(t) > 1 else 0.0
+        lines.append(f"target    {len(t)} points, length {_num(chord)} {u}")
+    for key, value in a.extra.items():
+        lines.append(f"{key:<9s} {np.shape(value)[0]} rows")
+    if not a.runs:
+        lines.append("runs      none")
+    for name in ordered_runs(a):
+        r = a.runs[name]
+        ro = r.routing
+        lines.append("")
+        lines.append(f"run {name}")
+        lines.append(f"  method      {r.method}")
+        lines.append(f"  status      {r.status}")
+        lines.append(f"  iterations  {r.iterations}")
+        lines.append(f"  solve time  {r.solve_time_s:.3f} s")
+        lines.append(f"  segments    {ro.segments}")
+        lines.append(f"  tube length {_num(float(ro.length.sum()))} {u}")
+        if ro.segments:
+            th = np.degrees(ro.theta)
+            lines.append(f"  theta       {_num(th.min())} to {_num(th.max())} deg")
+            lines.append(f"  lambda      {_num(ro.lam.min())} to {_num(ro.lam.max())}")
+        for m in METRICS:
+            if m in r.metrics:
+                unit = f" {u}" if m in LENGTH_METRICS else (" rad" if m == "tv_theta" else "")
+                lines.append(f"  {m:<11s} {_num(r.metrics[m])}{unit}")
+        for m, v in r.metrics.items():
+            if m not in METRICS:
+                lines.append(f"  {m:<11s} {_num(v)}")
+    return "\n".join(lines)

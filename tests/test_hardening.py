@@ -1,0 +1,73 @@
+"""Hardening: interruption leaves nothing partial, runs are deterministic, bad input never writes."""
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vine_nlp.front.cli import main
+from vine_nlp.io.archive import load_archive
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _spawn(*args):
+    return subprocess.Popen([sys.executable, "-m", "vine_nlp", *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_during_design_leaves_no_archive(tmp_path, sig):
+    out = tmp_path / "d.h5"
+    # the greedy baseline runs for seconds: long enough to be interrupted mid-way
+    proc = _spawn("design", ROOT / "problems/trefoil-m4.toml", "-o", out, "--method", "greedy")
+    time.sleep(3.0)
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []  # no archive, no temporary file
+
+
+def test_same_problem_same_design(tmp_path):
+    src = (ROOT / "problems/bezier-c.toml").read_text().replace("lookahead = 4", "lookahead = 4\nstarts = 3\nseed = 11")
+    p = tmp_path / "p.toml"
+    p.write_text(src)
+    runs = []
+    for k in range(2):
+        out = tmp_path / f"o{k}.h5"
+        assert main(["design", str(p), "-o", str(out)]) == 0
+        runs.append(load_archive(out).runs["nlp"])
+    a, b = runs
+    for field in ("theta", "lam", "length", "initial_pose"):
+        np.testing.assert_allclose(getattr(a.routing, field), getattr(b.routing, field), atol=1e-9, rtol=0)
+    assert a.stats["best_start"] == b.stats["best_start"]
+
+
+BAD = [
+    ("[tube]\ndiameter = 2\n[target]\ncurve = 'trefoil'\nsamples = 2\n", "target.samples"),
+    ("[tube]\ndiameter = 2\n[target]\ncurve = 'spiral'\n", "target.curve"),
+    ("[tube]\ndiametr = 2\n[target]\ncurve = 'trefoil'\n", "tube.diametr"),
+    ("[tube]\ndiameter = 2\n[target]\ncurve = 'trefoil'\n[actuator]\nlambda_min = 0\n", "actuator.lambda_min"),
+    ("[tube]\ndiameter = 2\n[target]\ncurve = 'trefoil'\n[actuator]\ntheta_max_deg = 90\n", "actuator.theta_max_deg"),
+    ("[tube]\ndiameter = 2\n[routing]\nlength = 5\nsegment_length = 1\ntheta = 's.__class__'\nlambda = 0.5\n", "routing.theta"),
+    ("[tube]\ndiameter = 2\n[routing]\nlength = 5\nsegment_length = 1\ntheta = '__import__(\"os\")'\nlambda = 0.5\n", "routing.theta"),
+    ("[tube\ndiameter = 2\n", "line 1"),
+]
+
+
+@pytest.mark.parametrize("text,key", BAD)
+def test_bad_problem_files_exit_2_with_one_line(tmp_path, capsys, text, key):
+    p = tmp_path / "bad.toml"
+    p.write_text(text)
+    out = tmp_path / "o.h5"
+    cmd = "forward" if "[routing]" in text else "design"
+    assert main([cmd, str(p), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: {p}: {key}: ")
+    assert not out.exists()

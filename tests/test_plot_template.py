@@ -1,0 +1,293 @@
+"""Figures, 1:1 fabrication templates and the archive summary."""
+
+import csv
+import math
+import re
+import warnings
+
+import numpy as np
+import pytest
+from matplotlib.text import Text
+
+from vine_nlp.design.common import evaluate, pair_points
+from vine_nlp.design.nlp import design_nlp
+from vine_nlp.design.problem import Actuator, DesignOptions, DesignProblem, ForwardProblem, Routing
+from vine_nlp.design.result import forward_shape, run_forward
+from vine_nlp.front import template as tpl
+from vine_nlp.front.plot import plot_archive, plot_archive_file, point_s, tube_surface
+from vine_nlp.front.show import summarize
+from vine_nlp.io.archive import Archive, load_archive, write_archive
+
+D = 2.43
+N = 4  # points per segment
+PAGE_PT = {"A4": (595.28, 841.89), "Letter": (612.0, 792.0)}
+SOURCE = """name = "small"
+units = "{units}"
+[tube]
+diameter = {D}
+[target]
+curve = "points"
+file = "target.csv"
+[actuator]
+kind = "{kind}"
+lambda_min = 0.4
+theta_max_deg = 60.0
+"""
+
+
+def wave_routing(m=10, dl=4.0, scale=1.0):
+    s = np.arange(m) * dl
+    return Routing(np.radians(20 * np.sin(0.15 * s / scale) + 5), 0.7 + 0.1 * np.cos(0.2 * s / scale), np.full(m, dl))
+
+
+def _design(kind="tendon"):
+    target = forward_shape(wave_routing(), D, per_segment=N).center
+    problem = DesignProblem("small", D, target, Actuator(kind=kind), DesignOptions(points_per_segment=N))
+    return problem, design_nlp(problem)
+
+
+@pytest.fixture(scope="module")
+def archives(tmp_path_factory):
+    """Paths of a forward archive, a design archive with runs nlp and greedy, and an sPAM design archive."""
+    d = tmp_path_factory.mktemp("archives")
+    fwd = run_forward(ForwardProblem("wave", D, wave_routing()))
+    write_archive(d / "forward.h5", Archive("wave", "forward", "", D, runs={"forward": fwd}))
+    problem, nlp = _design()
+    # a second run: the nlp design with theta perturbed, evaluated like a design method would
+    r = nlp.routing
+    other = Routing(r.theta + 0.02 * np.sin(np.arange(r.segments)), r.lam, r.length, r.initial_pose)
+    greedy = evaluate(problem, other, pair_points(problem.target, N), "greedy", status="acceptable", iterations=3)
+    src = SOURCE.format(units="cm", D=D, kind="tendon")
+    write_archive(d / "design.h5", Archive("small", "design", src, D, target=problem.target, runs={"nlp": nlp, "greedy": greedy}))
+    sproblem, snlp = _design("spam")
+    ssrc = SOURCE.format(units="cm", D=D, kind="spam")
+    write_archive(d / "spam.h5", Archive("small-spam", "design", ssrc, D, target=sproblem.target, runs={"nlp": snlp}))
+    return {"forward": d / "forward.h5", "design": d / "design.h5", "spam": d / "spam.h5"}
+
+
+def long_archive(units="cm", m=30, dl=4.0):
+    """A forward routing long enough for several strips and pages (lengths in ``units``)."""
+    f = {"cm": 1.0, "mm": 10.0, "m": 0.01}[units]
+    routing = wave_routing(m, dl * f, scale=f)
+    result = run_forward(ForwardProblem("long", D * f, routing, units=units))
+    return Archive("long", "forward", "", D * f, units=units, runs={"forward": result})
+
+
+# ------------------------------------------------------------------ figures
+
+
+@pytest.mark.parametrize("which", ["forward", "design"])
+@pytest.mark.parametrize("suffix", ["png", "pdf"])
+def test_figures_render_without_warnings(archives, tmp_path, which, suffix):
+    out = tmp_path / f"fig.{suffix}"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        plot_archive_file(archives[which], out)
+    data = out.read_bytes()
+    assert data.startswith(b"\x89PNG" if suffix == "png" else b"%PDF")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [out.name]  # no temporary file left
+
+
+def test_figure_is_readable_and_labelled(archives):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fig = plot_archive(archives["design"])
+        fig.canvas.draw()
+    sizes = [t.get_fontsize() for t in fig.findobj(Text) if t.get_text().strip() and t.get_visible()]
+    assert min(sizes) >= 7
+    axes3d = [ax for ax in fig.axes if ax.name == "3d"]
+    assert len(axes3d) == 2  # one 3-D view per run
+    for ax in axes3d:
+        for label in (ax.get_xlabel(), ax.get_ylabel(), ax.get_zlabel()):
+            assert "[cm]" in label
+        lo, hi = zip(ax.get_xlim(), ax.get_ylim(), ax.get_zlim())
+        assert np.ptp(np.subtract(hi, lo)) < 1e-9  # equal scaling
+    panels = [ax for ax in fig.axes if ax.name == "rectilinear" and ax.get_xlabel()]
+    assert len(panels) == 4  # error, theta, lambda, phi
+    for ax in panels:
+        assert "[cm]" in ax.get_xlabel() and "[" in ax.get_ylabel()
+    assert any("colorbar" in ax.get_label() or "error" in ax.get_ylabel() for ax in fig.axes if ax.name == "rectilinear")
+    legends = " ".join(t.get_text() for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts())
+    assert "nlp (RMSE" in legends and "greedy (RMSE" in legends
+
+
+def test_forward_figure_has_no_error_panel(archives):
+    fig = plot_archive(archives["forward"])
+    labels = [ax.get_ylabel() for ax in fig.axes if ax.name == "rectilinear"]
+    assert not any("error" in label for label in labels)
+    assert len([ax for ax in fig.axes if ax.name == "3d"]) == 1
+
+
+def test_tube_surface_has_true_diameter(archives):
+    a = load_archive(archives["design"])
+    shape = a.runs["nlp"].shape
+    X, Y, Z = tube_surface(shape, a.diameter)
+    wall = np.stack([X, Y, Z], axis=-1)
+    center = 0.5 * (shape.inner + shape.outer)
+    r = np.linalg.norm(wall - center[:, None, :], axis=-1)
+    np.testing.assert_allclose(r, a.diameter / 2, rtol=1e-12)
+
+
+def test_error_is_plotted_against_tube_length(archives):
+    a = load_archive(archives["design"])
+    r = a.runs["nlp"]
+    s = point_s(a, r)
+    p = pair_points(a.target, N)
+    edges = np.concatenate([[0.0], np.cumsum(r.routing.length)])
+    np.testing.assert_allclose(s, edges[p.seg] + p.frac * r.routing.length[p.seg], atol=1e-12)
+    assert s[0] == 0.0 and s[-1] == pytest.approx(edges[-1])
+
+
+def test_unknown_figure_format_is_refused(archives, tmp_path):
+    with pytest.raises(ValueError, match="png"):
+        plot_archive_file(archives["forward"], tmp_path / "fig.jpg")
+    assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------ templates
+
+
+def pdf_pages(path):
+    data = path.read_bytes()
+    pages = len(re.findall(rb"/Type\s*/Page(?![a-zA-Z])", data))
+    boxes = [tuple(float(v) for v in m.split()) for m in re.findall(rb"/MediaBox\s*\[\s*([-\d.\s]+?)\s*\]", data)]
+    return pages, boxes
+
+
+def read_cuts(path):
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    return [{k: float(v) for k, v in row.items()} for row in rows]
+
+
+@pytest.mark.parametrize("paper", ["A4", "Letter"])
+def test_template_pages_and_paper_size(tmp_path, paper):
+    a = long_archive()
+    pdf = tmp_path / "template.pdf"
+    info = tpl.write_template(a, pdf, paper=paper)
+    pages, boxes = pdf_pages(pdf)
+    assert info["pages"] == pages > 1
+    assert info["strips"] > info["pages"] or info["strips"] >= pages
+    assert len(boxes) == pages
+    w, h = PAGE_PT[paper]
+    for box in boxes:
+        assert box[:2] == (0.0, 0.0)
+        assert sorted(box[2:]) == pytest.approx(sorted((w, h)), abs=0.01)
+    pw, ph = info["paper_mm"]
+    assert sorted((pw, ph)) == pytest.approx(sorted(v / 72 * 25.4 for v in (w, h)), abs=0.01)
+
+
+def test_template_csv(archives, tmp_path):
+    pdf, cuts = tmp_path / "t.pdf", tmp_path / "CUTS.csv"
+    info = tpl.write_template(archives["design"], pdf, cuts)
+    a = load_archive(archives["design"])
+    r = a.runs["nlp"]
+    assert info["run"] == "nlp"  # the default: nlp before greedy
+    rows = read_cuts(cuts)
+    with open(cuts) as f:
+        assert f.readline().strip().split(",") == list(tpl.CSV_COLUMNS)
+    assert len(rows) == r.routing.segments == info["segments"]
+    C = math.pi * a.diameter
+    for j, row in enumerate(rows):
+        assert row["segment"] == j
+        assert row["stopper_length"] + row["gap_length"] == pytest.approx(row["actuator_length"], rel=1e-9)
+        dl = row["s_end"] - row["s_start"]
+        assert row["actuator_length"] == pytest.approx(dl / math.cos(math.radians(row["theta_deg"])), rel=1e-8)
+        assert row["stopper_length"] == pytest.approx(row["lambda"] * row["actuator_length"], rel=1e-8)
+        assert 0.0 <= row["c_start"] < C and 0.0 <= row["c_end"] < C
+        for key, phi in (("c_start", "phi_start_rad"), ("c_end", "phi_end_rad")):
+            assert (row[key] - 0.5 * a.diameter * row[phi]) / C == pytest.approx(round((row[key] - 0.5 * a.diameter * row[phi]) / C), abs=1e-8)
+        if j:
+            assert row["s_start"] == pytest.approx(rows[j - 1]["s_end"], rel=1e-9)
+            assert row["phi_start_rad"] == pytest.approx(rows[j - 1]["phi_end_rad"], rel=1e-9)
+    assert rows[0]["s_start"] == 0.0 and rows[0]["phi_start_rad"] == 0.0
+    assert sum(row["s_end"] - row["s_start"] for row in rows) == pytest.approx(r.routing.length.sum(), rel=1e-9)
+    np.testing.assert_allclose([row["phi_end_rad"] for row in rows], r.phi[1:], rtol=1e-9)
+    assert info["stoppers"] == info["gaps"] == r.routing.segments  # every segment split (lambda < 1)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["CUTS.csv", "t.pdf"]
+
+
+def test_template_run_choice(archives, tmp_path):
+    info = tpl.write_template(archives["design"], tmp_path / "g.pdf", tmp_path / "g.csv", run="greedy")
+    assert info["run"] == "greedy"
+    rows = read_cuts(tmp_path / "g.csv")
+    theta = load_archive(archives["design"]).runs["greedy"].routing.theta
+    np.testing.assert_allclose([row["theta_deg"] for row in rows], np.degrees(theta), rtol=1e-9)
+    with pytest.raises(ValueError, match="no run"):
+        tpl.write_template(archives["design"], tmp_path / "x.pdf", run="fit")
+    assert not (tmp_path / "x.pdf").exists()
+    assert tpl.write_template(archives["forward"], tmp_path / "f.pdf")["run"] == "forward"
+
+
+def test_spam_template_has_no_stoppers(archives, tmp_path):
+    info = tpl.write_template(archives["spam"], tmp_path / "s.pdf", tmp_path / "s.csv")
+    assert info["spam"] is True
+    assert info["stoppers"] == 0 and info["gaps"] == 0
+    rows = read_cuts(tmp_path / "s.csv")
+    assert np.ptp([row["lambda"] for row in rows]) < 1e-12  # one lambda for the whole muscle
+    # the flag overrides the problem file
+    assert tpl.write_template(archives["design"], tmp_path / "d.pdf", spam=True)["stoppers"] == 0
+    assert tpl.write_template(archives["spam"], tmp_path / "d.pdf", spam=False)["stoppers"] > 0
+
+
+@pytest.mark.parametrize("units", ["cm", "mm"])
+def test_template_is_one_to_one(units):
+    """1 cm of tube is 1 cm on the page, whatever the problem's units; strips share 1 cm."""
+    a = long_archive(units)
+    table = tpl.cut_table(a, "forward")
+    cm = tpl.CM_PER_UNIT[units]
+    lay = tpl.layout(table["s_end"][-1] * cm, math.pi * a.diameter * cm, "A4", unit_per_cm=1 / cm)
+    fig = tpl._page(a, "forward", table, lay, 0, False)
+    W_mm, H_mm = lay.width_mm, lay.height_mm
+    assert tuple(fig.get_size_inches() * 25.4) == pytest.approx((W_mm, H_mm))
+    strips = [ax for ax in fig.axes]
+    assert 1 <= len(strips) <= lay.per_page
+    for ax in strips:
+        box = ax.get_position()
+        (s0, s1), (c0, c1) = ax.get_xlim(), ax.get_ylim()
+        assert box.width * W_mm / ((s1 - s0) * cm) == pytest.approx(10.0)  # mm per cm of tube
+        assert box.height * H_mm / ((c1 - c0) * cm) == pytest.approx(10.0)
+        assert box.x0 >= 0 and box.x1 <= 1 and box.y0 >= 0 and box.y1 <= 1
+    tiles = lay.tiles
+    assert tiles[0].s0 == 0 and tiles[-1].s_end == pytest.approx(table["s_end"][-1])
+    for t, nxt in zip(tiles[:-1], tiles[1:]):
+        assert nxt.s0 == pytest.approx(t.s1)
+        assert (t.s_end - nxt.s0) * cm == pytest.approx(1.0)  # the shared centimetre
+        assert t.label.startswith(f"strip {t.index + 1}/{len(tiles)}")
+
+
+def test_template_refuses_other_units(tmp_path):
+    a = long_archive("m")
+    with pytest.raises(ValueError, match="cm or mm"):
+        tpl.write_template(a, tmp_path / "t.pdf", tmp_path / "c.csv")
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(ValueError, match="paper"):
+        tpl.write_template(long_archive(), tmp_path / "t.pdf", paper="A3")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_template_keeps_existing_files_on_failure(archives, tmp_path, monkeypatch):
+    pdf = tmp_path / "t.pdf"
+    pdf.write_bytes(b"old")
+
+    def boom(*args, **kwargs):
+        raise RuntimeError("renderer failed")
+
+    monkeypatch.setattr(tpl, "_page", boom)
+    with pytest.raises(RuntimeError):
+        tpl.write_template(archives["design"], pdf, tmp_path / "c.csv")
+    assert pdf.read_bytes() == b"old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.pdf"]
+
+
+# ------------------------------------------------------------------ show
+
+
+def test_summary(archives):
+    text = summarize(archives["design"])
+    for piece in ("small (design)", "D = 2.43 cm", "actuator tendon", "vine_nlp", "target    41 points",
+                  "run nlp", "run greedy", "status      acceptable", "segments    10", "rmse", "max_error", "tv_theta"):
+        assert piece in text, piece
+    assert text.index("run nlp") < text.index("run greedy")
+    fwd = summarize(load_archive(archives["forward"]))
+    assert "wave (forward)" in fwd and "run forward" in fwd and "rmse" not in fwd
