@@ -128,3 +128,16 @@ def test_help_lists_only_real_commands():
     assert r.returncode == 0
     for cmd in ("forward", "design", "compare"):
         assert cmd in r.stdout
+
+
+def test_fit_command_recovers_the_synthetic_lambda(tmp_path, capsys):
+    # problems/data/make_synthetic.py made these markers with lambda 0.85 and 1.4 mm noise
+    out = tmp_path / "fit.h5"
+    assert main(["fit", str(PROBLEMS / "fit-sinusoidal.toml"), "-o", str(out)]) == 0
+    a = load_archive(out)
+    r = a.runs["fit"]
+    assert a.kind == "fit"
+    assert r.routing.lam[0] == pytest.approx(0.85, abs=0.02)
+    assert r.metrics["rmse"] < 0.2 and r.metrics["r2"] > 0.99
+    assert a.extra["measured/points"].shape == (15, 3)
+    assert "lambda 0.8" in capsys.readouterr().out

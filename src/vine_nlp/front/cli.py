@@ -204,6 +204,29 @@ def cmd_compare(args) -> int:
     return EXIT_OK if all(r.converged for r in runs.values()) else EXIT_NOT_CONVERGED
 
 
+def cmd_fit(args) -> int:
+    from vine_nlp.fit import describe_fit, fit_problem
+    from vine_nlp.io.archive import write_archive
+
+    pf = _load(args.problem, "fit")
+    out = _check_output(args.output, args.force)
+    fig = _check_figure(args.plot, args.force)
+    try:
+        result, extras = fit_problem(pf.problem, starts=args.starts, seed=args.seed)
+    except ValueError as e:  # too few usable points after the parser's checks
+        raise InputError(args.problem, "measured.file", str(e)) from None
+    archive = _archive_from(pf, {"fit": result})
+    archive.extra.update(extras)
+    write_archive(out, archive)
+    print(f"{pf.name}: {describe_fit(result, pf.units)} -> {out}")
+    if fig:
+        from vine_nlp.front.fit_plots import plot_fit
+
+        plot_fit(out, fig)
+        print(f"figure -> {fig}")
+    return EXIT_OK if result.converged else EXIT_NOT_CONVERGED
+
+
 def cmd_plot(args) -> int:
     from vine_nlp.front.plot import plot_archive_file
 
@@ -215,8 +238,12 @@ def cmd_plot(args) -> int:
         figure_format(out)
     except ValueError as e:
         raise InputError(args.output, "-o", str(e)) from None
-    del archive  # read once to validate; the plot reads it again
-    plot_archive_file(args.archive, out)
+    if archive.kind == "fit":
+        from vine_nlp.front.fit_plots import plot_fit
+
+        plot_fit(args.archive, out)
+    else:
+        plot_archive_file(args.archive, out)
     print(f"figure -> {out}")
     return EXIT_OK
 
@@ -294,6 +321,15 @@ def build_parser() -> argparse.ArgumentParser:
         d.add_argument("--plot", metavar="FIG.png", help="also draw the result (png or pdf)")
         d.add_argument("--force", action="store_true", help="overwrite existing output files")
         d.set_defaults(func=func)
+
+    ft = sub.add_parser("fit", help="fit the model of a known routing to measured points (pose, optionally lambda)")
+    ft.add_argument("problem", metavar="PROBLEM.toml")
+    ft.add_argument("-o", "--output", required=True, metavar="OUT.h5")
+    ft.add_argument("--starts", type=int, default=24, metavar="N", help="starting orientations of the global pose search")
+    ft.add_argument("--seed", type=int, default=0)
+    ft.add_argument("--plot", metavar="FIG.png", help="measured points against the fitted model, error against length")
+    ft.add_argument("--force", action="store_true", help="overwrite existing output files")
+    ft.set_defaults(func=cmd_fit)
 
     pl = sub.add_parser("plot", help="figures of an archive (png or pdf)")
     pl.add_argument("archive", metavar="OUT.h5")
