@@ -161,8 +161,15 @@ def _warm_routing(path):
 
 def cmd_design(args) -> int:
     from vine_nlp.io.archive import write_archive
+    from vine_nlp.io.problem_file import load_problem
 
-    pf = _load(args.problem, "design")
+    pf = load_problem(args.problem)
+    if pf.kind == "multishape":
+        return _design_multishape(pf, args)
+    if pf.kind == "tip":
+        return _design_tip(pf, args)
+    if pf.kind != "design":
+        raise InputError(args.problem, "target", f"a design problem needs [target] (this is a {pf.kind} problem)")
     out = _check_output(args.output, args.force)
     fig = _check_figure(args.plot, args.force)
     method = args.method or pf.problem.options.method
@@ -176,6 +183,57 @@ def cmd_design(args) -> int:
         plot_archive_file(out, fig)
         print(f"figure -> {fig}")
     return EXIT_OK if result.converged else EXIT_NOT_CONVERGED
+
+
+def _only_nlp(pf, args):
+    if args.method not in (None, "nlp"):
+        raise InputError(args.problem, "--method", f"{pf.kind} problems are solved by the nlp formulation only")
+    if getattr(args, "warm", None):
+        raise InputError(args.problem, "--warm", f"not available for {pf.kind} problems")
+
+
+def _design_multishape(pf, args) -> int:
+    from vine_nlp.design.multishape import design_multishape, plot_multishape, report_lines, write_multishape_archive
+
+    _only_nlp(pf, args)
+    out = _check_output(args.output, args.force)
+    fig = _check_figure(args.plot, args.force)
+    update, close = _progress_bar(f"{pf.name} multishape", "starts")
+    try:
+        result = design_multishape(pf.problem, starts=args.starts, progress=update)
+    finally:
+        close()
+    write_multishape_archive(out, pf, result)
+    for line in report_lines(result, pf.units):
+        print(line)
+    print(f"archive -> {out}")
+    if fig:
+        plot_multishape(out, fig)
+        print(f"figure -> {fig}")
+    return EXIT_OK if result.converged else EXIT_NOT_CONVERGED
+
+
+def _design_tip(pf, args) -> int:
+    from vine_nlp.design.tip import design_tip, report_lines, write_tip_archive
+
+    _only_nlp(pf, args)
+    out = _check_output(args.output, args.force)
+    fig = _check_figure(args.plot, args.force)
+    update, close = _progress_bar(f"{pf.name} tip", "starts")
+    try:
+        result = design_tip(pf.problem, starts=args.starts, progress=update)
+    finally:
+        close()
+    write_tip_archive(out, pf, result)
+    for line in report_lines(result, pf.problem, pf.units):
+        print(line)
+    print(f"archive -> {out}")
+    if fig:
+        from vine_nlp.front.plot import plot_archive_file
+
+        plot_archive_file(out, fig)
+        print(f"figure -> {fig}")
+    return EXIT_OK if result.converged else EXIT_NOT_CONVERGED  # "infeasible" (unreachable tip) exits 1
 
 
 def cmd_compare(args) -> int:
@@ -242,6 +300,10 @@ def cmd_plot(args) -> int:
         from vine_nlp.front.fit_plots import plot_fit
 
         plot_fit(args.archive, out)
+    elif archive.kind == "multishape":
+        from vine_nlp.design.multishape import plot_multishape
+
+        plot_multishape(args.archive, out)
     else:
         plot_archive_file(args.archive, out)
     print(f"figure -> {out}")

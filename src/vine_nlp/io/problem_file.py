@@ -32,6 +32,11 @@ from vine_nlp.design.problem import (
     ForwardProblem,
     Routing,
 )
+from vine_nlp.design.problem import (  # further formulations: multi-shape sPAM and tip targets
+    TIP_OBJECTIVES,
+    MultiShapeProblem,
+    TipProblem,
+)
 from vine_nlp.errors import InputError
 from vine_nlp.io.expr import ExpressionError, compile_expression
 
@@ -49,6 +54,8 @@ _TOP_KEYS = {
     "design": ("name", "units", "tube", "target", "actuator", "design"),
     "forward": ("name", "units", "tube", "routing"),
     "fit": ("name", "units", "tube", "measured", "routing", "fit"),
+    "multishape": ("name", "units", "tube", "targets", "actuator", "design"),
+    "tip": ("name", "units", "tube", "tip", "actuator", "design"),
 }
 _ALL_TOP_KEYS = tuple(dict.fromkeys(k for keys in _TOP_KEYS.values() for k in keys))
 _CURVE_KEYS = {
@@ -70,6 +77,13 @@ _MEASURED_KEYS = ("file", "line")
 _FIT_KEYS = ("free",)
 _FREE_CHOICES = ("lambda",)
 _SWEEP_KEYS = ("name", "base", "methods", "grid")
+_MULTISHAPE_DESIGN_KEYS = (*_DESIGN_KEYS, "shared_pose")
+_TIP_KEYS = ("position", "direction", "length", "segments", "objective", "initial_pose")
+MAX_LEVELS = 1000  # [[targets]] of a multishape problem
+MAX_TIP_SEGMENTS = 10_000
+# Multi-shape and tip problems are multimodal: without [design] starts, a few starts (the
+# geometric guesses and seeded perturbations) are the default.
+DEFAULT_STARTS = {"multishape": 4, "tip": 4}
 _SWEEP_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
 
 
@@ -77,10 +91,10 @@ _SWEEP_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
 class ProblemFile:
     path: str
     source: str  # the file's text, stored in result archives
-    kind: str  # "design" | "forward" | "fit"
+    kind: str  # "design" | "forward" | "fit" | "multishape" ([[targets]]) | "tip" ([tip])
     name: str
     units: str
-    problem: DesignProblem | ForwardProblem | FitProblem
+    problem: DesignProblem | ForwardProblem | FitProblem | MultiShapeProblem | TipProblem
 
 
 @dataclass
@@ -137,6 +151,10 @@ def parse_problem(data: dict, path: str, source: str) -> ProblemFile:
     elif kind == "forward":
         routing = _routing(f, _table(f, data, "routing", _ROUTING_KEYS, required=True), diameter)
         problem = ForwardProblem(name=name, diameter=diameter, routing=routing, units=units)
+    elif kind == "multishape":
+        problem = _multishape(f, data, name, units, diameter)
+    elif kind == "tip":
+        problem = _tip(f, data, name, units, diameter)
     else:
         problem = _fit(f, data, name, units, diameter)
     return ProblemFile(path=path, source=source, kind=kind, name=name, units=units, problem=problem)
@@ -210,6 +228,8 @@ class _File:
 def _kind(f: _File, data: dict) -> str:
     if "target" in data and "measured" in data:
         raise f.error("target", "a problem has [target] (design) or [measured] (fit), not both")
+    if "targets" in data or "tip" in data:
+        return _further_kind(f, data)
     if "target" in data:
         return "design"
     if "measured" in data:
@@ -323,6 +343,123 @@ def _fit(f: _File, data: dict, name: str, units: str, diameter: float) -> FitPro
         name=name, diameter=diameter, measured=points, line=line, routing=routing, free=tuple(free), units=units
     )
 
+
+# ---------------------------------------------------------------- multi-shape and tip problems
+
+
+def _further_kind(f: _File, data: dict) -> str:
+    """[[targets]] (multishape) or [tip] (tip): each excludes the other kind-deciding tables."""
+    kind, table = ("multishape", "targets") if "targets" in data else ("tip", "tip")
+    for other in ("target", "targets", "tip", "measured", "routing"):
+        if other != table and other in data:
+            has = "[[targets]] (multishape)" if table == "targets" else "[tip] (tip)"
+            raise f.error(other, f"not used in a {kind} problem: a problem with {has} has no [{other}]")
+    return kind
+
+
+class _TargetFile(_File):
+    """Reads target ``k`` of [[targets]] with ``_target``: its "target.<key>" errors become "targets.<k>.<key>"."""
+
+    def __init__(self, f: _File, k: int):
+        super().__init__(f.path)
+        self.k = k
+
+    def error(self, key: str, reason: str) -> InputError:
+        if key == "target" or key.startswith("target."):
+            key = f"targets.{self.k}" + key[len("target") :]
+        return super().error(key, reason)
+
+
+def _starts_default(table: dict, options: DesignOptions, kind: str) -> DesignOptions:
+    if "starts" in table:
+        return options
+    return dataclasses.replace(options, starts=DEFAULT_STARTS[kind])
+
+
+def _multishape(f: _File, data: dict, name: str, units: str, diameter: float) -> MultiShapeProblem:
+    """[[targets]]: K targets (same number of points), each optionally with a fixed lambda; an sPAM actuator."""
+    items = data["targets"]
+    _check(
+        f,
+        "targets",
+        isinstance(items, list) and len(items) > 0 and all(isinstance(t, dict) for t in items),
+        "must be an array of tables ([[targets]]), at least one",
+    )
+    _check(f, "targets", len(items) <= MAX_LEVELS, f"has {len(items)} targets; at most {MAX_LEVELS}")
+    table = _table(f, data, "actuator", _ACTUATOR_KEYS)
+    if "kind" in table and table["kind"] != "spam":
+        raise f.error("actuator.kind", "must be 'spam' in a multishape problem (one lambda per pressure level)")
+    actuator = _actuator(f, {**table, "kind": "spam"})
+    design = _table(f, data, "design", _MULTISHAPE_DESIGN_KEYS)
+    shared_pose = design.get("shared_pose", True)
+    _check(f, "design.shared_pose", isinstance(shared_pose, bool), "must be true or false")
+    options = _options(f, {k: v for k, v in design.items() if k != "shared_pose"})
+    _check(f, "design.method", options.method == "nlp", "must be 'nlp' in a multishape problem (the one formulation)")
+    options = _starts_default(design, options, "multishape")
+    need = options.points_per_segment + 1
+    points, levels = [], []
+    for k, item in enumerate(items):
+        tf = _TargetFile(f, k)
+        pts, points_key = _target(tf, {"target": {key: v for key, v in item.items() if key != "lambda"}})
+        _check(tf, points_key, pts.shape[0] >= need, f"needs at least points_per_segment + 1 = {need} points, got {pts.shape[0]}")
+        if k > 0 and pts.shape[0] != points[0].shape[0]:
+            raise tf.error(
+                points_key, f"has {pts.shape[0]} points; every target needs as many as targets.0 ({points[0].shape[0]})"
+            )
+        level = None
+        if "lambda" in item:
+            level = _real(f, f"targets.{k}.lambda", item["lambda"])
+            _check(
+                f,
+                f"targets.{k}.lambda",
+                actuator.lambda_min <= level <= 1,
+                f"must be in [actuator.lambda_min, 1] = [{actuator.lambda_min:g}, 1]",
+            )
+        points.append(pts)
+        levels.append(level)
+    return MultiShapeProblem(
+        name=name,
+        diameter=diameter,
+        targets=tuple(points),
+        levels=tuple(levels),
+        actuator=actuator,
+        options=options,
+        shared_pose=shared_pose,
+        units=units,
+    )
+
+
+def _tip(f: _File, data: dict, name: str, units: str, diameter: float) -> TipProblem:
+    """[tip]: position, optional direction, tube length, segments, objective, optional fixed base pose."""
+    table = _table(f, data, "tip", _TIP_KEYS, required=True)
+    position = _reals(f, "tip.position", _required(f, table, "position", "tip."), 3)
+    direction = None
+    if "direction" in table:
+        direction = _reals(f, "tip.direction", table["direction"], 3)
+        norm = float(np.linalg.norm(direction))
+        _check(f, "tip.direction", math.isfinite(norm) and norm > 0, "must be a nonzero vector")
+        direction = direction / norm
+    length = _real(f, "tip.length", _required(f, table, "length", "tip."))
+    _check(f, "tip.length", length > 0, "must be > 0")
+    segments = _integer(f, "tip.segments", table.get("segments", 10), 1, MAX_TIP_SEGMENTS)
+    objective = _choice(f, "tip.objective", table.get("objective", "contraction"), TIP_OBJECTIVES)
+    pose = _pose(f, "tip.initial_pose", table["initial_pose"]) if "initial_pose" in table else np.eye(4)
+    actuator = _actuator(f, _table(f, data, "actuator", _ACTUATOR_KEYS))
+    design = _table(f, data, "design", _DESIGN_KEYS)
+    options = _starts_default(design, _options(f, design), "tip")
+    return TipProblem(
+        name=name,
+        diameter=diameter,
+        position=position,
+        length=length,
+        segments=segments,
+        direction=direction,
+        objective=objective,
+        initial_pose=pose,
+        actuator=actuator,
+        options=options,
+        units=units,
+    )
 
 # ---------------------------------------------------------------- routing
 

@@ -1,0 +1,137 @@
+"""Figure of a multi-shape archive: the family of shapes of ONE sPAM routing at its K levels.
+
+(a) 3-D: every level's modeled center line (solid, one color per level, lambda in the
+    legend) and actuator line (thin), every target dashed in the same color, the base
+    marked; equal axis scaling, units on every axis.
+(b) the shared routing theta(s) [deg] against length along the unactuated tube;
+(c) each level's error to its target against that length.
+
+Sized like ``vine_nlp.front.plot`` (7.16 in wide, 7-8 pt fonts); png, pdf or svg by suffix.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.ticker import MaxNLocator  # noqa: E402
+
+FORMATS = ("png", "pdf", "svg")
+PAGE_IN = 7.16
+STYLE = {
+    "font.size": 8,
+    "axes.titlesize": 8,
+    "axes.labelsize": 8,
+    "xtick.labelsize": 7,
+    "ytick.labelsize": 7,
+    "legend.fontsize": 7,
+    "figure.titlesize": 9,
+    "axes.linewidth": 0.6,
+    "lines.linewidth": 1.0,
+}
+
+
+def _equal_3d(ax, points):
+    pts = np.concatenate([np.asarray(p).reshape(-1, 3) for p in points])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    mid, half = 0.5 * (lo + hi), 0.5 * max(float((hi - lo).max()), 1e-9)
+    ax.set_xlim(mid[0] - half, mid[0] + half)
+    ax.set_ylim(mid[1] - half, mid[1] + half)
+    ax.set_zlim(mid[2] - half, mid[2] + half)
+    ax.set_box_aspect((1, 1, 1))
+
+
+def _level_s(result, k, target):
+    """Length along the unactuated tube of each paired point of level k (the pairing of design.common)."""
+    from vine_nlp.design.common import pair_points
+
+    n = result.stats.get("points_per_segment")
+    r = result.routing
+    edges = np.concatenate([[0.0], np.cumsum(r.length)])
+    if isinstance(n, (int, float)) and n >= 1:
+        try:
+            p = pair_points(target, int(n))
+            if p.segments == r.segments:
+                return edges[p.seg] + p.frac * r.length[p.seg]
+        except ValueError:
+            pass
+    chord = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(target, axis=0), axis=1))])
+    return chord / max(chord[-1], 1e-300) * edges[-1]
+
+
+def plot_multishape_figure(archive_path) -> Figure:
+    from vine_nlp.design.multishape import read_multishape_archive
+
+    a, r, targets = read_multishape_archive(archive_path)
+    u = a.units
+    K = r.count
+    colors = plt.get_cmap("viridis")(np.linspace(0.0, 0.85, max(K, 2)))[:K]
+    with plt.rc_context(STYLE):
+        fig = Figure(figsize=(PAGE_IN, 3.6), layout="constrained")
+        gs = fig.add_gridspec(2, 2, width_ratios=[1.25, 1.0])
+        ax = fig.add_subplot(gs[:, 0], projection="3d")
+        everything = []
+        for k in range(K):
+            sh, tg = r.shapes[k], targets[k]
+            ax.plot(*sh.center.T, color=colors[k], lw=1.3)
+            ax.plot(*sh.inner.T, color=colors[k], lw=0.5, alpha=0.6)
+            ax.plot(*tg.T, "--", color=colors[k], lw=0.9, dashes=(3, 2))
+            ax.scatter(*sh.center[0], s=10, color=colors[k], marker="s", depthshade=False)
+            everything += [sh.center, sh.inner, tg]
+        ax.plot([], [], "k-", lw=1.3, label="center lines")
+        ax.plot([], [], "k-", lw=0.5, alpha=0.6, label="actuator lines")
+        ax.plot([], [], "k--", lw=0.9, dashes=(3, 2), label="targets")
+        ax.set_xlabel(f"x [{u}]", labelpad=-2)
+        ax.set_ylabel(f"y [{u}]", labelpad=-2)
+        ax.set_zlabel(f"z [{u}]", labelpad=-3)
+        ax.tick_params(axis="both", pad=-1)
+        for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+            axis.set_major_locator(MaxNLocator(5))
+            axis.pane.set_alpha(0.0)
+        _equal_3d(ax, everything)
+        ax.legend(loc="upper left", frameon=False, fontsize=6, ncols=3, bbox_to_anchor=(0.0, 1.02))
+        pose = "one shared base pose" if r.shared_pose else "a base pose per level"
+        ax.set_title(f"(a) {K} shapes of one routing, {pose}", pad=0)
+
+        edges = np.concatenate([[0.0], np.cumsum(r.routing.length)])
+        ax_t = fig.add_subplot(gs[0, 1])
+        ax_t.stairs(np.degrees(r.routing.theta), edges, color="k", lw=1.0, baseline=None)
+        ax_t.set_ylabel(r"$\theta$ [deg]")
+        ax_t.ticklabel_format(axis="y", useOffset=False)
+        th = np.degrees(r.routing.theta)
+        if np.ptp(th) < 1.0:  # a (nearly) uniform routing: show its value, not round-off
+            ax_t.set_ylim(th.mean() - 1.0, th.mean() + 1.0)
+        ax_t.set_title("(b) shared routing", loc="left", pad=2)
+        ax_e = fig.add_subplot(gs[1, 1], sharex=ax_t)
+        for k in range(K):
+            err = np.linalg.norm(r.shapes[k].center - targets[k], axis=1)
+            tag = "fixed" if r.fixed and r.fixed[k] else "free"
+            ax_e.plot(_level_s(r, k, targets[k]), err, color=colors[k], lw=1.0,
+                      label=f"$\\lambda$ = {r.levels[k]:.4g} ({tag}): RMSE {r.level_metrics[k]['rmse']:.3g} {u}")
+        ax_e.legend(frameon=False, fontsize=6)
+        ax_e.set_xlabel(f"s, length along the unactuated tube [{u}]")
+        ax_e.set_ylabel(f"error [{u}]")
+        ax_e.set_title("(c) center-line error to each target", loc="left", pad=2)
+        m = r.metrics
+        fig.suptitle(
+            f"{a.name} (multishape), D = {a.diameter:.3g} {u}: RMSE {m['rmse']:.3g} {u}, max {m['max_error']:.3g} {u}, {r.status}"
+        )
+    return fig
+
+
+def plot_multishape_file(archive_path, fig_path) -> Path:
+    """Draw the multi-shape archive at ``archive_path`` into ``fig_path`` (png, pdf or svg), atomically."""
+    from vine_nlp.io.archive import write_atomic
+
+    fmt = Path(fig_path).suffix.lower().lstrip(".")
+    if fmt not in FORMATS:
+        raise ValueError(f"{fig_path}: figure format must be one of {', '.join('.' + f for f in FORMATS)}")
+    fig = plot_multishape_figure(archive_path)
+    with plt.rc_context(STYLE):
+        write_atomic(fig_path, lambda tmp: fig.savefig(tmp, dpi=300, format=fmt))
+    return Path(fig_path)
