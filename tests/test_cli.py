@@ -141,3 +141,23 @@ def test_fit_command_recovers_the_synthetic_lambda(tmp_path, capsys):
     assert r.metrics["rmse"] < 0.2 and r.metrics["r2"] > 0.99
     assert a.extra["measured/points"].shape == (15, 3)
     assert "lambda 0.8" in capsys.readouterr().out
+
+
+def test_fit_frames_recover_lambda_over_frames(tmp_path, capsys):
+    # make_synthetic.frames(): lambda 0.98, 0.93, 0.87, 0.81, 0.76 (the paper's Fig. 9 range)
+    frames = sorted((PROBLEMS / "data" / "sinusoidal-frames").glob("frame-*.csv"))
+    out, fig = tmp_path / "f.h5", tmp_path / "frames.png"
+    args = ["fit", str(PROBLEMS / "fit-sinusoidal.toml"), "-o", str(out), "--frames", *map(str, frames), "--frames-plot", str(fig)]
+    assert main(args) == 0
+    lam = load_archive(out).extra["frames/lambda"]
+    np.testing.assert_allclose(lam, [0.98, 0.93, 0.87, 0.81, 0.76], atol=0.02)
+    assert fig.stat().st_size > 0
+
+
+def test_fit_frames_bad_file_writes_nothing(tmp_path, capsys):
+    bad = tmp_path / "frame.csv"
+    bad.write_text("x,y,z\n1,2,nan\n")
+    out = tmp_path / "f.h5"
+    assert main(["fit", str(PROBLEMS / "fit-sinusoidal.toml"), "-o", str(out), "--frames", str(bad)]) == 2
+    assert capsys.readouterr().err.strip() == f"error: {bad}: line 2: 'nan' is not finite"
+    assert not out.exists()

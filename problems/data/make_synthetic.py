@@ -40,5 +40,18 @@ def main():
     np.savetxt("active-helix-frame.csv", markers(r, 3.23, "outer", 15, 12), delimiter=",", header="x,y,z", comments="", fmt="%.4f")
 
 
+def frames():
+    """Five frames of the sinusoidal sPAM under rising pressure (paper Fig. 9: best-fit lambda 0.98 ... 0.76)."""
+    from pathlib import Path
+
+    s = np.arange(100) * 1.0
+    Path("sinusoidal-frames").mkdir(exist_ok=True)
+    for k, lam in enumerate([0.98, 0.93, 0.87, 0.81, 0.76]):
+        r = Routing(np.pi / 12 * np.sin(0.1 * s), lam, np.ones(100))
+        pts = markers(r, 3.31, "outer", 15, 100 + k)
+        np.savetxt(f"sinusoidal-frames/frame-{k}.csv", pts, delimiter=",", header="x,y,z", comments="", fmt="%.4f")
+
+
 if __name__ == "__main__":
+    frames()
     main()

@@ -269,20 +269,56 @@ def cmd_fit(args) -> int:
     pf = _load(args.problem, "fit")
     out = _check_output(args.output, args.force)
     fig = _check_figure(args.plot, args.force)
+    frames_fig = _check_figure(args.frames_plot, args.force) if args.frames else None
+    if args.frames:
+        from vine_nlp.io.problem_file import read_points
+
+        measured_frames = [read_points(f) for f in args.frames]  # bad data files fail before any work
     try:
         result, extras = fit_problem(pf.problem, starts=args.starts, seed=args.seed)
     except ValueError as e:  # too few usable points after the parser's checks
         raise InputError(args.problem, "measured.file", str(e)) from None
     archive = _archive_from(pf, {"fit": result})
     archive.extra.update(extras)
+    frames = _fit_frames(pf, args, measured_frames) if args.frames else None
+    if frames is not None:
+        archive.extra.update({f"frames/{k}": v for k, v in frames.items() if k != "fits"})
     write_archive(out, archive)
     print(f"{pf.name}: {describe_fit(result, pf.units)} -> {out}")
+    if frames is not None:
+        for k, (name, lam, rmse) in enumerate(zip(args.frames, frames["lambda"], frames["rmse"])):
+            print(f"  frame {k} {name}: lambda {lam:.4f}, RMSE {rmse:.4g} {pf.units}")
     if fig:
         from vine_nlp.front.fit_plots import plot_fit
 
         plot_fit(out, fig)
         print(f"figure -> {fig}")
+    if frames_fig:
+        from vine_nlp.front.fit_plots import plot_frames
+
+        plot_frames(frames["fits"], frames_fig, units=pf.units, title=f"{pf.name}: lambda over frames")
+        print(f"frames figure -> {frames_fig}")
     return EXIT_OK if result.converged else EXIT_NOT_CONVERGED
+
+
+def _fit_frames(pf, args, measured) -> dict:
+    """Batch of frames of one actuator (paper Fig. 9(d)): lambda and RMSE per frame."""
+    import numpy as np
+
+    from vine_nlp.fit import fit_frames
+
+    update, close = _progress_bar(f"{pf.name} frames", "frames")
+    try:
+        fits = fit_frames(pf.problem, measured, starts=args.starts, seed=args.seed)
+        update(len(fits), len(fits))
+    finally:
+        close()
+    return {
+        "fits": fits,
+        "lambda": np.array([f.lam for f in fits]),
+        "rmse": np.array([f.rmse for f in fits]),
+        "r2": np.array([getattr(f, "r2", np.nan) for f in fits]),
+    }
 
 
 def cmd_plot(args) -> int:
@@ -390,6 +426,8 @@ def build_parser() -> argparse.ArgumentParser:
     ft.add_argument("--starts", type=int, default=24, metavar="N", help="starting orientations of the global pose search")
     ft.add_argument("--seed", type=int, default=0)
     ft.add_argument("--plot", metavar="FIG.png", help="measured points against the fitted model, error against length")
+    ft.add_argument("--frames", nargs="+", metavar="FRAME.csv", help="also fit these frames of the same actuator in order")
+    ft.add_argument("--frames-plot", metavar="FIG.png", help="with --frames: lambda over frames and error against length")
     ft.add_argument("--force", action="store_true", help="overwrite existing output files")
     ft.set_defaults(func=cmd_fit)
 

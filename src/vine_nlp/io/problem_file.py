@@ -558,6 +558,18 @@ def _pose(f: _File, key: str, value) -> np.ndarray:
 # ---------------------------------------------------------------- data files
 
 
+def read_points(path, ordered: bool = False) -> np.ndarray:
+    """Points of a .csv or .npy data file given on the command line (e.g. ``fit --frames``).
+
+    Bad files raise InputError naming the data file, exactly as when a problem file names them.
+    """
+    path = Path(path)
+    f = _File(str(path))
+    if not path.is_file():
+        raise f.error("--frames", "no such file")
+    return _data_points(_File(str(path.parent / path.name)), "--frames", path.name, ordered)
+
+
 def _data_points(f: _File, key: str, value, ordered: bool) -> np.ndarray:
     """Points of a .csv or .npy file named by ``key``; ordered points must also pass targets.check_points."""
     name = _text(f, key, value)
