@@ -120,6 +120,14 @@ def _decode(v):
     return v
 
 
+_CORE_GROUPS = ("problem", "tube", "target", "runs")
+
+
+def _collect(extra, key, obj):
+    if isinstance(obj, h5py.Dataset):
+        extra[key] = obj[()]
+
+
 def load_archive(path) -> Archive:
     """Read an archive back into typed objects."""
     with h5py.File(path, "r") as h5:
@@ -137,9 +145,10 @@ def load_archive(path) -> Archive:
             created=_decode(h5.attrs["created"]),
             format_version=int(h5.attrs["format_version"]),
         )
-        if "measured" in h5:
-            for k, v in h5["measured"].items():
-                a.extra[f"measured/{k}"] = v[()]
+        # everything outside the core layout comes back as it was written (measured points, frames, ...)
+        for top in h5:
+            if top not in _CORE_GROUPS:
+                h5[top].visititems(lambda name, obj, top=top: _collect(a.extra, f"{top}/{name}", obj))
         for name, g in h5["runs"].items():
             d = g["design"]
             routing = Routing(d["theta"][()], d["lambda"][()], d["length"][()], d["initial_pose"][()])
