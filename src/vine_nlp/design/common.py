@@ -16,10 +16,67 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vine_nlp import interrupt
 from vine_nlp.design.problem import DesignProblem, Routing
 from vine_nlp.design.result import Result, Shape, error_metrics, routing_metrics
 from vine_nlp.model import shape_lines
 from vine_nlp.model.helix import center_rates, helix_from_curvature
+
+# IPOPT return statuses as archived (spec: "optimal" | "acceptable" | "max_iter" | "failed" | ...)
+IPOPT_STATUS = {
+    "Solve_Succeeded": "optimal",
+    "Solved_To_Acceptable_Level": "acceptable",
+    "Maximum_Iterations_Exceeded": "max_iter",
+    "Maximum_CpuTime_Exceeded": "max_time",
+    "Restoration_Failed": "restoration_failed",
+    "Infeasible_Problem_Detected": "infeasible",
+    "Invalid_Number_Detected": "invalid_number",
+    "Error_In_Step_Computation": "step_failed",
+    "Search_Direction_Becomes_Too_Small": "small_step",
+}
+
+
+def ipopt_quiet(max_iter: int, tol: float) -> dict:
+    """IPOPT prints nothing inside library code: callers report progress themselves."""
+    return {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": int(max_iter), "ipopt.tol": float(tol)}
+
+
+def ipopt_options(max_iter: int, tol: float, warm: bool = False) -> dict:
+    """IPOPT settings of the whole-chain formulations: quiet, adaptive mu, a stop on objective
+    plateaus, results inside the original bounds; ``warm`` for starts near the answer."""
+    opts = ipopt_quiet(max_iter, tol) | {
+        "ipopt.acceptable_tol": 1e-4,
+        # stop on a plateau (corners of polyline targets): the objective no longer moves
+        "ipopt.acceptable_obj_change_tol": 1e-8,
+        "ipopt.acceptable_iter": 10,
+        "ipopt.mu_strategy": "adaptive",
+        # return points inside the original bounds, not IPOPT's relaxed ones
+        "ipopt.honor_original_bounds": "yes",
+    }
+    if warm:
+        # a warm start is near the answer already: do not push it back into the interior
+        opts.update({
+            "ipopt.warm_start_init_point": "yes",
+            "ipopt.mu_init": 1e-6,
+            "ipopt.warm_start_bound_push": 1e-9,
+            "ipopt.warm_start_mult_bound_push": 1e-9,
+            "ipopt.warm_start_slack_bound_push": 1e-9,
+        })
+    return opts
+
+
+def ipopt_status(stats: dict) -> str:
+    """Archived status of one solve; an interrupted solve raises KeyboardInterrupt (vine_nlp.interrupt)."""
+    raw = stats.get("return_status", "")
+    interrupt.check(raw)
+    return IPOPT_STATUS.get(raw, str(raw or "failed"))
+
+
+def frames12(frames: np.ndarray) -> np.ndarray:
+    """(M+1, 4, 4) -> (12, M+1): rotation column-major, then position (the NLPs' frame layout)."""
+    R = frames[:, :3, :3].transpose(0, 2, 1).reshape(-1, 9)
+    return np.hstack([R, frames[:, :3, 3]]).T
+
 
 # Segment lengths stay within this factor of the target's chord length of the segment:
 # a loose box that keeps IPOPT away from dl -> 0 without constraining real designs.

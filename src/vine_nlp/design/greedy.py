@@ -67,6 +67,8 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp.design.common import (
+    IPOPT_STATUS,
+    ipopt_quiet,
     Pairing,
     clip_to_bounds,
     evaluate,
@@ -89,17 +91,6 @@ SPAM_CANDIDATES = 11  # linspace(lambda_min, 1, 11)
 SPAM_REFINE = 5  # second pass: 5 values within +-half a step of the best
 FILTER_ORDER = 2
 
-_STATUS = {
-    "Solve_Succeeded": "optimal",
-    "Solved_To_Acceptable_Level": "acceptable",
-    "Maximum_Iterations_Exceeded": "max_iter",
-    "Maximum_CpuTime_Exceeded": "max_time",
-    "Restoration_Failed": "restoration_failed",
-    "Infeasible_Problem_Detected": "infeasible",
-    "Invalid_Number_Detected": "invalid_number",
-    "Error_In_Step_Computation": "step_failed",
-    "Search_Direction_Becomes_Too_Small": "small_step",
-}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -162,14 +153,7 @@ class WindowSolver:
         pvec = ca.vertcat(*[ca.vec(q) for q in params])
         # the n slots of a segment repeat its helix rates: merging them speeds up the build
         sq, dist = ca.vertsplit(ca.cse(ca.vertcat(sq, dist)))
-        opts = {
-            "ipopt.print_level": 0,
-            "print_time": False,
-            "ipopt.sb": "yes",
-            "ipopt.max_iter": int(max_iter),
-            "ipopt.tol": float(tol),
-            "ipopt.acceptable_tol": 1e-6,
-        }
+        opts = ipopt_quiet(max_iter, tol) | {"ipopt.acceptable_tol": 1e-6}
         self.solver = ca.nlpsol(f"greedy_window_{K}", "ipopt", {"x": x, "p": pvec, "f": sq}, opts)
         self.terms = ca.Function("window_terms", [x, pvec], [sq, dist])
         self.build_time_s = time.perf_counter() - t0
@@ -359,7 +343,7 @@ def _greedy_pass(problem: DesignProblem, pairing: Pairing, counter: _Counter, la
             f_c, _ = solver.terms(x_carry, p)
             best = (float(f_c), x_carry, "Invalid_Number_Detected")
         f, x, rs = best
-        window_status.append(_STATUS.get(rs, str(rs)))
+        window_status.append(IPOPT_STATUS.get(rs, str(rs)))
         pose, th_w, lam_w, dl_w = solver.unpack_x(x)
         theta[sl] = th_w
         if not shared:

@@ -39,7 +39,16 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from vine_nlp.design.common import LENGTH_FACTOR, Pairing, evaluate, geometric_guess, pair_points
+from vine_nlp.design.common import (
+    LENGTH_FACTOR,
+    Pairing,
+    evaluate,
+    frames12,
+    geometric_guess,
+    ipopt_options,
+    ipopt_status,
+    pair_points,
+)
 from vine_nlp.design.nlp import segment_function
 from vine_nlp.design.problem import MultiShapeProblem, Routing
 from vine_nlp.design.result import Result, Shape, routing_metrics
@@ -47,40 +56,6 @@ from vine_nlp.model.helix import center_rates
 from vine_nlp.model.segment import so3_exp
 
 RUN = "multishape"
-
-STATUS = {
-    "Solve_Succeeded": "optimal",
-    "Solved_To_Acceptable_Level": "acceptable",
-    "Maximum_Iterations_Exceeded": "max_iter",
-    "Maximum_CpuTime_Exceeded": "max_time",
-    "Restoration_Failed": "restoration_failed",
-    "Infeasible_Problem_Detected": "infeasible",
-    "Invalid_Number_Detected": "invalid_number",
-    "Error_In_Step_Computation": "step_failed",
-}
-
-
-def ipopt_options(max_iter: int, tol: float) -> dict:
-    """The IPOPT settings of ``design.nlp`` (quiet, adaptive mu, plateau stop, original bounds)."""
-    return {
-        "ipopt.print_level": 0,
-        "print_time": False,
-        "ipopt.sb": "yes",
-        "ipopt.max_iter": int(max_iter),
-        "ipopt.tol": float(tol),
-        "ipopt.acceptable_tol": 1e-4,
-        "ipopt.acceptable_obj_change_tol": 1e-8,
-        "ipopt.acceptable_iter": 10,
-        "ipopt.mu_strategy": "adaptive",
-        "ipopt.honor_original_bounds": "yes",
-    }
-
-
-def frames12(frames: np.ndarray) -> np.ndarray:
-    """(M+1, 4, 4) -> (12, M+1): rotation column-major, then position (the NLP's frame layout)."""
-    R = frames[:, :3, :3].transpose(0, 2, 1).reshape(-1, 9)
-    return np.hstack([R, frames[:, :3, 3]]).T
-
 
 # ---------------------------------------------------------------- result
 
@@ -392,7 +367,7 @@ def solve_from(problem: MultiShapeProblem, guess: MultiGuess, pairings=None) -> 
         T.append(P)
     T = np.array(T * K if problem.shared_pose else T)
     fit, smooth = (float(v) for v in solver._terms(x, p))
-    status = STATUS.get(st.get("return_status", ""), str(st.get("return_status", "failed")))
+    status = ipopt_status(st)
     if not np.all(np.isfinite(x)):
         status = "invalid_number"
     stats = {

@@ -31,8 +31,10 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from vine_nlp import interrupt
 from vine_nlp.design.common import (
+    frames12,
+    ipopt_options,
+    ipopt_status,
     LENGTH_FACTOR,
     Guess,
     Pairing,
@@ -44,18 +46,6 @@ from vine_nlp.design.problem import DesignProblem, Routing
 from vine_nlp.design.result import Result
 from vine_nlp.model.helix import center_rates
 from vine_nlp.model.segment import so3_exp, twist_parts
-
-_STATUS = {
-    "Solve_Succeeded": "optimal",
-    "Solved_To_Acceptable_Level": "acceptable",
-    "Maximum_Iterations_Exceeded": "max_iter",
-    "Maximum_CpuTime_Exceeded": "max_time",
-    "Restoration_Failed": "restoration_failed",
-    "Infeasible_Problem_Detected": "infeasible",
-    "Invalid_Number_Detected": "invalid_number",
-    "Error_In_Step_Computation": "step_failed",
-}
-
 
 def segment_function(n: int) -> ca.Function:
     """One segment, SX: (frame X_j (12), theta, lam, dl, fractions u (n)) -> (X_{j+1}, points (3 x n))."""
@@ -170,29 +160,7 @@ class NLPSolver:
             lam_g = ca.MX.sym("lam_g", g.size1())
             H = sigma * ca.triu(2 * ca.mtimes(J.T, J))
             hess_fn = ca.Function("nlp_hess_l", [x, p, sigma, lam_g], [H], ["x", "p", "lam_f", "lam_g"], ["hess_gamma_x_x"])
-        opts = {
-            "ipopt.print_level": 0,
-            "print_time": False,
-            "ipopt.sb": "yes",
-            "ipopt.max_iter": int(max_iter),
-            "ipopt.tol": float(tol),
-            "ipopt.acceptable_tol": 1e-4,
-            # stop on a plateau (corners of polyline targets): the objective no longer moves
-            "ipopt.acceptable_obj_change_tol": 1e-8,
-            "ipopt.acceptable_iter": 10,
-            "ipopt.mu_strategy": "adaptive",
-            # return points inside the original bounds, not IPOPT's relaxed ones
-            "ipopt.honor_original_bounds": "yes",
-        }
-        if warm:
-            # a warm start is near the answer already: do not push it back into the interior
-            opts.update({
-                "ipopt.warm_start_init_point": "yes",
-                "ipopt.mu_init": 1e-6,
-                "ipopt.warm_start_bound_push": 1e-9,
-                "ipopt.warm_start_mult_bound_push": 1e-9,
-                "ipopt.warm_start_slack_bound_push": 1e-9,
-            })
+        opts = ipopt_options(max_iter, tol, warm)
         if hessian == "gauss-newton":
             opts["hess_lag"] = hess_fn
         self.solver = ca.nlpsol("vine_nlp", "ipopt", {"x": x, "p": p, "f": f, "g": g}, opts)
@@ -260,12 +228,6 @@ def get_solver(
     return NLPSolver(M, n, shared_lambda, max_iter, tol, warm, hessian)
 
 
-def _frames12(frames: np.ndarray) -> np.ndarray:
-    """(M+1, 4, 4) -> (12, M+1): rotation column-major, then position."""
-    R = frames[:, :3, :3].transpose(0, 2, 1).reshape(-1, 9)  # column-major flattening of each R
-    return np.hstack([R, frames[:, :3, 3]]).T
-
-
 def solve_from(
     problem: DesignProblem, guess: Guess | None = None, pairing: Pairing | None = None, frames: str = "target", warm: bool = False
 ) -> Result:
@@ -312,7 +274,7 @@ def solve_from(
         fr = chain_frames(guess.theta, guess.lam, guess.length, D, guess.initial_pose)
     fr = fr.copy()
     fr[:, :3, 3] /= D
-    x0 = solver.pack_x(np.zeros(3), guess.initial_pose[:3, 3] / D, guess.theta, guess.lam, guess.length / D, _frames12(fr))
+    x0 = solver.pack_x(np.zeros(3), guess.initial_pose[:3, 3] / D, guess.theta, guess.lam, guess.length / D, frames12(fr))
     chord = pairing.segment_chord / D
     lo = (np.full(M, -problem.actuator.theta_max), np.full(M, problem.actuator.lambda_min), LENGTH_FACTOR[0] * chord)
     hi = (np.full(M, problem.actuator.theta_max), np.ones(M), LENGTH_FACTOR[1] * chord)
@@ -322,7 +284,7 @@ def solve_from(
     sol = solver.solver(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
     solve_time = time.perf_counter() - t0
     st = solver.solver.stats()
-    interrupt.check(st.get("return_status"))
+    status = ipopt_status(st)
     x = np.array(sol["x"]).ravel()
     w_rot, p0, theta, lam, dl = solver.unpack_x(x)
     T0 = np.eye(4)
@@ -330,7 +292,6 @@ def solve_from(
     T0[:3, 3] = p0 * D
     routing = Routing(theta, lam, dl * D, T0)
     fit, smooth = (float(v) for v in solver._terms(x, p))
-    status = _STATUS.get(st.get("return_status", ""), str(st.get("return_status", "failed")))
     if not np.all(np.isfinite(x)):
         status = "invalid_number"
     return evaluate(
