@@ -161,3 +161,24 @@ def test_fit_frames_bad_file_writes_nothing(tmp_path, capsys):
     assert main(["fit", str(PROBLEMS / "fit-sinusoidal.toml"), "-o", str(out), "--frames", str(bad)]) == 2
     assert capsys.readouterr().err.strip() == f"error: {bad}: line 2: 'nan' is not finite"
     assert not out.exists()
+
+
+def test_sweep_command_runs_and_resumes(tmp_path, capsys):
+    base = tmp_path / "base.toml"
+    base.write_text((PROBLEMS / "trefoil-m4.toml").read_text().replace("samples = 400", "samples = 41").replace("points_per_segment = 10", "points_per_segment = 5"))
+    sw = tmp_path / "s.toml"
+    sw.write_text('name = "s"\nbase = "base.toml"\nmethods = ["nlp"]\n[grid]\n"target.scale.2" = [3, 5]\n')
+    out = tmp_path / "out"
+    assert main(["sweep", str(sw), "-o", str(out), "--workers", "1"]) == 0
+    assert sorted(p.name for p in out.glob("*.h5")) == ["s-0000.h5", "s-0001.h5"]
+    capsys.readouterr()
+    assert main(["sweep", str(sw), "-o", str(out), "--workers", "1"]) == 0
+    assert "2 skipped" in capsys.readouterr().out
+
+
+def test_sweep_bad_grid_key_exit_2(tmp_path, capsys):
+    sw = tmp_path / "s.toml"
+    sw.write_text(f'name = "s"\nbase = "{PROBLEMS / "trefoil-m4.toml"}"\n[grid]\n"tube.diameter" = [-1]\n')
+    assert main(["sweep", str(sw), "-o", str(tmp_path / "out")]) == 2
+    assert capsys.readouterr().err.startswith(f"error: {sw}: tube.diameter: must be > 0")
+    assert not (tmp_path / "out").exists()

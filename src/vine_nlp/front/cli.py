@@ -262,6 +262,24 @@ def cmd_compare(args) -> int:
     return EXIT_OK if all(r.converged for r in runs.values()) else EXIT_NOT_CONVERGED
 
 
+def cmd_sweep(args) -> int:
+    from vine_nlp.front.sweep import format_report, run_sweep
+    from vine_nlp.io.problem_file import load_sweep
+
+    sweep = load_sweep(args.sweep)  # every item is validated before any work starts
+    try:
+        report = run_sweep(sweep, args.output, workers=args.workers, scheduler=args.scheduler, force=args.force)
+    except KeyboardInterrupt as e:
+        partial = getattr(e, "sweep_report", None)
+        if partial is not None:
+            print(format_report(partial))
+            print("interrupted: every finished item is archived; run the same command again to resume", file=sys.stderr)
+            return 130
+        raise
+    print(format_report(report))
+    return EXIT_OK if not (report.failed or report.not_converged) else EXIT_NOT_CONVERGED
+
+
 def cmd_fit(args) -> int:
     from vine_nlp.fit import describe_fit, fit_problem
     from vine_nlp.io.archive import write_archive
@@ -419,6 +437,14 @@ def build_parser() -> argparse.ArgumentParser:
         d.add_argument("--plot", metavar="FIG.png", help="also draw the result (png or pdf)")
         d.add_argument("--force", action="store_true", help="overwrite existing output files")
         d.set_defaults(func=func)
+
+    sw = sub.add_parser("sweep", help="many design problems: one archive per item, summary.csv and a summary figure")
+    sw.add_argument("sweep", metavar="SWEEP.toml")
+    sw.add_argument("-o", "--output", required=True, metavar="DIR")
+    sw.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: all cores)")
+    sw.add_argument("--scheduler", metavar="ADDRESS", help="run on a Dask distributed cluster (e.g. tcp://host:8786)")
+    sw.add_argument("--force", action="store_true", help="redo items whose archives exist")
+    sw.set_defaults(func=cmd_sweep)
 
     ft = sub.add_parser("fit", help="fit the model of a known routing to measured points (pose, optionally lambda)")
     ft.add_argument("problem", metavar="PROBLEM.toml")

@@ -1,0 +1,308 @@
+"""Design sweeps: one archive per item, the summary, resume, failures, Ctrl-C, dask, crashes."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import os
+
+import pytest
+
+import vine_nlp.design
+from vine_nlp.errors import InputError
+from vine_nlp.front import sweep as sw
+from vine_nlp.io.archive import load_archive
+from vine_nlp.io.problem_file import ProblemFile, load_sweep
+
+BASE = """\
+name = "tiny-trefoil"
+units = "cm"
+[tube]
+diameter = 2.43
+[target]
+curve = "trefoil"
+scale = [4.0, 4.0, 4.0]
+samples = 41
+[actuator]
+kind = "tendon"
+lambda_min = 0.4
+theta_max_deg = 60.0
+[design]
+points_per_segment = 5
+"""
+
+COLUMNS = ["item", "target.scale.0", "target.scale.1", "method", "status", "rmse", "max_error", "solve_time_s"]
+
+
+def _write_sweep(folder, methods=("nlp",), base=BASE, name="tiny"):
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "base.toml").write_text(base)
+    listed = ", ".join(f'"{m}"' for m in methods)
+    (folder / "sweep.toml").write_text(
+        f'name = "{name}"\nbase = "base.toml"\nmethods = [{listed}]\n'
+        '[grid]\n"target.scale.0" = [3, 4]\n"target.scale.1" = [3, 5]\n'
+    )
+    return folder / "sweep.toml"
+
+
+def _read_csv(path):
+    with open(path, newline="") as fh:
+        reader = csv.reader(fh)
+        header = next(reader)
+        return header, [dict(zip(header, row)) for row in reader]
+
+
+def _h5_files(folder):
+    return sorted(p.name for p in folder.glob("*.h5"))
+
+
+def _mtimes(folder):
+    return {p.name: p.stat().st_mtime_ns for p in folder.glob("*.h5")}
+
+
+@pytest.fixture(scope="module")
+def local_run(tmp_path_factory):
+    """The tiny sweep (4 items) solved once by 2 local worker processes."""
+    root = tmp_path_factory.mktemp("local")
+    path = _write_sweep(root / "in")
+    out = root / "out" / "nested"  # does not exist: run_sweep creates it
+    report = sw.run_sweep(load_sweep(path), out, workers=2, progress=False)
+    return path, out, report
+
+
+def test_local_run_writes_one_archive_per_item_and_the_summary(local_run):
+    path, out, report = local_run
+    items = [item for item, _, _ in load_sweep(path).items()]
+    assert (report.done, report.skipped, report.failed, report.total) == (4, 0, 0, 4)
+    assert report.created_dir and report.executor == "2 local worker processes"
+    assert _h5_files(out) == sorted(f"{i}.h5" for i in items)
+    header, rows = _read_csv(out / "summary.csv")
+    assert header[: len(COLUMNS)] == COLUMNS  # the spec's columns, in order; extras after them
+    assert header[len(COLUMNS):] == ["iterations", "units", "error"]
+    assert [(r["item"], r["method"]) for r in rows] == [(i, "nlp") for i in items]
+    assert [(r["target.scale.0"], r["target.scale.1"]) for r in rows] == [("3", "3"), ("3", "5"), ("4", "3"), ("4", "5")]
+    for row in rows:
+        a = load_archive(out / f"{row['item']}.h5")
+        run = a.runs["nlp"]
+        assert a.name == row["item"] and list(a.runs) == ["nlp"]
+        assert float(row["rmse"]) == run.metrics["rmse"]  # full precision, not rounded
+        assert float(row["max_error"]) == run.metrics["max_error"]
+        assert float(row["solve_time_s"]) == run.solve_time_s
+        assert row["status"] == run.status == "optimal"
+        assert int(row["iterations"]) == run.iterations and row["units"] == "cm" and row["error"] == ""
+        assert "item tiny-0" in a.source  # the archive says which grid point it is
+    assert (out / "summary.png").stat().st_size > 0
+    text = sw.format_report(report)
+    assert "4 solved, 0 skipped" in text and "(created)" in text and "nlp: RMSE mean" in text
+
+
+def test_long_lived_workers_build_each_solver_once(local_run):
+    _, out, _ = local_run
+    builds = [load_archive(p).runs["nlp"].stats["build_time_s"] for p in out.glob("*.h5")]
+    # two worker processes, one structure: at most one build in each, the other items reuse it
+    assert 1 <= sum(b > 0 for b in builds) <= 2
+
+
+def test_rerun_skips_finished_items_and_keeps_their_archives(local_run):
+    path, out, first = local_run
+    before = _mtimes(out)
+    _, rows_before = _read_csv(out / "summary.csv")
+    report = sw.run_sweep(load_sweep(path), out, workers=2, progress=False)
+    assert (report.done, report.skipped, report.failed) == (0, 4, 0)
+    assert report.executor == ""  # nothing to solve: no pool started
+    assert _mtimes(out) == before
+    _, rows = _read_csv(out / "summary.csv")
+    assert rows == rows_before  # rows rebuilt from the archives
+    assert "0 solved, 4 skipped" in sw.format_report(report)
+
+
+@pytest.mark.slow
+def test_dask_cluster_gives_the_same_summary(local_run, tmp_path):
+    distributed = pytest.importorskip("dask.distributed")
+    path, out_local, _ = local_run
+    out = tmp_path / "dask"
+    with distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1, dashboard_address=None) as cluster:
+        report = sw.run_sweep(load_sweep(path), out, scheduler=cluster.scheduler_address, progress=False)
+    assert (report.done, report.failed) == (4, 0)
+    assert report.executor.startswith("dask scheduler")
+    _, local = _read_csv(out_local / "summary.csv")
+    _, remote = _read_csv(out / "summary.csv")
+    drop = ("solve_time_s",)  # timing differs, everything else is the same solve
+    assert [{k: v for k, v in r.items() if k not in drop} for r in remote] == [
+        {k: v for k, v in r.items() if k not in drop} for r in local
+    ]
+    assert _h5_files(out) == _h5_files(out_local)
+
+
+def test_a_failing_item_is_reported_and_the_others_finish(tmp_path, monkeypatch):
+    path = _write_sweep(tmp_path / "in")
+    out = tmp_path / "out"
+    real = vine_nlp.design.run_design
+
+    def flaky(problem, method=None, **kw):
+        if problem.name == "tiny-0002":
+            raise RuntimeError("boom\nsecond line")
+        return real(problem, method, **kw)
+
+    monkeypatch.setattr(vine_nlp.design, "run_design", flaky)
+    report = sw.run_sweep(load_sweep(path), out, workers=1, progress=False)
+    assert (report.done, report.failed) == (3, 1)
+    assert report.executor == "in this process"
+    assert _h5_files(out) == ["tiny-0000.h5", "tiny-0001.h5", "tiny-0003.h5"]  # no archive for the failure
+    _, rows = _read_csv(out / "summary.csv")
+    assert [r["status"] for r in rows] == ["optimal", "optimal", "failed", "optimal"]
+    failed = rows[2]
+    assert failed["error"] == "RuntimeError: boom second line"  # one line
+    assert failed["rmse"] == failed["max_error"] == failed["solve_time_s"] == ""
+    assert report.failures == [("tiny-0002", "nlp", "RuntimeError: boom second line")]
+    assert "failed: tiny-0002 nlp: RuntimeError: boom" in sw.format_report(report)
+
+    # the next run retries only the failed item
+    monkeypatch.setattr(vine_nlp.design, "run_design", real)
+    before = _mtimes(out)
+    again = sw.run_sweep(load_sweep(path), out, workers=0, progress=False)
+    assert (again.done, again.skipped, again.failed) == (1, 3, 0)
+    assert {k: v for k, v in _mtimes(out).items() if k in before} == before
+    _, rows = _read_csv(out / "summary.csv")
+    assert [r["status"] for r in rows] == ["optimal"] * 4
+
+
+def test_a_failing_method_keeps_the_other_methods_of_its_item(tmp_path, monkeypatch):
+    path = _write_sweep(tmp_path / "in", methods=("nlp", "greedy"))
+    out = tmp_path / "out"
+    real = vine_nlp.design.run_design
+    calls = []
+    broken = {"tiny-0001"}
+
+    def fake_greedy(problem, method=None, **kw):
+        calls.append((problem.name, method))
+        if method == "greedy":  # stands in for the (slow) greedy method: the nlp design, relabelled
+            if problem.name in broken:
+                raise ValueError("greedy went wrong")
+            r = real(problem, "nlp")
+            return dataclasses.replace(r, method="greedy", solve_time_s=2 * r.solve_time_s, metrics={**r.metrics, "rmse": 1.5 * r.metrics["rmse"]})
+        return real(problem, method, **kw)
+
+    monkeypatch.setattr(vine_nlp.design, "run_design", fake_greedy)
+    report = sw.run_sweep(load_sweep(path), out, workers=1, progress=False)
+    assert (report.done, report.failed) == (3, 1)
+    assert list(load_archive(out / "tiny-0001.h5").runs) == ["nlp"]  # the finished run is kept
+    assert sorted(load_archive(out / "tiny-0000.h5").runs) == ["greedy", "nlp"]
+    _, rows = _read_csv(out / "summary.csv")
+    assert [(r["item"], r["method"], r["status"]) for r in rows[2:4]] == [
+        ("tiny-0001", "nlp", "optimal"), ("tiny-0001", "greedy", "failed")]
+    assert (out / "summary.png").exists()  # with the NLP-against-greedy panel
+
+    calls.clear()
+    broken.clear()
+    again = sw.run_sweep(load_sweep(path), out, workers=1, progress=False)
+    assert calls == [("tiny-0001", "greedy")]  # only the missing run is solved
+    assert (again.done, again.skipped, again.failed) == (1, 3, 0)
+    assert sorted(load_archive(out / "tiny-0001.h5").runs) == ["greedy", "nlp"]
+
+
+def test_an_interrupt_inside_a_worker_fails_the_run_not_the_sweep(tmp_path, monkeypatch):
+    # CasADi turns an exception inside IPOPT into a status that vine_nlp.interrupt raises as
+    # KeyboardInterrupt; workers ignore Ctrl-C, so there it is the run's failure.
+    path = _write_sweep(tmp_path / "in")
+    _, _, pf = load_sweep(path).items()[0]
+
+    def interrupted(problem, method=None, **kw):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(vine_nlp.design, "run_design", interrupted)
+    runs, timings = sw.solve_item(pf, ["nlp"], remote=True)
+    assert runs == {} and "KeyboardInterrupt" in timings["errors"]["nlp"]
+    with pytest.raises(KeyboardInterrupt):  # in this process it is the user's Ctrl-C
+        sw.solve_item(pf, ["nlp"])
+
+
+def test_ctrl_c_keeps_finished_archives_and_a_valid_summary(tmp_path):
+    path = _write_sweep(tmp_path / "in")
+    out = tmp_path / "out"
+    seen = []
+
+    def interrupt(item, rows):
+        seen.append(item)
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt) as info:
+        sw.run_sweep(load_sweep(path), out, workers=2, progress=False, callback=interrupt)
+    report = info.value.sweep_report
+    assert report.interrupted and report.done == 1 and len(seen) == 1
+    assert _h5_files(out) == [f"{seen[0]}.h5"]
+    for p in out.glob("*.h5"):
+        load_archive(p)
+    assert not list(out.glob(".*.tmp"))  # no half-written files
+    _, rows = _read_csv(out / "summary.csv")
+    assert [r["item"] for r in rows] == seen
+    assert "not run (interrupted)" in sw.format_report(report)
+
+    again = sw.run_sweep(load_sweep(path), out, workers=2, progress=False)
+    assert (again.done, again.skipped, again.failed) == (3, 1, 0)
+    _, rows = _read_csv(out / "summary.csv")
+    assert [r["item"] for r in rows] == [f"tiny-000{k}" for k in range(4)]
+
+
+def test_archives_of_another_version_of_the_sweep_are_redone(tmp_path):
+    path = _write_sweep(tmp_path / "in")
+    out = tmp_path / "out"
+    sw.run_sweep(load_sweep(path), out, workers=1, progress=False)
+    (out / "tiny-0003.h5").write_bytes(b"not an archive")  # e.g. cut short by a power failure
+    _write_sweep(tmp_path / "in", base=BASE.replace("diameter = 2.43", "diameter = 2.5"))
+    report = sw.run_sweep(load_sweep(path), out, workers=1, progress=False)
+    assert (report.done, report.skipped, report.replaced) == (4, 0, 4)
+    assert all(load_archive(p).diameter == 2.5 for p in out.glob("*.h5"))
+    assert "were replaced" in sw.format_report(report)
+    forced = sw.run_sweep(load_sweep(path), out, workers=1, progress=False, force=True)
+    assert (forced.done, forced.skipped, forced.replaced) == (4, 0, 0)
+
+
+class _Crashes(ProblemFile):
+    """A problem that kills the worker process that receives it (as a native crash would)."""
+
+    def __reduce__(self):
+        return (os._exit, (3,))
+
+
+@pytest.mark.slow
+def test_an_item_that_kills_its_worker_fails_alone(tmp_path):
+    path = _write_sweep(tmp_path / "in")
+    sweep = load_sweep(path)
+    items = sweep.items()
+    item, overrides, pf = items[1]
+    sweep._items[1] = (item, overrides, _Crashes(**{f.name: getattr(pf, f.name) for f in dataclasses.fields(pf)}))
+    out = tmp_path / "out"
+    report = sw.run_sweep(sweep, out, workers=2, progress=False)
+    assert (report.done, report.failed) == (3, 1)
+    assert [f[0] for f in report.failures] == ["tiny-0001"]
+    assert "worker process died" in report.failures[0][2]
+    assert _h5_files(out) == ["tiny-0000.h5", "tiny-0002.h5", "tiny-0003.h5"]
+
+
+def test_bad_arguments_are_input_errors_and_create_nothing(tmp_path):
+    path = _write_sweep(tmp_path / "in")
+    with pytest.raises(InputError, match="--workers"):
+        sw.run_sweep(load_sweep(path), tmp_path / "a", workers=-1, progress=False)
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(InputError, match="not a directory"):
+        sw.run_sweep(load_sweep(path), tmp_path / "file", workers=1, progress=False)
+    with pytest.raises(InputError, match="--scheduler"):
+        sw.run_sweep(load_sweep(path), tmp_path / "a", scheduler="no-port-here", progress=False)
+    assert not (tmp_path / "a").exists()
+
+
+def test_plot_summary_draws_both_methods_and_skips_failures(tmp_path):
+    rows = []
+    for k in range(6):
+        for method, rmse in (("nlp", 0.01 * (k + 1)), ("greedy", 0.03 * (k + 1))):
+            rows.append({"item": f"s-{k}", "method": method, "status": "optimal", "rmse": rmse, "max_error": 2 * rmse,
+                         "solve_time_s": 0.1 * (k + 1), "units": "cm"})
+    rows.append({"item": "s-6", "method": "nlp", "status": "failed", "rmse": None, "max_error": None,
+                 "solve_time_s": None, "units": "cm"})
+    png = sw.plot_summary(rows, tmp_path / "f.png")
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    stats = sw.method_stats(rows)
+    assert stats["nlp"]["count"] == 6 and stats["nlp"]["failed"] == 1
+    assert stats["nlp"]["rmse_max"] == pytest.approx(0.6) and stats["nlp"]["units"] == "mm"
+    assert stats["greedy"]["worst_item"] == "s-5"
