@@ -9,7 +9,6 @@ import pytest
 from vine_nlp.model import (
     center_rates,
     chain_frames,
-    chain_points,
     cosserat,
     helix_forward,
     helix_inverse,

@@ -23,7 +23,6 @@ parameters, so multi-start and sweeps reuse it.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 from functools import lru_cache

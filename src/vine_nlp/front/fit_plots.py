@@ -18,25 +18,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vine_nlp.design.problem import MEASURED_LINES  # noqa: E402
-from vine_nlp.io.archive import Archive, load_archive, write_atomic  # noqa: E402
+from vine_nlp.front.plot import save_figure, set_equal_3d  # noqa: E402
+from vine_nlp.io.archive import Archive, load_archive  # noqa: E402
 
 LINE_COLORS = {"center": "tab:gray", "inner": "tab:blue", "outer": "tab:red"}
-
-
-def _equal_3d(ax, arrays):
-    pts = np.concatenate([np.asarray(a, float).reshape(-1, 3) for a in arrays if np.size(a)])
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    mid, half = 0.5 * (lo + hi), 0.5 * max(float((hi - lo).max()), 1e-9)
-    ax.set_xlim(mid[0] - half, mid[0] + half)
-    ax.set_ylim(mid[1] - half, mid[1] + half)
-    ax.set_zlim(mid[2] - half, mid[2] + half)
-    ax.set_box_aspect((1, 1, 1))
-
-
-def _save(fig, path):
-    suffix = str(path).rsplit(".", 1)[-1].lower()
-    write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=150, format=suffix))
-    plt.close(fig)
 
 
 def _fit_inputs(source, extras):
@@ -94,7 +79,7 @@ def plot_fit(source, path, extras=None, title=None):
     ax.set_xlabel(f"x [{units}]")
     ax.set_ylabel(f"y [{units}]")
     ax.set_zlabel(f"z [{units}]")
-    _equal_3d(ax, [pts, result.shape.center, result.shape.inner, result.shape.outer])
+    set_equal_3d(ax, [pts, result.shape.center, result.shape.inner, result.shape.outer])
     ax.legend(loc="upper left", fontsize=7)
 
     ax2 = fig.add_subplot(1, 2, 2)
@@ -119,7 +104,7 @@ def plot_fit(source, path, extras=None, title=None):
     ax2.set_title(", ".join(b for b in bits if b), fontsize=9)
     fig.suptitle(title or (f"{name}: model fit" if name else "model fit"), fontsize=10)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path, dpi=150)
 
 
 def plot_frames(results, path, units: str = "cm", show: int = 5, title=None, frame_times=None):
@@ -159,4 +144,4 @@ def plot_frames(results, path, units: str = "cm", show: int = 5, title=None, fra
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path, dpi=150)

@@ -21,30 +21,7 @@ import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
-FORMATS = ("png", "pdf", "svg")
-PAGE_IN = 7.16
-STYLE = {
-    "font.size": 8,
-    "axes.titlesize": 8,
-    "axes.labelsize": 8,
-    "xtick.labelsize": 7,
-    "ytick.labelsize": 7,
-    "legend.fontsize": 7,
-    "figure.titlesize": 9,
-    "axes.linewidth": 0.6,
-    "lines.linewidth": 1.0,
-}
-
-
-def _equal_3d(ax, points):
-    pts = np.concatenate([np.asarray(p).reshape(-1, 3) for p in points])
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    mid, half = 0.5 * (lo + hi), 0.5 * max(float((hi - lo).max()), 1e-9)
-    ax.set_xlim(mid[0] - half, mid[0] + half)
-    ax.set_ylim(mid[1] - half, mid[1] + half)
-    ax.set_zlim(mid[2] - half, mid[2] + half)
-    ax.set_box_aspect((1, 1, 1))
-
+from vine_nlp.front.plot import PAGE_IN, STYLE, figure_format, save_figure, set_equal_3d  # noqa: E402
 
 def _level_s(result, k, target):
     """Length along the unactuated tube of each paired point of level k (the pairing of design.common)."""
@@ -93,7 +70,7 @@ def plot_multishape_figure(archive_path) -> Figure:
         for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
             axis.set_major_locator(MaxNLocator(5))
             axis.pane.set_alpha(0.0)
-        _equal_3d(ax, everything)
+        set_equal_3d(ax, everything)
         ax.legend(loc="upper left", frameon=False, fontsize=6, ncols=3, bbox_to_anchor=(0.0, 1.02))
         pose = "one shared base pose" if r.shared_pose else "a base pose per level"
         ax.set_title(f"(a) {K} shapes of one routing, {pose}", pad=0)
@@ -126,12 +103,5 @@ def plot_multishape_figure(archive_path) -> Figure:
 
 def plot_multishape_file(archive_path, fig_path) -> Path:
     """Draw the multi-shape archive at ``archive_path`` into ``fig_path`` (png, pdf or svg), atomically."""
-    from vine_nlp.io.archive import write_atomic
-
-    fmt = Path(fig_path).suffix.lower().lstrip(".")
-    if fmt not in FORMATS:
-        raise ValueError(f"{fig_path}: figure format must be one of {', '.join('.' + f for f in FORMATS)}")
-    fig = plot_multishape_figure(archive_path)
-    with plt.rc_context(STYLE):
-        write_atomic(fig_path, lambda tmp: fig.savefig(tmp, dpi=300, format=fmt))
-    return Path(fig_path)
+    figure_format(fig_path)  # before any drawing
+    return save_figure(plot_multishape_figure(archive_path), fig_path)

@@ -139,7 +139,7 @@ def tube_surface(shape, diameter: float, around: int = 24, max_rows: int = 500):
 
 def set_equal_3d(ax, points, zoom: float = 1.0):
     """Equal scaling on all three axes (a helix must look round)."""
-    pts = np.concatenate([np.asarray(p).reshape(-1, 3) for p in points])
+    pts = np.concatenate([np.asarray(p, float).reshape(-1, 3) for p in points if np.size(p)])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     mid, half = 0.5 * (lo + hi), 0.5 * max(float((hi - lo).max()), 1e-9)
     ax.set_xlim(mid[0] - half, mid[0] + half)
@@ -303,7 +303,7 @@ def plot_archive(archive) -> Figure:
         if k <= 1 and not paired:
             fig = Figure(figsize=(COLUMN_IN, 2.9 + 3 * 1.45), layout="constrained")
             gs = fig.add_gridspec(4, 1, height_ratios=[2.9, 1.45, 1.45, 1.45])
-            top, cells3d = gs[0], [gs[0]]
+            cells3d = [gs[0]]
             ax_e = None
             cells = [gs[1], gs[2], gs[3]]
         elif k <= 1:
@@ -359,10 +359,18 @@ def figure_format(figure_path) -> str:
     return fmt
 
 
+def save_figure(fig, figure_path, dpi: int = 300) -> Path:
+    """Write a figure (format by suffix: png, pdf, svg) atomically, in the house style, and close it."""
+    fmt = figure_format(figure_path)
+    try:
+        with plt.rc_context(STYLE):
+            write_atomic(figure_path, lambda tmp: fig.savefig(tmp, dpi=dpi, format=fmt))
+    finally:
+        plt.close(fig)
+    return Path(figure_path)
+
+
 def plot_archive_file(archive_path, figure_path):
     """Draw the archive at ``archive_path`` into ``figure_path`` (.png or .pdf, chosen by suffix), atomically."""
-    fmt = figure_format(figure_path)
-    fig = plot_archive(load_archive(archive_path))
-    with plt.rc_context(STYLE):
-        write_atomic(figure_path, lambda tmp: fig.savefig(tmp, dpi=300, format=fmt))
-    return Path(figure_path)
+    figure_format(figure_path)  # before any drawing
+    return save_figure(plot_archive(load_archive(archive_path)), figure_path)
