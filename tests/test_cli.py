@@ -182,3 +182,32 @@ def test_sweep_bad_grid_key_exit_2(tmp_path, capsys):
     assert main(["sweep", str(sw), "-o", str(tmp_path / "out")]) == 2
     assert capsys.readouterr().err.startswith(f"error: {sw}: tube.diameter: must be > 0")
     assert not (tmp_path / "out").exists()
+
+
+def _small_trefoil(tmp_path):
+    p = tmp_path / "small.toml"
+    p.write_text((PROBLEMS / "trefoil-m4.toml").read_text().replace("samples = 400", "samples = 41").replace("points_per_segment = 10", "points_per_segment = 5"))
+    return p
+
+
+def test_analyze_reports_clearance_and_tolerance(tmp_path, capsys):
+    out = tmp_path / "d.h5"
+    assert main(["design", str(_small_trefoil(tmp_path)), "-o", str(out)]) == 0
+    capsys.readouterr()
+    fig = tmp_path / "tol.png"
+    assert main(["analyze", str(out), "--samples", "200", "--tolerance-figure", str(fig), "--write-metrics"]) == 0
+    text = capsys.readouterr().out
+    for word in ("clearance", "growth", "tolerance", "Monte Carlo", "tip"):
+        assert word in text
+    m = load_archive(out).runs["nlp"].metrics
+    assert m["min_clearance"] > 0
+    assert m["tolerance_tip_std_mc"] == pytest.approx(m["tolerance_tip_std_first_order"], rel=0.15)
+    assert fig.stat().st_size > 0
+
+
+def test_design_robust_run_is_archived_beside_nlp(tmp_path, capsys):
+    out = tmp_path / "d.h5"
+    assert main(["design", str(_small_trefoil(tmp_path)), "-o", str(out), "--robust"]) == 0
+    runs = load_archive(out).runs
+    assert set(runs) == {"nlp", "nlp_robust"}
+    assert runs["nlp_robust"].metrics["rmse"] >= runs["nlp"].metrics["rmse"] - 1e-9  # robustness costs nominal accuracy

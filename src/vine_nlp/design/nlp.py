@@ -227,6 +227,30 @@ def get_solver(
     return NLPSolver(M, n, shared_lambda, max_iter, tol, warm, hessian)
 
 
+def nlp_parameters(problem: DesignProblem, pairing: Pairing, R0g: np.ndarray) -> list:
+    """Values of NLPSolver's parameters for ``problem`` (scaled by D), in its order: targets per
+    slot, weights 1/N, slot fractions, tip, guess rotation, smoothing weights, arc steps
+    between segment middles, total arc length."""
+    o = problem.options
+    D = problem.diameter
+    M, n = pairing.segments, pairing.n
+    N = problem.target.shape[0]
+    tgt = problem.target / D
+    slots = np.zeros((3, n * M))
+    w = np.zeros(n * M)
+    u = np.zeros((n, M))
+    k = np.arange(N - 1)  # the tip (last point) is paired with the last frame
+    i = k - pairing.seg[k] * n
+    slot = pairing.seg[k] * n + i
+    slots[:, slot] = tgt[k].T
+    w[slot] = 1.0 / N
+    u[i, pairing.seg[k]] = pairing.frac[k]
+    mids = 0.5 * (pairing.chord[pairing.bounds[:-1]] + pairing.chord[pairing.bounds[1:]]) / D
+    h = np.diff(mids) if M > 1 else np.ones(1)
+    Ltot = pairing.chord[-1] / D
+    return [slots, w, u, tgt[-1], 1.0 / N, R0g.ravel(order="F"), [o.smooth_theta, o.smooth_lambda], h, Ltot]
+
+
 def solve_from(
     problem: DesignProblem, guess: Guess | None = None, pairing: Pairing | None = None, frames: str = "target", warm: bool = False
 ) -> Result:
@@ -249,22 +273,8 @@ def solve_from(
     solver = get_solver(M, n, shared, o.max_iter, o.tol, warm, o.hessian)
     build_time = time.perf_counter() - t_build
 
-    # parameters, scaled by D
-    N = problem.target.shape[0]
-    tgt = problem.target / D
-    slots = np.zeros((3, n * M))
-    w = np.zeros(n * M)
-    u = np.zeros((n, M))
-    k = np.arange(N - 1)  # the tip (last point) is paired with the last frame
-    slot = pairing.seg[k] * n + (k - pairing.seg[k] * n)
-    slots[:, slot] = tgt[k].T
-    w[slot] = 1.0 / N
-    u[(k - pairing.seg[k] * n), pairing.seg[k]] = pairing.frac[k]
-    mids = 0.5 * (pairing.chord[pairing.bounds[:-1]] + pairing.chord[pairing.bounds[1:]]) / D
-    h = np.diff(mids) if M > 1 else np.ones(1)
-    Ltot = pairing.chord[-1] / D
     R0g = guess.initial_pose[:3, :3]
-    p = solver.pack_params([slots, w, u, tgt[-1], 1.0 / N, R0g.ravel(order="F"), [o.smooth_theta, o.smooth_lambda], h, Ltot])
+    p = solver.pack_params(nlp_parameters(problem, pairing, R0g))
 
     if frames == "target":
         fr = guess.frames.copy()

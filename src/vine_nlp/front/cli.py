@@ -174,8 +174,19 @@ def cmd_design(args) -> int:
     fig = _check_figure(args.plot, args.force)
     method = args.method or pf.problem.options.method
     result = _run_method(pf, method, args)
-    write_archive(out, _archive_from(pf, {method: result}, target=pf.problem.target))
-    print(_report(method, result, pf.units))
+    runs = {method: result}
+    if args.robust:
+        from vine_nlp.design.robust import design_robust
+
+        runs["nlp_robust"] = design_robust(pf.problem, _sigmas(args), start=result, weight=args.robust_weight)
+    if args.clearance:
+        from vine_nlp.design.clearance import design_with_clearance
+
+        runs["nlp_clearance"] = design_with_clearance(pf.problem, min_gap=args.min_gap, start=result)
+    write_archive(out, _archive_from(pf, runs, target=pf.problem.target))
+    for name, r in runs.items():
+        print(_report(name, r, pf.units))
+    result = runs[list(runs)[-1]]
     print(f"archive -> {out}")
     if fig:
         from vine_nlp.front.plot import plot_archive_file
@@ -260,6 +271,100 @@ def cmd_compare(args) -> int:
         plot_archive_file(out, fig)
         print(f"figure -> {fig}")
     return EXIT_OK if all(r.converged for r in runs.values()) else EXIT_NOT_CONVERGED
+
+
+def _design_problem_of(archive, path):
+    """The design problem of an archive: parsed again from its stored source; the archived
+    target stands in for target files that are not where the source says."""
+    import dataclasses
+    import tomllib
+
+    from vine_nlp.design.problem import DesignProblem
+    from vine_nlp.io.problem_file import parse_problem
+
+    try:
+        pf = parse_problem(tomllib.loads(archive.source), str(path), archive.source)
+        if pf.kind == "design":
+            return dataclasses.replace(pf.problem, target=archive.target)
+    except (InputError, tomllib.TOMLDecodeError):
+        pass
+    return DesignProblem(archive.name, archive.diameter, archive.target, units=archive.units)
+
+
+def _sigmas(args):
+    from vine_nlp.analysis.tolerance import Sigmas
+
+    if args.sigma_length_abs is not None:
+        return Sigmas.from_degrees(args.sigma_theta_deg, args.sigma_lambda, args.sigma_length_abs, relative_length=False)
+    return Sigmas.from_degrees(args.sigma_theta_deg, args.sigma_lambda, args.sigma_length, relative_length=True)
+
+
+def cmd_analyze(args) -> int:
+    """Self-collision, growth order and manufacturing tolerance of an archived design."""
+    from vine_nlp.analysis.collision import collision_metrics, growth_contacts, helix_collisions, routing_clearance
+    from vine_nlp.analysis.tolerance import tolerance_metrics, tolerance_report
+
+    archive = _read_archive(args.archive)
+    run = args.run or next((n for n in ("nlp", "nlp_robust", "nlp_clearance", "greedy", "forward", "fit", "tip") if n in archive.runs), None)
+    if run not in archive.runs:
+        raise InputError(args.archive, "--run", f"no run {run!r} (runs: {', '.join(archive.runs)})")
+    for flag in ("tolerance_figure", "clearance_figure"):
+        _check_figure(getattr(args, flag), True)
+    r = archive.runs[run]
+    D, u = archive.diameter, archive.units
+    cl = routing_clearance(r.routing, D, margin=args.margin)
+    where = f" at {cl['l_i']:.4g} / {cl['l_j']:.4g} {u} of tube" if "l_i" in cl and cl.get("clearance", float("inf")) < float("inf") else ""
+    print(f"clearance   min {cl['clearance']:.4g} {u} ({cl['clearance'] / D:.2f} D){where}; {len(cl['regions'])} contact region(s)")
+    growth = growth_contacts(r.routing, D, margin=args.margin)
+    final = [g for g in growth if not g.get("transient")]
+    on_way = [g for g in growth if g.get("transient")]
+    print(f"growth      grown while actuated: {len(final)} contact(s)"
+          + "".join(f"; first at {g['growth_length']:.4g} {u} grown" for g in final[:1])
+          + f"; actuated after growth: {len(final) + len(on_way)} contact(s) on the way"
+          + ("" if not growth else f" (from t = {min(g['actuation_fraction'] for g in growth):.2f})"))
+    print(f"helices     uniform sections of >= 1 turn self-colliding (paper condition): {len(helix_collisions(r.routing, D))}")
+    metrics = collision_metrics(r, D, margin=args.margin)
+    figures = []
+    if archive.kind == "design" and archive.target is not None:
+        problem = _design_problem_of(archive, args.archive)
+        sig = _sigmas(args)
+        rep = tolerance_report(problem, r, sig, samples=args.samples, seed=args.seed)
+        fo, mc, nom = rep["first_order"], rep["monte_carlo"], rep["nominal"]
+        length = f"{100 * args.sigma_length:g} %" if args.sigma_length_abs is None else f"{args.sigma_length_abs:g} {u}"
+        print(f"tolerance   sigma theta {args.sigma_theta_deg:g} deg, lambda {args.sigma_lambda:g}, length {length} (per segment, independent)")
+        print(f"  rmse      nominal {nom['rmse']:.4g} {u}; first order {fo['rmse']:.4g} {u}; Monte Carlo mean {mc['mean_rmse']:.4g} / rms {mc['rms_rmse']:.4g} {u} ({mc['samples']} samples, seed {mc['seed']})")
+        print(f"  tip       std {fo['tip_std']:.4g} {u} (first order) / {mc['tip_std']:.4g} {u} (Monte Carlo)")
+        ps = rep["per_segment"]
+        share = ps["tip_var"] / max(float(ps["tip_var"].sum()), 1e-300)
+        j = int(share.argmax())
+        print(f"  worst     segment {j} at {ps['l_mid'][j]:.4g} {u} of tube: {100 * share[j]:.0f} % of the tip variance")
+        metrics |= tolerance_metrics(rep)
+        if args.tolerance_figure:
+            from vine_nlp.front.analysis_plots import tolerance_figure
+
+            tolerance_figure(rep, args.tolerance_figure, title=f"{archive.name}: {run}")
+            figures.append(args.tolerance_figure)
+    if args.clearance_figure:
+        from vine_nlp.front.analysis_plots import clearance_figure
+
+        clearance_figure(r.routing, D, args.clearance_figure, units=u, growth=growth, title=f"{archive.name}: {run}")
+        figures.append(args.clearance_figure)
+    for f in figures:
+        print(f"figure -> {f}")
+    if args.write_metrics:
+        from vine_nlp.io.archive import write_archive
+
+        r.metrics.update({k: float(v) for k, v in metrics.items()})
+        write_archive(args.archive, archive)
+        print(f"metrics -> {args.archive} (/runs/{run}/metrics)")
+    return EXIT_OK
+
+
+def _add_sigma_args(p):
+    p.add_argument("--sigma-theta-deg", type=float, default=1.0, metavar="DEG", help="construction error of theta (default 1)")
+    p.add_argument("--sigma-lambda", type=float, default=0.02, metavar="S", help="construction error of lambda (default 0.02)")
+    p.add_argument("--sigma-length", type=float, default=0.02, metavar="F", help="relative error of segment lengths (default 0.02)")
+    p.add_argument("--sigma-length-abs", type=float, metavar="L", help="absolute error of segment lengths instead, in units")
 
 
 def cmd_sweep(args) -> int:
@@ -432,11 +537,28 @@ def build_parser() -> argparse.ArgumentParser:
         if name == "design":
             d.add_argument("--method", choices=("nlp", "greedy"), help="default: the problem's [design] method (nlp)")
             d.add_argument("--warm", metavar="ARCHIVE.h5", help="nlp: start from the design in an earlier archive")
+            d.add_argument("--robust", action="store_true", help="also a design minimizing the expected error under construction errors (run nlp_robust)")
+            d.add_argument("--robust-weight", type=float, default=1.0, metavar="W", help="weight of the expected error increase")
+            _add_sigma_args(d)
+            d.add_argument("--clearance", action="store_true", help="also a design keeping the tube clear of itself (run nlp_clearance)")
+            d.add_argument("--min-gap", type=float, default=0.0, metavar="G", help="clearance beyond D, in units")
         d.add_argument("--starts", type=int, metavar="N", help="nlp: number of starts of the multi-start (default: the problem's)")
         d.add_argument("--workers", type=int, default=1, metavar="N", help="nlp: run the starts in N processes")
         d.add_argument("--plot", metavar="FIG.png", help="also draw the result (png or pdf)")
         d.add_argument("--force", action="store_true", help="overwrite existing output files")
         d.set_defaults(func=func)
+
+    an = sub.add_parser("analyze", help="self-collision, growth order and manufacturing tolerance of a design")
+    an.add_argument("archive", metavar="OUT.h5")
+    an.add_argument("--run", help="which run (default: nlp, greedy, forward, ...)")
+    _add_sigma_args(an)
+    an.add_argument("--samples", type=int, default=2000, help="Monte Carlo samples (default 2000)")
+    an.add_argument("--seed", type=int, default=0)
+    an.add_argument("--margin", type=float, default=0.0, metavar="G", help="count approaches closer than D + G as contacts")
+    an.add_argument("--tolerance-figure", metavar="FIG.png", help="where along the tube errors matter most")
+    an.add_argument("--clearance-figure", metavar="FIG.png", help="clearance along the tube")
+    an.add_argument("--write-metrics", action="store_true", help="store the figures as metrics of the run in the archive")
+    an.set_defaults(func=cmd_analyze)
 
     sw = sub.add_parser("sweep", help="many design problems: one archive per item, summary.csv and a summary figure")
     sw.add_argument("sweep", metavar="SWEEP.toml")
