@@ -27,3 +27,28 @@ def model_target(M=12, n=5, D=2.0, seed=0, spam=False, seg_len=2.0):
 @pytest.fixture
 def make_target():
     return model_target
+
+
+def mutate(data: dict, index: int, action: str, junk) -> None:
+    """Fuzzing helper: replace, delete or misspell the entry picked by ``index`` among all
+    nested dict entries of a problem dict (tables inside arrays of tables included)."""
+    entries = []
+
+    def walk(d):
+        for k, v in d.items():
+            entries.append((d, k))
+            if isinstance(v, dict):
+                walk(v)
+            if isinstance(v, list):
+                for item in v:
+                    if isinstance(item, dict):
+                        walk(item)
+
+    walk(data)
+    parent, key = entries[index % len(entries)]
+    if action == "replace":
+        parent[key] = junk
+    elif action == "delete":
+        del parent[key]
+    else:
+        parent[f"{key}x"] = junk

@@ -71,3 +71,35 @@ def test_bad_problem_files_exit_2_with_one_line(tmp_path, capsys, text, key):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"error: {p}: {key}: ")
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_sigint_during_sweep_keeps_finished_items_and_resumes(tmp_path):
+    import csv
+
+    base = tmp_path / "base.toml"
+    base.write_text((ROOT / "problems/trefoil-m4.toml").read_text().replace("samples = 400", "samples = 81").replace("points_per_segment = 10", "points_per_segment = 5"))
+    sw = tmp_path / "s.toml"
+    sw.write_text('name = "s"\nbase = "base.toml"\nmethods = ["greedy"]\n[grid]\n"target.scale.2" = [2, 3, 4, 5, 6, 7]\n')
+    out = tmp_path / "out"
+    proc = _spawn("sweep", sw, "-o", out, "--workers", "1")
+    deadline = time.time() + 120
+    while time.time() < deadline and not list(out.glob("*.h5")):
+        time.sleep(0.2)
+    assert list(out.glob("*.h5")), "no item finished in time"
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    finished = sorted(p.stem for p in out.glob("*.h5"))
+    assert 1 <= len(finished) < 6
+    for p in out.glob("*.h5"):
+        load_archive(p)  # every archive on disk is complete
+    assert not list(out.glob(".*.tmp"))
+    with open(out / "summary.csv", newline="") as fh:
+        assert sorted(row["item"] for row in csv.DictReader(fh)) == finished
+    # the same command resumes and redoes nothing finished
+    mtimes = {p.name: p.stat().st_mtime_ns for p in out.glob("*.h5")}
+    done = subprocess.run([sys.executable, "-m", "vine_nlp", "sweep", str(sw), "-o", str(out), "--workers", "1"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert len(list(out.glob("*.h5"))) == 6
+    assert all((out / name).stat().st_mtime_ns == t for name, t in mtimes.items())

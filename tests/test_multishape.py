@@ -6,6 +6,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from conftest import mutate
 from scipy.spatial.transform import Rotation
 
 from vine_nlp.design.multishape import (
@@ -240,23 +241,7 @@ _ms = st.fixed_dictionaries(
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(data=_ms, key=st.integers(0, 100), junk=_junk)
 def test_parse_multishape_fuzz(data, key, junk):
-    entries = []
-
-    def walk(d):
-        for k, v in d.items():
-            entries.append((d, k))
-            if isinstance(v, dict):
-                walk(v)
-            if isinstance(v, list) and v and isinstance(v[0], dict):
-                for item in v:
-                    walk(item)
-
-    walk(data)
-    parent, k = entries[key % len(entries)]
-    if key % 3 == 0:
-        parent[k] = junk
-    elif key % 3 == 1:
-        del parent[k]
+    mutate(data, key, ("replace", "delete", "misspell")[key % 3], junk)
     try:
         pf = parse_problem(data, "p.toml", "")
     except InputError as err:

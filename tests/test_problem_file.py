@@ -7,6 +7,7 @@ import textwrap
 
 import numpy as np
 import pytest
+from conftest import mutate
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -497,27 +498,6 @@ _fit = st.fixed_dictionaries(
 _mutation = st.tuples(st.integers(0, 10**6), st.sampled_from(["replace", "delete", "extra"]), _junk)
 
 
-def _mutate(data, mutation):
-    """Apply one mutation at a dict entry picked by index among all (nested) entries."""
-    index, action, junk = mutation
-    entries = []
-
-    def walk(d):
-        for k, v in d.items():
-            entries.append((d, k))
-            if isinstance(v, dict):
-                walk(v)
-
-    walk(data)
-    parent, key = entries[index % len(entries)]
-    if action == "replace":
-        parent[key] = junk
-    elif action == "delete":
-        del parent[key]
-    else:
-        parent[f"{key}x"] = junk
-
-
 @pytest.fixture(scope="module")
 def fuzz_dir(tmp_path_factory):
     directory = tmp_path_factory.mktemp("fuzz")
@@ -531,7 +511,7 @@ def fuzz_dir(tmp_path_factory):
 @given(data=st.one_of(_design, _forward, _fit), mutations=st.lists(_mutation, max_size=2))
 def test_parse_problem_fuzz_gives_a_problem_or_input_error(fuzz_dir, data, mutations):
     for mutation in mutations:
-        _mutate(data, mutation)
+        mutate(data, *mutation)
     try:
         pf = parse_problem(data, str(fuzz_dir / "p.toml"), "")
     except InputError as err:

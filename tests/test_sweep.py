@@ -29,6 +29,7 @@ lambda_min = 0.4
 theta_max_deg = 60.0
 [design]
 points_per_segment = 5
+hessian = "exact"  # one solver variant per worker: the build count below is exact
 """
 
 COLUMNS = ["item", "target.scale.0", "target.scale.1", "method", "status", "rmse", "max_error", "solve_time_s"]

@@ -6,6 +6,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
+from conftest import mutate
 
 from vine_nlp.design.problem import Actuator, DesignOptions, Routing, TipProblem
 from vine_nlp.design.tip import MIN_LENGTH_FACTOR, actuation, design_tip, report_lines, write_tip_archive
@@ -197,20 +198,7 @@ _tip = st.fixed_dictionaries(
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(data=_tip, key=st.integers(0, 100), junk=_junk)
 def test_parse_tip_fuzz(data, key, junk):
-    entries = []
-
-    def walk(d):
-        for k, v in d.items():
-            entries.append((d, k))
-            if isinstance(v, dict):
-                walk(v)
-
-    walk(data)
-    parent, k = entries[key % len(entries)]
-    if key % 3 == 0:
-        parent[k] = junk
-    elif key % 3 == 1:
-        del parent[k]
+    mutate(data, key, ("replace", "delete", "misspell")[key % 3], junk)
     try:
         pf = parse_problem(data, "p.toml", "")
     except InputError as err:

@@ -65,11 +65,26 @@ def ipopt_options(max_iter: int, tol: float, warm: bool = False) -> dict:
     return opts
 
 
-def ipopt_status(stats: dict) -> str:
-    """Archived status of one solve; an interrupted solve raises KeyboardInterrupt (vine_nlp.interrupt)."""
+def ipopt_status(stats: dict, x=None) -> str:
+    """Archived status of one solve; an interrupted solve raises KeyboardInterrupt (vine_nlp.interrupt).
+
+    A solution ``x`` with anything non-finite is flagged "invalid_number" whatever IPOPT said.
+    """
     raw = stats.get("return_status", "")
     interrupt.check(raw)
+    if x is not None and not np.all(np.isfinite(x)):
+        return "invalid_number"
     return IPOPT_STATUS.get(raw, str(raw or "failed"))
+
+
+def solver_stats(stats: dict, sol, build_time_s: float) -> dict:
+    """The solver attributes every whole-chain formulation archives (/runs/<run>/solver)."""
+    return {
+        "solver": "ipopt",
+        "return_status": stats.get("return_status", ""),
+        "build_time_s": build_time_s,
+        "objective": float(sol["f"]),
+    }
 
 
 def frames12(frames: np.ndarray) -> np.ndarray:

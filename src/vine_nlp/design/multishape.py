@@ -47,6 +47,7 @@ from vine_nlp.design.common import (
     geometric_guess,
     ipopt_options,
     ipopt_status,
+    solver_stats,
     pair_points,
 )
 from vine_nlp.design.nlp import segment_function
@@ -367,14 +368,8 @@ def solve_from(problem: MultiShapeProblem, guess: MultiGuess, pairings=None) -> 
         T.append(P)
     T = np.array(T * K if problem.shared_pose else T)
     fit, smooth = (float(v) for v in solver._terms(x, p))
-    status = ipopt_status(st)
-    if not np.all(np.isfinite(x)):
-        status = "invalid_number"
-    stats = {
-        "solver": "ipopt",
-        "return_status": st.get("return_status", ""),
-        "build_time_s": solver.build_time_s,
-        "objective": float(sol["f"]),
+    status = ipopt_status(st, x)
+    stats = solver_stats(st, sol, solver.build_time_s) | {
         "objective_fit": fit,
         "objective_smooth": smooth,
         "segments": M,

@@ -13,6 +13,7 @@ import numpy as np
 
 ACTUATOR_KINDS = ("tendon", "programmed", "spam")
 METHODS = ("nlp", "greedy")
+HESSIANS = ("auto", "exact", "gauss-newton")
 MEASURED_LINES = ("center", "inner", "outer")
 
 
@@ -45,7 +46,7 @@ class DesignOptions:
     seed: int = 0
     max_iter: int = 3000
     tol: float = 1e-8
-    hessian: str = "exact"  # nlp: "exact" or "gauss-newton" (faster on small-residual targets, fails on corners)
+    hessian: str = "auto"  # nlp: "auto" (Gauss-Newton, exact if it does not converge), "exact" or "gauss-newton"
 
 
 @dataclass(frozen=True)

@@ -51,7 +51,7 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp.design.common import geometric_guess, pair_points
-from vine_nlp.design.common import frames12, ipopt_options, ipopt_status
+from vine_nlp.design.common import frames12, ipopt_options, ipopt_status, solver_stats
 from vine_nlp.design.nlp import segment_function
 from vine_nlp.design.problem import DesignProblem, Routing, TipProblem
 from vine_nlp.design.result import Result, forward_shape, routing_metrics
@@ -267,14 +267,8 @@ def solve_from(problem: TipProblem, theta, lam, dl, frames, closest: bool = Fals
     x = np.array(sol["x"]).ravel()
     theta, lam, dl = solver.unpack_x(x)
     J, smooth, miss = (float(v) for v in solver._terms(x, p))
-    status = ipopt_status(st)
-    if not np.all(np.isfinite(x)):
-        status = "invalid_number"
-    stats = {
-        "solver": "ipopt",
-        "return_status": st.get("return_status", ""),
-        "build_time_s": solver.build_time_s,
-        "objective": float(sol["f"]),
+    status = ipopt_status(st, x)
+    stats = solver_stats(st, sol, solver.build_time_s) | {
         "objective_actuation": J,
         "objective_miss": miss,
         "objective_smooth": smooth,

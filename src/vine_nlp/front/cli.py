@@ -204,47 +204,41 @@ def _only_nlp(pf, args):
 
 
 def _design_multishape(pf, args) -> int:
-    from vine_nlp.design.multishape import design_multishape, plot_multishape, report_lines, write_multishape_archive
+    from vine_nlp.design import multishape
 
-    _only_nlp(pf, args)
-    out = _check_output(args.output, args.force)
-    fig = _check_figure(args.plot, args.force)
-    update, close = _progress_bar(f"{pf.name} multishape", "starts")
-    try:
-        result = design_multishape(pf.problem, starts=args.starts, progress=update)
-    finally:
-        close()
-    write_multishape_archive(out, pf, result)
-    for line in report_lines(result, pf.units):
-        print(line)
-    print(f"archive -> {out}")
-    if fig:
-        plot_multishape(out, fig)
-        print(f"figure -> {fig}")
-    return EXIT_OK if result.converged else EXIT_NOT_CONVERGED
+    return _design_other(
+        pf, args, multishape.design_multishape, multishape.write_multishape_archive,
+        lambda r: multishape.report_lines(r, pf.units), multishape.plot_multishape,
+    )
 
 
 def _design_tip(pf, args) -> int:
-    from vine_nlp.design.tip import design_tip, report_lines, write_tip_archive
+    from vine_nlp.design import tip
+    from vine_nlp.front.plot import plot_archive_file
 
+    return _design_other(
+        pf, args, tip.design_tip, tip.write_tip_archive, lambda r: tip.report_lines(r, pf.problem, pf.units), plot_archive_file
+    )
+
+
+def _design_other(pf, args, design, write, report, plot) -> int:
+    """Problems beyond the paper's (multi-shape, tip): their own NLP, archive writer, report and figure."""
     _only_nlp(pf, args)
     out = _check_output(args.output, args.force)
     fig = _check_figure(args.plot, args.force)
-    update, close = _progress_bar(f"{pf.name} tip", "starts")
+    update, close = _progress_bar(f"{pf.name} {pf.kind}", "starts")
     try:
-        result = design_tip(pf.problem, starts=args.starts, progress=update)
+        result = design(pf.problem, starts=args.starts, progress=update)
     finally:
         close()
-    write_tip_archive(out, pf, result)
-    for line in report_lines(result, pf.problem, pf.units):
+    write(out, pf, result)
+    for line in report(result):
         print(line)
     print(f"archive -> {out}")
     if fig:
-        from vine_nlp.front.plot import plot_archive_file
-
-        plot_archive_file(out, fig)
+        plot(out, fig)
         print(f"figure -> {fig}")
-    return EXIT_OK if result.converged else EXIT_NOT_CONVERGED  # "infeasible" (unreachable tip) exits 1
+    return EXIT_OK if result.converged else EXIT_NOT_CONVERGED
 
 
 def cmd_compare(args) -> int:

@@ -23,6 +23,7 @@ import numpy as np
 from vine_nlp import targets
 from vine_nlp.design.problem import (
     ACTUATOR_KINDS,
+    HESSIANS,
     MEASURED_LINES,
     METHODS,
     Actuator,
@@ -69,7 +70,7 @@ _ALL_TARGET_KEYS = ("curve",) + tuple(dict.fromkeys(k for keys in _CURVE_KEYS.va
 _CURVE_MAIN_KEY = {"trefoil": "scale", "bezier": "control_points", "polyline": "control_points", "helix": "radius"}
 _ACTUATOR_KEYS = ("kind", "lambda_min", "theta_max_deg")
 _OPTION_INTS = {"points_per_segment": 1, "lookahead": 1, "starts": 1, "greedy_starts": 1, "seed": 0, "max_iter": 1}
-_DESIGN_KEYS = ("method", *_OPTION_INTS, "tol", "smoothness")
+_DESIGN_KEYS = ("method", *_OPTION_INTS, "tol", "hessian", "smoothness")
 _SMOOTHNESS_FIELDS = {"theta": "smooth_theta", "lambda": "smooth_lambda"}
 _ANGLE_KEYS = ("theta", "theta_deg", "phi")
 _ROUTING_KEYS = ("length", "segment_length", *_ANGLE_KEYS, "lambda", "initial_pose")
@@ -320,6 +321,8 @@ def _options(f: _File, table: dict) -> DesignOptions:
     if "tol" in table:
         changes["tol"] = _real(f, "design.tol", table["tol"])
         _check(f, "design.tol", changes["tol"] > 0, "must be > 0")
+    if "hessian" in table:
+        changes["hessian"] = _choice(f, "design.hessian", table["hessian"], HESSIANS)
     smoothness = _table(f, table, "smoothness", tuple(_SMOOTHNESS_FIELDS), prefix="design.")
     for key, field_name in _SMOOTHNESS_FIELDS.items():
         if key in smoothness:
