@@ -255,7 +255,7 @@ def nlp_parameters(problem: DesignProblem, pairing: Pairing, R0g: np.ndarray) ->
 # multi-start: objectives this close (relative) are the same optimum reached from different starts
 TIE_RTOL = 1e-6
 # "auto": Gauss-Newton first, capped at this many iterations, then the exact Hessian if it did not converge
-AUTO_GN_MAX_ITER = 100
+AUTO_GN_MAX_ITER = 50
 
 
 def solve_from(
