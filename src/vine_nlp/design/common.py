@@ -12,6 +12,7 @@ of the last segment.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,6 +76,14 @@ def ipopt_status(stats: dict, x=None) -> str:
     if x is not None and not np.all(np.isfinite(x)):
         return "invalid_number"
     return IPOPT_STATUS.get(raw, str(raw or "failed"))
+
+
+def run_ipopt(solver, x0, p, lbx, ubx, lbg=0, ubg=0):
+    """One IPOPT solve: (solution dict, x as numpy, IPOPT stats, solve time in s)."""
+    t0 = time.perf_counter()
+    sol = solver(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    elapsed = time.perf_counter() - t0
+    return sol, np.array(sol["x"]).ravel(), solver.stats(), elapsed
 
 
 def solver_stats(stats: dict, sol, build_time_s: float) -> dict:

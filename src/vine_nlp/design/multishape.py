@@ -47,6 +47,7 @@ from vine_nlp.design.common import (
     geometric_guess,
     ipopt_options,
     ipopt_status,
+    run_ipopt,
     solver_stats,
     pair_points,
 )
@@ -354,11 +355,7 @@ def solve_from(problem: MultiShapeProblem, guess: MultiGuess, pairings=None) -> 
     lam_lo, lam_hi = _level_bounds(problem)
     lbx, ubx = solver.bounds(lam_lo, lam_hi, problem.actuator.theta_max, LENGTH_FACTOR[0] * seg_chord, LENGTH_FACTOR[1] * seg_chord)
     x0 = np.clip(x0, lbx, ubx)
-    t0 = time.perf_counter()
-    sol = solver.solver(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
-    solve_time = time.perf_counter() - t0
-    st = solver.solver.stats()
-    x = np.array(sol["x"]).ravel()
+    sol, x, st, solve_time = run_ipopt(solver.solver, x0, p, lbx, ubx)
     poses, levels, theta, dl = solver.unpack_x(x)
     T = []
     for q, (wr, p0) in enumerate(poses):

@@ -34,6 +34,7 @@ from vine_nlp.design.common import (
     frames12,
     ipopt_options,
     ipopt_status,
+    run_ipopt,
     solver_stats,
     LENGTH_FACTOR,
     Guess,
@@ -323,11 +324,7 @@ def _solve(problem, guess, pairing, frames, warm, hessian, max_iter) -> Result:
     hi = (np.full(M, problem.actuator.theta_max), np.ones(M), LENGTH_FACTOR[1] * chord)
     lbx, ubx = solver.bounds(lo, hi)
     x0 = np.clip(x0, lbx, ubx)
-    t0 = time.perf_counter()
-    sol = solver.solver(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=0, ubg=0)
-    solve_time = time.perf_counter() - t0
-    st = solver.solver.stats()
-    x = np.array(sol["x"]).ravel()
+    sol, x, st, solve_time = run_ipopt(solver.solver, x0, p, lbx, ubx)
     status = ipopt_status(st, x)
     w_rot, p0, theta, lam, dl = solver.unpack_x(x)
     T0 = np.eye(4)

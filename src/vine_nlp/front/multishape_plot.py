@@ -19,9 +19,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
-from matplotlib.ticker import MaxNLocator  # noqa: E402
 
-from vine_nlp.front.plot import PAGE_IN, STYLE, figure_format, save_figure, set_equal_3d  # noqa: E402
+from vine_nlp.front.plot import PAGE_IN, STYLE, figure_format, label_3d_axes, save_figure, set_equal_3d  # noqa: E402
 
 def _level_s(result, k, target):
     """Length along the unactuated tube of each paired point of level k (the pairing of design.common)."""
@@ -63,12 +62,8 @@ def plot_multishape_figure(archive_path) -> Figure:
         ax.plot([], [], "k-", lw=1.3, label="center lines")
         ax.plot([], [], "k-", lw=0.5, alpha=0.6, label="actuator lines")
         ax.plot([], [], "k--", lw=0.9, dashes=(3, 2), label="targets")
-        ax.set_xlabel(f"x [{u}]", labelpad=-2)
-        ax.set_ylabel(f"y [{u}]", labelpad=-2)
-        ax.set_zlabel(f"z [{u}]", labelpad=-3)
-        ax.tick_params(axis="both", pad=-1)
+        label_3d_axes(ax, u)
         for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
-            axis.set_major_locator(MaxNLocator(5))
             axis.pane.set_alpha(0.0)
         set_equal_3d(ax, everything)
         ax.legend(loc="upper left", frameon=False, fontsize=6, ncols=3, bbox_to_anchor=(0.0, 1.02))

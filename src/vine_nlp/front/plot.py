@@ -137,6 +137,16 @@ def tube_surface(shape, diameter: float, around: int = 24, max_rows: int = 500):
     return wall[..., 0], wall[..., 1], wall[..., 2]
 
 
+def label_3d_axes(ax, units: str):
+    """Units on every axis, five ticks each, tight label padding (readable at column width)."""
+    ax.set_xlabel(f"x [{units}]", labelpad=-2)
+    ax.set_ylabel(f"y [{units}]", labelpad=-2)
+    ax.set_zlabel(f"z [{units}]", labelpad=-3)
+    ax.tick_params(axis="both", pad=-1)
+    for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+        axis.set_major_locator(MaxNLocator(5))
+
+
 def set_equal_3d(ax, points, zoom: float = 1.0):
     """Equal scaling on all three axes (a helix must look round)."""
     pts = np.concatenate([np.asarray(p, float).reshape(-1, 3) for p in points if np.size(p)])
@@ -187,12 +197,7 @@ def plot_shape_3d(ax, archive: Archive, name: str, norm=None, cmap=ERROR_CMAP, l
     ends = chain_frames(r.routing.theta, r.routing.lam, r.routing.length, D, r.routing.initial_pose)[:, :3, 3]
     handles.append(ax.scatter(*ends.T, s=3, color="k", depthshade=False, label="segment ends"))
     ax.scatter(*center[0], s=14, color="k", marker="s", depthshade=False)
-    ax.set_xlabel(f"x [{u}]", labelpad=-2)
-    ax.set_ylabel(f"y [{u}]", labelpad=-2)
-    ax.set_zlabel(f"z [{u}]", labelpad=-3)
-    ax.tick_params(axis="both", pad=-1)
-    for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
-        axis.set_major_locator(MaxNLocator(5))
+    label_3d_axes(ax, u)
     set_equal_3d(ax, everything, zoom)
     for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
         axis.pane.set_alpha(0.0)
