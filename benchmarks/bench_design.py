@@ -12,9 +12,7 @@ import sys
 import tempfile
 import time
 
-
 import numpy as np
-
 from common import FIGURES, ROOT, machine, table, write_section
 
 from vine_nlp import targets

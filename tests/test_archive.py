@@ -9,7 +9,13 @@ import pytest
 from vine_nlp import __version__
 from vine_nlp.design.common import evaluate, pair_points
 from vine_nlp.design.nlp import design_nlp
-from vine_nlp.design.problem import Actuator, DesignOptions, DesignProblem, ForwardProblem, Routing
+from vine_nlp.design.problem import (
+    Actuator,
+    DesignOptions,
+    DesignProblem,
+    ForwardProblem,
+    Routing,
+)
 from vine_nlp.design.result import forward_shape, run_forward
 from vine_nlp.io import archive as archive_module
 from vine_nlp.io.archive import Archive, load_archive, write_archive

@@ -21,8 +21,8 @@ from vine_nlp.model import (
     shape_lines,
     theta_from_phi,
 )
-from vine_nlp.model.helix import helix_from_curvature, helix_turns
 from vine_nlp.model.chain import segment_end_samples
+from vine_nlp.model.helix import helix_from_curvature, helix_turns
 
 rng = np.random.default_rng(1)
 CASES = [(math.radians(t), lam, D) for t, lam, D in [

@@ -11,7 +11,13 @@ from matplotlib.text import Text
 
 from vine_nlp.design.common import evaluate, pair_points
 from vine_nlp.design.nlp import design_nlp
-from vine_nlp.design.problem import Actuator, DesignOptions, DesignProblem, ForwardProblem, Routing
+from vine_nlp.design.problem import (
+    Actuator,
+    DesignOptions,
+    DesignProblem,
+    ForwardProblem,
+    Routing,
+)
 from vine_nlp.design.result import forward_shape, run_forward
 from vine_nlp.front import template as tpl
 from vine_nlp.front.plot import plot_archive, plot_archive_file, point_s, tube_surface

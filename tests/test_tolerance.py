@@ -6,7 +6,13 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from vine_nlp.analysis.tolerance import Sigmas, batch_points, point_jacobian, tolerance_metrics, tolerance_report
+from vine_nlp.analysis.tolerance import (
+    Sigmas,
+    batch_points,
+    point_jacobian,
+    tolerance_metrics,
+    tolerance_report,
+)
 from vine_nlp.design.nlp import design_nlp
 from vine_nlp.design.problem import DesignOptions, DesignProblem
 from vine_nlp.model import chain_points

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+
 DEFAULT_SAMPLES = 400  # the paper samples its trefoils and Bezier targets with 400 points
 MAX_BEZIER_POINTS = 1000  # binomial coefficients of higher degrees overflow a float
 

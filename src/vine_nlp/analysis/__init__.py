@@ -12,4 +12,9 @@ from vine_nlp.analysis.collision import (  # noqa: F401
     sample_routing,
     uniform_sections,
 )
-from vine_nlp.analysis.tolerance import Sigmas, point_jacobian, tolerance_metrics, tolerance_report  # noqa: F401
+from vine_nlp.analysis.tolerance import (  # noqa: F401
+    Sigmas,
+    point_jacobian,
+    tolerance_metrics,
+    tolerance_report,
+)

@@ -33,7 +33,15 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from vine_nlp.design.common import Pairing, evaluate, frames12, ipopt_options, ipopt_status, pair_points, variable_bounds
+from vine_nlp.design.common import (
+    Pairing,
+    evaluate,
+    frames12,
+    ipopt_options,
+    ipopt_status,
+    pair_points,
+    variable_bounds,
+)
 from vine_nlp.design.nlp import design_nlp, get_solver, nlp_parameters, segment_function
 from vine_nlp.design.problem import DesignProblem, Routing
 from vine_nlp.design.result import Result

@@ -66,17 +66,17 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
+from vine_nlp import interrupt
 from vine_nlp.design.common import (
     IPOPT_STATUS,
-    ipopt_quiet,
     Pairing,
     clip_to_bounds,
     evaluate,
     geometric_guess,
+    ipopt_quiet,
     pair_points,
     variable_bounds,
 )
-from vine_nlp import interrupt
 from vine_nlp.design.problem import DesignProblem, Routing
 from vine_nlp.design.result import Result
 from vine_nlp.model.segment import segment_parts, segment_transform, so3_exp

@@ -47,9 +47,9 @@ from vine_nlp.design.common import (
     geometric_guess,
     ipopt_options,
     ipopt_status,
+    pair_points,
     run_ipopt,
     solver_stats,
-    pair_points,
 )
 from vine_nlp.design.nlp import segment_function
 from vine_nlp.design.problem import MultiShapeProblem, Routing

@@ -31,22 +31,23 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp.design.common import (
-    frames12,
-    ipopt_options,
-    ipopt_status,
-    run_ipopt,
-    solver_stats,
     LENGTH_FACTOR,
     Guess,
     Pairing,
     evaluate,
+    frames12,
     geometric_guess,
+    ipopt_options,
+    ipopt_status,
     pair_points,
+    run_ipopt,
+    solver_stats,
 )
 from vine_nlp.design.problem import DesignProblem, Routing
 from vine_nlp.design.result import Result
 from vine_nlp.model.helix import center_rates
 from vine_nlp.model.segment import so3_exp, twist_parts
+
 
 def segment_function(n: int) -> ca.Function:
     """One segment, SX: (frame X_j (12), theta, lam, dl, fractions u (n)) -> (X_{j+1}, points (3 x n))."""

@@ -50,8 +50,14 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from vine_nlp.design.common import geometric_guess, pair_points
-from vine_nlp.design.common import frames12, ipopt_options, ipopt_status, solver_stats
+from vine_nlp.design.common import (
+    frames12,
+    geometric_guess,
+    ipopt_options,
+    ipopt_status,
+    pair_points,
+    solver_stats,
+)
 from vine_nlp.design.nlp import segment_function
 from vine_nlp.design.problem import DesignProblem, Routing, TipProblem
 from vine_nlp.design.result import Result, forward_shape, routing_metrics

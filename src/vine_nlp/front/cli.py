@@ -295,7 +295,12 @@ def _sigmas(args):
 
 def cmd_analyze(args) -> int:
     """Self-collision, growth order and manufacturing tolerance of an archived design."""
-    from vine_nlp.analysis.collision import collision_metrics, growth_contacts, helix_collisions, routing_clearance
+    from vine_nlp.analysis.collision import (
+        collision_metrics,
+        growth_contacts,
+        helix_collisions,
+        routing_clearance,
+    )
     from vine_nlp.analysis.tolerance import tolerance_metrics, tolerance_report
 
     archive = _read_archive(args.archive)

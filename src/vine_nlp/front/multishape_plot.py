@@ -20,7 +20,15 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-from vine_nlp.front.plot import PAGE_IN, STYLE, figure_format, label_3d_axes, save_figure, set_equal_3d  # noqa: E402
+from vine_nlp.front.plot import (  # noqa: E402
+    PAGE_IN,
+    STYLE,
+    figure_format,
+    label_3d_axes,
+    save_figure,
+    set_equal_3d,
+)
+
 
 def _level_s(result, k, target):
     """Length along the unactuated tube of each paired point of level k (the pairing of design.common)."""

@@ -21,21 +21,19 @@ from pathlib import Path
 import numpy as np
 
 from vine_nlp import targets
-from vine_nlp.design.problem import (
+from vine_nlp.design.problem import (  # further formulations: multi-shape sPAM and tip targets
     ACTUATOR_KINDS,
     HESSIANS,
     MEASURED_LINES,
     METHODS,
+    TIP_OBJECTIVES,
     Actuator,
     DesignOptions,
     DesignProblem,
     FitProblem,
     ForwardProblem,
-    Routing,
-)
-from vine_nlp.design.problem import (  # further formulations: multi-shape sPAM and tip targets
-    TIP_OBJECTIVES,
     MultiShapeProblem,
+    Routing,
     TipProblem,
 )
 from vine_nlp.errors import InputError
