@@ -17,8 +17,5 @@ def run_design(problem, method: str | None = None, **kw):
     if method == "greedy":
         from vine_nlp.design.greedy import design_greedy
 
-        kw.pop("workers", None)
-        kw.pop("starts", None)
-        kw.pop("warm", None)
         return design_greedy(problem, **kw)
     raise ValueError(f"unknown design method {method!r}")

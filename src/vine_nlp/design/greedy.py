@@ -66,14 +66,13 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
-from vine_nlp import interrupt
 from vine_nlp.design.common import (
-    IPOPT_STATUS,
     Pairing,
     clip_to_bounds,
     evaluate,
     geometric_guess,
     ipopt_quiet,
+    ipopt_status,
     pair_points,
     variable_bounds,
 )
@@ -328,7 +327,7 @@ def _greedy_pass(problem: DesignProblem, pairing: Pairing, counter: _Counter, la
                     x0[idx] = rng.uniform(np.maximum(lbx[idx], x_carry[idx] - half), np.minimum(ubx[idx], x_carry[idx] + half))
             sol = solver.solver(x0=x0, p=p, lbx=lbx, ubx=ubx)
             st = solver.solver.stats()
-            interrupt.check(st.get("return_status"))
+            status = ipopt_status(st)
             solves += 1
             iterations += int(st.get("iter_count", 0))
             rs = st.get("return_status", "failed")
@@ -338,12 +337,12 @@ def _greedy_pass(problem: DesignProblem, pairing: Pairing, counter: _Counter, la
             if not (np.isfinite(f) and np.all(np.isfinite(x))):
                 continue
             if best is None or f < best[0]:
-                best = (f, x, rs)
+                best = (f, x, status)
         if best is None:  # every start failed numerically: keep the carried-over values
             f_c, _ = solver.terms(x_carry, p)
-            best = (float(f_c), x_carry, "Invalid_Number_Detected")
-        f, x, rs = best
-        window_status.append(IPOPT_STATUS.get(rs, str(rs)))
+            best = (float(f_c), x_carry, "invalid_number")
+        f, x, status = best
+        window_status.append(status)
         pose, th_w, lam_w, dl_w = solver.unpack_x(x)
         theta[sl] = th_w
         if not shared:

@@ -32,16 +32,16 @@ def _check_output(path: str, force: bool, arg: str = "-o") -> Path:
     return out
 
 
-def _check_figure(path, force):
+def _check_figure(path, force, key="--plot"):
     if not path:
         return None
     from vine_nlp.front.plot import figure_format
 
-    out = _check_output(path, force, "--plot")
+    out = _check_output(path, force, key)
     try:
         figure_format(out)
     except ValueError as e:
-        raise InputError(path, "--plot", str(e)) from None
+        raise InputError(path, key, str(e)) from None
     return out
 
 
@@ -242,6 +242,7 @@ def _design_other(pf, args, design, write, report, plot) -> int:
 
 
 def cmd_compare(args) -> int:
+    from vine_nlp.design.greedy import lowpass
     from vine_nlp.io.archive import write_archive
 
     pf = _load(args.problem, "design")
@@ -250,12 +251,7 @@ def cmd_compare(args) -> int:
     runs = {}
     for method in ("nlp", "greedy"):
         runs[method] = _run_method(pf, method, args)
-    try:
-        from vine_nlp.design.greedy import lowpass
-
-        runs["greedy_filtered"] = lowpass(runs["greedy"], pf.problem)
-    except ImportError:  # pragma: no cover - greedy module absent
-        pass
+    runs["greedy_filtered"] = lowpass(runs["greedy"], pf.problem)
     write_archive(out, _archive_from(pf, runs, target=pf.problem.target))
     print(comparison_table(runs, pf.units))
     print(f"archive -> {out}")
@@ -444,26 +440,20 @@ def _fit_frames(pf, args, measured) -> dict:
 
 
 def cmd_plot(args) -> int:
-    from vine_nlp.front.plot import plot_archive_file
-
     archive = _read_archive(args.archive)
-    out = _check_output(args.output, args.force)
-    try:
-        from vine_nlp.front.plot import figure_format
-
-        figure_format(out)
-    except ValueError as e:
-        raise InputError(args.output, "-o", str(e)) from None
+    out = _check_figure(args.output, args.force, "-o")
     if archive.kind == "fit":
         from vine_nlp.front.fit_plots import plot_fit
 
-        plot_fit(args.archive, out)
+        plot_fit(archive, out)
     elif archive.kind == "multishape":
         from vine_nlp.design.multishape import plot_multishape
 
-        plot_multishape(args.archive, out)
+        plot_multishape(args.archive, out)  # reads the per-level groups itself
     else:
-        plot_archive_file(args.archive, out)
+        from vine_nlp.front.plot import plot_archive, save_figure
+
+        save_figure(plot_archive(archive), out)
     print(f"figure -> {out}")
     return EXIT_OK
 
