@@ -92,6 +92,29 @@ def test_bad_input_one_line_exit_2_nothing_written(tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--hops", "-1"], "error: command line: vine-nlp design: argument --hops: must be >= 0, got -1"),
+        (["--starts", "0"], "error: command line: vine-nlp design: argument --starts: must be >= 1, got 0"),
+        (["--workers", "two"], "error: command line: vine-nlp design: argument --workers: invalid integer: 'two'"),
+    ],
+)
+def test_counts_on_the_command_line_are_checked(tmp_path, capsys, args, message):
+    out = tmp_path / "o.h5"
+    assert main(["design", str(PROBLEMS / "bezier-c.toml"), "-o", str(out), *args]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [message]
+    assert not out.exists()
+
+
+def test_hops_are_refused_for_multishape_problems(tmp_path, capsys):
+    out = tmp_path / "o.h5"
+    problem = PROBLEMS / "multishape-spam.toml"
+    assert main(["design", str(problem), "-o", str(out), "--hops", "2"]) == 2
+    assert capsys.readouterr().err.strip() == f"error: {problem}: --hops: not available for multishape problems"
+    assert not out.exists()
+
+
 def test_refuses_to_overwrite_without_force(tmp_path):
     out = tmp_path / "o.h5"
     out.write_bytes(b"keep me")

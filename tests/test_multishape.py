@@ -204,6 +204,7 @@ def test_problem_file_multishape(tmp_path):
         (lambda t: t + "[target]\ncurve = 'trefoil'\n", "target: not used in a multishape problem"),
         (lambda t: t + "[design]\nshared_pose = 1\n", "design.shared_pose: must be true or false"),
         (lambda t: t + "[design]\nmethod = 'greedy'\n", "design.method: must be 'nlp' in a multishape problem"),
+        (lambda t: t + "[design]\nhops = 3\n", "design.hops: unknown key"),
         (lambda t: t.replace("[[targets]]", "[[targetz]]"), "target: missing"),
     ],
 )

@@ -173,6 +173,7 @@ def test_design_actuator_and_options(tmp_path):
     points_per_segment = 8
     lookahead = 3
     starts = 4
+    hops = 5
     greedy_starts = 2
     seed = 7
     max_iter = 100
@@ -186,7 +187,7 @@ def test_design_actuator_and_options(tmp_path):
     assert pf.name == p.name == "trefoil-m4" and pf.units == p.units == "mm"
     assert p.actuator == Actuator(kind="spam", lambda_min=0.5, theta_max=math.radians(45))  # sPAM default lambda_min
     assert p.options == DesignOptions(
-        method="greedy", points_per_segment=8, lookahead=3, starts=4, greedy_starts=2, seed=7,
+        method="greedy", points_per_segment=8, lookahead=3, starts=4, hops=5, greedy_starts=2, seed=7,
         max_iter=100, tol=1e-6, smooth_theta=0.5, smooth_lambda=0.0,
     )
 
@@ -251,6 +252,7 @@ BAD = [
     ("helix-flat", TUBE + "[target]\ncurve = 'helix'\nradius = 0\npitch = 0\nlength = 3\n", {}, "", "target.radius: radius and pitch cannot both be 0"),
     ("points-per-segment", TREFOIL + "[design]\npoints_per_segment = 0\n", {}, "", "design.points_per_segment: must be an integer >= 1"),
     ("lookahead-bool", TREFOIL + "[design]\nlookahead = true\n", {}, "", "design.lookahead: must be an integer >= 1"),
+    ("hops", TREFOIL + "[design]\nhops = -1\n", {}, "", "design.hops: must be an integer >= 0"),
     ("smoothness", TREFOIL + "[design.smoothness]\ntheta = -1e-3\n", {}, "", "design.smoothness.theta: must be >= 0"),
     ("smoothness-key", TREFOIL + "[design.smoothness]\nlamda = 1e-3\n", {}, "", "design.smoothness.lamda: unknown key; did you mean 'lambda'?"),
     ("method", TREFOIL + "[design]\nmethod = 'ipopt'\n", {}, "", "design.method: must be one of 'nlp', 'greedy'"),

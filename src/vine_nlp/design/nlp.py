@@ -23,6 +23,7 @@ parameters, so multi-start and sweeps reuse it.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from functools import lru_cache
@@ -49,6 +50,7 @@ from vine_nlp.model.helix import center_rates
 from vine_nlp.model.segment import so3_exp, twist_parts
 
 
+@lru_cache(maxsize=8)
 def segment_function(n: int) -> ca.Function:
     """One segment, SX: (frame X_j (12), theta, lam, dl, fractions u (n)) -> (X_{j+1}, points (3 x n))."""
     X = ca.SX.sym("X", 12)  # rotation column-major (9), then position (3)
@@ -148,23 +150,12 @@ class NLPSolver:
                 smooth += P_smooth[1] * ca.sum1(ca.diff(lam.T) ** 2 / P_h) / P_L
         f = fit + smooth
         p = ca.vertcat(*[ca.vec(q) for q in params])
-        if hessian == "gauss-newton":
-            # f = |r|^2 with r the weighted residuals; H ~ 2 J^T J ignores the constraint curvature
-            # (generalized Gauss-Newton): always positive semidefinite, cheap, linear convergence
-            # on large-residual targets
-            res = [ca.vec(ca.repmat(ca.sqrt(P_w), 3, 1) * err), ca.sqrt(P_wtip) * (Xnext[9:, M - 1] - P_tip)]
-            if M > 1:
-                res.append(ca.sqrt(P_smooth[0] / (P_h * P_L)) * ca.diff(theta.T))
-                if not shared_lambda:
-                    res.append(ca.sqrt(P_smooth[1] / (P_h * P_L)) * ca.diff(lam.T))
-            J = ca.jacobian(ca.vertcat(*res), x)
-            sigma = ca.MX.sym("lam_f")
-            lam_g = ca.MX.sym("lam_g", g.size1())
-            H = sigma * ca.triu(2 * ca.mtimes(J.T, J))
-            hess_fn = ca.Function("nlp_hess_l", [x, p, sigma, lam_g], [H], ["x", "p", "lam_f", "lam_g"], ["hess_gamma_x_x"])
         opts = ipopt_options(max_iter, tol, warm)
-        if hessian == "gauss-newton":
-            opts["hess_lag"] = hess_fn
+        # the quadratic terms (tip, smoothness) have the same Hessian in both variants
+        opts["jac_g"], opts["hess_lag"] = _separable_derivatives(
+            lay, n, x, p, g, smooth + P_wtip * ca.sumsqr(Xnext[9:, M - 1] - P_tip), [P_tgt, P_w, P_u],
+            ca.reshape(P_R0, 3, 3), (Xstart, theta, lam, dl), hessian,
+        )
         self.solver = ca.nlpsol("vine_nlp", "ipopt", {"x": x, "p": p, "f": f, "g": g}, opts)
         self._terms = ca.Function("terms", [x, p], [fit, smooth])
         self.build_time_s = time.perf_counter() - t0
@@ -220,6 +211,137 @@ class NLPSolver:
             lbx[off + k : off + W * self.M : W] = lo[r]
             ubx[off + k : off + W * self.M : W] = hi[r]
         return lbx, ubx
+
+
+@lru_cache(maxsize=8)
+def _segment_derivatives(n: int, first: bool) -> tuple[ca.Function, ca.Function, ca.Function]:
+    """One segment's derivatives, SX, with respect to its local variables: the Jacobian of
+    X_{j+1}, and the upper triangle of the Hessian of its share of the Lagrangian, exact
+    and Gauss-Newton.
+
+    The share is sigma * sum_i w_i |r_i - r_d,i|^2 + lam_g . X_{j+1}(X_j, theta, lam, dl):
+    the rest of the Lagrangian is linear in x (the continuity rows' -X_{j+1}) or a
+    quadratic of few variables (smoothness, tip). Local variables: the segment's start
+    frame X_j (12), or for the first segment the pose (rotation vector relative to
+    R0g, position), then theta, lam, dl.
+    """
+    seg = segment_function(n)
+    theta, lam, dl = ca.SX.sym("theta"), ca.SX.sym("lam"), ca.SX.sym("dl")
+    u, tgt, w = ca.SX.sym("u", n), ca.SX.sym("tgt", 3, n), ca.SX.sym("w", 1, n)
+    lam_g, sigma = ca.SX.sym("lam_g", 12), ca.SX.sym("sigma")
+    R0g = ca.SX.sym("R0g", 3, 3)
+    if first:
+        head = ca.SX.sym("pose", 6)
+        X = ca.vertcat(ca.vec(ca.mtimes(R0g, so3_exp(head[:3]))), head[3:])
+    else:
+        X = head = ca.SX.sym("X", 12)
+    Xn, pts = seg(X, theta, lam, dl, u)
+    err = pts - tgt
+    ell = sigma * ca.sum2(w * ca.sum1(err * err)) + ca.dot(lam_g, Xn)
+    v = ca.vertcat(head, theta, lam, dl)
+    H, _ = ca.hessian(ell, v)
+    args = [head, theta, lam, dl, u, tgt, w, lam_g, sigma, R0g]
+    # Gauss-Newton: sigma * 2 J^T J of the weighted residuals, the constraint curvature left out
+    Jr = ca.jacobian(ca.vec(ca.repmat(ca.sqrt(w), 3, 1) * err), v)
+    gn = sigma * ca.triu(2 * ca.mtimes(Jr.T, Jr))
+    # separate functions: an MX call evaluates every output of its function
+    jac = ca.Function("segment_jac", [head, theta, lam, dl, u, R0g], [ca.jacobian(Xn, v)])
+    return jac, ca.Function("segment_hess", args, [ca.triu(H)]), ca.Function("segment_gn", args, [gn])
+
+
+def _scatter(shape, blocks, symmetric: bool):
+    """Sparse MX of ``shape`` from per-segment dense-pattern blocks.
+
+    ``blocks``: (values, pattern, rows, cols) with ``values`` the horizontally
+    concatenated block outputs of a mapped call, ``pattern`` one block's sparsity and
+    ``rows``/``cols`` per block the global index of each local row/column. Entries
+    that land on the same place (a shared lambda is a variable of every segment) are
+    summed; ``symmetric`` stores each entry in the upper triangle.
+    """
+    R, C, V = [], [], []
+    for values, pattern, rows, cols in blocks:
+        r, c = (np.asarray(v) for v in pattern.get_triplet())
+        for ri, ci in zip(rows, cols):
+            a, b = ri[r], ci[c]
+            if symmetric:
+                a, b = np.minimum(a, b), np.maximum(a, b)
+            R.append(a)
+            C.append(b)
+        V.append(values.nz[:])
+    R, C, V = np.concatenate(R), np.concatenate(C), ca.vertcat(*V)
+    key = C.astype(np.int64) * shape[0] + R  # column-major: the order of a CasADi sparsity's nonzeros
+    uniq, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    single = counts[inverse] == 1
+    order = np.flatnonzero(single)[np.argsort(key[single], kind="stable")]
+    out = ca.MX(ca.Sparsity.triplet(*shape, R[order].tolist(), C[order].tolist()), V[order.tolist()])
+    for k in np.flatnonzero(counts > 1):
+        at = np.flatnonzero(inverse == k)
+        sp = ca.Sparsity.triplet(*shape, [int(R[at[0]])], [int(C[at[0]])])
+        out = out + ca.MX(sp, ca.sum1(V[at.tolist()]))
+    return out
+
+
+def _separable_derivatives(lay: _Layout, n: int, x, p, g, quadratic, data, R0g, X, hessian: str = "exact"):
+    """Jacobian of the constraints and Hessian of the Lagrangian (nlpsol's ``jac_g`` and
+    ``hess_lag``; ``hessian`` "exact" or "gauss-newton"), assembled from one segment's SX
+    derivatives mapped over the chain.
+
+    CasADi's automatic MX derivatives colour the whole banded matrix and sweep the
+    mapped segment function once per colour; here each segment's block is computed
+    once (per-segment terms on their own variables, plus the continuity rows' constant
+    -I and the Hessian of the quadratic terms ``quadratic``), which makes the exact
+    Hessian and the Jacobian about 3x cheaper per iteration. The SX functions are
+    built once per process (per points per segment, first or later segment), so the
+    build does not grow with M.
+
+    Gauss-Newton (f = |r|^2 with r the weighted residuals): H ~ 2 J^T J ignores the
+    residuals' and the constraints' curvature; always positive semidefinite, cheap,
+    linear convergence on large-residual targets.
+    """
+    M = lay.M
+    P_tgt, P_w, P_u = data
+    Xstart, theta, lam, dl = X
+    sigma = ca.MX.sym("lam_f")
+    lam_g = ca.MX.sym("lam_g", g.size1())
+    LG = ca.reshape(lam_g, 12, M)
+    ith, ilam, idl = _stage_indices(lay)
+    iframe = _frame_indices(lay)
+    (j0, h0, g0), (jj, hj, gj) = _segment_derivatives(n, True), _segment_derivatives(n, False)
+    if hessian == "gauss-newton":
+        h0, hj = g0, gj
+    cols = [np.r_[0:6, ith[0], ilam[0], idl[0]]] + [np.r_[iframe[:, j - 1], ith[j], ilam[j], idl[j]] for j in range(1, M)]
+    rows = [np.arange(12 * j, 12 * j + 12) for j in range(M)]
+    head = [x[0:6], theta[0], lam[0], dl[0], P_u[:, 0]]
+    tail = [Xstart[:, 1:], theta[1:], lam[1:], dl[1:], P_u[:, 1:]]
+    jac_blocks = [(j0(*head, R0g), j0.sparsity_out(0), rows[:1], cols[:1])]
+    if M > 1:
+        jac_blocks.append((jj.map(M - 1, "serial")(*tail, R0g), jj.sparsity_out(0), rows[1:], cols[1:]))
+    # the continuity rows' -X_{j+1}: a constant -1 per row
+    jac = _scatter((g.size1(), lay.size), jac_blocks, False) - ca.MX(
+        ca.Sparsity.triplet(g.size1(), lay.size, list(range(12 * M)), iframe.T.ravel().tolist()), 1.0
+    )
+    jac_g = ca.Function("nlp_jac_g", [x, p], [g, jac], ["x", "p"], ["g", "jac_g_x"])
+    hess_blocks = [(h0(*head, P_tgt[:, :n], P_w[:, :n], LG[:, 0], sigma, R0g), h0.sparsity_out(0), cols[:1], cols[:1])]
+    if M > 1:
+        vals = hj.map(M - 1, "serial")(*tail, P_tgt[:, n:], P_w[:, n:], LG[:, 1:], sigma, R0g)
+        hess_blocks.append((vals, hj.sparsity_out(0), cols[1:], cols[1:]))
+    hess = _scatter((lay.size, lay.size), hess_blocks, True) + ca.triu(ca.hessian(sigma * quadratic, x)[0])
+    hess_lag = ca.Function("nlp_hess_l", [x, p, sigma, lam_g], [hess], ["x", "p", "lam_f", "lam_g"], ["hess_gamma_x_x"])
+    return jac_g, hess_lag
+
+
+def _stage_indices(lay: _Layout):
+    """Indices in x of theta_j, lam_j, dl_j (arrays of length M)."""
+    base = np.array([lay.stage(j) for j in range(lay.M)])
+    if lay.shared:
+        return base, np.full(lay.M, 6), base + 1
+    return base, base + 1, base + 2
+
+
+def _frame_indices(lay: _Layout):
+    """Indices in x of the frame X_{j+1} (12 x M): the last 12 entries of stage j."""
+    first = np.array([lay.stage(j) for j in range(lay.M)]) + lay.width - 12
+    return first[None, :] + np.arange(12)[:, None]
 
 
 @lru_cache(maxsize=16)
@@ -407,19 +529,24 @@ def guess_from_routing(problem: DesignProblem, pairing: Pairing, routing: Routin
     return Guess(theta, lam, length, routing.initial_pose.copy(), frames)
 
 
-def design_nlp(problem: DesignProblem, starts: int | None = None, workers: int = 1, warm: Routing | None = None, progress=None) -> Result:
-    """Inverse design as one NLP: multi-start (``options.starts``) keeping the lowest objective.
+def design_nlp(
+    problem: DesignProblem, starts: int | None = None, workers: int = 1, warm: Routing | None = None, progress=None, hops: int | None = None
+) -> Result:
+    """Inverse design as one NLP: multi-start (``options.starts``) keeping the lowest objective,
+    then ``options.hops`` rounds of basin hopping (``basin_hops``).
 
     ``warm``: start from an earlier design instead (one start, frames on its chain).
     ``workers`` > 1 runs the starts in parallel processes (each builds its own solver).
-    ``progress(done, total)`` is called after each start.
+    ``progress(done, total)`` is called after each start and each hop.
     """
     pairing = pair_points(problem.target, problem.options.points_per_segment)
+    n_hops = max(0, problem.options.hops if hops is None else hops)
     if warm is not None:
         jobs = [(problem, guess_from_routing(problem, pairing, warm), "chain", True)]
     else:
         n = max(1, problem.options.starts if starts is None else starts)
         jobs = [(problem, g, "target", False) for g in start_guesses(problem, pairing, n)]
+    total = len(jobs) + n_hops
     t0 = time.perf_counter()
     results = []
     if workers > 1 and len(jobs) > 1:
@@ -429,12 +556,12 @@ def design_nlp(problem: DesignProblem, starts: int | None = None, workers: int =
             for r in pool.map(_solve_start, jobs):  # map keeps start order: deterministic choice
                 results.append(r)
                 if progress:
-                    progress(len(results), len(jobs))
+                    progress(len(results), total)
     else:
         for job in jobs:
             results.append(_solve_start(job))
             if progress:
-                progress(len(results), len(jobs))
+                progress(len(results), total)
 
     def rank(r):
         return (0 if r.converged else 1, r.stats["objective"])
@@ -451,4 +578,63 @@ def design_nlp(problem: DesignProblem, starts: int | None = None, workers: int =
         best.iterations = sum(r.iterations for r in results)
     if warm is not None:
         best.stats["warm_start"] = True
+    if n_hops:
+        before = sum(r.iterations for r in results) if len(results) > 1 else best.iterations
+        best = basin_hops(problem, best, n_hops, pairing, lambda k: progress and progress(len(results) + k, total))
+        best.iterations = before + sum(best.stats["hop_iterations"])
+        best.solve_time_s = time.perf_counter() - t0
+    return best
+
+
+# basin hopping: the number of neighbouring segments re-drawn around the chosen one (a corner
+# spans about three segments at n = 10 points per segment)
+HOP_WINDOW = 3
+
+
+def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairing | None = None, progress=None) -> Result:
+    """Basin hopping for rugged targets (corners): ``hops`` rounds of re-drawing theta and lambda
+    of HOP_WINDOW neighbouring segments and solving again, keeping a lower objective.
+
+    The window's middle segment is drawn with probability proportional to its squared
+    error, so the search goes where the design misses the target (on a polyline, the
+    corners: each corner can be taken on several sides and swings, separate local
+    minima of the one NLP that no single descent crosses). The new values are drawn
+    uniformly inside the bounds; the rest of the design, its lengths and its frames
+    are kept. Deterministic for a given ``options.seed``. Stats: ``hops``,
+    ``hops_accepted``, ``hop_objectives``, ``hop_iterations``.
+    """
+    from vine_nlp.model import chain_frames
+
+    o, a = problem.options, problem.actuator
+    if o.hessian == "auto" and str(result.stats.get("hessian", "")).startswith("exact"):
+        # Gauss-Newton did not converge on this target: do not try it again on every hop
+        problem = dataclasses.replace(problem, options=dataclasses.replace(o, hessian="exact"))
+    pairing = pairing or pair_points(problem.target, o.points_per_segment)
+    M = pairing.segments
+    rng = np.random.default_rng([o.seed, 1])  # a stream apart from start_guesses'
+    best, objectives, iterations, accepted = result, [], [], 0
+    for k in range(hops):
+        err2 = np.sum((best.shape.center - problem.target) ** 2, axis=1)
+        per_segment = np.bincount(pairing.seg, weights=err2, minlength=M) + 1e-300
+        j = int(rng.choice(M, p=per_segment / per_segment.sum()))
+        start = max(0, min(j - HOP_WINDOW // 2, M - HOP_WINDOW))
+        w = slice(start, start + HOP_WINDOW)
+        theta, lam = best.routing.theta.copy(), best.routing.lam.copy()
+        theta[w] = rng.uniform(-a.theta_max, a.theta_max, theta[w].shape)
+        if not a.shared_lambda:  # one shared lambda is not a property of a window
+            lam[w] = rng.uniform(a.lambda_min, 1.0, lam[w].shape)
+        # multiple shooting: frames inside the window follow the new values, the others stay where
+        # the design put them, so the only continuity defect is at the window's end
+        old = best.routing
+        frames = chain_frames(old.theta, old.lam, old.length, problem.diameter, old.initial_pose)
+        frames[start + 1 : start + HOP_WINDOW] = chain_frames(theta, lam, old.length, problem.diameter, old.initial_pose)[start + 1 : start + HOP_WINDOW]
+        guess = Guess(theta, lam, old.length.copy(), old.initial_pose.copy(), frames)
+        r = solve_from(problem, guess, pairing, frames="target")
+        objectives.append(r.stats["objective"])
+        iterations.append(r.iterations)
+        if r.converged and r.stats["objective"] < best.stats["objective"] * (1 - TIE_RTOL):
+            best, accepted = r, accepted + 1
+        if progress:
+            progress(k + 1)
+    best.stats |= {"hops": hops, "hops_accepted": accepted, "hop_objectives": objectives, "hop_iterations": iterations}
     return best

@@ -23,6 +23,21 @@ class _Parser(argparse.ArgumentParser):
         raise InputError("command line", self.prog, message)
 
 
+def _at_least(least: int):
+    """argparse type: an integer >= ``least`` (a usage error otherwise)."""
+
+    def convert(text):
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid integer: {text!r}") from None
+        if value < least:
+            raise argparse.ArgumentTypeError(f"must be >= {least}, got {value}")
+        return value
+
+    return convert
+
+
 def _check_output(path: str, force: bool, arg: str = "-o") -> Path:
     out = Path(path)
     if out.exists() and not force:
@@ -142,9 +157,11 @@ def _run_method(pf, method, args):
         kw["workers"] = args.workers
         if args.starts is not None:
             kw["starts"] = args.starts
+        if args.hops is not None:
+            kw["hops"] = args.hops
         if getattr(args, "warm", None):
             kw["warm"] = _warm_routing(args.warm)
-    update, close = _progress_bar(f"{pf.name} {method}", "starts" if method == "nlp" else "windows")
+    update, close = _progress_bar(f"{pf.name} {method}", "solves" if method == "nlp" else "windows")
     try:
         return run_design(pf.problem, method, progress=update, **kw)
     finally:
@@ -201,6 +218,8 @@ def _only_nlp(pf, args):
         raise InputError(args.problem, "--method", f"{pf.kind} problems are solved by the nlp formulation only")
     if getattr(args, "warm", None):
         raise InputError(args.problem, "--warm", f"not available for {pf.kind} problems")
+    if getattr(args, "hops", None):
+        raise InputError(args.problem, "--hops", f"not available for {pf.kind} problems")
 
 
 def _design_multishape(pf, args) -> int:
@@ -531,8 +550,9 @@ def build_parser() -> argparse.ArgumentParser:
             _add_sigma_args(d)
             d.add_argument("--clearance", action="store_true", help="also a design keeping the tube clear of itself (run nlp_clearance)")
             d.add_argument("--min-gap", type=float, default=0.0, metavar="G", help="clearance beyond D, in units")
-        d.add_argument("--starts", type=int, metavar="N", help="nlp: number of starts of the multi-start (default: the problem's)")
-        d.add_argument("--workers", type=int, default=1, metavar="N", help="nlp: run the starts in N processes")
+        d.add_argument("--starts", type=_at_least(1), metavar="N", help="nlp: number of starts of the multi-start (default: the problem's)")
+        d.add_argument("--hops", type=_at_least(0), metavar="N", help="nlp: rounds of basin hopping after the starts, for targets with corners (default: the problem's)")
+        d.add_argument("--workers", type=_at_least(1), default=1, metavar="N", help="nlp: run the starts in N processes")
         d.add_argument("--plot", metavar="FIG.png", help="also draw the result (png or pdf)")
         d.add_argument("--force", action="store_true", help="overwrite existing output files")
         d.set_defaults(func=func)

@@ -67,7 +67,7 @@ _CURVE_KEYS = {
 _ALL_TARGET_KEYS = ("curve",) + tuple(dict.fromkeys(k for keys in _CURVE_KEYS.values() for k in keys))
 _CURVE_MAIN_KEY = {"trefoil": "scale", "bezier": "control_points", "polyline": "control_points", "helix": "radius"}
 _ACTUATOR_KEYS = ("kind", "lambda_min", "theta_max_deg")
-_OPTION_INTS = {"points_per_segment": 1, "lookahead": 1, "starts": 1, "greedy_starts": 1, "seed": 0, "max_iter": 1}
+_OPTION_INTS = {"points_per_segment": 1, "lookahead": 1, "starts": 1, "hops": 0, "greedy_starts": 1, "seed": 0, "max_iter": 1}
 _DESIGN_KEYS = ("method", *_OPTION_INTS, "tol", "hessian", "smoothness")
 _SMOOTHNESS_FIELDS = {"theta": "smooth_theta", "lambda": "smooth_lambda"}
 _ANGLE_KEYS = ("theta", "theta_deg", "phi")
@@ -76,7 +76,9 @@ _MEASURED_KEYS = ("file", "line")
 _FIT_KEYS = ("free",)
 _FREE_CHOICES = ("lambda",)
 _SWEEP_KEYS = ("name", "base", "methods", "grid")
-_MULTISHAPE_DESIGN_KEYS = (*_DESIGN_KEYS, "shared_pose")
+# basin hopping (hops) is a strategy of the design NLP only
+_OTHER_DESIGN_KEYS = tuple(k for k in _DESIGN_KEYS if k != "hops")
+_MULTISHAPE_DESIGN_KEYS = (*_OTHER_DESIGN_KEYS, "shared_pose")
 _TIP_KEYS = ("position", "direction", "length", "segments", "objective", "initial_pose")
 MAX_LEVELS = 1000  # [[targets]] of a multishape problem
 MAX_TIP_SEGMENTS = 10_000
@@ -446,7 +448,7 @@ def _tip(f: _File, data: dict, name: str, units: str, diameter: float) -> TipPro
     objective = _choice(f, "tip.objective", table.get("objective", "contraction"), TIP_OBJECTIVES)
     pose = _pose(f, "tip.initial_pose", table["initial_pose"]) if "initial_pose" in table else np.eye(4)
     actuator = _actuator(f, _table(f, data, "actuator", _ACTUATOR_KEYS))
-    design = _table(f, data, "design", _DESIGN_KEYS)
+    design = _table(f, data, "design", _OTHER_DESIGN_KEYS)
     options = _starts_default(design, _options(f, design), "tip")
     return TipProblem(
         name=name,
