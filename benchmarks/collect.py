@@ -6,7 +6,7 @@ import os
 
 from common import ROOT, SECTIONS
 
-ORDER = ["design", "scaling", "compare", "sweep", "fit"]
+ORDER = ["design", "scaling", "derivatives", "compare", "smoothing", "init", "sweep", "fit"]
 
 
 def main():

@@ -234,3 +234,19 @@ def test_spam_design_round_trip_keeps_repeated_lambda(tmp_path):
     assert lam.shape == (result.routing.segments,)  # repeated for spam
     assert np.ptp(lam) <= 1e-12
     assert math.isfinite(b.runs["nlp"].metrics["rmse"])
+
+
+@pytest.mark.parametrize(
+    "runs, expected",
+    [
+        (["greedy", "greedy_filtered", "nlp"], "nlp"),
+        (["greedy_filtered", "greedy"], "greedy"),
+        (["nlp_clearance", "nlp_robust"], "nlp_robust"),
+        (["fit", "forward"], "forward"),
+        (["custom", "other"], "custom"),
+        ([], None),
+    ],
+)
+def test_default_run_is_the_same_for_every_command(runs, expected):
+    a = Archive(name="a", kind="design", source="", diameter=D, runs={r: None for r in runs})
+    assert a.default_run() == expected

@@ -170,10 +170,9 @@ def _run_method(pf, method, args):
 
 def _warm_routing(path):
     a = _read_archive(path, "--warm")
-    for name in ("nlp", "greedy", "forward", "fit"):
-        if name in a.runs:
-            return a.runs[name].routing
-    raise InputError(path, "--warm", "the archive has no design run")
+    if not a.runs:
+        raise InputError(path, "--warm", "the archive has no design run")
+    return a.runs[a.default_run()].routing
 
 
 def cmd_design(args) -> int:
@@ -319,7 +318,7 @@ def cmd_analyze(args) -> int:
     from vine_nlp.analysis.tolerance import tolerance_metrics, tolerance_report
 
     archive = _read_archive(args.archive)
-    run = args.run or next((n for n in ("nlp", "nlp_robust", "nlp_clearance", "greedy", "forward", "fit", "tip") if n in archive.runs), None)
+    run = args.run or archive.default_run()
     if run not in archive.runs:
         raise InputError(args.archive, "--run", f"no run {run!r} (runs: {', '.join(archive.runs)})")
     for flag in ("tolerance_figure", "clearance_figure"):

@@ -45,7 +45,6 @@ from vine_nlp.model.chain import phi_from_theta  # noqa: E402
 
 PAPERS_MM = {"A4": (210.0, 297.0), "Letter": (215.9, 279.4)}
 CM_PER_UNIT = {"cm": 1.0, "mm": 0.1}
-RUN_PREFERENCE = ("nlp", "greedy", "forward")
 STOPPER_COLOR = "#1f5fbf"  # blue: stays (stopper / unpinched)
 GAP_COLOR = "#d62728"  # red: removed or pinched
 SPAM_COLOR = "#6a3d9a"
@@ -106,17 +105,14 @@ def _paper(paper: str) -> tuple[str, tuple[float, float]]:
 
 
 def pick_run(archive: Archive, run: str | None = None) -> str:
-    """``run`` if given, else the first of nlp, greedy, forward present (else the first run)."""
+    """``run`` if given, else the archive's default run (``Archive.default_run``)."""
     if run is not None:
         if run not in archive.runs:
             raise ValueError(f"no run {run!r} in the archive (runs: {', '.join(archive.runs) or 'none'})")
         return run
-    for name in RUN_PREFERENCE:
-        if name in archive.runs:
-            return name
     if not archive.runs:
         raise ValueError("the archive has no runs")
-    return next(iter(archive.runs))
+    return archive.default_run()
 
 
 def cut_table(archive: Archive, run: str) -> dict:

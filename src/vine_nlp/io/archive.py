@@ -35,6 +35,15 @@ class Archive:
     created: str = ""
     format_version: int = FORMAT_VERSION
 
+    def default_run(self) -> str | None:
+        """The run a command uses when none is named: the first of DEFAULT_RUNS present, else
+        the first run (None for an archive without runs)."""
+        return next((r for r in DEFAULT_RUNS if r in self.runs), next(iter(self.runs), None))
+
+
+# the design a command reads from an archive by default (template, analyze, --warm), in this order
+DEFAULT_RUNS = ("nlp", "nlp_robust", "nlp_clearance", "greedy", "forward", "fit", "tip", "multishape")
+
 
 def atomic_path(path: Path):
     """A temporary file beside ``path``: same directory, so the final os.replace is atomic."""
