@@ -14,7 +14,7 @@ import tempfile
 import time
 
 import numpy as np
-from common import FIGURES, ROOT, machine, table, write_section
+from common import FIGURES, ROOT, table, write_report
 
 from vine_nlp import targets
 from vine_nlp.design.common import Guess, geometric_guess, pair_points
@@ -69,20 +69,15 @@ def paper_cases(repeat):
             subprocess.run([sys.executable, "-m", "vine_nlp", "design", str(ROOT / "problems/trefoil-m4.toml"), "-o", f"{d}/t.h5", "--force"],
                            check=True, capture_output=True)
             walls.append(time.perf_counter() - t0)
-    text = [
-        "## Inverse design: the paper's cases (NLP, default settings)",
-        "",
-        f"Machine: {machine()}",
-        "",
+    write_report(
+        "design",
+        "Inverse design: the paper's cases (NLP, default settings)",
         "Errors in mm. Paper: greedy Algorithm 1 in MATLAB (fmincon sqp + GlobalSearch), trefoil 138 s, "
         "Bezier about 199 s each. `build` is constructing the CasADi/IPOPT solver (once per structure), `solve` the "
         f"best of {repeat} solves with the solver reused (geometric guess included), `cold` build + first solve.",
-        "",
         table(["case", "status", "RMSE", "max", "paper RMSE / max", "goal RMSE", "iter", "build [s]", "solve [s]", "cold [s]"], rows),
-        "",
         f"`vine-nlp design problems/trefoil-m4.toml` from command start to archive written: {min(walls):.2f} s (best of {repeat}; goal <= 2 s).",
-    ]
-    write_section("design", "\n".join(text))
+    )
 
 
 def scaling(sizes, repeat):
@@ -122,21 +117,15 @@ def scaling(sizes, repeat):
     fig.savefig(FIGURES / "nlp-scaling.png", dpi=150)
     slope_b = np.polyfit(np.log(pts[:, 0]), np.log(pts[:, 1]), 1)[0]
     slope_i = np.polyfit(np.log(pts[:, 0]), np.log(pts[:, 3]), 1)[0]
-    text = [
-        "## NLP scaling with the number of segments",
-        "",
-        f"Machine: {machine()}",
-        "",
+    write_report(
+        "scaling",
+        "NLP scaling with the number of segments",
         "Trefoil m = 4 sampled with M + 1 points, n = 1 (one segment per target point). Goals: 400 segments <= 2 s, "
         "1600 segments <= 8 s, building included (`total`).",
-        "",
         table(["segments", "status", "RMSE [mm]", "build [s]", "solve [s]", "iterations", "ms / iteration", "total [s]"], rows),
-        "",
         f"Fitted log-log slopes: build {slope_b:.2f}, time per iteration {slope_i:.2f} (1 = linear).",
-        "",
         "![scaling](figures/nlp-scaling.png)",
-    ]
-    write_section("scaling", "\n".join(text))
+    )
 
 
 def _paper_guess(pb, pairing):
@@ -166,18 +155,14 @@ def initialization(repeat):
             t, r = _best_of(fn, repeat)
             rows.append([name, label, r.status, f"{10 * r.metrics['rmse']:.4f}", r.iterations, f"{t:.3f}"])
             print(rows[-1], flush=True)
-    text = [
-        "## Initialization and multi-start (NLP)",
-        "",
-        f"Machine: {machine()}",
-        "",
+    write_report(
+        "init",
+        "Initialization and multi-start (NLP)",
         "Same solver and options, different starts; the first four rows of each case use the default Hessian "
         "(`auto`: Gauss-Newton, exact if it does not converge in 50 iterations), the last two force one Hessian. "
         "RMSE in mm; time includes the guess and, the first time a solver variant is used, building it.",
-        "",
         table(["case", "start", "status", "RMSE [mm]", "iterations", "time [s]"], rows),
-    ]
-    write_section("init", "\n".join(text))
+    )
 
 
 def _with_hessian(pb, hessian):
@@ -215,18 +200,14 @@ def smoothing(weights=SMOOTH_WEIGHTS):
         rows.append([name, "greedy (no smoothing)", f"{10 * g.metrics['rmse']:.5f}", f"{100 * (g.metrics['rmse'] / best - 1):+.1f} %",
                      f"{g.metrics['tv_theta']:.3f}", f"{g.metrics['tv_lambda']:.3f}"])
         print(rows[-1], flush=True)
-    text = [
-        "## Smoothing weight (NLP)",
-        "",
-        f"Machine: {machine()}",
-        "",
+    write_report(
+        "smoothing",
+        "Smoothing weight (NLP)",
         "The weight w of w (1/L) int (D theta')^2 ds (the same for lambda) against the mean squared error / D^2, on the "
         "paper's smooth design cases; RMSE in mm, its change against w = 0, total variation of theta (rad) and lambda over "
         "the segments. The default is the largest weight of these that costs about 3 % RMSE at most on every case.",
-        "",
         table(["case", "run", "RMSE [mm]", "RMSE vs w = 0", "TV theta", "TV lambda"], rows),
-    ]
-    write_section("smoothing", "\n".join(text))
+    )
 
 
 def derivatives(repeat):
@@ -274,21 +255,18 @@ def derivatives(repeat):
             jac = st["t_wall_nlp_jac_g"] / max(st["n_call_nlp_jac_g"], 1)
             rows.append([name, M, label, st["iter_count"], f"{1e3 * t_it:.2f}", f"{1e3 * hess:.2f}", f"{1e3 * jac:.3f}", f"{build:.2f}"])
             print(rows[-1], flush=True)
-    text = [
-        "## Derivatives: separable against CasADi's automatic ones (NLP, exact Hessian)",
-        "",
-        f"Machine: {machine()}",
-        "",
+    write_report(
+        "derivatives",
+        "Derivatives: separable against CasADi's automatic ones (NLP, exact Hessian)",
         "The same NLP (nlp.py's objective and constraints), the same start (geometric guess) and IPOPT options; "
         "one solver with nlp.py's Jacobian and Hessian assembled from one segment's SX derivatives mapped over the "
         "chain, one with CasADi's automatic MX derivatives of the same oracle. Times per IPOPT iteration and per "
         f"evaluation in ms (best of {repeat}); build in s (the separable one includes the segment's SX derivatives, "
-        "built once per process; the first row of the run pays for them). Iteration counts may differ in the last "
-        "digits: the two Hessians agree to rounding, which a nonconvex solve can amplify.",
-        "",
+        "built once per process; the first row of the run pays for them). The two Hessians agree to rounding "
+        "(tests: 1e-12 relative), but on a nonconvex landscape like the polyline's that rounding can send the two "
+        "solves along different paths to different minima: compare the time per iteration.",
         table(["case", "segments", "derivatives", "iterations", "per iteration", "Hessian eval", "Jacobian eval", "build [s]"], rows),
-    ]
-    write_section("derivatives", "\n".join(text))
+    )
 
 
 def main():

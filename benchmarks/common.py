@@ -55,6 +55,11 @@ def write_section(name: str, text: str) -> Path:
     return path
 
 
+def write_report(name: str, title: str, description: str, *blocks: str) -> Path:
+    """A section: its title, the machine it ran on, what was measured, then tables and notes."""
+    return write_section(name, "\n\n".join([f"## {title}", f"Machine: {machine()}", description, *blocks]))
+
+
 def table(header, rows) -> str:
     out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     out += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
