@@ -18,7 +18,10 @@ same whatever the discretization (they replace the paper's low-pass filter).
 
 The solver is built once per structure (M segments, n points per segment,
 shared or per-segment lambda) and cached; target, weights and guesses are
-parameters, so multi-start and sweeps reuse it.
+parameters, so multi-start and sweeps reuse it. Its constraint Jacobian and
+Lagrangian Hessian are assembled from one segment's SX derivatives
+(``_separable_derivatives``). Targets with corners have many local minima:
+``basin_hops`` searches them.
 """
 
 from __future__ import annotations
