@@ -292,8 +292,9 @@ def _separable_derivatives(lay: _Layout, n: int, x, p, g, quadratic, data, R0g, 
     CasADi's automatic MX derivatives colour the whole banded matrix and sweep the
     mapped segment function once per colour; here each segment's block is computed
     once (per-segment terms on their own variables, plus the continuity rows' constant
-    -I and the Hessian of the quadratic terms ``quadratic``), which makes the exact
-    Hessian and the Jacobian about 3x cheaper per iteration. The SX functions are
+    -I and the Hessian of the quadratic terms ``quadratic``): measured, the exact
+    Hessian about 4x and the Jacobian about 9x cheaper to evaluate, an IPOPT iteration
+    about 2.5x cheaper (results/BENCHMARKS.md, "Derivatives"). The SX functions are
     built once per process (per points per segment, first or later segment), so the
     build does not grow with M.
 
@@ -622,13 +623,13 @@ def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairi
         j = int(rng.choice(M, p=per_segment / per_segment.sum()))
         start = max(0, min(j - HOP_WINDOW // 2, M - HOP_WINDOW))
         w = slice(start, start + HOP_WINDOW)
-        theta, lam = best.routing.theta.copy(), best.routing.lam.copy()
+        old = best.routing
+        theta, lam = old.theta.copy(), old.lam.copy()
         theta[w] = rng.uniform(-a.theta_max, a.theta_max, theta[w].shape)
         if not a.shared_lambda:  # one shared lambda is not a property of a window
             lam[w] = rng.uniform(a.lambda_min, 1.0, lam[w].shape)
         # multiple shooting: frames inside the window follow the new values, the others stay where
         # the design put them, so the only continuity defect is at the window's end
-        old = best.routing
         frames = chain_frames(old.theta, old.lam, old.length, problem.diameter, old.initial_pose)
         frames[start + 1 : start + HOP_WINDOW] = chain_frames(theta, lam, old.length, problem.diameter, old.initial_pose)[start + 1 : start + HOP_WINDOW]
         guess = Guess(theta, lam, old.length.copy(), old.initial_pose.copy(), frames)
