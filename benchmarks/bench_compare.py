@@ -11,8 +11,7 @@ import time
 from common import ROOT, machine, table, write_section
 
 from vine_nlp.design import greedy as greedy_mod
-from vine_nlp.design import nlp as nlp_mod
-from vine_nlp.design import run_design
+from vine_nlp.design import run_design, transcription
 from vine_nlp.design.greedy import lowpass
 from vine_nlp.io.problem_file import load_problem
 
@@ -25,8 +24,8 @@ HOPS = {"polyline-d": 12}
 
 def clear_caches():
     """Forget every built solver and SX function of both methods: the next run starts cold."""
-    for fn in (nlp_mod.get_solver, nlp_mod.segment_function, nlp_mod._segment_derivatives, greedy_mod.get_window_solver):
-        fn.cache_clear()
+    transcription.clear_caches()
+    greedy_mod.get_window_solver.cache_clear()
 
 
 def timed(fn):

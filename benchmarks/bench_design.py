@@ -20,6 +20,7 @@ from vine_nlp import targets
 from vine_nlp.design.common import Guess, geometric_guess, pair_points
 from vine_nlp.design.nlp import design_nlp, get_solver, solve_from
 from vine_nlp.design.problem import DesignOptions, DesignProblem
+from vine_nlp.design.transcription import clear_caches
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.model import chain_frames
 
@@ -47,7 +48,7 @@ def paper_cases(repeat):
     rows = []
     for name, p_rmse, p_max, goal in CASES:
         pb = load_problem(ROOT / "problems" / f"{name}.toml").problem
-        get_solver.cache_clear()
+        clear_caches()
         t0 = time.perf_counter()
         first = design_nlp(pb)
         cold = time.perf_counter() - t0
@@ -84,7 +85,7 @@ def scaling(sizes, repeat):
     rows, pts = [], []
     for N in sizes:
         pb = DesignProblem("trefoil-n1", 2.43, targets.trefoil(samples=N + 1), options=DesignOptions(points_per_segment=1))
-        get_solver.cache_clear()
+        clear_caches()
         t0 = time.perf_counter()
         r = design_nlp(pb)
         total = time.perf_counter() - t0
@@ -214,41 +215,34 @@ def derivatives(repeat):
     """Cost per IPOPT iteration: nlp.py's separable derivatives against CasADi's automatic ones on the same NLP."""
     import casadi as ca
 
-    from vine_nlp.design.common import ipopt_options, run_ipopt
-    from vine_nlp.design.nlp import _solve
+    from vine_nlp.design.nlp import design_bounds, nlp_parameters, start_x
+    from vine_nlp.design.transcription import ipopt_options
 
     rows = []
     for name in ["trefoil-m4", "bezier-a", "polyline-d"]:
         pb = _with_hessian(load_problem(ROOT / "problems" / f"{name}.toml").problem, "exact")
         pairing = pair_points(pb.target, pb.options.points_per_segment)
         M, n = pairing.segments, pairing.n
-        get_solver.cache_clear()
+        clear_caches()
         t0 = time.perf_counter()
         ours = get_solver(M, n, pb.actuator.shared_lambda, pb.options.max_iter, pb.options.tol, False, "exact")
         build_ours = time.perf_counter() - t0
         # the same oracle (objective, constraints) with CasADi's own Jacobian and Hessian
         t0 = time.perf_counter()
-        x, p = ca.MX.sym("x", ours.layout.size), ca.MX.sym("p", ours.solver.size_in("p")[0])
-        f, g = ours.solver.oracle()(x, p)
+        x, p = ca.MX.sym("x", ours.layout.size), ca.MX.sym("p", ours.nlpsol.size_in("p")[0])
+        f, g = ours.nlpsol.oracle()(x, p)
         auto = ca.nlpsol("auto", "ipopt", {"x": x, "p": p, "f": f, "g": g}, ipopt_options(pb.options.max_iter, pb.options.tol))
         build_auto = time.perf_counter() - t0
-        captured = {}
-
-        def capture(solver, x0, p_, lbx, ubx, **kw):
-            captured.update(x0=x0, p=p_, lbx=lbx, ubx=ubx)
-            return run_ipopt(solver, x0, p_, lbx, ubx, **kw)
-
-        import vine_nlp.design.nlp as nlp_mod
-
-        nlp_mod.run_ipopt, original = capture, nlp_mod.run_ipopt
-        try:
-            _solve(pb, geometric_guess(pb, pairing), pairing, "target", False, "exact", pb.options.max_iter)
-        finally:
-            nlp_mod.run_ipopt = original
-        for label, solver, build in [("separable (nlp.py)", ours.solver, build_ours), ("CasADi automatic", auto, build_auto)]:
+        guess = geometric_guess(pb, pairing)
+        p0 = ours.pack_params(nlp_parameters(pb, pairing, guess.initial_pose[:3, :3]))
+        lbx, ubx = ours.bounds(*design_bounds(pb, pairing))
+        x0 = np.clip(start_x(ours, guess, pb.diameter), lbx, ubx)
+        for label, solver, build in [("separable (transcription)", ours.nlpsol, build_ours), ("CasADi automatic", auto, build_auto)]:
             per = []
             for _ in range(repeat):
-                sol, xs, st, el = run_ipopt(solver, captured["x0"], captured["p"], captured["lbx"], captured["ubx"])
+                t0 = time.perf_counter()
+                solver(x0=x0, p=p0, lbx=lbx, ubx=ubx, lbg=ours.lbg, ubg=ours.ubg)
+                el, st = time.perf_counter() - t0, solver.stats()
                 per.append((el / max(st["iter_count"], 1), st))
             t_it, st = min(per, key=lambda v: v[0])
             hess = st["t_wall_nlp_hess_l"] / max(st["n_call_nlp_hess_l"], 1)
@@ -259,7 +253,7 @@ def derivatives(repeat):
         "derivatives",
         "Derivatives: separable against CasADi's automatic ones (NLP, exact Hessian)",
         "The same NLP (nlp.py's objective and constraints), the same start (geometric guess) and IPOPT options; "
-        "one solver with nlp.py's Jacobian and Hessian assembled from one segment's SX derivatives mapped over the "
+        "one solver with the transcription's Jacobian and Hessian assembled from per-stage SX derivatives mapped over the "
         "chain, one with CasADi's automatic MX derivatives of the same oracle. Times per IPOPT iteration and per "
         f"evaluation in ms (best of {repeat}); build in s (the separable one includes the segment's SX derivatives, "
         "built once per process; the first row of the run pays for them). The two Hessians agree to rounding "

@@ -17,8 +17,9 @@ from common import FIGURES, ROOT, machine, table, write_section
 
 from vine_nlp.analysis.collision import collision_metrics, growth_contacts
 from vine_nlp.analysis.tolerance import Sigmas, tolerance_report
-from vine_nlp.design.nlp import design_nlp, get_solver
+from vine_nlp.design.nlp import design_nlp
 from vine_nlp.design.robust import design_robust
+from vine_nlp.design.transcription import clear_caches
 from vine_nlp.front.analysis_plots import tolerance_figure
 from vine_nlp.io.problem_file import load_problem
 
@@ -32,7 +33,7 @@ def main():
     args = ap.parse_args()
     pb = load_problem(ROOT / "problems" / "trefoil-m4.toml").problem
     u = pb.units
-    get_solver.cache_clear()
+    clear_caches()
     t0 = time.perf_counter()
     nom = design_nlp(pb)
     t_nom = time.perf_counter() - t0

@@ -85,11 +85,11 @@ def main(argv=None) -> int:
         # ---- 2. throughput on a subset, the same items for every executor; best of --repeat
         # (the machine is shared), every repeat from cold: new processes, solvers built again
         part = _subset(sweep, args.subset)
-        from vine_nlp.design.nlp import get_solver
+        from vine_nlp.design.transcription import clear_caches
 
         def local(workers, label):
             if workers <= 1:
-                get_solver.cache_clear()  # the in-process run pays for its solver build like the others
+                clear_caches()  # the in-process run pays for its solver build like the others
             return _throughput(part, root, label, workers=workers)
 
         def on_dask(label):

@@ -1,6 +1,7 @@
 """Result archives: round trip, the archived phi, the model reproduces archived shapes, atomic writes."""
 
 import math
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -17,9 +18,12 @@ from vine_nlp.design.problem import (
     Routing,
 )
 from vine_nlp.design.result import forward_shape, run_forward
+from vine_nlp.errors import InputError
 from vine_nlp.io import archive as archive_module
+from vine_nlp.io import limits
 from vine_nlp.io.archive import Archive, load_archive, write_archive
 
+ROOT = Path(__file__).resolve().parents[1]
 D = 2.43
 N_PER_SEGMENT = 4
 FORWARD_SOURCE = """name = "wave"
@@ -250,3 +254,159 @@ def test_spam_design_round_trip_keeps_repeated_lambda(tmp_path):
 def test_default_run_is_the_same_for_every_command(runs, expected):
     a = Archive(name="a", kind="design", source="", diameter=D, runs={r: None for r in runs})
     assert a.default_run() == expected
+
+
+# ---------------------------------------------------------------- validation on load
+
+
+@pytest.fixture
+def written(tmp_path, design):
+    """A fresh copy of a valid design archive (nlp run, target, measured points) for each test."""
+    path = tmp_path / "a.h5"
+    write_archive(path, design_archive(*design))
+    return path
+
+
+def _edit(path, fn):
+    with h5py.File(path, "a") as h5:
+        fn(h5)
+
+
+def _set(name, index, value):
+    def fn(h5):
+        a = h5[name][()]
+        a[index] = value
+        h5[name][...] = a
+
+    return fn
+
+
+def _replace(name, data):
+    def fn(h5):
+        del h5[name]
+        h5.create_dataset(name, data=data)
+
+    return fn
+
+
+def _rotation(deg):
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    T = np.eye(4)
+    T[:2, :2] = [[c, -s], [s, c]]
+    return T
+
+
+BAD_ARCHIVES = [
+    (_set("runs/nlp/design/theta", 3, np.nan), "/runs/nlp/design/theta", "non-finite value nan at [3]"),
+    (_set("runs/nlp/shape/inner", (5, 1), np.inf), "/runs/nlp/shape/inner", "non-finite value inf at [5, 1]"),
+    (_set("target/points", (0, 0), -np.inf), "/target/points", "non-finite value -inf at [0, 0]"),
+    (_set("runs/nlp/design/length", 0, 0.0), "/runs/nlp/design/length", "segment lengths must be > 0, got 0.0"),
+    (_set("runs/nlp/design/lambda", 1, -0.5), "/runs/nlp/design/lambda", "must be > 0, got -0.5"),
+    (_replace("runs/nlp/design/lambda", np.full(9, 0.7)), "/runs/nlp/design/lambda", "shape (9,), expected (10,)"),
+    (_replace("runs/nlp/design/phi", np.zeros(10)), "/runs/nlp/design/phi", "shape (10,), expected (11,)"),
+    (_replace("runs/nlp/shape/outer", np.zeros((40, 3))), "/runs/nlp/shape/outer", "shape (40, 3), expected (41, 3)"),
+    (_replace("runs/nlp/shape/center", np.zeros((40, 3))), "/runs/nlp/shape/center", "shape (40, 3), expected (41, 3)"),
+    (_replace("runs/nlp/design/theta", np.array([b"a", b"b"])), "/runs/nlp/design/theta", "must hold real numbers, got dtype |S1"),
+    (_replace("runs/nlp/design/theta", np.zeros(10, complex)), "/runs/nlp/design/theta", "must hold real numbers, got dtype complex128"),
+    (_replace("runs/nlp/design/initial_pose", 2 * np.eye(4)), "/runs/nlp/design/initial_pose", "last row must be 0 0 0 1, got [0.0, 0.0, 0.0, 2.0]"),
+    (_replace("runs/nlp/design/initial_pose", np.diag([1.0, 1.0, 1.1, 1.0])), "/runs/nlp/design/initial_pose", "rotation part is not orthonormal (|R^T R - I| = 0.21)"),
+    (_replace("runs/nlp/design/initial_pose", np.diag([1.0, 1.0, -1.0, 1.0])), "/runs/nlp/design/initial_pose", "rotation part has det -1 (a reflection, not a rotation)"),
+    (_replace("runs/nlp/design/initial_pose", np.eye(3)), "/runs/nlp/design/initial_pose", "shape (3, 3), expected (4, 4)"),
+    (lambda h5: h5["runs/nlp/design"].pop("theta"), "/runs/nlp/design/theta", "missing"),
+    (lambda h5: h5["runs/nlp"].attrs.__setitem__("iterations", 2.5), "/runs/nlp@iterations", "must be an integer, got 2.5"),
+    (lambda h5: h5["runs/nlp"].attrs.__setitem__("solve_time_s", "fast"), "/runs/nlp@solve_time_s", "must be a number, got str"),
+    (lambda h5: h5["runs/nlp"].attrs.__setitem__("status", 3), "/runs/nlp@status", "must be text, got int"),
+    (lambda h5: h5["runs/nlp/metrics"].attrs.__setitem__("rmse", np.nan), "/runs/nlp/metrics@rmse", "must be finite, got nan"),
+    (lambda h5: h5["tube"].attrs.__setitem__("diameter", -2.0), "/tube@diameter", "must be > 0, got -2.0"),
+    (lambda h5: h5.attrs.__setitem__("format_version", 2), "/@format_version", "format version 2 is newer than this vine_nlp reads (1)"),
+    (lambda h5: h5["problem"].attrs.__delitem__("source"), "/problem@source", "missing attribute"),
+    (lambda h5: h5.create_dataset("measured/extra", data=[1.0, np.nan]), "/measured/extra", "non-finite value nan at [1]"),
+    (lambda h5: h5.create_dataset("notes", data=3.0), "/notes", "must be an array (at least 1-D), got a scalar"),
+    (lambda h5: h5.create_dataset("future/0/radius", data=np.array([b"x"])), "/future/0/radius", "must hold real numbers, got dtype |S1"),
+]
+
+
+@pytest.mark.parametrize("edit, key, reason", BAD_ARCHIVES)
+def test_invalid_archives_are_one_input_error(written, edit, key, reason):
+    _edit(written, edit)
+    with pytest.raises(InputError) as info:
+        load_archive(written)
+    assert (info.value.file, info.value.key, info.value.reason) == (str(written), key, reason)
+
+
+def test_rotated_poses_and_unknown_groups_are_accepted(written):
+    def edit(h5):
+        h5["runs/nlp/design/initial_pose"][...] = _rotation(33) @ h5["runs/nlp/design/initial_pose"][()]
+        h5.create_dataset("future/0/center", data=[1.0, 2.0, 3.0])  # a group the spec does not name: kept and checked
+        h5.create_dataset("frames/lambda", data=[0.8, np.nan])  # a frame that could not be fitted
+
+    _edit(written, edit)
+    a = load_archive(written)
+    np.testing.assert_allclose(a.extra["future/0/center"], [1.0, 2.0, 3.0])
+    assert np.isnan(a.extra["frames/lambda"][1])
+
+
+def test_size_limits_are_checked_before_reading(written, monkeypatch):
+    # a dataset declared with 10^9 rows and never written: refused by its size, not read
+    def edit(h5):
+        del h5["target/points"]
+        h5.create_dataset("target/points", shape=(10**9, 3), dtype=float, chunks=(1024, 3), fillvalue=1.0)
+
+    _edit(written, edit)
+    with pytest.raises(InputError) as info:
+        load_archive(written)
+    assert info.value.key == "/target/points"
+    assert info.value.reason == (
+        f"3000000000 values, more than the limit of {3 * limits.MAX_TARGET_POINTS} (vine_nlp.io.limits.MAX_TARGET_POINTS)")
+
+
+@pytest.mark.parametrize("content, reason", [
+    (b"", "not an HDF5 file"),
+    (b"\x89HDF\r\n\x1a\n" + b"\0" * 40, "cannot read the archive"),
+    (b"hello", "not an HDF5 file"),
+])
+def test_damaged_files_are_one_input_error(tmp_path, content, reason):
+    path = tmp_path / "bad.h5"
+    path.write_bytes(content)
+    with pytest.raises(InputError) as info:
+        load_archive(path)
+    assert info.value.key == "file" and info.value.reason.startswith(reason)
+
+
+def test_truncated_archive_is_one_input_error(written):
+    data = written.read_bytes()
+    written.write_bytes(data[: len(data) // 2])
+    with pytest.raises(InputError) as info:
+        load_archive(written)
+    assert info.value.key == "file" and info.value.reason.startswith("cannot read the archive (")
+
+
+def test_write_archive_extend_adds_groups_in_the_same_atomic_write(tmp_path):
+    path = tmp_path / "x.h5"
+    write_archive(path, forward_archive(), extend=lambda h5: h5.create_dataset("frames/rmse", data=[0.1, 0.2]))
+    np.testing.assert_array_equal(load_archive(path).extra["frames/rmse"], [0.1, 0.2])
+    assert [p.name for p in tmp_path.iterdir()] == ["x.h5"]
+
+
+READERS = [
+    ["show", "{a}"],
+    ["plot", "{a}", "-o", "{d}/f.png"],
+    ["analyze", "{a}", "--samples", "10"],
+    ["template", "{a}", "-o", "{d}/t.pdf"],
+    ["design", str(ROOT / "problems/bezier-c.toml"), "-o", "{d}/w.h5", "--warm", "{a}"],
+]
+
+
+@pytest.mark.parametrize("args", READERS, ids=lambda a: a[0] + (" --warm" if "--warm" in a else ""))
+def test_every_command_refuses_an_invalid_archive_in_one_line(tmp_path, capsys, args):
+    from vine_nlp.front.cli import main
+
+    path = tmp_path / "in.h5"
+    write_archive(path, forward_archive())
+    _edit(path, _set("runs/forward/design/theta", 2, np.nan))
+    out = tmp_path / "out"
+    out.mkdir()
+    assert main([a.format(a=path, d=out) for a in args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: {path}: /runs/forward/design/theta: non-finite value nan at [2]"]
+    assert list(out.iterdir()) == []

@@ -11,9 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from vine_nlp.design.problem import FitProblem, Routing
-from vine_nlp.design.result import forward_shape
-from vine_nlp.fit import (
+from vine_nlp.design.fit import (
     Polyline,
     apply_transform,
     best_fit_helix,
@@ -29,6 +27,8 @@ from vine_nlp.fit import (
     pose_starts,
     r_squared,
 )
+from vine_nlp.design.problem import FitProblem, Routing
+from vine_nlp.design.result import forward_shape
 from vine_nlp.model import helix_forward
 
 SIGMA = 0.14 / math.sqrt(3)  # cm per coordinate: 1.4 mm RMS in 3-D

@@ -3,11 +3,11 @@
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from holdpoint import finish, hold_env, release, spawn, wait_for_marker
 
 from vine_nlp.front.cli import main
 from vine_nlp.io.archive import load_archive
@@ -15,23 +15,33 @@ from vine_nlp.io.archive import load_archive
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _spawn(*args):
-    return subprocess.Popen([sys.executable, "-m", "vine_nlp", *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-@pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_signal_during_design_leaves_no_archive(tmp_path, sig):
-    out = tmp_path / "d.h5"
-    # the greedy baseline runs for seconds: long enough to be interrupted mid-way
-    proc = _spawn("design", ROOT / "problems/trefoil-m4.toml", "-o", out, "--method", "greedy")
-    time.sleep(3.0)
-    assert proc.poll() is None, proc.communicate()
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    out = out_dir / "d.h5"
+    # held after its first solve (event: the marker line), so the greedy is certainly mid-way
+    env, fifo = hold_env(tmp_path / "hold", "solve")
+    proc = spawn(["design", ROOT / "problems/trefoil-m4.toml", "-o", out, "--method", "greedy"], env)
+    pid, before = wait_for_marker(proc, "solve")
+    assert pid == proc.pid
     proc.send_signal(sig)
-    _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130, err
+    rc, err = finish(proc, before)
+    assert rc == 130, err
     assert "interrupted" in err and "Traceback" not in err
-    assert list(tmp_path.iterdir()) == []  # no archive, no temporary file
+    assert list(out_dir.iterdir()) == []  # no archive, no temporary file
+
+
+def test_held_design_released_finishes(tmp_path):
+    # the hold point itself changes nothing: released, the run completes and writes its archive
+    out = tmp_path / "d.h5"
+    env, fifo = hold_env(tmp_path / "hold", "solve")
+    proc = spawn(["design", ROOT / "problems/bezier-c.toml", "-o", out], env)
+    wait_for_marker(proc, "solve")
+    release(fifo)
+    rc, err = finish(proc)
+    assert rc == 0, err
+    assert load_archive(out).runs["nlp"].status == "optimal"
 
 
 def test_same_problem_same_design(tmp_path):
@@ -73,27 +83,33 @@ def test_bad_problem_files_exit_2_with_one_line(tmp_path, capsys, text, key):
     assert not out.exists()
 
 
-@pytest.mark.slow
-def test_sigint_during_sweep_keeps_finished_items_and_resumes(tmp_path):
-    import csv
-
+def _small_sweep(tmp_path, count=6):
     base = tmp_path / "base.toml"
     base.write_text((ROOT / "problems/trefoil-m4.toml").read_text().replace("samples = 400", "samples = 81").replace("points_per_segment = 10", "points_per_segment = 5"))
     sw = tmp_path / "s.toml"
-    sw.write_text('name = "s"\nbase = "base.toml"\nmethods = ["greedy"]\n[grid]\n"target.scale.2" = [2, 3, 4, 5, 6, 7]\n')
+    scales = ", ".join(str(2 + k) for k in range(count))
+    sw.write_text(f'name = "s"\nbase = "base.toml"\nmethods = ["nlp"]\n[grid]\n"target.scale.2" = [{scales}]\n')
+    return sw
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_during_sweep_keeps_finished_items_and_resumes(tmp_path, sig):
+    import csv
+
+    sw = _small_sweep(tmp_path, count=3)
     out = tmp_path / "out"
-    proc = _spawn("sweep", sw, "-o", out, "--workers", "1")
-    deadline = time.time() + 120
-    while time.time() < deadline and not list(out.glob("*.h5")):
-        time.sleep(0.2)
-    assert list(out.glob("*.h5")), "no item finished in time"
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 130, err
+    # held once the first item's archive and the summary are on disk (event: the marker line)
+    env, _ = hold_env(tmp_path / "hold", "sweep-item")
+    proc = spawn(["sweep", sw, "-o", out, "--workers", "1"], env)
+    wait_for_marker(proc, "sweep-item")
+    proc.send_signal(sig)
+    rc, err = finish(proc)
+    assert rc == 130, err
+    assert "interrupted" in err and "Traceback" not in err
     finished = sorted(p.stem for p in out.glob("*.h5"))
-    assert 1 <= len(finished) < 6
-    for p in out.glob("*.h5"):
-        load_archive(p)  # every archive on disk is complete
+    assert finished == ["s-0000"]  # held right after the first item: exactly one is finished
+    load_archive(out / "s-0000.h5")  # complete and valid
     assert not list(out.glob(".*.tmp"))
     with open(out / "summary.csv", newline="") as fh:
         assert sorted(row["item"] for row in csv.DictReader(fh)) == finished
@@ -101,5 +117,6 @@ def test_sigint_during_sweep_keeps_finished_items_and_resumes(tmp_path):
     mtimes = {p.name: p.stat().st_mtime_ns for p in out.glob("*.h5")}
     done = subprocess.run([sys.executable, "-m", "vine_nlp", "sweep", str(sw), "-o", str(out), "--workers", "1"], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
-    assert len(list(out.glob("*.h5"))) == 6
+    assert "2 solved, 1 skipped" in done.stdout
+    assert len(list(out.glob("*.h5"))) == 3
     assert all((out / name).stat().st_mtime_ns == t for name, t in mtimes.items())

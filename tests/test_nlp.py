@@ -132,7 +132,7 @@ def test_warm_start_from_an_earlier_design(make_target):
 
 
 def test_solver_is_built_once_per_structure(make_target):
-    from vine_nlp.design.nlp import get_solver
+    from vine_nlp.design.transcription import get_solver
 
     tgt, _ = make_target(seed=8, M=9)
     design_nlp(_problem(tgt))
@@ -142,42 +142,10 @@ def test_solver_is_built_once_per_structure(make_target):
     assert get_solver.cache_info().hits == before + 1
 
 
-def _automatic_derivatives(solver):
-    """CasADi's own MX Jacobian of g and Hessian of the Lagrangian of a solver's oracle."""
-    import casadi as ca
-
-    nx, npar, ng = solver.layout.size, solver.solver.size_in("p")[0], solver.solver.size_out("g")[0]
-    x, p, sigma, lam_g = ca.MX.sym("x", nx), ca.MX.sym("p", npar), ca.MX.sym("s"), ca.MX.sym("l", ng)
-    f, g = solver.solver.oracle()(x, p)
-    H = ca.triu(ca.hessian(sigma * f + ca.dot(lam_g, g), x)[0])
-    return ca.Function("auto", [x, p, sigma, lam_g], [ca.jacobian(g, x), H])
-
-
-@pytest.mark.parametrize("shared", [False, True])
-@pytest.mark.parametrize("M", [1, 2, 6])
-def test_separable_derivatives_equal_casadi_automatic_ones(shared, M):
-    from scipy.spatial.transform import Rotation
-
-    from vine_nlp.design.nlp import NLPSolver
-
-    s = NLPSolver(M, 3, shared, hessian="exact")
-    rng = np.random.default_rng(M)
-    nx, npar, ng = s.layout.size, s.solver.size_in("p")[0], s.solver.size_out("g")[0]
-    x, p, lam_g = rng.normal(size=nx) * 0.5, rng.uniform(0.1, 1.0, npar), rng.normal(size=ng)
-    r0 = sum(a * b for a, b in s._param_shapes[:5])  # the guess rotation must be a rotation
-    p[r0 : r0 + 9] = Rotation.random(random_state=M).as_matrix().ravel(order="F")
-    J_auto, H_auto = (np.array(v) for v in _automatic_derivatives(s)(x, p, 0.7, lam_g))
-    J = np.array(s.solver.get_function("nlp_jac_g")(x, p)[1])
-    H = np.array(s.solver.get_function("nlp_hess_l")(x, p, 0.7, lam_g))
-    np.testing.assert_allclose(J, J_auto, atol=1e-12 * np.abs(J_auto).max())
-    np.testing.assert_allclose(H, H_auto, atol=1e-12 * np.abs(H_auto).max())
-    assert np.abs(H).max() > 1.0  # a real curvature, not two zero matrices
-
-
 def test_gauss_newton_hessian_is_the_exact_one_at_a_perfect_fit(make_target):
     # f = |r|^2: the exact Hessian is 2 J^T J + sum r_i Hess(r_i); the second part vanishes where r = 0
-    from vine_nlp.design.common import frames12
-    from vine_nlp.design.nlp import get_solver, nlp_parameters
+    from vine_nlp.design.common import Guess
+    from vine_nlp.design.nlp import get_solver, nlp_parameters, start_x
     from vine_nlp.model import chain_frames
 
     tgt, truth = make_target(seed=3, M=6)
@@ -186,18 +154,16 @@ def test_gauss_newton_hessian_is_the_exact_one_at_a_perfect_fit(make_target):
     ex, gn = get_solver(6, 5, False, hessian="exact"), get_solver(6, 5, False, hessian="gauss-newton")
     p = ex.pack_params(nlp_parameters(pb, pairing, truth.initial_pose[:3, :3]))
     fr = chain_frames(truth.theta, truth.lam, truth.length, pb.diameter, truth.initial_pose)
-    fr[:, :3, 3] /= pb.diameter
-    x = ex.pack_x(np.zeros(3), fr[0, :3, 3], truth.theta, truth.lam, truth.length / pb.diameter, frames12(fr))
-    fit, _ = (float(v) for v in ex._terms(x, p))
-    assert fit < 1e-20
-    zero = np.zeros(ex.solver.size_out("g")[0])
-    H_ex = np.array(ex.solver.get_function("nlp_hess_l")(x, p, 1.0, zero))
-    H_gn = np.array(gn.solver.get_function("nlp_hess_l")(x, p, 1.0, zero))
+    x = start_x(ex, Guess(truth.theta, truth.lam, truth.length, truth.initial_pose, fr), pb.diameter, "chain")
+    assert ex.terms(x, p)["fit"] < 1e-20
+    zero = np.zeros(ex.nlpsol.size_out("g")[0])
+    H_ex = np.array(ex.nlpsol.get_function("nlp_hess_l")(x, p, 1.0, zero))
+    H_gn = np.array(gn.nlpsol.get_function("nlp_hess_l")(x, p, 1.0, zero))
     np.testing.assert_allclose(H_gn, H_ex, atol=1e-9 * np.abs(H_ex).max())
     # away from the fit they differ (the test can tell them apart): move a target point inside a segment
     p_off = p.copy()
-    p_off[3 * 2 : 3 * 3] += 1.0
-    H_ex, H_gn = (np.array(s.solver.get_function("nlp_hess_l")(x, p_off, 1.0, zero)) for s in (ex, gn))
+    p_off[5 + 3 * 2 : 5 + 3 * 3] += 1.0  # cells come first: u (5), then the slots' targets of segment 0
+    H_ex, H_gn = (np.array(s.nlpsol.get_function("nlp_hess_l")(x, p_off, 1.0, zero)) for s in (ex, gn))
     assert np.abs(H_ex - H_gn).max() > 1e-3 * np.abs(H_ex).max()
 
 
@@ -213,8 +179,10 @@ def test_basin_hopping_lowers_the_objective_on_a_corner_target():
     assert hopped.converged
     assert hopped.stats["objective"] < single.stats["objective"] * (1 - 1e-3)  # measured: 0.1034 vs 0.1094
     assert hopped.metrics["rmse"] < single.metrics["rmse"]
-    # the kept design is the best one seen (all hops converge here)
-    assert st["hops_accepted"] >= 1 and hopped.stats["objective"] <= min(st["hop_objectives"]) * (1 + 1e-9)
+    # the kept design is the best one seen, up to the tie rule (all hops converge here)
+    from vine_nlp.design.transcription import TIE_RTOL
+
+    assert st["hops_accepted"] >= 1 and hopped.stats["objective"] <= min(st["hop_objectives"]) * (1 + TIE_RTOL)
     assert hopped.iterations == single.iterations + sum(st["hop_iterations"])
     # deterministic for a seed
     again = design_nlp(pb, hops=6)

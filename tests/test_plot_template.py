@@ -297,3 +297,101 @@ def test_summary(archives):
     assert text.index("run nlp") < text.index("run greedy")
     fwd = summarize(load_archive(archives["forward"]))
     assert "wave (forward)" in fwd and "run forward" in fwd and "rmse" not in fwd
+
+
+# ------------------------------------------------------------------ SVG and DXF templates
+
+
+def _dxf_lines(doc, layer):
+    """(start, end) of every straight piece on ``layer``: LINEs and LWPOLYLINE edges, in drawing units."""
+    out = []
+    for e in doc.modelspace().query(f'LINE[layer=="{layer}"]'):
+        out.append((np.array(e.dxf.start)[:2], np.array(e.dxf.end)[:2]))
+    for e in doc.modelspace().query(f'LWPOLYLINE[layer=="{layer}"]'):
+        pts = np.array(e.get_points("xy"))
+        if e.closed:
+            pts = np.vstack([pts, pts[:1]])
+        out += list(zip(pts[:-1], pts[1:]))
+    return out
+
+
+def _length(lines):
+    return float(sum(np.linalg.norm(b - a) for a, b in lines))
+
+
+@pytest.mark.parametrize("units", ["cm", "mm"])
+def test_dxf_template_is_one_to_one_in_mm(tmp_path, units):
+    ezdxf = pytest.importorskip("ezdxf")
+    a = long_archive(units, m=5)  # 20 cm of tube: one strip
+    out = tmp_path / "t.dxf"
+    info = tpl.write_template(a, out, tmp_path / "c.csv")
+    assert info["format"] == "dxf" and info["pages"] == 1 and info["strips"] == 1
+    doc = ezdxf.readfile(out)
+    assert doc.header["$INSUNITS"] == 4  # millimetres
+    assert {layer.dxf.name for layer in doc.layers} >= set(tpl.LAYERS)
+    # the 10 cm scale bar measures 100 in the file's units
+    bar = max(_dxf_lines(doc, "scale"), key=lambda ab: np.linalg.norm(ab[1] - ab[0]))
+    assert np.linalg.norm(bar[1] - bar[0]) == pytest.approx(100.0, abs=1e-9)
+    assert bar[0][1] == pytest.approx(bar[1][1])  # horizontal
+    table = tpl.cut_table(a, "forward")
+    mm = 10 * tpl.CM_PER_UNIT[units]
+    # the path drawn is the actuator, unrolled: every segment dl / cos(theta) long, split lambda : 1 - lambda
+    assert _length(_dxf_lines(doc, "actuator_path")) == pytest.approx(table["actuator_length"].sum() * mm, rel=1e-9)
+    assert _length(_dxf_lines(doc, "stoppers")) == pytest.approx(table["stopper_length"].sum() * mm, rel=1e-9)
+    assert _length(_dxf_lines(doc, "removed")) == pytest.approx(table["gap_length"].sum() * mm, rel=1e-9)
+    # the strip's outline: the tube's length by its circumference, at 1:1
+    (outline,) = doc.modelspace().query('LWPOLYLINE[layer=="outline"]')
+    pts = np.array(outline.get_points("xy"))
+    assert np.ptp(pts[:, 0]) == pytest.approx(table["s_end"][-1] * mm, rel=1e-9)
+    assert np.ptp(pts[:, 1]) == pytest.approx(math.pi * a.diameter * mm, rel=1e-9)
+    assert len(doc.modelspace().query('TEXT[layer=="text"]')) > 5
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.csv", "t.dxf"]
+
+
+def test_svg_and_dxf_draw_the_strips_of_the_pdf(tmp_path):
+    import xml.etree.ElementTree as ET
+
+    ezdxf = pytest.importorskip("ezdxf")
+    a = long_archive()  # 120 cm: several strips
+    pdf = tpl.write_template(a, tmp_path / "t.pdf")
+    svg = tpl.write_template(a, tmp_path / "t.svg")
+    dxf = tpl.write_template(a, tmp_path / "t.dxf")
+    assert pdf["strips"] == svg["strips"] == dxf["strips"] > 2
+    table = tpl.cut_table(a, "forward")
+    lay = tpl.layout(table["s_end"][-1], math.pi * a.diameter, "A4")
+    widths = sorted(round((t.s_end - t.s0) * 10, 6) for t in lay.tiles)  # mm
+    doc = ezdxf.readfile(tmp_path / "t.dxf")
+    outlines = doc.modelspace().query('LWPOLYLINE[layer=="outline"]')
+    assert sorted(round(float(np.ptp(np.array(o.get_points("xy"))[:, 0])), 6) for o in outlines) == widths
+    ns = {"svg": "http://www.w3.org/2000/svg", "ink": "http://www.inkscape.org/namespaces/inkscape"}
+    root = ET.parse(tmp_path / "t.svg").getroot()
+    w, h = svg["paper_mm"]
+    assert root.get("width") == f"{w:.3f}mm" and root.get("viewBox") == f"0 0 {w:.3f} {h:.3f}"  # user unit = 1 mm
+    layers = {g.get(f"{{{ns['ink']}}}label"): g for g in root.findall("svg:g", ns)}
+    assert set(layers) == set(tpl.LAYERS)
+    polys = layers["outline"].findall("svg:polygon", ns)
+    svg_widths = sorted(round(float(np.ptp([float(p.split(",")[0]) for p in g.get("points").split()])), 3) for g in polys)
+    assert svg_widths == pytest.approx([round(v, 3) for v in widths], abs=1e-3)
+    bar = [[tuple(map(float, p.split(","))) for p in pl.get("points").split()] for pl in layers["scale"].findall("svg:polyline", ns)]
+    longest = max(bar, key=lambda pts: abs(pts[-1][0] - pts[0][0]))
+    assert longest[-1][0] - longest[0][0] == pytest.approx(100.0)
+    # the path on both sheets: the same total length (the shared centimetres are drawn on both strips they join)
+    svg_path = sum(np.linalg.norm(np.diff(np.array([tuple(map(float, p.split(","))) for p in pl.get("points").split()]), axis=0), axis=1).sum()
+                   for pl in layers["actuator_path"].findall("svg:polyline", ns))
+    assert svg_path == pytest.approx(_length(_dxf_lines(doc, "actuator_path")), rel=1e-6)
+    assert svg_path > table["actuator_length"].sum() * 10
+
+
+def test_template_format_errors(archives, tmp_path, capsys):
+    from vine_nlp.front.cli import main
+
+    for name, message in (("t.svgz", "unknown template format '.svgz': use .pdf, .svg, .dxf"),
+                          ("t", "unknown template format '(none)'")):
+        assert main(["template", str(archives["design"]), "-o", str(tmp_path / name)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"error: {tmp_path / name}: -o: {message}") and err.count("\n") == 1
+    assert main(["template", str(archives["design"]), "-o", str(tmp_path / "t.dxf"), "--run", "zzz"]) == 2
+    assert capsys.readouterr().err.startswith(f"error: {archives['design']}: --run: no run 'zzz'")
+    assert list(tmp_path.iterdir()) == []
+    assert main(["template", str(archives["design"]), "-o", str(tmp_path / "t.svg")]) == 0
+    assert "the 10 cm scale bar is 100 mm in the file" in capsys.readouterr().out

@@ -307,3 +307,15 @@ def test_plot_summary_draws_both_methods_and_skips_failures(tmp_path):
     assert stats["nlp"]["count"] == 6 and stats["nlp"]["failed"] == 1
     assert stats["nlp"]["rmse_max"] == pytest.approx(0.6) and stats["nlp"]["units"] == "mm"
     assert stats["greedy"]["worst_item"] == "s-5"
+
+
+def test_the_package_imports_dask_only_for_a_scheduler():
+    import subprocess
+    import sys
+
+    code = ("import sys, vine_nlp.front.sweep as s; "
+            "from vine_nlp.front.sweep import run_sweep, format_report, method_stats, plot_summary, solve_item; "
+            "print(sorted(m for m in ('dask', 'distributed', 'matplotlib') if m in sys.modules))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[]"

@@ -2,7 +2,6 @@
 
 import math
 
-import casadi as ca
 import numpy as np
 import pytest
 
@@ -74,20 +73,19 @@ def test_first_order_tip_covariance_matches_monte_carlo(designed):
 
 @pytest.mark.parametrize("sigmas", [Sigmas.from_degrees(1.0, 0.02, 0.02), Sigmas(0.01, 0.0, 0.05, relative_length=False)])
 def test_robust_term_is_the_first_order_expected_increase(designed, sigmas):
-    from vine_nlp.design.clearance import ExtendedNLP
-    from vine_nlp.design.robust import RobustTerm
+    from vine_nlp.design.common import pair_points
+    from vine_nlp.design.robust import _robust_start, expected_increase, robust_solver
 
     pb, res = designed
-    nlp = ExtendedNLP(pb, res.routing)
-    term = RobustTerm(nlp, sigmas)
     expected = tolerance_report(pb, res, sigmas, samples=10)["first_order"]["mse_increase"]
-    assert term.mse_increase(nlp.x0) == pytest.approx(expected, rel=1e-9)
-    # the banded form (auxiliary downstream sums) has the same value where its recursion holds
-    z0 = term.z_of_x(nlp.x0)
-    f = ca.Function("f", [nlp.x, term.z], [term.objective, term.g])
-    val, g = f(nlp.x0, z0)
-    assert float(val) * D**2 == pytest.approx(expected, rel=1e-9)
-    assert np.abs(np.array(g)).max() < 1e-12
+    assert expected_increase(pb, res.routing, sigmas) == pytest.approx(expected, rel=1e-9)
+    # the stage blocks' value with the downstream sums where their recursion holds; the rows are met there
+    pairing = pair_points(pb.target, pb.options.points_per_segment)
+    solver = robust_solver(pb, pairing)
+    x, p = _robust_start(pb, pairing, solver, res.routing, sigmas, 2.0)
+    assert solver.terms(x, p)["robust"] * D**2 == pytest.approx(2.0 * expected, rel=1e-9)
+    g = np.array(solver._g(x, p)).ravel()
+    assert np.abs(g).max() < 1e-10
 
 
 @pytest.mark.slow

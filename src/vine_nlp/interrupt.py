@@ -1,19 +1,36 @@
-"""Ctrl-C and SIGTERM across CasADi solves.
+"""Ctrl-C and SIGTERM across CasADi solves, and the test hold points.
 
 CasADi catches a KeyboardInterrupt raised inside an IPOPT solve and returns with
 status "NonIpopt_Exception_Thrown" instead of propagating it. Every solver call is
 followed by :func:`check`, which turns that (or a signal recorded by
 :func:`install`) back into a KeyboardInterrupt, so interrupted work unwinds and
 atomic writers leave nothing partial.
+
+Test hold points. Tests that interrupt a run must not guess how long it runs.
+With the environment variable ``VINE_NLP_TEST_HOLD=<point>=<fifo>`` (``<fifo>``
+a named pipe made by the test), the first process that reaches hold point
+``<point>`` claims it (``<fifo>.claimed``, holding its pid, appears), prints
+``vine-nlp: test hold at <point> (pid <pid>)`` on stderr and blocks opening
+``<fifo>`` until the test opens it for writing (and reads until the test closes
+it). The test waits for the line (or the claim file), then signals or kills the
+process: it is then certainly mid-run at that point. Every other process, and
+later visits, pass through. Hold points: ``solve`` (:func:`check`, after each
+solver call, so a run is inside its solve loop), ``sweep-item`` (a sweep wrote
+an item's archive and its summary). Without the variable the points cost one
+dictionary lookup.
 """
 
 from __future__ import annotations
 
+import os
 import signal
+import sys
 import threading
 
 _requested = threading.Event()
 INTERRUPTED_STATUS = "NonIpopt_Exception_Thrown"  # no callbacks of ours can throw: only an interrupt
+HOLD_ENV = "VINE_NLP_TEST_HOLD"
+_passed: set = set()  # hold points this process went past (each holds at most once)
 
 
 def _handler(signum, frame):
@@ -39,3 +56,38 @@ def check(return_status: str | None = None) -> None:
     """Raise KeyboardInterrupt if a signal arrived or a solve was interrupted."""
     if _requested.is_set() or return_status == INTERRUPTED_STATUS:
         raise KeyboardInterrupt
+    hold("solve")
+
+
+def hold(point: str) -> None:
+    """Test hold point ``point`` (see the module docstring); does nothing unless a test asked for it."""
+    spec = os.environ.get(HOLD_ENV)
+    if not spec or point in _passed:
+        return
+    name, _, fifo = spec.partition("=")
+    if name != point or not fifo:
+        return
+    _passed.add(point)
+    if not _claim(fifo):
+        return
+    print(f"vine-nlp: test hold at {point} (pid {os.getpid()})", file=sys.stderr, flush=True)
+    # Blocks until the test opens the pipe for writing; a signal handler that raises ends the wait.
+    with open(fifo, "rb") as fh:
+        fh.read()
+
+
+def _claim(fifo: str) -> bool:
+    """The first process to get here (over every process of the run) holds; the claim file says which."""
+    tmp = f"{fifo}.{os.getpid()}.tmp"
+    try:
+        with open(tmp, "w") as fh:
+            fh.write(str(os.getpid()))
+        os.link(tmp, f"{fifo}.claimed")  # atomic, fails if another process claimed it first
+        return True
+    except FileExistsError:
+        return False
+    finally:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass

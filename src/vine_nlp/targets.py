@@ -1,6 +1,6 @@
 """Target curves for inverse design (paper Sec. VII): sampled center lines as (N, 3) arrays.
 
-Pure numpy; reading curves from files is ``vine_nlp.io.problem_file``'s job. Every
+Pure numpy; reading curves from files is ``vine_nlp.io.problems``'s job. Every
 generator returns points in the order the tube should pass through them.
 """
 

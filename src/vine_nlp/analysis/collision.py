@@ -58,6 +58,7 @@ from scipy.spatial import cKDTree
 
 from vine_nlp.model.chain import chain_frames, chain_points, segment_end_samples
 from vine_nlp.model.helix import center_rates, helix_self_collides, helix_turns
+from vine_nlp.model.routing import Routing
 
 # ---------------------------------------------------------------------------------------------
 # analytic: uniform sections
@@ -408,8 +409,6 @@ def growth_contacts(routing, D: float, margin: float = 0.0, spacing: float | Non
         })
     transient = []  # [(t_first, min clearance, merged region)]
     if actuation_steps > 0:
-        from vine_nlp.design.problem import Routing
-
         for t in np.linspace(0.0, 1.0, actuation_steps + 1)[1:]:
             rt = routing if t == 1.0 else Routing(routing.theta, 1 - t * (1 - routing.lam), routing.length, routing.initial_pose)
             res = final if t == 1.0 else routing_clearance(rt, D, spacing, exclude_arc, margin, closest=False)

@@ -28,45 +28,20 @@ values are used as drawn (a lambda above 1 is a small bend the other way).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from functools import lru_cache
 
 import casadi as ca
 import numpy as np
 
-from vine_nlp.model.segment import segment_point, segment_transform
-
-
-@dataclass(frozen=True)
-class Sigmas:
-    """Standard deviations of the construction errors (module docstring)."""
-
-    theta: float = 0.0  # rad
-    lam: float = 0.0  # absolute
-    length: float = 0.0  # relative (fraction) if relative_length, else problem length units
-    relative_length: bool = True
-
-    @classmethod
-    def from_degrees(cls, theta_deg: float = 0.0, lam: float = 0.0, length: float = 0.0, relative_length: bool = True) -> "Sigmas":
-        return cls(math.radians(theta_deg), lam, length, relative_length)
-
-    def per_segment(self, length) -> np.ndarray:
-        """(M, 3) standard deviations of (theta, lambda, dl) per segment, in problem units."""
-        length = np.asarray(length, float)
-        sl = self.length * length if self.relative_length else np.full(length.shape, self.length)
-        return np.column_stack([np.full(length.shape, self.theta), np.full(length.shape, self.lam), sl])
-
-    def as_dict(self) -> dict:
-        return {"sigma_theta_rad": self.theta, "sigma_theta_deg": math.degrees(self.theta), "sigma_lambda": self.lam,
-                "sigma_length": self.length, "relative_length": self.relative_length}
+from vine_nlp.model.pairing import pair_points
+from vine_nlp.model.routing import Sigmas  # noqa: F401  (re-exported: its old home)
+from vine_nlp.model.segment import segment_function, segment_point, segment_transform
 
 
 @lru_cache(maxsize=8)
 def segment_jacobian_function(n: int) -> ca.Function:
-    """design.nlp.segment_function(n) and its Jacobian: (X, theta, lam, dl, u) ->
+    """model.segment.segment_function(n) and its Jacobian: (X, theta, lam, dl, u) ->
     (Xn (12), pts (3 x n), d[Xn; vec(pts)] / d[X; theta; lam; dl] ((12 + 3 n) x 15)), units of D."""
-    from vine_nlp.design.nlp import segment_function
-
     F = segment_function(n)
     X, th, la, dl, u = ca.SX.sym("X", 12), ca.SX.sym("theta"), ca.SX.sym("lam"), ca.SX.sym("dl"), ca.SX.sym("u", n)
     Xn, pts = F(X, th, la, dl, u)
@@ -79,7 +54,7 @@ def point_jacobian(routing, D: float, seg, frac):
 
     Returns (points (P, 3), J (P, 3, 3M)); column 3 j + p is parameter p (0 theta,
     1 lambda, 2 dl) of segment j, in problem units. The chain is the NLP's per-segment
-    function (design.nlp.segment_function, units of D) in a loop; its CasADi Jacobian
+    function (model.segment.segment_function, units of D) in a loop; its CasADi Jacobian
     (frame and points wrt frame and parameters) is chained forward, S_{j+1} = A_j S_j + B_j
     with S_j = dX_j/dq: O(M) evaluations of one small function, exact derivatives.
     """
@@ -155,8 +130,6 @@ def tolerance_report(problem, result, sigmas: Sigmas, samples: int = 2000, seed:
       monte_carlo: samples, seed, rmse (S,), mean_rmse, rms_rmse (= sqrt(mean MSE)), mse_increase,
                    tip_cov (3, 3), tip_std, tip_mean_shift (3,).
     """
-    from vine_nlp.design.common import pair_points
-
     D = problem.diameter
     r = result.routing
     pairing = pair_points(problem.target, problem.options.points_per_segment)

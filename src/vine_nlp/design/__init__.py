@@ -1,21 +1,19 @@
-"""Layer 3: design methods over one Problem, each returning one Result.
+"""Layer 3: design methods over one problem, each returning one Result.
 
-``run_design(problem, method)`` is the single entry point; methods are
-interchangeable strategies sharing pairing, error, bounds and guesses
-(design.common).
+The formulations (nlp, multishape, tip, clearance, robust, ...) are terms, rows and
+guesses on one multiple-shooting transcription (``design.transcription``); the greedy
+baseline is its own algorithm on the same model, pairing, error and bounds
+(``design.common``). ``run_design(problem, method)`` picks a method by name
+(``design.methods``); it is loaded on first use, so reading an archive or a problem
+file does not load CasADi.
 """
 
 from __future__ import annotations
 
+import importlib
 
-def run_design(problem, method: str | None = None, **kw):
-    method = method or problem.options.method
-    if method == "nlp":
-        from vine_nlp.design.nlp import design_nlp
 
-        return design_nlp(problem, **kw)
-    if method == "greedy":
-        from vine_nlp.design.greedy import design_greedy
-
-        return design_greedy(problem, **kw)
-    raise ValueError(f"unknown design method {method!r}")
+def __getattr__(name: str):
+    if name == "run_design":
+        return importlib.import_module("vine_nlp.design.methods").run_design
+    raise AttributeError(f"module 'vine_nlp.design' has no attribute {name!r}")

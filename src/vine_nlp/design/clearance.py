@@ -1,208 +1,105 @@
-"""Inverse design that keeps the tube clear of itself: the NLP of design.nlp plus clearance rows.
+"""Inverse design that keeps the tube clear of itself: the plain NLP plus clearance rows.
 
 Formulation (smooth): for chosen pairs of material points (l_a, l_b) of the tube,
 
     |r_c(l_a) - r_c(l_b)|^2 >= (D + min_gap)^2,
 
-each point evaluated inside the multiple-shooting NLP as frame X_j of its segment
-times the partial segment (design.nlp.segment_function with the fraction fixed).
-Which pairs: an active-set outer loop. Start from design_nlp's result; detect the
-contact regions of the current design (analysis.collision.routing_clearance with a
-detection margin); constrain, for every sampled point of a region, the pair with
-its closest partner, plus each region's refined (continuous) minimum; re-solve
-warm; repeat until the continuous minimum clearance is >= D + min_gap (to
-``tol_gap`` D) or ``rounds`` is exhausted. Pairs are never dropped, so the rounds
-only add rows. Rows hold material points apart where they are; between them, and
-as the optimizer slides points along the tube (segment lengths are variables), the
-clearance can dip ~1e-3 D below the target. From the second solve on, the rows'
-target is raised by 1.5x the remaining shortfall (stats clearance_row_margin), which
-ends the loop in 2-3 solves with the continuous clearance >= D + min_gap.
+each point evaluated inside the multiple-shooting transcription as frame X_j of its
+segment times the partial segment (model.segment.segment_function with the fraction
+as data). Which pairs: an active-set outer loop. Start from design_nlp's result;
+detect the contact regions of the current design (analysis.collision.routing_clearance
+with a detection margin); constrain, for every sampled point of a region, the pair with
+its closest partner, plus each region's refined (continuous) minimum; re-solve warm;
+repeat until the continuous minimum clearance is >= D + min_gap (to ``tol_gap`` D) or
+``rounds`` is exhausted. Pairs are never dropped, so the rounds only add rows. Rows hold
+material points apart where they are; between them, and as the optimizer slides points
+along the tube (segment lengths are variables), the clearance can dip ~1e-3 D below the
+target. From the second solve on, the rows' target is raised by 1.5x the remaining
+shortfall (stats clearance_row_margin), which ends the loop in 2-3 solves with the
+continuous clearance >= D + min_gap.
 
-:class:`ExtendedNLP` is the shared builder (also used by design.robust): nlp.py's
-objective and continuity constraints come from its cached NLPSolver's CasADi oracle
-(one formulation, not a copy), its layout through NLPSolver.pack_x / unpack_x /
-bounds / pack_params, and callers add objective terms and constraint rows.
+The pairs' segments are structure (the solver is built once per active set and cached);
+their fractions and the required distance are data.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
+from dataclasses import dataclass
 from functools import lru_cache
 
 import casadi as ca
 import numpy as np
 
-from vine_nlp.design.common import (
-    Pairing,
-    evaluate,
-    frames12,
-    ipopt_options,
-    ipopt_status,
-    pair_points,
-    variable_bounds,
-)
-from vine_nlp.design.nlp import design_nlp, get_solver, nlp_parameters, segment_function
+from vine_nlp.analysis.collision import _ModelLine, routing_clearance
+from vine_nlp.design.common import Guess, evaluate, pair_points
+from vine_nlp.design.nlp import design_bounds, design_nlp, nlp_parameters, nlp_spec, routing_of, start_x
 from vine_nlp.design.problem import DesignProblem, Routing
 from vine_nlp.design.result import Result
+from vine_nlp.design.transcription import HARD_ROWS, BlockType, Chain, get_solver, options_key, segment_point_index
 from vine_nlp.model.chain import chain_frames
-from vine_nlp.model.segment import so3_exp
+from vine_nlp.model.segment import segment_function
 
 
 @lru_cache(maxsize=1)
-def _pair_function() -> ca.Function:
-    """Squared distance of two center points, each (frame, theta, lam, dl, fraction) of its segment (SX)."""
+def pair_block() -> BlockType:
+    """One clearance row as a block: v = (X, theta, lam, dl of segment a (15), the same of segment b (15)),
+    d = (fraction a, fraction b, need); r = |r_c(a) - r_c(b)|^2 - need (>= 0), units of D^2."""
     F = segment_function(1)
-    args_a = [ca.SX.sym("Xa", 12), ca.SX.sym("ta"), ca.SX.sym("la"), ca.SX.sym("da"), ca.SX.sym("ua")]
-    args_b = [ca.SX.sym("Xb", 12), ca.SX.sym("tb"), ca.SX.sym("lb"), ca.SX.sym("db"), ca.SX.sym("ub")]
-    _, pa = F(*args_a)
-    _, pb = F(*args_b)
-    return ca.Function("pair_d2", args_a + args_b, [ca.sumsqr(pa - pb)])
+    v, d = ca.SX.sym("v", 30), ca.SX.sym("d", 3)
+    _, pa = F(v[:12], v[12], v[13], v[14], d[0])
+    _, pb = F(v[15:27], v[27], v[28], v[29], d[1])
+    return BlockType("clearance_pair", ca.Function("pair_block", [v, d], [ca.SX(0), ca.sumsqr(pa - pb) - d[2]]))
 
 
-class ExtendedNLP:
-    """nlp.py's NLP for one problem, started from a routing, open to extra terms and rows.
+@dataclass(frozen=True)
+class ClearancePairs:
+    """Rows |r_c(a) - r_c(b)|^2 >= need for pairs of points given by their segments (structure), one block
+    per pair; parameters pair_u (2 x P, the fractions) and pair_need (the squared distance, units of D^2)."""
 
-    Symbolic views (units of D) for building extras: ``x`` (decision vector, MX),
-    ``theta``, ``lam``, ``dl`` (1 x M), ``frames`` (12 x (M+1): X_0 .. X_M, rotation
-    column-major then position), and ``point(l)`` (center point at material coordinate l).
-    Numeric: ``p`` (parameters), ``lbx``, ``ubx``, ``x0``.
-    """
+    segments: tuple  # ((j_a, j_b), ...)
 
-    def __init__(self, problem: DesignProblem, start: Routing, pairing: Pairing | None = None):
-        o = problem.options
-        self.problem = problem
-        self.D = D = problem.diameter
-        self.pairing = pairing = pairing or pair_points(problem.target, o.points_per_segment)
-        M, n = pairing.segments, pairing.n
-        if start.segments != M:
-            raise ValueError(f"the start routing has {start.segments} segments, the problem {M}")
-        self.M, self.n = M, n
-        self.base = base = get_solver(M, n, problem.actuator.shared_lambda, o.max_iter, o.tol, False)
-        size = base.layout.size
-        self.R0g = np.asarray(start.initial_pose, float)[:3, :3].copy()
-        self.params = nlp_parameters(problem, pairing, self.R0g)
-        self.p = base.pack_params(self.params)
-        # where each quantity lives in x: from nlp's own pack/unpack, applied to index codes
-        iw, ip, ith, ilam, idl = (np.asarray(v).astype(int) for v in base.unpack_x(np.arange(size, dtype=float)))
-        codes = np.zeros((12, M + 1))
-        codes[:, 1:] = 1 + np.arange(12 * M).reshape(12, M, order="F")
-        where = base.pack_x(np.zeros(3), np.zeros(3), np.zeros(M), np.zeros(M), np.zeros(M), codes)
-        nz = np.flatnonzero(where)
-        flat = np.zeros(12 * M, int)  # column-major: frame 1 entries 0..11, frame 2 ...
-        flat[where[nz].astype(int) - 1] = nz
-        self.x = x = ca.MX.sym("x", size)
-        R0 = ca.mtimes(ca.DM(self.R0g), so3_exp(x[iw.tolist()]))
-        X0 = ca.vertcat(ca.vec(R0), x[ip.tolist()])
-        self.theta = x[ith.tolist()].T
-        self.lam = x[ilam.tolist()].T
-        self.dl = x[idl.tolist()].T
-        self.frames = ca.horzcat(X0, ca.reshape(x[flat.tolist()], 12, M))
-        self.f0, self.g0 = base.solver.oracle()(x, self.p)
-        lo, hi = variable_bounds(problem, pairing)
-        self.lbx, self.ubx = base.bounds((lo[0], lo[1], lo[2] / D), (hi[0], hi[1], hi[2] / D))
-        fr = chain_frames(start.theta, start.lam, start.length, D, start.initial_pose).copy()
-        fr[:, :3, 3] /= D
-        x0 = base.pack_x(np.zeros(3), start.initial_pose[:3, 3] / D, start.theta, start.lam, start.length / D, frames12(fr))
-        self.x0 = np.clip(x0, self.lbx, self.ubx)
-        self._point_fn = segment_function(1)
+    def apply(self, c: Chain) -> None:
+        P = len(self.segments)
+        u, need = c.param("pair_u", (2, P)), c.param("pair_need", (1, 1))
+        idx = np.array([np.r_[segment_point_index(c, ja), segment_point_index(c, jb)] for ja, jb in self.segments]).T
+        c.add_block(pair_block(), idx, ca.vertcat(u, ca.repmat(need, 1, P)), lb=0.0, ub=np.inf)
 
-    def locate(self, l, length):
-        """(segment, fraction) of material coordinate l on segment lengths ``length`` (problem units)."""
-        cum = np.concatenate([[0.0], np.cumsum(length)])
-        j = int(np.clip(np.searchsorted(cum, l, side="right") - 1, 0, self.M - 1))
-        return j, float(np.clip((l - cum[j]) / length[j], 0.0, 1.0))
 
-    def point(self, seg: int, frac: float):
-        """Center point (3-vector MX, units of D) at fraction ``frac`` of segment ``seg``."""
-        _, pts = self._point_fn(self.frames[:, seg], self.theta[seg], self.lam[seg], self.dl[seg], frac)
-        return pts
+def locate(l: float, length) -> tuple[int, float]:
+    """(segment, fraction) of material coordinate l on segment lengths ``length`` (problem units)."""
+    cum = np.concatenate([[0.0], np.cumsum(length)])
+    M = len(length)
+    j = int(np.clip(np.searchsorted(cum, l, side="right") - 1, 0, M - 1))
+    return j, float(np.clip((l - cum[j]) / length[j], 0.0, 1.0))
 
-    def points(self, segs, fracs):
-        """Center points (3 x K MX, units of D) at fractions ``fracs`` of segments ``segs`` (one mapped call)."""
-        segs = [int(v) for v in segs]
-        F = self._point_fn.map(len(segs), "serial")
-        _, pts = F(self.frames[:, segs], self.theta[segs], self.lam[segs], self.dl[segs], ca.DM(np.asarray(fracs, float)).T)
-        return pts
 
-    def pair_distances2(self, seg_a, frac_a, seg_b, frac_b):
-        """|r_c(a) - r_c(b)|^2 (1 x K MX, units of D^2) for K pairs of (segment, fraction), one mapped SX call."""
-        K = len(seg_a)
-        F = _pair_function().map(K, "serial")
-        ia, ib = [int(v) for v in seg_a], [int(v) for v in seg_b]
-        q = [self.frames, self.theta, self.lam, self.dl]
-        return F(*[v[:, ia] for v in q], ca.DM(np.asarray(frac_a, float)).T, *[v[:, ib] for v in q], ca.DM(np.asarray(frac_b, float)).T)
+def extended_solver(problem: DesignProblem, pairing, terms: tuple, hard: bool = True, extra: int = 0):
+    """The plain NLP of ``problem``'s structure plus ``terms`` (the formulations built on it) and ``extra``
+    variables per stage, exact Hessian; ``hard``: rows held tightly (HARD_ROWS)."""
+    o = problem.options
+    spec = nlp_spec(pairing.segments, pairing.n, problem.actuator.shared_lambda, o.max_iter, o.tol, terms=terms)
+    opts = dict(spec.options) | (HARD_ROWS if hard else {})
+    return get_solver(dataclasses.replace(spec, structure=dataclasses.replace(spec.structure, extra=extra), options=options_key(opts)))
 
-    def solve(self, extra_f=0, extra_g=None, lbg=None, ubg=None, x0=None, max_iter=None, z=None, z0=None, expand=False):
-        """IPOPT on f0 + extra_f s.t. continuity = 0 and lbg <= extra_g <= ubg.
 
-        ``z``: extra (free) decision variables (an MX symbol) appended to x, started at ``z0``;
-        ``x0`` may include them. ``expand``: SX evaluation (fast iterations, slower build).
-        Returns (x (the base layout), z values or None, stats dict).
-        """
-        o = self.problem.options
-        g = self.g0 if extra_g is None else ca.vertcat(self.g0, extra_g)
-        ng0 = self.g0.numel()
-        lb = np.concatenate([np.zeros(ng0), [] if extra_g is None else np.asarray(lbg, float).ravel()])
-        ub = np.concatenate([np.zeros(ng0), [] if extra_g is None else np.asarray(ubg, float).ravel()])
-        nx, nz = self.x.numel(), (0 if z is None else z.numel())
-        xv = self.x if z is None else ca.vertcat(self.x, z)
-        start = np.asarray(self.x0 if x0 is None else x0, float).ravel()
-        if nz and start.size == nx:
-            start = np.concatenate([start, np.zeros(nz) if z0 is None else np.asarray(z0, float).ravel()])
-        lbx = np.concatenate([self.lbx, np.full(nz, -np.inf)])
-        ubx = np.concatenate([self.ubx, np.full(nz, np.inf)])
-        # nlp.py's settings; constraint rows held tightly (a clearance is a hard requirement)
-        opts = ipopt_options(max_iter or o.max_iter, o.tol) | {
-            "expand": bool(expand),
-            "ipopt.acceptable_tol": 1e-6,
-            "ipopt.acceptable_iter": 15,
-            "ipopt.constr_viol_tol": 1e-10,
-            "ipopt.acceptable_constr_viol_tol": 1e-9,
-        }
-        t0 = time.perf_counter()
-        solver = ca.nlpsol("vine_nlp_extended", "ipopt", {"x": xv, "f": self.f0 + extra_f, "g": g}, opts)
-        build = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        sol = solver(x0=start, lbx=lbx, ubx=ubx, lbg=lb, ubg=ub)
-        st = solver.stats()
-        gv = np.array(sol["g"]).ravel()
-        viol = float(max(np.max(np.abs(gv[:ng0]), initial=0.0), np.max(np.maximum(lb[ng0:] - gv[ng0:], 0.0), initial=0.0),
-                         np.max(np.maximum(gv[ng0:] - ub[ng0:], 0.0), initial=0.0)))
-        xs = np.array(sol["x"]).ravel()
-        return xs[:nx], (xs[nx:] if nz else None), {
-            "return_status": st.get("return_status", ""),
-            "iterations": int(st.get("iter_count", 0)),
-            "solve_time_s": time.perf_counter() - t0,
-            "build_time_s": build,
-            "objective": float(sol["f"]),
-            "max_constraint_violation": viol,
-        }
+def chain_guess(problem: DesignProblem, routing: Routing) -> Guess:
+    """A start on a routing's own chain (frames where the routing puts them)."""
+    return Guess(routing.theta, routing.lam, routing.length, routing.initial_pose,
+                 chain_frames(routing.theta, routing.lam, routing.length, problem.diameter, routing.initial_pose))
 
-    def routing(self, x) -> Routing:
-        w_rot, p0, theta, lam, dl = self.base.unpack_x(x)
-        T0 = np.eye(4)
-        T0[:3, :3] = self.R0g @ so3_exp(w_rot)
-        T0[:3, 3] = p0 * self.D
-        return Routing(theta, lam, dl * self.D, T0)
 
-    def result(self, x, stats: dict, method: str, **extra_stats) -> Result:
-        fit, smooth = (float(v) for v in self.base._terms(x, self.p))
-        status = ipopt_status(stats)
-        if not np.all(np.isfinite(x)):
-            status = "invalid_number"
-        o = self.problem.options
-        return evaluate(
-            self.problem, self.routing(x), self.pairing, method, status=status,
-            solve_time_s=stats["solve_time_s"], iterations=stats["iterations"],
-            stats={
-                "solver": "ipopt", "return_status": stats["return_status"], "build_time_s": stats["build_time_s"],
-                "objective": stats["objective"], "objective_fit": fit, "objective_smooth": smooth,
-                "segments": self.M, "points_per_segment": self.n, "smooth_theta": o.smooth_theta,
-                "smooth_lambda": o.smooth_lambda, "tol": o.tol, "max_iter": o.max_iter,
-                "max_constraint_violation": stats["max_constraint_violation"], **extra_stats,
-            },
-        )
+def result_of(problem, pairing, solver, x, status, st, R0g, method, **extra) -> Result:
+    """A Result of a solution x of a plain-NLP-based solver."""
+    o = problem.options
+    return evaluate(
+        problem, routing_of(solver, x, R0g, problem.diameter), pairing, method, status=status, solve_time_s=st.pop("solve_time_s"),
+        iterations=st.pop("iterations"),
+        stats=st | {"segments": pairing.segments, "points_per_segment": pairing.n, "smooth_theta": o.smooth_theta,
+                    "smooth_lambda": o.smooth_lambda, "tol": o.tol, "max_iter": o.max_iter} | extra,
+    )
 
 
 MARGIN_FACTOR = 1.5
@@ -276,8 +173,6 @@ def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, pairs=No
     is >= D + min_gap - tol_gap D and no region needs new rows, or after ``rounds`` solves.
     stats: clearance_rounds, clearance_pairs, min_clearance, start_rmse, start_min_clearance.
     """
-    from vine_nlp.analysis.collision import _ModelLine, routing_clearance
-
     D = problem.diameter
     need = D + min_gap
     margin = 0.25 * D if detect_margin is None else float(detect_margin)
@@ -286,9 +181,12 @@ def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, pairs=No
     t_all = time.perf_counter()
     start = start or design_nlp(problem, **kw)
     routing = start.routing
-    nlp = ExtendedNLP(problem, routing)
+    pairing = pair_points(problem.target, problem.options.points_per_segment)
+    R0g = routing.initial_pose[:3, :3].copy()
+    params = nlp_parameters(problem, pairing, R0g)
     active = [(float(a), float(b)) for a, b in (pairs or [])]
     x, best, solves, row_margin = None, start, 0, 0.0
+    ipopt_time, ipopt_iterations = 0.0, 0
     first = routing_clearance(routing, D, exclude_arc=exclude_arc, margin=min_gap + margin)
     check = first
     while True:
@@ -304,12 +202,17 @@ def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, pairs=No
             if r["clearance"] < need - tol_gap * D:
                 _add_pairs(active, [(r["l_i"], r["l_j"])], 1e-6 * D)
         # rows at material points, located on the current segment lengths
-        ends = [nlp.locate(v, routing.length) for ab in active for v in ab]
-        g = nlp.pair_distances2([e[0] for e in ends[0::2]], [e[1] for e in ends[0::2]],
-                                [e[0] for e in ends[1::2]], [e[1] for e in ends[1::2]]).T
-        x, _, st = nlp.solve(0, g, np.full(g.numel(), ((need + row_margin) / D) ** 2), np.full(g.numel(), np.inf), x0=x)
+        ends = [(locate(a, routing.length), locate(b, routing.length)) for a, b in active]
+        solver = extended_solver(problem, pairing, (ClearancePairs(tuple((ea[0], eb[0]) for ea, eb in ends)),))
+        p = solver.pack_params(params | {"pair_u": np.array([[ea[1], eb[1]] for ea, eb in ends]).T,
+                                         "pair_need": ((need + row_margin) / D) ** 2})
+        lbx, ubx = solver.bounds(*design_bounds(problem, pairing))
+        x0 = start_x(solver, chain_guess(problem, start.routing), D, "chain") if x is None else x
+        x, status, st = solver.solve(x0, p, lbx, ubx)
+        ipopt_time += st["ipopt_time_s"]
+        ipopt_iterations += st["iterations"]
         solves += 1
-        best = nlp.result(x, st, "nlp_clearance")
+        best = result_of(problem, pairing, solver, x, status, st, R0g, "nlp_clearance")
         routing = best.routing
         check = routing_clearance(routing, D, exclude_arc=exclude_arc, margin=min_gap + margin)
     best.stats.update({
@@ -321,6 +224,8 @@ def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, pairs=No
         "min_gap": float(min_gap),
         "start_rmse": float(start.metrics["rmse"]),
         "start_min_clearance": float(first["clearance"]),
+        "ipopt_time_s": ipopt_time,
+        "ipopt_iterations": ipopt_iterations,
     })
     best.solve_time_s = time.perf_counter() - t_all
     return best

@@ -1,4 +1,4 @@
-"""What every design method shares: point pairing, the fit error, bounds, initial guesses.
+"""What every design method shares: the fit error, bounds, initial guesses (the pairing is model.pairing).
 
 Pairing (the paper's PathError): the N target points are cut into segments of n
 intervals (the last segment takes the remainder), M = ceil((N - 1) / n). Target
@@ -12,128 +12,19 @@ of the last segment.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from vine_nlp import interrupt
 from vine_nlp.design.problem import DesignProblem, Routing
 from vine_nlp.design.result import Result, Shape, error_metrics, routing_metrics
 from vine_nlp.model import shape_lines
 from vine_nlp.model.helix import center_rates, helix_from_curvature
-
-# IPOPT return statuses as archived (spec: "optimal" | "acceptable" | "max_iter" | "failed" | ...)
-IPOPT_STATUS = {
-    "Solve_Succeeded": "optimal",
-    "Solved_To_Acceptable_Level": "acceptable",
-    "Maximum_Iterations_Exceeded": "max_iter",
-    "Maximum_CpuTime_Exceeded": "max_time",
-    "Restoration_Failed": "restoration_failed",
-    "Infeasible_Problem_Detected": "infeasible",
-    "Invalid_Number_Detected": "invalid_number",
-    "Error_In_Step_Computation": "step_failed",
-    "Search_Direction_Becomes_Too_Small": "small_step",
-}
-
-
-def ipopt_quiet(max_iter: int, tol: float) -> dict:
-    """IPOPT prints nothing inside library code: callers report progress themselves."""
-    return {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": int(max_iter), "ipopt.tol": float(tol)}
-
-
-def ipopt_options(max_iter: int, tol: float, warm: bool = False) -> dict:
-    """IPOPT settings of the whole-chain formulations: quiet, adaptive mu, a stop on objective
-    plateaus, results inside the original bounds; ``warm`` for starts near the answer."""
-    opts = ipopt_quiet(max_iter, tol) | {
-        "ipopt.acceptable_tol": 1e-4,
-        # stop on a plateau (corners of polyline targets): the objective no longer moves
-        "ipopt.acceptable_obj_change_tol": 1e-8,
-        "ipopt.acceptable_iter": 10,
-        "ipopt.mu_strategy": "adaptive",
-        # return points inside the original bounds, not IPOPT's relaxed ones
-        "ipopt.honor_original_bounds": "yes",
-    }
-    if warm:
-        # a warm start is near the answer already: do not push it back into the interior
-        opts.update({
-            "ipopt.warm_start_init_point": "yes",
-            "ipopt.mu_init": 1e-6,
-            "ipopt.warm_start_bound_push": 1e-9,
-            "ipopt.warm_start_mult_bound_push": 1e-9,
-            "ipopt.warm_start_slack_bound_push": 1e-9,
-        })
-    return opts
-
-
-def ipopt_status(stats: dict, x=None) -> str:
-    """Archived status of one solve; an interrupted solve raises KeyboardInterrupt (vine_nlp.interrupt).
-
-    A solution ``x`` with anything non-finite is flagged "invalid_number" whatever IPOPT said.
-    """
-    raw = stats.get("return_status", "")
-    interrupt.check(raw)
-    if x is not None and not np.all(np.isfinite(x)):
-        return "invalid_number"
-    return IPOPT_STATUS.get(raw, str(raw or "failed"))
-
-
-def run_ipopt(solver, x0, p, lbx, ubx, lbg=0, ubg=0):
-    """One IPOPT solve: (solution dict, x as numpy, IPOPT stats, solve time in s)."""
-    t0 = time.perf_counter()
-    sol = solver(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
-    elapsed = time.perf_counter() - t0
-    return sol, np.array(sol["x"]).ravel(), solver.stats(), elapsed
-
-
-def solver_stats(stats: dict, sol, build_time_s: float) -> dict:
-    """The solver attributes every whole-chain formulation archives (/runs/<run>/solver)."""
-    return {
-        "solver": "ipopt",
-        "return_status": stats.get("return_status", ""),
-        "build_time_s": build_time_s,
-        "objective": float(sol["f"]),
-    }
-
-
-def frames12(frames: np.ndarray) -> np.ndarray:
-    """(M+1, 4, 4) -> (12, M+1): rotation column-major, then position (the NLPs' frame layout)."""
-    R = frames[:, :3, :3].transpose(0, 2, 1).reshape(-1, 9)
-    return np.hstack([R, frames[:, :3, 3]]).T
-
+from vine_nlp.model.pairing import Pairing, pair_points  # noqa: F401  (pair_points: used by every method)
 
 # Segment lengths stay within this factor of the target's chord length of the segment:
 # a loose box that keeps IPOPT away from dl -> 0 without constraining real designs.
 LENGTH_FACTOR = (0.2, 5.0)
-
-
-@dataclass(frozen=True)
-class Pairing:
-    segments: int  # M
-    n: int  # slots per segment (points per segment)
-    seg: np.ndarray  # (N,) segment of each target point
-    frac: np.ndarray  # (N,) fraction of that segment
-    bounds: np.ndarray  # (M+1,) target index of each segment end
-    chord: np.ndarray  # (N,) cumulative chord length of the target
-
-    @property
-    def segment_chord(self) -> np.ndarray:
-        return np.diff(self.chord[self.bounds])
-
-
-def pair_points(target: np.ndarray, n: int) -> Pairing:
-    target = np.asarray(target, float)
-    N = target.shape[0]
-    if N < 2:
-        raise ValueError("a target needs at least two points")
-    M = math.ceil((N - 1) / n)
-    chord = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(target, axis=0), axis=1))])
-    bounds = np.minimum(np.arange(M + 1) * n, N - 1)
-    k = np.arange(N)
-    seg = np.minimum(k // n, M - 1)
-    start, end = chord[bounds[seg]], chord[bounds[seg + 1]]
-    frac = (chord - start) / (end - start)
-    return Pairing(M, n, seg, frac, bounds, chord)
 
 
 def path_error(model_points, target_points, weights=None):

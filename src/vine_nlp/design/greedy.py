@@ -71,13 +71,14 @@ from vine_nlp.design.common import (
     clip_to_bounds,
     evaluate,
     geometric_guess,
-    ipopt_quiet,
-    ipopt_status,
     pair_points,
+    path_error,
     variable_bounds,
 )
 from vine_nlp.design.problem import DesignProblem, Routing
 from vine_nlp.design.result import Result
+from vine_nlp.design.transcription import ipopt_quiet, ipopt_status
+from vine_nlp.model.chain import chain_points
 from vine_nlp.model.segment import segment_parts, segment_transform, so3_exp
 
 __all__ = ["design_greedy", "lowpass", "window_error", "WindowSolver", "get_window_solver"]
@@ -391,9 +392,6 @@ def _overall_status(window_status) -> str:
 
 
 def _total_error(problem, pairing, routing) -> float:
-    from vine_nlp.design.common import path_error
-    from vine_nlp.model import chain_points
-
     pts, _ = chain_points(routing.theta, routing.lam, routing.length, problem.diameter, pairing.seg, pairing.frac, routing.initial_pose)
     return path_error(pts, problem.target)
 

@@ -34,27 +34,28 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from functools import lru_cache
 
-import casadi as ca
 import numpy as np
 
-from vine_nlp.design.common import (
-    LENGTH_FACTOR,
-    Pairing,
-    evaluate,
-    frames12,
-    geometric_guess,
-    ipopt_options,
-    ipopt_status,
-    pair_points,
-    run_ipopt,
-    solver_stats,
-)
-from vine_nlp.design.nlp import segment_function
+from vine_nlp.design.common import LENGTH_FACTOR, evaluate, geometric_guess, pair_points
 from vine_nlp.design.problem import MultiShapeProblem, Routing
-from vine_nlp.design.result import Result, Shape, routing_metrics
+from vine_nlp.design.result import Result, routing_metrics
+from vine_nlp.design.transcription import (
+    Smoothness,
+    SoftTip,
+    Spec,
+    Structure,
+    cell_data,
+    frames12,
+    ipopt_options,
+    multistart,
+    options_key,
+    record_starts,
+    smoothing_steps,
+)
+from vine_nlp.design.transcription import get_solver as _get
 from vine_nlp.model.helix import center_rates
+from vine_nlp.model.pairing import Pairing
 from vine_nlp.model.segment import so3_exp
 
 RUN = "multishape"
@@ -104,113 +105,15 @@ class MultiShapeResult(Result):
 # ---------------------------------------------------------------- the NLP
 
 
-@dataclass(frozen=True)
-class _Layout:
-    M: int
-    K: int
-    shared_pose: bool
-
-    @property
-    def poses(self) -> int:
-        return 1 if self.shared_pose else self.K
-
-    @property
-    def lam(self) -> slice:
-        return slice(6 * self.poses, 6 * self.poses + self.K)
-
-    @property
-    def stages(self) -> int:
-        return 6 * self.poses + self.K
-
-    @property
-    def width(self) -> int:
-        return 2 + 12 * self.K  # theta_j, dl_j, K frames T^{j+1}_w
-
-    @property
-    def size(self) -> int:
-        return self.stages + self.M * self.width
+def multishape_spec(M: int, n: int, K: int, shared_pose: bool, max_iter: int = 3000, tol: float = 1e-8) -> Spec:
+    """K chains of one routing (theta_j, dl_j shared), one lambda per level, one base pose or one per level."""
+    return Spec(Structure(M, n, K, "level", "shared" if shared_pose else "level"), (Smoothness(lam=False), SoftTip()),
+                "exact", options_key(ipopt_options(max_iter, tol)))
 
 
-class MultiShapeSolver:
-    """The multi-shape NLP of one structure (M segments, n points per segment, K levels, pose sharing)."""
-
-    def __init__(self, M: int, n: int, K: int, shared_pose: bool, max_iter: int = 3000, tol: float = 1e-8):
-        t0 = time.perf_counter()
-        self.M, self.n, self.K, self.shared_pose = M, n, K, shared_pose
-        lay = self.layout = _Layout(M, K, shared_pose)
-        C = K * M  # (segment, level) pairs, column c = j K + k
-        x = ca.MX.sym("x", lay.size)
-        P_tgt = ca.MX.sym("target", 3, n * C)  # paired target points (scaled), slot c n + i
-        P_w = ca.MX.sym("w", 1, n * C)  # weights (0 for unused slots), 1 / (N K)
-        P_u = ca.MX.sym("u", n, C)  # fractions of each slot
-        P_tip = ca.MX.sym("tip", 3, K)
-        P_wtip = ca.MX.sym("wtip", 1, K)
-        P_R0 = ca.MX.sym("R0", 9, lay.poses)  # rotations of the guess: poses are rotation vectors relative to them
-        P_smooth = ca.MX.sym("smooth")
-        P_h = ca.MX.sym("h", max(M - 1, 1))
-        P_L = ca.MX.sym("L")
-        params = [P_tgt, P_w, P_u, P_tip, P_wtip, P_R0, P_smooth, P_h, P_L]
-        self._param_shapes = [(p.size1(), p.size2()) for p in params]
-
-        X0 = []
-        for q in range(lay.poses):
-            R = ca.mtimes(ca.reshape(P_R0[:, q], 3, 3), so3_exp(x[6 * q : 6 * q + 3]))
-            X0.append(ca.vertcat(ca.vec(R), x[6 * q + 3 : 6 * q + 6]))
-        X0 = ca.repmat(X0[0], 1, K) if shared_pose else ca.horzcat(*X0)
-        lam = x[lay.lam]
-        stages = ca.reshape(x[lay.stages :], lay.width, M)
-        theta, dl = stages[0, :], stages[1, :]
-        Xnext = ca.reshape(stages[2:, :], 12, C)
-        Xstart = ca.horzcat(X0, Xnext[:, : K * (M - 1)])
-        TH = ca.reshape(ca.repmat(theta, K, 1), 1, C)
-        DL = ca.reshape(ca.repmat(dl, K, 1), 1, C)
-        LAM = ca.reshape(ca.repmat(lam, 1, M), 1, C)
-        F = segment_function(n).map(C, "serial")
-        Xn, pts = F(Xstart, TH, LAM, DL, P_u)
-        g = ca.vec(Xn - Xnext)
-        err = pts - P_tgt
-        tips = Xnext[9:, K * (M - 1) :]
-        fit = ca.sum2(P_w * ca.sum1(err * err)) + ca.sum2(P_wtip * ca.sum1((tips - P_tip) ** 2))
-        smooth = P_smooth * ca.sum1(ca.diff(theta.T) ** 2 / P_h) / P_L if M > 1 else ca.MX(0)
-        p = ca.vertcat(*[ca.vec(q) for q in params])
-        self.solver = ca.nlpsol("vine_nlp_multishape", "ipopt", {"x": x, "p": p, "f": fit + smooth, "g": g}, ipopt_options(max_iter, tol))
-        self._terms = ca.Function("terms", [x, p], [fit, smooth])
-        self.build_time_s = time.perf_counter() - t0
-
-    def pack_params(self, values) -> np.ndarray:
-        return np.concatenate([np.asarray(v, float).reshape(s, order="F").ravel(order="F") for v, s in zip(values, self._param_shapes)])
-
-    def pack_x(self, poses, lam, theta, dl, frames) -> np.ndarray:
-        """poses: list of (w_rot, p0); frames: K arrays (12, M+1)."""
-        lay = self.layout
-        x = np.zeros(lay.size)
-        for q, (w, p0) in enumerate(poses[: lay.poses]):
-            x[6 * q : 6 * q + 3], x[6 * q + 3 : 6 * q + 6] = w, p0
-        x[lay.lam] = lam
-        stages = np.vstack([np.atleast_2d(theta), np.atleast_2d(dl)] + [f[:, 1:] for f in frames])
-        x[lay.stages :] = stages.ravel(order="F")
-        return x
-
-    def unpack_x(self, x):
-        lay = self.layout
-        poses = [(x[6 * q : 6 * q + 3], x[6 * q + 3 : 6 * q + 6]) for q in range(lay.poses)]
-        stages = x[lay.stages :].reshape(lay.width, self.M, order="F")
-        return poses, x[lay.lam].copy(), stages[0].copy(), stages[1].copy()
-
-    def bounds(self, lam_lo, lam_hi, theta_max, dl_lo, dl_hi):
-        lay = self.layout
-        lbx, ubx = np.full(lay.size, -np.inf), np.full(lay.size, np.inf)
-        lbx[lay.lam], ubx[lay.lam] = lam_lo, lam_hi
-        W, s = lay.width, lay.stages
-        lbx[s : s + W * self.M : W], ubx[s : s + W * self.M : W] = -theta_max, theta_max
-        lbx[s + 1 : s + W * self.M : W], ubx[s + 1 : s + W * self.M : W] = dl_lo, dl_hi
-        return lbx, ubx
-
-
-@lru_cache(maxsize=8)
-def get_solver(M: int, n: int, K: int, shared_pose: bool, max_iter: int = 3000, tol: float = 1e-8) -> MultiShapeSolver:
+def get_solver(M: int, n: int, K: int, shared_pose: bool, max_iter: int = 3000, tol: float = 1e-8):
     """Cached per structure: building costs more than one solve."""
-    return MultiShapeSolver(M, n, K, shared_pose, max_iter, tol)
+    return _get(multishape_spec(M, n, K, shared_pose, max_iter, tol))
 
 
 # ---------------------------------------------------------------- guesses
@@ -324,63 +227,47 @@ def solve_from(problem: MultiShapeProblem, guess: MultiGuess, pairings=None) -> 
     pairings = pairings or _pairings(problem)
     M, n = pairings[0].segments, pairings[0].n
     solver = get_solver(M, n, K, problem.shared_pose, o.max_iter, o.tol)
+    P = solver.structure.poses
     N = problem.targets[0].shape[0]
-    C = K * M
-    slots = np.zeros((3, n * C))
-    w = np.zeros(n * C)
-    u = np.zeros((n, C))
-    tips = np.zeros((3, K))
-    i = np.arange(N - 1)  # the tip pairs with the last frame
+    cells = np.zeros((5 * n, M * K))
     for k, (tgt, pr) in enumerate(zip(problem.targets, pairings)):
-        within = i - pr.bounds[pr.seg[i]]
-        c = pr.seg[i] * K + k
-        slots[:, c * n + within] = tgt[i].T / D
-        w[c * n + within] = 1.0 / (N * K)
-        u[within, c] = pr.frac[i]
-        tips[:, k] = tgt[-1] / D
-    chord = np.mean([pr.chord for pr in pairings], axis=0) / D
-    b = pairings[0].bounds
-    mids = 0.5 * (chord[b[:-1]] + chord[b[1:]])
-    h = np.diff(mids) if M > 1 else np.ones(1)
-    R0 = np.column_stack([P[:3, :3].ravel(order="F") for P in guess.poses[: solver.layout.poses]])
-    p = solver.pack_params([slots, w, u, tips, np.full(K, 1.0 / (N * K)), R0, o.smooth_theta, h, chord[-1]])
-
+        cell_data(pr, tgt / D, 1.0 / (N * K), K, k, cells)
+    h, L = smoothing_steps(np.mean([pr.chord for pr in pairings], axis=0) / D, pairings[0].bounds)
+    R0 = np.column_stack([G[:3, :3].ravel(order="F") for G in guess.poses[:P]])
+    p = solver.pack_params({"cells": cells, "R0g": R0, "smooth": [o.smooth_theta, 0.0], "h": h, "L": L,
+                            "tip": np.column_stack([t[-1] / D for t in problem.targets]), "wtip": np.full(K, 1.0 / (N * K))})
     fr = []
     for f in guess.frames:
         f = f.copy()
         f[:, :3, 3] /= D
         fr.append(frames12(f))
-    x0 = solver.pack_x([(np.zeros(3), P[:3, 3] / D) for P in guess.poses], guess.levels, guess.theta, guess.length / D, fr)
+    poses = np.array([np.r_[np.zeros(3), G[:3, 3] / D] for G in guess.poses[:P]])
+    x0 = solver.pack_x(guess.theta, None, guess.length / D, np.array(fr), poses=poses, lam_global=guess.levels)
     seg_chord = np.max([pr.segment_chord for pr in pairings], axis=0) / D
-    lam_lo, lam_hi = _level_bounds(problem)
-    lbx, ubx = solver.bounds(lam_lo, lam_hi, problem.actuator.theta_max, LENGTH_FACTOR[0] * seg_chord, LENGTH_FACTOR[1] * seg_chord)
-    x0 = np.clip(x0, lbx, ubx)
-    sol, x, st, solve_time = run_ipopt(solver.solver, x0, p, lbx, ubx)
-    poses, levels, theta, dl = solver.unpack_x(x)
+    a = problem.actuator
+    lbx, ubx = solver.bounds((np.full(M, -a.theta_max), np.full(M, a.theta_max)), _level_bounds(problem),
+                             (LENGTH_FACTOR[0] * seg_chord, LENGTH_FACTOR[1] * seg_chord))
+    x, status, st = solver.solve(x0, p, lbx, ubx)
+    v = solver.unpack(x)
     T = []
-    for q, (wr, p0) in enumerate(poses):
-        P = np.eye(4)
-        P[:3, :3] = guess.poses[q][:3, :3] @ so3_exp(wr)
-        P[:3, 3] = p0 * D
-        T.append(P)
+    for q in range(P):
+        G = np.eye(4)
+        G[:3, :3] = guess.poses[q][:3, :3] @ so3_exp(v["poses"][q, :3])
+        G[:3, 3] = v["poses"][q, 3:] * D
+        T.append(G)
     T = np.array(T * K if problem.shared_pose else T)
-    fit, smooth = (float(v) for v in solver._terms(x, p))
-    status = ipopt_status(st, x)
-    stats = solver_stats(st, sol, solver.build_time_s) | {
-        "objective_fit": fit,
-        "objective_smooth": smooth,
+    stats = st | {
         "segments": M,
         "points_per_segment": n,
         "levels": K,
         "shared_pose": problem.shared_pose,
-        "fixed_levels": [v is not None for v in problem.levels],
+        "fixed_levels": [lv is not None for lv in problem.levels],
         "smooth_theta": o.smooth_theta,
         "tol": o.tol,
         "max_iter": o.max_iter,
-        "max_constraint_violation": float(np.abs(np.array(sol["g"])).max()) if M else 0.0,
     }
-    return assemble(problem, theta, dl * D, levels, T, pairings, status=status, solve_time_s=solve_time,
-                    iterations=int(st.get("iter_count", 0)), stats=stats)
+    return assemble(problem, v["theta"], v["dl"] * D, v["lam_global"], T, pairings, status=status,
+                    solve_time_s=stats.pop("solve_time_s"), iterations=stats.pop("iterations"), stats=stats)
 
 
 def assemble(problem: MultiShapeProblem, theta, length, levels, poses, pairings=None, **kw) -> MultiShapeResult:
@@ -418,134 +305,14 @@ def design_multishape(problem: MultiShapeProblem, starts: int | None = None, pro
     n_starts = max(1, problem.options.starts if starts is None else starts)
     guesses = start_guesses(problem, pairings, n_starts)
     t0 = time.perf_counter()
-    results = []
-    for g in guesses:
-        results.append(solve_from(problem, g, pairings))
-        if progress:
-            progress(len(results), len(guesses))
-
-    def rank(r):
-        return (0 if r.converged else 1, r.stats["objective"])
-
-    best_rank = min(rank(r) for r in results)
-    k_best = next(k for k, r in enumerate(results) if rank(r)[0] == best_rank[0] and rank(r)[1] <= best_rank[1] * (1 + 1e-9) + 1e-15)
-    best = results[k_best]
-    best.stats["starts"] = len(results)
-    best.stats["start_objectives"] = [r.stats["objective"] for r in results]
-    best.stats["best_start"] = k_best
-    best.solve_time_s = time.perf_counter() - t0
-    best.iterations = sum(r.iterations for r in results)
+    best, k, results = multistart(lambda g: solve_from(problem, g, pairings), guesses, progress)
+    record_starts(best, k, results, t0)
     return best
-
-
-# ---------------------------------------------------------------- archive
-
-
-def write_multishape_archive(path, problem_file, result: MultiShapeResult) -> None:
-    """Write a multi-shape design archive atomically (the contract's layout, extended).
-
-    Standard part (old readers work): /problem (kind "multishape"), /tube,
-    /target/points = target 0, /runs/multishape/{design,shape,metrics,solver} with
-    design/lambda = level 0 repeated and shape = level 0's shape; metrics rmse and
-    max_error are over all levels. Extension: /runs/multishape/design/levels (K,),
-    /runs/multishape/levels/<k>/{shape/{center,inner,outer}, initial_pose} with attrs
-    lambda, fixed and metrics attrs (rmse, max_error), /targets/<k>/points.
-    ``problem_file`` is a ProblemFile (name, source, units, problem) of a MultiShapeProblem.
-    """
-    import h5py
-
-    from vine_nlp.io.archive import Archive, write_archive, write_atomic
-
-    problem = problem_file.problem
-    archive = Archive(
-        name=problem_file.name,
-        kind="multishape",
-        source=problem_file.source,
-        diameter=problem.diameter,
-        units=problem_file.units,
-        target=problem.targets[0],
-        runs={RUN: result},
-        extra={f"targets/{k}/points": t for k, t in enumerate(problem.targets)},
-    )
-
-    def write(tmp):
-        write_archive(tmp, archive)  # the standard layout (itself atomic onto tmp)
-        with h5py.File(tmp, "a") as h5:
-            g = h5[f"runs/{RUN}"]
-            g["design"].create_dataset("levels", data=np.asarray(result.levels, float))
-            g.attrs["levels"] = result.count
-            g.attrs["shared_pose"] = bool(result.shared_pose)
-            for k in range(result.count):
-                lv = g.create_group(f"levels/{k}")
-                lv.attrs.update(**{"lambda": float(result.levels[k]), "fixed": bool(result.fixed[k]) if result.fixed else False})
-                lv.create_dataset("initial_pose", data=result.poses[k])
-                s = lv.create_group("shape")
-                for line in ("center", "inner", "outer"):
-                    s.create_dataset(line, data=getattr(result.shapes[k], line), compression="gzip", compression_opts=4, shuffle=True)
-                lv.create_group("metrics").attrs.update({key: float(v) for key, v in result.level_metrics[k].items()})
-
-    write_atomic(path, write)
-
-
-def read_multishape_archive(path):
-    """(Archive, MultiShapeResult, targets): the archive as the generic reader sees it, the
-    full multi-shape result (levels, poses, shapes, per-level metrics) and the K targets."""
-    import h5py
-
-    from vine_nlp.io.archive import load_archive
-
-    a = load_archive(path)
-    base = a.runs[RUN]
-    with h5py.File(path, "r") as h5:
-        g = h5[f"runs/{RUN}"]
-        levels = g["design/levels"][()]
-        K = levels.size
-        targets = [h5[f"targets/{k}/points"][()] for k in range(K)]
-        shapes, poses, lm, fixed = [], [], [], []
-        for k in range(K):
-            lv = g[f"levels/{k}"]
-            shapes.append(Shape(*(lv["shape"][line][()] for line in ("center", "inner", "outer"))))
-            poses.append(lv["initial_pose"][()])
-            lm.append({key: float(v) for key, v in lv["metrics"].attrs.items()})
-            fixed.append(bool(lv.attrs.get("fixed", False)))
-        shared = bool(g.attrs.get("shared_pose", True))
-    r = MultiShapeResult(
-        method=base.method, routing=base.routing, shape=base.shape, status=base.status, solve_time_s=base.solve_time_s,
-        iterations=base.iterations, metrics=base.metrics, stats=base.stats, diameter=base.diameter,
-        levels=levels, fixed=tuple(fixed), poses=np.array(poses), shapes=shapes, level_metrics=lm, shared_pose=shared,
-    )
-    return a, r, targets
-
-
-def plot_multishape(archive_path, fig_path):
-    """Figure of a multi-shape archive (see ``vine_nlp.front.multishape_plot``)."""
-    from vine_nlp.front.multishape_plot import plot_multishape_file
-
-    return plot_multishape_file(archive_path, fig_path)
-
-
-def report_lines(result: MultiShapeResult, units: str) -> list[str]:
-    """The CLI's lines: one overall, one per level."""
-    m = result.metrics
-    lines = [
-        f"{RUN}: {result.status}, {result.count} levels, RMSE {m['rmse']:.4g} {units}, max error {m['max_error']:.4g} {units}, "
-        f"solve time {result.solve_time_s:.3f} s, {result.iterations} iterations"
-    ]
-    for k in range(result.count):
-        lm = result.level_metrics[k]
-        tag = "fixed" if result.fixed and result.fixed[k] else "free"
-        lines.append(f"  level {k}: lambda {result.levels[k]:.6g} ({tag}), RMSE {lm['rmse']:.4g} {units}, max error {lm['max_error']:.4g} {units}")
-    return lines
 
 
 __all__ = [
     "MultiShapeResult",
-    "MultiShapeSolver",
-    "design_multishape",
-    "write_multishape_archive",
-    "read_multishape_archive",
-    "plot_multishape",
-    "report_lines",
+        "design_multishape",
     "get_solver",
     "start_guesses",
     "solve_from",

@@ -11,15 +11,27 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vine_nlp.design.calibrate import Calibration
+from vine_nlp.model.routing import MEASURED_LINES, Routing  # noqa: F401  (re-exported: their old home)
+
 ACTUATOR_KINDS = ("tendon", "programmed", "spam")
 METHODS = ("nlp", "greedy")
 HESSIANS = ("auto", "exact", "gauss-newton")
-MEASURED_LINES = ("center", "inner", "outer")
 
 
 @dataclass(frozen=True)
 class Actuator:
-    """Actuator bounds (paper Sec. VI-A). ``kind == "spam"`` shares one lambda over all segments."""
+    """Actuator bounds (paper Sec. VI-A). ``kind == "spam"`` shares one lambda over all segments.
+
+    Parameters
+    ----------
+    kind : str
+        "tendon", "programmed" or "spam".
+    lambda_min : float
+        Smallest contraction ratio, in (0, 1).
+    theta_max : float
+        Largest drawn angle |theta|, rad (at most 60 deg by default; must stay below pi/2).
+    """
 
     kind: str = "tendon"
     lambda_min: float = 0.4
@@ -32,7 +44,37 @@ class Actuator:
 
 @dataclass(frozen=True)
 class DesignOptions:
-    """Method settings; every method reads the fields it needs and ignores the rest."""
+    """Method settings; every method reads the fields it needs and ignores the rest.
+
+    The smoothing weights multiply w (1/L) int (D theta')^2 ds (and the same for lambda) against the mean
+    squared error / D^2; 4e-7 is the largest measured weight that costs about 3 % RMSE at most on the paper's
+    smooth cases (results/BENCHMARKS.md, "Smoothing weight").
+
+    Parameters
+    ----------
+    method : str
+        "nlp" (one NLP) or "greedy" (the paper's Algorithm 1).
+    points_per_segment : int
+        n, target points per segment.
+    lookahead : int
+        k, segments per window (greedy only).
+    smooth_theta, smooth_lambda : float
+        Smoothing weights of theta and lambda.
+    starts : int
+        Multi-start: number of starts (1 = the geometric guess only).
+    hops : int
+        Rounds of basin hopping after the multi-start.
+    greedy_starts : int
+        Greedy: trial starts per window (stands in for MATLAB's GlobalSearch).
+    seed : int
+        Seed of every random choice (starts, hops).
+    max_iter : int
+        IPOPT's iteration limit.
+    tol : float
+        IPOPT's tolerance.
+    hessian : str
+        "auto" (Gauss-Newton, exact if it does not converge), "exact" or "gauss-newton".
+    """
 
     method: str = "nlp"
     points_per_segment: int = 10  # n
@@ -53,43 +95,66 @@ class DesignOptions:
 
 
 @dataclass(frozen=True)
-class Routing:
-    """A discretized actuator routing: one entry per segment (paper eq. phi(s_j))."""
-
-    theta: np.ndarray  # (M,) rad
-    lam: np.ndarray  # (M,)
-    length: np.ndarray  # (M,) unactuated center-line length of each segment
-    initial_pose: np.ndarray = field(default_factory=lambda: np.eye(4))  # T^0_w
-
-    def __post_init__(self):
-        object.__setattr__(self, "theta", np.asarray(self.theta, dtype=float).reshape(-1))
-        m = self.theta.size
-        lam = np.asarray(self.lam, dtype=float).reshape(-1)
-        if lam.size == 1 and m != 1:
-            lam = np.full(m, lam[0])
-        object.__setattr__(self, "lam", lam)
-        object.__setattr__(self, "length", np.asarray(self.length, dtype=float).reshape(-1))
-        object.__setattr__(self, "initial_pose", np.asarray(self.initial_pose, dtype=float).reshape(4, 4))
-        if not (self.lam.size == m and self.length.size == m):
-            raise ValueError("theta, lam and length need one entry per segment")
-
-    @property
-    def segments(self) -> int:
-        return self.theta.size
-
-
-@dataclass(frozen=True)
 class DesignProblem:
+    """Inverse design: a routing whose center line follows a target curve.
+
+    Parameters
+    ----------
+    name : str
+        The problem's name (archives, figures).
+    diameter : float
+        Tube diameter D, in ``units``.
+    target : ndarray, shape (N, 3)
+        Target center line, as sampled.
+    actuator : Actuator
+        Actuator kind and bounds.
+    options : DesignOptions
+        Method settings.
+    units : str
+        Length unit of every length of the problem.
+    obstacles : tuple
+        Obstacle shapes (vine_nlp.analysis.obstacles), in ``units``.
+    obstacle_margin : float
+        Required gap between the tube surface and every obstacle.
+    growth : str
+        "while-actuated" or "after" (the intermediate shapes of actuation after growth must clear too).
+    calibration : Calibration or None
+        Systematic construction errors of the builder (vine_nlp.design.calibrate): the design is made for
+        the robot as built.
+    """
+
     name: str
     diameter: float
     target: np.ndarray  # (N, 3) target center line, as sampled
     actuator: Actuator = Actuator()
     options: DesignOptions = DesignOptions()
     units: str = "cm"
+    # issue 15: obstacles (vine_nlp.analysis.obstacles shapes, problem units), the required gap
+    # between tube surface and obstacles, and how the tube grows ("while-actuated" | "after")
+    obstacles: tuple = ()
+    obstacle_margin: float = 0.0
+    growth: str = "while-actuated"
+    # issue 14: systematic construction errors of the builder (design.calibrate); the design is made
+    # for the robot as built, the nominal to build has them taken out (design.methods.run_design)
+    calibration: Calibration | None = None
 
 
 @dataclass(frozen=True)
 class ForwardProblem:
+    """The shape of a given routing.
+
+    Parameters
+    ----------
+    name : str
+        The problem's name.
+    diameter : float
+        Tube diameter D.
+    routing : Routing
+        The routing to model.
+    units : str
+        Length unit.
+    """
+
     name: str
     diameter: float
     routing: Routing
@@ -98,6 +163,26 @@ class ForwardProblem:
 
 @dataclass(frozen=True)
 class FitProblem:
+    """Fit the model of a known routing to measured points (any order, any pose).
+
+    Parameters
+    ----------
+    name : str
+        The problem's name.
+    diameter : float
+        Tube diameter D.
+    measured : ndarray, shape (K, 3)
+        Measured points.
+    line : str
+        The measured line: "center", "inner" or "outer".
+    routing : Routing
+        The known routing; its lambda is the starting value where lambda is free.
+    free : tuple
+        What is estimated besides the rigid pose: () or ("lambda",).
+    units : str
+        Length unit.
+    """
+
     name: str
     diameter: float
     measured: np.ndarray  # (K, 3) measured points, any order, any pose
@@ -116,11 +201,27 @@ TIP_OBJECTIVES = ("contraction", "turns")
 class MultiShapeProblem:
     """One sPAM routing, K target shapes at K contraction levels (``vine_nlp.design.multishape``).
 
-    ``levels[k]`` is the fixed lambda of target k, or None where it is free (bounded
-    by [actuator.lambda_min, 1]). All targets have the same number of points, so the
-    pairing structure (segments, points per segment) is shared. ``shared_pose``: one
-    base pose for every level (the same physical base); False gives each level its
-    own pose (targets measured in different frames).
+    All targets have the same number of points, so the pairing structure (segments, points per
+    segment) is shared.
+
+    Parameters
+    ----------
+    name : str
+        The problem's name.
+    diameter : float
+        Tube diameter D.
+    targets : tuple of ndarray
+        K target curves, each (N, 3).
+    levels : tuple
+        K entries: a fixed lambda, or None where it is free (bounded by [actuator.lambda_min, 1]); () = all free.
+    actuator : Actuator
+        An sPAM actuator.
+    options : DesignOptions
+        Method settings.
+    shared_pose : bool
+        One base pose for every level (the same physical base); False: one per level.
+    units : str
+        Length unit.
     """
 
     name: str
@@ -159,9 +260,36 @@ class MultiShapeProblem:
 class TipProblem:
     """Reach a tip position (and optionally a tip direction) with the least actuation (``vine_nlp.design.tip``).
 
-    The base pose is fixed (the robot grows from a fixed base); the tube length and
-    the number of segments are design inputs. ``objective``: "contraction" minimizes
-    sum_j (1 - lambda_j) dl_j, "turns" the actuator's turning sum_j |tan theta_j| dl_j.
+    Parameters
+    ----------
+    name : str
+        The problem's name.
+    diameter : float
+        Tube diameter D.
+    position : array_like, shape (3,)
+        Tip position.
+    length : float
+        Total unactuated tube length L.
+    segments : int
+        M, the number of segments (each at least 0.2 L / M long).
+    direction : array_like, shape (3,), optional
+        Tip tangent (normalized), or None.
+    objective : str
+        "contraction" (sum (1 - lambda_j) dl_j) or "turns" (sum |tan theta_j| dl_j).
+    initial_pose : array_like, shape (4, 4)
+        The fixed base pose.
+    actuator : Actuator
+        Actuator kind and bounds.
+    options : DesignOptions
+        Method settings.
+    units : str
+        Length unit.
+    obstacles : tuple
+        Obstacle shapes, as DesignProblem's.
+    obstacle_margin : float
+        Required gap between the tube surface and every obstacle.
+    growth : str
+        "while-actuated" or "after".
     """
 
     name: str
@@ -175,6 +303,9 @@ class TipProblem:
     actuator: Actuator = Actuator()
     options: DesignOptions = DesignOptions()
     units: str = "cm"
+    obstacles: tuple = ()  # as DesignProblem's
+    obstacle_margin: float = 0.0
+    growth: str = "while-actuated"
 
     def __post_init__(self):
         object.__setattr__(self, "position", np.asarray(self.position, dtype=float).reshape(3))

@@ -6,20 +6,44 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vine_nlp.design.problem import Routing
-from vine_nlp.model import phi_from_theta, shape_lines
-from vine_nlp.model.chain import segment_end_samples
-
-
-@dataclass(eq=False)
-class Shape:
-    center: np.ndarray  # (P, 3)
-    inner: np.ndarray  # (P, 3) actuator line
-    outer: np.ndarray  # (P, 3)
+from vine_nlp.design.problem import ForwardProblem
+from vine_nlp.model import phi_from_theta
+from vine_nlp.model.routing import Routing
+from vine_nlp.model.shape import (  # noqa: F401  (re-exported: their old home)
+    Shape,
+    error_metrics,
+    forward_shape,
+    routing_metrics,
+    total_variation,
+)
 
 
 @dataclass(eq=False)
 class Result:
+    """What every method returns: one routing, its shape, its metrics and solver statistics.
+
+    Parameters
+    ----------
+    method : str
+        The run's name ("nlp", "greedy", "multishape", "tip", "nlp_robust", ...).
+    routing : Routing
+        The design (per segment theta, lambda, length) and its base pose.
+    shape : Shape
+        The modeled center, actuator and opposite lines; design runs: row i pairs with target row i.
+    status : str
+        "optimal", "acceptable", "max_iter", "failed", ... (IPOPT's return status, archived).
+    solve_time_s : float
+        Time of the method, in seconds.
+    iterations : int
+        IPOPT iterations (summed over starts, hops and rounds).
+    metrics : dict
+        rmse, max_error (problem units), tv_theta, tv_lambda and formulation-specific figures.
+    stats : dict
+        Solver statistics and options, archived as attributes of ``/runs/<run>/solver``.
+    diameter : float
+        Tube diameter D.
+    """
+
     method: str
     routing: Routing
     shape: Shape
@@ -39,34 +63,8 @@ class Result:
         return self.status in ("optimal", "acceptable")
 
 
-def total_variation(v) -> float:
-    v = np.asarray(v, float)
-    return float(np.abs(np.diff(v)).sum()) if v.size > 1 else 0.0
-
-
-def error_metrics(model_points, target_points) -> dict:
-    """RMSE and max of the distances between paired points (the paper's reported figures)."""
-    d = np.linalg.norm(np.asarray(model_points) - np.asarray(target_points), axis=1)
-    return {"rmse": float(np.sqrt(np.mean(d**2))), "max_error": float(d.max())}
-
-
-def routing_metrics(routing: Routing) -> dict:
-    return {"tv_theta": total_variation(routing.theta), "tv_lambda": total_variation(routing.lam)}
-
-
-def forward_shape(routing: Routing, diameter: float, per_segment=None) -> Shape:
-    """Shape at every segment end (base first, tip last) and at ``per_segment`` equal
-    pieces inside each segment (default: pieces no longer than D/4, so helices look round)."""
-    if per_segment is None:
-        per_segment = np.maximum(1, np.ceil(routing.length / (0.25 * diameter))).astype(int)
-    seg, frac = segment_end_samples(routing.length, per_segment)
-    return Shape(*shape_lines(routing.theta, routing.lam, routing.length, diameter, seg, frac, routing.initial_pose))
-
-
 def run_forward(problem) -> Result:
     """Shape of a given routing (``vine-nlp forward``): a Result with method "forward"."""
-    from vine_nlp.design.problem import ForwardProblem
-
     assert isinstance(problem, ForwardProblem)
     r = problem.routing
     return Result(

@@ -21,27 +21,34 @@ the downstream points with weights w_k:
 with W = sum w_k, c = sum w_k r_k, Q = sum w_k r_k r_k^T: suffix sums over the
 segments of sum w, sum w p, sum w p p^T. Points inside segment m add their direct
 term sum_k w_k sum_i sigma_i^2 |d rho_k / d q_i|^2 (rho_k in the segment's start frame).
-All of it is written on the multiple-shooting frames of nlp.py's NLP
-(design.clearance.ExtendedNLP), started from design_nlp's result. The suffix sums
-are auxiliary variables with a banded recursion (RobustTerm): written directly in
-x they couple every segment to everything downstream, and building the dense
-Hessian takes minutes (trefoil m = 4: 90 s MX, 360 s SX) instead of 2 s.
+This is the linear-Gaussian propagation of the construction errors along the chain,
+run backwards: instead of carrying the 6 x 6 frame covariance forward (21 numbers per
+stage), the downstream sums (sum w p, sum w p p^T: 9 numbers) are carried back. They
+are extra stage variables S_j of the one transcription (design.transcription), tied
+by the banded recursion S_j = S_{j+1} + L_{j+1}(stage j+1), so the term and its rows
+are per-stage blocks with their own SX derivatives and the cost per iteration stays
+linear in M. Written directly in x they would couple every segment to everything
+downstream (a dense Hessian). Started from design_nlp's result.
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from functools import lru_cache
 
 import casadi as ca
 import numpy as np
 
-from vine_nlp.analysis.tolerance import Sigmas
-from vine_nlp.design.clearance import ExtendedNLP
-from vine_nlp.design.nlp import design_nlp
+from vine_nlp.analysis.tolerance import tolerance_report
+from vine_nlp.design.clearance import chain_guess, extended_solver, result_of
+from vine_nlp.design.common import pair_points
+from vine_nlp.design.nlp import design_bounds, design_nlp, nlp_parameters, start_x
 from vine_nlp.design.problem import DesignProblem
 from vine_nlp.design.result import Result
+from vine_nlp.design.transcription import BlockType, Chain, segment_point_index
 from vine_nlp.model.helix import center_rates
+from vine_nlp.model.routing import Sigmas
 from vine_nlp.model.segment import twist_parts
 
 
@@ -109,67 +116,127 @@ def _downstream_function() -> ca.Function:
     return ca.Function("downstream", [A, B, o, W, P1, P2v], [val])
 
 
-class RobustTerm:
-    """E[dMSE] (units of D^2) of an ExtendedNLP's design under ``sigmas`` (module docstring).
+@lru_cache(maxsize=8)
+def robust_blocks(n: int) -> tuple[BlockType, BlockType, BlockType]:
+    """The robust term's three per-stage blocks (sig = (s_theta, s_lam, s_len_rel, s_len_abs), sigma_dl =
+    s_len_rel dl + s_len_abs; weight: the term's weight).
 
-    ``value``: the expression in x alone (dense: every segment couples to all points
-    downstream), for evaluation. For the optimizer the downstream sums are auxiliary
-    variables ``z`` (9 x M: sum w p, sum w p p^T after each segment, tip included) tied by
-    the banded recursion ``g`` = 0, so the term, its constraints and the Lagrangian
-    Hessian stay block-banded like the rest of the multiple-shooting NLP
-    (``objective``: the term in x and z). ``z_of_x``: the sums' values at a given x.
+    downstream: v = (X_j (12), theta, lam, dl, o_{j+1} (3), S_j (9)); d = (W_j, sig (4), weight):
+      weight times the downstream points' term of segment j's errors.
+    direct: v = (theta, lam, dl); d = (u (n), w (n), sig (4), weight): weight times the segment's own points'
+      term (it does not depend on the frame: a block of 3 variables keeps its Hessian cheap).
+    recursion: v = (S_j (9), S_{j+1} (9), X_{j+1} (12), theta, lam, dl of stage j+1); d = (u (n), w (n)) of stage j+1:
+      r = S_j - S_{j+1} - (sum w p, sum w p p^T)(stage j+1).
     """
+    seg, down = robust_segment_function(n), _downstream_function()
+    one = robust_segment_function(1)
+    v, d = ca.SX.sym("v", 27), ca.SX.sym("d", 6)
+    W, sg, weight = d[0], d[1:5], d[5]
+    sig = ca.vertcat(sg[0], sg[1], sg[2] * v[14] + sg[3])
+    A, B, _, _, _, _ = one(v[:12], v[12], v[13], v[14], 0.0, 0.0, sig)
+    f = weight * down(A, B, v[15:18], W, v[18:21], v[21:27])
+    downstream = BlockType(f"robust_downstream{n}", ca.Function("robust_downstream", [v, d], [f, ca.SX(0, 1)]))
+    v1, d1 = ca.SX.sym("v", 3), ca.SX.sym("d", 2 * n + 5)
+    sg1 = d1[2 * n : 2 * n + 4]
+    sig1 = ca.vertcat(sg1[0], sg1[1], sg1[2] * v1[2] + sg1[3])
+    # the direct term lives in the segment's own frame: evaluate it at the identity frame
+    _, _, direct, _, _, _ = seg(ca.DM([1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0]), v1[0], v1[1], v1[2], d1[:n], d1[n : 2 * n], sig1)
+    own = BlockType(f"robust_direct{n}", ca.Function("robust_direct", [v1, d1], [d1[2 * n + 4] * direct, ca.SX(0, 1)]))
+    v2, d2 = ca.SX.sym("v", 33), ca.SX.sym("d", 2 * n)
+    _, _, _, _, P1, P2 = seg(v2[18:30], v2[30], v2[31], v2[32], d2[:n], d2[n:], ca.SX.zeros(3))
+    r = v2[:9] - v2[9:18] - ca.vertcat(P1, P2)
+    recursion = BlockType(f"robust_recursion{n}", ca.Function("robust_recursion", [v2, d2], [ca.SX(0), r]))
+    return downstream, own, recursion
 
-    def __init__(self, nlp: ExtendedNLP, sigmas: Sigmas):
-        M, n, D = nlp.M, nlp.n, nlp.D
-        _, w, u, _, wtip = nlp.params[:5]
-        w = np.asarray(w, float).reshape(M, n).T  # slot-major per segment -> (n, M)
-        u = np.asarray(u, float)
-        wtip = float(wtip)
-        sdl = sigmas.length * nlp.dl if sigmas.relative_length else ca.DM.ones(1, M) * (sigmas.length / D)
-        sig = ca.vertcat(ca.DM.ones(1, M) * sigmas.theta, ca.DM.ones(1, M) * sigmas.lam, sdl)
+
+@dataclass(frozen=True)
+class RobustTerm:
+    """weight * E[dMSE] (units of D^2) under the parameters ``robust`` = (sigmas (4), weight) as stage blocks
+    on the chain's 9 extra stage variables S_j (module docstring). Needs Structure(extra=9)."""
+
+    def apply(self, c: Chain) -> None:
+        s, lay = c.s, c.lay
+        M, n = s.M, s.n
+        P = c.param("robust", (5, 1))
+        Wd = c.param("robust_W", (1, M))  # sum of weights after each segment, tip included
+        u, w = c.cells[:n, :], c.cells[4 * n :, :]
+        down, own, rec = robust_blocks(n)
+        sig = ca.repmat(P, 1, M)
+        idx = np.array([np.r_[segment_point_index(c, j), lay.X[j + 1, 0, 9:], lay.extra[j]] for j in range(M)]).T
+        c.add_block(down, idx, ca.vertcat(Wd, sig), term="robust")
+        c.add_block(own, np.vstack([lay.theta, lay.lam[:, 0], lay.dl]), ca.vertcat(u, w, sig), term="robust")
+        if M > 1:
+            idx = np.array([np.r_[lay.extra[j], lay.extra[j + 1], segment_point_index(c, j + 1)] for j in range(M - 1)]).T
+            c.add_block(rec, idx, ca.vertcat(u[:, 1:], w[:, 1:]))
+        tip = c.tip(0)
+        wtip = c.param("robust_wtip", (1, 1))
+        S_last = c.extra[:, M - 1]
+        c.add_rows("robust_tail", S_last - wtip * ca.vertcat(tip, _sym6(tip)), 0.0, 0.0)
+
+
+def robust_parameters(params: dict, sigmas: Sigmas, weight: float, D: float, n: int) -> dict:
+    """The robust term's data beside the plain NLP's ``params`` (scaled by D)."""
+    w = np.asarray(params["cells"])[4 * n :, :]
+    wtip = float(params["wtip"])
+    Wd = np.cumsum(w.sum(axis=0)[::-1])[::-1]
+    Wd = np.concatenate([Wd[1:], [0.0]]) + wtip
+    rel, ab = (sigmas.length, 0.0) if sigmas.relative_length else (0.0, sigmas.length / D)
+    return {"robust": [sigmas.theta, sigmas.lam, rel, ab, weight], "robust_W": Wd, "robust_wtip": wtip}
+
+
+def downstream_sums(solver, x, p) -> np.ndarray:
+    """S (9, M) where the recursion holds for x's chain: suffix sums of each stage's (sum w p, sum w p p^T)."""
+    c = solver.chain
+    M, n = c.s.M, c.s.n
+    key = ("sums", M, n)
+    if key not in _SUMS:
+        P = ca.vertcat(*[ca.vec(q) for _, q in c.params])
         F = robust_segment_function(n).map(M, "serial")
-        A, B, direct, _, P1, P2 = F(nlp.frames[:, :M], nlp.theta, nlp.lam, nlp.dl, u, w, sig)
-        L = ca.vertcat(P1, P2)  # (9, M): each segment's own sums
-        tip = nlp.frames[9:, M]
-        T = wtip * ca.vertcat(tip, _sym6(tip))
-        Wd = np.cumsum(w.sum(axis=0)[::-1])[::-1]  # constants: sum of weights from segment m on
-        Wd = np.concatenate([Wd[1:], [0.0]]) + wtip  # ... after segment m, plus the tip
-        G = _downstream_function().map(M, "serial")
-        o_end = nlp.frames[9:, 1:]
-        # dense: suffix sums as a product with a strictly triangular matrix
-        U = ca.DM(np.triu(np.ones((M, M)), 1).T)  # U[j, m] = 1 for j > m
-        S_dense = ca.mtimes(L, U) + ca.repmat(T, 1, M)
-        self.value = ca.sum2(G(A, B, o_end, ca.DM(Wd).T, S_dense[:3, :], S_dense[3:, :])) + ca.sum2(direct)
-        # banded: S_m = S_{m+1} + L_{m+1}, S_{M-1} = T
-        self.z = ca.MX.sym("S", 9 * M)
-        S = ca.reshape(self.z, 9, M)
-        nxt = ca.horzcat(S[:, 1:] + L[:, 1:], T) if M > 1 else T
-        self.g = ca.vec(S - nxt)
-        self.objective = ca.sum2(G(A, B, o_end, ca.DM(Wd).T, S[:3, :], S[3:, :])) + ca.sum2(direct)
-        self._S = ca.Function("S", [nlp.x], [ca.vec(S_dense)])
-        self._value = ca.Function("value", [nlp.x], [self.value])
-        self.D = D
-
-    def z_of_x(self, x) -> np.ndarray:
-        return np.array(self._S(x)).ravel()
-
-    def mse_increase(self, x) -> float:
-        """First-order expected MSE increase at x, problem units^2."""
-        return float(self._value(x)) * self.D**2
+        frames = c.frames(0)
+        cells = c.cells
+        _, _, _, _, P1, P2 = F(frames[:, :M], c.theta, c.lam_of(0), c.dl, cells[:n, :], cells[4 * n :, :], ca.DM.zeros(3, M))
+        tip = c.tip(0)
+        _SUMS[key] = ca.Function("sums", [c.x, P], [ca.vertcat(P1, P2), ca.vertcat(tip, _sym6(tip))])
+    Lv, T = (np.array(v) for v in _SUMS[key](x, p))
+    wtip = float(p[solver.param_slice("robust_wtip")][0])
+    S = np.zeros((9, M))
+    S[:, M - 1] = wtip * T.ravel()
+    for j in range(M - 2, -1, -1):
+        S[:, j] = S[:, j + 1] + Lv[:, j + 1]
+    return S
 
 
-def expected_increase(nlp: ExtendedNLP, sigmas: Sigmas):
-    """E[dMSE] as one MX expression of nlp.x (units of D^2): for evaluation and checks."""
-    return RobustTerm(nlp, sigmas).value
+_SUMS: dict = {}
+
+
+def robust_solver(problem: DesignProblem, pairing):
+    """The plain NLP plus the robust term, cached per structure."""
+    return extended_solver(problem, pairing, (RobustTerm(),), extra=9)
+
+
+def expected_increase(problem: DesignProblem, routing, sigmas: Sigmas) -> float:
+    """First-order expected MSE increase of ``routing`` under ``sigmas`` (problem units^2), evaluated
+    through the transcription's robust term (checks: analysis.tolerance)."""
+    pairing = pair_points(problem.target, problem.options.points_per_segment)
+    solver = robust_solver(problem, pairing)
+    x, p = _robust_start(problem, pairing, solver, routing, sigmas, 1.0)
+    return solver.terms(x, p)["robust"] * problem.diameter**2
+
+
+def _robust_start(problem, pairing, solver, routing, sigmas, weight):
+    D = problem.diameter
+    params = nlp_parameters(problem, pairing, routing.initial_pose[:3, :3].copy())
+    p = solver.pack_params(params | robust_parameters(params, sigmas, weight, D, pairing.n))
+    x = start_x(solver, chain_guess(problem, routing), D, "chain")
+    x[solver.layout.extra.T] = downstream_sums(solver, x, p)
+    return x, p
 
 
 def design_robust(problem: DesignProblem, sigmas: Sigmas, samples: int = 0, seed: int = 0, weight: float = 1.0,
-                  start: Result | None = None, expand: bool = False, **kw) -> Result:
+                  start: Result | None = None, **kw) -> Result:
     """Inverse design minimizing nominal error + ``weight`` * first-order expected increase under ``sigmas``.
 
-    ``start``: the design to start from (default design_nlp(problem, **kw)). ``expand``: SX
-    evaluation inside IPOPT (faster iterations but a much slower build: trefoil m = 4, 16 s vs 2 s). With ``samples`` > 0,
+    ``start``: the design to start from (default design_nlp(problem, **kw)). With ``samples`` > 0,
     the start and the robust design are both checked by Monte Carlo on the same seeded samples
     (analysis.tolerance.tolerance_report). stats: robust_* entries (lengths in problem units):
     expected_mse_increase / _start (first order), expected_rmse / _start (sqrt(MSE_0 + increase)),
@@ -177,13 +244,18 @@ def design_robust(problem: DesignProblem, sigmas: Sigmas, samples: int = 0, seed
     """
     t_all = time.perf_counter()
     start = start or design_nlp(problem, **kw)
-    nlp = ExtendedNLP(problem, start.routing)
-    term = RobustTerm(nlp, sigmas)
-    g = term.g
-    x, _, st = nlp.solve(weight * term.objective, g, np.zeros(g.numel()), np.zeros(g.numel()), x0=nlp.x0, z=term.z,
-                         z0=term.z_of_x(nlp.x0), expand=expand)
-    res = nlp.result(x, st, "nlp_robust")
-    i0, i1 = term.mse_increase(nlp.x0), term.mse_increase(x)
+    D = problem.diameter
+    pairing = pair_points(problem.target, problem.options.points_per_segment)
+    solver = robust_solver(problem, pairing)
+    x0, p = _robust_start(problem, pairing, solver, start.routing, sigmas, weight)
+    i0 = solver.terms(x0, p)["robust"] / weight * D**2 if weight else 0.0
+    lbx, ubx = solver.bounds(*design_bounds(problem, pairing))
+    x, status, st = solver.solve(x0, p, lbx, ubx)
+    res = result_of(problem, pairing, solver, x, status, st, start.routing.initial_pose[:3, :3].copy(), "nlp_robust")
+    # the increase of the design found, evaluated with weight 1 (the recursion holds at a converged x)
+    i1 = expected_increase(problem, res.routing, sigmas)
+    if not weight:
+        i0 = expected_increase(problem, start.routing, sigmas)
     m0, m1 = start.metrics["rmse"] ** 2, res.metrics["rmse"] ** 2
     res.stats.update({
         "robust_weight": float(weight),
@@ -193,8 +265,6 @@ def design_robust(problem: DesignProblem, sigmas: Sigmas, samples: int = 0, seed
         "robust_start_rmse": float(start.metrics["rmse"]),
     })
     if samples:
-        from vine_nlp.analysis.tolerance import tolerance_report
-
         a = tolerance_report(problem, start, sigmas, samples, seed)["monte_carlo"]
         b = tolerance_report(problem, res, sigmas, samples, seed)["monte_carlo"]
         res.stats.update({

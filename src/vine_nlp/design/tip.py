@@ -44,23 +44,27 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import casadi as ca
 import numpy as np
 
-from vine_nlp.design.common import (
-    frames12,
-    geometric_guess,
-    ipopt_options,
-    ipopt_status,
-    pair_points,
-    solver_stats,
-)
-from vine_nlp.design.nlp import segment_function
+from vine_nlp.design.common import geometric_guess, pair_points
 from vine_nlp.design.problem import DesignProblem, Routing, TipProblem
 from vine_nlp.design.result import Result, forward_shape, routing_metrics
+from vine_nlp.design.transcription import (
+    BlockType,
+    Chain,
+    Smoothness,
+    Spec,
+    Structure,
+    frames12,
+    ipopt_options,
+    options_key,
+    pick_best,
+)
+from vine_nlp.design.transcription import get_solver as _get
 from vine_nlp.model.chain import chain_frames
 
 RUN = "tip"
@@ -75,109 +79,67 @@ TIP_IPOPT = {"ipopt.bound_relax_factor": 0.0, "ipopt.acceptable_constr_viol_tol"
 GUESS_POINTS = 4  # points per segment of the guide curve of the geometric guess
 
 
-class TipSolver:
-    """The tip NLP of one structure (M segments, shared lambda, direction given, objective)."""
+@dataclass(frozen=True)
+class TipTerms:
+    """The tip formulation's terms and rows on the chain (module docstring): actuation objective with its
+    tie-break, total length row, tip position and direction rows (or, ``closest``, the tip miss as the
+    objective). Parameters: tip_position (3), tip_frame (3 x 3: direction, e1, e2), tube_length."""
 
-    def __init__(self, M: int, shared: bool, direction: bool, objective: str, max_iter: int = 3000, tol: float = 1e-8, closest: bool = False):
-        t0 = time.perf_counter()
-        self.M, self.shared, self.direction, self.objective, self.closest = M, shared, direction, objective, closest
-        self.per = 2 if shared else 3  # theta, (lam), dl per stage
-        self.width = self.per + 12
-        self.off = 1 if shared else 0
-        self.size = self.off + M * self.width
-        x = ca.MX.sym("x", self.size)
-        P_X0 = ca.MX.sym("X0", 12)
-        P_tip = ca.MX.sym("tip", 3)
-        P_dir = ca.MX.sym("dir", 3, 3)  # direction, e1, e2 (columns)
-        P_L = ca.MX.sym("L")
-        P_smooth = ca.MX.sym("smooth", 2)
-        params = [P_X0, P_tip, P_dir, P_L, P_smooth]
-        self._param_shapes = [(p.size1(), p.size2()) for p in params]
-        stages = ca.reshape(x[self.off :], self.width, M)
-        theta = stages[0, :]
-        if shared:
-            lam = ca.repmat(x[0], 1, M)
-            dl = stages[1, :]
-        else:
-            lam, dl = stages[1, :], stages[2, :]
-        Xnext = stages[self.per :, :]
-        Xstart = ca.horzcat(P_X0, Xnext[:, : M - 1])
-        F = segment_function(1).map(M, "serial")
-        Xn, _ = F(Xstart, theta, lam, dl, ca.DM.ones(1, M))
-        tip = Xnext[9:, M - 1]
-        tangent = Xnext[0:3, M - 1]  # first column of the tip rotation
-        g = [ca.vec(Xn - Xnext), ca.sum2(dl) - P_L]
-        lbg = [np.zeros(12 * M), [0.0]]
-        ubg = [np.zeros(12 * M), [0.0]]
-        if closest:
+    direction: bool
+    objective: str
+    closest: bool = False
+
+    def apply(self, c: Chain) -> None:
+        P_tip, P_dir, P_L = c.param("tip_position", (3, 1)), c.param("tip_frame", (3, 3)), c.param("tube_length", (1, 1))
+        dl = c.dl
+        tip, tangent = c.tip(0), c.frames(0)[0:3, -1]  # tangent: first column of the tip rotation
+        scale = CLOSEST_ACTUATION if self.closest else 1.0
+        M, lay = c.s.M, c.lay
+        idx = np.vstack([lay.theta, lay.lam[:, 0], lay.dl])
+        w = ca.repmat(scale / P_L, 1, M)
+        main, tie = actuation_blocks(self.objective)
+        c.add_block(main, idx, w, term="actuation")
+        c.add_block(tie, idx, TIE_BREAK * w, term="smooth")
+        c.add_rows("length", ca.sum2(dl) - P_L, 0.0, 0.0)
+        if self.closest:
             # the nearest the tube can get: tip distance (and direction) as the objective, actuation as a tie-break
-            miss = ca.sumsqr(tip - P_tip)  # in D^2: a squared distance is flat near 0, keep it large
-            if direction:
+            miss = ca.sumsqr(tip - P_tip)
+            if self.direction:
                 miss += ca.sumsqr(tangent - P_dir[:, 0])
-        else:
-            g.append(tip - P_tip)
-            lbg.append(np.zeros(3))
-            ubg.append(np.zeros(3))
-        if direction and not closest:
-            g += [ca.mtimes(P_dir[:, 1:].T, tangent), ca.dot(P_dir[:, 0], tangent)]
-            lbg += [np.zeros(2), [0.0]]
-            ubg += [np.zeros(2), [np.inf]]
-        if objective == "contraction":
-            J = ca.sum2((1 - lam) * dl) / P_L
-            tie = ca.sum2(ca.tan(theta) ** 2 * dl) / P_L  # least twist among least-contraction routings
-        else:
-            J = ca.sum2(ca.sqrt(ca.tan(theta) ** 2 + TURNS_EPS) * dl) / P_L
-            tie = ca.sum2((1 - lam) ** 2 * dl) / P_L  # least contraction among least-turning routings
-        smooth = TIE_BREAK * tie
-        if M > 1:
-            h = P_L / M
-            smooth += P_smooth[0] * ca.sumsqr(ca.diff(theta.T)) / h / P_L
-            if not shared:
-                smooth += P_smooth[1] * ca.sumsqr(ca.diff(lam.T)) / h / P_L
-        f = CLOSEST_ACTUATION * (J + smooth) + miss if closest else J + smooth
-        p = ca.vertcat(*[ca.vec(q) for q in params])
-        self.lbg, self.ubg = np.concatenate(lbg), np.concatenate(ubg)
-        opts = ipopt_options(max_iter, tol)
-        opts.update(TIP_IPOPT)
-        self.solver = ca.nlpsol("vine_nlp_tip", "ipopt", {"x": x, "p": p, "f": f, "g": ca.vertcat(*g)}, opts)
-        self._terms = ca.Function("terms", [x, p], [J, smooth, miss if closest else ca.MX(0)])
-        self.build_time_s = time.perf_counter() - t0
-
-    def pack_params(self, values) -> np.ndarray:
-        return np.concatenate([np.asarray(v, float).reshape(s, order="F").ravel(order="F") for v, s in zip(values, self._param_shapes)])
-
-    def pack_x(self, theta, lam, dl, fr12) -> np.ndarray:
-        x = np.zeros(self.size)
-        cols = [theta, dl] if self.shared else [theta, lam, dl]
-        if self.shared:
-            x[0] = float(np.mean(lam))
-        x[self.off :] = np.vstack([np.atleast_2d(c) for c in cols] + [fr12[:, 1:]]).ravel(order="F")
-        return x
-
-    def unpack_x(self, x):
-        stages = x[self.off :].reshape(self.width, self.M, order="F")
-        theta = stages[0].copy()
-        if self.shared:
-            return theta, np.full(self.M, x[0]), stages[1].copy()
-        return theta, stages[1].copy(), stages[2].copy()
-
-    def bounds(self, theta_max, lambda_min, dl_min, dl_max):
-        lbx, ubx = np.full(self.size, -np.inf), np.full(self.size, np.inf)
-        if self.shared:
-            lbx[0], ubx[0] = lambda_min, 1.0
-        W, o, M = self.width, self.off, self.M
-        lbx[o : o + W * M : W], ubx[o : o + W * M : W] = -theta_max, theta_max
-        if not self.shared:
-            lbx[o + 1 : o + W * M : W], ubx[o + 1 : o + W * M : W] = lambda_min, 1.0
-        k = o + self.per - 1
-        lbx[k : k + W * M : W], ubx[k : k + W * M : W] = dl_min, dl_max
-        return lbx, ubx
+            c.add_term("miss", miss)
+            return
+        c.add_rows("tip", tip - P_tip, 0.0, 0.0)
+        if self.direction:
+            c.add_rows("direction", ca.mtimes(P_dir[:, 1:].T, tangent), 0.0, 0.0)
+            c.add_rows("direction_sign", ca.dot(P_dir[:, 0], tangent), 0.0, np.inf)
 
 
-@lru_cache(maxsize=16)
-def get_solver(M: int, shared: bool, direction: bool, objective: str, max_iter: int = 3000, tol: float = 1e-8, closest: bool = False) -> TipSolver:
+@lru_cache(maxsize=None)
+def actuation_blocks(objective: str) -> tuple[BlockType, BlockType]:
+    """Per-segment actuation and its tie-break as blocks: v = (theta, lam, dl), d = weight (1/L, scaled).
+
+    "contraction": (1 - lam) dl, tie-break tan^2 theta dl (least twist among least-contraction routings);
+    "turns": sqrt(tan^2 theta + eps) dl, tie-break (1 - lam)^2 dl (least contraction among least-turning ones)."""
+    v, d = ca.SX.sym("v", 3), ca.SX.sym("d")
+    th, la, dl = v[0], v[1], v[2]
+    if objective == "contraction":
+        main, tie = (1 - la) * dl, ca.tan(th) ** 2 * dl
+    else:
+        main, tie = ca.sqrt(ca.tan(th) ** 2 + TURNS_EPS) * dl, (1 - la) ** 2 * dl
+    empty = ca.SX(0, 1)
+    return (BlockType(f"actuation_{objective}", ca.Function("actuation", [v, d], [d * main, empty])),
+            BlockType(f"actuation_tie_{objective}", ca.Function("actuation_tie", [v, d], [d * tie, empty])))
+
+
+def tip_spec(M: int, shared: bool, direction: bool, objective: str, max_iter: int = 3000, tol: float = 1e-8, closest: bool = False) -> Spec:
+    """A fixed base, no points to fit (one empty slot per segment), the tip terms and rows, the smoothness."""
+    return Spec(Structure(M, 1, 1, "shared" if shared else "segment", "fixed"), (Smoothness(), TipTerms(direction, objective, closest)),
+                "exact", options_key(ipopt_options(max_iter, tol) | TIP_IPOPT))
+
+
+def get_solver(M: int, shared: bool, direction: bool, objective: str, max_iter: int = 3000, tol: float = 1e-8, closest: bool = False):
     """Cached per structure (building costs more than one solve); ``closest`` is the variant without the tip constraints."""
-    return TipSolver(M, shared, direction, objective, max_iter, tol, closest)
+    return _get(tip_spec(M, shared, direction, objective, max_iter, tol, closest))
 
 
 def _unit(v):
@@ -261,23 +223,19 @@ def solve_from(problem: TipProblem, theta, lam, dl, frames, closest: bool = Fals
     X0[9:] /= D
     d = problem.direction if has_dir else np.array([1.0, 0.0, 0.0])
     e1, e2 = _perpendicular_pair(d)
-    p = solver.pack_params([X0, problem.position / D, np.column_stack([d, e1, e2]), L / D, [o.smooth_theta, o.smooth_lambda]])
+    scale = CLOSEST_ACTUATION if closest else 1.0
+    p = solver.pack_params({
+        "cells": np.zeros((5, M)), "smooth": [scale * o.smooth_theta, scale * o.smooth_lambda], "h": np.full(max(M - 1, 1), L / M / D),
+        "L": L / D, "tip_position": problem.position / D, "tip_frame": np.column_stack([d, e1, e2]), "tube_length": L / D,
+    })
     fr = frames.copy()
     fr[:, :3, 3] /= D
-    lbx, ubx = solver.bounds(a.theta_max, a.lambda_min, MIN_LENGTH_FACTOR * L / M / D, L / D)
-    x0 = np.clip(solver.pack_x(theta, lam, dl / D, frames12(fr)), lbx, ubx)
-    t0 = time.perf_counter()
-    sol = solver.solver(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=solver.lbg, ubg=solver.ubg)
-    solve_time = time.perf_counter() - t0
-    st = solver.solver.stats()
-    x = np.array(sol["x"]).ravel()
-    theta, lam, dl = solver.unpack_x(x)
-    J, smooth, miss = (float(v) for v in solver._terms(x, p))
-    status = ipopt_status(st, x)
-    stats = solver_stats(st, sol, solver.build_time_s) | {
-        "objective_actuation": J,
-        "objective_miss": miss,
-        "objective_smooth": smooth,
+    lbx, ubx = solver.bounds((-a.theta_max, a.theta_max), (a.lambda_min, 1.0), (MIN_LENGTH_FACTOR * L / M / D, L / D), X0=X0)
+    x, status, st = solver.solve(solver.pack_x(theta, lam, dl / D, frames12(fr)[None]), p, lbx, ubx)
+    v = solver.unpack(x)
+    stats = st | {
+        "objective_actuation": st["objective_actuation"] / scale,
+        "objective_miss": st.get("objective_miss", 0.0),
         "objective_kind": problem.objective,
         "closest_approach": closest,
         "segments": M,
@@ -286,14 +244,10 @@ def solve_from(problem: TipProblem, theta, lam, dl, frames, closest: bool = Fals
         "smooth_lambda": o.smooth_lambda,
         "tol": o.tol,
         "max_iter": o.max_iter,
-        "max_constraint_violation": _violation(np.array(sol["g"]).ravel(), solver.lbg, solver.ubg),
     }
-    return evaluate_tip(problem, Routing(theta, lam, dl * D, T0), status=status, solve_time_s=solve_time,
-                        iterations=int(st.get("iter_count", 0)), stats=stats)
-
-
-def _violation(g, lb, ub) -> float:
-    return float(np.max(np.maximum(lb - g, 0) + np.maximum(g - ub, 0))) if g.size else 0.0
+    stats.pop("objective_fit", None)
+    return evaluate_tip(problem, Routing(v["theta"], v["lam"][:, 0], v["dl"] * D, T0), status=status,
+                        solve_time_s=stats.pop("solve_time_s"), iterations=stats.pop("iterations"), stats=stats)
 
 
 def actuation(routing: Routing, diameter: float) -> dict:
@@ -375,43 +329,5 @@ def design_tip(problem: TipProblem, starts: int | None = None, progress=None) ->
 
 
 def _best(results):
-    def rank(r):
-        return (0 if r.converged else 1, r.stats["objective"] if r.converged else r.metrics["tip_error"])
-
-    best_rank = min(rank(r) for r in results)
-    return next(r for r in results if rank(r)[0] == best_rank[0] and rank(r)[1] <= best_rank[1] * (1 + 1e-9) + 1e-15)
-
-
-def write_tip_archive(path, problem_file, result: Result) -> None:
-    """The standard archive with run ``/runs/tip`` plus /tip/position (and /tip/direction when given)."""
-    from vine_nlp.io.archive import Archive, write_archive
-
-    problem = problem_file.problem
-    extra = {"tip/position": problem.position}
-    if problem.direction is not None:
-        extra["tip/direction"] = problem.direction
-    archive = Archive(
-        name=problem_file.name, kind="tip", source=problem_file.source, diameter=problem.diameter,
-        units=problem_file.units, runs={RUN: result}, extra=extra,
-    )
-    write_archive(path, archive)
-
-
-def report_lines(result: Result, problem: TipProblem, units: str) -> list[str]:
-    """The CLI's lines: status and tip error, direction error, actuation."""
-    m = result.metrics
-    reach = "reachable" if result.converged else ("NOT reachable" if result.status == "infeasible" else "not solved")
-    lines = [
-        f"{RUN}: {result.status}, tip {reach}, tip error {m['tip_error']:.4g} {units}, "
-        f"solve time {result.solve_time_s:.3f} s, {result.iterations} iterations"
-    ]
-    if result.stats.get("closest_approach"):
-        lines[0] += " (nearest approach: " + result.stats.get("infeasible_reason", "") + ")"
-    if "direction_error" in m:
-        lines.append(f"  direction error {math.degrees(m['direction_error']):.4g} deg")
-    lines.append(
-        f"  objective ({problem.objective}) {result.stats['objective_actuation']:.6g}; "
-        f"contraction sum (1-lambda) dl = {m['actuation_contraction']:.4g} {units}, "
-        f"actuator turning = {m['actuation_turning']:.4g} rad, tube length {m['tube_length']:.4g} {units}"
-    )
-    return lines
+    """Converged before not converged; then the lowest objective (converged) or tip error (not converged)."""
+    return results[pick_best(results, objective=lambda r: r.stats["objective"] if r.converged else r.metrics["tip_error"])]

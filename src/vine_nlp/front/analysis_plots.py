@@ -17,13 +17,11 @@ from __future__ import annotations
 import math
 
 import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-
-from vine_nlp.front.plot import COLUMN_IN, STYLE, save_figure  # noqa: E402
+from vine_nlp.analysis.collision import growth_contacts, routing_clearance
+from vine_nlp.front.plot import COLUMN_IN, STYLE, save_figure
 
 PARAM_COLORS = ("tab:blue", "tab:orange", "tab:green")
 PARAM_LABELS = (r"$\theta$", r"$\lambda$", r"length")
@@ -38,8 +36,9 @@ def tolerance_figure(report: dict, path=None, title: str | None = None) -> Figur
     """Per-segment tip-variance contribution vs length along the tube, and the MC RMSE histogram."""
     u = report.get("units", "")
     ps, fo, mc = report["per_segment"], report["first_order"], report["monte_carlo"]
-    with plt.rc_context(STYLE):
-        fig, (a, b) = plt.subplots(2, 1, figsize=(COLUMN_IN, 4.2), constrained_layout=True)
+    with matplotlib.rc_context(STYLE):
+        fig = Figure(figsize=(COLUMN_IN, 4.2), layout="constrained")
+        a, b = fig.subplots(2, 1)
         left, width = ps["l_start"], ps["l_end"] - ps["l_start"]
         total = max(float(ps["tip_var"].sum()), 1e-300)
         bottom = np.zeros_like(left)
@@ -95,14 +94,13 @@ def clearance_figure(routing, D: float, path=None, units: str = "", growth=None,
 
     ``growth``: the list from analysis.collision.growth_contacts (computed if None).
     """
-    from vine_nlp.analysis.collision import growth_contacts, routing_clearance
-
     res = routing_clearance(routing, D)
     line = res["line"]
     prof = nearest_distance_profile(line["points"], line["s"], res["exclude_arc"])
     growth = growth_contacts(routing, D) if growth is None else growth
-    with plt.rc_context(STYLE):
-        fig, ax = plt.subplots(figsize=(COLUMN_IN, 2.2), constrained_layout=True)
+    with matplotlib.rc_context(STYLE):
+        fig = Figure(figsize=(COLUMN_IN, 2.2), layout="constrained")
+        ax = fig.subplots()
         ax.plot(line["l"], prof, color="k", lw=1.0, label="nearest non-neighbour")
         ax.axhline(D, color="tab:red", ls="--", lw=0.8, label=f"D = {D:.3g} {units}")
         for c in growth:

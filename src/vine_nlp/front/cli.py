@@ -7,6 +7,7 @@ written); 2 bad input, reported as one line ``error: <file>: <key>: <reason>``.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -61,21 +62,21 @@ def _check_figure(path, force, key="--plot"):
 
 
 def _read_archive(path, key="ARCHIVE"):
+    """The archive at ``path``, validated; any problem is one InputError ``(path, dataset, reason)``
+    (``key``: the command-line argument that named it, for a path that is no file at all)."""
     from vine_nlp.io.archive import load_archive
 
-    try:
-        return load_archive(path)
-    except FileNotFoundError:
-        raise InputError(path, key, "no such file") from None
-    except (OSError, ValueError, KeyError) as e:
-        raise InputError(path, key, f"cannot read the archive ({e})") from None
+    if not Path(path).exists():
+        raise InputError(path, key, "no such file")
+    return load_archive(path)  # raises only ArchiveError, an InputError naming the dataset
 
 
 def _archive_from(pf, runs, target=None):
     from vine_nlp.io.archive import Archive
 
     return Archive(
-        name=pf.name, kind=pf.kind, source=pf.source, diameter=pf.problem.diameter, units=pf.units, target=target, runs=runs
+        name=pf.name, kind=pf.kind, source=pf.source, diameter=pf.problem.diameter, units=pf.units, target=target, runs=runs,
+        obstacles=list(getattr(pf.problem, "obstacles", ())),
     )
 
 
@@ -181,16 +182,24 @@ def cmd_design(args) -> int:
 
     pf = load_problem(args.problem)
     if pf.kind == "multishape":
-        return _design_multishape(pf, args)
+        return _design_other(pf, args)
     if pf.kind == "tip":
-        return _design_tip(pf, args)
+        return _design_other(pf, args)
     if pf.kind != "design":
         raise InputError(args.problem, "target", f"a design problem needs [target] (this is a {pf.kind} problem)")
     out = _check_output(args.output, args.force)
     fig = _check_figure(args.plot, args.force)
     method = args.method or pf.problem.options.method
+    if pf.problem.obstacles and method != "nlp":
+        raise InputError(args.problem, "--method", "obstacles are designed by the nlp formulation only")
     result = _run_method(pf, method, args)
     runs = {method: result}
+    if pf.problem.obstacles:
+        from vine_nlp.design.obstacles import FREE_RUN, design_with_obstacles
+
+        # run "nlp" is the design among the obstacles; the obstacle-free design it started from is kept beside it
+        runs = {method: design_with_obstacles(pf.problem, start=result), FREE_RUN: result}
+        result = runs[method]
     if args.robust:
         from vine_nlp.design.robust import design_robust
 
@@ -199,9 +208,14 @@ def cmd_design(args) -> int:
         from vine_nlp.design.clearance import design_with_clearance
 
         runs["nlp_clearance"] = design_with_clearance(pf.problem, min_gap=args.min_gap, start=result)
+    _obstacle_metrics(pf.problem, runs)
     write_archive(out, _archive_from(pf, runs, target=pf.problem.target))
     for name, r in runs.items():
         print(_report(name, r, pf.units))
+        if "min_obstacle_gap" in r.metrics:
+            print(f"  min obstacle gap {_fmt_len(r.metrics['min_obstacle_gap'], pf.units)} (margin {pf.problem.obstacle_margin:g})"
+                  + (f", {_fmt_len(r.metrics['min_obstacle_gap_after'], pf.units)} actuated after growth"
+                     if "min_obstacle_gap_after" in r.metrics else ""))
     result = runs[list(runs)[-1]]
     print(f"archive -> {out}")
     if fig:
@@ -210,6 +224,15 @@ def cmd_design(args) -> int:
         plot_archive_file(out, fig)
         print(f"figure -> {fig}")
     return EXIT_OK if result.converged else EXIT_NOT_CONVERGED
+
+
+def _obstacle_metrics(problem, runs):
+    """min_obstacle_gap (and min_obstacle_gap_after) on every run of a problem with obstacles."""
+    if getattr(problem, "obstacles", ()):
+        from vine_nlp.analysis.obstacles import obstacle_metrics
+
+        for r in runs.values():
+            r.metrics.update(obstacle_metrics(r.routing, problem.diameter, problem.obstacles, problem.growth, problem.obstacle_margin))
 
 
 def _only_nlp(pf, args):
@@ -221,40 +244,27 @@ def _only_nlp(pf, args):
         raise InputError(args.problem, "--hops", f"not available for {pf.kind} problems")
 
 
-def _design_multishape(pf, args) -> int:
-    from vine_nlp.design import multishape
+def _design_other(pf, args) -> int:
+    """Problems beyond the paper's (multi-shape, tip): their formulation's solve, archive writer, report and
+    figure, from the registry (front.registry)."""
+    from vine_nlp.front.plot import save_figure
+    from vine_nlp.front.registry import for_problem
 
-    return _design_other(
-        pf, args, multishape.design_multishape, multishape.write_multishape_archive,
-        lambda r: multishape.report_lines(r, pf.units), multishape.plot_multishape,
-    )
-
-
-def _design_tip(pf, args) -> int:
-    from vine_nlp.design import tip
-    from vine_nlp.front.plot import plot_archive_file
-
-    return _design_other(
-        pf, args, tip.design_tip, tip.write_tip_archive, lambda r: tip.report_lines(r, pf.problem, pf.units), plot_archive_file
-    )
-
-
-def _design_other(pf, args, design, write, report, plot) -> int:
-    """Problems beyond the paper's (multi-shape, tip): their own NLP, archive writer, report and figure."""
+    f = for_problem(pf.problem)
     _only_nlp(pf, args)
     out = _check_output(args.output, args.force)
     fig = _check_figure(args.plot, args.force)
     update, close = _progress_bar(f"{pf.name} {pf.kind}", "starts")
     try:
-        result = design(pf.problem, starts=args.starts, progress=update)
+        result, _ = f.solve(pf.problem, starts=args.starts, progress=update)
     finally:
         close()
-    write(out, pf, result)
-    for line in report(result):
+    f.write_archive(out, pf, {f.run: result})
+    for line in f.report(f.run, result, pf.problem, pf.units):
         print(line)
     print(f"archive -> {out}")
     if fig:
-        plot(out, fig)
+        save_figure(f.figure(out), fig)
         print(f"figure -> {fig}")
     return EXIT_OK if result.converged else EXIT_NOT_CONVERGED
 
@@ -337,6 +347,8 @@ def cmd_analyze(args) -> int:
           + ("" if not growth else f" (from t = {min(g['actuation_fraction'] for g in growth):.2f})"))
     print(f"helices     uniform sections of >= 1 turn self-colliding (paper condition): {len(helix_collisions(r.routing, D))}")
     metrics = collision_metrics(r, D, margin=args.margin)
+    if archive.obstacles:
+        metrics |= _analyze_obstacles(archive, r, u)
     figures = []
     if archive.kind == "design" and archive.target is not None:
         problem = _design_problem_of(archive, args.archive)
@@ -367,10 +379,44 @@ def cmd_analyze(args) -> int:
     if args.write_metrics:
         from vine_nlp.io.archive import write_archive
 
-        r.metrics.update({k: float(v) for k, v in metrics.items()})
+        # archived metrics are finite (archives are validated on read): one that does not apply is left
+        # out (first_contact_growth_length of a tube that never touches itself)
+        r.metrics.update({k: float(v) for k, v in metrics.items() if math.isfinite(float(v))})
         write_archive(args.archive, archive)
         print(f"metrics -> {args.archive} (/runs/{run}/metrics)")
     return EXIT_OK
+
+
+def _analyze_obstacles(archive, r, u) -> dict:
+    """Print the distance to every obstacle along the tube and the contacts, final and intermediate shapes
+    (margin and growth from the archived problem's [design]); the run metrics."""
+    import tomllib
+
+    from vine_nlp.analysis.obstacles import obstacle_report, report_rows
+    from vine_nlp.io.obstacles import DEFAULT_GROWTH, parse_obstacle_design
+
+    try:
+        design = tomllib.loads(archive.source).get("design", {})
+        margin, growth = parse_obstacle_design(design if isinstance(design, dict) else {}, "archive")
+    except (InputError, tomllib.TOMLDecodeError):
+        margin, growth = 0.0, DEFAULT_GROWTH
+    rep = obstacle_report(r.routing, archive.diameter, archive.obstacles, growth, margin)
+    print(f"obstacles   {len(archive.obstacles)}; margin {margin:.4g} {u}; growth {growth}; "
+          f"min gap {rep['min_gap']:.4g} {u} (final), {rep['min_gap_intermediate']:.4g} {u} (intermediate shapes); "
+          + ("clear" if rep["clear"] else "NOT clear"))
+    for row in report_rows(rep):
+        name = f" '{row['name']}'" if row["name"] else ""
+        line = (f"  obstacle {row['index']} {row['kind']}{name}: min gap {row['min_gap']:.4g} {u} at s = {row['s']:.4g} {u}; "
+                f"{row['contacts']} contact(s)")
+        if growth == "after":
+            line += f"; actuated after growth: min gap {row['min_gap_after']:.4g} {u} at t = {row['t_worst']:.2f}"
+        elif row["first_contact_length"] is not None:
+            line += f"; first contact at {row['first_contact_length']:.4g} {u} grown"
+        print(line)
+    out = {"min_obstacle_gap": float(rep["min_gap"])}
+    if growth == "after":
+        out["min_obstacle_gap_after"] = float(rep["min_gap_intermediate"])
+    return out
 
 
 def _add_sigma_args(p):
@@ -399,7 +445,7 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_fit(args) -> int:
-    from vine_nlp.fit import describe_fit, fit_problem
+    from vine_nlp.design.fit import describe_fit, fit_problem
     from vine_nlp.io.archive import write_archive
 
     pf = _load(args.problem, "fit")
@@ -441,7 +487,7 @@ def _fit_frames(pf, args, measured) -> dict:
     """Batch of frames of one actuator (paper Fig. 9(d)): lambda and RMSE per frame."""
     import numpy as np
 
-    from vine_nlp.fit import fit_frames
+    from vine_nlp.design.fit import fit_frames
 
     update, close = _progress_bar(f"{pf.name} frames", "frames")
     try:
@@ -465,13 +511,13 @@ def cmd_plot(args) -> int:
 
         plot_fit(archive, out)
     elif archive.kind == "multishape":
-        from vine_nlp.design.multishape import plot_multishape
+        from vine_nlp.front.multishape_plot import plot_multishape_file
 
-        plot_multishape(args.archive, out)  # reads the per-level groups itself
+        plot_multishape_file(args.archive, out)  # reads the per-level groups itself
     else:
         from vine_nlp.front.plot import plot_archive, save_figure
 
-        save_figure(plot_archive(archive), out)
+        save_figure(plot_archive(archive, obstacles=archive.obstacles), out)
     print(f"figure -> {out}")
     return EXIT_OK
 
@@ -479,20 +525,144 @@ def cmd_plot(args) -> int:
 def cmd_template(args) -> int:
     from vine_nlp.front.template import write_template
 
-    archive = _read_archive(args.archive)
     out = _check_output(args.output, args.force)
+    fmt = _output_format(out, "template", "template_format")
+    if fmt == ".dxf":
+        _need_extra("template", "ezdxf")
+    archive = _read_archive(args.archive)
     csv = _check_output(args.csv, args.force, "--csv") if args.csv else None
+    if getattr(args, "changes", False):
+        from vine_nlp.front.changes import change_rows, changes_text
+
+        try:
+            rows = change_rows(archive, args.run or "corrected")
+        except (ValueError, KeyError) as e:
+            raise InputError(args.archive, "--changes", str(e).strip("'")) from None
+        print(changes_text(rows, archive.units))
     try:
         info = write_template(archive, out, csv_path=csv, paper=args.paper, run=args.run)
     except ValueError as e:
         raise InputError(args.archive, "--run" if args.run and args.run in str(e) else "template", str(e)) from None
-    print(
-        f"{info['pages']} page(s), {info['strips']} strip(s), {info['paper']} {info['orientation']}, run {info['run']}, "
-        f"{info['segments']} segments, tube {info['tube_length']:.4g} {archive.units} -> {out}"
-    )
+    if fmt == ".pdf":
+        print(
+            f"{info['pages']} page(s), {info['strips']} strip(s), {info['paper']} {info['orientation']}, run {info['run']}, "
+            f"{info['segments']} segments, tube {info['tube_length']:.4g} {archive.units} -> {out}"
+        )
+    else:  # SVG, DXF: one sheet, strips cut as for the paper
+        w, h = info["paper_mm"]
+        print(
+            f"one {w:.0f} x {h:.0f} mm sheet ({fmt[1:].upper()}, millimetres), {info['strips']} strip(s) cut for {info['paper']}, "
+            f"run {info['run']}, {info['segments']} segments, tube {info['tube_length']:.4g} {archive.units} -> {out}"
+        )
     if csv:
         print(f"cuts -> {csv}")
-    print("print at 100 % (no 'fit to page') and check the 10 cm scale bar")
+    print("print at 100 % (no 'fit to page') and check the 10 cm scale bar" if fmt == ".pdf"
+          else "the 10 cm scale bar is 100 mm in the file: check it after import")
+    return EXIT_OK
+
+
+def _front(name):
+    """The module vine_nlp.front.<name> by dotted name, imported when a command first needs it
+    (as the registry does: the command line starts fast)."""
+    import importlib
+
+    return importlib.import_module(f"vine_nlp.front.{name}")
+
+
+def _output_format(out, module, function):
+    """The format of an output file by its extension (``vine_nlp.front.<module>.<function>(path)``);
+    a bad one is bad input."""
+    try:
+        return getattr(_front(module), function)(out)
+    except ValueError as e:
+        raise InputError(out, "-o", str(e)) from None
+
+
+def _need_extra(command, *modules):
+    """The optional packages a command needs (the ``view`` extra): a one-line error when one is missing."""
+    import importlib.util
+
+    missing = [m for m in modules if importlib.util.find_spec(m) is None]
+    if missing:
+        raise InputError("command line", command, f"needs {', '.join(missing)}: python3 -m pip install 'vine_nlp[view]'")
+
+
+def _archive_run(archive, path, run):
+    """``run`` (default: the archive's default run), which must be in the archive."""
+    if run is None:
+        run = archive.default_run()
+        if run is None:
+            raise InputError(path, "runs", "the archive has no runs")
+    if run not in archive.runs:
+        raise InputError(path, "--run", f"no run {run!r} (runs: {', '.join(archive.runs) or 'none'})")
+    return run
+
+
+def cmd_view(args) -> int:
+    """One self-contained HTML view of an archive or of a sweep directory."""
+    view = _front("view")
+    _need_extra("view", "plotly")
+    out = _check_output(args.output, args.force)
+    if out.suffix.lower() not in (".html", ".htm"):
+        raise InputError(out, "-o", f"unknown view format {out.suffix or '(none)'!r}: use .html")
+    src = Path(args.source)
+    if src.is_dir():
+        if args.run:
+            raise InputError(src, "--run", "a sweep view shows every run")
+        if not view.is_sweep_dir(src):
+            raise InputError(src, "SWEEPDIR", "no summary.csv: not a sweep directory")
+        try:
+            html = view.sweep_html(src)
+        except (ValueError, OSError, KeyError) as e:
+            raise InputError(src, "SWEEPDIR", str(e)) from None
+        what = "sweep"
+    else:
+        archive = _read_archive(src)
+        if args.run is not None:
+            _archive_run(archive, src, args.run)
+        elif not archive.runs:
+            raise InputError(src, "runs", "the archive has no runs")
+        html = view.view_html(archive, run=args.run)
+        what = ", ".join([args.run] if args.run else archive.runs)
+    view.write_html(out, html)
+    print(f"view of {what} ({len(html) / 1e6:.2f} MB, opens offline) -> {out}")
+    return EXIT_OK
+
+
+def cmd_animate(args) -> int:
+    """The knot figure as a movie: growth while actuated beside actuation after growth."""
+    animate = _front("animate")
+    out = _check_output(args.output, args.force)
+    fmt = _output_format(out, "animate", "movie_format")
+    if fmt == ".gif":
+        _need_extra("animate", "PIL")
+    if fmt == ".mp4" and not animate.ffmpeg_available():
+        raise InputError(out, "-o", "MP4 needs ffmpeg, which is not installed (apt-get install ffmpeg); write a .gif instead")
+    archive = _read_archive(args.archive)
+    run = _archive_run(archive, args.archive, args.run)
+    info = animate.write_movie(archive, out, mode=args.mode, run=run, frames=args.frames, fps=args.fps)
+    print(f"{info['frames']} frames ({info['mode']}), run {run}, self-contacts: {info['contacts_grow']} of the final shape, "
+          f"up to {info['contacts_after']} at once when actuated after growth -> {out}")
+    return EXIT_OK
+
+
+def cmd_export(args) -> int:
+    """The tube as a closed triangle mesh (STL, OBJ, PLY, glTF binary)."""
+    export = _front("export")
+    out = _check_output(args.output, args.force)
+    _need_extra("export", "trimesh")
+    fmt = _output_format(out, "export", "mesh_format")
+    if fmt in (".stl", ".ply"):
+        _check_output(out.with_name(f"{out.stem}.actuator{out.suffix}"), args.force)
+    archive = _read_archive(args.archive)
+    run = _archive_run(archive, args.archive, args.run)
+    try:
+        info = export.write_mesh(archive, out, run=run)
+    except ValueError as e:
+        raise InputError(args.archive, "units" if "units" in str(e) else "--run", str(e)) from None
+    closed = "closed" if info["watertight"] else "NOT closed"
+    print(f"run {run}: {info['faces']} faces, {closed}, volume {info['volume']:.4g} {archive.units}^3, "
+          f"coordinates in {info['units']} -> {', '.join(str(f) for f in info['files'])}")
     return EXIT_OK
 
 
@@ -593,14 +763,48 @@ def build_parser() -> argparse.ArgumentParser:
     pl.add_argument("--force", action="store_true", help="overwrite an existing figure")
     pl.set_defaults(func=cmd_plot)
 
-    t = sub.add_parser("template", help="1:1 fabrication template (PDF) and cut list (CSV) of a design")
+    t = sub.add_parser("template", help="1:1 fabrication template (PDF, or SVG/DXF in mm) and cut list (CSV) of a design")
     t.add_argument("archive", metavar="OUT.h5")
-    t.add_argument("-o", "--output", required=True, metavar="TEMPLATE.pdf")
+    t.add_argument("-o", "--output", required=True, metavar="TEMPLATE.pdf|.svg|.dxf")
     t.add_argument("--csv", metavar="CUTS.csv", help="also write one row per segment")
     t.add_argument("--paper", choices=("A4", "Letter"), default="A4")
     t.add_argument("--run", help="which run of the archive (default: nlp, greedy or forward)")
+    t.add_argument("--changes", action="store_true", help="correction archives: also list the segments whose stoppers change against the robot built last")
     t.add_argument("--force", action="store_true", help="overwrite existing output files")
     t.set_defaults(func=cmd_template)
+
+    vw = sub.add_parser("view", help="interactive 3-D view (one HTML file, offline) of an archive or a sweep directory")
+    vw.add_argument("source", metavar="ARCHIVE.h5|SWEEPDIR")
+    vw.add_argument("-o", "--output", required=True, metavar="VIEW.html")
+    vw.add_argument("--run", help="show only this run (default: every run, toggled in the legend)")
+    vw.add_argument("--force", action="store_true", help="overwrite an existing file")
+    vw.set_defaults(func=cmd_view)
+
+    am = sub.add_parser("animate", help="movie: growth while actuated beside actuation after growth (GIF or MP4)")
+    am.add_argument("archive", metavar="ARCHIVE.h5")
+    am.add_argument("-o", "--output", required=True, metavar="MOVIE.gif|MOVIE.mp4")
+    am.add_argument("--mode", choices=("grow", "after", "both"), default="both")
+    am.add_argument("--run", help="which run (default: nlp, greedy, forward, ...)")
+    am.add_argument("--frames", type=_at_least(2), default=40, metavar="N", help="frames (default 40)")
+    am.add_argument("--fps", type=_at_least(1), default=10, metavar="N", help="frames per second (default 10)")
+    am.add_argument("--force", action="store_true", help="overwrite an existing file")
+    am.set_defaults(func=cmd_animate)
+
+    ex = sub.add_parser("export", help="the tube as a closed triangle mesh (STL, OBJ, PLY, glTF .glb)")
+    ex.add_argument("archive", metavar="ARCHIVE.h5")
+    ex.add_argument("-o", "--output", required=True, metavar="TUBE.stl|.obj|.ply|.glb")
+    ex.add_argument("--run", help="which run (default: nlp, greedy, forward, ...)")
+    ex.add_argument("--force", action="store_true", help="overwrite existing files")
+    ex.set_defaults(func=cmd_export)
+
+    co = sub.add_parser("correct", help="estimate a built robot from measured points and correct it -> correction archive")
+    from vine_nlp.front import correct as correct_cmd  # argument tables and commands; the solvers load when run
+
+    correct_cmd.add_correct_arguments(co, _add_sigma_args)
+    co.set_defaults(func=lambda a: correct_cmd.cmd_correct(a, _check_output, _check_figure))
+    cb = sub.add_parser("calibrate", help="systematic construction errors over several correction archives -> CAL.toml")
+    correct_cmd.add_calibrate_arguments(cb)
+    cb.set_defaults(func=lambda a: correct_cmd.cmd_calibrate(a, _check_output))
 
     sh = sub.add_parser("show", help="readable summary of an archive")
     sh.add_argument("archive", metavar="OUT.h5")
@@ -626,6 +830,10 @@ def main(argv=None) -> int:
     except BrokenPipeError:  # output piped into head & co.
         sys.stderr.close()
         return EXIT_OK
+    except OSError as e:
+        # a file error no reader or atomic writer turned into an InputError: still one line, exit 2
+        print(f"error: {e.filename or '-'}: file: {e.strerror or e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     finally:
         restore()
 

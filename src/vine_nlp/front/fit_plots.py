@@ -11,15 +11,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from vine_nlp.design.problem import MEASURED_LINES  # noqa: E402
-from vine_nlp.front.plot import save_figure, set_equal_3d  # noqa: E402
-from vine_nlp.io.archive import Archive, load_archive  # noqa: E402
+from vine_nlp.front.plot import save_figure, set_equal_3d
+from vine_nlp.io.archive import Archive, load_archive
+from vine_nlp.model.routing import MEASURED_LINES
 
 LINE_COLORS = {"center": "tab:gray", "inner": "tab:blue", "outer": "tab:red"}
 
@@ -50,7 +47,7 @@ def plot_fit(source, path, extras=None, title=None):
     """Measured points against the fitted model, and the error against length.
 
     ``source``: an archive written by ``vine-nlp fit`` (an :class:`Archive` or its
-    path), a ``(Result, extras)`` pair from :func:`vine_nlp.fit.fit_problem`, or a
+    path), a ``(Result, extras)`` pair from :func:`vine_nlp.design.fit.fit_problem`, or a
     Result with ``extras`` given separately. Writes ``path`` (png or pdf).
     """
     result, ex, units, name = _fit_inputs(source, extras)
@@ -61,7 +58,7 @@ def plot_fit(source, path, extras=None, title=None):
     code = ex.get("measured/line", np.full(pts.shape[0], -1)).astype(int)
     measured_lines = sorted(set(code.tolist()))
 
-    fig = plt.figure(figsize=(11, 5))
+    fig = Figure(figsize=(11, 5))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     for k, line in enumerate(MEASURED_LINES):
         xyz = getattr(result.shape, line)
@@ -110,7 +107,7 @@ def plot_fit(source, path, extras=None, title=None):
 def plot_frames(results, path, units: str = "cm", show: int = 5, title=None, frame_times=None):
     """Lambda over the frames of a sequence and the error against length of a few frames.
 
-    ``results``: the list from :func:`vine_nlp.fit.fit_frames` (frames that could
+    ``results``: the list from :func:`vine_nlp.design.fit.fit_frames` (frames that could
     not be fitted are gaps); ``show``: how many frames (evenly spread, labelled with
     their lambda) get an error-against-length curve; ``frame_times``: optional x
     values instead of the frame index.
@@ -118,7 +115,8 @@ def plot_frames(results, path, units: str = "cm", show: int = 5, title=None, fra
     lam = np.array([r[0] for r in results], float)
     rmse = np.array([r[1] for r in results], float)
     x = np.arange(lam.size) if frame_times is None else np.asarray(frame_times, float)
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig = Figure(figsize=(11, 4.2))
+    a1, a2 = fig.subplots(1, 2)
     a1.plot(x, lam, "o-", ms=3, lw=1.0, color="tab:blue")
     a1.set_xlabel("frame" if frame_times is None else "time")
     a1.set_ylabel(r"fitted $\lambda$", color="tab:blue")

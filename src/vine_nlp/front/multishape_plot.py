@@ -14,13 +14,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-
-from vine_nlp.front.plot import (  # noqa: E402
+from vine_nlp.front.plot import (
     PAGE_IN,
     STYLE,
     figure_format,
@@ -28,12 +25,12 @@ from vine_nlp.front.plot import (  # noqa: E402
     save_figure,
     set_equal_3d,
 )
+from vine_nlp.io.formulations import read_multishape_archive
+from vine_nlp.model.pairing import pair_points
 
 
 def _level_s(result, k, target):
-    """Length along the unactuated tube of each paired point of level k (the pairing of design.common)."""
-    from vine_nlp.design.common import pair_points
-
+    """Length along the unactuated tube of each paired point of level k (model.pairing)."""
     n = result.stats.get("points_per_segment")
     r = result.routing
     edges = np.concatenate([[0.0], np.cumsum(r.length)])
@@ -48,14 +45,22 @@ def _level_s(result, k, target):
     return chord / max(chord[-1], 1e-300) * edges[-1]
 
 
-def plot_multishape_figure(archive_path) -> Figure:
-    from vine_nlp.design.multishape import read_multishape_archive
+def plot_multishape_figure(source) -> Figure:
+    """The figure of a multi-shape archive: ``source`` is its path, or the
+    ``(archive, result, targets)`` that ``io.formulations.read_multishape_archive`` returns."""
+    if isinstance(source, (str, Path)):
+        source = read_multishape_archive(source)
+    return multishape_figure(*source)
 
-    a, r, targets = read_multishape_archive(archive_path)
+
+def multishape_figure(a, r, targets) -> Figure:
+    """Draw a multi-shape result: ``a`` the archive (name, units, diameter), ``r`` the
+    MultiShapeResult (shared routing, K levels, shapes and per-level metrics), ``targets``
+    the K target point arrays (N, 3). Reads nothing."""
     u = a.units
     K = r.count
-    colors = plt.get_cmap("viridis")(np.linspace(0.0, 0.85, max(K, 2)))[:K]
-    with plt.rc_context(STYLE):
+    colors = matplotlib.colormaps["viridis"](np.linspace(0.0, 0.85, max(K, 2)))[:K]
+    with matplotlib.rc_context(STYLE):
         fig = Figure(figsize=(PAGE_IN, 3.6), layout="constrained")
         gs = fig.add_gridspec(2, 2, width_ratios=[1.25, 1.0])
         ax = fig.add_subplot(gs[:, 0], projection="3d")

@@ -22,19 +22,18 @@ import math
 from pathlib import Path
 
 import matplotlib
+import numpy as np
+from matplotlib.cm import ScalarMappable
+from matplotlib.colors import Normalize
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.cm import ScalarMappable  # noqa: E402
-from matplotlib.colors import Normalize  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-from matplotlib.ticker import MaxNLocator  # noqa: E402
-from mpl_toolkits.mplot3d.art3d import Line3DCollection  # noqa: E402
-
-from vine_nlp.front.show import ordered_runs, source_table  # noqa: E402
-from vine_nlp.io.archive import Archive, load_archive, write_atomic  # noqa: E402
-from vine_nlp.model import chain_frames, chain_points  # noqa: E402
+from vine_nlp.analysis.obstacles import Box, Capsule, Mesh, Plane, Sphere
+from vine_nlp.front.show import ordered_runs, source_table
+from vine_nlp.io.archive import Archive, load_archive, write_atomic
+from vine_nlp.model import chain_frames, chain_points
+from vine_nlp.model.pairing import pair_points
 
 FORMATS = ("png", "pdf", "svg")
 ERROR_CMAP = "plasma"
@@ -81,13 +80,11 @@ def point_s(archive: Archive, result) -> np.ndarray:
     """Length along the unactuated tube of each archived shape point.
 
     Design runs pair target point k with fraction frac_k of segment seg_k
-    (design.common.pair_points); the pairing is rebuilt from the archived
+    (model.pairing.pair_points); the pairing is rebuilt from the archived
     ``points_per_segment`` (or the n consistent with M and N) and accepted only
     if the model reproduces the archived center line there. Otherwise s is
     estimated from the target's chord length (proportional to the tube length).
     """
-    from vine_nlp.design.common import pair_points
-
     r = result.routing
     center = result.shape.center
     N, M = center.shape[0], r.segments
@@ -165,7 +162,90 @@ def fmt_len(value: float, units: str) -> str:
 # ------------------------------------------------------------------ panels
 
 
-def plot_shape_3d(ax, archive: Archive, name: str, norm=None, cmap=ERROR_CMAP, legend: bool = True, zoom: float = 1.0):
+OBSTACLE_COLOR = "#8c6d46"
+
+
+def _halfspace_polytope(A, b):
+    """Vertices and hull triangles of {x: A x <= b} (bounded), or None when it is empty or flat."""
+    from scipy.optimize import linprog
+    from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
+
+    norms = np.linalg.norm(A, axis=1)
+    # Chebyshev center: an interior point for qhull, and the test for emptiness
+    res = linprog(np.r_[np.zeros(3), -1.0], A_ub=np.column_stack([A, norms]), b_ub=b, bounds=[(None, None)] * 3 + [(0, None)])
+    if not res.success or res.x[3] <= 1e-9 * max(1.0, float(np.abs(b).max())):
+        return None
+    try:
+        hs = HalfspaceIntersection(np.column_stack([A, -b]), res.x[:3])
+        hull = ConvexHull(hs.intersections)
+    except QhullError:
+        return None
+    return hull.points, hull.simplices
+
+
+def draw_obstacles(ax, obstacles, view=None, color=OBSTACLE_COLOR, alpha: float = 0.3):
+    """Draw obstacles (``vine_nlp.analysis.obstacles`` shapes) into a 3-D axis.
+
+    Spheres, capsules and meshes are drawn whole; boxes and planes (the solid half-space
+    behind the plane) are cut to ``view`` = (lo, hi) corners (default: the axis limits), so a
+    large wall or floor does not swamp the tube. Returns the points drawn (for extents).
+    """
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    if view is None:
+        view = (np.array([ax.get_xlim()[0], ax.get_ylim()[0], ax.get_zlim()[0]]),
+                np.array([ax.get_xlim()[1], ax.get_ylim()[1], ax.get_zlim()[1]]))
+    lo, hi = (np.asarray(v, float) for v in view)
+    A_view = np.vstack([np.eye(3), -np.eye(3)])
+    b_view = np.r_[hi, -lo]
+    drawn = []
+    style = dict(color=color, alpha=alpha, linewidth=0, edgecolor="none", antialiased=False, shade=True)
+    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 25), np.linspace(0, np.pi, 13))
+    for ob in obstacles:
+        tris = None
+        if isinstance(ob, Sphere):
+            c, r = np.array(ob.center), ob.radius
+            X, Y, Z = c[0] + r * np.cos(u) * np.sin(v), c[1] + r * np.sin(u) * np.sin(v), c[2] + r * np.cos(v)
+            ax.plot_surface(X, Y, Z, **style).set_rasterized(True)
+            drawn.append(np.column_stack([X.ravel(), Y.ravel(), Z.ravel()]))
+        elif isinstance(ob, Capsule):
+            a, b, r = np.array(ob.p0), np.array(ob.p1), ob.radius
+            axis = (b - a) / np.linalg.norm(b - a)
+            e1 = np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0])
+            e1 /= np.linalg.norm(e1)
+            e2 = np.cross(axis, e1)
+            # one surface: hemisphere at p0, cylinder, hemisphere at p1 (polar angle 0..pi)
+            w = np.linspace(0, 2 * np.pi, 25)
+            pol = np.r_[np.linspace(0, 0.5 * np.pi, 7), np.linspace(0.5 * np.pi, np.pi, 7)]
+            W, P = np.meshgrid(w, pol)
+            base = np.where(np.arange(len(pol))[:, None] < 7, 0.0, 1.0)
+            pts = (a + base[..., None] * (b - a) - r * np.cos(P)[..., None] * axis
+                   + r * np.sin(P)[..., None] * (np.cos(W)[..., None] * e1 + np.sin(W)[..., None] * e2))
+            ax.plot_surface(pts[..., 0], pts[..., 1], pts[..., 2], **style).set_rasterized(True)
+            drawn.append(pts.reshape(-1, 3))
+        elif isinstance(ob, Mesh):
+            tris = ob.triangles
+        elif isinstance(ob, (Box, Plane)):
+            if isinstance(ob, Box):
+                R, c, h = np.array(ob.rotation), np.array(ob.center), 0.5 * np.array(ob.size)
+                A = np.vstack([R.T, -R.T])
+                bb = np.r_[R.T @ c + h, -(R.T @ c) + h]
+            else:
+                n = np.array(ob.normal)
+                A, bb = n[None, :], np.array([n @ np.array(ob.point)])
+            poly = _halfspace_polytope(np.vstack([A, A_view]), np.r_[bb, b_view])
+            if poly is not None:
+                tris = poly[0][poly[1]]
+        if tris is not None:
+            coll = Poly3DCollection(tris, facecolors=color, edgecolors="none", alpha=alpha)
+            coll.set_rasterized(True)
+            ax.add_collection3d(coll)
+            drawn.append(tris.reshape(-1, 3))
+    return drawn
+
+
+def plot_shape_3d(ax, archive: Archive, name: str, norm=None, cmap=ERROR_CMAP, legend: bool = True, zoom: float = 1.0,
+                  obstacles=None):
     """One run in 3-D: target, tube wall at true diameter, actuator/opposite lines, error-colored center line."""
     u = archive.units
     D = archive.diameter
@@ -198,6 +278,13 @@ def plot_shape_3d(ax, archive: Archive, name: str, norm=None, cmap=ERROR_CMAP, l
     handles.append(ax.scatter(*ends.T, s=3, color="k", depthshade=False, label="segment ends"))
     ax.scatter(*center[0], s=14, color="k", marker="s", depthshade=False)
     label_3d_axes(ax, u)
+    if obstacles:
+        # boxes and planes are cut to the tube and target's box (padded 10 %): a wall or floor
+        # must not swamp the tube; spheres, capsules and meshes are drawn whole and in view
+        pts = np.concatenate([np.asarray(p, float).reshape(-1, 3) for p in everything if np.size(p)])
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        pad = 0.1 * max(float((hi - lo).max()), D)
+        everything += draw_obstacles(ax, obstacles, view=(lo - pad, hi + pad))
     set_equal_3d(ax, everything, zoom)
     for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
         axis.pane.set_alpha(0.0)
@@ -286,13 +373,15 @@ def plot_error(ax, archive: Archive, names, colors, styles=None):
 # ------------------------------------------------------------------ figure
 
 
-def plot_archive(archive) -> Figure:
+def plot_archive(archive, obstacles=None) -> Figure:
     """The figure of an archive (an Archive or a path to one).
 
     Layouts: one run without target (forward): a 3.5 in column, 3-D view over the
     theta, lambda, phi panels. One design run: 7.16 in, 3-D view and error in the
     first row, theta, lambda, phi in the second. Several runs (``compare``): one
     3-D view per run (at most three) over error, theta, lambda, phi in a 2 x 2 grid.
+    ``obstacles`` (``vine_nlp.io.obstacles.read_obstacles`` of the archive's /obstacles) are
+    drawn in every 3-D view.
     """
     if not isinstance(archive, Archive):
         archive = load_archive(archive)
@@ -304,7 +393,7 @@ def plot_archive(archive) -> Figure:
     k = len(shown3d)
     err_max = max((float(error_along(archive, archive.runs[n]).max()) for n in paired), default=0.0)
     norm = Normalize(0.0, err_max if err_max > 0 else 1.0) if paired else None
-    with plt.rc_context(STYLE):
+    with matplotlib.rc_context(STYLE):
         if k <= 1 and not paired:
             fig = Figure(figsize=(COLUMN_IN, 2.9 + 3 * 1.45), layout="constrained")
             gs = fig.add_gridspec(4, 1, height_ratios=[2.9, 1.45, 1.45, 1.45])
@@ -332,7 +421,7 @@ def plot_archive(archive) -> Figure:
         axes3d = []
         for i, name in enumerate(shown3d):
             ax = fig.add_subplot(cells3d[i], projection="3d")
-            plot_shape_3d(ax, archive, name, norm=norm, legend=(i == 0), zoom=0.95 if k < 3 else 0.82)
+            plot_shape_3d(ax, archive, name, norm=norm, legend=(i == 0), zoom=0.95 if k < 3 else 0.82, obstacles=obstacles)
             r = archive.runs[name]
             title = f"({chr(ord('a') + i)}) {name}"
             if "rmse" in r.metrics and "max_error" in r.metrics:
@@ -368,14 +457,20 @@ def save_figure(fig, figure_path, dpi: int = 300) -> Path:
     """Write a figure (format by suffix: png, pdf, svg) atomically, in the house style, and close it."""
     fmt = figure_format(figure_path)
     try:
-        with plt.rc_context(STYLE):
+        with matplotlib.rc_context(STYLE):
             write_atomic(figure_path, lambda tmp: fig.savefig(tmp, dpi=dpi, format=fmt))
     finally:
-        plt.close(fig)
+        if getattr(fig.canvas, "manager", None) is not None:
+            # a figure made with pyplot (by the caller): release it from pyplot's registry;
+            # the figures made here are plain Figures, never registered there
+            import matplotlib.pyplot as plt
+
+            plt.close(fig)
     return Path(figure_path)
 
 
 def plot_archive_file(archive_path, figure_path):
     """Draw the archive at ``archive_path`` into ``figure_path`` (.png or .pdf, chosen by suffix), atomically."""
     figure_format(figure_path)  # before any drawing
-    return save_figure(plot_archive(load_archive(archive_path)), figure_path)
+    archive = load_archive(archive_path)
+    return save_figure(plot_archive(archive, obstacles=archive.obstacles), figure_path)

@@ -32,8 +32,31 @@ def _num(v: float) -> str:
     return f"{v:.6g}"
 
 
+def _range(values: np.ndarray) -> str:
+    """"a to b"; an Archive built in Python (not loaded, so not validated) may hold NaN: say so."""
+    bad = int(np.count_nonzero(~np.isfinite(values)))
+    if bad:
+        return f"{bad} of {values.size} values not finite"
+    return f"{_num(values.min())} to {_num(values.max())}"
+
+
 def summarize(archive) -> str:
-    """Multi-line summary of an archive (an Archive or a path): problem, software, target, and every run."""
+    """Multi-line summary of an archive (an Archive or a path): problem, software, target, and every run.
+
+    Parameters
+    ----------
+    archive : Archive or path-like
+        A path is loaded (and so validated) with :func:`vine_nlp.io.archive.load_archive`.
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    InputError
+        For a path whose archive is missing or invalid.
+    """
     a = archive if isinstance(archive, Archive) else load_archive(archive)
     u = a.units
     lines = [f"problem   {a.name} ({a.kind})"]
@@ -63,9 +86,8 @@ def summarize(archive) -> str:
         lines.append(f"  segments    {ro.segments}")
         lines.append(f"  tube length {_num(float(ro.length.sum()))} {u}")
         if ro.segments:
-            th = np.degrees(ro.theta)
-            lines.append(f"  theta       {_num(th.min())} to {_num(th.max())} deg")
-            lines.append(f"  lambda      {_num(ro.lam.min())} to {_num(ro.lam.max())}")
+            lines.append(f"  theta       {_range(np.degrees(ro.theta))} deg")
+            lines.append(f"  lambda      {_range(ro.lam)}")
         for m in METRICS:
             if m in r.metrics:
                 unit = f" {u}" if m in LENGTH_METRICS else (" rad" if m == "tv_theta" else "")

@@ -25,23 +25,20 @@ from __future__ import annotations
 import csv
 import io
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.backends.backend_pdf import PdfPages
+from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Rectangle
+from matplotlib.ticker import MultipleLocator
 
-matplotlib.use("Agg")
-import numpy as np  # noqa: E402
-from matplotlib.backends.backend_pdf import PdfPages  # noqa: E402
-from matplotlib.collections import LineCollection  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-from matplotlib.lines import Line2D  # noqa: E402
-from matplotlib.patches import Rectangle  # noqa: E402
-from matplotlib.ticker import MultipleLocator  # noqa: E402
-
-from vine_nlp.front.show import source_table  # noqa: E402
-from vine_nlp.io.archive import Archive, load_archive, write_atomic  # noqa: E402
-from vine_nlp.model.chain import phi_from_theta  # noqa: E402
+from vine_nlp.front.show import source_table
+from vine_nlp.io.archive import Archive, load_archive, write_atomic
+from vine_nlp.model.chain import phi_from_theta
 
 PAPERS_MM = {"A4": (210.0, 297.0), "Letter": (215.9, 279.4)}
 CM_PER_UNIT = {"cm": 1.0, "mm": 0.1}
@@ -220,8 +217,8 @@ def _layout_one(length_cm, circumference_cm, W, H, unit_per_cm):
     per_page = max(1, int((height_room + 1e-6) // (band_mm + fixed)))
     tiles = []
     n = len(s_cuts) * len(c_cuts)
-    for i, (a, b, e) in enumerate(s_cuts):
-        for j, (c0, c1, ce) in enumerate(c_cuts):
+    for a, b, e in s_cuts:
+        for c0, c1, ce in c_cuts:
             k = len(tiles)
             u = unit_per_cm
             label = f"strip {k + 1}/{n}:  s = {a * u:.4g} to {b * u:.4g}"
@@ -231,17 +228,32 @@ def _layout_one(length_cm, circumference_cm, W, H, unit_per_cm):
     return tiles, per_page
 
 
+TEMPLATE_FORMATS = (".pdf", ".svg", ".dxf")
+
+
+def template_format(path) -> str:
+    """The template format of ``path`` by its extension (ValueError for an unknown one)."""
+    ext = Path(path).suffix.lower()
+    if ext not in TEMPLATE_FORMATS:
+        raise ValueError(f"unknown template format {ext or '(none)'!r}: use {', '.join(TEMPLATE_FORMATS)}")
+    return ext
+
+
 def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str = "A4", run: str | None = None,
                    spam: bool | None = None, orientation: str = "auto") -> dict:
-    """Write the 1:1 fabrication template of one run as a multi-page PDF (and CUTS.csv).
+    """Write the 1:1 fabrication template of one run: a multi-page PDF, or one SVG or DXF sheet
+    in millimetres (by the extension of ``pdf_path``), and CUTS.csv.
 
     run: default the first of nlp, greedy, forward present. spam: default from the
     archived problem file's [actuator] kind. Units must be cm or mm (ValueError
-    otherwise). Both files are written atomically. Returns {"pages", "strips",
-    "paper", "paper_mm" (width, height as printed), "orientation", "run", "spam",
+    otherwise). Strips are cut for ``paper`` in every format (SVG and DXF stack all
+    strips on one sheet, :func:`template_sheet`). All files are written atomically.
+    Returns {"pages" (1 for SVG and DXF), "strips", "paper", "paper_mm" (width,
+    height as printed; the sheet's for SVG and DXF), "orientation", "run", "spam",
     "segments", "stoppers" (segments drawn with a stopper/gap split), "gaps"
-    (segments with a gap drawn), "tube_length"}.
+    (segments with a gap drawn), "tube_length", "format"}.
     """
+    fmt = template_format(pdf_path)
     a = archive_path_or_archive if isinstance(archive_path_or_archive, Archive) else load_archive(archive_path_or_archive)
     if a.units not in CM_PER_UNIT:
         raise ValueError(f"a 1:1 template needs lengths in cm or mm, not {a.units!r}")
@@ -253,26 +265,42 @@ def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str 
     C = math.pi * D
     L = float(table["s_end"][-1]) if len(table["s_end"]) else 0.0
     lay = layout(L * k, C * k, paper, orientation, unit_per_cm=1.0 / k)
+    pages, size = lay.pages, (lay.width_mm, lay.height_mm)
 
-    def write_pdf(tmp):
-        with PdfPages(tmp, metadata={"Title": f"{a.name} fabrication template ({name})", "Creator": "vine_nlp"}) as pdf:
-            for page in range(lay.pages):
-                pdf.savefig(_page(a, name, table, lay, page, spam))  # no bbox_inches: the page stays exactly the paper size
+    def write_cuts():
         if csv_path is not None:
             write_atomic(csv_path, lambda t: Path(t).write_text(cuts_csv(table)))
 
-    write_atomic(pdf_path, write_pdf)
+    if fmt == ".pdf":
+        def write_pdf(tmp):
+            with PdfPages(tmp, metadata={"Title": f"{a.name} fabrication template ({name})", "Creator": "vine_nlp"}) as pdf:
+                for page in range(lay.pages):
+                    pdf.savefig(_page(a, name, table, lay, page, spam))  # no bbox_inches: the page stays exactly the paper size
+            write_cuts()
+
+        write_atomic(pdf_path, write_pdf)
+    else:
+        sheet = template_sheet(a, name, table, lay, spam)
+        data = sheet_svg(sheet) if fmt == ".svg" else sheet_dxf(sheet)
+
+        def write_sheet(tmp):
+            Path(tmp).write_bytes(data)
+            write_cuts()
+
+        write_atomic(pdf_path, write_sheet)
+        pages, size = 1, (sheet.width_mm, sheet.height_mm)
     return {
-        "pages": lay.pages,
+        "pages": pages,
         "strips": len(lay.tiles),
         "paper": lay.paper,
-        "paper_mm": (lay.width_mm, lay.height_mm),
+        "paper_mm": size,
         "orientation": lay.orientation,
         "run": name,
         "spam": spam,
         "segments": int(len(table["segment"])),
         **split_counts(table, spam),
         "tube_length": L,
+        "format": fmt[1:],
     }
 
 
@@ -329,11 +357,105 @@ def _page(a: Archive, run: str, table: dict, lay: Layout, page: int, spam: bool)
     return fig
 
 
-def _strip(ax, a: Archive, table: dict, tile: Tile, spam: bool, lay: Layout):
-    k = CM_PER_UNIT[a.units]
-    D = a.diameter
+@dataclass
+class StripGeometry:
+    """What one strip shows, in problem units (s along the tube, c around it), for every output
+    format (PDF, SVG, DXF draw the same strips from this). Lines are ((s, c), (s, c)) pairs,
+    already clipped to the band."""
+
+    band: tuple  # (s0, c0, s1, c1): this strip's part of the band (the cut outline)
+    shared: list  # (s0, c0, s1, c1) rectangles that go under the neighbouring strip
+    references: list  # c of the band edges c = 0 and c = pi D inside the strip
+    crosses: list  # alignment crosses, as lines
+    ends: list  # (s, "base" | "tip")
+    paths: dict  # kind (stopper, gap, muscle) -> lines of the actuator path
+    ticks: list  # segment-end ticks across the path
+    labels: list  # (s, c, text): segment indices
+    mark_c: tuple  # c of the mark rows below and above the band (base/tip words)
+
+
+def _clip(p, q, box):
+    """Line p-q clipped to the rectangle box = (s0, c0, s1, c1) (Liang-Barsky); None if outside."""
+    (x0, y0), (x1, y1) = p, q
+    dx, dy = x1 - x0, y1 - y0
+    t0, t1 = 0.0, 1.0
+    for pk, qk in ((-dx, x0 - box[0]), (dx, box[2] - x0), (-dy, y0 - box[1]), (dy, box[3] - y0)):
+        if abs(pk) < 1e-15:
+            if qk < -1e-12:
+                return None
+            continue
+        t = qk / pk
+        if pk < 0:
+            t0 = max(t0, t)
+        else:
+            t1 = min(t1, t)
+    if t1 - t0 <= 1e-12:
+        return None
+    return (x0 + t0 * dx, y0 + t0 * dy), (x0 + t1 * dx, y0 + t1 * dy)
+
+
+def strip_geometry(table: dict, tile: Tile, D: float, units: str, spam: bool) -> StripGeometry:
+    """The geometry of one strip of the template (the one place it is computed)."""
+    k = CM_PER_UNIT[units]
     C = math.pi * D
     cm = 1.0 / k  # one centimetre in problem units
+    band_top = min(tile.c_end, C)
+    box = (tile.s0, tile.c0, tile.s_end, band_top)
+    shared = []
+    if tile.s_end > tile.s1 + 1e-12:
+        shared.append((tile.s1, tile.c0, tile.s_end, band_top))
+    if tile.c_end > tile.c1 + 1e-12:
+        shared.append((tile.s0, tile.c1, tile.s_end, tile.c_end))
+    references = [c for c in (0.0, C) if tile.c0 - 1e-9 <= c <= tile.c_end + 1e-9]
+    s_marks = _shared_ends(tile.s0, tile.s1, tile.s_end, cm)
+    c_marks = _shared_ends(tile.c0, tile.c1, tile.c_end, cm)
+    outside = 0.5 * MARK_H / (10 * k)
+    centres = [(s, c) for s in s_marks for c in (tile.c0 - outside, band_top + outside)]
+    centres += [(s, c) for s in (tile.s0 + 0.5 * cm, tile.s_end - 0.5 * cm) for c in c_marks]  # around the tube: inside
+    h = CROSS_MM / (10 * k)
+    crosses = [seg for s, c in centres for seg in (((s - h, c), (s + h, c)), ((s, c - h), (s, c + h)))]
+    L = float(table["s_end"][-1])
+    ends = ([(0.0, "base")] if tile.s0 <= 0.0 else []) + ([(L, "tip")] if tile.s_end >= L - 1e-9 else [])
+
+    S0, S1 = table["s_start"], table["s_end"]
+    c_unwrapped = 0.5 * D * np.concatenate([table["phi_start_rad"][:1], table["phi_end_rad"]])
+    paths = {"stopper": [], "gap": [], "muscle": []}
+    ticks, labels = [], []
+    tick = 1.2 / (10 * k)  # segment-end ticks: 1.2 mm either side of the path
+    last_label = -np.inf
+    for j in range(len(S0)):
+        if S1[j] < tile.s0 or S0[j] > tile.s_end:
+            continue
+        sa, sb, ca, cb = S0[j], S1[j], c_unwrapped[j], c_unwrapped[j + 1]
+        for t0, t1, kind in _segment_parts(table, j, spam):
+            for (s_a, s_b), (c_a, c_b) in _pieces(sa + t0 * (sb - sa), ca + t0 * (cb - ca), sa + t1 * (sb - sa), ca + t1 * (cb - ca), C):
+                line = _clip((s_a, c_a), (s_b, c_b), box)
+                if line is not None:
+                    paths[kind].append(line)
+        # segment boundary tick across the path, and its index where there is room
+        cw = float(table["c_start"][j])
+        if tile.s0 <= sa <= tile.s_end:
+            line = _clip((sa, cw - tick), (sa, cw + tick), box)
+            if line is not None:
+                ticks.append(line)
+            room = min(sa - tile.s0, tile.s_end - sa) * k * 10  # mm to the strip's ends
+            if (sa - last_label) * k * 10 >= 7.0 and room >= 2.5 and tile.c0 <= cw <= band_top:
+                up = cw + 2.0 / (10 * k) if cw < band_top - 3.0 / (10 * k) else cw - 2.0 / (10 * k)
+                labels.append((sa, up, str(j)))
+                last_label = sa
+    return StripGeometry(box, shared, references, crosses, ends, paths, ticks, labels,
+                         (tile.c0 - outside, band_top + outside))
+
+
+PATH_COLORS = {"stopper": STOPPER_COLOR, "gap": GAP_COLOR, "muscle": SPAM_COLOR}
+PATH_WIDTHS_PT = {"stopper": 1.6, "gap": 2.4, "muscle": 1.6}
+
+
+def _strip(ax, a: Archive, table: dict, tile: Tile, spam: bool, lay: Layout):
+    k = CM_PER_UNIT[a.units]
+    C = math.pi * a.diameter
+    cm = 1.0 / k  # one centimetre in problem units
+    g = strip_geometry(table, tile, a.diameter, a.units, spam)
     for side in ("top", "right", "left"):
         ax.spines[side].set_visible(False)
     ax.spines["bottom"].set_linewidth(0.5)
@@ -347,71 +469,25 @@ def _strip(ax, a: Archive, table: dict, tile: Tile, spam: bool, lay: Layout):
     ax.set_ylabel(f"c [{a.units}]", fontsize=FONT, labelpad=1)
     ax.patch.set_visible(False)
 
-    band_top = min(tile.c_end, C)
-    band = Rectangle((tile.s0, tile.c0), tile.s_end - tile.s0, band_top - tile.c0, facecolor="0.96", edgecolor="none", zorder=0)
-    ax.add_patch(band)
-    for c, text in ((0.0, "c = 0"), (C, "c = \u03c0D")):
-        if tile.c0 - 1e-9 <= c <= tile.c_end + 1e-9:
-            ax.axhline(c, color="0.35", lw=0.6, ls=(0, (6, 3)), zorder=1)
-    # shared parts (shaded: they go under the neighbouring strip) and alignment crosses at both of their ends
-    shared = {"facecolor": "0.82", "edgecolor": "none", "zorder": 0.5}
-    if tile.s_end > tile.s1 + 1e-12:
-        ax.add_patch(Rectangle((tile.s1, tile.c0), tile.s_end - tile.s1, band_top - tile.c0, **shared))
-    if tile.c_end > tile.c1 + 1e-12:
-        ax.add_patch(Rectangle((tile.s0, tile.c1), tile.s_end - tile.s0, tile.c_end - tile.c1, **shared))
-    s_marks = _shared_ends(tile.s0, tile.s1, tile.s_end, cm)
-    c_marks = _shared_ends(tile.c0, tile.c1, tile.c_end, cm)
-    outside = 0.5 * MARK_H / (10 * k)
-    crosses = [(s, c) for s in s_marks for c in (tile.c0 - outside, band_top + outside)]
-    crosses += [(s, c) for s in (tile.s0 + 0.5 * cm, tile.s_end - 0.5 * cm) for c in c_marks]  # around the tube: inside
-    h = CROSS_MM / (10 * k)
-    ax.add_collection(LineCollection([seg for s, c in crosses for seg in (((s - h, c), (s + h, c)), ((s, c - h), (s, c + h)))],
-                                     colors="k", linewidths=0.5, clip_on=False, zorder=6))
-    # base and tip
-    if tile.s0 <= 0.0:
-        ax.axvline(0.0, color="k", lw=0.8, ymin=0, ymax=1)
-        ax.text(0.0, band_top + 0.5 * MARK_H / (10 * k), "  base", fontsize=FONT, ha="left", va="center")
-    L = float(table["s_end"][-1])
-    if tile.s_end >= L - 1e-9:
-        ax.axvline(L, color="k", lw=0.8)
-        ax.text(L, band_top + 0.5 * MARK_H / (10 * k), "tip  ", fontsize=FONT, ha="right", va="center")
-
-    # the actuator path, clipped to this strip's part of the band
-    clip = Rectangle((tile.s0, tile.c0), tile.s_end - tile.s0, band_top - tile.c0, transform=ax.transData, visible=False)
-    ax.add_patch(clip)
-    S0, S1 = table["s_start"], table["s_end"]
-    c_unwrapped = 0.5 * D * np.concatenate([table["phi_start_rad"][:1], table["phi_end_rad"]])
-    colors = {"stopper": STOPPER_COLOR, "gap": GAP_COLOR, "muscle": SPAM_COLOR}
-    widths = {"stopper": 1.6, "gap": 2.4, "muscle": 1.6}
-    lines = {kind: [] for kind in colors}
-    ticks = []
-    tick = 1.2 / (10 * k)  # segment-end ticks: 1.2 mm either side of the path
-    last_label = -np.inf
-    for j in range(len(S0)):
-        if S1[j] < tile.s0 or S0[j] > tile.s_end:
-            continue
-        sa, sb, ca, cb = S0[j], S1[j], c_unwrapped[j], c_unwrapped[j + 1]
-        for t0, t1, kind in _segment_parts(table, j, spam):
-            lines[kind] += _pieces(sa + t0 * (sb - sa), ca + t0 * (cb - ca), sa + t1 * (sb - sa), ca + t1 * (cb - ca), C)
-        # segment boundary tick across the path, and its index where there is room
-        cw = float(table["c_start"][j])
-        if tile.s0 <= sa <= tile.s_end:
-            ticks.append(((sa, sa), (cw - tick, cw + tick)))
-            room = min(sa - tile.s0, tile.s_end - sa) * k * 10  # mm to the strip's ends
-            if (sa - last_label) * k * 10 >= 7.0 and room >= 2.5 and tile.c0 <= cw <= band_top:
-                up = cw + 2.0 / (10 * k) if cw < band_top - 3.0 / (10 * k) else cw - 2.0 / (10 * k)
-                ax.text(sa, up, str(j), fontsize=6, ha="center", va="center", color="0.25", zorder=5, clip_on=True)
-                last_label = sa
-    for kind, pieces in lines.items():
-        if pieces:
-            lc = LineCollection([np.transpose(p) for p in pieces], colors=colors[kind], linewidths=widths[kind],
-                                capstyle="butt", zorder=3)
-            ax.add_collection(lc)
-            lc.set_clip_path(clip)
-    if ticks:
-        lc = LineCollection([np.transpose(p) for p in ticks], colors="k", linewidths=0.5, zorder=4)
-        ax.add_collection(lc)
-        lc.set_clip_path(clip)
+    s0, c0, s1, c1 = g.band
+    ax.add_patch(Rectangle((s0, c0), s1 - s0, c1 - c0, facecolor="0.96", edgecolor="none", zorder=0))
+    for c in g.references:
+        ax.axhline(c, color="0.35", lw=0.6, ls=(0, (6, 3)), zorder=1)
+    for r in g.shared:  # shaded: they go under the neighbouring strip
+        ax.add_patch(Rectangle((r[0], r[1]), r[2] - r[0], r[3] - r[1], facecolor="0.82", edgecolor="none", zorder=0.5))
+    ax.add_collection(LineCollection(g.crosses, colors="k", linewidths=0.5, clip_on=False, zorder=6))
+    for s, word in g.ends:
+        ax.axvline(s, color="k", lw=0.8)
+        ax.text(s, g.mark_c[1], "  base" if word == "base" else "tip  ", fontsize=FONT,
+                ha="left" if word == "base" else "right", va="center")
+    for kind, lines in g.paths.items():
+        if lines:
+            ax.add_collection(LineCollection(lines, colors=PATH_COLORS[kind], linewidths=PATH_WIDTHS_PT[kind],
+                                             capstyle="butt", zorder=3))
+    if g.ticks:
+        ax.add_collection(LineCollection(g.ticks, colors="k", linewidths=0.5, zorder=4))
+    for s, c, text in g.labels:
+        ax.text(s, c, text, fontsize=6, ha="center", va="center", color="0.25", zorder=5, clip_on=True)
 
 
 def _shared_ends(a: float, b: float, end: float, cm: float) -> list[float]:
@@ -451,3 +527,161 @@ def _footer(fig, W, H, spam, table):
         if color is not None:
             fig.add_artist(Line2D([fx(lx), fx(lx + 7)], [fy(y), fy(y)], color=color, lw=lw))
         fig.text(fx(lx + 9), fy(y), text, fontsize=FONT, va="center", ha="left")
+
+
+# ------------------------------------------------------------------ SVG and DXF sheets
+
+# layers of the SVG and DXF templates, for cutting plotters and laser cutters: name -> (colour, line width mm, DXF ACI)
+LAYERS = {
+    "outline": ("#000000", 0.25, 7),  # the band of each strip: cut here
+    "actuator_path": ("#7f7f7f", 0.2, 8),  # the whole actuator path
+    "stoppers": (STOPPER_COLOR, 0.6, 5),  # stays: stoppers / unpinched
+    "removed": (GAP_COLOR, 0.8, 1),  # removed: gaps / pinched
+    "marks": ("#000000", 0.15, 3),  # alignment crosses, segment ticks, band edges, base and tip, s ruler
+    "text": ("#404040", 0.15, 2),
+    "scale": ("#000000", 0.3, 6),  # the 10 cm scale bar: 100 mm in the file
+}
+TEXT_MM = 2.5  # text height
+
+
+@dataclass
+class Sheet:
+    """A drawing in millimetres, y up, origin at the sheet's lower left corner."""
+
+    width_mm: float
+    height_mm: float
+    lines: list = field(default_factory=list)  # (layer, [(x, y), ...], closed)
+    texts: list = field(default_factory=list)  # (layer, x, y, text, height, anchor: start | middle | end)
+
+    def line(self, layer, points, closed=False):
+        self.lines.append((layer, [(float(x), float(y)) for x, y in points], closed))
+
+    def text(self, layer, x, y, text, height=TEXT_MM, anchor="start"):
+        self.texts.append((layer, float(x), float(y), str(text), float(height), anchor))
+
+
+def template_sheet(a: Archive, run: str, table: dict, lay: Layout, spam: bool) -> Sheet:
+    """Every strip of ``lay`` stacked on one sheet at 1:1 in mm (the strips of the PDF, from
+    :func:`strip_geometry`), with the title, the 10 cm scale bar and the legend."""
+    k = CM_PER_UNIT[a.units]
+    mm = 10.0 * k  # mm per problem unit
+    D, u = a.diameter, a.units
+    C = math.pi * D
+    mark = MARK_H / mm
+    heights = [(t.c_end - t.c0) * mm + 2 * MARK_H for t in lay.tiles]
+    widths = [(t.s_end - t.s0) * mm for t in lay.tiles]
+    W = 2 * MARGIN + LEFT_LABELS + RIGHT_ROOM + max(widths + [SCALE_BAR_CM * 10.0 + 90.0])
+    H = 2 * MARGIN + TITLE_H + sum(h + STRIP_LABEL_H + TICKS_H + STRIP_GAP for h in heights) + FOOT_H
+    sh = Sheet(W, H)
+    L = float(table["s_end"][-1])
+    sh.text("text", MARGIN, H - MARGIN - 3.0, f"{a.name}: fabrication template of run {run} ({a.runs[run].method}), "
+            f"D = {D:.4g} {u}, tube length {L:.4g} {u}, {len(table['segment'])} segments, circumference \u03c0D = {C:.4g} {u}", 3.0)
+    sh.text("text", MARGIN, H - MARGIN - 8.0, "1:1 in millimetres. s: length along the unactuated tube; c = (D/2) \u03c6: "
+            "position around the tube, wrapped at \u03c0D (both band edges are the same line on the tube).", 2.2)
+    top = H - MARGIN - TITLE_H
+    x0 = MARGIN + LEFT_LABELS
+    for tile, ax_h in zip(lay.tiles, heights):
+        g = strip_geometry(table, tile, D, u, spam)
+        y_ax = top - STRIP_LABEL_H - ax_h
+
+        def xy(s, c, tile=tile, y_ax=y_ax):
+            return x0 + (s - tile.s0) * mm, y_ax + (c - (tile.c0 - mark)) * mm
+
+        sh.text("text", x0, top - 3.5, tile.label + f" {u}")
+        s0, c0, s1, c1 = g.band
+        sh.line("outline", [xy(s0, c0), xy(s1, c0), xy(s1, c1), xy(s0, c1)], closed=True)
+        for r in g.shared:  # the part under the neighbouring strip
+            sh.line("marks", [xy(r[0], r[1]), xy(r[2], r[1]), xy(r[2], r[3]), xy(r[0], r[3])], closed=True)
+        for c in g.references:
+            sh.line("marks", [xy(s0, c), xy(s1, c)])
+        for p, q in g.crosses + g.ticks:
+            sh.line("marks", [xy(*p), xy(*q)])
+        for s, word in g.ends:
+            sh.line("marks", [xy(s, tile.c0 - mark), xy(s, tile.c_end + mark)])
+            x, y = xy(s, g.mark_c[1])
+            sh.text("text", x + (1.0 if word == "base" else -1.0), y - 0.8, word, anchor="start" if word == "base" else "end")
+        layer = {"stopper": "stoppers", "gap": "removed", "muscle": None}
+        for kind, lines in g.paths.items():
+            for p, q in lines:
+                sh.line("actuator_path", [xy(*p), xy(*q)])
+                if layer[kind]:
+                    sh.line(layer[kind], [xy(*p), xy(*q)])
+        for s, c, text in g.labels:
+            x, y = xy(s, c)
+            sh.text("text", x, y - 0.7, text, 2.0, "middle")
+        # the s ruler under the strip: a tick every cm, labelled every 5 cm
+        y_base = y_ax
+        sh.line("marks", [(x0, y_base), (x0 + (tile.s_end - tile.s0) * mm, y_base)])
+        n0, n1 = math.ceil(tile.s0 * k - 1e-9), math.floor(tile.s_end * k + 1e-9)
+        for n in range(n0, n1 + 1):
+            x = x0 + (n / k - tile.s0) * mm
+            sh.line("marks", [(x, y_base), (x, y_base - (3.0 if n % 5 == 0 else 1.5))])
+            if n % 5 == 0:
+                sh.text("text", x, y_base - 5.5, f"{n / k:.4g}", 2.0, "middle")
+        top = y_ax - TICKS_H - STRIP_GAP
+    # scale bar and legend
+    bx, by = MARGIN, MARGIN + 9.0
+    sh.line("scale", [(bx, by), (bx + SCALE_BAR_CM * 10.0, by)])
+    for i in range(int(SCALE_BAR_CM) + 1):
+        sh.line("scale", [(bx + 10.0 * i, by), (bx + 10.0 * i, by + (2.0 if i % 5 == 0 else 1.0))])
+    sh.text("text", bx, by - 4.0, f"scale check: this bar must measure {SCALE_BAR_CM * 10:.0f} mm ({SCALE_BAR_CM:.0f} cm)", 2.2)
+    lx = bx + SCALE_BAR_CM * 10.0 + 8.0
+    legend = ([("actuator_path", f"sPAM muscle path, one \u03bb = {float(np.mean(table['lambda'])):.3g}")] if spam else
+              [("stoppers", "stays: stopper / unpinched (\u03bb)"), ("removed", "removed: gap / pinched (1 \u2212 \u03bb)")])
+    legend.append(("marks", "alignment marks; outlined: 1 cm overlap"))
+    for i, (layer, text) in enumerate(legend):
+        y = by + 3.0 - 3.6 * i
+        sh.text("text", lx, y - 0.8, f"[{layer}] {text}", 2.2)  # by layer name: nothing on the cut layers but the strips
+    return sh
+
+
+def sheet_svg(sheet: Sheet) -> bytes:
+    """The sheet as SVG in millimetres (viewBox units = mm), one Inkscape layer per layer."""
+    import xml.etree.ElementTree as ET
+
+    ink = "http://www.inkscape.org/namespaces/inkscape"
+    ET.register_namespace("", "http://www.w3.org/2000/svg")
+    ET.register_namespace("inkscape", ink)
+    W, H = sheet.width_mm, sheet.height_mm
+    root = ET.Element("{http://www.w3.org/2000/svg}svg", {
+        "width": f"{W:.3f}mm", "height": f"{H:.3f}mm", "viewBox": f"0 0 {W:.3f} {H:.3f}", "version": "1.1"})
+    groups = {}
+    for name, (color, width, _) in LAYERS.items():
+        groups[name] = ET.SubElement(root, "{http://www.w3.org/2000/svg}g", {
+            "id": f"layer-{name}", f"{{{ink}}}groupmode": "layer", f"{{{ink}}}label": name,
+            "fill": "none" if name != "text" else color, "stroke": color if name != "text" else "none",
+            "stroke-width": f"{width:g}", "stroke-linecap": "butt"})
+    for layer, pts, closed in sheet.lines:
+        attrs = {"points": " ".join(f"{x:.4f},{H - y:.4f}" for x, y in pts)}
+        ET.SubElement(groups[layer], "{http://www.w3.org/2000/svg}polygon" if closed else "{http://www.w3.org/2000/svg}polyline", attrs)
+    for layer, x, y, text, height, anchor in sheet.texts:
+        el = ET.SubElement(groups[layer], "{http://www.w3.org/2000/svg}text", {
+            "x": f"{x:.4f}", "y": f"{H - y:.4f}", "font-size": f"{height:g}", "font-family": "sans-serif", "text-anchor": anchor})
+        el.text = text
+    return ET.tostring(root, encoding="utf-8", xml_declaration=True)
+
+
+def sheet_dxf(sheet: Sheet) -> bytes:
+    """The sheet as DXF (R2010) in millimetres ($INSUNITS = 4), one DXF layer per layer."""
+    import ezdxf
+    from ezdxf import units
+    from ezdxf.enums import TextEntityAlignment
+
+    doc = ezdxf.new("R2010", setup=True)
+    doc.units = units.MM
+    doc.header["$MEASUREMENT"] = 1  # metric
+    for name, (_, width, aci) in LAYERS.items():
+        doc.layers.add(name, color=aci, lineweight=int(round(width * 100)))
+    msp = doc.modelspace()
+    for layer, pts, closed in sheet.lines:
+        if len(pts) == 2 and not closed:
+            msp.add_line(pts[0], pts[1], dxfattribs={"layer": layer})
+        else:
+            msp.add_lwpolyline(pts, close=closed, dxfattribs={"layer": layer})
+    align = {"start": TextEntityAlignment.BOTTOM_LEFT, "middle": TextEntityAlignment.BOTTOM_CENTER,
+             "end": TextEntityAlignment.BOTTOM_RIGHT}
+    for layer, x, y, text, height, anchor in sheet.texts:
+        msp.add_text(text, height=height, dxfattribs={"layer": layer}).set_placement((x, y), align=align[anchor])
+    out = io.StringIO()
+    doc.write(out)
+    return out.getvalue().encode("utf-8")

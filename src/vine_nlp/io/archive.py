@@ -1,9 +1,29 @@
-"""HDF5 result archives (../shared/spec/formats.md, "Result archives"), written atomically."""
+"""HDF5 result archives (../shared/spec/formats.md, "Result archives"): written atomically,
+validated on load.
+
+Writing. The HDF5 file is built in memory and its bytes written with ordinary file I/O to a
+temporary file beside the target, then renamed onto it. A full disk, a read-only
+filesystem or a missing permission is one :class:`OutputError` and leaves nothing behind;
+HDF5 itself never writes to the disk, so a failed write cannot leave it with a
+half-closed file (which used to crash the interpreter at exit).
+
+Reading. :func:`load_archive` checks everything it returns against the spec before any
+command uses it: every dataset's dtype and shape and their consistency (M segments, P
+shape rows, K levels), finite values (a metric other than rmse and max_error may be NaN:
+"does not apply"), proper initial poses (4x4, orthonormal rotation
+with det +1, last row 0 0 0 1), attribute types and the size limits of
+:mod:`vine_nlp.io.limits`. Anything else is an :class:`ArchiveError`
+``(file, dataset path, reason)``; no other exception leaves the loader. Groups the
+spec does not name are allowed; their datasets come back in ``Archive.extra`` and are
+validated too (numeric, at least 1-D, within the limits, finite except ``/frames``).
+"""
 
 from __future__ import annotations
 
 import datetime as _dt
+import io
 import json
+import math
 import os
 import tempfile
 from dataclasses import dataclass, field
@@ -15,10 +35,33 @@ import numpy as np
 from vine_nlp import __version__
 from vine_nlp.design.problem import Routing
 from vine_nlp.design.result import Result, Shape
+from vine_nlp.errors import InputError
+from vine_nlp.io import limits
+from vine_nlp.io.obstacles import read_obstacles, write_obstacles
 
 FORMAT = "vine_nlp/result"
 FORMAT_VERSION = 1
 _COMPRESS = dict(compression="gzip", compression_opts=4, shuffle=True)
+POSE_TOLERANCE = 1e-6  # |R^T R - I| and |det R - 1| of an archived initial pose
+
+
+class ArchiveError(InputError, ValueError):
+    """An archive that cannot be used: ``(file, dataset path, reason)``; the command line
+    prints one line and exits 2. A ValueError too, for callers written before it existed."""
+
+
+class OutputError(InputError, OSError):
+    """An output file that cannot be written (disk full, no permission, read-only filesystem,
+    a directory in the way): ``(file, "write", reason)``; nothing was written. Exit 2."""
+
+    def __init__(self, file, key, reason, errno=None):
+        InputError.__init__(self, file, key, reason)
+        self.errno = errno
+        self.strerror = reason
+        self.filename = str(file)
+
+    def __str__(self):
+        return f"{self.file}: {self.key}: {self.reason}"  # not OSError's "[Errno n] ..."
 
 
 @dataclass
@@ -31,6 +74,7 @@ class Archive:
     target: np.ndarray | None = None
     runs: dict = field(default_factory=dict)  # run name -> Result
     extra: dict = field(default_factory=dict)  # further datasets: "/measured/points" -> array
+    obstacles: list = field(default_factory=list)  # issue 15: /obstacles/<k> (vine_nlp.io.obstacles)
     software_version: str = __version__
     created: str = ""
     format_version: int = FORMAT_VERSION
@@ -45,10 +89,22 @@ class Archive:
 DEFAULT_RUNS = ("nlp", "nlp_robust", "nlp_clearance", "greedy", "forward", "fit", "tip", "multishape")
 
 
+# ---------------------------------------------------------------- writing
+
+
 def atomic_path(path: Path):
-    """A temporary file beside ``path``: same directory, so the final os.replace is atomic."""
+    """A temporary file beside ``path``: same directory, so the final os.replace is atomic.
+
+    Raises
+    ------
+    OutputError
+        When the directory does not exist or cannot be written.
+    """
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:
+        raise output_error(path, exc) from None
     os.close(fd)
     # mkstemp makes the file private (0600): give the result the permissions a plain open() would
     umask = os.umask(0)
@@ -57,16 +113,57 @@ def atomic_path(path: Path):
     return Path(tmp)
 
 
+def output_error(path, exc: OSError) -> OutputError:
+    """The one-line error for an OSError met while writing ``path``."""
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    if isinstance(exc, IsADirectoryError) or (Path(path).is_dir()):
+        reason = "is a directory"
+    return OutputError(path, "write", f"cannot write ({reason}); nothing was written", errno=exc.errno)
+
+
 def write_atomic(path, write):
-    """Call ``write(tmp_path)`` then rename onto ``path``; on any failure nothing is left behind."""
+    """Call ``write(tmp_path)`` then rename onto ``path``; on any failure nothing is left behind.
+
+    Raises
+    ------
+    OutputError
+        For an OSError while writing or renaming (disk full, permissions, read-only
+        filesystem, a directory at ``path``). Other exceptions pass through unchanged.
+    """
     path = Path(path)
     tmp = atomic_path(path)
     try:
         write(tmp)
         os.replace(tmp, path)
+    except OutputError:
+        tmp.unlink(missing_ok=True)
+        raise
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise output_error(path, exc) from None
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def write_h5_atomic(path, fill) -> None:
+    """Write an HDF5 file made by ``fill(h5)`` (an in-memory h5py.File) atomically to ``path``.
+
+    HDF5 never touches the disk: the finished image is written with plain file I/O, so a
+    failed write is one OutputError and nothing else (no HDF5 error at close or exit).
+    """
+    buf = io.BytesIO()
+    with h5py.File(buf, "w") as h5:
+        fill(h5)
+    data = buf.getbuffer()
+
+    def write(tmp):
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())  # a full disk shows here at the latest, not after the rename
+
+    write_atomic(path, write)
 
 
 def _attr(value):
@@ -92,6 +189,8 @@ def _write(h5: h5py.File, a: Archive):
         h5.create_dataset("target/points", data=np.asarray(a.target, float), **_COMPRESS)
     for key, arr in a.extra.items():
         h5.create_dataset(key.strip("/"), data=np.asarray(arr), **_COMPRESS)
+    if a.obstacles:
+        write_obstacles(h5.create_group("obstacles"), a.obstacles)
     runs = h5.create_group("runs")
     for name, r in a.runs.items():
         g = runs.create_group(name)
@@ -111,14 +210,34 @@ def _write(h5: h5py.File, a: Archive):
         st.attrs.update({k: _attr(v) for k, v in r.stats.items()})
 
 
-def write_archive(path, archive: Archive) -> None:
-    """Write ``archive`` to ``path`` atomically (temporary file in the same directory, then rename)."""
+def write_archive(path, archive: Archive, extend=None) -> None:
+    """Write ``archive`` to ``path`` atomically (built in memory, temporary file, rename).
 
-    def write(tmp):
-        with h5py.File(tmp, "w") as h5:
-            _write(h5, archive)
+    Parameters
+    ----------
+    path : path-like
+        The archive to write.
+    archive : Archive
+        What to write (the spec's layout; ``archive.extra`` as further datasets).
+    extend : callable, optional
+        ``extend(h5)`` adds further groups (multi-shape levels, ...) to the open
+        in-memory file after the standard layout.
 
-    write_atomic(path, write)
+    Raises
+    ------
+    OutputError
+        When the file cannot be written; nothing is left behind.
+    """
+
+    def fill(h5):
+        _write(h5, archive)
+        if extend is not None:
+            extend(h5)
+
+    write_h5_atomic(path, fill)
+
+
+# ---------------------------------------------------------------- reading and validation
 
 
 def _decode(v):
@@ -129,49 +248,328 @@ def _decode(v):
     return v
 
 
-_CORE_GROUPS = ("problem", "tube", "target", "runs")
+_CORE_GROUPS = ("problem", "tube", "target", "runs", "obstacles")
+_LINES = ("center", "inner", "outer")
+_FINITE_METRICS = ("rmse", "max_error")
+_NAN_ALLOWED = ("frames",)  # per-frame fits archive NaN for a frame that could not be fitted
 
 
-def _collect(extra, key, obj):
-    if isinstance(obj, h5py.Dataset):
-        extra[key] = obj[()]
+class _Checker:
+    """Reads datasets and attributes of one open archive, each checked, errors named by path."""
+
+    def __init__(self, file):
+        self.file = str(file)
+
+    def fail(self, key, reason):
+        raise ArchiveError(self.file, key, reason)
+
+    # -- attributes
+    def text(self, node, name, required=True, default=""):
+        key = f"{_path(node)}@{name}"
+        if name not in node.attrs:
+            if required:
+                self.fail(key, "missing attribute")
+            return default
+        v = _decode(node.attrs[name])
+        if not isinstance(v, str):
+            self.fail(key, f"must be text, got {type(v).__name__}")
+        if len(v) > limits.MAX_TEXT_CHARS:
+            self.fail(key, f"longer than {limits.MAX_TEXT_CHARS} characters (vine_nlp.io.limits.MAX_TEXT_CHARS)")
+        return v
+
+    def number(self, node, name, integer=False, minimum=None, required=True, default=None, finite=True, nan_ok=False):
+        key = f"{_path(node)}@{name}"
+        if name not in node.attrs:
+            if required:
+                self.fail(key, "missing attribute")
+            return default
+        v = _decode(node.attrs[name])
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            self.fail(key, f"must be a number, got {type(v).__name__}")
+        if integer and not (isinstance(v, int) or float(v).is_integer()):
+            self.fail(key, f"must be an integer, got {v!r}")
+        if (math.isnan(v) and not nan_ok) or (finite and math.isinf(v)):
+            self.fail(key, f"must be finite, got {v!r}")
+        if minimum is not None and v < minimum:
+            self.fail(key, f"must be >= {minimum}, got {v!r}")
+        return int(v) if integer else float(v)
+
+    # -- datasets
+    def group(self, parent, name, required=True):
+        key = f"{_path(parent).rstrip('/')}/{name}"
+        if name not in parent:
+            if required:
+                self.fail(key, "missing")
+            return None
+        g = parent[name]
+        if not isinstance(g, h5py.Group):
+            self.fail(key, "must be a group")
+        return g
+
+    def array(self, parent, name, shape, limit, finite=True, integer_ok=True, limit_name="MAX_DATASET_ELEMENTS"):
+        """Dataset ``name``: float (ints accepted), ``shape`` a tuple of int or None (any), size <= limit."""
+        key = f"{_path(parent).rstrip('/')}/{name}"
+        if name not in parent:
+            self.fail(key, "missing")
+        ds = parent[name]
+        if not isinstance(ds, h5py.Dataset):
+            self.fail(key, "must be a dataset")
+        return self.values(ds, key, shape, limit, finite, integer_ok, limit_name=limit_name)
+
+    def values(self, ds, key, shape, limit, finite=True, integer_ok=True, raw=False, limit_name="MAX_DATASET_ELEMENTS"):
+        if ds.dtype.kind not in ("fiub" if integer_ok else "f") or ds.dtype.fields or ds.dtype.subdtype:
+            self.fail(key, f"must hold real numbers, got dtype {ds.dtype}")
+        if ds.shape is None:
+            self.fail(key, "empty dataset (no shape)")
+        if shape is not None:
+            if len(ds.shape) != len(shape) or any(want is not None and got != want for got, want in zip(ds.shape, shape)):
+                want = "(" + ", ".join("n" if w is None else str(w) for w in shape) + ("," if len(shape) == 1 else "") + ")"
+                self.fail(key, f"shape {ds.shape}, expected {want}")
+        size = int(np.prod(ds.shape, dtype=np.int64))
+        if size > limit:
+            self.fail(key, f"{size} values, more than the limit of {limit} (vine_nlp.io.limits.{limit_name})")
+        stored = np.asarray(ds[()])
+        data = stored.astype(float)
+        if finite and not np.all(np.isfinite(data)):
+            bad = tuple(int(i) for i in np.argwhere(~np.isfinite(data))[0])
+            where = ", ".join(map(str, bad))
+            self.fail(key, f"non-finite value {float(data[bad])} at [{where}]" if bad else f"non-finite value {float(data)}")
+        return stored if raw else data
+
+    def pose(self, parent, name):
+        key = f"{_path(parent).rstrip('/')}/{name}"
+        T = self.array(parent, name, (4, 4), 16)
+        R = T[:3, :3]
+        if not np.allclose(T[3], (0.0, 0.0, 0.0, 1.0), atol=POSE_TOLERANCE, rtol=0):
+            self.fail(key, f"last row must be 0 0 0 1, got {T[3].tolist()}")
+        err = float(np.abs(R.T @ R - np.eye(3)).max())
+        if err > POSE_TOLERANCE:
+            self.fail(key, f"rotation part is not orthonormal (|R^T R - I| = {err:.3g})")
+        if np.linalg.det(R) < 0:
+            self.fail(key, "rotation part has det -1 (a reflection, not a rotation)")
+        return T
+
+    def shape_lines(self, parent, key_prefix, rows=None):
+        g = self.group(parent, "shape")
+        lines = []
+        for line in _LINES:
+            arr = self.array(g, line, (rows, 3), 3 * limits.MAX_SHAPE_POINTS, limit_name="MAX_SHAPE_POINTS")
+            if arr.shape[0] < 1:
+                self.fail(f"{_path(g)}/{line}", "no rows")
+            rows = arr.shape[0]
+            lines.append(arr)
+        return Shape(*lines)
+
+    def metrics(self, parent):
+        if "metrics" not in parent:
+            return {}
+        g = self.group(parent, "metrics")
+        out = {}
+        for k in g.attrs:
+            # NaN is how a metric says "does not apply" (analyze: no first contact); rmse and max_error always apply
+            v = self.number(g, k, finite=False, nan_ok=k not in _FINITE_METRICS)
+            if k in _FINITE_METRICS and not (math.isfinite(v) and v >= 0):
+                self.fail(f"{_path(g)}@{k}", f"must be finite and >= 0, got {v!r}")
+            out[k] = v
+        return out
+
+
+def _path(node) -> str:
+    return node.name or "/"
+
+
+def _run(c: _Checker, name: str, g, a: Archive) -> Result:
+    if not isinstance(g, h5py.Group):
+        c.fail(f"/runs/{name}", "must be a group")
+    d = c.group(g, "design")
+    theta = c.array(d, "theta", (None,), limits.MAX_SEGMENTS, limit_name="MAX_SEGMENTS")
+    M = theta.size
+    lam = c.array(d, "lambda", (M,), limits.MAX_SEGMENTS, limit_name="MAX_SEGMENTS")
+    length = c.array(d, "length", (M,), limits.MAX_SEGMENTS, limit_name="MAX_SEGMENTS")
+    c.array(d, "phi", (M + 1,), limits.MAX_SEGMENTS + 1, limit_name="MAX_SEGMENTS")  # derived from theta: checked, not kept
+    if M and np.any(length <= 0):
+        c.fail(f"{_path(d)}/length", f"segment lengths must be > 0, got {float(length.min())!r}")
+    if M and np.any(lam <= 0):
+        c.fail(f"{_path(d)}/lambda", f"must be > 0, got {float(lam.min())!r}")
+    pose = c.pose(d, "initial_pose")
+    # design runs pair shape row i with target row i (the spec), so P = N
+    rows = a.target.shape[0] if a.target is not None and a.kind in ("design", "multishape") else None
+    shape = c.shape_lines(g, _path(g), rows)
+    stats = {}
+    if "solver" in g:
+        st = c.group(g, "solver")
+        for k, v in st.attrs.items():
+            v = _decode(v)
+            if isinstance(v, str):
+                v = c.text(st, k)
+            elif isinstance(v, np.ndarray):
+                if v.size > limits.MAX_DATASET_ELEMENTS or v.dtype.kind not in "fiub":
+                    c.fail(f"{_path(st)}@{k}", f"unsupported attribute value (dtype {v.dtype}, {v.size} values)")
+            elif not isinstance(v, (int, float, bool)):
+                c.fail(f"{_path(st)}@{k}", f"unsupported attribute type {type(v).__name__}")
+            stats[k] = v
+    if "levels" in g:
+        _levels(c, g, d, M, a)
+    return Result(
+        method=c.text(g, "method"),
+        routing=Routing(theta, lam, length, pose),
+        shape=shape,
+        status=c.text(g, "status"),
+        solve_time_s=c.number(g, "solve_time_s", minimum=0),
+        iterations=c.number(g, "iterations", integer=True, minimum=0),
+        metrics=c.metrics(g),
+        stats=stats,
+        diameter=a.diameter,
+    )
+
+
+def _levels(c: _Checker, g, d, M, a: Archive) -> None:
+    """Multi-shape extension: design/levels (K,), levels/<k>/{initial_pose, shape/*, metrics}, /targets/<k>."""
+    levels = c.array(d, "levels", (None,), limits.MAX_LEVELS, limit_name="MAX_LEVELS")
+    K = levels.size
+    if np.any(levels <= 0):
+        c.fail(f"{_path(d)}/levels", "contraction levels must be > 0")
+    lv = c.group(g, "levels")
+    for k in range(K):
+        one = c.group(lv, str(k))
+        c.number(one, "lambda", required=False)
+        c.pose(one, "initial_pose")
+        target = a.extra.get(f"targets/{k}/points")
+        if target is None:
+            c.fail(f"/targets/{k}/points", f"missing: level {k} of {_path(g)} has no target")
+        c.shape_lines(one, _path(one), target.shape[0])
+        c.metrics(one)
+    extra = sorted(set(lv) - {str(k) for k in range(K)})
+    if extra:
+        c.fail(f"{_path(lv)}/{extra[0]}", f"no such level: design/levels has {K}")
+
+
+def _extras(c: _Checker, h5, a: Archive) -> None:
+    """Every dataset outside the core layout, checked and kept in ``a.extra``."""
+    found = []
+
+    def visit(name, obj):
+        if isinstance(obj, h5py.Dataset):
+            found.append((name, obj))
+        elif not isinstance(obj, h5py.Group):  # pragma: no cover - h5py yields groups and datasets
+            c.fail(f"/{name}", "unsupported object")
+        if len(found) > limits.MAX_RUNS * 100:
+            c.fail(f"/{name}", f"more than {limits.MAX_RUNS * 100} datasets outside /runs")
+
+    total = 0
+    for top in h5:
+        if top in _CORE_GROUPS:
+            continue
+        obj = h5[top]
+        if isinstance(obj, h5py.Dataset):
+            found.append((top, obj))
+        else:
+            obj.visititems(lambda name, o, top=top: visit(f"{top}/{name}", o))
+    for name, ds in found:
+        key = f"/{name}"
+        if ds.ndim < 1:
+            c.fail(key, "must be an array (at least 1-D), got a scalar")
+        data = c.values(ds, key, None, limits.MAX_DATASET_ELEMENTS, finite=name.split("/")[0] not in _NAN_ALLOWED, raw=True)
+        total += data.size
+        if total > limits.MAX_DATASET_ELEMENTS:
+            c.fail(key, f"more than {limits.MAX_DATASET_ELEMENTS} values in further datasets (vine_nlp.io.limits.MAX_DATASET_ELEMENTS)")
+        parts = name.split("/")
+        if parts[0] in ("targets", "measured") and parts[-1] in ("points", "closest"):
+            if data.ndim != 2 or data.shape[1] != 3 or data.shape[0] > limits.MAX_TARGET_POINTS:
+                c.fail(key, f"shape {data.shape}, expected (n, 3) with n <= {limits.MAX_TARGET_POINTS} (vine_nlp.io.limits.MAX_TARGET_POINTS)")
+        if parts[0] == "tip" and data.shape != (3,):
+            c.fail(key, f"shape {data.shape}, expected (3,)")
+        if name == "tip/direction" and not np.linalg.norm(data.astype(float)) > 0:
+            c.fail(key, "direction must not be zero")
+        a.extra[name] = data
+
+
+def _load(c: _Checker, h5) -> Archive:
+    fmt = _decode(h5.attrs.get("format"))
+    if fmt != FORMAT:
+        c.fail("/@format", "not a vine_nlp result archive")
+    version = c.number(h5, "format_version", integer=True, minimum=1)
+    if version > FORMAT_VERSION:
+        c.fail("/@format_version", f"format version {version} is newer than this vine_nlp reads ({FORMAT_VERSION})")
+    p = c.group(h5, "problem")
+    tube = c.group(h5, "tube")
+    units = c.text(h5, "units")
+    if not units or len(units) > 32:
+        c.fail("/@units", f"must be a unit name, got {units[:40]!r}")
+    diameter = c.number(tube, "diameter")
+    if diameter <= 0:
+        c.fail("/tube@diameter", f"must be > 0, got {diameter!r}")
+    target = None
+    if "target" in h5:
+        tg = c.group(h5, "target")
+        target = c.array(tg, "points", (None, 3), 3 * limits.MAX_TARGET_POINTS, limit_name="MAX_TARGET_POINTS")
+        if target.shape[0] < 2:
+            c.fail("/target/points", f"needs at least 2 points, got {target.shape[0]}")
+    a = Archive(
+        name=c.text(p, "name"),
+        kind=c.text(p, "kind"),
+        source=c.text(p, "source"),
+        diameter=diameter,
+        units=units,
+        target=target,
+        software_version=c.text(h5, "software_version"),
+        created=c.text(h5, "created", required=False),
+        format_version=version,
+    )
+    # everything outside the core layout comes back as it was written (measured points, frames, ...)
+    _extras(c, h5, a)
+    if "obstacles" in h5:
+        if not isinstance(h5["obstacles"], h5py.Group):
+            c.fail("/obstacles", "must be a group of obstacles /obstacles/<k>")
+        try:
+            a.obstacles = read_obstacles(h5["obstacles"], c.file)
+        except ArchiveError:
+            raise
+        except InputError as exc:
+            raise ArchiveError(exc.file, exc.key, exc.reason) from None
+    runs = c.group(h5, "runs")
+    if len(runs) > limits.MAX_RUNS:
+        c.fail("/runs", f"{len(runs)} runs, more than the limit of {limits.MAX_RUNS} (vine_nlp.io.limits.MAX_RUNS)")
+    for name in runs:
+        a.runs[name] = _run(c, name, runs[name], a)
+    return a
 
 
 def load_archive(path) -> Archive:
-    """Read an archive back into typed objects."""
-    with h5py.File(path, "r") as h5:
-        if _decode(h5.attrs.get("format")) != FORMAT:
-            raise ValueError(f"{path}: not a vine_nlp result archive")
-        p = h5["problem"].attrs
-        a = Archive(
-            name=_decode(p["name"]),
-            kind=_decode(p["kind"]),
-            source=_decode(p["source"]),
-            diameter=float(h5["tube"].attrs["diameter"]),
-            units=_decode(h5.attrs["units"]),
-            target=h5["target/points"][()] if "target/points" in h5 else None,
-            software_version=_decode(h5.attrs["software_version"]),
-            created=_decode(h5.attrs["created"]),
-            format_version=int(h5.attrs["format_version"]),
-        )
-        # everything outside the core layout comes back as it was written (measured points, frames, ...)
-        for top in h5:
-            if top not in _CORE_GROUPS:
-                h5[top].visititems(lambda name, obj, top=top: _collect(a.extra, f"{top}/{name}", obj))
-        for name, g in h5["runs"].items():
-            d = g["design"]
-            routing = Routing(d["theta"][()], d["lambda"][()], d["length"][()], d["initial_pose"][()])
-            shape = Shape(*(g["shape"][k][()] for k in ("center", "inner", "outer")))
-            stats = {k: _decode(v) for k, v in g["solver"].attrs.items()} if "solver" in g else {}
-            a.runs[name] = Result(
-                method=_decode(g.attrs["method"]),
-                routing=routing,
-                shape=shape,
-                status=_decode(g.attrs["status"]),
-                solve_time_s=float(g.attrs["solve_time_s"]),
-                iterations=int(g.attrs["iterations"]),
-                metrics={k: float(v) for k, v in g["metrics"].attrs.items()},
-                stats=stats,
-                diameter=a.diameter,
-            )
-    return a
+    """Read an archive back into typed objects, every part checked (see the module docstring).
+
+    Parameters
+    ----------
+    path : path-like
+        The archive.
+
+    Returns
+    -------
+    Archive
+
+    Raises
+    ------
+    ArchiveError
+        (an InputError and a ValueError) for a missing, unreadable, malformed or
+        oversized archive, naming the dataset and the reason. Nothing else.
+    """
+    c = _Checker(path)
+    p = Path(path)
+    try:
+        if not p.exists():
+            c.fail("file", "no such file")
+        if p.is_dir():
+            c.fail("file", "is a directory, not an archive")
+        if p.stat().st_size > limits.MAX_FILE_BYTES:
+            c.fail("file", f"larger than {limits.MAX_FILE_BYTES} bytes (vine_nlp.io.limits.MAX_FILE_BYTES)")
+        if not h5py.is_hdf5(p):
+            c.fail("file", "not an HDF5 file")
+        with h5py.File(p, "r") as h5:
+            return _load(c, h5)
+    except ArchiveError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError, RuntimeError, IndexError, AttributeError, UnicodeError,
+            OverflowError, MemoryError, json.JSONDecodeError) as exc:
+        # h5py reports damaged files in many ways; the part being read is not always known here
+        text = " ".join(str(exc).split())[:300] or type(exc).__name__
+        raise ArchiveError(p, "file", f"cannot read the archive ({text})") from None

@@ -1,7 +1,8 @@
 """Layer 1: the geometric model of Blumenschein et al. (IEEE T-RO 2021).
 
 Pure functions; each works on numpy arrays (vectorized over segments or designs)
-and on CasADi SX/MX symbols alike. No I/O.
+and on CasADi SX/MX symbols alike; and the pure value types they take and give
+(Routing, Shape, Pairing, Sigmas). No I/O.
 """
 
 from vine_nlp.model.chain import (  # noqa: F401
@@ -19,9 +20,19 @@ from vine_nlp.model.helix import (  # noqa: F401
     helix_self_collides,
     line_offset_angles,
 )
+from vine_nlp.model.pairing import Pairing, pair_points  # noqa: F401
+from vine_nlp.model.routing import MEASURED_LINES, Routing, Sigmas  # noqa: F401
 from vine_nlp.model.segment import (  # noqa: F401
     line_transform,
     paper_segment_transform,
+    segment_function,
     segment_point,
     segment_transform,
+)
+from vine_nlp.model.shape import (  # noqa: F401
+    Shape,
+    error_metrics,
+    forward_shape,
+    routing_metrics,
+    total_variation,
 )

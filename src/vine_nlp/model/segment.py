@@ -11,6 +11,7 @@ keep values and derivatives finite at phi = 0 (model notes).
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import casadi as ca
 import numpy as np
@@ -168,3 +169,39 @@ def so3_exp(w):
     if isinstance(w, (ca.SX, ca.MX)) or is_symbolic(*w):
         return ca.vertcat(*[ca.horzcat(*row) for row in R])
     return np.array(R, dtype=float)
+
+
+@lru_cache(maxsize=8)
+def segment_function(n: int) -> ca.Function:
+    """One segment as a CasADi SX function, in units of the tube diameter (D = 1).
+
+    Parameters
+    ----------
+    n : int
+        Number of points evaluated inside the segment.
+
+    Returns
+    -------
+    casadi.Function
+        ``(X (12), theta, lam, dl, u (n)) -> (Xn (12), pts (3 x n))``: the frame at the
+        segment's start (rotation column-major, then position), the routing parameters and
+        segment length dl (in D), the fractions u of the segment where points are wanted;
+        the frame at its end and the center-line points at the fractions. Cached: one
+        function per n, shared by every formulation and analysis.
+    """
+    X = ca.SX.sym("X", 12)  # rotation column-major (9), then position (3)
+    theta, lam, dl = ca.SX.sym("theta"), ca.SX.sym("lam"), ca.SX.sym("dl")
+    u = ca.SX.sym("u", n)
+    R = ca.reshape(X[:9], 3, 3)
+    p = X[9:]
+    kappa_c, tau_c, lambda_c = center_rates(theta, lam, 1.0)
+    sigma = dl * lambda_c
+    Rs, ps = twist_parts(kappa_c, tau_c, sigma)
+    Rstep = ca.vertcat(*[ca.horzcat(*row) for row in Rs])
+    Xn = ca.vertcat(ca.vec(ca.mtimes(R, Rstep)), p + ca.mtimes(R, ca.vertcat(*ps)))
+    pts = []
+    for i in range(n):
+        # point positions only: the rotation entries of the partial motion are not needed
+        _, q = twist_parts(kappa_c, tau_c, u[i] * sigma)
+        pts.append(p + ca.mtimes(R, ca.vertcat(*q)))
+    return ca.Function("segment", [X, theta, lam, dl, u], [Xn, ca.horzcat(*pts)], ["X", "theta", "lam", "dl", "u"], ["Xn", "pts"])

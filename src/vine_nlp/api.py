@@ -1,0 +1,1182 @@
+"""The public Python API: inverse design, forward model, fit and archives from a notebook or script.
+
+::
+
+    import vine_nlp as vn
+    r = vn.design(points, diameter=2.43)           # points: (N, 3) array-like
+    r.rmse, r.max_error, r.status, r.routing.theta, r.routing.lam, r.routing.length
+    r.save("out.h5")                               # the archive every command reads
+    fig = r.plot()                                 # a matplotlib Figure
+    r.template("t.pdf")                            # the 1:1 fabrication template
+    a = vn.load("out.h5")                          # a.runs["nlp"], a.run(), a.target
+
+Every argument is checked before any solver runs, with the limits of the problem
+files (``vine_nlp.io.problem_file``); bad input raises :class:`ArgumentError`, a
+ValueError whose message starts with the argument's name (``"diameter: must be >
+0"``). Solvers report trouble through ``status``, not exceptions.
+
+Formulations are looked up in ``vine_nlp.front.registry``, as the command line does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import html
+import importlib.util
+import io
+import json
+import math
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from vine_nlp import targets
+from vine_nlp.design.problem import (
+    MEASURED_LINES,
+    Actuator,
+    DesignOptions,
+    DesignProblem,
+    FitProblem,
+    ForwardProblem,
+    MultiShapeProblem,
+    Routing,
+    TipProblem,
+)
+from vine_nlp.design.result import Result
+from vine_nlp.front import registry
+from vine_nlp.front.correct import correct_files, correct_to_file
+from vine_nlp.io import limits, problems
+from vine_nlp.io import validate as check
+from vine_nlp.io.archive import Archive, load_archive, write_atomic
+from vine_nlp.io.problem_file import ProblemFile
+from vine_nlp.model.routing import Sigmas
+
+# figures, templates and views load matplotlib (and plotly): imported on first use, so that a
+# design does not wait for them
+_figure_format = registry.lazy("vine_nlp.front.plot:figure_format")
+_save_figure = registry.lazy("vine_nlp.front.plot:save_figure")
+_papers = registry.lazy("vine_nlp.front.template:PAPERS_MM")
+_write_template = registry.lazy("vine_nlp.front.template:write_template")
+_view_html = registry.lazy("vine_nlp.front.view:view_html")
+
+__all__ = [
+    "design",
+    "forward",
+    "fit",
+    "load",
+    "solve",
+    "Design",
+    "Project",
+    "ArgumentError",
+    "DesignProblem",
+    "ForwardProblem",
+    "FitProblem",
+    "MultiShapeProblem",
+    "TipProblem",
+    "Actuator",
+    "DesignOptions",
+    "Routing",
+    "Sigmas",
+    "Result",
+]
+
+_API_FILE = "<vine_nlp API>"  # ProblemFile.path of problems made by this API (no file behind them)
+_SOURCE_ARRAY_MAX = 200  # per-segment arrays longer than this stay out of the source text (HDF5 attributes are small)
+_THETA_MAX_DEG = round(math.degrees(Actuator.theta_max), 9)
+
+
+class ArgumentError(ValueError):
+    """Bad input to the API: ``argument`` names the argument, ``reason`` says what is wrong.
+
+    The message is ``"<argument>: <reason>"``, the command line's ``<key>: <reason>``.
+    """
+
+    def __init__(self, argument: str, reason: str):
+        self.argument = str(argument)
+        self.reason = str(reason)
+        super().__init__(f"{self.argument}: {self.reason}")
+
+
+class _Arguments(check.SourceFile):
+    """The "file" the validators of ``io.validate`` and ``io.problems`` read: the same rules and
+    reasons as for problem files, reported as ArgumentError naming the API argument (``names``
+    maps a problem-file key such as "actuator.theta_max_deg" to it)."""
+
+    def __init__(self, names: dict | None = None):
+        super().__init__(_API_FILE)
+        self.names = names or {}
+
+    def error(self, key: str, reason: str) -> ArgumentError:
+        return ArgumentError(self.names.get(key, key), reason)
+
+
+# problem-file keys -> the argument that carries them
+_DESIGN_ARGUMENTS = {
+    "actuator.kind": "actuator",
+    "actuator.lambda_min": "lambda_min",
+    "actuator.theta_max_deg": "theta_max_deg",
+    "design.method": "method",
+    "design.points_per_segment": "points_per_segment",
+    "design.starts": "starts",
+    "design.hops": "hops",
+    "design.seed": "seed",
+    "design.max_iter": "max_iter",
+    "design.smoothness": "smoothing",
+    "design.smoothness.theta": "smoothing",
+    "design.smoothness.lambda": "smoothing",
+}
+
+
+def _plain(value):
+    """numpy scalars as Python numbers (the validators take what TOML gives: int, float, bool, str)."""
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def _number(args: _Arguments, key: str, value, low=None, high=None, low_open=True, high_open=False) -> float:
+    x = check.real_number(args, key, _plain(value))
+    lo_ok = low is None or (x > low if low_open else x >= low)
+    hi_ok = high is None or (x < high if high_open else x <= high)
+    if not (lo_ok and hi_ok):
+        left = "(" if low_open else "["
+        right = ")" if high_open else "]"
+        if high is None:
+            rule = f"must be {'>' if low_open else '>='} {low:g}"
+        elif low is None:
+            rule = f"must be {'<' if high_open else '<='} {high:g}"
+        else:
+            rule = f"must be in {left}{low:g}, {high:g}{right}"
+        raise args.error(key, f"{rule}, got {x:g}")
+    return x
+
+
+def _integer(args: _Arguments, key: str, value, least: int) -> int:
+    return check.integer(args, key, _plain(value), least)
+
+
+def _text(args: _Arguments, key: str, value) -> str:
+    return check.nonempty_text(args, key, value)
+
+
+def _units(args: _Arguments, units) -> str:
+    units = check.nonempty_text(args, "units", units)
+    if len(units) > 32:  # the archive reader takes unit names of up to 32 characters
+        raise args.error("units", "must be a unit name of at most 32 characters")
+    return units
+
+
+def _diameter(diameter) -> float:
+    return _number(_Arguments(), "diameter", diameter, low=0.0)
+
+
+def _points(value, key: str = "points", least: int = 3, ordered: bool = True) -> np.ndarray:
+    """(N, 3) float points (2-D columns mean z = 0), with the problem files' rules for targets
+    (``ordered``: ``targets.check_points``) or for measured points (finite, at least ``least``)."""
+    try:
+        p = targets.check_points(value) if ordered else targets._as_3d(value, least=least)
+    except ValueError as e:
+        raise ArgumentError(key, str(e)) from None
+    finite = np.all(np.isfinite(p), axis=1)
+    if not finite.all():
+        raise ArgumentError(key, f"point {int(np.argmin(finite)) + 1} is not finite")
+    if p.shape[0] > limits.MAX_TARGET_POINTS:
+        raise ArgumentError(key, f"has {p.shape[0]} points; at most {limits.MAX_TARGET_POINTS}")
+    return p
+
+
+def _smoothness(value) -> dict:
+    """``smoothing``: one weight for theta and lambda, a pair (theta, lambda) or a dict with keys theta, lambda."""
+    if value is None:
+        return {}
+    if isinstance(value, dict):
+        unknown = [k for k in value if k not in ("theta", "lambda")]
+        if unknown:
+            raise ArgumentError("smoothing", f"unknown key {unknown[0]!r}; the keys are 'theta' and 'lambda'")
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        if len(value) != 2:
+            raise ArgumentError("smoothing", "must be a number, a pair (theta, lambda) or a dict")
+        return {"theta": _plain(value[0]), "lambda": _plain(value[1])}
+    return {"theta": _plain(value), "lambda": _plain(value)}
+
+
+def _design_problem(points, diameter, *, actuator, theta_max_deg, lambda_min, points_per_segment, smoothing, starts, hops,
+                    method, seed, units, name) -> DesignProblem:
+    args = _Arguments(_DESIGN_ARGUMENTS)
+    name = _text(args, "name", name)
+    units = _units(args, units)
+    D = _diameter(diameter)
+    table = {"kind": actuator}
+    if lambda_min is not None:
+        table["lambda_min"] = _plain(lambda_min)
+    if theta_max_deg is not None:
+        table["theta_max_deg"] = _plain(theta_max_deg)
+    act = problems._actuator(args, table)
+    options = {"method": method, "points_per_segment": points_per_segment, "starts": starts, "hops": hops, "seed": seed}
+    options = {k: _plain(v) for k, v in options.items()}
+    smooth = _smoothness(smoothing)
+    if smooth:
+        options["smoothness"] = smooth
+    opts = problems._options(args, options)
+    target = _points(points)
+    n, N = opts.points_per_segment, target.shape[0]
+    if N < n + 1:
+        raise ArgumentError("points", f"needs at least points_per_segment + 1 = {n + 1} points, got {N}")
+    segments = math.ceil((N - 1) / n)
+    if segments > limits.MAX_SEGMENTS:  # the archive readers' limit: a larger design could not be read back
+        raise ArgumentError("points", f"{N} points at points_per_segment = {n} give {segments} segments; at most {limits.MAX_SEGMENTS}")
+    return DesignProblem(name=name, diameter=D, target=target, actuator=act, options=opts, units=units)
+
+
+def _sigmas(robust) -> Sigmas:
+    """``robust``: a Sigmas, or a dict with any of theta_deg, lambda, length (relative) or length_abs (in units)."""
+    if isinstance(robust, Sigmas):
+        sig = robust
+        values = {"theta": sig.theta, "lambda": sig.lam, "length": sig.length}
+    elif isinstance(robust, dict):
+        keys = ("theta_deg", "lambda", "length", "length_abs")
+        unknown = [k for k in robust if k not in keys]
+        if unknown:
+            raise ArgumentError("robust", f"unknown key {unknown[0]!r}; the keys are {', '.join(keys)}")
+        if "length" in robust and "length_abs" in robust:
+            raise ArgumentError("robust", "give length (relative) or length_abs (in units), not both")
+        values = {k: robust[k] for k in robust}
+    else:
+        raise ArgumentError("robust", "must be a Sigmas or a dict with keys theta_deg, lambda, length or length_abs")
+    args = _Arguments()
+    checked = {k: _number(args, f"robust: {k}", v, low=0.0, low_open=False) for k, v in values.items()}
+    if not any(v > 0 for v in checked.values()):
+        raise ArgumentError("robust", "every sigma is 0: there is no construction error to be robust against")
+    if isinstance(robust, Sigmas):
+        return robust
+    relative = "length_abs" not in checked
+    length = checked.get("length_abs", checked.get("length", 0.0))
+    return Sigmas.from_degrees(checked.get("theta_deg", 0.0), checked.get("lambda", 0.0), length, relative_length=relative)
+
+
+# ---------------------------------------------------------------- source text of an archive
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, str):
+        # a JSON string is a TOML basic string, once DEL is escaped (raw non-ASCII: TOML has no surrogate escapes)
+        return json.dumps(v, ensure_ascii=False).replace("\x7f", "\\u007f")
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_toml_value(x) for x in np.asarray(v).tolist()) + "]"
+    if isinstance(v, int):
+        return str(v)
+    return repr(float(v))
+
+
+def _toml(comment: str, top: dict, tables: dict) -> str:
+    """TOML text: comment lines, top-level keys, then [tables] (a value None is left out)."""
+    lines = [f"# {line}" if line else "#" for line in comment.splitlines()]
+    lines += [f"{k} = {_toml_value(v)}" for k, v in top.items() if v is not None]
+    for name, table in tables.items():
+        lines += ["", f"[{name}]"]
+        for k, v in table.items():
+            if isinstance(v, str) and v.startswith("#"):
+                lines.append(v)
+            elif v is not None:
+                lines.append(f"{k} = {_toml_value(v)}")
+    return "\n".join(lines) + "\n"
+
+
+def _actuator_table(a: Actuator) -> dict:
+    return {"kind": a.kind, "lambda_min": float(a.lambda_min), "theta_max_deg": round(math.degrees(a.theta_max), 9)}
+
+
+def _options_table(o: DesignOptions, kind: str = "design") -> dict:
+    table = {"method": o.method, "points_per_segment": o.points_per_segment, "starts": o.starts}
+    if kind == "design":
+        table["hops"] = o.hops
+    table["seed"] = o.seed
+    return table
+
+
+def _design_source(problem: DesignProblem, call: str, runs: dict) -> str:
+    more = {}
+    if "nlp_clearance" in runs:
+        more["#clearance"] = f"# clearance: min_gap = {runs['nlp_clearance'].stats.get('min_gap', 0.0)!r} (run nlp_clearance)"
+    if "nlp_robust" in runs:
+        st = runs["nlp_robust"].stats
+        more["#robust"] = (f"# robust: weight = {st.get('robust_weight')!r}, sigma theta {st.get('robust_sigma_theta_deg')!r} deg, "
+                           f"lambda {st.get('robust_sigma_lambda')!r}, length {st.get('robust_sigma_length')!r}"
+                           f"{' (relative)' if st.get('robust_relative_length') else ''} (run nlp_robust)")
+    design_table = _options_table(problem.options) | more
+    return _toml(
+        f"written by the vine_nlp Python API: {call}\n"
+        f"the target: the archive's /target/points ({problem.target.shape[0]} points), not a [target] table",
+        {"name": problem.name, "units": problem.units},
+        {"tube": {"diameter": float(problem.diameter)}, "actuator": _actuator_table(problem.actuator), "design": design_table,
+         "design.smoothness": {"theta": problem.options.smooth_theta, "lambda": problem.options.smooth_lambda}},
+    )
+
+
+def _routing_table(r: Routing) -> dict:
+    """[routing] of a problem file where it can say the routing exactly, else a pointer to the archive."""
+    table = {"length": float(r.length.sum())}
+    equal = r.segments > 0 and np.all(r.length == r.length[0])
+    if equal:
+        table["segment_length"] = float(r.length[0])
+    for key, v in (("theta", r.theta), ("lambda", r.lam)):
+        if v.size and np.all(v == v[0]):
+            table[key] = float(v[0])
+        elif v.size <= _SOURCE_ARRAY_MAX and equal:
+            table[key] = v
+        else:
+            table[f"#{key}"] = f"# {key}: per segment, see /runs/<run>/design/{key}"
+    if not equal:
+        table["#length"] = "# unequal segment lengths: see /runs/<run>/design/length"
+    if not np.array_equal(r.initial_pose, np.eye(4)):
+        table["initial_pose"] = r.initial_pose
+    return table
+
+
+def _problem_source(problem, call: str) -> str:
+    """The source text of any problem object solved through ``solve``, ``forward`` or ``fit``."""
+    if isinstance(problem, DesignProblem):
+        return _design_source(problem, call, {})
+    tables = {"tube": {"diameter": float(problem.diameter)}}
+    notes = [f"written by the vine_nlp Python API: {call}"]
+    if isinstance(problem, (ForwardProblem, FitProblem)):
+        tables["routing"] = _routing_table(problem.routing)
+    if isinstance(problem, FitProblem):
+        tables["measured"] = {"line": problem.line, "#file": "# points: the archive's /measured/points"}
+        tables["fit"] = {"free": list(problem.free)}
+    if isinstance(problem, TipProblem):
+        tables["tip"] = {"position": problem.position, "direction": problem.direction, "length": float(problem.length),
+                         "segments": int(problem.segments), "objective": problem.objective, "initial_pose": problem.initial_pose}
+    if isinstance(problem, MultiShapeProblem):
+        notes.append(f"[[targets]]: {problem.count} targets, the archive's /targets/<k>/points, lambda levels {list(problem.levels)}")
+    if hasattr(problem, "actuator"):
+        tables["actuator"] = _actuator_table(problem.actuator)
+    if hasattr(problem, "options"):
+        tables["design"] = _options_table(problem.options, "other")
+    return _toml("\n".join(notes), {"name": problem.name, "units": problem.units}, tables)
+
+
+def _call(func: str, **shown) -> str:
+    return f"vine_nlp.{func}(" + ", ".join(f"{k}={v!r}" for k, v in shown.items()) + ")"
+
+
+# ---------------------------------------------------------------- results
+
+
+@dataclasses.dataclass(eq=False)
+class _Context:
+    """What the runs of one design share: the problem, the archive's text and the other runs."""
+
+    problem_file: ProblemFile
+    runs: dict  # run name -> Result
+    formulation: str  # registry key of the archive writer
+    extra: dict = dataclasses.field(default_factory=dict)
+    archive: Archive | None = None  # loaded archives: as read
+    path: str | None = None  # loaded archives: the file (saving copies it)
+
+    @property
+    def name(self) -> str:
+        return self.problem_file.name
+
+    def as_archive(self) -> Archive:
+        if self.archive is not None:
+            return self.archive
+        p = self.problem_file
+        return Archive(name=p.name, kind=p.kind, source=p.source, diameter=p.problem.diameter, units=p.units,
+                       target=getattr(p.problem, "target", None), runs=dict(self.runs), extra=dict(self.extra))
+
+
+class Design:
+    """One run (a routing, its shape, metrics and solver statistics) with its problem context.
+
+    Returned by :func:`design`, :func:`forward`, :func:`fit`, :func:`solve` and, for each run of
+    an archive, by :func:`load`. It has the attributes of a ``Result`` (``method``, ``routing``,
+    ``shape``, ``status``, ``solve_time_s``, ``iterations``, ``metrics``, ``stats``, ``phi``,
+    ``converged``, ``diameter``) and the context: ``name``, ``run``, ``kind``, ``units``,
+    ``target``, ``problem``, ``source``, ``runs`` (the runs made or read together, as Designs).
+    """
+
+    #: plotly.js in the notebook view (``_repr_html_``): True embeds it (about 4.5 MB per shown
+    #: design, works offline), "cdn" links it, None shows the table of key numbers only
+    html_plotlyjs = True
+
+    def __init__(self, context: _Context, run: str):
+        self._context = context
+        self.run = run
+
+    # -- the run
+    @property
+    def result(self) -> Result:
+        """The design layer's Result of this run."""
+        return self._context.runs[self.run]
+
+    @property
+    def method(self) -> str:
+        """The method that made this run (nlp, greedy, forward, fit, multishape, tip, ...)."""
+        return self.result.method
+
+    @property
+    def status(self) -> str:
+        """Solver status: "optimal", "acceptable", "max_iter", "failed", ..."""
+        return self.result.status
+
+    @property
+    def converged(self) -> bool:
+        """Whether the solver reached its tolerance (status optimal or acceptable)."""
+        return self.result.converged
+
+    @property
+    def rmse(self) -> float:
+        """Root mean square distance to the paired target (or measured) points, in ``units``; nan without a target."""
+        return float(self.result.metrics.get("rmse", math.nan))
+
+    @property
+    def max_error(self) -> float:
+        """Largest distance to a paired target (or measured) point, in ``units``; nan without a target."""
+        return float(self.result.metrics.get("max_error", math.nan))
+
+    @property
+    def routing(self) -> Routing:
+        """theta (rad), lam, length per segment and initial_pose (4 x 4)."""
+        return self.result.routing
+
+    @property
+    def theta(self) -> np.ndarray:
+        """Drawn angle of the actuator per segment (M,), rad."""
+        return self.routing.theta
+
+    @property
+    def lam(self) -> np.ndarray:
+        """Contraction ratio lambda per segment (M,)."""
+        return self.routing.lam
+
+    @property
+    def length(self) -> np.ndarray:
+        """Unactuated center-line length of each segment (M,), in ``units``."""
+        return self.routing.length
+
+    @property
+    def initial_pose(self) -> np.ndarray:
+        """Base pose T^0_w (4, 4)."""
+        return self.routing.initial_pose
+
+    @property
+    def phi(self) -> np.ndarray:
+        """Actuator angle around the tube at the segment ends (M + 1,), phi[0] = 0."""
+        return self.result.phi
+
+    @property
+    def segments(self) -> int:
+        """Number of segments M."""
+        return self.routing.segments
+
+    @property
+    def shape(self):
+        """The modeled lines ``center``, ``inner`` (actuator), ``outer``, each (P, 3)."""
+        return self.result.shape
+
+    @property
+    def metrics(self) -> dict:
+        """The run's metrics as archived: rmse, max_error, tv_theta, tv_lambda, ..."""
+        return self.result.metrics
+
+    @property
+    def stats(self) -> dict:
+        """Solver statistics as archived: IPOPT return status, build time, objective terms, options."""
+        return self.result.stats
+
+    @property
+    def solve_time_s(self) -> float:
+        """Wall time of the solve, in seconds."""
+        return self.result.solve_time_s
+
+    @property
+    def iterations(self) -> int:
+        """Solver iterations."""
+        return self.result.iterations
+
+    # -- the context
+    @property
+    def name(self) -> str:
+        """The problem's name (archived as ``/problem`` attribute ``name``)."""
+        return self._context.name
+
+    @property
+    def kind(self) -> str:
+        """The archive kind: design, forward, fit, multishape or tip."""
+        return self._context.problem_file.kind
+
+    @property
+    def units(self) -> str:
+        """Length unit of every length of this design."""
+        return self._context.problem_file.units
+
+    @property
+    def diameter(self) -> float:
+        """Tube diameter D, in ``units``."""
+        return float(self._context.problem_file.problem.diameter)
+
+    @property
+    def target(self) -> np.ndarray | None:
+        """The target points (N, 3) of design runs (row i pairs with ``shape.center`` row i), else None."""
+        return getattr(self._context.problem_file.problem, "target", None)
+
+    @property
+    def problem(self):
+        """The problem object solved (loaded archives: rebuilt from the archive, without solver settings)."""
+        return self._context.problem_file.problem
+
+    @property
+    def source(self) -> str:
+        """The problem text archived in /problem attrs source."""
+        return self._context.problem_file.source
+
+    @property
+    def runs(self) -> dict:
+        """Every run made or read together with this one, as Designs (``design(..., clearance=...)``: nlp and nlp_clearance)."""
+        return {name: Design(self._context, name) for name in self._context.runs}
+
+    # -- output
+    def save(self, path, overwrite: bool = False) -> Path:
+        """Write the archive (every run in ``runs``) to ``path``, atomically.
+
+        Parameters
+        ----------
+        path : str or Path
+            The .h5 file. Every command (show, plot, template, analyze, view, ...) reads it.
+        overwrite : bool
+            Replace an existing file (else FileExistsError, as the command line without --force).
+
+        Returns
+        -------
+        Path
+        """
+        out = _output(path, overwrite)
+        ctx = self._context
+        if ctx.path is not None:  # a loaded archive: the file as it was (extra groups and attributes included)
+            write_atomic(out, lambda tmp: shutil.copyfile(ctx.path, tmp))
+        else:
+            registry.formulation(ctx.formulation).write_archive(out, ctx.problem_file, ctx.runs, ctx.extra)
+        return out
+
+    def plot(self, path=None, overwrite: bool = False):
+        """The archive's figure (every run; ``vine-nlp plot``), also written to ``path`` (.png, .pdf, .svg) if given.
+
+        Parameters
+        ----------
+        path : str or Path, optional
+            Also write the figure there; the suffix picks the format.
+        overwrite : bool
+            Replace an existing file (else FileExistsError, as the command line without --force).
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            Not registered with pyplot: a notebook shows it once, and no backend is changed.
+        """
+        if path is not None:
+            try:
+                _figure_format(path)
+            except ValueError as e:
+                raise ArgumentError("path", str(e)) from None
+            out = _output(path, overwrite)
+        f = registry.formulation(self._context.formulation)
+        if f.figure_needs_path:
+            fig = self._with_file(f.figure)
+        else:
+            fig = f.figure(self._context.as_archive())
+        # a notebook shows the Figure as the cell's value even where pyplot (and with it the
+        # inline backend's formatter) was never imported; with that formatter, it takes precedence
+        fig._repr_png_ = functools.partial(_figure_png, fig)
+        if path is not None:
+            _save_figure(fig, out)
+        return fig
+
+    def template(self, path, paper: str = "A4", csv=None, overwrite: bool = False) -> dict:
+        """The 1:1 fabrication template of this run (``vine-nlp template``): a PDF (SVG and DXF as the command allows).
+
+        Parameters
+        ----------
+        path : str or Path
+        paper : {"A4", "Letter"}
+        csv : str or Path, optional
+            Also the cut list, one row per segment.
+        overwrite : bool
+
+        Returns
+        -------
+        dict
+            pages, strips, paper, orientation, run, segments, tube_length, ...
+        """
+        if paper not in _papers.resolve():
+            raise ArgumentError("paper", f"must be one of {', '.join(_papers.resolve())}, got {paper!r}")
+        out = _output(path, overwrite)
+        csv_out = _output(csv, overwrite, "csv") if csv is not None else None
+        if self.units not in ("cm", "mm"):
+            raise ArgumentError("units", f"a 1:1 template needs lengths in cm or mm, not {self.units!r}")
+        return _write_template(self._context.as_archive(), out, csv_path=csv_out, paper=paper, run=self.run)
+
+    def _with_file(self, func):
+        """``func(path)`` on this design's archive: the loaded file, or a temporary one."""
+        if self._context.path is not None:
+            return func(self._context.path)
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "design.h5"
+            self.save(path)
+            return func(path)
+
+    def summary(self) -> dict:
+        """The key numbers: run, method, status, segments, tube length, RMSE, max error, solve time, iterations."""
+        return {
+            "name": self.name,
+            "run": self.run,
+            "method": self.method,
+            "status": self.status,
+            "segments": self.segments,
+            "tube length": f"{float(self.length.sum()):.4g} {self.units}",
+            "diameter": f"{self.diameter:.4g} {self.units}",
+            "rmse": f"{self.rmse:.4g} {self.units}" if "rmse" in self.metrics else "-",
+            "max error": f"{self.max_error:.4g} {self.units}" if "max_error" in self.metrics else "-",
+            "solve time": f"{self.solve_time_s:.3f} s",
+            "iterations": self.iterations,
+        }
+
+    def __repr__(self) -> str:
+        s = self.summary()
+        err = f", rmse {s['rmse']}, max error {s['max error']}" if "rmse" in self.metrics else ""
+        return f"<Design {self.name!r} run {self.run!r}: {self.status}, {self.segments} segments{err}>"
+
+    def _repr_html_(self) -> str:
+        rows = "".join(f"<tr><th style='text-align:left'>{html.escape(str(k))}</th><td style='text-align:left'>"
+                       f"{html.escape(str(v))}</td></tr>" for k, v in self.summary().items())
+        table = f"<table>{rows}</table>"
+        if self.html_plotlyjs is None or importlib.util.find_spec("plotly") is None:
+            return table
+        return table + _view_html(self._context.as_archive(), run=self.run, full_html=False, include_plotlyjs=self.html_plotlyjs)
+
+
+class Project:
+    """The runs of an archive (:func:`load`): ``runs`` (name -> Design), ``run()``, ``target`` and the archive's attributes."""
+
+    def __init__(self, context: _Context):
+        self._context = context
+
+    @property
+    def runs(self) -> dict:
+        """Every run of the archive: name -> Design."""
+        return {name: Design(self._context, name) for name in self._context.runs}
+
+    def run(self, name: str | None = None) -> Design:
+        """The run ``name``, by default the one every command uses (nlp, nlp_robust, ..., forward, fit).
+
+        Parameters
+        ----------
+        name : str, optional
+            A run of the archive (a key of ``runs``).
+
+        Returns
+        -------
+        Design
+
+        Raises
+        ------
+        ArgumentError
+            The archive has no run ``name``.
+        """
+        archive = self._context.archive
+        name = name if name is not None else archive.default_run()
+        if name not in self._context.runs:
+            raise ArgumentError("name", f"no run {name!r} in the archive (runs: {', '.join(self._context.runs) or 'none'})")
+        return Design(self._context, name)
+
+    @property
+    def archive(self) -> Archive:
+        """The archive as ``vine_nlp.io.archive.load_archive`` reads it."""
+        return self._context.archive
+
+    @property
+    def target(self) -> np.ndarray | None:
+        """The target points (N, 3) of a design archive, else None."""
+        return self._context.archive.target
+
+    @property
+    def name(self) -> str:
+        """The problem's name."""
+        return self._context.archive.name
+
+    @property
+    def kind(self) -> str:
+        """The archive kind: design, forward, fit, multishape or tip."""
+        return self._context.archive.kind
+
+    @property
+    def units(self) -> str:
+        """Length unit of every length in the archive."""
+        return self._context.archive.units
+
+    @property
+    def diameter(self) -> float:
+        """Tube diameter D, in ``units``."""
+        return self._context.archive.diameter
+
+    @property
+    def source(self) -> str:
+        """The problem text archived in ``/problem`` attribute ``source``."""
+        return self._context.archive.source
+
+    @property
+    def extra(self) -> dict:
+        """Datasets beyond the contract's core layout ("measured/points", "tip/position", ...)."""
+        return self._context.archive.extra
+
+    def __repr__(self) -> str:
+        return f"<Project {self.name!r} ({self.kind}) from {self._context.path}: runs {', '.join(self._context.runs) or 'none'}>"
+
+
+def _figure_png(fig, dpi: int = 110) -> bytes:
+    """PNG bytes of a Figure, for notebooks (IPython's ``_repr_png_``)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return buf.getvalue()
+
+
+def _output(path, overwrite: bool, argument: str = "path") -> Path:
+    if not isinstance(path, (str, os.PathLike)) or not str(path):
+        raise ArgumentError(argument, "must be a file name")
+    out = Path(path)
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"{out} exists; pass overwrite=True to replace it")
+    if not out.parent.is_dir():
+        raise ArgumentError(argument, f"directory {str(out.parent)!r} does not exist")
+    return out
+
+
+def _made(problem, kind: str, formulation: str, source: str, runs: dict, extra=None) -> Design:
+    pf = ProblemFile(path=_API_FILE, source=source, kind=kind, name=problem.name, units=problem.units, problem=problem)
+    ctx = _Context(problem_file=pf, runs=runs, formulation=formulation, extra=dict(extra or {}))
+    return Design(ctx, list(runs)[-1])
+
+
+# ---------------------------------------------------------------- entry points
+
+
+def design(
+    points,
+    diameter,
+    *,
+    actuator: str = Actuator.kind,
+    theta_max_deg: float = _THETA_MAX_DEG,
+    lambda_min: float | None = None,
+    points_per_segment: int = DesignOptions.points_per_segment,
+    smoothing=None,
+    starts: int = DesignOptions.starts,
+    hops: int = DesignOptions.hops,
+    method: str = DesignOptions.method,
+    clearance: float | None = None,
+    robust=None,
+    robust_weight: float = 1.0,
+    seed: int = DesignOptions.seed,
+    workers: int = 1,
+    units: str = "cm",
+    name: str = "design",
+) -> Design:
+    """Inverse design: the actuator routing whose tube follows ``points`` (``vine-nlp design``).
+
+    Parameters
+    ----------
+    points : array_like, (N, 3) or (N, 2)
+        Target center line in order, finite, no two consecutive points equal; 2-D points mean z = 0.
+        N >= points_per_segment + 1.
+    diameter : float
+        Tube diameter D (> 0), in ``units``.
+    actuator : {"tendon", "programmed", "spam"}
+        "spam": one lambda for the whole actuator.
+    theta_max_deg : float
+        Bound on |theta|, in (0, 90) degrees.
+    lambda_min : float, optional
+        Lower bound on lambda, in (0, 1]; default 0.4 (spam: 0.5), as in problem files.
+    points_per_segment : int
+        n, target points per segment (>= 1): M = ceil((N - 1) / n) segments.
+    smoothing : float or (float, float) or dict, optional
+        Smoothness weights of theta and lambda (>= 0); default that of ``DesignOptions``.
+    starts, hops : int
+        nlp: multi-start count (>= 1) and rounds of basin hopping (>= 0).
+    method : {"nlp", "greedy"}
+    clearance : float, optional
+        Also a design keeping the tube clear of itself by this gap beyond D (>= 0, ``units``):
+        run ``nlp_clearance`` (the returned one).
+    robust : Sigmas or dict, optional
+        Also a design minimizing the expected error under construction errors: run ``nlp_robust``
+        (the returned one). Dict keys: ``theta_deg``, ``lambda``, ``length`` (relative) or
+        ``length_abs`` (``units``).
+    robust_weight : float
+        Weight of the expected error increase (>= 0).
+    seed : int
+        Seed of the multi-start and basin hopping (>= 0).
+    workers : int
+        nlp: processes for the starts (>= 1).
+    units : str
+        Length units of points and diameter, archived ("cm" for templates; "mm" works too).
+    name : str
+        Problem name in the archive.
+
+    Returns
+    -------
+    Design
+        The last run made (nlp or greedy; nlp_clearance with ``clearance``; nlp_robust with
+        ``robust``); ``runs`` holds all of them, ``save`` writes them all.
+
+    Raises
+    ------
+    ArgumentError
+        A ValueError naming the bad argument, before any solver runs.
+    """
+    problem = _design_problem(points, diameter, actuator=actuator, theta_max_deg=theta_max_deg, lambda_min=lambda_min,
+                              points_per_segment=points_per_segment, smoothing=smoothing, starts=starts, hops=hops,
+                              method=method, seed=seed, units=units, name=name)
+    args = _Arguments()
+    workers = _integer(args, "workers", workers, 1)
+    min_gap = None if clearance is None else _number(args, "clearance", clearance, low=0.0, low_open=False)
+    sigmas = None if robust is None else _sigmas(robust)
+    weight = _number(args, "robust_weight", robust_weight, low=0.0, low_open=False)
+
+    main = registry.formulation(problem.options.method)
+    options = {"workers": workers} if problem.options.method == "nlp" else {}
+    result, _ = main.solve(problem, **options)
+    runs = {main.run: result}
+    if sigmas is not None:
+        f = registry.formulation("robust")
+        runs[f.run], _ = f.solve(problem, sigmas=sigmas, weight=weight, start=result)
+    if min_gap is not None:
+        f = registry.formulation("clearance")
+        runs[f.run], _ = f.solve(problem, min_gap=min_gap, start=result)
+    call = _call("design", diameter=problem.diameter, actuator=problem.actuator.kind, method=problem.options.method,
+                 clearance=min_gap, robust=None if sigmas is None else sigmas.as_dict())
+    return _made(problem, "design", "nlp", _design_source(problem, call, runs), runs)
+
+
+def _per_segment(args, key, value, m):
+    v = np.asarray(_plain(value) if np.ndim(value) == 0 else value, dtype=object)
+    if v.ndim > 1:
+        raise ArgumentError(key, f"must be a number or a 1-D array (one value per segment), got shape {v.shape}")
+    items = [v.item()] if v.ndim == 0 else list(v)
+    out = np.array([check.real_number(args, key, _plain(x)) for x in items], dtype=float)
+    if v.ndim == 0:
+        return np.full(m, out[0])
+    if out.size != m:
+        raise ArgumentError(key, f"needs {m} values (one per segment), got {out.size}")
+    return out
+
+
+def _routing(theta, lam, length, *, segments=None, initial_pose=None, argument_prefix="") -> Routing:
+    """A Routing from scalars or per-segment arrays, with the rules of [routing] in problem files."""
+    args = _Arguments()
+
+    def key(k):
+        return f"{argument_prefix}{k}"
+
+    sizes = {k: np.size(v) for k, v in (("theta", theta), ("lam", lam), ("length", length)) if np.ndim(v) > 0}
+    if segments is not None:
+        m = _integer(args, key("segments"), segments, 1)
+    elif sizes:
+        m = next(iter(sizes.values()))
+    else:
+        m = 1
+    if m < 1:
+        raise ArgumentError(key(next(iter(sizes))), "needs at least one value (one per segment)")
+    if m > limits.MAX_SEGMENTS:
+        raise ArgumentError(key("segments"), f"gives more than {limits.MAX_SEGMENTS} segments")
+    th = _per_segment(args, key("theta"), theta, m)
+    la = _per_segment(args, key("lam"), lam, m)
+    dl = _per_segment(args, key("length"), length, m)
+    for k, ok, rule, shown, unit in (
+        ("theta", np.abs(th) < math.pi / 2, "|theta| must be < 90 deg", np.degrees(th), " deg"),
+        ("lam", (la > 0) & (la <= 1), "must be in (0, 1]", la, ""),
+        ("length", dl > 0, "must be > 0", dl, ""),
+    ):
+        if not ok.all():
+            j = int(np.argmin(ok))
+            raise ArgumentError(key(k), f"{rule} (segment {j + 1}: {shown[j]:.6g}{unit})")
+    pose = np.eye(4)
+    if initial_pose is not None:
+        a = np.asarray(initial_pose, dtype=object)
+        value = [[_plain(x) for x in row] for row in a.tolist()] if a.ndim == 2 else a.tolist()
+        pose = check.rigid_pose(args, key("initial_pose"), value)
+    return Routing(theta=th, lam=la, length=dl, initial_pose=pose)
+
+
+def forward(theta, lam, length, diameter, *, segments: int | None = None, initial_pose=None, units: str = "cm",
+            name: str = "forward") -> Design:
+    """The shape of a given routing (``vine-nlp forward``).
+
+    ``theta``, ``lam`` and ``length`` are per segment, each a number or a 1-D array; numbers
+    are repeated over the segments, so ``length`` is each segment's length (not the tube's).
+    The number of segments M is the arrays' common size, or ``segments`` when all three are
+    numbers (default 1). Example: 60 segments of 1 cm, theta 5 deg, lambda 0.8:
+    ``vn.forward(np.radians(5), 0.8, 1.0, 2.43, segments=60)``.
+
+    Parameters
+    ----------
+    theta : float or array_like (M,)
+        Actuator angle to the tube axis, rad, |theta| < pi/2.
+    lam : float or array_like (M,)
+        Contraction, in (0, 1].
+    length : float or array_like (M,)
+        Unactuated center-line length of each segment (> 0), in ``units``.
+    diameter : float
+        Tube diameter (> 0).
+    segments : int, optional
+        M when theta, lam and length are all numbers.
+    initial_pose : array_like (4, 4), optional
+        T^0_w, a rigid transform (default identity).
+    units, name : str
+
+    Returns
+    -------
+    Design
+        Run ``forward``: shape at every segment end (and inside), no rmse (nan).
+
+    Raises
+    ------
+    ArgumentError
+    """
+    args = _Arguments()
+    name = _text(args, "name", name)
+    units = _units(args, units)
+    D = _diameter(diameter)
+    routing = _routing(theta, lam, length, segments=segments, initial_pose=initial_pose)
+    # the forward shape is sampled in pieces of at most D/4 (model.shape.forward_shape); the archive
+    # readers take at most MAX_SHAPE_POINTS rows
+    rows = int(np.maximum(1, np.ceil(routing.length / (0.25 * D))).sum()) + 1
+    if rows > limits.MAX_SHAPE_POINTS:
+        raise ArgumentError("length", f"a tube {float(routing.length.sum()) / D:.4g} diameters long has a shape of {rows} "
+                                      f"points (pieces of D/4); at most {limits.MAX_SHAPE_POINTS}")
+    problem = ForwardProblem(name=name, diameter=D, routing=routing, units=units)
+    f = registry.formulation("forward")
+    result, extra = f.solve(problem)
+    source = _problem_source(problem, _call("forward", diameter=D, segments=routing.segments))
+    return _made(problem, f.kind, f.name, source, {f.run: result}, extra)
+
+
+def fit(points, routing, diameter, *, line: str = "outer", free=("lambda",), starts: int = 24, seed: int = 0,
+        units: str = "cm", name: str = "fit") -> Design:
+    """Fit the model of a known routing to measured points: the rigid pose and, if free, lambda (``vine-nlp fit``).
+
+    Parameters
+    ----------
+    points : array_like, (K, 3) or (K, 2)
+        Measured points along ``line``, in any order and any pose, finite, at least 3.
+    routing : Routing or Design or dict
+        The routing that was built; a dict has keys theta, lam, length (and optionally
+        segments, initial_pose) as :func:`forward` takes them. Its lambda starts the fit.
+    diameter : float
+    line : {"center", "inner", "outer"}
+        Which line of the tube was measured.
+    free : sequence of str
+        What is estimated besides the pose: () or ("lambda",).
+    starts : int
+        Starting orientations of the global pose search (>= 1).
+    seed : int
+    units, name : str
+
+    Returns
+    -------
+    Design
+        Run ``fit``: metrics rmse, max_error, r2, lambda; ``save`` archives the measured points.
+
+    Raises
+    ------
+    ArgumentError
+    """
+    args = _Arguments()
+    name = _text(args, "name", name)
+    units = _units(args, units)
+    D = _diameter(diameter)
+    measured = _points(points, least=3, ordered=False)
+    if isinstance(routing, Design):
+        routing = routing.routing
+    elif isinstance(routing, dict):
+        unknown = [k for k in routing if k not in ("theta", "lam", "length", "segments", "initial_pose")]
+        if unknown:
+            raise ArgumentError("routing", f"unknown key {unknown[0]!r}; the keys are theta, lam, length, segments, initial_pose")
+        missing = [k for k in ("theta", "lam", "length") if k not in routing]
+        if missing:
+            raise ArgumentError("routing", f"missing key {missing[0]!r}")
+        routing = _routing(routing["theta"], routing["lam"], routing["length"], segments=routing.get("segments"),
+                           initial_pose=routing.get("initial_pose"), argument_prefix="routing: ")
+    elif not isinstance(routing, Routing):
+        raise ArgumentError("routing", "must be a Routing, a Design or a dict with theta, lam, length")
+    line = check.choice(args, "line", line, MEASURED_LINES)
+    if isinstance(free, str):
+        free = (free,)
+    free = tuple(free)
+    for item in free:
+        check.choice(args, "free", item, problems._FREE_CHOICES)
+    if len(set(free)) != len(free):
+        raise ArgumentError("free", "lists a parameter twice")
+    starts = _integer(args, "starts", starts, 1)
+    seed = _integer(args, "seed", seed, 0)
+    problem = FitProblem(name=name, diameter=D, measured=measured, line=line, routing=routing, free=free, units=units)
+    f = registry.formulation("fit")
+    try:
+        result, extra = f.solve(problem, starts=starts, seed=seed)
+    except ValueError as e:  # too few usable points for the model (the command line's measured.file error)
+        raise ArgumentError("points", str(e)) from None
+    source = _problem_source(problem, _call("fit", diameter=D, line=line, free=free))
+    return _made(problem, f.kind, f.name, source, {f.run: result}, extra)
+
+
+def solve(problem, method: str | None = None, **options) -> Design:
+    """Solve any problem object through the registry of formulations (``vine_nlp.front.registry``).
+
+    Parameters
+    ----------
+    problem : DesignProblem, ForwardProblem, FitProblem, MultiShapeProblem or TipProblem
+    method : str, optional
+        A formulation of the registry that solves this problem type ("nlp", "greedy", "clearance",
+        "robust", "multishape", "tip", "fit", "forward"); default: the problem's own
+        (``options.method`` for design problems).
+    **options
+        Keyword options of that formulation (``Formulation.options``), e.g. starts, min_gap, sigmas.
+
+    Returns
+    -------
+    Design
+
+    Raises
+    ------
+    ArgumentError
+        Unknown method, a method that does not solve this problem type, or an option it does not take.
+    """
+    try:
+        f = registry.formulation(method) if method is not None else registry.for_problem(problem)
+    except ValueError as e:
+        raise ArgumentError("method" if method is not None else "problem", str(e)) from None
+    if not isinstance(problem, f.problem_type):
+        raise ArgumentError("problem", f"formulation {f.name!r} solves a {f.problem_type.__name__}, not a {type(problem).__name__}")
+    unknown = [k for k in options if k not in f.options]
+    if unknown:
+        raise ArgumentError(unknown[0], f"not an option of {f.name!r} (options: {', '.join(f.options) or 'none'})")
+    _diameter(problem.diameter)
+    if isinstance(problem, DesignProblem):
+        # the rules of vine_nlp.design(...) and of problem files; the problem is solved as given
+        a, o = problem.actuator, problem.options
+        _design_problem(problem.target, problem.diameter, actuator=a.kind, theta_max_deg=math.degrees(a.theta_max),
+                        lambda_min=a.lambda_min, points_per_segment=o.points_per_segment,
+                        smoothing=(o.smooth_theta, o.smooth_lambda), starts=o.starts, hops=o.hops, method=o.method,
+                        seed=o.seed, units=problem.units, name=problem.name)
+    if isinstance(problem, (ForwardProblem, FitProblem)):
+        r = problem.routing
+        _routing(r.theta, r.lam, r.length, initial_pose=r.initial_pose, argument_prefix="routing: ")
+    result, extra = f.solve(problem, **options)
+    source = _problem_source(problem, _call("solve", problem=type(problem).__name__, method=f.name))
+    return _made(problem, f.kind, f.name, source, {f.run: result}, extra)
+
+
+def load(path) -> Project:
+    """The runs of an archive written by any command or by ``Design.save``.
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    Project
+        ``runs`` (name -> Design), ``run()`` (the default run), ``target``, ``archive``.
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    ArgumentError
+        Not a vine_nlp result archive.
+    """
+    if not isinstance(path, (str, os.PathLike)):
+        raise ArgumentError("path", "must be a file name")
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    try:
+        archive = load_archive(path)
+        f = registry.for_kind(archive.kind)
+        runs = f.read_archive(path)[1] if f.read_archive is not None else dict(archive.runs)
+    except (OSError, KeyError, ValueError) as e:
+        raise ArgumentError("path", f"cannot read the archive {str(path)!r} ({e})") from None
+    problem = _problem_of(archive, runs)
+    pf = ProblemFile(path=str(path), source=archive.source, kind=archive.kind, name=archive.name, units=archive.units,
+                           problem=problem)
+    return Project(_Context(problem_file=pf, runs=runs, formulation=f.name, extra=dict(archive.extra), archive=archive,
+                            path=str(path)))
+
+
+def _problem_of(archive: Archive, runs: dict):
+    """A problem object for a loaded archive: what the archive holds of it (solver settings stay in ``source``)."""
+    first = next(iter(runs.values()), None)
+    if archive.kind == "design" and archive.target is not None:
+        return DesignProblem(archive.name, archive.diameter, archive.target, units=archive.units)
+    if archive.kind == "forward" and first is not None:
+        return ForwardProblem(archive.name, archive.diameter, first.routing, units=archive.units)
+    if archive.kind == "fit" and first is not None and "measured/points" in archive.extra:
+        line = first.stats.get("line")
+        return FitProblem(archive.name, archive.diameter, np.asarray(archive.extra["measured/points"]),
+                          line if line in MEASURED_LINES else "outer", first.routing, units=archive.units)
+    # other kinds: the parts every archive has
+    return _Loaded(name=archive.name, diameter=archive.diameter, units=archive.units, target=archive.target)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Loaded:
+    """The problem of an archive whose problem type is not rebuilt (multishape, tip, unknown kinds)."""
+
+    name: str
+    diameter: float
+    units: str
+    target: np.ndarray | None = None
+
+
+def correct(archive, measured, *, run=None, lines=("outer",), adjust=("lambda",), free_pose=False, sigmas=None,
+            measurement_sigma=None, output=None):
+    """Measure-and-correct a built robot (``vine-nlp correct``): estimate what was built, then the routing to build next.
+
+    Parameters
+    ----------
+    archive : str or Path
+        The design archive whose run was built, or a correction archive (its earlier measurements are used too).
+    measured : list
+        CSV files of points measured on the built robot (rows x y z, any order), or (K, 3) arrays.
+    run : str, optional
+        The run that was built (default: the archive's default run; ``corrected`` in a correction archive).
+    lines : tuple of str
+        The measured line ("center", "inner" or "outer"): one for all, or one per measurement.
+    adjust : tuple of str
+        What the builder changes: ("lambda",) (stoppers or pinches) or ("lambda", "theta") (the line redrawn).
+    free_pose : bool
+        Also estimate the rigid pose of the measurement.
+    sigmas : Sigmas, optional
+        The construction errors' standard deviations (the estimate's prior).
+    measurement_sigma : float, optional
+        Standard deviation of the measurement noise, in the archive's units.
+    output : str or Path, optional
+        Where to write the correction archive (``/runs/as_built``, ``/runs/corrected``, every measurement).
+
+    Returns
+    -------
+    CorrectionResult
+        ``estimate`` (deviations, systematic parts and their standard errors), ``as_built`` and ``corrected``
+        (Results), ``built`` (the routing that was built).
+
+    Raises
+    ------
+    vine_nlp.errors.InputError
+        A bad archive or measurement file, an unknown run, mismatched lines (the command line's errors).
+    """
+    kw = dict(run=run, lines=tuple(lines), adjust=tuple(adjust), free_pose=free_pose, sigmas=sigmas, measurement_sigma=measurement_sigma)
+    if output is not None:
+        return correct_to_file(archive, list(measured), output, **kw)
+    return correct_files(archive, list(measured), **kw)[0]

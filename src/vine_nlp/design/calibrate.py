@@ -1,0 +1,57 @@
+"""The systematic construction errors of one construction method (``vine-nlp calibrate``), as a value type.
+
+A design problem may carry one (``[calibration]`` or ``calibration = "CAL.toml"``): the design is then
+made for the robot as it actually gets built. The design method designs as usual (what the robot
+should realize); the nominal to build is that design with the systematic parts taken out
+(:func:`nominal_of`, applied in ``design.methods.run_design`` by ``design.correct.apply_calibration``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from vine_nlp.model.routing import Routing
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Built = nominal + offsets, lengths times the scale (the contract's deviation rule, shared by all segments)."""
+
+    lambda_offset: float = 0.0
+    theta_offset_deg: float = 0.0
+    length_scale: float = 1.0
+    lambda_offset_se: float = 0.0
+    theta_offset_deg_se: float = 0.0
+    length_scale_se: float = 0.0
+    prototypes: int = 0
+
+    def __post_init__(self):
+        vals = (self.lambda_offset, self.theta_offset_deg, self.length_scale, self.lambda_offset_se, self.theta_offset_deg_se,
+                self.length_scale_se)
+        if not all(math.isfinite(v) for v in vals):
+            raise ValueError("calibration values must be finite")
+        if not self.length_scale > 0:
+            raise ValueError("length_scale must be > 0")
+
+    @property
+    def theta_offset(self) -> float:
+        return math.radians(self.theta_offset_deg)
+
+
+def nominal_of(realized: Routing, cal: Calibration, theta_max: float, lambda_min: float) -> tuple[Routing, int]:
+    """The nominal that realizes ``realized`` under ``cal``, clipped to the builder's bounds; (nominal, clipped count)."""
+    theta = realized.theta - cal.theta_offset
+    lam = realized.lam - cal.lambda_offset
+    t2 = np.clip(theta, -theta_max, theta_max)
+    l2 = np.clip(lam, lambda_min, 1.0)
+    clipped = int(np.sum(t2 != theta) + np.sum(l2 != lam))
+    return Routing(t2, l2, realized.length / cal.length_scale, realized.initial_pose), clipped
+
+
+def realized_of(nominal: Routing, cal: Calibration) -> Routing:
+    """What a nominal realizes under ``cal``."""
+    return Routing(nominal.theta + cal.theta_offset, nominal.lam + cal.lambda_offset, nominal.length * cal.length_scale,
+                   nominal.initial_pose)

@@ -1,0 +1,839 @@
+"""As-built correction: estimate what was built from measured points, then correct it.
+
+Both steps are formulations on the one multiple-shooting transcription
+(``design.transcription``); spec/formats.md, "As-built correction".
+
+Deviations (the contract's rule). A robot built from the nominal (theta, lam, length)
+realizes (theta_ab, lam_ab, length_ab). The deviations d_theta = theta_ab - theta,
+d_lam = lam_ab - lam and the length ratio r = length_ab / length stay with the robot:
+built from nominal (theta', lam', length') it realizes (theta' + d_theta, lam' + d_lam,
+length' r) (:func:`apply_deviations`).
+
+Estimation (MAP). The chain's theta_j, lam_j, dl_j ARE the as-built values of the latest
+build; three global variables are the systematic parts g = (theta offset, lambda offset,
+log length scale) shared by every segment. With Gaussian construction errors (sigmas as
+in ``vine-nlp analyze``) and Gaussian measurement noise of standard deviation sigma_m,
+the negative log posterior times 2 / N (N measured points) is
+
+    (1/N) [ sum_i |P_i(q) - m_i|_perp^2 / sigma_m^2
+            + sum_j ((theta_j - theta_nom,j - g0) / s_theta)^2 + ((lam_j - lam_nom,j - g1) / s_lam)^2
+                    + ((dl_j - l_nom,j e^g2) / (s_len l_nom,j e^g2))^2
+            + sum_k (g_k / s_sys,k)^2 ],
+
+P_i the model point of measured point m_i on its line (center, or the inner/outer line
+at D/2 along the normal) at the (segment, fraction) it is paired with. Pairing is
+ICP-style (closest model point of the current estimate, numpy model); the residual is
+the part of P_i - m_i across the line (the tangent at the pair projected out:
+point-to-line, so the pairing itself does not pin material points along the tube),
+except for points beyond an end of the line, which keep the full residual. Outer loop:
+pair, solve warm, pair again until the pairs stop moving; coarse to fine, the noise sigma
+of the fit halving from D/2 down to sigma_m (the closest points of a robot built far off its
+nominal are wrong at first) and pairs farther than TRIM sigmas of the stage left out. The measurement blocks are
+per-stage SX blocks with a fixed number of slots per segment (zero-weight padding), so
+re-pairing changes data only and the solver stays cached.
+
+Earlier builds (rounds): their nominals differ from the latest one by known amounts, so
+each earlier build is a second chain of frames (extra stage variables) whose segments are
+the latest as-built values shifted by the known differences; its measurements pair with
+that chain. One set of deviations explains every measurement.
+
+Pose: the chain's base is fixed at the archive's pose (the measurement is in the archive
+frame). With ``free_pose`` the new measurements carry a rigid transform (6 more global
+variables), started from a rigid ICP alignment (``design.fit.align``); earlier
+measurements are already in the archive frame.
+
+Uncertainty: Laplace approximation, the inverse of the Gauss-Newton Hessian of the MAP
+objective (point-to-line residuals / sigma_m and prior residuals) with respect to the
+per-segment values, the systematic parts and the pose, the frames eliminated (numpy
+chain, central differences).
+
+sPAM: one shared lambda (one pressure): the lambda deviation is the systematic offset
+only (lam_ab = lam_nom + g1 for every segment).
+
+Correction: the plain NLP on the target with the deviations kept. As-built values are the
+variables, inside the nominal bounds shifted by the deviations (lam_ab in
+[lambda_min + d_lam, 1 + d_lam]; theta fixed at the as-built values unless theta is
+adjusted, then in [-theta_max + d_theta, theta_max + d_theta]); the lengths stay at the
+as-built lengths (the nominal lengths do not change) and the pose at the archive's; the
+nominal to build is the solution minus the deviations.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field, replace
+from functools import lru_cache
+
+import casadi as ca
+import numpy as np
+from scipy.spatial import cKDTree
+
+from vine_nlp.design.calibrate import nominal_of, realized_of
+from vine_nlp.design.common import evaluate, pair_points
+from vine_nlp.design.fit.align import PointSet, Polyline, fit_pose, polish_pose, pose_starts
+from vine_nlp.design.nlp import nlp_parameters
+from vine_nlp.design.problem import DesignProblem
+from vine_nlp.design.result import Result
+from vine_nlp.design.transcription import (
+    BlockType,
+    Chain,
+    Smoothness,
+    SoftTip,
+    Spec,
+    Structure,
+    frames12,
+    get_solver,
+    ipopt_options,
+    options_key,
+)
+from vine_nlp.model.chain import chain_frames, chain_points, segment_end_samples
+from vine_nlp.model.helix import center_rates
+from vine_nlp.model.routing import MEASURED_LINES, Routing, Sigmas
+from vine_nlp.model.segment import segment_function, so3_exp, twist_parts
+from vine_nlp.model.shape import routing_metrics
+
+_log = logging.getLogger(__name__)
+
+# offset of each line from the center line along the frame's normal, in units of D
+LINE_SIDE = {"center": 0.0, "inner": 0.5, "outer": -0.5}
+ADJUST = (("lambda",), ("lambda", "theta"))
+SYSTEMATIC = ("theta_offset", "lambda_offset", "log_length_scale")
+# weak priors on the systematic parts: wide against any construction method seen
+DEFAULT_SYSTEMATIC_SIGMAS = (math.radians(10.0), 0.2, 0.2)
+DEFAULT_MEASUREMENT_SIGMA_MM = 1.0
+ICP_ROUNDS = 6  # pair-and-solve rounds per stage of the coarse-to-fine loop
+TRIM = 4.0  # pairs farther than this many sigmas of the stage are left out of it
+SAMPLES_PER_SEGMENT = 24  # pieces per segment of the model lines the pairing projects onto
+SLOT_STEP = 8  # slots per segment are rounded up to a multiple of this (cached structures)
+
+
+# ---------------------------------------------------------------- deviations (the contract's rule)
+
+
+@dataclass(frozen=True)
+class Deviations:
+    """What stays with the robot from build to build: theta and lambda differences, length ratios (M,)."""
+
+    theta: np.ndarray
+    lam: np.ndarray
+    length_ratio: np.ndarray
+
+
+def deviations_of(nominal: Routing, as_built: Routing) -> Deviations:
+    """The deviations of ``as_built`` from the ``nominal`` it was built from."""
+    return Deviations(as_built.theta - nominal.theta, as_built.lam - nominal.lam, as_built.length / nominal.length)
+
+
+def apply_deviations(nominal: Routing, dev: Deviations) -> Routing:
+    """What a robot with deviations ``dev`` realizes when built from ``nominal`` (contract's rule)."""
+    return Routing(nominal.theta + dev.theta, nominal.lam + dev.lam, nominal.length * dev.length_ratio, nominal.initial_pose)
+
+
+def remove_deviations(as_built: Routing, dev: Deviations) -> Routing:
+    """The nominal that realizes ``as_built`` on a robot with deviations ``dev``."""
+    return Routing(as_built.theta - dev.theta, as_built.lam - dev.lam, as_built.length / dev.length_ratio, as_built.initial_pose)
+
+
+# ---------------------------------------------------------------- measurements and builds
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """Points measured on one line of one build, in any order.
+
+    ``frame``: "archive" (points in the archive's world frame) or "free" (an unknown rigid
+    frame, estimated)."""
+
+    points: np.ndarray  # (K, 3), problem units
+    line: str = "outer"
+    build: int = -1  # index into the builds; -1: the latest
+    frame: str = "archive"
+    file: str = ""
+
+    def __post_init__(self):
+        object.__setattr__(self, "points", np.asarray(self.points, float).reshape(-1, 3))
+        if self.line not in MEASURED_LINES:
+            raise ValueError(f"line must be one of {MEASURED_LINES}, not {self.line!r}")
+        if self.frame not in ("archive", "free"):
+            raise ValueError("frame must be 'archive' or 'free'")
+
+
+def _line_points(routing: Routing, D: float, seg, frac, side: float):
+    """Points of the line at (seg, frac) and the unit tangents of the center frames there."""
+    c, rot = chain_points(routing.theta, routing.lam, routing.length, D, seg, frac, routing.initial_pose)
+    return c + side * D * rot[:, :, 1], rot[:, :, 0]
+
+
+@dataclass
+class _Pairs:
+    seg: np.ndarray
+    frac: np.ndarray
+    tangent: np.ndarray  # zero rows: beyond an end of the line (full residual)
+    l: np.ndarray  # material coordinate
+
+
+def pair_with_line(points: np.ndarray, routing: Routing, D: float, side: float, per_segment: int = SAMPLES_PER_SEGMENT) -> _Pairs:
+    """Closest points of the model line (``side``: offset along the normal in D) for measured points."""
+    seg, frac = segment_end_samples(routing.length, per_segment)
+    P, _ = _line_points(routing, D, seg, frac, side)
+    cum = np.concatenate([[0.0], np.cumsum(routing.length)])
+    lmat = cum[seg] + frac * routing.length[seg]
+    d = np.diff(P, axis=0)
+    n2 = np.maximum(np.sum(d * d, axis=1), 1e-300)
+    tree = cKDTree(P)
+    k = min(4, P.shape[0])
+    _, idx = tree.query(points, k=k)
+    idx = idx.reshape(points.shape[0], k)
+    cand = np.clip(np.concatenate([idx - 1, idx], axis=1), 0, d.shape[0] - 1)
+    u = np.clip(np.einsum("kcj,kcj->kc", points[:, None, :] - P[cand], d[cand]) / n2[cand], 0.0, 1.0)
+    q = P[cand] + u[..., None] * d[cand]
+    best = np.argmin(np.sum((points[:, None, :] - q) ** 2, axis=2), axis=1)
+    rows = np.arange(points.shape[0])
+    piece, uu = cand[rows, best], u[rows, best]
+    l = lmat[piece] + uu * (lmat[piece + 1] - lmat[piece])
+    M = routing.segments
+    j = np.clip(np.searchsorted(cum, l, side="right") - 1, 0, M - 1)
+    f = np.clip((l - cum[j]) / routing.length[j], 0.0, 1.0)
+    _, t = _line_points(routing, D, j, f, side)
+    end = ((piece == 0) & (uu <= 0.0)) | ((piece == d.shape[0] - 1) & (uu >= 1.0))
+    t[end] = 0.0
+    return _Pairs(j, f, t, l)
+
+
+def simulate_build(nominal: Routing, dev: Deviations, D: float, line: str = "outer", count: int = 300, noise: float = 0.0,
+                   seed: int = 0) -> np.ndarray:
+    """Measured points of the robot ``nominal`` with deviations ``dev``: ``count`` points equally spaced in
+    material coordinate along ``line``, Gaussian noise of standard deviation ``noise`` (problem units) per
+    coordinate, shuffled (measurements come in any order). For tests, benchmarks and examples."""
+    built = apply_deviations(nominal, dev)
+    cum = np.concatenate([[0.0], np.cumsum(built.length)])
+    l = np.linspace(0.0, cum[-1], count)
+    j = np.clip(np.searchsorted(cum, l, side="right") - 1, 0, built.segments - 1)
+    f = np.clip((l - cum[j]) / built.length[j], 0.0, 1.0)
+    P, _ = _line_points(built, D, j, f, LINE_SIDE[line])
+    rng = np.random.default_rng(seed)
+    P = P + noise * rng.standard_normal(P.shape)
+    return P[rng.permutation(count)]
+
+
+def draw_deviations(nominal: Routing, sigmas: Sigmas, systematic=(0.0, 0.0, 0.0), seed: int = 0, D: float = 1.0) -> Deviations:
+    """Random deviations: independent per-segment errors at ``sigmas`` plus the ``systematic`` parts
+    (theta offset rad, lambda offset, length scale factor); relative length errors multiply."""
+    rng = np.random.default_rng(seed)
+    M = nominal.segments
+    e = rng.standard_normal((M, 3))
+    sl = sigmas.length if sigmas.relative_length else sigmas.length / nominal.length
+    return Deviations(systematic[0] + sigmas.theta * e[:, 0], systematic[1] + sigmas.lam * e[:, 1],
+                      systematic[2] * (1.0 + sl * e[:, 2]))
+
+
+# ---------------------------------------------------------------- blocks of the estimation NLP
+
+
+@lru_cache(maxsize=16)
+def measure_block(S: int, free: bool) -> BlockType:
+    """Point-to-line residuals of S measured points of one segment of one build (SX).
+
+    v = (X_j (12), theta, lam, dl[, w (3), t (3)]): the segment's local variables of the latest
+    as-built chain (and the rigid transform of free-frame measurements);
+    d = (shift (3): theta and lambda added, length factor (the build's nominal against the latest),
+    u (S), m (3 S), t (3 S) tangents, w (S) square roots of the weights, side (S) [, c (3) centroid, flag (S)]).
+    Residual w_i (I - t_i t_i^T)(P_i - m_i) (square roots as data: a zero-weight slot has finite derivatives); free-frame points (flag 1) are moved by
+    exp(w) (m - c) + c + t first (m stored as given, c their centroid)."""
+    nv = 21 if free else 15
+    nd = 3 + 9 * S + (3 + S if free else 0)
+    v, d = ca.SX.sym("v", nv), ca.SX.sym("d", nd)
+    th, la, dl = v[12] + d[0], v[13] + d[1], v[14] * d[2]
+    u = d[3 : 3 + S]
+    m = ca.reshape(d[3 + S : 3 + 4 * S], 3, S)
+    tg = ca.reshape(d[3 + 4 * S : 3 + 7 * S], 3, S)
+    w, side = d[3 + 7 * S : 3 + 8 * S], d[3 + 8 * S : 3 + 9 * S]
+    R, p = ca.reshape(v[:9], 3, 3), v[9:12]
+    kappa, tau, lc = center_rates(th, la, 1.0)
+    if free:
+        c, flag = d[3 + 9 * S : 6 + 9 * S], d[6 + 9 * S :]
+        Rm = so3_exp(v[15:18])
+    res = []
+    for i in range(S):
+        Rs, q = twist_parts(kappa, tau, u[i] * dl * lc)
+        local = ca.vertcat(q[0] + side[i] * Rs[0][1], q[1] + side[i] * Rs[1][1], q[2] + side[i] * Rs[2][1])
+        P = p + ca.mtimes(R, local)
+        mi = m[:, i]
+        if free:
+            mi = mi + flag[i] * (ca.mtimes(Rm, mi - c) + c + v[18:21] - mi)
+        e = P - mi
+        e = e - tg[:, i] * ca.dot(tg[:, i], e)
+        res.append(w[i] * e)
+    res = ca.vertcat(*res)
+    return BlockType(f"measure{S}{'f' if free else ''}", ca.Function("measure_block", [v, d], [ca.sumsqr(res), ca.SX(0, 1)]),
+                     ca.Function("measure_res", [v, d], [res]))
+
+
+@lru_cache(maxsize=1)
+def shifted_segment_block() -> BlockType:
+    """Continuity of an earlier build's chain: X'_{j+1} = X'_j T(theta + d_theta, lam + d_lam, dl f).
+    v = (X'_j (12), theta, lam, dl, X'_{j+1} (12)); d = (d_theta, d_lam, f)."""
+    v, d = ca.SX.sym("v", 27), ca.SX.sym("d", 3)
+    Xn, _ = segment_function(1)(v[:12], v[12] + d[0], v[13] + d[1], v[14] * d[2], 0.0)
+    return BlockType("shifted_segment", ca.Function("shifted_block", [v, d], [ca.SX(0), Xn - v[15:]]),
+                     ca.Function("shifted_res", [v, d], [ca.SX(0, 1)]))
+
+
+@dataclass(frozen=True)
+class AsBuiltTerm:
+    """The MAP estimate's terms (module docstring) for ``builds`` builds (the last is the chain itself,
+    the others extra frames) with ``S`` slots per segment and build; ``free``: a rigid transform of the
+    free-frame measurements in globals 3..8. Parameters: meas (nd x M B), shift (3 x M (B-1)),
+    prior (3 x M: nominal theta, lam, dl of the latest build), prior_sig (8: s_theta, s_lam, s_len_rel,
+    s_len_abs (D), s_sys (3), scale)."""
+
+    S: int
+    builds: int = 1
+    free: bool = False
+
+    def apply(self, c: Chain) -> None:
+        s, lay = c.s, c.lay
+        M, B = s.M, self.builds
+        bt = measure_block(self.S, self.free)
+        nd = bt.fn.size1_in(1)
+        meas = c.param("meas", (nd, M * B))
+        shift = c.param("shift", (3, max(M * (B - 1), 1)))
+        prior, sig = c.param("prior", (3, M)), c.param("prior_sig", (8, 1))
+
+        def frame(b, j):
+            if b == B - 1 or j == 0:
+                return lay.X[j, 0]
+            return lay.extra[j - 1, 12 * b : 12 * b + 12]
+
+        glob = lay.globals[3:9] if self.free else np.zeros(0, int)
+        idx = []
+        for b in range(B):
+            for j in range(M):
+                idx.append(np.r_[frame(b, j), lay.theta[j], lay.lam[j, 0], lay.dl[j], glob])
+        c.add_block(bt, np.array(idx).T, meas, term="fit")
+        if B > 1:
+            idx = []
+            for b in range(B - 1):
+                for j in range(M):
+                    idx.append(np.r_[frame(b, j), lay.theta[j], lay.lam[j, 0], lay.dl[j], lay.extra[j, 12 * b : 12 * b + 12]])
+            c.add_block(shifted_segment_block(), np.array(idx).T, shift)
+        g = c.globals
+        L = prior[2, :] * ca.exp(g[2])
+        r_th = (c.theta - prior[0, :] - g[0]) / sig[0]
+        r_len = (c.dl - L) / (sig[2] * L + sig[3])
+        val = ca.sumsqr(r_th) + ca.sumsqr(r_len) + ca.sumsqr(g[:3] / sig[4:7])
+        if s.lam == "segment":
+            val += ca.sumsqr((c.lam_of(0) - prior[1, :] - g[1]) / sig[1])
+        else:
+            c.add_rows("spam_offset", c.lam_of(0)[0] - prior[1, 0] - g[1], 0.0, 0.0)
+        c.add_term("prior", sig[7] * val)
+
+
+# ---------------------------------------------------------------- estimation
+
+
+@dataclass
+class Estimate:
+    """The estimated as-built robot (latest build) and how well it is known.
+
+    ``systematic``: (theta offset rad, lambda offset, length scale factor) and ``systematic_std``
+    their standard deviations (the scale's by the delta method); ``std`` (M, 3): standard
+    deviations of theta, lambda and length (problem units) per segment; ``transform``: 4x4 moving
+    free-frame measurements into the archive frame (identity without them); ``residuals``: per
+    measurement, the distances of its points to the estimated line (problem units)."""
+
+    routing: Routing
+    deviations: Deviations
+    systematic: np.ndarray
+    systematic_std: np.ndarray
+    std: np.ndarray
+    transform: np.ndarray
+    residuals: list
+    status: str
+    iterations: int
+    solve_time_s: float
+    rounds: int
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def rmse(self) -> float:
+        d = np.concatenate(self.residuals) if self.residuals else np.zeros(1)
+        return float(np.sqrt(np.mean(d**2)))
+
+
+def _estimation_spec(M: int, shared: bool, builds: int, S: int, free: bool, hessian: str) -> Spec:
+    st = Structure(M, 1, 1, "shared" if shared else "segment", "fixed", extra=12 * (builds - 1), globals=9 if free else 3)
+    return Spec(st, (AsBuiltTerm(S, builds, free),), hessian, options_key(ipopt_options(200, 1e-10)))
+
+
+def _pose_of(R, t):
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+    return T
+
+
+def _rigid_start(measurements, routings, D):
+    """A rigid transform (4x4) of the free-frame measurements onto the model lines of their builds (ICP)."""
+    sets = []
+    for ms in measurements:
+        if ms.frame != "free":
+            continue
+        r = routings[ms.build]
+        seg, frac = segment_end_samples(r.length, 8)
+        P, _ = _line_points(r, D, seg, frac, LINE_SIDE[ms.line])
+        sets.append(PointSet(ms.points, Polyline(P)))
+    if not sets:
+        return np.eye(4)
+    X = np.concatenate([s.points for s in sets])
+    Y = np.concatenate([s.line.p for s in sets])
+    T = fit_pose(sets, pose_starts(X, Y, 24, 0)).T
+    T, _, _ = polish_pose(sets, T)
+    return T
+
+
+def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigmas, shared_lambda: bool = False,
+                      measurement_sigma: float | None = None, systematic_sigmas=DEFAULT_SYSTEMATIC_SIGMAS,
+                      hessian: str = "gauss-newton", rounds: int = ICP_ROUNDS, units_per_mm: float = 0.1) -> Estimate:
+    """MAP estimate of the as-built robot from measurements of one or more builds (module docstring).
+
+    Parameters
+    ----------
+    nominals : list of Routing
+        The nominal routing of each build, oldest first; the last is the one the estimate is of.
+        All have the same segments and initial pose (the robot's base).
+    measurements : list of Measurement
+        Points of any build (``build`` indexes ``nominals``; -1 the latest), any line, any order.
+    D : float
+        Tube diameter (problem units).
+    sigmas : Sigmas
+        Standard deviations of the per-segment construction errors (the prior).
+    shared_lambda : bool
+        sPAM: one lambda (its deviation is the lambda offset only).
+    measurement_sigma : float, optional
+        Standard deviation of the measurement noise, problem units (default 1 mm).
+    systematic_sigmas : (3,)
+        Prior standard deviations of theta offset (rad), lambda offset, log length scale.
+    hessian : str
+        "gauss-newton" (default) or "exact", of the transcription's blocks.
+    rounds : int
+        Pair-and-solve rounds per stage of the coarse-to-fine loop, at most.
+    units_per_mm : float
+        Problem units per millimetre (for the default measurement sigma).
+
+    Returns
+    -------
+    Estimate
+
+    Raises
+    ------
+    ValueError
+        Sigmas that are not > 0.
+    """
+    t_all = time.perf_counter()
+    B = len(nominals)
+    latest = nominals[-1]
+    M = latest.segments
+    T0 = latest.initial_pose
+    sig_m = (DEFAULT_MEASUREMENT_SIGMA_MM * units_per_mm) if measurement_sigma is None else float(measurement_sigma)
+    ms = [replace(m, build=m.build % B) for m in measurements]
+    N = sum(m.points.shape[0] for m in ms)
+    free = any(m.frame == "free" for m in ms)
+    scale = 1.0 / N
+    # shifts of every build against the latest nominal (known differences of what was built)
+    shifts = [(n.theta - latest.theta, n.lam - latest.lam, n.length / latest.length) for n in nominals]
+    if free:
+        T_free = _rigid_start(ms, nominals, D)
+    else:
+        T_free = np.eye(4)
+    pts = [m.points @ T_free[:3, :3].T + T_free[:3, 3] if m.frame == "free" else m.points for m in ms]
+    centroid = np.mean(np.concatenate([p for p, m in zip(pts, ms) if m.frame == "free"]), axis=0) if free else np.zeros(3)
+    g_free = np.zeros(6)
+
+    def routings_of(ab: Routing):
+        return [Routing(ab.theta + a, ab.lam + b, ab.length * c, T0) for a, b, c in shifts]
+
+    routings_now = [nominals]
+
+    def pairs_of(ab, Tcorr):
+        rs = routings_of(ab)
+        routings_now[0] = rs
+        out = []
+        for p, m in zip(pts, ms):
+            q = p @ Tcorr[:3, :3].T + Tcorr[:3, 3] if m.frame == "free" else p
+            out.append(pair_with_line(q, rs[m.build], D, LINE_SIDE[m.line]))
+        return out
+
+    def slots_needed(pairs):
+        need = 1
+        for b in range(B):
+            cnt = np.zeros(M, int)
+            for pr, m in zip(pairs, ms):
+                if m.build == b:
+                    cnt += np.bincount(pr.seg, minlength=M)
+            need = max(need, int(cnt.max()))
+        return need
+
+    def pts_now(Tc):
+        return [p @ Tc[:3, :3].T + Tc[:3, 3] if m.frame == "free" else p for p, m in zip(pts, ms)]
+
+    def meas_data(pairs, S, s_stage, moved, trim):
+        nd = 3 + 9 * S + (3 + S if free else 0)
+        data = np.zeros((nd, M * B))
+        for b in range(B):
+            a, bl, c = shifts[b]
+            col0 = b * M
+            data[0, col0 : col0 + M], data[1, col0 : col0 + M], data[2, col0 : col0 + M] = a, bl, c
+            fill = np.zeros(M, int)
+            for pr, m, p, q in zip(pairs, ms, pts, moved):
+                if m.build != b:
+                    continue
+                P, _ = _line_points(routings_now[0][b], D, pr.seg, pr.frac, LINE_SIDE[m.line])
+                keep = np.linalg.norm(P - q, axis=1) <= trim
+                for i in range(p.shape[0]):
+                    j = pr.seg[i]
+                    k = fill[j]
+                    fill[j] += 1
+                    col = col0 + j
+                    data[3 + k, col] = pr.frac[i]
+                    data[3 + S + 3 * k : 3 + S + 3 * k + 3, col] = p[i] / D
+                    data[3 + 4 * S + 3 * k : 3 + 4 * S + 3 * k + 3, col] = pr.tangent[i]
+                    data[3 + 7 * S + k, col] = math.sqrt(scale) * D / s_stage if keep[i] else 0.0
+                    data[3 + 8 * S + k, col] = LINE_SIDE[m.line]
+                    if free:
+                        data[6 + 9 * S + k, col] = 1.0 if m.frame == "free" else 0.0
+            if free:
+                data[3 + 9 * S : 6 + 9 * S, col0 : col0 + M] = (centroid / D)[:, None]
+            # padding slots: weight 0, fraction 0
+        return data
+
+    s_rel, s_abs = (sigmas.length, 0.0) if sigmas.relative_length else (0.0, sigmas.length / D)
+    prior_sig = np.array([sigmas.theta, sigmas.lam, s_rel, s_abs, *systematic_sigmas, scale])
+    if np.any(prior_sig[:2] <= 0) or (s_rel <= 0 and s_abs <= 0):
+        raise ValueError("the construction-error sigmas must be > 0")
+    prior = np.vstack([latest.theta, latest.lam, latest.length / D])
+
+    ab = latest
+    Tcorr = np.eye(4)
+    x = None
+    pairs = pairs_of(ab, Tcorr)
+    S = int(math.ceil(1.25 * slots_needed(pairs) / SLOT_STEP) * SLOT_STEP)
+    iterations, status, rounds_done, st = 0, "failed", 0, {}
+    solver = None
+    shift_data = np.vstack([np.concatenate([shifts[b][k] for b in range(B - 1)]) for k in range(3)]) if B > 1 else np.zeros((3, 1))
+    # coarse to fine: the noise sigma of the fit starts at D/2 and halves down to the measurement's
+    # (closest-point pairs of a robot built far off its nominal are wrong at first), pairs farther than
+    # TRIM sigmas are left out at each stage
+    stages = []
+    s_k = 0.5 * D
+    while s_k > sig_m:
+        stages.append(s_k)
+        s_k *= 0.5
+    stages.append(sig_m)
+    for s_stage in stages:
+        for _ in range(rounds):
+            need = slots_needed(pairs)
+            if need > S:
+                S = int(math.ceil(need / SLOT_STEP) * SLOT_STEP)
+                solver = None
+            if solver is None:
+                solver = get_solver(_estimation_spec(M, shared_lambda, B, S, free, hessian))
+                x = None
+            lay = solver.layout
+            data = meas_data(pairs, S, s_stage, pts_now(Tcorr), TRIM * max(s_stage, sig_m))
+            p = solver.pack_params({"cells": np.zeros((5, M)), "meas": data, "shift": shift_data, "prior": prior,
+                                    "prior_sig": prior_sig})
+            if x is None:
+                x = _start_x(solver, ab, D, routings_of(ab), B, free, None, lay)
+                if free:
+                    x[lay.globals[3:9]] = g_free
+            lbx, ubx = np.full(lay.size, -np.inf), np.full(lay.size, np.inf)
+            lbx[lay.X[0, 0]] = ubx[lay.X[0, 0]] = np.r_[T0[:3, :3].ravel(order="F"), T0[:3, 3] / D]
+            lbx[lay.dl], ubx[lay.dl] = 0.2 * latest.length / D, 5.0 * latest.length / D
+            lam_idx = lay.lam_global if shared_lambda else lay.lam[:, 0]
+            lbx[lam_idx] = 0.05
+            lbx[lay.theta], ubx[lay.theta] = -1.45, 1.45
+            x, status, st = solver.solve(x, p, lbx, ubx)
+            iterations += st["iterations"]
+            rounds_done += 1
+            v = solver.unpack(x)
+            lam_ab = np.full(M, v["lam_global"][0]) if shared_lambda else v["lam"][:, 0]
+            ab = Routing(v["theta"], lam_ab, v["dl"] * D, T0)
+            if free:
+                g_free = v["globals"][3:9].copy()
+                Tcorr = _free_transform(v["globals"], centroid, D)
+            new = pairs_of(ab, Tcorr)
+            moved = max(float(np.max(np.abs(a.l - b.l))) for a, b in zip(new, pairs))
+            pairs = new
+            if moved < 1e-3 * D:
+                break
+    g = solver.unpack(x)["globals"]
+    T_total = Tcorr @ T_free
+    # Laplace approximation around the estimate
+    std, sys_std, residuals = _laplace(ab, g[:3], shifts, ms, pts, pairs, D, sig_m, sigmas, systematic_sigmas, prior, shared_lambda,
+                                       free, centroid, Tcorr)
+    dev = deviations_of(latest, ab)
+    return Estimate(
+        routing=ab, deviations=dev, systematic=np.array([g[0], g[1], math.exp(g[2])]), systematic_std=sys_std, std=std,
+        transform=T_total, residuals=residuals, status=status, iterations=iterations, solve_time_s=time.perf_counter() - t_all,
+        rounds=rounds_done,
+        stats={"measurement_sigma": sig_m, "slots_per_segment": S, "points": N, "builds": B, "hessian": hessian,
+               "objective": st.get("objective", float("nan")), "free_pose": free},
+    )
+
+
+def _unit_scale(D):
+    s = np.ones((4, 4))
+    s[:3, 3] = 1.0 / D
+    return s
+
+
+def _free_transform(g, centroid, D):
+    """The transform x -> exp(w) (x - c) + c + t of the globals 3..8 (t in units of D)."""
+    R = so3_exp(np.asarray(g[3:6], float))
+    return _pose_of(R, centroid - R @ centroid + np.asarray(g[6:9], float) * D)
+
+
+def _start_x(solver, ab, D, routings, B, free, x_old, lay):
+    frames = chain_frames(ab.theta, ab.lam, ab.length, D, ab.initial_pose) * _unit_scale(D)
+    x = solver.pack_x(ab.theta, ab.lam, ab.length / D, frames12(frames)[None], lam_global=np.mean(ab.lam),
+                      globals_=np.zeros(lay.globals.size))
+    for b in range(B - 1):
+        r = routings[b]
+        fb = frames12(chain_frames(r.theta, r.lam, r.length, D, r.initial_pose) * _unit_scale(D))
+        x[lay.extra[:, 12 * b : 12 * b + 12]] = fb[:, 1:].T
+    return x
+
+
+def _laplace(ab, g, shifts, ms, pts, pairs, D, sig_m, sigmas, sys_sig, prior, shared, free, centroid, Tcorr):
+    """Standard deviations from the inverse Gauss-Newton Hessian of the MAP objective (module docstring)."""
+    M = ab.segments
+    nl = 1 if shared else M
+    n_free = 6 if free else 0
+    T0 = ab.initial_pose
+
+    def unpack(q):
+        th, la = q[:M], q[M : M + nl]
+        la = np.full(M, la[0]) if shared else la
+        ln, gg = q[M + nl : 2 * M + nl], q[2 * M + nl : 2 * M + nl + 3]
+        return th, la, ln, gg, q[2 * M + nl + 3 :]
+
+    def residuals(q, full=False):
+        th, la, ln, gg, pose = unpack(q)
+        out = []
+        dists = []
+        for p, m, pr in zip(pts, ms, pairs):
+            a, b, c = shifts[m.build]
+            r = Routing(th + a, la + b, ln * c, T0)
+            P, _ = _line_points(r, D, pr.seg, pr.frac, LINE_SIDE[m.line])
+            x = p
+            if m.frame == "free":
+                x = p @ Tcorr[:3, :3].T + Tcorr[:3, 3]
+                x = (x - centroid) @ so3_exp(pose[:3]).T + centroid + pose[3:]
+            e = P - x
+            dists.append(np.linalg.norm(e, axis=1))
+            e = e - pr.tangent * np.sum(pr.tangent * e, axis=1, keepdims=True)
+            out.append((e / sig_m).ravel())
+        L = prior[2] * D * math.exp(gg[2])
+        sl = sigmas.length * L if sigmas.relative_length else np.full(M, sigmas.length)
+        out.append((th - prior[0] - gg[0]) / sigmas.theta)
+        if not shared:
+            out.append((la - prior[1] - gg[1]) / sigmas.lam)
+        out.append((ln - L) / sl)
+        out.append(np.asarray(gg) / np.asarray(sys_sig))
+        return (np.concatenate(out), dists) if full else np.concatenate(out)
+
+    q0 = np.concatenate([ab.theta, ab.lam[:1] if shared else ab.lam, ab.length, g, np.zeros(n_free)])
+    r0, dists = residuals(q0, True)
+    steps = np.concatenate([np.full(M, 1e-6), np.full(nl, 1e-6), ab.length * 1e-6, np.full(3, 1e-6), np.full(n_free, 1e-6 * D)])
+    J = np.empty((r0.size, q0.size))
+    for k in range(q0.size):
+        dq = np.zeros_like(q0)
+        dq[k] = steps[k]
+        J[:, k] = (residuals(q0 + dq) - residuals(q0 - dq)) / (2 * steps[k])
+    H = J.T @ J
+    cov = np.linalg.pinv(H, rcond=1e-12, hermitian=True)
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    th_sd, la_sd, ln_sd, g_sd, _ = unpack(sd)
+    if shared:
+        la_sd = np.full(M, g_sd[1])
+    sys_std = np.array([g_sd[0], g_sd[1], math.exp(g[2]) * g_sd[2]])
+    return np.column_stack([th_sd, la_sd, ln_sd]), sys_std, dists
+
+
+# ---------------------------------------------------------------- correction
+
+
+def correction_spec(M: int, n: int, shared: bool, max_iter: int, tol: float, hessian: str) -> Spec:
+    """The plain NLP with the base pose fixed (the robot's base stays where it was built)."""
+    return Spec(Structure(M, n, 1, "shared" if shared else "segment", "fixed"), (Smoothness(), SoftTip()), hessian,
+                options_key(ipopt_options(max_iter, tol)))
+
+
+def correct_routing(problem: DesignProblem, as_built: Routing, dev: Deviations, adjust=("lambda",),
+                    built: Routing | None = None) -> tuple[Routing, Routing, str, dict]:
+    """Nominal values to build next so that the robot, its deviations kept, matches the target.
+
+    ``built``: the nominal that was built; its lengths (and, unless theta is adjusted, its theta) are
+    copied to the result exactly (default: as_built minus the deviations, equal to round-off).
+    Returns (nominal to build, its predicted as-built routing, status, solver stats).
+    """
+    adjust = tuple(adjust)
+    if adjust not in ADJUST:
+        raise ValueError(f"adjust must be one of {', '.join(','.join(a) for a in ADJUST)}")
+    D, a, o = problem.diameter, problem.actuator, problem.options
+    pairing = pair_points(problem.target, o.points_per_segment)
+    M = pairing.segments
+    if M != as_built.segments:
+        raise ValueError(f"the design has {as_built.segments} segments, the problem's pairing {M}")
+    shared = a.shared_lambda
+    best = None
+    # as design.nlp's "auto": Gauss-Newton first, capped; the exact Hessian where it did not converge
+    for hessian, cap in (("gauss-newton", 50), ("exact", o.max_iter)):
+        solver = get_solver(correction_spec(M, pairing.n, shared, min(cap, o.max_iter), o.tol, hessian))
+        p = solver.pack_params(nlp_parameters(problem, pairing, as_built.initial_pose[:3, :3]))
+        if "theta" in adjust:
+            th = (-a.theta_max + dev.theta, a.theta_max + dev.theta)
+        else:
+            th = (as_built.theta, as_built.theta)
+        dl = as_built.length / D
+        frames = chain_frames(as_built.theta, as_built.lam, as_built.length, D, as_built.initial_pose) * _unit_scale(D)
+        f12 = frames12(frames)
+        if shared:
+            off = float(np.mean(dev.lam))
+            lam_b = (np.full(M, a.lambda_min + off), np.full(M, 1.0 + off))
+        else:
+            lam_b = (a.lambda_min + dev.lam, 1.0 + dev.lam)
+        lbx, ubx = solver.bounds(th, lam_b, (dl, dl), X0=f12[:, 0][None])
+        x0 = solver.pack_x(as_built.theta, as_built.lam, dl, f12[None], lam_global=float(np.mean(as_built.lam)))
+        x, status, st = solver.solve(x0, p, lbx, ubx)
+        _log.debug("correction %s: %s, %d iterations, %.2f s", hessian, status, st["iterations"], st["solve_time_s"])
+        if status == "optimal" or best is None:
+            best = (x, status, st, solver)
+        if status == "optimal":
+            break
+    x, status, st, solver = best
+    v = solver.unpack(x)
+    lam = np.full(M, v["lam_global"][0]) if shared else v["lam"][:, 0]
+    realized = Routing(v["theta"], lam, as_built.length, as_built.initial_pose)
+    nominal = remove_deviations(realized, dev)
+    base = built if built is not None else remove_deviations(as_built, dev)
+    # what the builder does not change stays exactly what was built
+    nominal = Routing(base.theta if "theta" not in adjust else nominal.theta, nominal.lam, base.length, base.initial_pose)
+    return nominal, realized, status, st
+
+
+@dataclass
+class CorrectionResult:
+    """``as_built``: the estimated effective routing (shape at the target's pairing; metrics rmse/max_error
+    against the measurements, target_rmse/target_max_error against the target); ``corrected``: the nominal
+    to build next (shape: what it will realize; metrics: the predicted error to the target);
+    ``built``: the nominal of the build measured last; ``estimate``: the full estimate."""
+
+    built: Routing
+    as_built: Result
+    corrected: Result
+    estimate: Estimate
+    measurements: list  # Measurement in the archive frame (free-frame ones moved by the estimated transform)
+    adjust: tuple = ("lambda",)
+
+
+def correct(problem: DesignProblem, nominals: list, measurements: list, *, adjust=("lambda",), sigmas: Sigmas | None = None,
+            measurement_sigma: float | None = None, systematic_sigmas=DEFAULT_SYSTEMATIC_SIGMAS, units_per_mm: float = 0.1) -> CorrectionResult:
+    """Estimate the built robot and correct it (module docstring): the design layer, no file I/O.
+
+    Parameters
+    ----------
+    problem : DesignProblem
+        The target the robot should match (the archive's design problem).
+    nominals : list of Routing
+        The nominal of each build measured so far, oldest first; the last is the one just built.
+    measurements : list of Measurement
+        Their measured points (``build`` indexes ``nominals``).
+    adjust : ("lambda",) or ("lambda", "theta")
+        What the builder changes.
+    sigmas : Sigmas
+        Construction errors (default 1 deg, 0.02, 2 %), the prior of the estimate.
+
+    Returns
+    -------
+    CorrectionResult
+    """
+    t0 = time.perf_counter()
+    sigmas = sigmas or Sigmas.from_degrees(1.0, 0.02, 0.02)
+    D = problem.diameter
+    est = estimate_as_built(nominals, measurements, D, sigmas, problem.actuator.shared_lambda, measurement_sigma, systematic_sigmas,
+                            units_per_mm=units_per_mm)
+    pairing = pair_points(problem.target, problem.options.points_per_segment)
+    ab_res = evaluate(problem, est.routing, pairing, "as_built", status=est.status, solve_time_s=est.solve_time_s,
+                      iterations=est.iterations, stats=dict(est.stats) | {"icp_rounds": est.rounds})
+    ab_res.metrics = {"target_rmse": ab_res.metrics["rmse"], "target_max_error": ab_res.metrics["max_error"]}
+    d = np.concatenate(est.residuals)
+    ab_res.metrics.update(rmse=float(np.sqrt(np.mean(d**2))), max_error=float(d.max()), **routing_metrics(est.routing))
+    t1 = time.perf_counter()
+    nominal, realized, status, st = correct_routing(problem, est.routing, est.deviations, adjust, nominals[-1])
+    pred = evaluate(problem, realized, pairing, "corrected")
+    corr = Result(method="corrected", routing=nominal, shape=pred.shape, status=status, solve_time_s=time.perf_counter() - t1,
+                  iterations=st.pop("iterations"), diameter=D,
+                  metrics=pred.metrics | routing_metrics(nominal),
+                  stats={k: v for k, v in st.items() if k != "solve_time_s"} | {"adjust": ",".join(adjust), "shape": "predicted as built"})
+    moved = []
+    for m in measurements:
+        pts = m.points @ est.transform[:3, :3].T + est.transform[:3, 3] if m.frame == "free" else m.points
+        moved.append(replace(m, points=pts, frame="archive", build=m.build % len(nominals)))
+    ab_res.stats["total_time_s"] = time.perf_counter() - t0
+    return CorrectionResult(nominals[-1], ab_res, corr, est, moved, tuple(adjust))
+
+
+# ---------------------------------------------------------------- systematic parts over prototypes
+
+
+def combine_systematic(estimates, std) -> tuple[np.ndarray, np.ndarray, float]:
+    """Inverse-variance mean of systematic estimates (P, 3) with standard errors (P, 3); the length scale
+    is combined in log space. Where the prototypes scatter more than their standard errors say
+    (Birge ratio sqrt(chi^2 / (P - 1)) > 1, per part), the standard error is inflated by it.
+    Returns (mean (3,), standard error (3,), largest Birge ratio)."""
+    x = np.array(estimates, float).reshape(-1, 3).copy()
+    s = np.array(std, float).reshape(-1, 3).copy()
+    s[:, 2] = s[:, 2] / x[:, 2]
+    x[:, 2] = np.log(x[:, 2])
+    s = np.maximum(s, 1e-15)
+    w = 1.0 / s**2
+    mean = np.sum(w * x, axis=0) / np.sum(w, axis=0)
+    se = 1.0 / np.sqrt(np.sum(w, axis=0))
+    P = x.shape[0]
+    birge = np.ones(3)
+    if P > 1:
+        chi2 = np.sum(w * (x - mean) ** 2, axis=0)
+        birge = np.sqrt(chi2 / (P - 1))
+        se = se * np.maximum(birge, 1.0)
+    out, out_se = mean.copy(), se.copy()
+    out[2] = math.exp(mean[2])
+    out_se[2] = out[2] * se[2]
+    return out, out_se, float(birge.max())
+
+
+# ---------------------------------------------------------------- designs for the robot as it gets built
+
+
+def apply_calibration(problem: DesignProblem, result: Result) -> Result:
+    """A design made with a calibration (``problem.calibration``): the result's routing becomes the nominal
+    to build (design.calibrate.nominal_of: the systematic parts taken out, clipped to the bounds), its shape
+    and metrics what that nominal realizes on a robot with the calibration's systematic errors.
+    stats: calibration_* (the values and the number of clipped entries)."""
+    from_cal = problem.calibration
+    if from_cal is None:
+        return result
+    a = problem.actuator
+    nominal, clipped = nominal_of(result.routing, from_cal, a.theta_max, a.lambda_min)
+    pairing = pair_points(problem.target, problem.options.points_per_segment)
+    realized = evaluate(problem, realized_of(nominal, from_cal), pairing, result.method)
+    out = Result(method=result.method, routing=nominal, shape=realized.shape, status=result.status,
+                 solve_time_s=result.solve_time_s, iterations=result.iterations,
+                 metrics=dict(result.metrics) | realized.metrics | routing_metrics(nominal), stats=dict(result.stats),
+                 diameter=result.diameter)
+    out.stats.update(calibration_lambda_offset=from_cal.lambda_offset, calibration_theta_offset_deg=from_cal.theta_offset_deg,
+                     calibration_length_scale=from_cal.length_scale, calibration_clipped=clipped,
+                     calibration_shape="realized by the nominal on the calibrated robot")
+    return out

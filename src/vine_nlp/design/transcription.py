@@ -1,0 +1,698 @@
+"""One multiple-shooting transcription of the chain for every design formulation.
+
+The chain of M segments (paper eq. iterativeTransform, T^{j+1}_w = T^j_w T^{j+1}_j)
+is written once here; each formulation (nlp, multishape, tip, clearance, robust,
+correction, obstacles) states the terms and rows it adds and the data it feeds in.
+
+Variables, created in stage order so the constraint Jacobian and the Lagrangian
+Hessian are block-banded and an IPOPT iteration costs O(M):
+
+    head     the base pose(s) (w, p): a rotation vector relative to a guessed
+             rotation R0g, and a position; none for a fixed pose, one shared by all
+             K levels, or one per level; the global lambda variables (one for an
+             sPAM, one per level for multi-shape); the base frames X_0(k)
+    stage j  theta_j, lam_j (per-segment lambda only), dl_j, the formulation's
+             extra stage variables, the frames X_{j+1}(k) of every level k
+
+A frame X is 12 numbers: the rotation column-major, then the position. Lengths are
+in units of the tube diameter (D = 1), so one built solver serves every tube.
+
+Each per-stage piece is a *block*: an SX function of a few local variables v (a
+gather of x) and data d, giving a share of the objective f and rows r. Every block
+carries its own SX derivatives, mapped over its instances and scattered into the
+global matrices (``_scatter``): CasADi's automatic MX derivatives would colour the
+whole banded matrix and sweep the mapped function once per colour, several times
+the cost per iteration (results/BENCHMARKS.md, "Derivatives"). Small global terms
+and rows (smoothness, tip, clearance pairs) keep CasADi's automatic derivatives.
+
+Blocks every chain has:
+  pose      X_0(k) = [vec(R0g exp(w)); p]          (not for a fixed pose: bounds fix X_0)
+  segment   X_{j+1}(k) = X_j(k) T^{j+1}_j(theta_j, lam_j(k), dl_j)   (continuity)
+            and the point fit sum_i w_i |r_c(u_i) - r_d,i|^2 of the slots of the cell
+
+A solver is built once per ``Spec`` (structure, terms, Hessian, IPOPT options) and
+cached; the data (targets, weights, fractions, guess rotations, smoothing weights)
+are parameters, so starts, hops and sweep items reuse it.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Callable
+
+import casadi as ca
+import numpy as np
+
+from vine_nlp import interrupt
+from vine_nlp.model.segment import segment_function, so3_exp
+
+# ---------------------------------------------------------------- IPOPT settings and statuses
+
+# IPOPT return statuses as archived (spec: "optimal" | "acceptable" | "max_iter" | "failed" | ...)
+IPOPT_STATUS = {
+    "Solve_Succeeded": "optimal",
+    "Solved_To_Acceptable_Level": "acceptable",
+    "Maximum_Iterations_Exceeded": "max_iter",
+    "Maximum_CpuTime_Exceeded": "max_time",
+    "Restoration_Failed": "restoration_failed",
+    "Infeasible_Problem_Detected": "infeasible",
+    "Invalid_Number_Detected": "invalid_number",
+    "Error_In_Step_Computation": "step_failed",
+    "Search_Direction_Becomes_Too_Small": "small_step",
+}
+
+
+def ipopt_quiet(max_iter: int, tol: float) -> dict:
+    """IPOPT prints nothing inside library code: callers report progress themselves."""
+    return {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": int(max_iter), "ipopt.tol": float(tol)}
+
+
+def ipopt_options(max_iter: int, tol: float, warm: bool = False) -> dict:
+    """IPOPT settings of the whole-chain formulations: quiet, adaptive mu, a stop on objective
+    plateaus, results inside the original bounds; ``warm`` for starts near the answer."""
+    opts = ipopt_quiet(max_iter, tol) | {
+        "ipopt.acceptable_tol": 1e-4,
+        # stop on a plateau (corners of polyline targets): the objective no longer moves
+        "ipopt.acceptable_obj_change_tol": 1e-8,
+        "ipopt.acceptable_iter": 10,
+        "ipopt.mu_strategy": "adaptive",
+        # return points inside the original bounds, not IPOPT's relaxed ones
+        "ipopt.honor_original_bounds": "yes",
+    }
+    if warm:
+        # a warm start is near the answer already: do not push it back into the interior
+        opts.update({
+            "ipopt.warm_start_init_point": "yes",
+            "ipopt.mu_init": 1e-6,
+            "ipopt.warm_start_bound_push": 1e-9,
+            "ipopt.warm_start_mult_bound_push": 1e-9,
+            "ipopt.warm_start_slack_bound_push": 1e-9,
+        })
+    return opts
+
+
+# rows that are hard requirements (clearance, obstacles, tip): held tightly, no "acceptable" stop
+HARD_ROWS = {"ipopt.acceptable_tol": 1e-6, "ipopt.acceptable_iter": 15, "ipopt.constr_viol_tol": 1e-10,
+             "ipopt.acceptable_constr_viol_tol": 1e-9}
+
+
+def ipopt_status(stats: dict, x=None) -> str:
+    """Archived status of one solve; an interrupted solve raises KeyboardInterrupt (vine_nlp.interrupt).
+
+    A solution ``x`` with anything non-finite is flagged "invalid_number" whatever IPOPT said.
+    """
+    raw = stats.get("return_status", "")
+    interrupt.check(raw)
+    if x is not None and not np.all(np.isfinite(x)):
+        return "invalid_number"
+    return IPOPT_STATUS.get(raw, str(raw or "failed"))
+
+
+def frames12(frames: np.ndarray) -> np.ndarray:
+    """(M+1, 4, 4) -> (12, M+1): rotation column-major, then position (the transcription's frame layout)."""
+    R = frames[:, :3, :3].transpose(0, 2, 1).reshape(-1, 9)
+    return np.hstack([R, frames[:, :3, 3]]).T
+
+
+# ---------------------------------------------------------------- structure and layout
+
+POSES = ("free", "fixed", "shared", "level")
+LAMBDAS = ("segment", "shared", "level")
+
+
+@dataclass(frozen=True)
+class Structure:
+    """What fixes the NLP's shape: M segments, n point slots per segment, K levels, how lambda and
+    the base pose are shared, and extra variables per stage requested by terms."""
+
+    M: int
+    n: int = 1
+    K: int = 1
+    lam: str = "segment"  # "segment" (one per segment) | "shared" (one, sPAM) | "level" (one per level)
+    pose: str = "free"  # "free" | "fixed" | "shared" (one for all levels) | "level" (one per level)
+    extra: int = 0  # extra variables per stage
+    globals: int = 0  # extra global variables (head), e.g. systematic construction errors
+
+    def __post_init__(self):
+        if self.M < 1 or self.n < 1 or self.K < 1:
+            raise ValueError(f"a chain needs M, n, K >= 1 (got {self.M}, {self.n}, {self.K})")
+        if self.lam not in LAMBDAS or self.pose not in POSES:
+            raise ValueError(f"lam must be one of {LAMBDAS}, pose one of {POSES}")
+
+    @property
+    def poses(self) -> int:
+        return {"free": 1, "shared": 1, "fixed": 0, "level": self.K}[self.pose]
+
+
+class Layout:
+    """Where each quantity lives in the decision vector (stage order; module docstring)."""
+
+    def __init__(self, s: Structure):
+        M, K, E = s.M, s.K, s.extra
+        i = 0
+        self.pose = np.arange(6 * s.poses).reshape(s.poses, 6)
+        i += 6 * s.poses
+        nglob = {"segment": 0, "shared": 1, "level": K}[s.lam]
+        self.lam_global = np.arange(i, i + nglob)
+        i += nglob
+        self.globals = np.arange(i, i + s.globals)
+        i += s.globals
+        X = np.zeros((M + 1, K, 12), int)
+        X[0] = np.arange(i, i + 12 * K).reshape(K, 12)
+        i += 12 * K
+        self.theta, self.dl = np.zeros(M, int), np.zeros(M, int)
+        self.lam = np.zeros((M, K), int)
+        self.extra = np.zeros((M, E), int)
+        for j in range(M):
+            self.theta[j] = i
+            i += 1
+            if s.lam == "segment":
+                self.lam[j, :] = i
+                i += 1
+            self.dl[j] = i
+            i += 1
+            self.extra[j] = np.arange(i, i + E)
+            i += E
+            X[j + 1] = np.arange(i, i + 12 * K).reshape(K, 12)
+            i += 12 * K
+        if s.lam == "shared":
+            self.lam[:, :] = self.lam_global[0]
+        elif s.lam == "level":
+            self.lam[:, :] = self.lam_global[None, :]
+        self.X = X  # (M+1, K, 12)
+        self.pose_of_level = np.zeros(K, int) if s.poses == 1 else np.arange(K)
+        self.size = i
+
+
+# ---------------------------------------------------------------- blocks
+
+
+@dataclass(frozen=True, eq=False)
+class BlockType:
+    """A per-stage piece: ``fn`` (v (nv), d (nd)) -> (f (1), r (nr)), SX; ``residual`` (v, d) -> res,
+    the weighted residuals whose 2 J^T J is the block's Gauss-Newton Hessian (None: exact)."""
+
+    name: str
+    fn: ca.Function
+    residual: ca.Function | None = None
+
+    @property
+    def nv(self) -> int:
+        return self.fn.size1_in(0)
+
+    @property
+    def nr(self) -> int:
+        return self.fn.size1_out(1)
+
+
+@lru_cache(maxsize=None)
+def block_derivatives(bt: BlockType):
+    """(jac (v, d) -> dr/dv, hess (v, d, sigma, lam_r) -> triu, gauss_newton (same inputs) -> triu), SX, once per type."""
+    v, d = ca.SX.sym("v", bt.nv), ca.SX.sym("d", bt.fn.size1_in(1))
+    sigma, lr = ca.SX.sym("sigma"), ca.SX.sym("lam_r", bt.nr)
+    f, r = bt.fn(v, d)
+    ell = sigma * f + (ca.dot(lr, r) if bt.nr else 0)
+    H, _ = ca.hessian(ell, v)
+    args = [v, d, sigma, lr]
+    jac = ca.Function(f"{bt.name}_jac", [v, d], [ca.jacobian(r, v)])
+    hess = ca.Function(f"{bt.name}_hess", args, [ca.triu(H)])
+    if bt.residual is None:
+        return jac, hess, hess
+    Jr = ca.jacobian(bt.residual(v, d), v)
+    gn = ca.Function(f"{bt.name}_gn", args, [sigma * ca.triu(2 * ca.mtimes(Jr.T, Jr))])
+    return jac, hess, gn
+
+
+@lru_cache(maxsize=None)
+def segment_block(n: int) -> BlockType:
+    """Continuity and point fit of one (segment, level) cell.
+
+    v = (X_j (12), theta, lam, dl, X_{j+1} (12)); d = (u (n), target slots (3 n, slot-major), w (n)).
+    f = sum_i w_i |r_c(u_i) - r_d,i|^2; r = X_j T^{j+1}_j - X_{j+1}. Gauss-Newton: 2 J^T J of the
+    weighted residuals, the constraint curvature left out (always PSD, cheap, linear convergence on
+    large-residual targets)."""
+    v, d = ca.SX.sym("v", 27), ca.SX.sym("d", 5 * n)
+    u, tgt, w = d[:n], ca.reshape(d[n : 4 * n], 3, n), d[4 * n :].T
+    Xn, pts = segment_function(n)(v[:12], v[12], v[13], v[14], u)
+    err = pts - tgt
+    f = ca.sum2(w * ca.sum1(err * err))
+    res = ca.vec(ca.repmat(ca.sqrt(w), 3, 1) * err)
+    return BlockType(
+        f"segment{n}", ca.Function("segment_block", [v, d], [f, Xn - v[15:]]), ca.Function("segment_res", [v, d], [res])
+    )
+
+
+@lru_cache(maxsize=None)
+def pose_block() -> BlockType:
+    """X_0 = [vec(R0g exp(w)); p]: the base rotation stays a proper rotation. v = (w, p, X_0); d = vec(R0g)."""
+    v, d = ca.SX.sym("v", 18), ca.SX.sym("d", 9)
+    R = ca.mtimes(ca.reshape(d, 3, 3), so3_exp(v[:3]))
+    r = ca.vertcat(ca.vec(R), v[3:6]) - v[6:]
+    return BlockType("pose", ca.Function("pose_block", [v, d], [ca.SX(0), r]), ca.Function("pose_res", [v, d], [ca.SX(0, 1)]))
+
+
+def _scatter(shape, blocks, symmetric: bool):
+    """Sparse MX of ``shape`` from per-instance dense-pattern blocks.
+
+    ``blocks``: (values, pattern, rows, cols) with ``values`` the horizontally
+    concatenated block outputs of a mapped call, ``pattern`` one block's sparsity and
+    ``rows``/``cols`` (local size x instances) the global index of each local row/column.
+    Entries that land on the same place (a shared variable of several blocks) are summed;
+    ``symmetric`` stores each entry in the upper triangle.
+    """
+    R, C, V = [], [], []
+    for values, pattern, rows, cols in blocks:
+        r, c = (np.asarray(v) for v in pattern.get_triplet())
+        if r.size == 0:
+            continue
+        a, b = rows[r, :].T.ravel(), cols[c, :].T.ravel()  # instance-major, as the mapped outputs
+        if symmetric:
+            a, b = np.minimum(a, b), np.maximum(a, b)
+        R.append(a)
+        C.append(b)
+        V.append(ca.vec(values.nz[:]))  # a column whatever the block's shape (a one-row Jacobian gives a row)
+    if not R:
+        return ca.MX(*shape)
+    R, C, V = np.concatenate(R), np.concatenate(C), ca.vertcat(*V)
+    key = C.astype(np.int64) * shape[0] + R  # column-major: the order of a CasADi sparsity's nonzeros
+    uniq, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    single = counts[inverse] == 1
+    order = np.flatnonzero(single)[np.argsort(key[single], kind="stable")]
+    out = ca.MX(ca.Sparsity.triplet(*shape, R[order].tolist(), C[order].tolist()), V[order.tolist()])
+    if np.any(counts > 1):
+        # entries several blocks share (a shared lambda, a base frame): one sparse sum
+        dup = np.flatnonzero(counts[inverse] > 1)
+        sel = ca.DM(ca.Sparsity.triplet(int(counts[counts > 1].size), dup.size, np.searchsorted(uniq[counts > 1], key[dup]).tolist(),
+                                        list(range(dup.size))), 1.0)
+        sums = ca.mtimes(sel, V[dup.tolist()])
+        k = uniq[counts > 1]
+        out = out + ca.MX(ca.Sparsity.triplet(*shape, (k % shape[0]).tolist(), (k // shape[0]).tolist()), sums)
+    return out
+
+
+# ---------------------------------------------------------------- the chain a formulation builds on
+
+
+@dataclass
+class _Block:
+    bt: BlockType
+    index: np.ndarray  # (nv, count) global indices of the local variables
+    data: ca.MX  # (nd, count)
+    lb: np.ndarray  # (nr,) row bounds
+    ub: np.ndarray
+    term: str = "fit"  # the objective term its f reports to
+
+
+class Chain:
+    """Symbolic views of the chain's variables and the pieces a formulation adds to them.
+
+    Views (MX, units of D): ``x``, ``theta``, ``dl`` (1 x M), ``lam_of(k)`` (1 x M),
+    ``frames(k)`` (12 x (M+1)), ``tip(k)`` (3), ``extra`` (E x M). ``param(name, shape)``
+    declares data; ``add_block``, ``add_term`` and ``add_rows`` add per-stage blocks, global
+    objective terms and global rows. ``Spec.build`` turns it into one solver.
+    """
+
+    def __init__(self, s: Structure):
+        self.s, self.lay = s, Layout(s)
+        lay = self.lay
+        self.x = x = ca.MX.sym("x", lay.size)
+        self.params: list[tuple[str, ca.MX]] = []
+        self.blocks: list[_Block] = []
+        self.terms: dict[str, ca.MX] = {}
+        self.rows: list[tuple[str, ca.MX, np.ndarray, np.ndarray]] = []
+        self.theta = x[lay.theta.tolist()].T
+        self.dl = x[lay.dl.tolist()].T
+        self.extra = ca.reshape(x[lay.extra.ravel().tolist()], s.extra, s.M) if s.extra else None
+        self.globals = x[lay.globals.tolist()] if s.globals else None
+        M, K, n = s.M, s.K, s.n
+        # the always-present blocks: base poses and the segment cells (continuity + point fit)
+        self.cells = self.param("cells", (5 * n, M * K))  # per cell (j, k), j-major: u, target slots, w
+        if s.pose != "fixed":
+            self.R0g = self.param("R0g", (9, s.poses))
+            idx = np.vstack([lay.pose[lay.pose_of_level].T, lay.X[0].T])  # (18, K)
+            self.add_block(pose_block(), idx, self.R0g[:, lay.pose_of_level.tolist()])
+        cells = [(j, k) for j in range(M) for k in range(K)]
+        idx = np.array([np.r_[lay.X[j, k], lay.theta[j], lay.lam[j, k], lay.dl[j], lay.X[j + 1, k]] for j, k in cells]).T
+        self.add_block(segment_block(n), idx, self.cells)
+
+    # views
+    def frames(self, k: int = 0) -> ca.MX:
+        return ca.reshape(self.x[self.lay.X[:, k, :].ravel().tolist()], 12, self.s.M + 1)
+
+    def tip(self, k: int = 0) -> ca.MX:
+        return self.x[self.lay.X[-1, k, 9:].tolist()]
+
+    def lam_of(self, k: int = 0) -> ca.MX:
+        return self.x[self.lay.lam[:, k].tolist()].T
+
+    def gather(self, index: np.ndarray) -> ca.MX:
+        """x at an (a, b) index array, as an (a, b) MX."""
+        index = np.asarray(index, int)
+        return ca.reshape(self.x[index.T.ravel().tolist()], *index.shape)
+
+    # pieces
+    def param(self, name: str, shape) -> ca.MX:
+        if any(name == n for n, _ in self.params):
+            raise ValueError(f"parameter {name!r} declared twice")
+        p = ca.MX.sym(name, *shape)
+        self.params.append((name, p))
+        return p
+
+    def add_block(self, bt: BlockType, index, data, lb=None, ub=None, term: str = "fit") -> None:
+        index = np.asarray(index, int).reshape(bt.nv, -1)
+        lb = np.zeros(bt.nr) if lb is None else np.broadcast_to(np.asarray(lb, float), (bt.nr,)).copy()
+        ub = np.zeros(bt.nr) if ub is None else np.broadcast_to(np.asarray(ub, float), (bt.nr,)).copy()
+        self.blocks.append(_Block(bt, index, data, lb, ub, term))
+
+    def add_term(self, name: str, expr) -> None:
+        self.terms[name] = self.terms.get(name, 0) + expr
+
+    def add_rows(self, name: str, expr, lb, ub) -> None:
+        expr = ca.vec(expr)
+        n = expr.numel()
+        self.rows.append((name, expr, np.broadcast_to(np.asarray(lb, float), (n,)).copy(), np.broadcast_to(np.asarray(ub, float), (n,)).copy()))
+
+
+# ---------------------------------------------------------------- terms the formulations plug in
+
+
+@dataclass(frozen=True)
+class Smoothness:
+    """w_theta (1/L) int (D theta')^2 ds (+ the same for lambda when it is per segment), the derivatives
+    taken on the given arc-length steps h between segment middles: they replace the paper's low-pass
+    filter and mean the same at any discretization. Parameters: smooth (2), h (M-1), L."""
+
+    lam: bool = True
+
+    def apply(self, c: Chain) -> None:
+        M = c.s.M
+        w, h, L = c.param("smooth", (2, 1)), c.param("h", (max(M - 1, 1), 1)), c.param("L", (1, 1))
+        if M == 1:
+            return
+        c.add_term("smooth", w[0] * ca.sum1(ca.diff(c.theta.T) ** 2 / h) / L)
+        if self.lam and c.s.lam == "segment":
+            c.add_term("smooth", w[1] * ca.sum1(ca.diff(c.lam_of(0).T) ** 2 / h) / L)
+
+
+@dataclass(frozen=True)
+class SoftTip:
+    """The target's last point pairs with the chain's end: sum_k wtip_k |X_M(k) - tip_k|^2 (part of the fit)."""
+
+    def apply(self, c: Chain) -> None:
+        K = c.s.K
+        tip, w = c.param("tip", (3, K)), c.param("wtip", (1, K))
+        c.add_term("fit", ca.sum2(w * ca.sum1((ca.horzcat(*[c.tip(k) for k in range(K)]) - tip) ** 2)))
+
+
+def segment_point_index(c: Chain, j: int, k: int = 0) -> np.ndarray:
+    """Local variables (X_j (12), theta, lam, dl) of segment j of level k, for blocks on its points."""
+    lay = c.lay
+    return np.r_[lay.X[j, k], lay.theta[j], lay.lam[j, k], lay.dl[j]]
+
+
+@dataclass(frozen=True)
+class Spec:
+    """A cache key for one built solver: structure, terms (frozen dataclasses with ``apply(chain)``),
+    Hessian ("exact" | "gauss-newton") and IPOPT options (a sorted tuple of items)."""
+
+    structure: Structure
+    terms: tuple = ()
+    hessian: str = "exact"
+    options: tuple = ()
+
+    def build(self) -> "Solver":
+        return get_solver(self)
+
+
+@lru_cache(maxsize=32)
+def get_solver(spec: Spec) -> "Solver":
+    """The solver of ``spec``, built once per process (building costs more than one solve)."""
+    return Solver(spec)
+
+
+def clear_caches() -> None:
+    """Forget every built solver and SX derivative (benchmarks: time a cold start)."""
+    get_solver.cache_clear()
+    block_derivatives.cache_clear()
+    segment_block.cache_clear()
+    pose_block.cache_clear()
+    segment_function.cache_clear()
+
+
+def options_key(opts: dict) -> tuple:
+    return tuple(sorted(opts.items()))
+
+
+class Solver:
+    """One NLP built from a Spec: ``solve(x0, values, lbx, ubx)`` runs IPOPT."""
+
+    def __init__(self, spec: Spec):
+        t0 = time.perf_counter()
+        self.spec = spec
+        c = self.chain = Chain(spec.structure)
+        for term in spec.terms:
+            term.apply(c)
+        x, lay = c.x, c.lay
+        p = ca.vertcat(*[ca.vec(q) for _, q in c.params])
+        self._param_shapes = {name: q.shape for name, q in c.params}
+        self._param_order = [name for name, _ in c.params]
+        # objective and rows: blocks (mapped SX) first, then global rows
+        f_blocks, g_parts, lbg, ubg, counts = 0, [], [], [], []
+        gathered, block_terms = [], {}
+        for b in c.blocks:
+            count = b.index.shape[1]
+            V = c.gather(b.index)
+            F = b.bt.fn.map(count, "serial")
+            fb, rb = F(V, b.data)
+            f_blocks = f_blocks + ca.sum2(fb)
+            block_terms[b.term] = block_terms.get(b.term, 0) + ca.sum2(fb)
+            if b.bt.nr:
+                g_parts.append(ca.vec(rb))
+                lbg.append(np.tile(b.lb, count))
+                ubg.append(np.tile(b.ub, count))
+            gathered.append((V, count))
+            counts.append(count)
+        f_glob = sum(c.terms.values(), ca.MX(0))  # global terms: automatic derivatives
+        reported = dict(c.terms)
+        for k, v in block_terms.items():
+            reported[k] = reported.get(k, 0) + v
+        g_glob = ca.vertcat(*[r for _, r, _, _ in c.rows]) if c.rows else ca.MX(0, 1)
+        f = f_glob + f_blocks
+        nb = int(sum(v.numel() for v in g_parts))
+        g = ca.vertcat(*g_parts, g_glob)
+        self.lbg = np.concatenate(lbg + [r[2] for r in c.rows]) if (lbg or c.rows) else np.zeros(0)
+        self.ubg = np.concatenate(ubg + [r[3] for r in c.rows]) if (ubg or c.rows) else np.zeros(0)
+        self.row_slices, off = {}, nb
+        for name, r, _, _ in c.rows:
+            self.row_slices[name] = slice(off, off + r.numel())
+            off += r.numel()
+        # derivatives: per block type SX, mapped and scattered; global parts automatic
+        sigma, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.size1())
+        jac_blocks, hess_blocks, row = [], [], 0
+        for b, (V, count) in zip(c.blocks, gathered):
+            jac, hess, gn = block_derivatives(b.bt)
+            h = gn if spec.hessian == "gauss-newton" else hess
+            nr = b.bt.nr
+            LR = ca.reshape(lam_g[row : row + nr * count], nr, count) if nr else ca.MX(0, count)
+            if nr:
+                rows_idx = row + np.arange(nr * count).reshape(count, nr).T
+                jac_blocks.append((jac.map(count, "serial")(V, b.data), jac.sparsity_out(0), rows_idx, b.index))
+            hess_blocks.append((h.map(count, "serial")(V, b.data, sigma, LR), h.sparsity_out(0), b.index, b.index))
+            row += nr * count
+        J = _scatter((nb, lay.size), jac_blocks, False)
+        if c.rows:
+            J = ca.vertcat(J, ca.jacobian(g_glob, x))
+        lam_glob = lam_g[nb:]
+        glob = sigma * f_glob + (ca.dot(lam_glob, g_glob) if c.rows else 0)
+        H = _scatter((lay.size, lay.size), hess_blocks, True) + ca.triu(ca.hessian(glob, x)[0])
+        opts = dict(spec.options)
+        opts["jac_g"] = ca.Function("nlp_jac_g", [x, p], [g, J], ["x", "p"], ["g", "jac_g_x"])
+        opts["hess_lag"] = ca.Function("nlp_hess_l", [x, p, sigma, lam_g], [H], ["x", "p", "lam_f", "lam_g"], ["hess_gamma_x_x"])
+        self.nlpsol = ca.nlpsol("vine_nlp", "ipopt", {"x": x, "p": p, "f": f, "g": g}, opts)
+        self.term_names = list(reported)
+        self._terms = ca.Function("terms", [x, p], [ca.MX(0) + v for v in reported.values()])
+        self._g = ca.Function("g", [x, p], [g])
+        self.build_time_s = time.perf_counter() - t0
+        self._built = False
+
+    @property
+    def layout(self) -> Layout:
+        return self.chain.lay
+
+    @property
+    def structure(self) -> Structure:
+        return self.spec.structure
+
+    # data
+    def pack_params(self, values: dict) -> np.ndarray:
+        missing = [k for k in self._param_order if k not in values]
+        if missing:
+            raise ValueError(f"parameters missing: {missing}")
+        out = []
+        for name in self._param_order:
+            shape = self._param_shapes[name]
+            v = np.asarray(values[name], float)
+            if v.size != shape[0] * shape[1]:
+                raise ValueError(f"parameter {name!r}: {v.size} values for shape {shape}")
+            out.append(v.reshape(shape, order="F").ravel(order="F"))
+        return np.concatenate(out) if out else np.zeros(0)
+
+    def param_slice(self, name: str) -> slice:
+        """Where parameter ``name`` sits in the packed parameter vector."""
+        off = 0
+        for k in self._param_order:
+            size = self._param_shapes[k][0] * self._param_shapes[k][1]
+            if k == name:
+                return slice(off, off + size)
+            off += size
+        raise KeyError(name)
+
+    def pack_x(self, theta, lam, dl, frames, poses=None, lam_global=None, extra=None, globals_=None) -> np.ndarray:
+        """x from per-segment theta, dl (M,), lam (M,) or (M, K), frames (K, 12, M+1), poses (P, 6),
+        global lambdas (shared or level), extra (E, M), extra globals (G,)."""
+        s, lay = self.structure, self.layout
+        x = np.zeros(lay.size)
+        x[lay.theta], x[lay.dl] = theta, dl
+        if s.lam == "segment":
+            x[lay.lam[:, 0]] = np.asarray(lam, float).reshape(s.M, -1)[:, 0]
+        elif lam_global is not None:
+            x[lay.lam_global] = lam_global
+        else:
+            x[lay.lam_global] = np.mean(lam) if s.lam == "shared" else np.asarray(lam, float).reshape(s.M, s.K)[0]
+        frames = np.asarray(frames, float).reshape(s.K, 12, s.M + 1)
+        for k in range(s.K):
+            x[lay.X[:, k, :].T] = frames[k]
+        if poses is not None and s.poses:
+            x[lay.pose] = np.asarray(poses, float).reshape(s.poses, 6)
+        if extra is not None and s.extra:
+            x[lay.extra.T] = np.asarray(extra, float).reshape(s.extra, s.M)
+        if globals_ is not None and s.globals:
+            x[lay.globals] = globals_
+        return x
+
+    def unpack(self, x) -> dict:
+        s, lay = self.structure, self.layout
+        x = np.asarray(x, float)
+        return {
+            "theta": x[lay.theta].copy(),
+            "lam": x[lay.lam].copy(),  # (M, K)
+            "dl": x[lay.dl].copy(),
+            "poses": x[lay.pose].copy(),
+            "lam_global": x[lay.lam_global].copy(),
+            "frames": np.stack([x[lay.X[:, k, :].T] for k in range(s.K)]),  # (K, 12, M+1)
+            "extra": x[lay.extra.T].copy() if s.extra else None,
+            "globals": x[lay.globals].copy(),
+        }
+
+    def bounds(self, theta, lam, dl, X0=None) -> tuple[np.ndarray, np.ndarray]:
+        """Box bounds from (lo, hi) pairs: theta, lam (per segment (M,) or per level (K,) or scalars), dl;
+        ``X0``: (K, 12) fixed base frames for a fixed pose. Extra and global variables are free: set
+        their entries of the returned arrays (``layout.extra``, ``layout.globals``) to bound them."""
+        s, lay = self.structure, self.layout
+        lbx, ubx = np.full(lay.size, -np.inf), np.full(lay.size, np.inf)
+        lbx[lay.theta], ubx[lay.theta] = theta
+        lbx[lay.dl], ubx[lay.dl] = dl
+        if s.lam == "level":
+            lbx[lay.lam_global], ubx[lay.lam_global] = lam
+        else:
+            lo, hi = (np.broadcast_to(np.asarray(v, float), (s.M,)) for v in lam)
+            if s.lam == "shared":
+                lbx[lay.lam_global], ubx[lay.lam_global] = lo[0], hi[0]
+            else:
+                lbx[lay.lam[:, 0]], ubx[lay.lam[:, 0]] = lo, hi
+        if s.pose == "fixed":
+            if X0 is None:
+                raise ValueError("a fixed pose needs its base frames X0")
+            X0 = np.asarray(X0, float).reshape(s.K, 12)
+            for k in range(s.K):
+                lbx[lay.X[0, k]] = ubx[lay.X[0, k]] = X0[k]
+        return lbx, ubx
+
+    def terms(self, x, p) -> dict:
+        return {k: float(v) for k, v in zip(self.term_names, self._terms(x, p))}
+
+    def solve(self, x0, p, lbx, ubx, lbg=None, ubg=None) -> tuple[np.ndarray, str, dict]:
+        """One IPOPT solve from x0 (clipped into the bounds): (x, status, stats)."""
+        build = 0.0 if self._built else self.build_time_s
+        self._built = True
+        x0 = np.clip(np.asarray(x0, float), lbx, ubx)
+        lbg = self.lbg if lbg is None else lbg
+        ubg = self.ubg if ubg is None else ubg
+        t0 = time.perf_counter()
+        sol = self.nlpsol(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        elapsed = time.perf_counter() - t0
+        st = self.nlpsol.stats()
+        x = np.array(sol["x"]).ravel()
+        status = ipopt_status(st, x)
+        gv = np.array(sol["g"]).ravel()
+        viol = float(np.max(np.maximum(lbg - gv, 0) + np.maximum(gv - ubg, 0))) if gv.size else 0.0
+        stats = {
+            "solver": "ipopt",
+            "return_status": st.get("return_status", ""),
+            "build_time_s": build,
+            "objective": float(sol["f"]),
+            "iterations": int(st.get("iter_count", 0)),
+            "solve_time_s": elapsed,
+            "ipopt_time_s": elapsed,  # IPOPT alone (solve_time_s may grow to cover a whole method)
+            "max_constraint_violation": viol,
+            "hessian": self.spec.hessian,
+        } | {f"objective_{k}": v for k, v in self.terms(x, p).items()}
+        return x, status, stats
+
+
+# ---------------------------------------------------------------- multi-start: one ranking, one tie rule
+
+# objectives this close (relative) are the same optimum reached from different starts
+TIE_RTOL = 1e-6
+
+
+def pick_best(results, objective: Callable = lambda r: r.stats["objective"], converged: Callable = lambda r: r.converged) -> int:
+    """Index of the best result: converged before not converged, then the lowest objective; the FIRST
+    within TIE_RTOL of the best wins, so the choice does not depend on timing or worker order."""
+    rank = [(0 if converged(r) else 1, objective(r)) for r in results]
+    best = min(rank)
+    return next(k for k, (c, o) in enumerate(rank) if c == best[0] and o <= best[1] * (1 + TIE_RTOL) + 1e-15)
+
+
+def multistart(solve: Callable, guesses, progress=None, **pick) -> tuple:
+    """Solve from every guess in order; (best result, its index, all results). ``progress(done, total)``."""
+    results = []
+    for g in guesses:
+        results.append(solve(g))
+        if progress:
+            progress(len(results), len(guesses))
+    k = pick_best(results, **pick)
+    return results[k], k, results
+
+
+def record_starts(best, k: int, results, t0: float) -> None:
+    """The multi-start's stats on the winner: starts, start_objectives, best_start, total time and iterations."""
+    best.stats["starts"] = len(results)
+    best.stats["start_objectives"] = [r.stats["objective"] for r in results]
+    best.stats["best_start"] = k
+    best.solve_time_s = time.perf_counter() - t0
+    best.iterations = sum(r.iterations for r in results)
+
+
+def cell_data(pairing, target_scaled: np.ndarray, weight: float, K: int = 1, k: int = 0, out: np.ndarray | None = None) -> np.ndarray:
+    """The segment cells' data (5 n, M K) of one level k: slot fractions u, paired target points (units of D)
+    and weights (``weight`` per paired point, 0 for unused slots). The last target point is not in a slot:
+    it pairs with the chain's end (SoftTip)."""
+    M, n = pairing.segments, pairing.n
+    out = np.zeros((5 * n, M * K)) if out is None else out
+    i = np.arange(target_scaled.shape[0] - 1)
+    within = i - pairing.bounds[pairing.seg[i]]
+    col = pairing.seg[i] * K + k
+    out[within, col] = pairing.frac[i]
+    for c in range(3):
+        out[n + 3 * within + c, col] = target_scaled[i, c]
+    out[4 * n + within, col] = weight
+    return out
+
+
+def smoothing_steps(chord: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, float]:
+    """Arc-length steps between segment middles and the total arc length (same units as ``chord``)."""
+    mids = 0.5 * (chord[bounds[:-1]] + chord[bounds[1:]])
+    return (np.diff(mids) if mids.size > 1 else np.ones(1)), float(chord[-1])

@@ -1,0 +1,207 @@
+"""Tube meshes for other tools (``vine-nlp export``): STL, OBJ, PLY and glTF binary (.glb).
+
+The tube is a closed triangle mesh (trimesh): rings of ``RING`` vertices at the
+true diameter D around the model's center line, sampled at most D/8 apart along
+the material, closed by flat caps at the base and the tip. Every edge is shared
+by exactly two faces (``trimesh.Trimesh.is_watertight``) and the enclosed volume
+is pi (D/2)^2 times the center-line length up to the polygon's area
+(RING = 64: 0.16 % less).
+
+The actuator line is a thin closed tube of its own (diameter D/10): a second
+object in OBJ, a second node in glTF, and for STL and PLY (one mesh per file) a
+second file ``<name>.actuator.<ext>`` beside the first.
+
+Units: glTF is in metres by definition, so coordinates are scaled from the
+archive's ``units`` (cm, mm, m). STL, OBJ and PLY keep the archive's units and say
+so where the format has room for it (STL header, OBJ and PLY comments).
+
+trimesh is imported inside the functions that need it (a heavy package).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from vine_nlp.design.problem import Routing
+from vine_nlp.io.archive import Archive, write_atomic
+from vine_nlp.model import shape_lines
+from vine_nlp.model.chain import segment_end_samples
+
+FORMATS = (".stl", ".obj", ".ply", ".glb")
+METRES_PER_UNIT = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+RING = 64
+ACTUATOR_DIAMETER = 0.1  # of D
+
+
+def mesh_format(path) -> str:
+    """The export format of ``path`` by its extension (ValueError for an unknown one)."""
+    ext = Path(path).suffix.lower()
+    if ext not in FORMATS:
+        raise ValueError(f"unknown mesh format {ext or '(none)'!r}: use {', '.join(FORMATS)}")
+    return ext
+
+
+def tube_lines(routing: Routing, D: float, spacing: float | None = None):
+    """Center and actuator lines at most ``spacing`` (default D/8) apart along the material: two (P, 3) arrays."""
+    spacing = D / 8 if spacing is None else float(spacing)
+    per = np.maximum(1, np.ceil(routing.length / spacing)).astype(int)
+    seg, frac = segment_end_samples(routing.length, per)
+    center, inner, _ = shape_lines(routing.theta, routing.lam, routing.length, D, seg, frac, routing.initial_pose)
+    return center, inner
+
+
+def _frames(line, normal_hint):
+    """Unit tangent, normal and binormal along a polyline; the normal follows ``normal_hint``
+    (the model's N for the tube), else is transported along the line without twist."""
+    T = np.gradient(line, axis=0)
+    T /= np.linalg.norm(T, axis=1, keepdims=True)
+    N = np.empty_like(T)
+    if normal_hint is not None:
+        N[:] = normal_hint - np.sum(normal_hint * T, axis=1, keepdims=True) * T
+        N /= np.linalg.norm(N, axis=1, keepdims=True)
+    else:
+        ref = np.array([1.0, 0.0, 0.0]) if abs(T[0, 0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        n = np.cross(T[0], ref)
+        for i in range(len(T)):  # parallel transport: the ring does not twist around the line
+            n = n - np.dot(n, T[i]) * T[i]
+            n /= np.linalg.norm(n)
+            N[i] = n
+    return T, N, np.cross(T, N)
+
+
+def tube_mesh(line, diameter: float, normal=None, ring: int = RING):
+    """A closed tube of ``diameter`` around the polyline ``line`` (P >= 2 distinct points) with flat end caps.
+
+    Parameters
+    ----------
+    line : (P, 3) array
+    diameter : float
+    normal : (P, 3) array, optional
+        Direction of the rings' first vertex at each point (the model's N).
+    ring : int
+        Vertices per ring.
+
+    Returns
+    -------
+    trimesh.Trimesh
+        Watertight, faces wound outward.
+    """
+    import trimesh
+
+    line = np.asarray(line, float)
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(line, axis=0), axis=1) > 1e-9 * diameter])
+    line = line[keep]
+    normal = None if normal is None else np.asarray(normal, float)[keep]
+    if len(line) < 2:
+        raise ValueError("a tube needs a center line of two distinct points or more")
+    T, N, B = _frames(line, normal)
+    a = 2 * math.pi * np.arange(ring) / ring
+    r = 0.5 * diameter
+    rings = line[:, None, :] + r * (np.cos(a)[None, :, None] * N[:, None, :] + np.sin(a)[None, :, None] * B[:, None, :])
+    P = len(line)
+    V = np.concatenate([rings.reshape(-1, 3), line[:1], line[-1:]])
+    i = np.arange(P - 1)[:, None] * ring
+    k = np.arange(ring)[None, :]
+    k1 = (k + 1) % ring
+    v00, v01, v10, v11 = i + k, i + k1, i + ring + k, i + ring + k1
+    side = np.concatenate([np.stack([v00, v11, v10], -1).reshape(-1, 3), np.stack([v00, v01, v11], -1).reshape(-1, 3)])
+    base, tip = P * ring, P * ring + 1
+    kk = np.arange(ring)
+    caps = np.concatenate([np.stack([np.full(ring, base), (kk + 1) % ring, kk], -1),
+                           np.stack([np.full(ring, tip), (P - 1) * ring + kk, (P - 1) * ring + (kk + 1) % ring], -1)])
+    mesh = trimesh.Trimesh(vertices=V, faces=np.concatenate([side, caps]), process=False)
+    if mesh.volume < 0:
+        mesh.invert()
+    return mesh
+
+
+def run_meshes(archive: Archive, run: str):
+    """(tube, actuator) meshes of one run, in the archive's units."""
+    r = archive.runs[run]
+    D = archive.diameter
+    center, inner = tube_lines(r.routing, D)
+    tube = tube_mesh(center, D, normal=inner - center)
+    actuator = tube_mesh(inner, ACTUATOR_DIAMETER * D)
+    return tube, actuator
+
+
+def write_mesh(archive: Archive, path, run: str | None = None) -> dict:
+    """Write the tube of ``run`` (default: the archive's default run) to ``path`` (.stl, .obj, .ply, .glb).
+
+    Parameters
+    ----------
+    archive : vine_nlp.io.archive.Archive
+    path : str or Path
+    run : str, optional
+
+    Returns
+    -------
+    dict
+        run, files (written, in order), faces, watertight, volume (archive units^3),
+        units (of the file's coordinates), scale (file units per archive unit).
+
+    Raises
+    ------
+    ValueError
+        Unknown extension, unknown run, an archive without runs or units glTF cannot scale.
+    """
+    import trimesh
+
+    path = Path(path)
+    ext = mesh_format(path)
+    if run is None:
+        run = archive.default_run()
+        if run is None:
+            raise ValueError("the archive has no runs")
+    elif run not in archive.runs:
+        raise ValueError(f"no run {run!r} in the archive (runs: {', '.join(archive.runs) or 'none'})")
+    units = archive.units
+    if ext == ".glb" and units not in METRES_PER_UNIT:
+        raise ValueError(f"glTF is in metres: cannot scale units {units!r} (use {', '.join(METRES_PER_UNIT)})")
+    tube, actuator = run_meshes(archive, run)
+    info = {"run": run, "faces": len(tube.faces), "watertight": bool(tube.is_watertight), "volume": float(tube.volume),
+            "units": units, "scale": 1.0}
+    note = f"vine_nlp tube of {archive.name} run {run}, units {units}"
+    if ext == ".glb":
+        scale = METRES_PER_UNIT[units]
+        info.update(units="m", scale=scale)
+        scene = trimesh.Scene()
+        for name, mesh, color in (("tube", tube, [90, 140, 200, 255]), ("actuator", actuator, [214, 39, 40, 255])):
+            m = mesh.copy()
+            m.apply_scale(scale)
+            m.visual.face_colors = color
+            scene.add_geometry(m, node_name=name, geom_name=name)
+        data = scene.export(file_type="glb")
+        write_atomic(path, lambda t: Path(t).write_bytes(data))
+        info["files"] = [path]
+        return info
+    if ext == ".obj":
+        scene = trimesh.Scene()
+        scene.add_geometry(tube, node_name="tube", geom_name="tube")
+        scene.add_geometry(actuator, node_name="actuator", geom_name="actuator")
+        text = scene.export(file_type="obj")
+        text = text if isinstance(text, str) else text.decode()
+        data = f"# {note}\n{text}".encode()
+        write_atomic(path, lambda t: Path(t).write_bytes(data))
+        info["files"] = [path]
+        return info
+    second = path.with_name(f"{path.stem}.actuator{path.suffix}")
+    blobs = [_with_units(tube.export(file_type=ext[1:]), ext, note), _with_units(actuator.export(file_type=ext[1:]), ext, note + ", actuator line")]
+    write_atomic(path, lambda t: Path(t).write_bytes(blobs[0]))
+    write_atomic(second, lambda t: Path(t).write_bytes(blobs[1]))
+    info["files"] = [path, second]
+    return info
+
+
+def _with_units(data: bytes, ext: str, note: str) -> bytes:
+    """Put ``note`` (with the units) where the format has room: the STL header, a PLY comment."""
+    if ext == ".stl" and not data[:5].lower().startswith(b"solid"):
+        return note.encode("ascii", "replace")[:80].ljust(80, b" ") + data[80:]
+    if ext == ".ply":
+        head, sep, rest = data.partition(b"\n")
+        fmt, sep2, rest2 = rest.partition(b"\n")
+        return head + sep + fmt + sep2 + f"comment {note}\n".encode("ascii", "replace") + rest2
+    return data

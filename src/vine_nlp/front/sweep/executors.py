@@ -1,0 +1,227 @@
+"""Where sweep items run: the worker task and three executors with one small interface.
+
+The worker task is the top-level function :func:`solve_item`; it returns Results and
+the parent writes every file, so a cluster needs no shared filesystem. An executor has
+``window`` (items to keep in flight), ``description``, ``submit(fn, args, name)``,
+``wait_first(futures)``, ``cancel(futures)`` and ``close(interrupted=False)``:
+
+* :class:`InlinePool` (workers 0 or 1): each item runs in this process;
+* :class:`LocalPool`: a ProcessPoolExecutor (forkserver or spawn: no fork of a process
+  that already runs casadi threads) whose worker processes live for the whole sweep;
+  ``restart()`` after a worker process died;
+* :class:`DaskPool`: a dask.distributed scheduler. dask is imported only here, when a
+  scheduler address is given.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+import traceback
+
+from vine_nlp.errors import InputError
+
+_MAX_ERROR_TEXT = 500
+
+
+def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]:
+    """Solve one sweep item with each of ``methods`` (runs in a worker process).
+
+    Returns ``(runs, timings)``: ``runs`` maps each method that finished to its
+    Result (a picklable dataclass); ``timings`` holds ``{"methods": {method:
+    wall seconds}, "total_s", "cpu_s" (this process's CPU time for the item), "errors":
+    {method: "Type: message"}, "pid", "host"}``.
+    A method that raises is reported in ``timings["errors"]`` and does not stop the
+    item's other methods. KeyboardInterrupt propagates, except with ``remote=True``
+    (a worker process, which ignores Ctrl-C): there it can only come from a solver
+    (vine_nlp.interrupt maps an exception thrown inside IPOPT to KeyboardInterrupt)
+    and fails that run instead of stopping the whole sweep.
+    """
+    from vine_nlp import design
+
+    runs, errors, wall = {}, {}, {}
+    t_item, c_item = time.perf_counter(), time.process_time()
+    for method in methods:
+        t0 = time.perf_counter()
+        try:
+            # looked up on the module at call time: one place to replace it (tests)
+            runs[method] = design.run_design(problem_file.problem, method)
+        except Exception as exc:  # noqa: BLE001 - any failure of one run is that run's result
+            errors[method] = error_text(exc)
+        except KeyboardInterrupt:
+            if not remote:
+                raise
+            errors[method] = (
+                "KeyboardInterrupt from the solver in a worker process, which ignores Ctrl-C "
+                "(IPOPT status NonIpopt_Exception_Thrown: an exception inside the solve)"
+            )
+        wall[method] = time.perf_counter() - t0
+    timings = {
+        "methods": wall,
+        "total_s": time.perf_counter() - t_item,
+        "cpu_s": time.process_time() - c_item,
+        "errors": errors,
+        "pid": os.getpid(),
+        "host": socket.gethostname(),
+    }
+    return runs, timings
+
+
+def error_text(exc: BaseException) -> str:
+    text = " ".join(traceback.format_exception_only(type(exc), exc)).strip()
+    text = " ".join(text.split())  # one line in the CSV
+    return text if len(text) <= _MAX_ERROR_TEXT else text[: _MAX_ERROR_TEXT - 3] + "..."
+
+
+def _worker_init():
+    # Ctrl-C reaches the whole process group; only the parent handles it (it stops the workers).
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+class InlinePool:
+    """workers 0 or 1: each item runs in this process when submitted."""
+
+    window = 1
+
+    def __init__(self):
+        self.description = "in this process"
+
+    def submit(self, fn, args, name):
+        from concurrent.futures import Future
+
+        fut = Future()
+        try:
+            fut.set_result(fn(*args, remote=False))
+        except Exception as exc:  # noqa: BLE001 - like an executor: the future carries it
+            fut.set_exception(exc)
+        return fut
+
+    def wait_first(self, futures):
+        return [f for f in futures if f.done()]
+
+    def cancel(self, futures):
+        pass
+
+    def close(self, interrupted=False):
+        pass
+
+
+class LocalPool:
+    """A ProcessPoolExecutor whose worker processes live for the whole sweep."""
+
+    def __init__(self, workers: int):
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
+        self.window = workers
+        self.description = f"{workers} local worker processes"
+        self._make = lambda: ProcessPoolExecutor(workers, mp_context=mp.get_context(method), initializer=_worker_init)
+        self.executor = self._make()
+
+    def submit(self, fn, args, name):
+        from concurrent.futures import Future
+        from concurrent.futures.process import BrokenProcessPool
+
+        try:
+            return self.executor.submit(fn, *args, remote=True)
+        except BrokenProcessPool as exc:
+            # a worker died since the last look: this item never ran, it goes back in the queue
+            fut = Future()
+            fut.set_exception(exc)
+            fut.never_started = True
+            return fut
+
+    def wait_first(self, futures):
+        from concurrent.futures import FIRST_COMPLETED, wait
+
+        return wait(futures, return_when=FIRST_COMPLETED).done
+
+    def restart(self):
+        """A fresh pool after a worker process died (the old one is broken for good)."""
+        self.executor.shutdown(wait=False, cancel_futures=True)
+        self.executor = self._make()
+
+    def cancel(self, futures):
+        for f in futures:
+            f.cancel()
+
+    def close(self, interrupted=False):
+        if not interrupted:
+            self.executor.shutdown(wait=True)
+            return
+        # Ctrl-C: do not wait for the running items (an item may take minutes).
+        processes = list((getattr(self.executor, "_processes", None) or {}).values())
+        self.executor.shutdown(wait=False, cancel_futures=True)
+        for p in processes:
+            if p.is_alive():
+                p.terminate()
+        for p in processes:
+            p.join(timeout=5)
+
+
+class DaskPool:
+    """A dask.distributed scheduler; the workers need vine_nlp installed, no shared files."""
+
+    def __init__(self, address: str):
+        try:
+            from dask.distributed import Client, as_completed
+        except ImportError as exc:  # pragma: no cover - dask is a dependency
+            raise InputError("command line", "--scheduler", f"needs dask.distributed ({exc})") from None
+        try:
+            from distributed.comm import resolve_address
+
+            # a malformed address fails here, before a Client exists (a half-made one hangs at exit)
+            resolve_address(address)
+            self.client = Client(address, set_as_default=False)
+        except (OSError, TimeoutError, ValueError, TypeError) as exc:
+            raise InputError(address, "--scheduler", f"cannot connect to the dask scheduler ({exc})") from None
+        self._completed = as_completed(loop=self.client.loop)
+        self._window = (0.0, 0)
+        threads = sum(self.client.nthreads().values())
+        self.description = f"dask scheduler {address} ({len(self.client.nthreads())} workers, {threads} threads)"
+
+    @property
+    def window(self) -> int:
+        # Keep the cluster busy without shipping the whole sweep at once; follows scaling.
+        checked, size = self._window
+        if time.monotonic() - checked > 5.0:
+            size = max(16, 4 * sum(self.client.nthreads().values()))
+            self._window = (time.monotonic(), size)
+        return size
+
+    def submit(self, fn, args, name):
+        import uuid
+
+        fut = self.client.submit(fn, *args, remote=True, key=f"solve_item-{name}-{uuid.uuid4().hex[:8]}", pure=False)
+        self._completed.add(fut)
+        return fut
+
+    def wait_first(self, futures):
+        return self._completed.next_batch(block=True)
+
+    def cancel(self, futures):
+        if futures:
+            self.client.cancel(list(futures))
+
+    def close(self, interrupted=False):
+        self.client.close()
+
+
+def make_pool(workers: int, scheduler: str | None, jobs: int):
+    """The executor for ``workers`` local processes or the dask ``scheduler`` address (see the module)."""
+    if scheduler:
+        return DaskPool(scheduler)
+    if workers <= 1:
+        return InlinePool()
+    return LocalPool(min(workers, jobs))
+
+
+def is_broken_pool(exc) -> bool:
+    """True when a local worker process died (the pool is broken, every item in flight is lost)."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    return isinstance(exc, BrokenProcessPool)

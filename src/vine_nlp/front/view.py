@@ -1,0 +1,508 @@
+"""Interactive 3-D views (``vine-nlp view``): one self-contained HTML file made with plotly.
+
+An archive's view shows every run (legend entries toggle a run's tube, actuator
+line and center line together), the target and any obstacles (``/obstacles/<k>``),
+with two sliders:
+
+* growth while actuated: everted length l from 0 to the full length. A robot grown
+  while actuated lays every part down in its final shape, so the body is the prefix
+  l' <= l of the final shape;
+* actuation after growth: the fully grown tube actuated by t from 0 to 1,
+  lambda_t = 1 - t (1 - lambda), theta and lengths as designed.
+
+The sliders are two scenarios, not two axes: moving one draws its shape (the
+other slider keeps showing its last position). Every frame moves the same tube
+vertices (rings past the grown tip wait at the tip), so frames carry coordinates
+only and the page of a 40-segment design stays under 6 MB.
+
+Shapes come from the model (:func:`vine_nlp.model.shape_lines`). Hovering the
+center line shows s (material coordinate: unactuated length from the base),
+theta, lambda (lambda_t on the actuation slider) and the error (distance to the
+nearest target point; archives with a target only).
+
+A sweep directory's view shows summary.csv as a scatter (RMSE of every item and
+method); clicking a point draws that item's tube center line and actuator line
+in the 3-D panel beside it (the shapes are embedded in the page, no other file is
+needed).
+
+plotly is imported inside the functions that need it: the command line starts fast.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from vine_nlp.design.problem import Routing
+from vine_nlp.front.sweep.summary import SUMMARY_CSV, read_summary
+from vine_nlp.io.archive import Archive, load_archive, write_atomic
+from vine_nlp.model import shape_lines
+from vine_nlp.model.chain import segment_end_samples
+
+GROWTH_STEPS = 20  # slider steps of growth (21 positions, 0 to full length)
+ACTUATION_STEPS = 10  # slider steps of actuation after growth
+RING = 8  # points around the tube (smooth-shaded; the page of a 40-segment design stays under 6 MB)
+RUN_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22")
+OBSTACLE_COLOR = "#7f7f7f"
+TRACES_PER_RUN = 3  # tube surface, actuator line, center line (hover)
+
+
+# ------------------------------------------------------------------ geometry
+
+
+def _samples(routing: Routing, D: float, upto: float | None = None):
+    """(segment, fraction, l) of points at most D/3 apart along the material, base to ``upto``
+    (default: the tip); the last point is exactly at ``upto``."""
+    per = np.maximum(1, np.ceil(routing.length / (D / 3.0))).astype(int)
+    seg, frac = segment_end_samples(routing.length, per)
+    S = np.concatenate([[0.0], np.cumsum(routing.length)])
+    l = S[seg] + frac * routing.length[seg]
+    if upto is None or upto >= S[-1]:
+        return seg, frac, l
+    keep = l < upto
+    j = int(min(np.searchsorted(S, upto, side="right") - 1, routing.segments - 1))
+    f = (upto - S[j]) / routing.length[j]
+    seg = np.append(seg[keep], j)
+    frac = np.append(frac[keep], f)
+    l = np.append(l[keep], upto)
+    if len(l) == 1:  # nothing grown yet: a zero-length tube at the base
+        seg, frac, l = np.repeat(seg, 2), np.repeat(frac, 2), np.repeat(l, 2)
+    return seg, frac, l
+
+
+def tube_rings(center, inner, D: float, ring: int = RING) -> np.ndarray:
+    """Points of the tube surface of diameter D: (P, ring + 1, 3), each ring closed.
+
+    The ring at each point lies in the plane of the model's normal N (toward the
+    actuator line, ``inner = center + (D/2) N``) and the binormal T x N.
+    """
+    center = np.asarray(center, float)
+    N = (np.asarray(inner, float) - center) / (0.5 * D)
+    if len(center) > 1 and np.ptp(center, axis=0).max() > 0:
+        T = np.gradient(center, axis=0)
+    else:
+        T = np.tile([0.0, 0.0, 1.0], (len(center), 1))
+    T = T - np.sum(T * N, axis=1, keepdims=True) * N
+    norm = np.linalg.norm(T, axis=1, keepdims=True)
+    T = np.where(norm > 1e-12, T / np.where(norm > 0, norm, 1), np.cross(N, [1.0, 0.0, 0.0]))
+    B = np.cross(T, N)
+    a = np.linspace(0.0, 2 * math.pi, ring + 1)
+    return center[:, None, :] + 0.5 * D * (np.cos(a)[None, :, None] * N[:, None, :] + np.sin(a)[None, :, None] * B[:, None, :])
+
+
+def run_shape(routing: Routing, D: float, lam=None, upto: float | None = None, target_tree=None) -> dict:
+    """Center and actuator lines of ``routing`` (with ``lam`` instead of its lambda if given),
+    grown to material length ``upto``; with per-point s, theta, lambda and error (nan without target)."""
+    lam = routing.lam if lam is None else np.asarray(lam, float)
+    seg, frac, l = _samples(routing, D, upto)
+    center, inner, _ = shape_lines(routing.theta, lam, routing.length, D, seg, frac, routing.initial_pose)
+    err = target_tree.query(center)[0] if target_tree is not None else np.full(len(l), np.nan)
+    return {"center": center, "inner": inner, "s": l, "theta": routing.theta[seg], "lam": lam[seg], "error": err}
+
+
+def obstacles(archive: Archive) -> list[dict]:
+    """The archive's obstacles as dicts (``shape`` and one array per parameter), in order of k.
+
+    Reads ``archive.obstacles`` where the archive reader provides it, else the
+    ``obstacles/<k>/<param>`` datasets; a missing ``shape`` is told by the parameters.
+    """
+    given = getattr(archive, "obstacles", None)
+    if given:  # obstacle objects (kind, parameters()) or dicts
+        return [{**o.parameters(), "shape": o.kind, "name": getattr(o, "name", "")} if hasattr(o, "parameters") else dict(o)
+                for o in given]
+    found: dict = {}
+    for key, value in archive.extra.items():
+        parts = key.strip("/").split("/")
+        if len(parts) == 3 and parts[0] == "obstacles":
+            found.setdefault(parts[1], {})[parts[2]] = value
+    out = []
+    for k in sorted(found, key=lambda v: (not v.isdigit(), int(v) if v.isdigit() else 0, v)):
+        o = found[k]
+        shape = o.get("shape")
+        if isinstance(shape, (bytes, np.bytes_)):
+            shape = shape.decode()
+        if shape is None:
+            shape = ("mesh" if "faces" in o else "plane" if "normal" in o else "capsule" if "p0" in o
+                     else "box" if "size" in o else "sphere" if "radius" in o else None)
+        if shape is not None:
+            out.append({**o, "shape": str(shape)})
+    return out
+
+
+def obstacle_mesh(o: dict, extent: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Triangles (vertices, faces) drawing an obstacle; planes as a square of side 2 ``extent``."""
+    shape = o["shape"]
+    if shape == "mesh":
+        return np.asarray(o["vertices"], float), np.asarray(o["faces"], int)
+    if shape == "sphere":
+        u, v = np.meshgrid(np.linspace(0, 2 * math.pi, 25), np.linspace(0, math.pi, 13))
+        p = np.stack([np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v)], -1)
+        return _grid_mesh(np.asarray(o["center"], float) + float(np.asarray(o["radius"])) * p)
+    if shape == "box":
+        c, size = np.asarray(o["center"], float), np.asarray(o["size"], float)
+        R = _box_rotation(o)
+        corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)]) * size
+        faces = [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                 [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]
+        return c + corners @ R.T, np.array(faces)
+    if shape == "capsule":
+        p0, p1, r = np.asarray(o["p0"], float), np.asarray(o["p1"], float), float(np.asarray(o["radius"]))
+        axis = p1 - p0
+        L = float(np.linalg.norm(axis))
+        e3 = axis / L if L > 0 else np.array([0.0, 0.0, 1.0])
+        e1 = np.cross(e3, [1.0, 0, 0] if abs(e3[0]) < 0.9 else [0, 1.0, 0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(e3, e1)
+        u = np.linspace(0, 2 * math.pi, 25)
+        v = np.linspace(-0.5 * math.pi, 0.5 * math.pi, 14)
+        rows = []
+        for vi in v:  # lower half sphere at p0, upper at p1
+            base = p0 if vi <= 0 else p1
+            rows.append(base + r * (np.sin(vi) * e3 + np.cos(vi) * (np.cos(u)[:, None] * e1 + np.sin(u)[:, None] * e2)))
+        return _grid_mesh(np.array(rows))
+    if shape == "plane":
+        p, n = np.asarray(o["point"], float), np.asarray(o["normal"], float)
+        n = n / np.linalg.norm(n)
+        e1 = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(n, e1)
+        V = np.array([p + extent * (a * e1 + b * e2) for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+        return V, np.array([[0, 1, 2], [0, 2, 3]])
+    return None
+
+
+def _box_rotation(o):
+    if "rotation" in o:
+        return np.asarray(o["rotation"], float).reshape(3, 3)
+    if "rotation_deg" in o:
+        from scipy.spatial.transform import Rotation
+
+        return Rotation.from_euler("xyz", np.asarray(o["rotation_deg"], float), degrees=True).as_matrix()
+    return np.eye(3)
+
+
+def _grid_mesh(grid):
+    rows, cols = grid.shape[:2]
+    V = grid.reshape(-1, 3)
+    idx = np.arange(rows * cols).reshape(rows, cols)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    return V, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
+# ------------------------------------------------------------------ archive view
+
+
+def _f32(a):
+    """Coordinates as float32: plotly embeds numpy arrays in binary (base64), half the size."""
+    return np.asarray(a, dtype=np.float32)
+
+
+def tube_vertices(shape: dict, D: float, count: int) -> np.ndarray:
+    """Vertices of the drawn tube: ``count`` rings of RING points (the shape's rings, the last one
+    repeated up to ``count``: every frame has the same vertices and faces, so frames carry
+    coordinates only), then the base and tip centers (the caps)."""
+    rings = tube_rings(shape["center"], shape["inner"], D)[:, :-1]
+    if len(rings) < count:
+        rings = np.concatenate([rings, np.repeat(rings[-1:], count - len(rings), axis=0)])
+    return np.concatenate([rings.reshape(-1, 3), shape["center"][:1], shape["center"][-1:]])
+
+
+def tube_faces(count: int, ring: int = RING) -> np.ndarray:
+    """Triangles (i, j, k) over :func:`tube_vertices`: the side between neighbouring rings and both caps."""
+    i = np.arange(count - 1)[:, None] * ring
+    k = np.arange(ring)[None, :]
+    k1 = (k + 1) % ring
+    side = np.concatenate([np.stack([i + k, i + ring + k, i + ring + k1], -1).reshape(-1, 3),
+                           np.stack([i + k, i + ring + k1, i + k1], -1).reshape(-1, 3)])
+    kk = np.arange(ring)
+    base, tip = count * ring, count * ring + 1
+    caps = np.concatenate([np.stack([np.full(ring, base), kk, (kk + 1) % ring], -1),
+                           np.stack([np.full(ring, tip), (count - 1) * ring + (kk + 1) % ring, (count - 1) * ring + kk], -1)])
+    return np.concatenate([side, caps]).astype(np.int32)
+
+
+def _hover_data(shape):
+    return _f32(np.column_stack([shape["s"], np.degrees(shape["theta"]), shape["lam"], shape["error"]]))
+
+
+def _run_traces(go, name, shape, D, color, units, visible=True):
+    count = len(shape["center"])
+    V = tube_vertices(shape, D, count)
+    F = tube_faces(count)
+    group = f"run {name}"
+    hover = (f"run {name}<br>s = %{{customdata[0]:.4g}} {units}<br>theta = %{{customdata[1]:.3g}} deg"
+             f"<br>lambda = %{{customdata[2]:.3g}}<br>error = %{{customdata[3]:.3g}} {units}<extra></extra>")
+    return [
+        # a triangle mesh, not a Surface: plotly draws it faster, and fixed faces let frames send coordinates only
+        go.Mesh3d(x=_f32(V[:, 0]), y=_f32(V[:, 1]), z=_f32(V[:, 2]), i=F[:, 0], j=F[:, 1], k=F[:, 2], name=f"{name} tube",
+                  legendgroup=group, showlegend=True, color=color, opacity=0.45, hoverinfo="skip", visible=visible,
+                  lighting={"ambient": 0.6, "diffuse": 0.6, "specular": 0.2}),
+        go.Scatter3d(x=_f32(shape["inner"][:, 0]), y=_f32(shape["inner"][:, 1]), z=_f32(shape["inner"][:, 2]),
+                     mode="lines", line={"color": "#d62728", "width": 5}, name=f"{name} actuator",
+                     legendgroup=group, showlegend=False, hovertemplate=f"actuator line, run {name}<extra></extra>",
+                     visible=visible),
+        go.Scatter3d(x=_f32(shape["center"][:, 0]), y=_f32(shape["center"][:, 1]), z=_f32(shape["center"][:, 2]),
+                     mode="lines", line={"color": color, "width": 2}, name=f"{name} center",
+                     legendgroup=group, showlegend=False, customdata=_hover_data(shape), hovertemplate=hover, visible=visible),
+    ]
+
+
+def _frame_data(go, shape, D, count):
+    """The data of one run's three traces in a frame (same order as :func:`_run_traces`)."""
+    V = tube_vertices(shape, D, count)
+    return [
+        go.Mesh3d(x=_f32(V[:, 0]), y=_f32(V[:, 1]), z=_f32(V[:, 2])),
+        go.Scatter3d(x=_f32(shape["inner"][:, 0]), y=_f32(shape["inner"][:, 1]), z=_f32(shape["inner"][:, 2])),
+        go.Scatter3d(x=_f32(shape["center"][:, 0]), y=_f32(shape["center"][:, 1]), z=_f32(shape["center"][:, 2]),
+                     customdata=_hover_data(shape)),
+    ]
+
+
+def _pick_runs(archive: Archive, run: str | None) -> list[str]:
+    if run is not None:
+        if run not in archive.runs:
+            raise ValueError(f"no run {run!r} in the archive (runs: {', '.join(archive.runs) or 'none'})")
+        return [run]
+    if not archive.runs:
+        raise ValueError("the archive has no runs")
+    first = archive.default_run()  # shown; the others start hidden (one legend click each)
+    return [first] + [n for n in archive.runs if n != first]
+
+
+def growth_lengths(total: float, steps: int = GROWTH_STEPS) -> np.ndarray:
+    return np.linspace(0.0, total, steps + 1)
+
+
+def actuation_fractions(steps: int = ACTUATION_STEPS) -> np.ndarray:
+    return np.linspace(0.0, 1.0, steps + 1)
+
+
+def view_figure(archive: Archive, run: str | None = None):
+    """The 3-D view of an archive as a plotly Figure (module docstring).
+
+    Parameters
+    ----------
+    archive : vine_nlp.io.archive.Archive
+    run : str, optional
+        Show only this run (default: every run, each toggled by its legend entry; the
+        archive's default run first and shown, the others hidden until clicked).
+
+    Returns
+    -------
+    plotly.graph_objects.Figure
+        Traces: the runs (tube mesh, actuator line, center line each; the default run
+        first), then the target and the obstacles. Frames ``grow-<k>`` and ``after-<k>``
+        drive the two sliders (growth first).
+
+    Raises
+    ------
+    ValueError
+        If the run is not in the archive or the archive has no runs.
+    """
+    import plotly.graph_objects as go
+    from scipy.spatial import cKDTree
+
+    names = _pick_runs(archive, run)
+    D, u = archive.diameter, archive.units
+    tree = cKDTree(np.asarray(archive.target, float)) if archive.target is not None and len(archive.target) else None
+    fig = go.Figure()
+    finals = {}
+    for i, name in enumerate(names):
+        r = archive.runs[name]
+        finals[name] = run_shape(r.routing, D, target_tree=tree)
+        color = RUN_COLORS[i % len(RUN_COLORS)]
+        fig.add_traces(_run_traces(go, name, finals[name], D, color, u, visible=True if i == 0 else "legendonly"))
+    pts = [f["center"] for f in finals.values()]
+    if archive.target is not None:
+        t = np.asarray(archive.target, float)
+        pts.append(t)
+        fig.add_trace(go.Scatter3d(x=_f32(t[:, 0]), y=_f32(t[:, 1]), z=_f32(t[:, 2]), mode="lines",
+                                   line={"color": "black", "width": 3, "dash": "dash"}, name="target",
+                                   hovertemplate="target<extra></extra>"))
+    allp = np.concatenate(pts)
+    extent = float(np.ptp(allp, axis=0).max()) or 10 * D
+    for k, o in enumerate(obstacles(archive)):
+        mesh = obstacle_mesh(o, 0.6 * extent)
+        if mesh is None:
+            continue
+        V, F = mesh
+        fig.add_trace(go.Mesh3d(x=_f32(V[:, 0]), y=_f32(V[:, 1]), z=_f32(V[:, 2]), i=F[:, 0], j=F[:, 1], k=F[:, 2],
+                                color=OBSTACLE_COLOR, opacity=0.35, showlegend=True,
+                                name=f"obstacle {k} {o['name']} ({o['shape']})" if o.get("name") else f"obstacle {k} ({o['shape']})",
+                                hovertemplate=f"obstacle {k}: {o['shape']}<extra></extra>"))
+    run_traces = list(range(TRACES_PER_RUN * len(names)))
+    total = max(float(np.sum(archive.runs[n].routing.length)) for n in names)
+    frames, grow_steps, after_steps = [], [], []
+    anim = {"mode": "immediate", "frame": {"duration": 0, "redraw": True}, "transition": {"duration": 0}}
+    for k, lg in enumerate(growth_lengths(total)):
+        data = []
+        for name in names:
+            r = archive.runs[name].routing
+            data += _frame_data(go, run_shape(r, D, upto=min(lg, float(np.sum(r.length))), target_tree=tree), D,
+                                len(finals[name]["center"]))
+        frames.append(go.Frame(name=f"grow-{k}", data=data, traces=run_traces))
+        grow_steps.append({"label": f"{lg:.3g}", "method": "animate", "args": [[f"grow-{k}"], anim]})
+    for k, t in enumerate(actuation_fractions()):
+        data = []
+        for name in names:
+            r = archive.runs[name].routing
+            shape = run_shape(r, D, lam=1.0 - t * (1.0 - r.lam), target_tree=tree) if t < 1 else finals[name]
+            data += _frame_data(go, shape, D, len(finals[name]["center"]))
+        frames.append(go.Frame(name=f"after-{k}", data=data, traces=run_traces))
+        after_steps.append({"label": f"{t:.2g}", "method": "animate", "args": [[f"after-{k}"], anim]})
+    fig.frames = frames
+    title = f"{archive.name} ({archive.kind}), D = {D:.4g} {u}"
+    fig.update_layout(
+        title={"text": title, "x": 0.02},
+        scene={"aspectmode": "data", "xaxis_title": f"x [{u}]", "yaxis_title": f"y [{u}]", "zaxis_title": f"z [{u}]"},
+        legend={"title": {"text": "click to toggle"}, "itemclick": "toggle"},
+        margin={"l": 0, "r": 0, "t": 40, "b": 0},
+        sliders=[
+            {"active": len(grow_steps) - 1, "steps": grow_steps, "x": 0.02, "len": 0.46, "y": 0.0, "pad": {"t": 10},
+             "currentvalue": {"prefix": f"grown while actuated: everted length [{u}] = "}, "name": "growth"},
+            {"active": len(after_steps) - 1, "steps": after_steps, "x": 0.52, "len": 0.46, "y": 0.0, "pad": {"t": 10},
+             "currentvalue": {"prefix": "actuated after growth: t = "}, "name": "actuation"},
+        ],
+        uirevision="keep",  # slider moves keep the camera
+    )
+    return fig
+
+
+def view_html(archive: Archive, run: str | None = None, full_html: bool = True, include_plotlyjs=True) -> str:
+    """The view of :func:`view_figure` as HTML.
+
+    Parameters
+    ----------
+    archive : vine_nlp.io.archive.Archive
+    run : str, optional
+        Show only this run.
+    full_html : bool
+        A whole page (True) or a ``<div>`` for notebooks (False).
+    include_plotlyjs : bool or str
+        True embeds plotly.js (opens with no network); "cdn" links it (smaller).
+
+    Returns
+    -------
+    str
+
+    Raises
+    ------
+    ValueError
+        As :func:`view_figure`.
+    """
+    fig = view_figure(archive, run)
+    return fig.to_html(full_html=full_html, include_plotlyjs=include_plotlyjs, auto_play=False,
+                       config={"displaylogo": False, "responsive": True})
+
+
+def write_html(path, html: str) -> None:
+    """Write a page atomically (temporary file beside ``path``, then rename)."""
+    write_atomic(path, lambda t: Path(t).write_text(html, encoding="utf-8"))
+
+
+# ------------------------------------------------------------------ sweep view
+
+
+def is_sweep_dir(path) -> bool:
+    return Path(path).is_dir() and (Path(path) / "summary.csv").is_file()
+
+
+def sweep_figure(directory):
+    """The view of a sweep directory: (figure, item shapes) with the shapes for the click handler.
+
+    Raises
+    ------
+    ValueError
+        If the directory has no readable summary.csv or no item archive.
+    """
+    import plotly.graph_objects as go
+    from plotly.subplots import make_subplots
+
+    d = Path(directory)
+    rows = read_summary(d / SUMMARY_CSV)
+    shapes = {}
+    units = ""
+    for item in dict.fromkeys(r["item"] for r in rows):
+        path = d / f"{item}.h5"
+        if not path.is_file():
+            continue
+        try:
+            a = load_archive(path)
+        except (OSError, ValueError, KeyError):
+            continue
+        units = a.units
+        runs = {}
+        for name, res in a.runs.items():
+            s = run_shape(res.routing, a.diameter)
+            runs[name] = {"center": np.round(s["center"], 5).tolist(), "inner": np.round(s["inner"], 5).tolist()}
+        target = None if a.target is None else np.round(np.asarray(a.target, float), 5).tolist()
+        shapes[item] = {"runs": runs, "target": target, "diameter": a.diameter}
+    if not shapes:
+        raise ValueError("no item archive (<item>.h5) next to summary.csv")
+    fig = make_subplots(rows=1, cols=2, column_widths=[0.45, 0.55], specs=[[{"type": "xy"}, {"type": "scene"}]],
+                        subplot_titles=("RMSE of every item (click one)", "shape of the item clicked"))
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    items = list(dict.fromkeys(r["item"] for r in rows))
+    for m_i, m in enumerate(methods):
+        sel = [r for r in rows if r["method"] == m and r["rmse"] is not None]
+        fig.add_trace(go.Scatter(
+            x=[items.index(r["item"]) for r in sel], y=[r["rmse"] for r in sel], mode="markers", name=m,
+            marker={"size": 9, "color": RUN_COLORS[m_i % len(RUN_COLORS)]},
+            customdata=[[r["item"], m, r["status"], r["solve_time_s"]] for r in sel],
+            hovertemplate="%{customdata[0]} (%{customdata[1]})<br>%{customdata[2]}<br>RMSE %{y:.4g}"
+                          f" {units}<br>solve %{{customdata[3]:.3g}} s<extra></extra>"), row=1, col=1)
+    first = next(iter(shapes))
+    fr = shapes[first]
+    first_run = next(iter(fr["runs"]))
+    line = fr["runs"][first_run]
+    for key, color, width in (("center", "#1f77b4", 6), ("inner", "#d62728", 3)):
+        p = np.asarray(line[key])
+        fig.add_trace(go.Scatter3d(x=p[:, 0], y=p[:, 1], z=p[:, 2], mode="lines", line={"color": color, "width": width},
+                                   name=f"{'center line' if key == 'center' else 'actuator'} ({first} {first_run})",
+                                   showlegend=True), row=1, col=2)
+    t = np.asarray(fr["target"]) if fr["target"] is not None else np.zeros((0, 3))
+    fig.add_trace(go.Scatter3d(x=t[:, 0], y=t[:, 1], z=t[:, 2], mode="lines", line={"color": "black", "dash": "dash", "width": 2},
+                               name="target"), row=1, col=2)
+    fig.update_xaxes(title_text="item", tickmode="array", tickvals=list(range(len(items))), ticktext=items, row=1, col=1)
+    fig.update_yaxes(title_text=f"RMSE [{units}]", type="log", row=1, col=1)
+    fig.update_layout(title={"text": f"sweep {d.name}: {len(items)} items, {len(rows)} runs", "x": 0.02},
+                      scene={"aspectmode": "data"}, clickmode="event", margin={"l": 40, "r": 0, "t": 60, "b": 40},
+                      legend={"orientation": "h", "y": -0.15})  # below: the 3-D panel keeps its width
+    return fig, shapes
+
+
+_SWEEP_JS = """
+var gd = document.getElementById('{plot_id}');
+var shapes = %s;
+var nxy = %d;
+function vineShowItem(item, run) {
+  var it = shapes[item]; if (!it) { return false; }
+  if (!(run in it.runs)) { run = Object.keys(it.runs)[0]; }
+  var r = it.runs[run], t = it.target || [];
+  function col(p, k) { return p.map(function (q) { return q[k]; }); }
+  Plotly.restyle(gd, {x: [col(r.center, 0), col(r.inner, 0), col(t, 0)], y: [col(r.center, 1), col(r.inner, 1), col(t, 1)],
+                      z: [col(r.center, 2), col(r.inner, 2), col(t, 2)],
+                      name: ['center line (' + item + ' ' + run + ')', 'actuator (' + item + ' ' + run + ')', 'target']},
+                 [nxy, nxy + 1, nxy + 2]);
+  gd.vineItem = item + ' ' + run;
+  return true;
+}
+window.vineShowItem = vineShowItem;
+gd.on('plotly_click', function (ev) {
+  var p = ev.points[0];
+  if (p && p.customdata) { vineShowItem(p.customdata[0], p.customdata[1]); }
+});
+"""
+
+
+def sweep_html(directory, include_plotlyjs=True) -> str:
+    """The view of a sweep directory as one HTML page (:func:`sweep_figure`): clicking an item
+    (or calling ``vineShowItem(item, run)`` in the page) draws its shape."""
+    fig, shapes = sweep_figure(directory)
+    n_xy = sum(1 for tr in fig.data if tr.type == "scatter")
+    script = _SWEEP_JS.replace("%s", json.dumps(shapes), 1).replace("%d", str(n_xy), 1)
+    return fig.to_html(full_html=True, include_plotlyjs=include_plotlyjs, post_script=script,
+                       config={"displaylogo": False, "responsive": True})

@@ -1,0 +1,389 @@
+"""Obstacles in problem files (``[[obstacles]]``) and in result archives (``/obstacles/<k>``).
+
+formats.md "Obstacles". Every bad value raises ``InputError(file, "obstacles[k].key",
+reason)`` with k counted from 0 (as the archive's ``/obstacles/<k>``). A mesh file's
+*content* is a data file of its own: its errors name the mesh file, key ``mesh``.
+
+Meshes must be closed (watertight: every edge shared by exactly two faces, with a
+consistent winding): inside and outside, and so the sign of the distance, mean
+nothing for an open surface. Vertices are merged and zero-area faces dropped on
+reading (an STL file stores every triangle's corners separately); a mesh wound
+inside-out (negative volume) is turned around. At most ``MAX_MESH_FACES`` faces:
+the design keeps rows for the nearest triangles of every tube sample.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from vine_nlp.analysis.obstacles import (
+    GROWTH_MODES,
+    OBSTACLE_TYPES,
+    SHAPES,
+    Box,
+    Capsule,
+    Mesh,
+    Plane,
+    Sphere,
+    is_rotation,
+    rotation_from_degrees,
+)
+from vine_nlp.errors import InputError
+
+MAX_OBSTACLES = 1000
+MAX_MESH_FACES = 20_000
+MAX_MESH_BYTES = 64 * 2**20  # guards memory before trimesh reads a file
+MESH_SUFFIXES = (".stl", ".obj", ".ply")
+DESIGN_KEYS = ("obstacle_margin", "growth")  # [design] keys read by parse_obstacle_design
+DEFAULT_GROWTH = "while-actuated"
+
+_KEYS = {
+    "sphere": ("center", "radius"),
+    "box": ("center", "size", "rotation", "rotation_deg"),
+    "capsule": ("p0", "p1", "radius"),
+    "plane": ("point", "normal"),
+    "mesh": ("file",),
+}
+_REQUIRED = {
+    "sphere": ("center", "radius"),
+    "box": ("center", "size"),
+    "capsule": ("p0", "p1", "radius"),
+    "plane": ("point", "normal"),
+    "mesh": ("file",),
+}
+_COMMON = ("shape", "name")
+# archive datasets per shape: name -> shape of the array (None: any number of rows)
+_DATASETS = {
+    "sphere": {"center": (3,), "radius": ()},
+    "box": {"center": (3,), "size": (3,), "rotation": (3, 3)},
+    "capsule": {"p0": (3,), "p1": (3,), "radius": ()},
+    "plane": {"point": (3,), "normal": (3,)},
+    "mesh": {"vertices": (None, 3), "faces": (None, 3)},
+}
+
+
+# ------------------------------------------------------------------ problem files
+
+
+def parse_obstacles(tables, file, base_dir=None) -> list:
+    """The obstacles of a problem file's ``[[obstacles]]`` array of tables, validated.
+
+    Parameters
+    ----------
+    tables : list of dict
+        ``data["obstacles"]`` of the parsed TOML document.
+    file : str or Path
+        The problem file, named in errors.
+    base_dir : str or Path, optional
+        Directory that mesh ``file`` paths are relative to (default: the problem file's).
+
+    Returns
+    -------
+    list of Sphere, Box, Capsule, Plane, Mesh
+        In file order.
+
+    Raises
+    ------
+    InputError
+        ``(file, "obstacles[k].key", reason)``; a bad mesh file's content: ``(mesh file, "mesh", reason)``.
+    """
+    file = str(file)
+    base = Path(file).parent if base_dir is None else Path(base_dir)
+    if not (isinstance(tables, list) and all(isinstance(t, dict) for t in tables)):
+        raise InputError(file, "obstacles", "must be an array of tables ([[obstacles]])")
+    if len(tables) > MAX_OBSTACLES:
+        raise InputError(file, "obstacles", f"has {len(tables)} obstacles; at most {MAX_OBSTACLES}")
+    return [_obstacle(file, base, k, t) for k, t in enumerate(tables)]
+
+
+def _obstacle(file, base, k, t):
+    def err(key, reason):
+        return InputError(file, f"obstacles[{k}].{key}" if key else f"obstacles[{k}]", reason)
+
+    if "shape" not in t:
+        raise err("shape", "missing (required)")
+    shape = t["shape"]
+    if not isinstance(shape, str) or shape not in SHAPES:
+        listed = ", ".join(f"'{s}'" for s in SHAPES)
+        close = difflib.get_close_matches(shape, SHAPES, n=1) if isinstance(shape, str) else []
+        raise err("shape", f"must be one of {listed}" + (f"; did you mean '{close[0]}'?" if close else ""))
+    allowed = _COMMON + _KEYS[shape]
+    for key in t:
+        if key not in allowed:
+            close = difflib.get_close_matches(str(key), list(allowed), n=1)
+            other = [s for s in SHAPES if key in _KEYS[s]]
+            if close:
+                reason = f"unknown key; did you mean '{close[0]}'?"
+            elif other:
+                reason = f"not used by a {shape} (a key of {' and '.join(other)})"
+            else:
+                reason = "unknown key"
+            raise err(key, reason)
+    for key in _REQUIRED[shape]:
+        if key not in t:
+            raise err(key, "missing (required)")
+    name = t.get("name", "")
+    if not isinstance(name, str):
+        raise err("name", "must be a string")
+
+    if shape == "sphere":
+        return Sphere(_vector(err, "center", t["center"]), _positive(err, "radius", t["radius"]), name)
+    if shape == "capsule":
+        p0, p1 = _vector(err, "p0", t["p0"]), _vector(err, "p1", t["p1"])
+        if np.array_equal(p0, p1):
+            raise err("p1", "must differ from p0 (for a ball use shape = \"sphere\")")
+        return Capsule(p0, p1, _positive(err, "radius", t["radius"]), name)
+    if shape == "plane":
+        normal = _vector(err, "normal", t["normal"])
+        if not np.any(normal != 0):
+            raise err("normal", "must not be zero")
+        return Plane(_vector(err, "point", t["point"]), normal, name)
+    if shape == "box":
+        center = _vector(err, "center", t["center"])
+        size = _vector(err, "size", t["size"])
+        for i, s in enumerate(size):
+            if not s > 0:
+                raise err("size", f"must be > 0 (entry {i + 1})")
+        if "rotation" in t and "rotation_deg" in t:
+            raise err("rotation_deg", "give rotation or rotation_deg, not both")
+        if "rotation" in t:
+            R = _matrix(err, "rotation", t["rotation"])
+            if not is_rotation(R):
+                raise err("rotation", "must be a proper rotation matrix (orthonormal rows, determinant +1, within 0.001)")
+        elif "rotation_deg" in t:
+            R = rotation_from_degrees(_vector(err, "rotation_deg", t["rotation_deg"]))
+        else:
+            R = np.eye(3)
+        return Box(center, size, R, name)
+    return _mesh(err, base, t["file"], name)
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _float(err, key, v, what):
+    if not _is_number(v):
+        raise err(key, f"must be {what}")
+    try:
+        x = float(v)
+    except OverflowError:
+        x = math.inf
+    return x
+
+
+def _vector(err, key, value) -> np.ndarray:
+    if not (isinstance(value, list) and len(value) == 3):
+        raise err(key, "must be a list of 3 numbers")
+    out = np.array([_float(err, key, v, "a list of 3 numbers") for v in value])
+    for i, x in enumerate(out):
+        if not math.isfinite(x):
+            raise err(key, f"must be finite (entry {i + 1})")
+    return out
+
+
+def _positive(err, key, value) -> float:
+    x = _float(err, key, value, "a number")
+    if not math.isfinite(x):
+        raise err(key, "must be finite")
+    if not x > 0:
+        raise err(key, "must be > 0")
+    return x
+
+
+def _matrix(err, key, value) -> np.ndarray:
+    if not (isinstance(value, list) and len(value) == 3 and all(isinstance(r, list) and len(r) == 3 for r in value)):
+        raise err(key, "must be a 3 x 3 matrix (a list of 3 rows of 3 numbers)")
+    R = np.array([[_float(err, key, v, "a 3 x 3 matrix of numbers") for v in row] for row in value])
+    if not np.all(np.isfinite(R)):
+        raise err(key, "must be finite")
+    return R
+
+
+def _mesh(err, base, value, name) -> Mesh:
+    if not (isinstance(value, str) and value.strip()):
+        raise err("file", "must be a non-empty string")
+    path = base / value
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise err("file", f"unsupported file type '{path.suffix}' (use .stl, .obj or .ply)")
+    if not path.is_file():
+        raise err("file", f"no such file: {path}")
+    size = path.stat().st_size
+    if size > MAX_MESH_BYTES:
+        raise err("file", f"{path} is {size} bytes; at most {MAX_MESH_BYTES}")
+    try:
+        import trimesh  # noqa: F401
+    except ImportError:
+        raise err("file", "mesh obstacles need trimesh and rtree: pip install 'vine_nlp[obstacles]'") from None
+    vertices, faces = load_mesh_file(path)
+    return Mesh(vertices, faces, source=value, name=name)
+
+
+def load_mesh_file(path) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and faces of a closed triangle mesh file (.stl, .obj, .ply) read through trimesh.
+
+    Raises
+    ------
+    InputError
+        ``(path, "mesh", reason)``: unreadable, no triangles, too many faces, not closed.
+    """
+    import trimesh
+
+    path = Path(path)
+    try:
+        mesh = trimesh.load(str(path), force="mesh", process=True)
+    except Exception as exc:  # noqa: BLE001  third-party parser of an untrusted file: any failure is bad input
+        raise InputError(str(path), "mesh", f"cannot read the mesh ({type(exc).__name__})") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise InputError(str(path), "mesh", "no triangles")
+    mesh.update_faces(mesh.nondegenerate_faces())
+    mesh.remove_unreferenced_vertices()
+    F = len(mesh.faces)
+    if F > MAX_MESH_FACES:
+        raise InputError(str(path), "mesh", f"has {F} faces; at most {MAX_MESH_FACES}")
+    if F < 4 or not np.all(np.isfinite(mesh.vertices)):
+        raise InputError(str(path), "mesh", "needs at least 4 faces and finite vertices")
+    if not mesh.is_watertight:
+        raise InputError(str(path), "mesh", "is not closed (watertight): inside and outside are undefined")
+    if not mesh.is_winding_consistent:
+        raise InputError(str(path), "mesh", "faces are not wound consistently")
+    if mesh.volume < 0:
+        mesh.invert()
+    return np.array(mesh.vertices, float), np.array(mesh.faces, np.int64)
+
+
+def parse_obstacle_design(design, file) -> tuple[float, str]:
+    """``[design] obstacle_margin`` (>= 0, default 0) and ``growth`` (default "while-actuated").
+
+    Parameters
+    ----------
+    design : dict
+        The problem's ``[design]`` table (may be empty).
+    file : str
+        The problem file, named in errors (keys ``design.obstacle_margin``, ``design.growth``).
+
+    Returns
+    -------
+    (margin, growth)
+
+    Raises
+    ------
+    InputError
+    """
+    file = str(file)
+    margin = design.get("obstacle_margin", 0.0)
+    if not _is_number(margin):
+        raise InputError(file, "design.obstacle_margin", "must be a number")
+    try:
+        margin = float(margin)
+    except OverflowError:
+        margin = math.inf
+    if not math.isfinite(margin):
+        raise InputError(file, "design.obstacle_margin", "must be finite")
+    if margin < 0:
+        raise InputError(file, "design.obstacle_margin", "must be >= 0")
+    growth = design.get("growth", DEFAULT_GROWTH)
+    if not isinstance(growth, str) or growth not in GROWTH_MODES:
+        listed = ", ".join(f"'{g}'" for g in GROWTH_MODES)
+        raise InputError(file, "design.growth", f"must be one of {listed}")
+    return margin, growth
+
+
+# ------------------------------------------------------------------ archives
+
+
+def write_obstacles(h5group, obstacles) -> None:
+    """Write obstacles into ``h5group`` (the archive's ``/obstacles`` group): subgroups ``0``, ``1``, ...
+
+    Each subgroup has attrs ``shape`` (and ``name``, and ``source`` for meshes read from a
+    file) and one dataset per parameter (formats.md "Obstacles").
+    """
+    for k, ob in enumerate(obstacles):
+        g = h5group.create_group(str(k))
+        g.attrs["shape"] = ob.kind
+        if ob.name:
+            g.attrs["name"] = ob.name
+        if isinstance(ob, Mesh) and ob.source:
+            g.attrs["source"] = ob.source
+        for key, value in ob.parameters().items():
+            if key == "faces":
+                g.create_dataset(key, data=np.asarray(value, np.int64), compression="gzip")
+            elif np.ndim(value) >= 2 and np.shape(value)[0] > 16:
+                g.create_dataset(key, data=np.asarray(value, float), compression="gzip")
+            else:
+                g.create_dataset(key, data=np.asarray(value, float))
+
+
+def _text_attr(v):
+    if isinstance(v, bytes):
+        return v.decode()
+    return v
+
+
+def read_obstacles(h5group, file) -> list:
+    """Obstacles from an archive's ``/obstacles`` group, validated.
+
+    Raises
+    ------
+    InputError
+        ``(file, "<dataset or group path>", reason)``.
+    """
+    file = str(file)
+    names = list(h5group.keys())
+    base = h5group.name.rstrip("/")
+    for n in names:
+        if not n.isdigit() or not isinstance(h5group[n], h5py.Group):
+            raise InputError(file, f"{base}/{n}", "must be a group named by its index 0, 1, ...")
+    order = sorted(int(n) for n in names)
+    if order != list(range(len(order))):
+        raise InputError(file, base, f"groups must be numbered 0 to {len(order) - 1}")
+    out = []
+    for k in order:
+        g = h5group[str(k)]
+        where = f"{base}/{k}"
+        shape = _text_attr(g.attrs.get("shape"))
+        if shape is None:
+            raise InputError(file, where, "missing attribute 'shape'")
+        if shape not in OBSTACLE_TYPES:
+            raise InputError(file, where, f"unknown shape '{shape}'")
+        name = _text_attr(g.attrs.get("name", ""))
+        params = {}
+        for key, want in _DATASETS[shape].items():
+            path = f"{where}/{key}"
+            if key not in g or not isinstance(g[key], h5py.Dataset):
+                raise InputError(file, path, "missing")
+            ds = g[key]
+            if ds.dtype.kind not in "iuf":
+                raise InputError(file, path, "must hold numbers")
+            a = ds[()]
+            ok = np.ndim(a) == len(want) and all(w is None or w == s for w, s in zip(want, np.shape(a)))
+            if not ok:
+                shown = "(" + ", ".join("N" if w is None else str(w) for w in want) + (",)" if len(want) == 1 else ")")
+                raise InputError(file, path, f"must have shape {shown if want else '() (a scalar)'}, got {np.shape(a)}")
+            if not np.all(np.isfinite(a)):
+                raise InputError(file, path, "must be finite")
+            params[key] = a
+        try:
+            if shape == "sphere":
+                ob = Sphere(params["center"], float(params["radius"]), name)
+            elif shape == "box":
+                ob = Box(params["center"], params["size"], params["rotation"], name)
+            elif shape == "capsule":
+                ob = Capsule(params["p0"], params["p1"], float(params["radius"]), name)
+            elif shape == "plane":
+                ob = Plane(params["point"], params["normal"], name)
+            else:
+                faces = params["faces"]
+                if faces.dtype.kind == "f" and not np.array_equal(faces, np.round(faces)):
+                    raise ValueError("faces must be integer vertex indices")
+                src = _text_attr(g.attrs.get("source"))
+                ob = Mesh(params["vertices"], faces.astype(np.int64), source=src, name=name)
+        except ValueError as exc:
+            raise InputError(file, where, str(exc)) from None
+        out.append(ob)
+    return out

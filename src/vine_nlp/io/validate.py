@@ -1,0 +1,198 @@
+"""Validation of values read from input files: every bad value is one InputError ``(file, key, reason)``.
+
+The checks the readers of problem, sweep and data files share (``vine_nlp.io.problems``,
+``vine_nlp.io.sweep_file``, ``vine_nlp.io.data_files``): reading and parsing a TOML file,
+tables and their keys (with a "did you mean" hint for unknown ones), numbers, arrays,
+choices, strings and rigid poses. Each takes the :class:`SourceFile` being read (it names
+the file in errors) and the dotted key of the value ("tube.diameter").
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import re
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+from vine_nlp.errors import InputError
+
+MAX_INT = 2**31 - 1  # solver options such as max_iter are C ints
+
+POSE_TOL = 1e-6
+
+
+
+class SourceFile:
+    """The file being read: names it in errors and anchors relative paths."""
+
+    def __init__(self, path: str):
+        self.path = str(path)
+        self.dir = Path(self.path).parent
+
+    def error(self, key: str, reason: str) -> InputError:
+        return InputError(self.path, key, reason)
+
+
+
+def read_text(path: str, named_by: str, key: str) -> str:
+    """The text of a TOML file; errors name the file and key that referred to it."""
+    try:
+        return Path(path).read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        reason = "no such file" if named_by == path else f"no such file: {path}"
+    except IsADirectoryError:
+        reason = "is a directory" if named_by == path else f"is a directory: {path}"
+    except UnicodeDecodeError:
+        raise InputError(path, "file", "not a UTF-8 text file") from None
+    except OSError as err:
+        reason = f"cannot read {path} ({err.strerror})"
+    raise InputError(named_by, key, reason)
+
+
+
+def parse_toml(path: str, source: str) -> dict:
+    try:
+        return tomllib.loads(source)
+    except tomllib.TOMLDecodeError as err:
+        message = str(err)
+        match = re.search(r"\s*\(at line (\d+), column \d+\)$", message)
+        if match:
+            line = int(match.group(1))
+            message = message[: match.start()]
+        else:
+            line = source.rstrip().count("\n") + 1  # the last line with text, not the empty one after it
+            message = re.sub(r"\s*\(at end of document\)$", "", message)
+        raise InputError(path, f"line {line}", f"invalid TOML: {message}") from None
+    except RecursionError:
+        raise InputError(path, "file", "TOML nested too deeply") from None
+
+
+
+def sub_table(f: SourceFile, parent: dict, name: str, allowed, required: bool = False, prefix: str = "") -> dict:
+    key = prefix + name
+    if name not in parent:
+        if required:
+            raise f.error(key, "missing table")
+        return {}
+    table = parent[name]
+    check(f, key, isinstance(table, dict), "must be a table")
+    if allowed is not None:
+        check_keys(f, table, key + ".", allowed)
+    return table
+
+
+
+def check_keys(f: SourceFile, table: dict, prefix: str, allowed) -> None:
+    for key in table:
+        if key not in allowed:
+            raise f.error(f"{prefix}{key}", unknown_key(key, allowed))
+
+
+
+def unknown_key(key, allowed) -> str:
+    close = difflib.get_close_matches(str(key), list(allowed), n=1)
+    return f"unknown key; did you mean '{close[0]}'?" if close else "unknown key"
+
+
+
+def required_value(f: SourceFile, table: dict, name: str, prefix: str):
+    if name not in table:
+        raise f.error(prefix + name, "missing (required)")
+    return table[name]
+
+
+
+def check(f: SourceFile, key: str, ok: bool, reason: str) -> None:
+    if not ok:
+        raise f.error(key, reason)
+
+
+
+def is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+
+def real_number(f: SourceFile, key: str, value) -> float:
+    if not is_number(value):
+        raise f.error(key, "must be a number")
+    try:
+        number = float(value)
+    except OverflowError:
+        number = math.inf
+    if not math.isfinite(number):
+        raise f.error(key, "must be finite")
+    return number
+
+
+
+def integer(f: SourceFile, key: str, value, least: int, most: int = MAX_INT) -> int:
+    # 400.0 is accepted as 400: sweeps and hand-edited files mix the two.
+    whole = value.is_integer() if isinstance(value, float) else is_number(value)
+    if not whole or value < least:
+        raise f.error(key, f"must be an integer >= {least}")
+    if value > most:
+        raise f.error(key, f"must be an integer <= {most}")
+    return int(value)
+
+
+
+def real_array(f: SourceFile, key: str, value, count: int | None = None) -> np.ndarray:
+    shape = f"a list of {count} numbers" if count else "a list of numbers"
+    check(f, key, isinstance(value, list) and (count is None or len(value) == count), f"must be {shape}")
+    out = np.empty(len(value))
+    for i, x in enumerate(value):
+        check(f, key, is_number(x), f"must be {shape}")
+        try:
+            out[i] = float(x)
+        except OverflowError:
+            out[i] = math.inf
+        check(f, key, math.isfinite(out[i]), f"must be finite (entry {i + 1})")
+    return out
+
+
+
+def point_list(f: SourceFile, key: str, value) -> np.ndarray:
+    reason = "must be a list of at least 2 points [x, y, z] (or [x, y])"
+    check(f, key, isinstance(value, list) and len(value) >= 2, reason)
+    check(f, key, all(isinstance(p, list) and len(p) in (2, 3) for p in value), reason)
+    check(f, key, len({len(p) for p in value}) == 1, "points must all have 3 coordinates (or all 2)")
+    return np.array([real_array(f, key, p) for p in value])
+
+
+
+def nonempty_text(f: SourceFile, key: str, value) -> str:
+    check(f, key, isinstance(value, str) and value.strip() != "", "must be a non-empty string")
+    return value
+
+
+
+def choice(f: SourceFile, key: str, value, choices) -> str:
+    if not isinstance(value, str) or value not in choices:
+        listed = ", ".join(f"'{c}'" for c in choices)
+        close = difflib.get_close_matches(value, list(choices), n=1) if isinstance(value, str) else []
+        hint = f"; did you mean '{close[0]}'?" if close else ""
+        raise f.error(key, f"must be one of {listed}{hint}")
+    return value
+
+
+
+def rigid_pose(f: SourceFile, key: str, value) -> np.ndarray:
+    """T^0_w: a 4 x 4 rigid transform (rotation with det +1, last row 0 0 0 1)."""
+    shape_ok = isinstance(value, list) and len(value) == 4
+    shape_ok = shape_ok and all(isinstance(row, list) and len(row) == 4 and all(map(is_number, row)) for row in value)
+    check(f, key, shape_ok, "must be a 4 x 4 array (4 rows of 4 numbers)")
+    pose = np.array([[real_number(f, key, x) for x in row] for row in value])
+    rotation = pose[:3, :3]
+    check(f, key, np.allclose(pose[3], [0, 0, 0, 1], rtol=0, atol=POSE_TOL), "last row must be [0, 0, 0, 1]")
+    check(
+        f,
+        key,
+        np.allclose(rotation.T @ rotation, np.eye(3), rtol=0, atol=POSE_TOL),
+        "rotation part (first 3 rows and columns) is not orthonormal",
+    )
+    check(f, key, abs(np.linalg.det(rotation) - 1) <= POSE_TOL, "rotation part has det -1 (a mirror, not a rotation)")
+    return pose

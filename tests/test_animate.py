@@ -1,0 +1,124 @@
+"""`vine-nlp animate`: growth while actuated beside actuation after growth, self-contacts marked."""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from vine_nlp.analysis.collision import growth_contacts
+from vine_nlp.design.problem import ForwardProblem, Routing
+from vine_nlp.design.result import run_forward
+from vine_nlp.front import animate
+from vine_nlp.front.cli import main
+from vine_nlp.io.archive import Archive, write_archive
+
+D = 2.0
+
+
+def loop_routing(lam=0.6, turns=1.1, M=24):
+    """Straight lead-in 3 D long, then a planar circle of radius R = D (1 + lam) / (2 (1 - lam)) that
+    closes on the lead-in: one self-contact, met when grown to 3 D + R phi* / lambda_c."""
+    R = D * (1 + lam) / (2 * (1 - lam))
+    lc = (1 + lam) / 2
+    length = np.concatenate([np.full(4, 3 * D / 4), np.full(M, turns * 2 * math.pi * R / lc / M)])
+    return Routing(np.zeros(4 + M), np.concatenate([np.ones(4), np.full(M, lam)]), length), R, lc
+
+
+@pytest.fixture(scope="module")
+def loop_file(tmp_path_factory):
+    r, _, _ = loop_routing()
+    path = tmp_path_factory.mktemp("animate") / "loop.h5"
+    write_archive(path, Archive("loop", "forward", "", D, runs={"forward": run_forward(ForwardProblem("loop", D, r))}))
+    return path
+
+
+def test_contacts_appear_when_the_loop_closes():
+    r, R, lc = loop_routing()
+    g = growth_contacts(r, D, actuation_steps=0)
+    assert len(g) == 1
+    first = g[0]["growth_length"]
+    phi = 2 * math.pi - math.acos(1 - D / R)  # where the circle comes within D of the lead-in line
+    assert first == pytest.approx(3 * D + R * phi / lc, abs=0.25 * D)
+    assert len(animate.frame_contacts(r, D, "grow", 0.95 * first, g)) == 0
+    pts = animate.frame_contacts(r, D, "grow", r.length.sum(), g)
+    assert pts.shape == (2, 3)
+    assert np.linalg.norm(pts[0] - pts[1]) < D  # both sides of the contact
+    # actuated after growth: the straight tube (t = 0) touches nothing, the final shape does
+    assert len(animate.frame_contacts(r, D, "after", 0.0)) == 0
+    after = animate.frame_contacts(r, D, "after", 1.0)
+    assert len(after) >= 2 and np.linalg.norm(after[0] - after[1]) < D
+
+
+def orange(frame) -> int:
+    """Pixels of the contact marker's colour (#ff7f0e, after GIF quantization)."""
+    a = np.asarray(frame.convert("RGB")).astype(int)
+    return int(((a[..., 0] > 220) & (abs(a[..., 1] - 127) < 40) & (a[..., 2] < 70)).sum())
+
+
+def test_gif_grows_and_marks_the_contact(loop_file, tmp_path, capsys):
+    out = tmp_path / "loop.gif"
+    assert main(["animate", str(loop_file), "-o", str(out), "--frames", "6", "--mode", "both"]) == 0
+    assert "self-contacts: 1 of the final shape" in capsys.readouterr().out
+    im = Image.open(out)
+    assert im.format == "GIF" and im.n_frames == 6
+    frames = []
+    for k in range(im.n_frames):
+        im.seek(k)
+        frames.append(im.copy())
+    assert orange(frames[0]) == 0  # nothing grown, straight: no contact
+    assert orange(frames[-1]) > 20  # grown and actuated: the contact is marked
+    assert not np.array_equal(np.asarray(frames[0].convert("RGB")), np.asarray(frames[-1].convert("RGB")))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["loop.gif"]  # no temporary file left
+
+
+@pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="ffmpeg is not installed (apt-get install ffmpeg)")
+def test_mp4_through_ffmpeg(loop_file, tmp_path):
+    out = tmp_path / "loop.mp4"
+    assert main(["animate", str(loop_file), "-o", str(out), "--frames", "4", "--mode", "grow"]) == 0
+    assert out.read_bytes()[4:8] == b"ftyp"
+    if shutil.which("ffprobe"):
+        n = subprocess.run(["ffprobe", "-v", "error", "-count_frames", "-select_streams", "v:0", "-show_entries",
+                            "stream=nb_read_frames", "-of", "csv=p=0", str(out)], capture_output=True, text=True, check=True)
+        assert int(n.stdout.strip()) == 4
+
+
+def test_mp4_without_ffmpeg_is_refused(loop_file, tmp_path):
+    # a PATH without ffmpeg on it: the command refuses before any work and writes nothing
+    env = {**os.environ, "PATH": str(tmp_path / "empty-bin")}
+    out = tmp_path / "loop.mp4"
+    proc = subprocess.run([sys.executable, "-m", "vine_nlp", "animate", str(loop_file), "-o", str(out)],
+                          capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.startswith(f"error: {out}: -o: MP4 needs ffmpeg, which is not installed") and proc.stderr.count("\n") == 1
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("args, prefix", [
+    (["{a}", "-o", "{d}/m.avi"], "error: {d}/m.avi: -o: unknown movie format '.avi': use .gif, .mp4"),
+    (["{a}", "-o", "{d}/m.gif", "--run", "nlp"], "error: {a}: --run: no run 'nlp' (runs: forward)"),
+    (["{a}", "-o", "{d}/m.gif", "--mode", "sideways"], "error: command line: vine-nlp animate: argument --mode: invalid choice"),
+    (["{a}", "-o", "{d}/m.gif", "--frames", "1"], "error: command line: vine-nlp animate: argument --frames: must be >= 2"),
+    (["{bad}", "-o", "{d}/m.gif"], "error: {bad}: "),
+])
+def test_animate_bad_input(loop_file, tmp_path, capsys, args, prefix):
+    bad = tmp_path / "bad.h5"
+    bad.write_text("not hdf5")
+    fill = {"a": loop_file, "d": tmp_path, "bad": bad}
+    assert main(["animate", *(x.format(**fill) for x in args)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(prefix.format(**fill)) and err.count("\n") == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.h5"]
+
+
+def test_movie_format():
+    assert animate.movie_format(Path("a.GIF")) == ".gif"
+    with pytest.raises(ValueError, match="unknown movie format '.webm'"):
+        animate.movie_format("a.webm")

@@ -1,0 +1,82 @@
+"""The one transcription: its hand-assembled derivatives equal CasADi's automatic ones for every formulation."""
+
+import casadi as ca
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from vine_nlp.design.clearance import ClearancePairs
+from vine_nlp.design.multishape import multishape_spec
+from vine_nlp.design.nlp import nlp_spec
+from vine_nlp.design.robust import RobustTerm
+from vine_nlp.design.tip import tip_spec
+from vine_nlp.design.transcription import Solver, Spec, Structure, pick_best
+
+
+def _automatic(solver):
+    """CasADi's own MX Jacobian of g and Hessian of the Lagrangian of a solver's f and g."""
+    nx, npar, ng = solver.layout.size, solver.nlpsol.size_in("p")[0], solver.nlpsol.size_out("g")[0]
+    x, p, sigma, lam_g = ca.MX.sym("x", nx), ca.MX.sym("p", npar), ca.MX.sym("s"), ca.MX.sym("l", ng)
+    f, g = solver.nlpsol.oracle()(x, p)
+    H = ca.triu(ca.hessian(sigma * f + ca.dot(lam_g, g), x)[0])
+    return ca.Function("auto", [x, p, sigma, lam_g], [ca.jacobian(g, x), H])
+
+
+def _with(spec, **structure):
+    import dataclasses
+
+    return dataclasses.replace(spec, structure=dataclasses.replace(spec.structure, **structure))
+
+
+SPECS = {
+    "nlp M=1": nlp_spec(1, 3, False),
+    "nlp M=2 shared": nlp_spec(2, 3, True),
+    "nlp M=6": nlp_spec(6, 3, False),
+    "multishape shared pose": multishape_spec(4, 2, 3, True),
+    "multishape pose per level": multishape_spec(3, 2, 2, False),
+    "tip": tip_spec(5, False, True, "turns"),
+    "tip closest": tip_spec(4, True, True, "contraction", closest=True),
+    "clearance": _with(nlp_spec(6, 2, False, terms=(ClearancePairs(((0, 4), (1, 5))),)), extra=0),
+    "robust": _with(nlp_spec(5, 2, False, terms=(RobustTerm(),)), extra=9),
+}
+
+
+@pytest.mark.parametrize("name", list(SPECS))
+def test_separable_derivatives_equal_casadi_automatic_ones(name):
+    s = Solver(SPECS[name])
+    rng = np.random.default_rng(len(name))
+    nx, npar, ng = s.layout.size, s.nlpsol.size_in("p")[0], s.nlpsol.size_out("g")[0]
+    x, p, lam_g = rng.normal(size=nx) * 0.5, rng.uniform(0.1, 1.0, npar), rng.normal(size=ng)
+    if "R0g" in s._param_order:  # the guess rotations must be rotations
+        sl = s.param_slice("R0g")
+        p[sl] = np.concatenate([Rotation.random(random_state=k).as_matrix().ravel(order="F") for k in range((sl.stop - sl.start) // 9)])
+    J_auto, H_auto = (np.array(v) for v in _automatic(s)(x, p, 0.7, lam_g))
+    J = np.array(s.nlpsol.get_function("nlp_jac_g")(x, p)[1])
+    H = np.array(s.nlpsol.get_function("nlp_hess_l")(x, p, 0.7, lam_g))
+    np.testing.assert_allclose(J, J_auto, atol=1e-12 * np.abs(J_auto).max())
+    np.testing.assert_allclose(H, H_auto, atol=1e-11 * np.abs(H_auto).max())
+    assert np.abs(H).max() > 1.0  # a real curvature, not two zero matrices
+
+
+def test_layout_is_in_stage_order_and_fixes_what_it_should():
+    s = Solver(Spec(Structure(3, 2, 2, "level", "fixed", extra=1)))
+    lay = s.layout
+    # every variable has one place; stage j's variables come after stage j-1's
+    assert lay.size == 2 + 12 * 2 + 3 * (1 + 1 + 1 + 12 * 2)
+    assert np.all(np.diff(lay.theta) > 0) and np.all(lay.X[1:, :, 0].min(axis=1) > lay.theta)
+    X0 = np.arange(24.0).reshape(2, 12)
+    lbx, ubx = s.bounds((-1, 1), (np.array([0.5, 0.6]), np.array([1.0, 0.6])), (0.1, 2), X0=X0)
+    np.testing.assert_array_equal(lbx[lay.X[0].ravel()], X0.ravel())
+    np.testing.assert_array_equal(ubx[lay.X[0].ravel()], X0.ravel())
+    assert lbx[lay.lam_global[1]] == ubx[lay.lam_global[1]] == 0.6
+
+
+class _R:
+    def __init__(self, objective, converged=True):
+        self.stats, self.converged = {"objective": objective}, converged
+
+
+def test_one_tie_rule_picks_the_first_of_equal_objectives():
+    assert pick_best([_R(2.0), _R(1.0), _R(1.0 * (1 + 1e-9))]) == 1
+    assert pick_best([_R(1.0 + 1e-9), _R(1.0)]) == 0  # within the tie tolerance: the earlier start
+    assert pick_best([_R(0.5, converged=False), _R(3.0)]) == 1  # converged first
