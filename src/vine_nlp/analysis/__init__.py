@@ -1,20 +1,8 @@
-"""Analysis of designs: self-collision (collision) and manufacturing tolerance (tolerance).
+"""Analysis of designs: self-collision (``collision``), manufacturing tolerance (``tolerance``) and
+distances to obstacles (``obstacles``).
 
 Pure functions on routings, shapes and results (numpy; CasADi only for Jacobians). No I/O.
+The submodules are imported by name (``from vine_nlp.analysis.collision import ...``): the
+package itself imports none of them, so reading an archive with obstacles does not load SciPy's
+optimizers.
 """
-
-from vine_nlp.analysis.collision import (  # noqa: F401
-    collision_metrics,
-    growth_contacts,
-    helix_collisions,
-    min_clearance,
-    routing_clearance,
-    sample_routing,
-    uniform_sections,
-)
-from vine_nlp.analysis.tolerance import (  # noqa: F401
-    Sigmas,
-    point_jacobian,
-    tolerance_metrics,
-    tolerance_report,
-)

@@ -88,8 +88,6 @@ from typing import ClassVar
 
 import casadi as ca
 import numpy as np
-from scipy.optimize import minimize_scalar
-from scipy.spatial import cKDTree
 
 from vine_nlp.model.chain import chain_frames, chain_points, segment_end_samples
 from vine_nlp.model.helix import center_rates
@@ -526,6 +524,8 @@ def nearest_triangles(mesh: Mesh, points, k: int = 4) -> tuple[np.ndarray, np.nd
     k = int(min(k, F))
     cent = tri.mean(axis=1)
     reach = float(np.max(np.linalg.norm(tri - cent[:, None, :], axis=2)))
+    from scipy.spatial import cKDTree  # SciPy loads only where a mesh is queried
+
     tree = cKDTree(cent)
     _, first = tree.query(p, k=min(F, max(2 * k, k + 8)))
     first = first.reshape(len(p), -1)
@@ -796,6 +796,8 @@ def _refined_min(routing, D, ob, l, gaps, i, frames):
 
     def f(x):
         return float(np.asarray(ob.distance(_point_at(routing, D, x, frames)[None, :])).reshape(-1)[0]) - 0.5 * D
+
+    from scipy.optimize import minimize_scalar  # SciPy's optimizers load only where a refinement runs
 
     res = minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": 1e-9 * max(hi, 1.0)})
     if res.fun < best[0]:

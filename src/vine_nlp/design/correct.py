@@ -68,9 +68,7 @@ from functools import lru_cache
 
 import casadi as ca
 import numpy as np
-from scipy.spatial import cKDTree
 
-from vine_nlp.design.calibrate import nominal_of, realized_of
 from vine_nlp.design.common import evaluate, pair_points
 from vine_nlp.design.fit.align import PointSet, Polyline, fit_pose, polish_pose, pose_starts
 from vine_nlp.design.nlp import nlp_parameters
@@ -182,6 +180,8 @@ def pair_with_line(points: np.ndarray, routing: Routing, D: float, side: float, 
     lmat = cum[seg] + frac * routing.length[seg]
     d = np.diff(P, axis=0)
     n2 = np.maximum(np.sum(d * d, axis=1), 1e-300)
+    from scipy.spatial import cKDTree  # SciPy loads only where measurements are paired
+
     tree = cKDTree(P)
     k = min(4, P.shape[0])
     _, idx = tree.query(points, k=k)
@@ -815,25 +815,3 @@ def combine_systematic(estimates, std) -> tuple[np.ndarray, np.ndarray, float]:
 
 
 # ---------------------------------------------------------------- designs for the robot as it gets built
-
-
-def apply_calibration(problem: DesignProblem, result: Result) -> Result:
-    """A design made with a calibration (``problem.calibration``): the result's routing becomes the nominal
-    to build (design.calibrate.nominal_of: the systematic parts taken out, clipped to the bounds), its shape
-    and metrics what that nominal realizes on a robot with the calibration's systematic errors.
-    stats: calibration_* (the values and the number of clipped entries)."""
-    from_cal = problem.calibration
-    if from_cal is None:
-        return result
-    a = problem.actuator
-    nominal, clipped = nominal_of(result.routing, from_cal, a.theta_max, a.lambda_min)
-    pairing = pair_points(problem.target, problem.options.points_per_segment)
-    realized = evaluate(problem, realized_of(nominal, from_cal), pairing, result.method)
-    out = Result(method=result.method, routing=nominal, shape=realized.shape, status=result.status,
-                 solve_time_s=result.solve_time_s, iterations=result.iterations,
-                 metrics=dict(result.metrics) | realized.metrics | routing_metrics(nominal), stats=dict(result.stats),
-                 diameter=result.diameter)
-    out.stats.update(calibration_lambda_offset=from_cal.lambda_offset, calibration_theta_offset_deg=from_cal.theta_offset_deg,
-                     calibration_length_scale=from_cal.length_scale, calibration_clipped=clipped,
-                     calibration_shape="realized by the nominal on the calibrated robot")
-    return out

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
-from vine_nlp.design.correct import apply_calibration
+from vine_nlp.design.calibrate import nominal_of, realized_of
+from vine_nlp.design.common import evaluate, pair_points
 from vine_nlp.design.greedy import design_greedy
 from vine_nlp.design.nlp import design_nlp
+from vine_nlp.design.problem import DesignProblem
+from vine_nlp.design.result import Result, routing_metrics
 
 METHODS = {"nlp": design_nlp, "greedy": design_greedy}
 
@@ -35,5 +38,27 @@ def run_design(problem, method: str | None = None, **kw):
         raise ValueError(f"unknown design method {method!r}")
     result = METHODS[method](problem, **kw)
     # a calibrated problem: the design is what the robot should realize, the nominal to build has the
-    # builder's systematic errors taken out (design.correct.apply_calibration)
+    # builder's systematic errors taken out (apply_calibration)
     return apply_calibration(problem, result) if getattr(problem, "calibration", None) is not None else result
+
+
+def apply_calibration(problem: DesignProblem, result: Result) -> Result:
+    """A design made with a calibration (``problem.calibration``): the result's routing becomes the nominal
+    to build (design.calibrate.nominal_of: the systematic parts taken out, clipped to the bounds), its shape
+    and metrics what that nominal realizes on a robot with the calibration's systematic errors.
+    stats: calibration_* (the values and the number of clipped entries)."""
+    from_cal = problem.calibration
+    if from_cal is None:
+        return result
+    a = problem.actuator
+    nominal, clipped = nominal_of(result.routing, from_cal, a.theta_max, a.lambda_min)
+    pairing = pair_points(problem.target, problem.options.points_per_segment)
+    realized = evaluate(problem, realized_of(nominal, from_cal), pairing, result.method)
+    out = Result(method=result.method, routing=nominal, shape=realized.shape, status=result.status,
+                 solve_time_s=result.solve_time_s, iterations=result.iterations,
+                 metrics=dict(result.metrics) | realized.metrics | routing_metrics(nominal), stats=dict(result.stats),
+                 diameter=result.diameter)
+    out.stats.update(calibration_lambda_offset=from_cal.lambda_offset, calibration_theta_offset_deg=from_cal.theta_offset_deg,
+                     calibration_length_scale=from_cal.length_scale, calibration_clipped=clipped,
+                     calibration_shape="realized by the nominal on the calibrated robot")
+    return out
