@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vine_nlp import targets
+from vine_nlp import _API_NAMES, targets
 from vine_nlp.design.problem import (
     MEASURED_LINES,
     Actuator,
@@ -63,26 +63,8 @@ _papers = registry.lazy("vine_nlp.front.template:PAPERS_MM")
 _write_template = registry.lazy("vine_nlp.front.template:write_template")
 _view_html = registry.lazy("vine_nlp.front.view:view_html")
 
-__all__ = [
-    "design",
-    "forward",
-    "fit",
-    "load",
-    "solve",
-    "Design",
-    "Project",
-    "ArgumentError",
-    "DesignProblem",
-    "ForwardProblem",
-    "FitProblem",
-    "MultiShapeProblem",
-    "TipProblem",
-    "Actuator",
-    "DesignOptions",
-    "Routing",
-    "Sigmas",
-    "Result",
-]
+# the API's names, listed once: the package exports them lazily (vine_nlp.__init__)
+__all__ = list(_API_NAMES)
 
 _API_FILE = "<vine_nlp API>"  # ProblemFile.path of problems made by this API (no file behind them)
 _SOURCE_ARRAY_MAX = 200  # per-segment arrays longer than this stay out of the source text (HDF5 attributes are small)

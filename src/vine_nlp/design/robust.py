@@ -188,7 +188,7 @@ def downstream_sums(solver, x, p) -> np.ndarray:
     """S (9, M) where the recursion holds for x's chain: suffix sums of each stage's (sum w p, sum w p p^T)."""
     c = solver.chain
     M, n = c.s.M, c.s.n
-    key = ("sums", M, n)
+    key = solver.spec  # the function reads this solver's own variables and parameters
     if key not in _SUMS:
         P = ca.vertcat(*[ca.vec(q) for _, q in c.params])
         F = robust_segment_function(n).map(M, "serial")

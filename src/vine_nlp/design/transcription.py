@@ -459,7 +459,7 @@ class Solver:
         self._param_shapes = {name: q.shape for name, q in c.params}
         self._param_order = [name for name, _ in c.params]
         # objective and rows: blocks (mapped SX) first, then global rows
-        f_blocks, g_parts, lbg, ubg, counts = 0, [], [], [], []
+        f_blocks, g_parts, lbg, ubg = 0, [], [], []
         gathered, block_terms = [], {}
         for b in c.blocks:
             count = b.index.shape[1]
@@ -473,7 +473,6 @@ class Solver:
                 lbg.append(np.tile(b.lb, count))
                 ubg.append(np.tile(b.ub, count))
             gathered.append((V, count))
-            counts.append(count)
         f_glob = sum(c.terms.values(), ca.MX(0))  # global terms: automatic derivatives
         reported = dict(c.terms)
         for k, v in block_terms.items():
