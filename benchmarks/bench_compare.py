@@ -6,12 +6,13 @@ Writes results/benchmarks/compare.md. Run: python benchmarks/bench_compare.py
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 
 from common import ROOT, machine, table, write_section
 
+from vine_nlp.design import corners, run_design, transcription
 from vine_nlp.design import greedy as greedy_mod
-from vine_nlp.design import run_design, transcription
 from vine_nlp.design.greedy import lowpass
 from vine_nlp.io.problem_file import load_problem
 
@@ -25,26 +26,42 @@ HOPS = {"polyline-d": 12}
 def clear_caches():
     """Forget every built solver and SX function of both methods: the next run starts cold."""
     transcription.clear_caches()
+    corners.clear_caches()
     greedy_mod.get_window_solver.cache_clear()
 
 
-def timed(fn):
-    t0 = time.perf_counter()
+def timed(fn, cpu: dict | None = None):
+    """(result, wall seconds); ``cpu["s"]``: the process's CPU seconds (all threads), less noisy under load."""
+    t0, c0 = time.perf_counter(), time.process_time()
     out = fn()
+    if cpu is not None:
+        cpu["s"] = time.process_time() - c0
     return out, time.perf_counter() - t0
 
 
 def main():
-    rows, verdict = [], []
+    rows, verdict, searched = [], [], []
+    load_start = os.getloadavg()
     for name in CASES:
         pb = load_problem(ROOT / "problems" / f"{name}.toml").problem
+        cpu_nlp, cpu_greedy = {}, {}
         clear_caches()
-        nlp, t_nlp_cold = timed(lambda: run_design(pb, "nlp"))
+        nlp, t_nlp_cold = timed(lambda: run_design(pb, "nlp"), cpu_nlp)
         _, t_nlp = timed(lambda: run_design(pb, "nlp"))
         clear_caches()
-        greedy, t_greedy_cold = timed(lambda: run_design(pb, "greedy"))
+        greedy, t_greedy_cold = timed(lambda: run_design(pb, "greedy"), cpu_greedy)
         _, t_greedy = timed(lambda: run_design(pb, "greedy"))
         filt = lowpass(greedy, pb)
+        if "search_rounds" in nlp.stats:
+            st = nlp.stats
+            searched.append(f"{name}: the first solve was corner-like (design.corners): {st['search_rounds']} rounds, "
+                            f"{st['search_windows']} windows ({st['search_window_iterations']} IPOPT iterations in "
+                            f"{st['search_workers']} threads), {st['search_accepted']} window changes kept, "
+                            f"{st['search_time_s']:.2f} s of the cold run"
+                            + (", cut by the budget" if st["search_budget_hit"] else "")
+                            + f". CPU time from cold (process time, all threads): nlp {cpu_nlp['s']:.2f} s, greedy "
+                            f"{cpu_greedy['s']:.2f} s ({cpu_greedy['s'] / cpu_nlp['s']:.1f}x); wall clock "
+                            f"{t_nlp_cold:.2f} s and {t_greedy_cold:.2f} s ({t_greedy_cold / t_nlp_cold:.1f}x).")
         runs = [("nlp", nlp, t_nlp_cold, t_nlp)]
         if name in HOPS:
             hopped = dataclasses.replace(pb, options=dataclasses.replace(pb.options, hops=HOPS[name]))
@@ -78,9 +95,14 @@ def main():
         "a fresh `vine-nlp design`); `built`: the same call again with them built (as in a sweep or a multi-start). "
         "Greedy: look-ahead k = 4, 4 trial starts per window (16 for the first), the same pairing, squared error, "
         "bounds and segment model as the NLP. Errors in mm; `solves` is IPOPT iterations (nlp) or window solves "
-        "(greedy). TV: total variation of theta (rad) and lambda over the segments. "
-        + ", ".join(f"{k}: also the NLP with {v} rounds of basin hopping (`design.hops`)" for k, v in HOPS.items()) + ".",
+        "(greedy). TV: total variation of theta (rad) and lambda over the segments. `nlp` is the default: where the "
+        "first solve shows a corner-like target (Gauss-Newton failed and RMSE > 0.05 D) it includes the windowed corner "
+        "search (design.corners, default budget 20 s, two threads), from cold like every `cold` time. "
+        + ", ".join(f"{k}: also the NLP with {v} rounds of basin hopping (`design.hops`, no corner search)" for k, v in HOPS.items()) + ". "
+        f"Load average (1 min) at the start and the end of the run: {load_start[0]:.1f} and {os.getloadavg()[0]:.1f} "
+        "(a shared machine: compare the ratios, measured in the same run).",
         "",
+        *[line for s in searched for line in (s, "")],
         table(["case", "method", "status", "RMSE", "max", "time cold [s]", "time built [s]", "iter / solves", "TV theta",
                "TV lambda", "paper RMSE / max"], rows),
         "",

@@ -230,7 +230,7 @@ def derivatives(repeat):
         # the same oracle (objective, constraints) with CasADi's own Jacobian and Hessian
         t0 = time.perf_counter()
         x, p = ca.MX.sym("x", ours.layout.size), ca.MX.sym("p", ours.nlpsol.size_in("p")[0])
-        f, g = ours.nlpsol.oracle()(x, p)
+        f, g = ca.Function("nlp", [ours.problem["x"], ours.problem["p"]], [ours.problem["f"], ours.problem["g"]])(x, p)
         auto = ca.nlpsol("auto", "ipopt", {"x": x, "p": p, "f": f, "g": g}, ipopt_options(pb.options.max_iter, pb.options.tol))
         build_auto = time.perf_counter() - t0
         guess = geometric_guess(pb, pairing)

@@ -9,7 +9,11 @@ timing (the build is reported apart), IPOPT's own iteration count:
 - robust (trefoil and Bezier (b), sigmas 1 deg, 0.02, 2 %) against the plain NLP;
 - tip (the trefoil's tip position and direction, 40 segments) against the plain NLP with 40 segments.
 
-Also: command start to archive for trefoil, multishape-spam and tip-target (whole processes).
+Also: command start to archive for trefoil, multishape-spam and tip-target (whole processes), with the
+objective and RMSE of the archived design (the design quality the timing must not trade away). The
+machine's load average is recorded before and after: the machine may be shared, so IPOPT's time is taken
+as the CPU time of each solve by default (``--clock wall``: elapsed time, as IPOPT's stats report it), and
+the commands' CPU time (user + system) is given beside their elapsed time.
 Writes results/benchmarks/transcription.md. Run: python benchmarks/bench_transcription.py [--repeat 3]
 """
 
@@ -17,6 +21,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -28,17 +34,32 @@ import numpy as np
 from common import ROOT, table, write_report
 
 from vine_nlp import targets
+from vine_nlp.design import transcription
 from vine_nlp.design.clearance import design_with_clearance
 from vine_nlp.design.multishape import design_multishape
 from vine_nlp.design.nlp import design_nlp
 from vine_nlp.design.problem import Actuator, DesignProblem, MultiShapeProblem, TipProblem
 from vine_nlp.design.robust import design_robust
 from vine_nlp.design.tip import design_tip
+from vine_nlp.io.archive import load_archive
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.routing import Sigmas
 
 SIGMAS = Sigmas.from_degrees(1.0, 0.02, 0.02)
+
+
+def cpu_clock() -> None:
+    """IPOPT's time as the CPU time of each solve: on a shared machine, waiting for a core is not the solver's cost."""
+    solve = transcription.Solver.solve
+
+    def timed(self, *a, **kw):
+        t = time.process_time()
+        x, status, st = solve(self, *a, **kw)
+        st["ipopt_time_s"] = time.process_time() - t
+        return x, status, st
+
+    transcription.Solver.solve = timed
 
 
 def per_iteration(run, repeat):
@@ -50,6 +71,24 @@ def per_iteration(run, repeat):
         r = run()
         times.append(r.stats["ipopt_time_s"] / max(r.stats.get("ipopt_iterations", r.iterations), 1))
     return 1e3 * statistics.median(times), r.stats.get("ipopt_iterations", r.iterations), r
+
+
+def ms_per_iteration(r) -> float:
+    return 1e3 * r.stats["ipopt_time_s"] / max(r.stats.get("ipopt_iterations", r.iterations), 1)
+
+
+def paired(run, base, repeat):
+    """(median ms per iteration of ``run``, iterations, result, median ratio to ``base``): each timed call of
+    ``run`` right after one of its plain NLP ``base``, so a shared machine's changing load hits both alike."""
+    r = run()
+    base()
+    times, ratios = [], []
+    for _ in range(repeat):
+        b = base()
+        r = run()
+        times.append(ms_per_iteration(r))
+        ratios.append(times[-1] / ms_per_iteration(b))
+    return statistics.median(times), r.stats.get("ipopt_iterations", r.iterations), r, statistics.median(ratios)
 
 
 class Rows(list):
@@ -64,76 +103,98 @@ def exact(pb):
     return dataclasses.replace(pb, options=dataclasses.replace(pb.options, hessian="exact", starts=1, hops=0))
 
 
-def command_time(problem, repeat):
-    out = []
+def command_time(problem):
+    """(elapsed seconds, CPU seconds (user + system), the archived design's objective and RMSE) of one command."""
     with tempfile.TemporaryDirectory() as d:
-        for _ in range(repeat):
-            t0 = time.perf_counter()
-            subprocess.run([sys.executable, "-m", "vine_nlp", "design", str(problem), "-o", str(Path(d) / "o.h5"), "--force"],
-                           check=True, capture_output=True)
-            out.append(time.perf_counter() - t0)
-    return statistics.median(out)
+        path = Path(d) / "o.h5"
+        r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "vine_nlp", "design", str(problem), "-o", str(path), "--force"],
+                       check=True, capture_output=True)
+        elapsed = time.perf_counter() - t0
+        r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        run = next(iter(load_archive(path).runs.values()))
+    return elapsed, r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime, run.stats["objective"], run.metrics["rmse"]
+
+
+def quality(r):
+    return f"{r.stats['objective']:.6g}"
 
 
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--clock", choices=("cpu", "wall"), default="cpu", help="IPOPT's time: CPU time of each solve, or elapsed")
     args = ap.parse_args()
+    if args.clock == "cpu":
+        cpu_clock()
     rep = args.repeat
     rows = Rows()
+    load0 = os.getloadavg()
 
     tre = exact(load_problem(ROOT / "problems/trefoil-m4.toml").problem)
     base_ms, base_it, base = per_iteration(lambda: design_nlp(tre), rep)
-    rows.append(("nlp (exact Hessian)", "trefoil, M = 40, n = 10", f"{base_ms:.2f}", base_it, "1.00"))
+    rows.append(("nlp (exact Hessian)", "trefoil, M = 40, n = 10", f"{base_ms:.2f}", base_it, quality(base), "1.00"))
     gn = dataclasses.replace(tre, options=dataclasses.replace(tre.options, hessian="gauss-newton"))
-    ms, it, _ = per_iteration(lambda: design_nlp(gn), rep)
-    rows.append(("nlp (Gauss-Newton)", "trefoil", f"{ms:.2f}", it, f"{ms / base_ms:.2f}"))
+    plain = lambda: design_nlp(tre)  # noqa: E731
+    ms, it, r, ratio = paired(lambda: design_nlp(gn), plain, rep)
+    rows.append(("nlp (Gauss-Newton)", "trefoil", f"{ms:.2f}", it, quality(r), f"{ratio:.2f}"))
 
     spam = dataclasses.replace(tre, actuator=Actuator("spam", tre.actuator.lambda_min, tre.actuator.theta_max))
-    spam_ms, it, _ = per_iteration(lambda: design_nlp(spam), rep)
-    rows.append(("nlp, sPAM", "trefoil", f"{spam_ms:.2f}", it, "1.00"))
+    spam_ms, it, r = per_iteration(lambda: design_nlp(spam), rep)
+    rows.append(("nlp, sPAM", "trefoil", f"{spam_ms:.2f}", it, quality(r), "1.00"))
     ms1 = MultiShapeProblem(tre.name, tre.diameter, [tre.target], [None], spam.actuator, spam.options)
-    ms, it, _ = per_iteration(lambda: design_multishape(ms1, starts=1), rep)
-    rows.append(("multishape, K = 1", "trefoil, sPAM", f"{ms:.2f}", it, f"{ms / spam_ms:.2f} (vs sPAM nlp)"))
+    ms, it, r, ratio = paired(lambda: design_multishape(ms1, starts=1), lambda: design_nlp(spam), rep)
+    rows.append(("multishape, K = 1", "trefoil, sPAM", f"{ms:.2f}", it, quality(r), f"{ratio:.2f} (vs sPAM nlp)"))
 
     # clearance: a helix whose turns are closer than D (the tube following it would collide)
     coil = DesignProblem("tight-helix", 2.0, targets.helix(radius=3.0, pitch=0.25, length=50.0, samples=101),
                          actuator=Actuator("tendon", 0.4), options=dataclasses.replace(tre.options, points_per_segment=5))
     coil_ms, it, free = per_iteration(lambda: design_nlp(coil), rep)
-    rows.append(("nlp (exact Hessian)", "tight helix, M = 20, n = 5", f"{coil_ms:.2f}", it, "1.00"))
-    ms, it, r = per_iteration(lambda: design_with_clearance(coil, start=free), rep)
-    rows.append(("clearance", f"tight helix ({r.stats['clearance_pairs']} pairs, {r.stats['clearance_rounds']} solves)", f"{ms:.2f}", it,
-                 f"{ms / coil_ms:.2f}"))
+    rows.append(("nlp (exact Hessian)", "tight helix, M = 20, n = 5", f"{coil_ms:.2f}", it, quality(free), "1.00"))
+    ms, it, r, ratio = paired(lambda: design_with_clearance(coil, start=free), lambda: design_nlp(coil), rep)
+    rows.append(("clearance", f"tight helix ({r.stats['clearance_pairs']} pairs, {r.stats['clearance_rounds']} solves, "
+                 f"min clearance {r.stats['min_clearance']:.5f} D)", f"{ms:.2f}", it, quality(r), f"{ratio:.2f}"))
 
-    ms, it, _ = per_iteration(lambda: design_robust(tre, SIGMAS, start=base), rep)
-    rows.append(("robust", "trefoil", f"{ms:.2f}", it, f"{ms / base_ms:.2f}"))
+    ms, it, r, ratio = paired(lambda: design_robust(tre, SIGMAS, start=base), plain, rep)
+    rows.append(("robust", "trefoil", f"{ms:.2f}", it, quality(r), f"{ratio:.2f}"))
     bez = exact(load_problem(ROOT / "problems/bezier-b.toml").problem)
     bez_ms, bez_it, bez_base = per_iteration(lambda: design_nlp(bez), rep)
-    rows.append(("nlp (exact Hessian)", "Bezier (b)", f"{bez_ms:.2f}", bez_it, "1.00"))
-    ms, it, _ = per_iteration(lambda: design_robust(bez, SIGMAS, start=bez_base), rep)
-    rows.append(("robust", "Bezier (b)", f"{ms:.2f}", it, f"{ms / bez_ms:.2f}"))
+    rows.append(("nlp (exact Hessian)", "Bezier (b)", f"{bez_ms:.2f}", bez_it, quality(bez_base), "1.00"))
+    ms, it, r, ratio = paired(lambda: design_robust(bez, SIGMAS, start=bez_base), lambda: design_nlp(bez), rep)
+    rows.append(("robust", "Bezier (b)", f"{ms:.2f}", it, quality(r), f"{ratio:.2f}"))
 
     end = chain_frames(base.routing.theta, base.routing.lam, base.routing.length, tre.diameter, base.routing.initial_pose)
     T0 = end[0]
     tip = TipProblem("tip", tre.diameter, end[-1][:3, 3], float(base.routing.length.sum()), base.routing.segments,
                      direction=end[-1][:3, 0], initial_pose=T0, actuator=tre.actuator, options=tre.options)
-    ms, it, r = per_iteration(lambda: design_tip(tip, starts=1), rep)
-    rows.append(("tip", f"trefoil's tip, M = 40 ({r.status})", f"{ms:.2f}", it, f"{ms / base_ms:.2f}"))
+    ms, it, r, ratio = paired(lambda: design_tip(tip, starts=1), plain, rep)
+    rows.append(("tip", f"trefoil's tip, M = 40 ({r.status})", f"{ms:.2f}", it, quality(r), f"{ratio:.2f}"))
 
-    cmd = [(p, command_time(ROOT / f"problems/{p}.toml", rep)) for p in ("trefoil-m4", "multishape-spam", "tip-target")]
-    t_tre = cmd[0][1]
-    cmd_rows = [(p, f"{t:.2f}", f"{t / t_tre:.2f}") for p, t in cmd]
+    names = ("trefoil-m4", "multishape-spam", "tip-target")
+    runs = [[command_time(ROOT / f"problems/{p}.toml") for p in names] for _ in range(rep)]  # the three in turn, each round
+    cmd_rows = []
+    for k, p in enumerate(names):
+        t, c = (statistics.median(x[k][i] for x in runs) for i in (0, 1))
+        rt, rc = (statistics.median(x[k][i] / x[0][i] for x in runs) for i in (0, 1))
+        cmd_rows.append((p, f"{t:.2f}", f"{rt:.2f}", f"{c:.2f}", f"{rc:.2f}", f"{runs[-1][k][2]:.6g}", f"{runs[-1][k][3]:.3g}"))
+    load = f"Load average (1, 5, 15 min) at the start {', '.join(f'{v:.1f}' for v in load0)}, at the end " + \
+        ", ".join(f"{v:.1f}" for v in os.getloadavg()) + " (2 cores)."
     write_report(
         "transcription",
         "One transcription: time per iteration of every formulation",
         "Each formulation is terms, rows and blocks on design.transcription; per-stage blocks carry their own SX "
         "derivatives. Median over the timed calls of (IPOPT time / IPOPT iterations), the solvers already built, same "
-        "start (clearance: summed over its active-set solves); ratio against the plain NLP on the same target and structure, measured in the same run. Goals: "
-        "<= 1.5x (robust <= 4x).",
-        table(("formulation", "target", "ms / iteration", "iterations", "ratio"), rows),
-        "Command start to archive (`vine-nlp design P.toml`, whole process, median of "
-        f"{rep}; goal: multishape and tip <= 2x the trefoil):",
-        table(("problem", "s", "ratio to trefoil"), cmd_rows),
+        f"start (clearance: summed over its active-set solves; IPOPT's time: {args.clock} clock); ratio: the median over the "
+        "timed calls of the ratio to the plain NLP on the same target and structure, timed right before each call. Goals: "
+        "<= 1.5x (robust <= 4x). Objective: the design's (units of D^2; the tip's: actuation and tie-break).",
+        load,
+        table(("formulation", "target", "ms / iteration", "iterations", "objective", "ratio"), rows),
+        "Command start to archive (`vine-nlp design P.toml`, whole process; the three commands in turn, "
+        f"{rep} rounds, medians of the times and of the per-round ratios; goal: multishape and tip <= 2x the trefoil), "
+        "with the archived design's objective and RMSE "
+        "(problem units; the tip's: its tip error):",
+        table(("problem", "elapsed s", "ratio to trefoil", "CPU s", "CPU ratio", "objective", "rmse"), cmd_rows),
     )
     print("\n".join(" | ".join(map(str, r)) for r in cmd_rows))
 

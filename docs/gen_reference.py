@@ -101,6 +101,7 @@ DESCRIPTIONS = {
         "max_iter": "IPOPT iteration limit (>= 1).",
         "tol": "IPOPT tolerance (> 0).",
         "hessian": "Hessian of the NLP: `auto` (Gauss-Newton, exact where that does not converge), `exact` or `gauss-newton`.",
+        "budget": "Seconds the NLP's corner search may take where the first solve shows a corner-like target (>= 0, default 20; 0: off; design problems only).",
         "smoothness": "Table `[design.smoothness]`: weights of the smoothness terms.",
         "shared_pose": "multishape: all levels grow from one base pose (default true).",
         "obstacle_margin": "Required gap between the tube surface and every obstacle, in `units`.",

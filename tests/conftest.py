@@ -1,3 +1,8 @@
+import atexit
+import os
+import shutil
+import tempfile
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -5,6 +10,12 @@ from scipy.spatial.transform import Rotation
 from vine_nlp.design.problem import Routing
 from vine_nlp.model import shape_lines
 from vine_nlp.model.chain import segment_end_samples
+
+# The suite runs the interpreted NLP functions (compiling every structure a test builds would
+# take minutes); tests/test_compiled.py turns compiled code on for itself. Never the user's cache.
+os.environ["VINE_NLP_CODEGEN"] = os.environ.get("VINE_NLP_TEST_CODEGEN", "off")
+os.environ["VINE_NLP_CACHE_DIR"] = tempfile.mkdtemp(prefix="vine_nlp-test-cache-")
+atexit.register(shutil.rmtree, os.environ["VINE_NLP_CACHE_DIR"], True)
 
 
 def model_target(M=12, n=5, D=2.0, seed=0, spam=False, seg_len=2.0):

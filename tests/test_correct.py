@@ -81,6 +81,26 @@ def test_deviation_rule_round_trip():
     np.testing.assert_allclose(C.apply_deviations(nom, dev).length, ab.length, rtol=1e-15)
 
 
+def test_line_jacobian_matches_finite_differences_of_the_chain():
+    # the Laplace step's Jacobian from the chain's twists equals differencing the whole chain
+    rng = np.random.default_rng(1)
+    M = 6
+    r = Routing(rng.uniform(-0.6, 0.6, M), rng.uniform(0.4, 1.0, M), rng.uniform(1.0, 3.0, M), np.eye(4))
+    seg = np.array([0, 1, 2, 3, 5, 5, 4])
+    frac = np.array([0.3, 0.0, 1.0, 0.5, 0.9, 0.1, 0.7])
+    P, J = C._line_jacobian(r, 2.0, seg, frac, C.LINE_SIDE["outer"])
+    np.testing.assert_allclose(P, C._line_points(r, 2.0, seg, frac, C.LINE_SIDE["outer"])[0], atol=1e-12)
+    for q, name in enumerate(("theta", "lam", "length")):
+        for k in range(M):
+            h = 1e-6
+            up, dn = [np.array(getattr(r, n), float) for n in ("theta", "lam", "length")], [np.array(getattr(r, n), float) for n in ("theta", "lam", "length")]
+            up[q][k] += h
+            dn[q][k] -= h
+            d = (C._line_points(Routing(*up, np.eye(4)), 2.0, seg, frac, -0.5)[0]
+                 - C._line_points(Routing(*dn, np.eye(4)), 2.0, seg, frac, -0.5)[0]) / (2 * h)
+            np.testing.assert_allclose(J[:, :, q * M + k].T, d, atol=1e-6, err_msg=f"{name} of segment {k}")
+
+
 def test_estimate_recovers_systematic_parts_and_deviations(setup):
     _, s = read_correction(setup["dir"] / "c1t.h5")
     z = (s.systematic - np.array(TRUTH)) / s.systematic_std
@@ -163,6 +183,39 @@ def test_changes_lists_what_changes(setup):
         assert r["action"] == ("longer" if want > 0 else "shorter")
 
 
+def test_template_draws_the_changes(setup, tmp_path, capsys):
+    import xml.etree.ElementTree as ET
+
+    from vine_nlp.front.changes import change_rows
+    from vine_nlp.front.template import change_text, write_template
+    from vine_nlp.io.archive import load_archive
+
+    d = setup["dir"]
+    rows = change_rows(load_archive(d / "c1.h5"), "corrected")
+    assert rows
+    svg = tmp_path / "t.svg"
+    assert main(["template", str(d / "c1.h5"), "-o", str(svg), "--changes"]) == 0
+    out = capsys.readouterr().out
+    ns = {"s": "http://www.w3.org/2000/svg"}
+    layer = ET.parse(svg).getroot().find("s:g[@id='layer-changes']", ns)
+    texts = [t.text for t in layer.findall("s:text", ns)]
+    # every changing segment is labelled with its stopper change, once (on the strip holding its middle)
+    want = sorted(change_text(r) for r in rows)
+    assert sorted(texts) == want, (texts, want)
+    legend = [t.text for t in ET.parse(svg).getroot().find("s:g[@id='layer-text']", ns).findall("s:text", ns)]
+    assert f"[changes] framed: {len(rows)} segment(s) to change against the robot built last" in legend
+    assert len(layer.findall("s:polyline", ns)) >= 4 * len(rows)  # a frame (4 sides) around each
+    for r in rows:  # the words say which way and by how much, as the list printed
+        assert f"{abs(r['stopper_change_mm']):5.1f} mm" in out
+        assert change_text(r).endswith(f"{r['stopper_change_mm']:+.1f} mm {r['action']}")
+    # without --changes nothing is marked; the PDF marks as many segments
+    plain = tmp_path / "p.svg"
+    assert main(["template", str(d / "c1.h5"), "-o", str(plain)]) == 0
+    assert not ET.parse(plain).getroot().find("s:g[@id='layer-changes']", ns).findall("s:text", ns)
+    info = write_template(d / "c1.h5", tmp_path / "t.pdf", run="corrected", changes=rows)
+    assert info["changes"] == len(rows) and info["run"] == "corrected"
+
+
 def _fails(capsys, argv, out, key):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -184,6 +237,36 @@ def test_bad_inputs_one_line_exit_2(setup, tmp_path, capsys):
     _fails(capsys, ["correct", str(d / "design.h5"), str(d / "m1.csv"), "-o", str(out), "--run", "nope"], out, "--run: no run 'nope'")
     _fails(capsys, ["correct", str(d / "design.h5"), str(d / "m1.csv"), "-o", str(out), "--line", "side"], out, "--line")
     _fails(capsys, ["calibrate", str(d / "design.h5"), "-o", str(tmp_path / "c.toml")], tmp_path / "c.toml", "not a correction archive")
+
+
+def test_measurement_that_cannot_be_this_robot(setup, tmp_path, capsys):
+    d = setup["dir"]
+    out = tmp_path / "o.h5"
+    pts = np.loadtxt(d / "m1.csv", delimiter=",", skiprows=1)
+    nan = pts.copy()
+    nan[7, 1] = np.nan
+    write_csv(tmp_path / "nan.csv", nan)
+    _fails(capsys, ["correct", str(d / "design.h5"), str(tmp_path / "nan.csv"), "-o", str(out)], out, "nan.csv: line 9: 'nan' is not finite")
+    t = np.linspace(0.0, 1.0, 100)[:, None]
+    line = write_csv(tmp_path / "line.csv", np.hstack([100 * t, 0 * t + 50, 0 * t - 30]))  # another shape, somewhere else
+    _fails(capsys, ["correct", str(d / "design.h5"), str(line), "-o", str(out)], out, "line.csv: points: cannot be this robot")
+
+
+def test_unreachable_correction_says_so_writes_the_best_exit_1(setup, tmp_path, capsys):
+    problem, nominal = setup["problem"], setup["nominal"]
+    # a builder whose lambda comes out 0.25 too high: the design's lambdas (0.6 to 0.9) would need nominals
+    # below lambda_min = 0.4
+    dev = C.draw_deviations(nominal, SIGMAS, (0.0, 0.25, 1.0), seed=3)
+    m = write_csv(tmp_path / "far.csv", C.simulate_build(nominal, dev, problem.diameter, "outer", 150, NOISE, seed=4))
+    out = tmp_path / "o.h5"
+    assert main(["correct", str(setup["dir"] / "design.h5"), str(m), "-o", str(out)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("correct: the target cannot be reached within the bounds"), err
+    a, _ = read_correction(out)
+    lam = a.runs["corrected"].routing.lam
+    assert np.any(lam <= 0.4 + 1e-6) and np.all(lam >= 0.4 - 1e-9)
+    # the best it found: still closer to the target than the robot as built
+    assert built_error(problem, a.runs["corrected"].routing, dev) < built_error(problem, nominal, dev)
 
 
 def test_combine_systematic_known_answer():
@@ -218,6 +301,60 @@ def test_calibrate_and_design_with_it(setup, tmp_path):
     np.testing.assert_allclose(fit.shape.center, r.shape.center, atol=1e-9)
     assert r.metrics["rmse"] < 0.05
     assert r.stats["calibration_clipped"] == 0
+
+
+OFFSET = 0.05  # a known lambda offset of the builder
+
+
+def _shifted(plain_lam, offset=OFFSET, lambda_min=0.4):
+    """The nominal lambda a calibrated design builds: the realized design's lambda minus the offset, within the bounds."""
+    return np.clip(plain_lam - offset, lambda_min, 1.0)
+
+
+@pytest.fixture(scope="module")
+def plain_design(tmp_path_factory):
+    """The small trefoil designed without a calibration (the reference of the calibrated designs)."""
+    import vine_nlp as vn
+
+    d = tmp_path_factory.mktemp("plain")
+    (d / "p.toml").write_text(PROBLEM)
+    return vn.solve(load_problem(d / "p.toml").problem).lam
+
+
+def test_python_api_applies_the_calibration(plain_design, tmp_path):
+    import vine_nlp as vn
+    from vine_nlp.io.calibration import write_calibration
+
+    p = tmp_path / "p.toml"
+    p.write_text(PROBLEM + f"[calibration]\nlambda_offset = {OFFSET}\n")
+    problem = load_problem(p).problem
+    d = vn.solve(problem)
+    np.testing.assert_allclose(d.lam, _shifted(plain_design), atol=1e-9)
+    assert d.stats["calibration_lambda_offset"] == OFFSET
+    # the archived source carries the table: the saved design reads back as calibrated
+    d.save(tmp_path / "d.h5")
+    assert tomllib.loads(vn.load(tmp_path / "d.h5").source)["calibration"]["lambda_offset"] == OFFSET
+    # vn.design(points, ...) with a calibration file
+    write_calibration(tmp_path / "cal.toml", Calibration(lambda_offset=OFFSET))
+    d2 = vn.design(problem.target, problem.diameter, calibration=tmp_path / "cal.toml")
+    np.testing.assert_allclose(d2.lam, _shifted(plain_design), atol=1e-9)
+    with pytest.raises(vn.ArgumentError, match="calibration"):
+        vn.design(problem.target, problem.diameter, calibration=tmp_path / "missing.toml")
+
+
+def test_sweep_applies_the_calibration(plain_design, tmp_path):
+    from vine_nlp.front import sweep as sw
+    from vine_nlp.io.archive import load_archive
+    from vine_nlp.io.problem_file import load_sweep
+
+    (tmp_path / "base.toml").write_text(PROBLEM + f"[calibration]\nlambda_offset = {OFFSET}\n")
+    (tmp_path / "sweep.toml").write_text('name = "cal"\nbase = "base.toml"\nmethods = ["nlp"]\n[grid]\n"target.scale.0" = [4.0]\n')
+    report = sw.run_sweep(load_sweep(tmp_path / "sweep.toml"), tmp_path / "out", workers=1, progress=False)
+    (h5,) = sorted((tmp_path / "out").glob("*.h5"))
+    run = load_archive(h5).runs["nlp"]
+    np.testing.assert_allclose(run.routing.lam, _shifted(plain_design), atol=1e-9)
+    assert run.stats["calibration_lambda_offset"] == OFFSET
+    assert report is not None
 
 
 def test_calibration_table_errors(tmp_path, capsys):

@@ -233,3 +233,71 @@ def test_tip_problem_file_takes_obstacles():
     assert pf.kind == "tip" and [o.name for o in pf.problem.obstacles] == ["wall", "floor"]
     assert pf.problem.obstacle_margin == 0.5 and pf.problem.growth == "while-actuated"
     assert dataclasses.replace(pf.problem).obstacles == pf.problem.obstacles
+
+
+@pytest.mark.parametrize("ob", [PRIMITIVES["sphere"], PRIMITIVES["capsule"], PRIMITIVES["plane"],
+                                Box((1.0, -2.0, 0.5), (3.0, 1.0, 2.0), ((0.0, -1.0, 0.0), (1.0, 0.0, 0.0), (0.0, 0.0, 1.0)))])
+def test_rounded_box_slot_is_the_exact_distance(ob):
+    """A primitive slot (numbers as data) reproduces the primitive's own distance, inside and outside."""
+    import casadi as ca
+
+    from vine_nlp.design.obstacles import rounded_box, rounded_box_sx
+
+    p = np.random.default_rng(3).normal(8.0, 4.0, (200, 3))
+    x = ca.SX.sym("x", 3, len(p))
+    got = np.array(ca.Function("d", [x], [rounded_box_sx(x, ca.DM(rounded_box(ob)))])(p.T)).ravel()
+    np.testing.assert_allclose(got, np.asarray(ob.distance(p), float).ravel(), rtol=0, atol=1e-8)
+
+
+def test_only_primitives_near_the_tube_get_slots(free):
+    """Obstacles far from the tube get no rows: one slot per segment for one sphere across the target
+    among four far away, and the design clears all five."""
+    obs = [PRIMITIVES["sphere"]] + [Sphere((6.0 * k, 25.0, 0.0), 1.0) for k in range(4)]
+    r = design_with_obstacles(_problem(obs), start=free)
+    assert r.stats["obstacle_slots"] == 1 and r.stats["obstacle_clear"]
+    assert _sampled_gap(r.routing, obs) >= MARGIN - 1e-3 * D
+
+
+def test_blocked_target_points_weigh_less():
+    """Only the weights of the target points closer than the margin to an obstacle change."""
+    from vine_nlp.design.common import pair_points
+    from vine_nlp.design.nlp import nlp_parameters
+    from vine_nlp.design.obstacles import _weigh_blocked
+
+    ob = PRIMITIVES["sphere"]
+    problem = _problem([ob])
+    pairing = pair_points(TARGET, 10)
+    cells = nlp_parameters(problem, pairing, np.eye(3))["cells"]
+    out = _weigh_blocked(problem, pairing, cells, 0.1)
+    n = pairing.n
+    i = np.arange(len(TARGET) - 1)
+    w0 = cells[4 * n + i - pairing.bounds[pairing.seg[i]], pairing.seg[i]]
+    w1 = out[4 * n + i - pairing.bounds[pairing.seg[i]], pairing.seg[i]]
+    blocked = min_gap(TARGET[:-1], D, [ob])[:, 0] < MARGIN
+    assert 0 < blocked.sum() < len(i)
+    np.testing.assert_array_equal(w1[~blocked], w0[~blocked])
+    np.testing.assert_allclose(w1[blocked], 0.1 * w0[blocked])
+    np.testing.assert_array_equal(np.delete(out, np.s_[4 * n:], axis=0), np.delete(cells, np.s_[4 * n:], axis=0))
+
+
+def test_the_command_line_designs_a_tip_problem_among_its_obstacles(tmp_path, capsys):
+    """The bundled tip behind a wall: `vine-nlp design` keeps the tube clear of the wall and floor
+    (the obstacles were once read and then ignored for tip problems)."""
+    import h5py
+
+    from vine_nlp.front.cli import main
+    from vine_nlp.io.archive import load_archive
+    from vine_nlp.io.problem_file import load_problem
+
+    path = Path(__file__).resolve().parents[1] / "problems" / "obstacle-tip-wall.toml"
+    pb = load_problem(path).problem
+    out = tmp_path / "tip.h5"
+    assert main(["design", str(path), "-o", str(out)]) == 0
+    assert "min obstacle gap" in capsys.readouterr().out
+    with h5py.File(out, "r") as f:
+        assert sorted(f["obstacles"]) == ["0", "1"]
+    run = load_archive(out).runs["tip"]
+    need = pb.obstacle_margin - 1e-3 * pb.diameter
+    assert run.metrics["min_obstacle_gap"] >= need
+    points = sample_chain(run.routing, pb.diameter, 20)["points"]
+    assert float(min_gap(points, pb.diameter, list(pb.obstacles)).min()) >= need

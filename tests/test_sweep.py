@@ -319,3 +319,78 @@ def test_the_package_imports_dask_only_for_a_scheduler():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "[]"
+
+
+def test_a_chunk_returns_each_item_in_order_and_keeps_failures_apart(tmp_path, monkeypatch):
+    path = _write_sweep(tmp_path / "in")
+    items = load_sweep(path).items()[:2]
+    real = vine_nlp.design.run_design
+
+    def second_fails(problem, method=None, **kw):
+        if problem.name == items[1][0]:
+            raise RuntimeError("second item")
+        return real(problem, method, **kw)
+
+    monkeypatch.setattr(vine_nlp.design, "run_design", second_fails)
+    (runs0, t0), (runs1, t1) = sw.solve_chunk([(pf, ["nlp"]) for _, _, pf in items], remote=True)
+    assert runs0["nlp"].status == "optimal" and t0["errors"] == {}
+    assert runs1 == {} and t1["errors"] == {"nlp": "RuntimeError: second item"}
+
+
+def test_local_chunks_are_small_and_end_as_single_items():
+    pool = sw.LocalPool.__new__(sw.LocalPool)  # the chunk policy only, no processes
+    pool.workers = 2
+    sizes = [pool.chunk_size(n) for n in range(1, 500)]
+    assert max(sizes) == sw.MAX_CHUNK and min(sizes) == 1
+    assert all(s == 1 for s in sizes[: 4 * 2 * 2 - 1])  # the last items travel alone: no worker waits for a long chunk
+    assert all(1 <= s <= max(1, n // 8) for n, s in enumerate(sizes, start=1))
+
+
+@pytest.mark.slow
+def test_an_item_that_kills_its_worker_inside_a_chunk_fails_alone(tmp_path, monkeypatch):
+    path = _write_sweep(tmp_path / "in")
+    sweep = load_sweep(path)
+    item, overrides, pf = sweep.items()[1]
+    sweep._items[1] = (item, overrides, _Crashes(**{f.name: getattr(pf, f.name) for f in dataclasses.fields(pf)}))
+    monkeypatch.setattr(sw.LocalPool, "chunk_size", lambda self, pending: 2)  # items 0 and 1 share a task
+    report = sw.run_sweep(sweep, tmp_path / "out", workers=2, progress=False)
+    assert (report.done, report.failed) == (3, 1)  # item 0, lost with the chunk, ran again alone
+    assert [f[0] for f in report.failures] == ["tiny-0001"] and "worker process died" in report.failures[0][2]
+    assert _h5_files(tmp_path / "out") == ["tiny-0000.h5", "tiny-0002.h5", "tiny-0003.h5"]
+
+
+@pytest.mark.slow
+def test_a_fresh_process_forks_its_workers_and_never_loads_the_solver(tmp_path):
+    import subprocess
+    import sys
+
+    path = _write_sweep(tmp_path / "in")
+    code = (
+        "import sys\n"
+        "from vine_nlp.front.sweep import executors, run_sweep\n"
+        "from vine_nlp.io.problem_file import load_sweep\n"
+        "pools = []\n"
+        "make = executors.make_pool\n"
+        "def spy(*a, **k):\n"
+        "    pools.append(make(*a, **k))\n"
+        "    return pools[-1]\n"
+        "import vine_nlp.front.sweep.engine as engine\n"
+        "engine.make_pool = spy\n"
+        f"r = run_sweep(load_sweep({str(path)!r}), {str(tmp_path / 'out')!r}, workers=2, progress=False)\n"
+        "print(r.done, r.failed, pools[0].start_method, 'vine_nlp.design.transcription' in sys.modules)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    # forked workers start with everything imported; the parent only writes files, so it stays safe to fork
+    assert r.stdout.split() == ["4", "0", "fork", "False"]
+    assert _h5_files(tmp_path / "out") == [f"tiny-000{k}.h5" for k in range(4)]
+
+
+def test_a_base_with_obstacles_is_refused_before_anything_is_written(tmp_path):
+    # vine-nlp design runs an obstacle step after the plain design; a sweep must not archive designs without it
+    base = BASE + '\n[[obstacles]]\nshape = "sphere"\ncenter = [50.0, 0.0, 0.0]\nradius = 1.0\n'
+    path = _write_sweep(tmp_path / "in", base=base)
+    with pytest.raises(InputError, match=r"\[\[obstacles\]\] are not supported in sweeps") as info:
+        sw.run_sweep(load_sweep(path), tmp_path / "out", workers=2, progress=False)
+    assert info.value.file == str(path) and info.value.key == "base"
+    assert not (tmp_path / "out").exists()

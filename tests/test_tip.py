@@ -61,6 +61,14 @@ def test_reachable_tip_met_with_no_more_contraction_than_the_known_routing(seed)
     _check_bounds(r, pb)
 
 
+def test_starts_are_tried_until_one_is_optimal():
+    _, _, _, tip, _ = known_routing(0)
+    r = design_tip(_problem(tip, starts=4))
+    status = r.stats["start_status"]
+    assert status[-1] == "optimal" and "optimal" not in status[:-1]
+    assert r.stats["starts"] == len(status) == len(r.stats["start_objectives"]) <= 4
+
+
 def test_direction_constraint_holds_and_turns_objective():
     theta, lam, length, tip, tangent = known_routing(2)
     pb = _problem(tip, direction=tangent, objective="turns")

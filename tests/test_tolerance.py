@@ -113,3 +113,24 @@ def test_tolerance_figure(designed, tmp_path):
     tolerance_figure(rep, tmp_path / "tol.png")
     clearance_figure(res.routing, D, tmp_path / "clear.pdf", units="cm")
     assert (tmp_path / "tol.png").stat().st_size > 10_000 and (tmp_path / "clear.pdf").stat().st_size > 5_000
+
+
+def test_robust_direct_term_equals_the_differentiated_points():
+    """The segment's own points' term, with its dl part in closed form (|d rho / d dl| = u lambda_c), equals
+    sum_i w_i |d rho_i / d q diag(sigma)|^2 differentiated through the helix in all three parameters."""
+    import casadi as ca
+
+    from vine_nlp.design.robust import direct_term
+    from vine_nlp.model.helix import center_rates
+    from vine_nlp.model.segment import twist_parts
+
+    n = 4
+    q, u, w, sig = ca.SX.sym("q", 3), ca.SX.sym("u", n), ca.SX.sym("w", n), ca.SX.sym("sig", 3)
+    kappa, tau, lc = center_rates(q[0], q[1], 1.0)
+    brute = sum(w[i] * ca.sumsqr(ca.jacobian(ca.vertcat(*twist_parts(kappa, tau, u[i] * q[2] * lc)[1]), q) @ ca.diag(sig))
+                for i in range(n))
+    F = ca.Function("f", [q, u, w, sig], [direct_term(q[0], q[1], q[2], u, w, sig), brute])
+    rng = np.random.default_rng(3)
+    for qv in ([0.0, 1.0, 2.0], [0.3, 0.7, 1.5], [-0.9, 0.45, 4.0]):  # the straight tube, a helix, a tight one
+        a, b = (float(v) for v in F(qv, rng.uniform(0, 1, n), rng.uniform(0, 1, n), [0.02, 0.03, 0.05]))
+        assert b > 0 and a == pytest.approx(b, rel=1e-12)

@@ -17,7 +17,8 @@ def _automatic(solver):
     """CasADi's own MX Jacobian of g and Hessian of the Lagrangian of a solver's f and g."""
     nx, npar, ng = solver.layout.size, solver.nlpsol.size_in("p")[0], solver.nlpsol.size_out("g")[0]
     x, p, sigma, lam_g = ca.MX.sym("x", nx), ca.MX.sym("p", npar), ca.MX.sym("s"), ca.MX.sym("l", ng)
-    f, g = solver.nlpsol.oracle()(x, p)
+    q = solver.problem
+    f, g = ca.Function("nlp", [q["x"], q["p"]], [q["f"], q["g"]])(x, p)
     H = ca.triu(ca.hessian(sigma * f + ca.dot(lam_g, g), x)[0])
     return ca.Function("auto", [x, p, sigma, lam_g], [ca.jacobian(g, x), H])
 
@@ -37,6 +38,8 @@ SPECS = {
     "tip": tip_spec(5, False, True, "turns"),
     "tip closest": tip_spec(4, True, True, "contraction", closest=True),
     "clearance": _with(nlp_spec(6, 2, False, terms=(ClearancePairs(((0, 4), (1, 5))),)), extra=0),
+    # rows of one segment pair share a block (pair_block(k)): two groups of different sizes, interleaved
+    "clearance grouped": _with(nlp_spec(6, 2, False, terms=(ClearancePairs(((0, 4), (1, 5), (0, 4), (2, 5), (0, 4))),)), extra=0),
     "robust": _with(nlp_spec(5, 2, False, terms=(RobustTerm(),)), extra=9),
 }
 

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from vine_nlp import _API_NAMES, targets
+from vine_nlp.design.calibrate import Calibration
 from vine_nlp.design.problem import (
     MEASURED_LINES,
     Actuator,
@@ -47,11 +48,14 @@ from vine_nlp.design.problem import (
     TipProblem,
 )
 from vine_nlp.design.result import Result
+from vine_nlp.errors import InputError
 from vine_nlp.front import registry
 from vine_nlp.front.correct import correct_files, correct_to_file
 from vine_nlp.io import limits, problems
 from vine_nlp.io import validate as check
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
+from vine_nlp.io.calibration import KEYS as CALIBRATION_KEYS
+from vine_nlp.io.calibration import read_calibration
 from vine_nlp.io.problem_file import ProblemFile
 from vine_nlp.model.routing import Sigmas
 
@@ -105,6 +109,7 @@ _DESIGN_ARGUMENTS = {
     "design.points_per_segment": "points_per_segment",
     "design.starts": "starts",
     "design.hops": "hops",
+    "design.budget": "budget",
     "design.seed": "seed",
     "design.max_iter": "max_iter",
     "design.smoothness": "smoothing",
@@ -186,7 +191,7 @@ def _smoothness(value) -> dict:
 
 
 def _design_problem(points, diameter, *, actuator, theta_max_deg, lambda_min, points_per_segment, smoothing, starts, hops,
-                    method, seed, units, name) -> DesignProblem:
+                    method, seed, units, name, budget=DesignOptions.budget) -> DesignProblem:
     args = _Arguments(_DESIGN_ARGUMENTS)
     name = _text(args, "name", name)
     units = _units(args, units)
@@ -197,7 +202,8 @@ def _design_problem(points, diameter, *, actuator, theta_max_deg, lambda_min, po
     if theta_max_deg is not None:
         table["theta_max_deg"] = _plain(theta_max_deg)
     act = problems._actuator(args, table)
-    options = {"method": method, "points_per_segment": points_per_segment, "starts": starts, "hops": hops, "seed": seed}
+    options = {"method": method, "points_per_segment": points_per_segment, "starts": starts, "hops": hops, "seed": seed,
+               "budget": budget}
     options = {k: _plain(v) for k, v in options.items()}
     smooth = _smoothness(smoothing)
     if smooth:
@@ -277,6 +283,7 @@ def _options_table(o: DesignOptions, kind: str = "design") -> dict:
     table = {"method": o.method, "points_per_segment": o.points_per_segment, "starts": o.starts}
     if kind == "design":
         table["hops"] = o.hops
+        table["budget"] = o.budget
     table["seed"] = o.seed
     return table
 
@@ -291,12 +298,15 @@ def _design_source(problem: DesignProblem, call: str, runs: dict) -> str:
                            f"lambda {st.get('robust_sigma_lambda')!r}, length {st.get('robust_sigma_length')!r}"
                            f"{' (relative)' if st.get('robust_relative_length') else ''} (run nlp_robust)")
     design_table = _options_table(problem.options) | more
+    tables = {"tube": {"diameter": float(problem.diameter)}, "actuator": _actuator_table(problem.actuator), "design": design_table,
+              "design.smoothness": {"theta": problem.options.smooth_theta, "lambda": problem.options.smooth_lambda}}
+    cal = getattr(problem, "calibration", None)
+    if cal is not None:
+        tables["calibration"] = {k: getattr(cal, k) for k in CALIBRATION_KEYS}
     return _toml(
         f"written by the vine_nlp Python API: {call}\n"
         f"the target: the archive's /target/points ({problem.target.shape[0]} points), not a [target] table",
-        {"name": problem.name, "units": problem.units},
-        {"tube": {"diameter": float(problem.diameter)}, "actuator": _actuator_table(problem.actuator), "design": design_table,
-         "design.smoothness": {"theta": problem.options.smooth_theta, "lambda": problem.options.smooth_lambda}},
+        {"name": problem.name, "units": problem.units}, tables,
     )
 
 
@@ -738,6 +748,28 @@ def _output(path, overwrite: bool, argument: str = "path") -> Path:
     return out
 
 
+def _calibration(value):
+    """A Calibration from a Calibration or the path of a CAL.toml (``vine-nlp calibrate``)."""
+    if isinstance(value, Calibration):
+        return value
+    if isinstance(value, (str, os.PathLike)):
+        try:
+            return read_calibration(value)
+        except InputError as e:
+            raise ArgumentError("calibration", str(e)) from None
+    raise ArgumentError("calibration", f"must be a Calibration or the path of a calibration TOML file, got {type(value).__name__}")
+
+
+def _calibrated(problem, method: str, result: Result) -> Result:
+    """The nlp and greedy designs of a calibrated problem: the nominal to build, as ``vine-nlp design``
+    makes it (design.methods.apply_calibration, the one place the calibration is applied)."""
+    if method in ("nlp", "greedy") and isinstance(problem, DesignProblem) and getattr(problem, "calibration", None) is not None:
+        from vine_nlp.design.methods import apply_calibration
+
+        return apply_calibration(problem, result)
+    return result
+
+
 def _made(problem, kind: str, formulation: str, source: str, runs: dict, extra=None) -> Design:
     pf = ProblemFile(path=_API_FILE, source=source, kind=kind, name=problem.name, units=problem.units, problem=problem)
     ctx = _Context(problem_file=pf, runs=runs, formulation=formulation, extra=dict(extra or {}))
@@ -758,6 +790,7 @@ def design(
     smoothing=None,
     starts: int = DesignOptions.starts,
     hops: int = DesignOptions.hops,
+    budget: float = DesignOptions.budget,
     method: str = DesignOptions.method,
     clearance: float | None = None,
     robust=None,
@@ -766,6 +799,7 @@ def design(
     workers: int = 1,
     units: str = "cm",
     name: str = "design",
+    calibration=None,
 ) -> Design:
     """Inverse design: the actuator routing whose tube follows ``points`` (``vine-nlp design``).
 
@@ -788,6 +822,9 @@ def design(
         Smoothness weights of theta and lambda (>= 0); default that of ``DesignOptions``.
     starts, hops : int
         nlp: multi-start count (>= 1) and rounds of basin hopping (>= 0).
+    budget : float
+        nlp: seconds for the corner search that runs where the first solve finds a corner-like
+        target (>= 0; 0 turns it off), as ``[design] budget`` and ``--budget``.
     method : {"nlp", "greedy"}
     clearance : float, optional
         Also a design keeping the tube clear of itself by this gap beyond D (>= 0, ``units``):
@@ -806,6 +843,11 @@ def design(
         Length units of points and diameter, archived ("cm" for templates; "mm" works too).
     name : str
         Problem name in the archive.
+    calibration : Calibration or str or Path, optional
+        The systematic construction errors of the builder (``vine-nlp calibrate``'s CAL.toml, or a
+        ``vine_nlp.design.calibrate.Calibration``): the nlp or greedy run is then the nominal to build,
+        its shape what that nominal realizes on the calibrated robot (as ``vine-nlp design`` with a
+        ``[calibration]`` table).
 
     Returns
     -------
@@ -820,23 +862,27 @@ def design(
     """
     problem = _design_problem(points, diameter, actuator=actuator, theta_max_deg=theta_max_deg, lambda_min=lambda_min,
                               points_per_segment=points_per_segment, smoothing=smoothing, starts=starts, hops=hops,
-                              method=method, seed=seed, units=units, name=name)
+                              method=method, seed=seed, units=units, name=name, budget=budget)
     args = _Arguments()
     workers = _integer(args, "workers", workers, 1)
     min_gap = None if clearance is None else _number(args, "clearance", clearance, low=0.0, low_open=False)
     sigmas = None if robust is None else _sigmas(robust)
     weight = _number(args, "robust_weight", robust_weight, low=0.0, low_open=False)
+    if calibration is not None:
+        problem = dataclasses.replace(problem, calibration=_calibration(calibration))
 
     main = registry.formulation(problem.options.method)
     options = {"workers": workers} if problem.options.method == "nlp" else {}
     result, _ = main.solve(problem, **options)
+    design_start = result
+    result = _calibrated(problem, main.name, result)
     runs = {main.run: result}
     if sigmas is not None:
         f = registry.formulation("robust")
-        runs[f.run], _ = f.solve(problem, sigmas=sigmas, weight=weight, start=result)
+        runs[f.run], _ = f.solve(problem, sigmas=sigmas, weight=weight, start=design_start)
     if min_gap is not None:
         f = registry.formulation("clearance")
-        runs[f.run], _ = f.solve(problem, min_gap=min_gap, start=result)
+        runs[f.run], _ = f.solve(problem, min_gap=min_gap, start=design_start)
     call = _call("design", diameter=problem.diameter, actuator=problem.actuator.kind, method=problem.options.method,
                  clearance=min_gap, robust=None if sigmas is None else sigmas.as_dict())
     return _made(problem, "design", "nlp", _design_source(problem, call, runs), runs)
@@ -1051,11 +1097,12 @@ def solve(problem, method: str | None = None, **options) -> Design:
         _design_problem(problem.target, problem.diameter, actuator=a.kind, theta_max_deg=math.degrees(a.theta_max),
                         lambda_min=a.lambda_min, points_per_segment=o.points_per_segment,
                         smoothing=(o.smooth_theta, o.smooth_lambda), starts=o.starts, hops=o.hops, method=o.method,
-                        seed=o.seed, units=problem.units, name=problem.name)
+                        seed=o.seed, units=problem.units, name=problem.name, budget=o.budget)
     if isinstance(problem, (ForwardProblem, FitProblem)):
         r = problem.routing
         _routing(r.theta, r.lam, r.length, initial_pose=r.initial_pose, argument_prefix="routing: ")
     result, extra = f.solve(problem, **options)
+    result = _calibrated(problem, f.name, result)
     source = _problem_source(problem, _call("solve", problem=type(problem).__name__, method=f.name))
     return _made(problem, f.kind, f.name, source, {f.run: result}, extra)
 

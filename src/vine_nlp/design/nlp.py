@@ -14,17 +14,21 @@ segment lengths within LENGTH_FACTOR of the target's chord of the segment.
 The solver is built once per structure (M segments, n points per segment, shared or
 per-segment lambda, Hessian, warm) and cached; target, weights and guesses are
 parameters, so multi-start and sweeps reuse it. Targets with corners have many
-local minima: ``basin_hops`` searches them.
+local minima: by default the windowed search of ``design.corners`` takes over where the
+first solve shows them (within ``options.budget`` seconds); ``basin_hops`` searches them
+when asked for (``options.hops``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
+from vine_nlp.design import corners
 from vine_nlp.design.common import LENGTH_FACTOR, Guess, evaluate, geometric_guess, pair_points
 from vine_nlp.design.problem import DesignProblem, Routing
 from vine_nlp.design.result import Result
@@ -210,14 +214,20 @@ def guess_from_routing(problem: DesignProblem, pairing: Pairing, routing: Routin
 
 
 def design_nlp(
-    problem: DesignProblem, starts: int | None = None, workers: int = 1, warm: Routing | None = None, progress=None, hops: int | None = None
+    problem: DesignProblem, starts: int | None = None, workers: int = 1, warm: Routing | None = None, progress=None, hops: int | None = None,
+    budget: float | None = None, note=None,
 ) -> Result:
     """Inverse design as one NLP: multi-start (``options.starts``) keeping the lowest objective,
-    then ``options.hops`` rounds of basin hopping (``basin_hops``).
+    then ``options.hops`` rounds of basin hopping (``basin_hops``), or, where the design shows a
+    corner-like target (``corners.corner_like``: Gauss-Newton failed and the residuals are large)
+    and no hops were asked for, the windowed corner search (``corners.search``) within ``budget``.
 
     ``warm``: start from an earlier design instead (one start, frames on its chain).
     ``workers`` > 1 runs the starts in parallel processes (each builds its own solver).
-    ``progress(done, total)`` is called after each start and each hop.
+    ``progress(done, total)`` is called after each start, each hop and each window of the search.
+    ``budget``: seconds the corner search may take (default ``options.budget``; 0: no search); it
+    runs in at least two threads where the machine has two cores, with the same result as in one.
+    ``note(line)``: one line per round of the corner search (the command line prints it on stderr).
     """
     pairing = pair_points(problem.target, problem.options.points_per_segment)
     n_hops = max(0, problem.options.hops if hops is None else hops)
@@ -252,7 +262,28 @@ def design_nlp(
         best = basin_hops(problem, best, n_hops, pairing, lambda k: progress and progress(len(results) + k, total))
         best.iterations = before + sum(best.stats["hop_iterations"])
         best.solve_time_s = time.perf_counter() - t0
+        return best
+    budget = problem.options.budget if budget is None else budget
+    if budget > 0 and corners.corner_like(problem, best):
+        best = _corner_search(problem, best, pairing, budget, workers, progress, note, len(results))
+        best.solve_time_s = time.perf_counter() - t0
     return best
+
+
+def _corner_search(problem, best, pairing, budget, workers, progress, note, done) -> Result:
+    """corners.search with the full NLP as its polish: exact Hessian, frames on the design's chain, IPOPT's
+    ordinary start (measured on the polyline (d): 64 iterations where the warm-start options take 73, the
+    windows' changes leave the design away from a KKT point)."""
+    o = problem.options
+
+    def polish(routing: Routing) -> Result:
+        r = _solve(problem, guess_from_routing(problem, pairing, routing), pairing, "chain", False, "exact", o.max_iter)
+        r.stats["hessian"] = "exact (corner search polish)"
+        return r
+
+    threads = max(workers, min(2, os.cpu_count() or 1))
+    report = (lambda k, total: progress(done + k, done + total)) if progress else None
+    return corners.search(problem, best, pairing, polish, budget=budget, workers=threads, progress=report, note=note)
 
 
 # basin hopping: the number of neighbouring segments re-drawn around the chosen one (a corner

@@ -74,6 +74,9 @@ class DesignOptions:
         IPOPT's tolerance.
     hessian : str
         "auto" (Gauss-Newton, exact if it does not converge), "exact" or "gauss-newton".
+    budget : float
+        Seconds the nlp's corner search may take where the first solve shows a corner-like target
+        (design.corners); 0 turns it off.
     """
 
     method: str = "nlp"
@@ -92,6 +95,7 @@ class DesignOptions:
     max_iter: int = 3000
     tol: float = 1e-8
     hessian: str = "auto"  # nlp: "auto" (Gauss-Newton, exact if it does not converge), "exact" or "gauss-newton"
+    budget: float = 20.0  # nlp: seconds for the corner search (design.corners; a safety stop, 0: off)
 
 
 @dataclass(frozen=True)

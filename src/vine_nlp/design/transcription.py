@@ -46,6 +46,7 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp import interrupt
+from vine_nlp.design import compiled
 from vine_nlp.model.segment import segment_function, so3_exp
 
 # ---------------------------------------------------------------- IPOPT settings and statuses
@@ -233,15 +234,18 @@ def segment_block(n: int) -> BlockType:
     f = sum_i w_i |r_c(u_i) - r_d,i|^2; r = X_j T^{j+1}_j - X_{j+1}. Gauss-Newton: 2 J^T J of the
     weighted residuals, the constraint curvature left out (always PSD, cheap, linear convergence on
     large-residual targets)."""
-    v, d = ca.SX.sym("v", 27), ca.SX.sym("d", 5 * n)
-    u, tgt, w = d[:n], ca.reshape(d[n : 4 * n], 3, n), d[4 * n :].T
-    Xn, pts = segment_function(n)(v[:12], v[12], v[13], v[14], u)
-    err = pts - tgt
-    f = ca.sum2(w * ca.sum1(err * err))
-    res = ca.vec(ca.repmat(ca.sqrt(w), 3, 1) * err)
-    return BlockType(
-        f"segment{n}", ca.Function("segment_block", [v, d], [f, Xn - v[15:]]), ca.Function("segment_res", [v, d], [res])
-    )
+
+    def build():
+        v, d = ca.SX.sym("v", 27), ca.SX.sym("d", 5 * n)
+        u, tgt, w = d[:n], ca.reshape(d[n : 4 * n], 3, n), d[4 * n :].T
+        Xn, pts = segment_function(n)(v[:12], v[12], v[13], v[14], u)
+        err = pts - tgt
+        f = ca.sum2(w * ca.sum1(err * err))
+        res = ca.vec(ca.repmat(ca.sqrt(w), 3, 1) * err)
+        return [ca.Function("segment_block", [v, d], [f, Xn - v[15:]]), ca.Function("segment_res", [v, d], [res])]
+
+    fn, res = compiled.stored(f"segment_block{n}", build)
+    return BlockType(f"segment{n}", fn, res)
 
 
 @lru_cache(maxsize=None)
@@ -487,29 +491,37 @@ class Solver:
         for name, r, _, _ in c.rows:
             self.row_slices[name] = slice(off, off + r.numel())
             off += r.numel()
-        # derivatives: per block type SX, mapped and scattered; global parts automatic
-        sigma, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.size1())
-        jac_blocks, hess_blocks, row = [], [], 0
-        for b, (V, count) in zip(c.blocks, gathered):
-            jac, hess, gn = block_derivatives(b.bt)
-            h = gn if spec.hessian == "gauss-newton" else hess
-            nr = b.bt.nr
-            LR = ca.reshape(lam_g[row : row + nr * count], nr, count) if nr else ca.MX(0, count)
-            if nr:
-                rows_idx = row + np.arange(nr * count).reshape(count, nr).T
-                jac_blocks.append((jac.map(count, "serial")(V, b.data), jac.sparsity_out(0), rows_idx, b.index))
-            hess_blocks.append((h.map(count, "serial")(V, b.data, sigma, LR), h.sparsity_out(0), b.index, b.index))
-            row += nr * count
-        J = _scatter((nb, lay.size), jac_blocks, False)
-        if c.rows:
-            J = ca.vertcat(J, ca.jacobian(g_glob, x))
-        lam_glob = lam_g[nb:]
-        glob = sigma * f_glob + (ca.dot(lam_glob, g_glob) if c.rows else 0)
-        H = _scatter((lay.size, lay.size), hess_blocks, True) + ca.triu(ca.hessian(glob, x)[0])
-        opts = dict(spec.options)
-        opts["jac_g"] = ca.Function("nlp_jac_g", [x, p], [g, J], ["x", "p"], ["g", "jac_g_x"])
-        opts["hess_lag"] = ca.Function("nlp_hess_l", [x, p, sigma, lam_g], [H], ["x", "p", "lam_f", "lam_g"], ["hess_gamma_x_x"])
-        self.nlpsol = ca.nlpsol("vine_nlp", "ipopt", {"x": x, "p": p, "f": f, "g": g}, opts)
+
+        def problem_and_derivatives():
+            # derivatives: per block type SX, mapped and scattered; global parts automatic
+            sigma, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.size1())
+            jac_blocks, hess_blocks, row = [], [], 0
+            for b, (V, count) in zip(c.blocks, gathered):
+                jac, hess, gn = block_derivatives(b.bt)
+                h = gn if spec.hessian == "gauss-newton" else hess
+                nr = b.bt.nr
+                LR = ca.reshape(lam_g[row : row + nr * count], nr, count) if nr else ca.MX(0, count)
+                if nr:
+                    rows_idx = row + np.arange(nr * count).reshape(count, nr).T
+                    jac_blocks.append((jac.map(count, "serial")(V, b.data), jac.sparsity_out(0), rows_idx, b.index))
+                hess_blocks.append((h.map(count, "serial")(V, b.data, sigma, LR), h.sparsity_out(0), b.index, b.index))
+                row += nr * count
+            J = _scatter((nb, lay.size), jac_blocks, False)
+            if c.rows:
+                J = ca.vertcat(J, ca.jacobian(g_glob, x))
+            lam_glob = lam_g[nb:]
+            glob = sigma * f_glob + (ca.dot(lam_glob, g_glob) if c.rows else 0)
+            H = _scatter((lay.size, lay.size), hess_blocks, True) + ca.triu(ca.hessian(glob, x)[0])
+            return {"x": x, "p": p, "f": f, "g": g}, {
+                "jac_g": ca.Function("nlp_jac_g", [x, p], [g, J], ["x", "p"], ["g", "jac_g_x"]),
+                "hess_lag": ca.Function("nlp_hess_l", [x, p, sigma, lam_g], [H], ["x", "p", "lam_f", "lam_g"], ["hess_gamma_x_x"]),
+            }
+
+        self.problem = {"x": x, "p": p, "f": f, "g": g}  # symbolic, for derivative checks and benchmarks
+        # compiled C where a compiler is found (cached on disk per spec), else interpreted
+        # a term whose structure changes from solve to solve (an active set of pairs) says compile = False
+        worth = all(getattr(t, "compile", True) for t in spec.terms)
+        self.nlpsol = compiled.nlpsol("vine_nlp", repr(spec), problem_and_derivatives, dict(spec.options), enabled=worth)
         self.term_names = list(reported)
         self._terms = ca.Function("terms", [x, p], [ca.MX(0) + v for v in reported.values()])
         self._g = ca.Function("g", [x, p], [g])

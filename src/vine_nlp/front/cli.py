@@ -7,11 +7,13 @@ written); 2 bad input, reported as one line ``error: <file>: <key>: <reason>``.
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 import sys
 from pathlib import Path
 
 from vine_nlp import __version__
+from vine_nlp.design import compiled
 from vine_nlp.errors import InputError
 
 EXIT_OK, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
@@ -37,6 +39,17 @@ def _at_least(least: int):
         return value
 
     return convert
+
+
+def _seconds(text):
+    """argparse type: a finite number of seconds >= 0 (a usage error otherwise)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid number: {text!r}") from None
+    if not (value >= 0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
+    return value
 
 
 def _check_output(path: str, force: bool, arg: str = "-o") -> Path:
@@ -116,7 +129,10 @@ def _load(path, kind):
 
 
 def _progress_bar(desc, unit):
-    """A tqdm bar on stderr for long work; returns (callback(done, total), close())."""
+    """A tqdm bar on stderr for long work; returns (callback(done, total), close()).
+    Not a terminal (logs, pipes): no bar, and tqdm is not even imported."""
+    if not sys.stderr.isatty():
+        return (lambda done, total: None), (lambda: None)
     from tqdm import tqdm
 
     bar = None
@@ -126,8 +142,7 @@ def _progress_bar(desc, unit):
         if total <= 1:
             return
         if bar is None:
-            # disable=None: a bar on a terminal, silence in logs and pipes
-            bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False, dynamic_ncols=True, disable=None)
+            bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, leave=False, dynamic_ncols=True)
         bar.n = done
         bar.refresh()
 
@@ -160,6 +175,9 @@ def _run_method(pf, method, args):
             kw["starts"] = args.starts
         if args.hops is not None:
             kw["hops"] = args.hops
+        if args.budget is not None:
+            kw["budget"] = args.budget
+        kw["note"] = _note(pf.name)
         if getattr(args, "warm", None):
             kw["warm"] = _warm_routing(args.warm)
     update, close = _progress_bar(f"{pf.name} {method}", "solves" if method == "nlp" else "windows")
@@ -167,6 +185,17 @@ def _run_method(pf, method, args):
         return run_design(pf.problem, method, progress=update, **kw)
     finally:
         close()
+
+
+def _note(name):
+    """A line of progress on stderr that does not break a progress bar."""
+
+    def note(line):
+        from tqdm import tqdm
+
+        tqdm.write(f"{name}: {line}", file=sys.stderr)
+
+    return note
 
 
 def _warm_routing(path):
@@ -242,12 +271,13 @@ def _only_nlp(pf, args):
         raise InputError(args.problem, "--warm", f"not available for {pf.kind} problems")
     if getattr(args, "hops", None):
         raise InputError(args.problem, "--hops", f"not available for {pf.kind} problems")
+    if getattr(args, "budget", None) is not None:
+        raise InputError(args.problem, "--budget", f"not available for {pf.kind} problems")
 
 
 def _design_other(pf, args) -> int:
     """Problems beyond the paper's (multi-shape, tip): their formulation's solve, archive writer, report and
     figure, from the registry (front.registry)."""
-    from vine_nlp.front.plot import save_figure
     from vine_nlp.front.registry import for_problem
 
     f = for_problem(pf.problem)
@@ -264,6 +294,8 @@ def _design_other(pf, args) -> int:
         print(line)
     print(f"archive -> {out}")
     if fig:
+        from vine_nlp.front.plot import save_figure  # matplotlib only when a figure is asked for
+
         save_figure(f.figure(out), fig)
         print(f"figure -> {fig}")
     return EXIT_OK if result.converged else EXIT_NOT_CONVERGED
@@ -531,6 +563,7 @@ def cmd_template(args) -> int:
         _need_extra("template", "ezdxf")
     archive = _read_archive(args.archive)
     csv = _check_output(args.csv, args.force, "--csv") if args.csv else None
+    rows = None
     if getattr(args, "changes", False):
         from vine_nlp.front.changes import change_rows, changes_text
 
@@ -540,7 +573,8 @@ def cmd_template(args) -> int:
             raise InputError(args.archive, "--changes", str(e).strip("'")) from None
         print(changes_text(rows, archive.units))
     try:
-        info = write_template(archive, out, csv_path=csv, paper=args.paper, run=args.run)
+        info = write_template(archive, out, csv_path=csv, paper=args.paper, run=args.run or ("corrected" if rows is not None else None),
+                              changes=rows)
     except ValueError as e:
         raise InputError(args.archive, "--run" if args.run and args.run in str(e) else "template", str(e)) from None
     if fmt == ".pdf":
@@ -721,6 +755,7 @@ def build_parser() -> argparse.ArgumentParser:
             d.add_argument("--min-gap", type=float, default=0.0, metavar="G", help="clearance beyond D, in units")
         d.add_argument("--starts", type=_at_least(1), metavar="N", help="nlp: number of starts of the multi-start (default: the problem's)")
         d.add_argument("--hops", type=_at_least(0), metavar="N", help="nlp: rounds of basin hopping after the starts, for targets with corners (default: the problem's)")
+        d.add_argument("--budget", type=_seconds, metavar="S", help="nlp: seconds for the corner search where the first solve shows a corner-like target (default: the problem's [design] budget, 20; 0: off)")
         d.add_argument("--workers", type=_at_least(1), default=1, metavar="N", help="nlp: run the starts in N processes")
         d.add_argument("--plot", metavar="FIG.png", help="also draw the result (png or pdf)")
         d.add_argument("--force", action="store_true", help="overwrite existing output files")
@@ -769,7 +804,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--csv", metavar="CUTS.csv", help="also write one row per segment")
     t.add_argument("--paper", choices=("A4", "Letter"), default="A4")
     t.add_argument("--run", help="which run of the archive (default: nlp, greedy or forward)")
-    t.add_argument("--changes", action="store_true", help="correction archives: also list the segments whose stoppers change against the robot built last")
+    t.add_argument("--changes", action="store_true", help="correction archives: also list, and frame on the template, the segments whose stoppers change against the robot built last")
     t.add_argument("--force", action="store_true", help="overwrite existing output files")
     t.set_defaults(func=cmd_template)
 
@@ -812,13 +847,30 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+class _NoteHandler(logging.Handler):
+    """The library's notes (compiling, falling back to interpreted functions) as ``note:`` lines."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        print(f"note: {record.getMessage()}", file=sys.stderr)
+
+
+def _show_notes() -> None:
+    log = logging.getLogger("vine_nlp")
+    if not any(isinstance(h, _NoteHandler) for h in log.handlers):
+        log.addHandler(_NoteHandler(logging.INFO))
+        log.setLevel(logging.INFO)
+        log.propagate = False
+
+
 def main(argv=None) -> int:
     from vine_nlp import interrupt
 
+    _show_notes()
     parser = build_parser()
     # SIGTERM unwinds like Ctrl-C: atomic writers remove their temporary files on the way out
     restore = interrupt.install()
     try:
+        compiled.mode()  # a bad VINE_NLP_CODEGEN is one error line before any work
         args = parser.parse_args(argv)
         return args.func(args)
     except InputError as e:

@@ -5,6 +5,7 @@ layout is ``vine_nlp.io.correction``; this module reads files, reports and draws
 from __future__ import annotations
 
 import math
+import sys
 import tomllib
 from dataclasses import replace
 from pathlib import Path
@@ -29,6 +30,9 @@ def design_problem_of(archive, path):
     except (InputError, tomllib.TOMLDecodeError):
         pass
     return DesignProblem(archive.name, archive.diameter, archive.target, units=archive.units)
+
+
+PLAUSIBLE_MEDIAN = 5.0  # median distance of the measured points to the estimated line, in noise sigmas, beyond which it is not this robot
 
 
 def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=("lambda",), free_pose=False, sigmas=None,
@@ -105,10 +109,28 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
     sigmas = sigmas or Sigmas.from_degrees(1.0, 0.02, 0.02)
     result = correct(problem, builds, ms, adjust=adjust, sigmas=sigmas, measurement_sigma=measurement_sigma,
                      units_per_mm=units_per_mm or 0.1)
+    _check_plausible(result, new, problem.diameter, archive.units)
     settings = {"built_run": run, "adjust": ",".join(adjust), "free_pose": bool(free_pose), "sigma_theta_rad": sigmas.theta,
                 "sigma_lambda": sigmas.lam, "sigma_length": sigmas.length, "relative_length": bool(sigmas.relative_length),
                 "sigma_measurement": result.estimate.stats["measurement_sigma"]}
     return result, archive, builds, settings
+
+
+def _check_plausible(result, new, D, units):
+    """A measurement that cannot be this robot (another shape, another frame, the wrong archive): the
+    estimated robot passes far from most of its points, farther than noise explains. InputError naming it.
+
+    Under Gaussian noise sigma per coordinate the median point-to-line distance is about 1.2 sigma; more
+    than PLAUSIBLE_MEDIAN sigma (and a quarter of the diameter) is not noise."""
+    sig = float(result.estimate.stats["measurement_sigma"])
+    limit = max(PLAUSIBLE_MEDIAN * sig, 0.25 * D)
+    dists = result.estimate.residuals[len(result.estimate.residuals) - len(new):]
+    for m, d in zip(new, dists):
+        med = float(np.median(d))
+        if med > limit:
+            raise InputError(m.file, "points", f"cannot be this robot: the best estimate passes {med:.3g} {units} (median) from "
+                             f"the points, more than {limit:.3g} {units} (noise sigma {sig:.3g}); another shape, another frame "
+                             "(--free-pose) or another archive?")
 
 
 def _points(p, k):
@@ -218,12 +240,36 @@ def cmd_correct(args, check_output, check_figure) -> int:
     for line in report(result, archive.units):
         print(line)
     print(f"archive -> {out}")
+    problem = design_problem_of(archive, args.archive)
+    unreachable = unreachable_text(result, problem)
+    if unreachable:
+        print(f"correct: {unreachable}; the best correction found is written", file=sys.stderr)
     if fig:
         from vine_nlp.front.plot import save_figure
 
-        save_figure(correction_figure(result, design_problem_of(archive, args.archive), archive.units), fig)
+        save_figure(correction_figure(result, problem, archive.units), fig)
         print(f"figure -> {fig}")
-    return 0 if result.corrected.converged and result.as_built.converged else 1
+    return 0 if result.corrected.converged and result.as_built.converged and not unreachable else 1
+
+
+def unreachable_text(result, problem) -> str:
+    """Why the correction cannot reach the target ("" when it can): a solver that did not converge, or the
+    values to build pinned at the builder's bounds (lambda in [lambda_min, 1], theta within theta_max when
+    adjusted): the target needs values beyond them."""
+    if not result.as_built.converged:
+        return f"the estimate did not converge ({result.as_built.status})"
+    if not result.corrected.converged:
+        return f"the correction did not converge ({result.corrected.status})"
+    a, r, eps = problem.actuator, result.corrected.routing, 1e-6
+    changed = np.abs(r.lam - result.built.lam) > eps
+    pinned = changed & ((r.lam <= a.lambda_min + eps) | (r.lam >= 1.0 - eps))
+    if "theta" in result.adjust:
+        pinned |= (np.abs(r.theta - result.built.theta) > eps) & (np.abs(r.theta) >= a.theta_max - eps)
+    if pinned.any():
+        seg = ", ".join(str(j) for j in np.flatnonzero(pinned)[:10]) + (" ..." if pinned.sum() > 10 else "")
+        return (f"the target cannot be reached within the bounds: {int(pinned.sum())} segment(s) at a bound "
+                f"(lambda in [{a.lambda_min:g}, 1]{', |theta| <= theta_max' if 'theta' in result.adjust else ''}; segments {seg})")
+    return ""
 
 
 def add_correct_arguments(p, add_sigma_args) -> None:

@@ -211,7 +211,7 @@ FORMULATIONS: dict[str, Formulation] = {
                     write_archive=_single_run(_Ref("vine_nlp.io.formulations:write_multishape_archive"), "multishape"),
                     report=_multishape_report, figure=_Ref("vine_nlp.front.multishape_plot:plot_multishape_figure"),
                     figure_needs_path=True, options=("starts", "progress"), read_archive=_read_multishape),
-        Formulation("tip", problem_type=TipProblem, kind="tip", solve=_with_empty_extra(_Ref("vine_nlp.design.tip:design_tip")),
+        Formulation("tip", problem_type=TipProblem, kind="tip", solve=_with_empty_extra(_Ref("vine_nlp.design.obstacles:tip_design")),
                     write_archive=_single_run(_Ref("vine_nlp.io.formulations:write_tip_archive"), "tip"),
                     report=_tip_report, figure=_plot_archive, options=("starts", "progress")),
         # the fit's own figure (front.fit_plots.plot_fit) writes a file; the archive figure shows

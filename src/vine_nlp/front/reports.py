@@ -42,4 +42,7 @@ def tip_report(result: Result, problem: TipProblem, units: str) -> list[str]:
         f"contraction sum (1-lambda) dl = {m['actuation_contraction']:.4g} {units}, "
         f"actuator turning = {m['actuation_turning']:.4g} rad, tube length {m['tube_length']:.4g} {units}"
     )
+    if "min_obstacle_gap" in m:
+        lines.append(f"  min obstacle gap {m['min_obstacle_gap']:.4g} {units} (margin {problem.obstacle_margin:g})"
+                     + (f", {m['min_obstacle_gap_after']:.4g} {units} actuated after growth" if "min_obstacle_gap_after" in m else ""))
     return lines

@@ -45,6 +45,7 @@ CM_PER_UNIT = {"cm": 1.0, "mm": 0.1}
 STOPPER_COLOR = "#1f5fbf"  # blue: stays (stopper / unpinched)
 GAP_COLOR = "#d62728"  # red: removed or pinched
 SPAM_COLOR = "#6a3d9a"
+CHANGE_COLOR = "#ff7f0e"  # orange: a segment that changes against the robot built last (--changes)
 CSV_COLUMNS = (
     "segment", "s_start", "s_end", "theta_deg", "lambda", "phi_start_rad", "phi_end_rad",
     "c_start", "c_end", "actuator_length", "stopper_length", "gap_length",
@@ -240,7 +241,7 @@ def template_format(path) -> str:
 
 
 def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str = "A4", run: str | None = None,
-                   spam: bool | None = None, orientation: str = "auto") -> dict:
+                   spam: bool | None = None, orientation: str = "auto", changes: list | None = None) -> dict:
     """Write the 1:1 fabrication template of one run: a multi-page PDF, or one SVG or DXF sheet
     in millimetres (by the extension of ``pdf_path``), and CUTS.csv.
 
@@ -252,6 +253,11 @@ def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str 
     height as printed; the sheet's for SVG and DXF), "orientation", "run", "spam",
     "segments", "stoppers" (segments drawn with a stopper/gap split), "gaps"
     (segments with a gap drawn), "tube_length", "format"}.
+
+    changes: rows of ``front.changes.change_rows`` (a correction archive against the robot built
+    last); each changing segment is framed in orange on the template with its stopper change
+    ("+2.3 mm longer", "-1.1 mm shorter", "redraw"), and the legend says so. Returns also "changes"
+    (segments marked).
     """
     fmt = template_format(pdf_path)
     a = archive_path_or_archive if isinstance(archive_path_or_archive, Archive) else load_archive(archive_path_or_archive)
@@ -260,6 +266,7 @@ def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str 
     name = pick_run(a, run)
     spam = source_table(a, "actuator").get("kind") == "spam" if spam is None else bool(spam)
     table = cut_table(a, name)
+    table["changes"] = {int(r["segment"]): r for r in (changes or [])}
     k = CM_PER_UNIT[a.units]
     D = a.diameter
     C = math.pi * D
@@ -301,6 +308,7 @@ def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str 
         **split_counts(table, spam),
         "tube_length": L,
         "format": fmt[1:],
+        "changes": len(table["changes"]),
     }
 
 
@@ -372,6 +380,7 @@ class StripGeometry:
     ticks: list  # segment-end ticks across the path
     labels: list  # (s, c, text): segment indices
     mark_c: tuple  # c of the mark rows below and above the band (base/tip words)
+    changes: list = field(default_factory=list)  # (frame lines, (s, c, text) or None): segments that change (--changes)
 
 
 def _clip(p, q, box):
@@ -420,7 +429,7 @@ def strip_geometry(table: dict, tile: Tile, D: float, units: str, spam: bool) ->
     S0, S1 = table["s_start"], table["s_end"]
     c_unwrapped = 0.5 * D * np.concatenate([table["phi_start_rad"][:1], table["phi_end_rad"]])
     paths = {"stopper": [], "gap": [], "muscle": []}
-    ticks, labels = [], []
+    ticks, labels, changes = [], [], []
     tick = 1.2 / (10 * k)  # segment-end ticks: 1.2 mm either side of the path
     last_label = -np.inf
     for j in range(len(S0)):
@@ -443,8 +452,43 @@ def strip_geometry(table: dict, tile: Tile, D: float, units: str, spam: bool) ->
                 up = cw + 2.0 / (10 * k) if cw < band_top - 3.0 / (10 * k) else cw - 2.0 / (10 * k)
                 labels.append((sa, up, str(j)))
                 last_label = sa
+        row = table.get("changes", {}).get(j)
+        if row is not None:
+            changes.append(_change_mark(row, sa, sb, ca, cb, C, box, k, tile.s0 <= 0.5 * (sa + sb) < max(tile.s1, tile.s0 + 1e-12)
+                                        or (0.5 * (sa + sb) >= tile.s1 and tile.s_end >= L - 1e-9)))
     return StripGeometry(box, shared, references, crosses, ends, paths, ticks, labels,
-                         (tile.c0 - outside, band_top + outside))
+                         (tile.c0 - outside, band_top + outside), changes)
+
+
+def change_text(row) -> str:
+    """The words on the template for one changing segment (a row of ``front.changes.change_rows``)."""
+    d = float(row["stopper_change_mm"])
+    if row["action"] == "redraw":
+        return f"{row['segment']}: redraw, stopper {d:+.1f} mm"
+    return f"{row['segment']}: {d:+.1f} mm {row['action']}"
+
+
+def _change_mark(row, sa, sb, ca, cb, C, box, k, with_text=True):
+    """A frame around the segment's actuator path (clipped to the strip) and its change text above it
+    (``with_text``: on the one strip that holds the segment's middle, so each segment is labelled once)."""
+    pad = 1.5 / (10 * k)  # 1.5 mm around the path
+    lines = []
+    for (s_a, s_b), (c_a, c_b) in _pieces(sa, ca, sb, cb, C):
+        lo, hi = min(c_a, c_b) - pad, max(c_a, c_b) + pad
+        for p, q in (((s_a, lo), (s_b, lo)), ((s_b, lo), (s_b, hi)), ((s_b, hi), (s_a, hi)), ((s_a, hi), (s_a, lo))):
+            line = _clip(p, q, box)
+            if line is not None:
+                lines.append(line)
+    text = change_text(row)
+    # centred on the segment's part in this strip, whole inside the strip (about 1.1 mm per character at 6 pt):
+    # a text cut at the strip's end would misread ("-10.2 mm" showing as "0.2 mm")
+    half = 0.65 * len(text) / (10 * k)
+    lo_s, hi_s = max(sa, box[0]), min(sb, box[2])
+    s_mid = min(max(0.5 * (lo_s + hi_s), box[0] + half), box[2] - half)
+    t = min(max((s_mid - sa) / (sb - sa), 0.0), 1.0) if sb > sa else 0.5
+    c_mid = float(np.mod(ca + t * (cb - ca), C))
+    c_text = c_mid + 4.0 / (10 * k) if c_mid < box[3] - 6.0 / (10 * k) else c_mid - 4.0 / (10 * k)
+    return lines, ((s_mid, min(max(c_text, box[1]), box[3]), text) if with_text else None)
 
 
 PATH_COLORS = {"stopper": STOPPER_COLOR, "gap": GAP_COLOR, "muscle": SPAM_COLOR}
@@ -488,6 +532,11 @@ def _strip(ax, a: Archive, table: dict, tile: Tile, spam: bool, lay: Layout):
         ax.add_collection(LineCollection(g.ticks, colors="k", linewidths=0.5, zorder=4))
     for s, c, text in g.labels:
         ax.text(s, c, text, fontsize=6, ha="center", va="center", color="0.25", zorder=5, clip_on=True)
+    for lines, label in g.changes:
+        ax.add_collection(LineCollection(lines, colors=CHANGE_COLOR, linewidths=0.9, zorder=4.5))
+        if label is not None:
+            s, c, text = label
+            ax.text(s, c, text, fontsize=6, ha="center", va="center", color=CHANGE_COLOR, weight="bold", zorder=5.5, clip_on=True)
 
 
 def _shared_ends(a: float, b: float, end: float, cm: float) -> list[float]:
@@ -521,6 +570,8 @@ def _footer(fig, W, H, spam, table):
     lx = x1 + 8.0
     items = ([(SPAM_COLOR, 1.6, f"sPAM muscle path, one \u03bb = {float(np.mean(table['lambda'])):.3g}")] if spam else
              [(STOPPER_COLOR, 1.6, "stays: stopper / unpinched (\u03bb)"), (GAP_COLOR, 2.4, "removed: gap / pinched (1 \u2212 \u03bb)")])
+    if table.get("changes"):
+        items.append((CHANGE_COLOR, 0.9, f"framed: {len(table['changes'])} segment(s) to change against the robot built last"))
     items.append((None, 0, "+ alignment marks, shaded: 1 cm overlap"))
     for i, (color, lw, text) in enumerate(items):
         y = y0 + 3.0 - 3.6 * i
@@ -539,6 +590,7 @@ LAYERS = {
     "removed": (GAP_COLOR, 0.8, 1),  # removed: gaps / pinched
     "marks": ("#000000", 0.15, 3),  # alignment crosses, segment ticks, band edges, base and tip, s ruler
     "text": ("#404040", 0.15, 2),
+    "changes": (CHANGE_COLOR, 0.3, 30),  # segments that change against the robot built last (--changes), and by how much
     "scale": ("#000000", 0.3, 6),  # the 10 cm scale bar: 100 mm in the file
 }
 TEXT_MM = 2.5  # text height
@@ -609,6 +661,12 @@ def template_sheet(a: Archive, run: str, table: dict, lay: Layout, spam: bool) -
         for s, c, text in g.labels:
             x, y = xy(s, c)
             sh.text("text", x, y - 0.7, text, 2.0, "middle")
+        for lines, label in g.changes:
+            for p, q in lines:
+                sh.line("changes", [xy(*p), xy(*q)])
+            if label is not None:
+                x, y = xy(label[0], label[1])
+                sh.text("changes", x, y - 0.7, label[2], 2.0, "middle")
         # the s ruler under the strip: a tick every cm, labelled every 5 cm
         y_base = y_ax
         sh.line("marks", [(x0, y_base), (x0 + (tile.s_end - tile.s0) * mm, y_base)])
@@ -628,6 +686,8 @@ def template_sheet(a: Archive, run: str, table: dict, lay: Layout, spam: bool) -
     lx = bx + SCALE_BAR_CM * 10.0 + 8.0
     legend = ([("actuator_path", f"sPAM muscle path, one \u03bb = {float(np.mean(table['lambda'])):.3g}")] if spam else
               [("stoppers", "stays: stopper / unpinched (\u03bb)"), ("removed", "removed: gap / pinched (1 \u2212 \u03bb)")])
+    if table.get("changes"):
+        legend.append(("changes", f"framed: {len(table['changes'])} segment(s) to change against the robot built last"))
     legend.append(("marks", "alignment marks; outlined: 1 cm overlap"))
     for i, (layer, text) in enumerate(legend):
         y = by + 3.0 - 3.6 * i
@@ -656,7 +716,8 @@ def sheet_svg(sheet: Sheet) -> bytes:
         ET.SubElement(groups[layer], "{http://www.w3.org/2000/svg}polygon" if closed else "{http://www.w3.org/2000/svg}polyline", attrs)
     for layer, x, y, text, height, anchor in sheet.texts:
         el = ET.SubElement(groups[layer], "{http://www.w3.org/2000/svg}text", {
-            "x": f"{x:.4f}", "y": f"{H - y:.4f}", "font-size": f"{height:g}", "font-family": "sans-serif", "text-anchor": anchor})
+            "x": f"{x:.4f}", "y": f"{H - y:.4f}", "font-size": f"{height:g}", "font-family": "sans-serif", "text-anchor": anchor,
+            "fill": LAYERS[layer][0], "stroke": "none"})  # filled in its layer's colour, whatever the layer strokes
         el.text = text
     return ET.tostring(root, encoding="utf-8", xml_declaration=True)
 

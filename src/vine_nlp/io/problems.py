@@ -92,7 +92,7 @@ _ACTUATOR_KEYS = ("kind", "lambda_min", "theta_max_deg")
 
 _OPTION_INTS = {"points_per_segment": 1, "lookahead": 1, "starts": 1, "hops": 0, "greedy_starts": 1, "seed": 0, "max_iter": 1}
 
-_DESIGN_KEYS = ("method", *_OPTION_INTS, "tol", "hessian", "smoothness")
+_DESIGN_KEYS = ("method", *_OPTION_INTS, "tol", "hessian", "budget", "smoothness")
 
 _SMOOTHNESS_FIELDS = {"theta": "smooth_theta", "lambda": "smooth_lambda"}
 
@@ -106,8 +106,8 @@ _FIT_KEYS = ("free",)
 
 _FREE_CHOICES = ("lambda",)
 
-# basin hopping (hops) is a strategy of the design NLP only
-_OTHER_DESIGN_KEYS = tuple(k for k in _DESIGN_KEYS if k != "hops")
+# basin hopping (hops) and the corner search (budget) are strategies of the design NLP only
+_OTHER_DESIGN_KEYS = tuple(k for k in _DESIGN_KEYS if k not in ("hops", "budget"))
 
 _MULTISHAPE_DESIGN_KEYS = (*_OTHER_DESIGN_KEYS, "shared_pose")
 
@@ -304,6 +304,9 @@ def _options(f: SourceFile, table: dict) -> DesignOptions:
         check(f, "design.tol", changes["tol"] > 0, "must be > 0")
     if "hessian" in table:
         changes["hessian"] = choice(f, "design.hessian", table["hessian"], HESSIANS)
+    if "budget" in table:
+        changes["budget"] = real_number(f, "design.budget", table["budget"])
+        check(f, "design.budget", changes["budget"] >= 0, "must be >= 0")
     smoothness = sub_table(f, table, "smoothness", tuple(_SMOOTHNESS_FIELDS), prefix="design.")
     for key, field_name in _SMOOTHNESS_FIELDS.items():
         if key in smoothness:

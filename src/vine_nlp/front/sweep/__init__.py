@@ -14,24 +14,32 @@ method it lists and writes
   it): an interrupted sweep leaves a valid summary of what finished. Rows follow the grid order;
   numbers are written with full precision (``repr``), missing ones as empty cells;
 * ``DIR/summary.png``: RMSE and solve-time distributions and NLP against greedy
-  item by item (:func:`plot_summary`).
+  item by item (:func:`plot_summary`; its modules are imported in a thread while
+  the workers solve, so drawing it is all that is left at the end).
 
 The package: :mod:`.executors` (the worker task, the local pool and dask),
 :mod:`.engine` (items, resume, the directory lock, archives streamed to disk),
 :mod:`.summary` (SweepReport, summary.csv), :mod:`.figure` (summary.png). dask is
 imported only when a scheduler address is given.
 
-Execution. The worker task is the top-level function :func:`solve_item`; it
-returns Results and the parent writes every file, so a cluster needs no shared
-filesystem. Three executors share one code path (a small adapter: ``submit``,
-``wait_first``, ``cancel``, ``close``):
+Execution. The worker task is the top-level function :func:`solve_item` (a few
+items at a time: :func:`solve_chunk`); it returns Results and the parent writes
+every file, so a cluster needs no shared filesystem. Every item is solved by
+``design.run_design``, the function ``vine-nlp design`` solves a design problem
+with. Three executors share one code path (a small adapter: ``submit``,
+``wait_first``, ``cancel``, ``close``, ``chunk_size``):
 
-* ``workers`` > 1 (default ``os.cpu_count()``): a ``ProcessPoolExecutor``
-  (forkserver or spawn: no fork of a process that already runs casadi threads)
-  whose worker processes live for the whole sweep, so each builds a solver once
-  per problem structure (``design.nlp.get_solver`` is an lru_cache) and reuses
-  it for every later item. Items are submitted grouped by structure. At most
-  ``workers`` items are in flight, so when a worker process dies (a crash in a
+* ``workers`` > 1 (default ``os.cpu_count()``): a ``ProcessPoolExecutor`` whose
+  worker processes live for the whole sweep, so each builds a solver once per
+  problem structure (``design.transcription.get_solver`` caches per process) and
+  reuses it for every later item. The workers are started before anything else
+  happens; they are forks of this process when that is safe (one thread, no
+  solver used here: the command line's case), so they start with every module
+  imported, else they come from a forkserver that imported the solver modules
+  once. Items are submitted grouped by structure, in chunks of up to 8 items that
+  shrink to single items towards the end; the next chunks go out before the
+  parent writes the archives of the last ones, so no worker waits for the disk.
+  One task per worker is in flight, so when a worker process dies (a crash in a
   native library, the OOM killer) the suspects are known: they are retried one
   at a time in a fresh pool, and the item that kills its worker alone is failed;
 * ``workers`` 0 or 1: in this process, one item after the other;
@@ -70,8 +78,18 @@ Running the sweep again continues where it stopped.
 from __future__ import annotations
 
 from vine_nlp.front.sweep.engine import LOCK_FILE, DirectoryLock, run_sweep
-from vine_nlp.front.sweep.executors import DaskPool, InlinePool, LocalPool, error_text, make_pool, solve_item
-from vine_nlp.front.sweep.figure import plot_summary
+from vine_nlp.front.sweep.executors import (
+    MAX_CHUNK,
+    DaskPool,
+    InlinePool,
+    LocalPool,
+    error_text,
+    fork_is_safe,
+    make_pool,
+    solve_chunk,
+    solve_item,
+)
+from vine_nlp.front.sweep.figure import plot_summary, preload_matplotlib
 from vine_nlp.front.sweep.summary import (
     EXTRA_COLUMNS,
     FAILED,
@@ -88,7 +106,8 @@ from vine_nlp.front.sweep.summary import (
 )
 
 __all__ = [
-    "DaskPool", "DirectoryLock", "EXTRA_COLUMNS", "FAILED", "InlinePool", "LOCK_FILE", "LocalPool", "SPEC_COLUMNS",
-    "SUMMARY_CSV", "SUMMARY_PNG", "SweepReport", "error_text", "format_report", "make_pool", "make_row",
-    "method_stats", "plot_summary", "read_summary", "run_sweep", "solve_item", "summary_columns", "write_summary",
+    "DaskPool", "DirectoryLock", "EXTRA_COLUMNS", "FAILED", "InlinePool", "LOCK_FILE", "LocalPool", "MAX_CHUNK",
+    "SPEC_COLUMNS", "SUMMARY_CSV", "SUMMARY_PNG", "SweepReport", "error_text", "fork_is_safe", "format_report",
+    "make_pool", "make_row", "method_stats", "plot_summary", "preload_matplotlib", "read_summary", "run_sweep",
+    "solve_chunk", "solve_item", "summary_columns", "write_summary",
 ]

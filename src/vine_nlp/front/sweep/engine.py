@@ -16,6 +16,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import sys
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -24,8 +26,8 @@ from typing import Callable
 
 from vine_nlp import interrupt
 from vine_nlp.errors import InputError
-from vine_nlp.front.sweep.executors import error_text, is_broken_pool, make_pool, solve_item
-from vine_nlp.front.sweep.figure import plot_summary
+from vine_nlp.front.sweep.executors import InlinePool, error_text, is_broken_pool, make_pool, solve_chunk
+from vine_nlp.front.sweep.figure import plot_summary, preload_matplotlib
 from vine_nlp.front.sweep.summary import FAILED, SUMMARY_CSV, SUMMARY_PNG, SweepReport, make_row, write_summary
 from vine_nlp.io.archive import Archive, OutputError, load_archive, write_archive
 
@@ -142,7 +144,7 @@ def run_sweep(
     ------
     InputError
         Bad arguments, an unusable output directory, a directory locked by another
-        sweep, a scheduler that cannot be reached.
+        sweep, a scheduler that cannot be reached, a base problem with obstacles.
     OutputError
         A file could not be written (disk full, ...): the sweep stopped, what finished
         is kept, the same command resumes.
@@ -160,11 +162,17 @@ def run_sweep(
     created = not out.exists()
 
     items = sweep.items()
+    if any(getattr(pf.problem, "obstacles", ()) for _, _, pf in items):
+        # `vine-nlp design` adds a step after run_design for obstacles (front.cli); a sweep that
+        # solved around it would archive designs that ignore them
+        raise InputError(sweep.path, "base", "[[obstacles]] are not supported in sweeps yet; design such problems "
+                         "with vine-nlp design")
     grid_keys = list(sweep.grid)
     methods = list(sweep.methods)
     report = SweepReport(sweep.name, out, len(items), created_dir=created)
     order = {item: k for k, (item, _, _) in enumerate(items)}
     rows_of: dict[str, list] = {}  # item -> rows, for the items finished (or skipped) so far
+    phases = report.phases
 
     lock = DirectoryLock(out)
     if out.is_dir():
@@ -196,7 +204,8 @@ def run_sweep(
         pending = deque(job for group in groups.values() for job in group)
 
         # Connect (a bad scheduler address is bad input) before anything is created.
-        pool = make_pool(workers, scheduler, len(pending)) if pending else None
+        pool = make_pool(workers, scheduler, len(pending), inherited_fd=lock.fd) if pending else None
+        phases["setup_s"] = time.perf_counter() - t_start
         report.executor = pool.description if pool is not None else ""
         try:
             out.mkdir(parents=True, exist_ok=True)
@@ -229,16 +238,21 @@ def run_sweep(
             clock["cost"] = clock["end"] - start
 
         bar = None
-        if progress and jobs:
-            import sys
-
+        if progress and jobs and getattr(sys.stderr, "isatty", lambda: False)():  # no bar in logs and pipes: tqdm is not even imported
             from tqdm import tqdm
 
             bar = tqdm(
                 total=len(items), initial=report.skipped, desc=sweep.name, unit="item",
-                file=sys.stderr, dynamic_ncols=True, disable=None, smoothing=0.1,
+                file=sys.stderr, dynamic_ncols=True, smoothing=0.1,
             )
             bar.set_postfix(failed=0)
+
+        # While the workers solve, this process mostly waits: it imports the figure's modules meanwhile
+        # (a thread started after the workers were forked), so the figure does not wait for them at the end.
+        preload = None
+        if jobs and not isinstance(pool, InlinePool):
+            preload = threading.Thread(target=preload_matplotlib, name="vine-nlp-preload", daemon=True)
+            preload.start()
 
         def finish(job: _Job, runs: dict, errors: dict):
             """Archive and rows of one item that came back (``runs`` new Results, ``errors`` method -> text)."""
@@ -275,34 +289,51 @@ def run_sweep(
                 bar.update(1)
             return job.item, rows
 
-        inflight: dict = {}
+        inflight: dict = {}  # future -> the jobs of its chunk
+
+        def fill():
+            # Keep every worker busy; an item suspected of killing its worker runs alone (a chunk of one).
+            while pending and len(inflight) < pool.window and not any(j.strikes for c in inflight.values() for j in c):
+                if pending[0].strikes:
+                    if inflight:
+                        break
+                    chunk = [pending.popleft()]
+                else:
+                    chunk = []
+                    size = pool.chunk_size(len(pending))
+                    while pending and len(chunk) < size and not pending[0].strikes:
+                        chunk.append(pending.popleft())
+                task = [(job.pf, job.methods) for job in chunk]
+                inflight[pool.submit(solve_chunk, (task,), chunk[0].item)] = chunk
+
         try:
             while pending or inflight:
-                # fill the window; an item suspected of killing its worker runs alone
-                while pending and len(inflight) < pool.window and not any(j.strikes for j in inflight.values()):
-                    if pending[0].strikes and inflight:
-                        break
-                    job = pending.popleft()
-                    inflight[pool.submit(solve_item, (job.pf, job.methods), job.item)] = job
+                fill()
+                t_wait = time.perf_counter()
                 done = pool.wait_first(list(inflight))
+                phases["waiting_s"] += time.perf_counter() - t_wait
+                if phases["first_result_s"] is None:
+                    phases["first_result_s"] = time.perf_counter() - t_start
                 results, crashed = [], []
                 for fut in done:
-                    job = inflight.pop(fut)
+                    chunk = inflight.pop(fut)
                     try:
-                        runs, timings = fut.result()
+                        outs = fut.result()
+                    except Exception as exc:  # noqa: BLE001 - the whole task failed (or its worker died)
+                        if is_broken_pool(exc):
+                            crashed += [(job, fut) for job in chunk]
+                        else:
+                            text = error_text(exc)
+                            results += [(job, {}, {m: text for m in job.methods}) for job in chunk]
+                        continue
+                    for job, (runs, timings) in zip(chunk, outs):
                         results.append((job, runs, timings["errors"]))
                         report.item_wall_s += timings.get("total_s", 0.0)
                         report.item_cpu_s += timings.get("cpu_s", 0.0)
-                    except Exception as exc:  # noqa: BLE001 - the whole item failed (or its worker died)
-                        if is_broken_pool(exc):
-                            crashed.append((job, fut))
-                        else:
-                            text = error_text(exc)
-                            results.append((job, {}, {m: text for m in job.methods}))
                 if crashed:
                     # The pool is broken: every item in flight comes back here. Retry them one at a time
                     # in a fresh pool; one that kills its worker while running alone has failed.
-                    crashed += [(inflight.pop(f), f) for f in list(inflight)]
+                    crashed += [(job, f) for f in list(inflight) for job in inflight.pop(f)]
                     suspects = [job for job, f in crashed if not getattr(f, "never_started", False)]
                     for job, f in sorted(crashed, key=lambda c: order[c[0].item], reverse=True):
                         if getattr(f, "never_started", False):
@@ -314,7 +345,11 @@ def run_sweep(
                             job.strikes += 1
                             pending.appendleft(job)
                     pool.restart()
+                elif not pool.synchronous:
+                    fill()  # the next chunks go out before the archives are written: no worker waits for the disk
+                t_finish = time.perf_counter()
                 finished = [finish(job, runs, errors) for job, runs, errors in results]
+                phases["archives_s"] += time.perf_counter() - t_finish
                 if finished:
                     write_summary_now(throttle=True)
                 if callback is not None:
@@ -357,7 +392,11 @@ def run_sweep(
         write_summary_now()
         report.rows = all_rows()
         report.archives = _archives(out, items)
+        phases["summary_csv_s"] = time.perf_counter() - t_start
         png = out / SUMMARY_PNG
+        t_figure = time.perf_counter()
+        if preload is not None:
+            preload.join()  # imports are done or nearly so; no import races the drawing
         try:
             plot_summary(report.rows, png, title=f"sweep {sweep.name}")
             report.summary_png = png
@@ -365,6 +404,7 @@ def run_sweep(
             raise
         except Exception as exc:  # noqa: BLE001 - the results are on disk already; say what went wrong
             report.figure_error = error_text(exc)
+        phases["figure_s"] = time.perf_counter() - t_figure
         report.wall_time_s = time.perf_counter() - t_start
         return report
     finally:

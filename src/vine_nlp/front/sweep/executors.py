@@ -2,27 +2,43 @@
 
 The worker task is the top-level function :func:`solve_item`; it returns Results and
 the parent writes every file, so a cluster needs no shared filesystem. An executor has
-``window`` (items to keep in flight), ``description``, ``submit(fn, args, name)``,
+``window`` (tasks to keep in flight), ``synchronous`` (``submit`` runs the task before it
+returns), ``description``, ``chunk_size(pending)``, ``submit(fn, args, name)``,
 ``wait_first(futures)``, ``cancel(futures)`` and ``close(interrupted=False)``:
 
 * :class:`InlinePool` (workers 0 or 1): each item runs in this process;
-* :class:`LocalPool`: a ProcessPoolExecutor (forkserver or spawn: no fork of a process
-  that already runs casadi threads) whose worker processes live for the whole sweep;
-  ``restart()`` after a worker process died;
+* :class:`LocalPool`: a ProcessPoolExecutor whose worker processes live for the whole
+  sweep; ``restart()`` after a worker process died. The first pool forks this process
+  when that is safe (no thread but the main one, no solver built here yet: a fork of a
+  process that runs casadi or IPOPT threads can hang), so the workers start at once with
+  every module already imported; otherwise, and for every restart, the workers come from
+  a forkserver that imported the solver modules once (spawn where there is none);
 * :class:`DaskPool`: a dask.distributed scheduler. dask is imported only here, when a
   scheduler address is given.
+
+Items travel in chunks (:func:`solve_chunk`, ``chunk_size``): a local worker gets a few
+items per task, so the round trip to the parent (which writes every archive) is paid per
+chunk, not per item. Chunks shrink towards the end of a sweep (the last tasks are single
+items, so no worker idles while another finishes a long chunk) and stay small enough that
+results reach the disk within about a second. The in-process and dask executors take one
+item per task (dask's own KilledWorker must fail one item, not a chunk).
 """
 
 from __future__ import annotations
 
 import os
 import socket
+import sys
+import threading
 import time
 import traceback
 
 from vine_nlp.errors import InputError
 
 _MAX_ERROR_TEXT = 500
+MAX_CHUNK = 8  # items per local task at most: results still stream to disk every second or so
+# imported once by the forkserver, so its workers start with them (and the main module, the default)
+_WORKER_MODULES = ("vine_nlp.front.sweep.executors", "vine_nlp.design.methods")
 
 
 def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]:
@@ -74,20 +90,58 @@ def error_text(exc: BaseException) -> str:
     return text if len(text) <= _MAX_ERROR_TEXT else text[: _MAX_ERROR_TEXT - 3] + "..."
 
 
-def _worker_init():
+def solve_chunk(chunk, remote: bool = False) -> list:
+    """:func:`solve_item` for each ``(problem_file, methods)`` of ``chunk``, in order; a list of its returns."""
+    return [solve_item(problem_file, methods, remote=remote) for problem_file, methods in chunk]
+
+
+def _worker_init(inherited_fd=None):
     # Ctrl-C reaches the whole process group; only the parent handles it (it stops the workers).
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # A forked worker inherits the parent's handlers (vine_nlp.interrupt turns SIGTERM into
+    # KeyboardInterrupt): the parent ends its workers with SIGTERM, and they are to go quietly.
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if inherited_fd is not None:
+        # the parent's directory lock, inherited by fork: the lock must end with the parent, not with a worker
+        try:
+            os.close(inherited_fd)
+        except OSError:
+            pass
+
+
+def _warm_up():
+    """The first task of every local worker: the solver modules imported before the first item arrives."""
+    import vine_nlp.design.methods  # noqa: F401
+
+    return os.getpid()
+
+
+def fork_is_safe() -> bool:
+    """True when this process can be forked for workers: POSIX fork (not macOS), only the main thread
+    running, and no design solver used here (IPOPT/casadi threads do not survive a fork)."""
+    import multiprocessing as mp
+
+    return (
+        "fork" in mp.get_all_start_methods()
+        and sys.platform != "darwin"
+        and threading.active_count() == 1
+        and "vine_nlp.design.transcription" not in sys.modules
+    )
 
 
 class InlinePool:
     """workers 0 or 1: each item runs in this process when submitted."""
 
     window = 1
+    synchronous = True  # submit() runs the item: the engine writes what finished before it submits more
 
     def __init__(self):
         self.description = "in this process"
+
+    def chunk_size(self, pending: int) -> int:
+        return 1  # nothing to save in this process; an interrupt keeps every finished item
 
     def submit(self, fn, args, name):
         from concurrent.futures import Future
@@ -112,15 +166,38 @@ class InlinePool:
 class LocalPool:
     """A ProcessPoolExecutor whose worker processes live for the whole sweep."""
 
-    def __init__(self, workers: int):
+    synchronous = False
+
+    def __init__(self, workers: int, inherited_fd: int | None = None):
+        """``workers`` processes, started now (they import and warm up while the parent goes on);
+        ``inherited_fd`` is closed in forked workers (the directory lock)."""
+        self.window = workers
+        self.workers = workers
+        self.description = f"{workers} local worker processes"
+        self.start_method = "fork" if fork_is_safe() else None
+        self.executor = self._make(self.start_method, inherited_fd)
+
+    def _make(self, method, inherited_fd=None):
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
-        method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
-        self.window = workers
-        self.description = f"{workers} local worker processes"
-        self._make = lambda: ProcessPoolExecutor(workers, mp_context=mp.get_context(method), initializer=_worker_init)
-        self.executor = self._make()
+        if method is None:
+            method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
+            self.start_method = method
+        ctx = mp.get_context(method)
+        if method == "forkserver":
+            # no effect once this process's forkserver runs (it then has its own list)
+            ctx.set_forkserver_preload(["__main__", *_WORKER_MODULES])
+        fd = inherited_fd if method == "fork" else None
+        executor = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_worker_init, initargs=(fd,))
+        # Start every worker now (a fork happens here, while this process has one thread): they
+        # import the solver modules while the parent sets up; the futures are not looked at.
+        self._warm = [executor.submit(_warm_up) for _ in range(self.workers)]
+        return executor
+
+    def chunk_size(self, pending: int) -> int:
+        """Items for the next task: a quarter of a fair share, at most MAX_CHUNK, single items at the end."""
+        return max(1, min(MAX_CHUNK, pending // (4 * self.workers)))
 
     def submit(self, fn, args, name):
         from concurrent.futures import Future
@@ -143,7 +220,8 @@ class LocalPool:
     def restart(self):
         """A fresh pool after a worker process died (the old one is broken for good)."""
         self.executor.shutdown(wait=False, cancel_futures=True)
-        self.executor = self._make()
+        # threads run in this process now (the old pool's manager): no fork, a forkserver's workers
+        self.executor = self._make(None if self.start_method == "fork" else self.start_method)
 
     def cancel(self, futures):
         for f in futures:
@@ -165,6 +243,8 @@ class LocalPool:
 
 class DaskPool:
     """A dask.distributed scheduler; the workers need vine_nlp installed, no shared files."""
+
+    synchronous = False
 
     def __init__(self, address: str):
         try:
@@ -200,6 +280,9 @@ class DaskPool:
         self._completed.add(fut)
         return fut
 
+    def chunk_size(self, pending: int) -> int:
+        return 1  # an item that keeps killing workers ends as KilledWorker: that item's failure alone
+
     def wait_first(self, futures):
         return self._completed.next_batch(block=True)
 
@@ -211,13 +294,15 @@ class DaskPool:
         self.client.close()
 
 
-def make_pool(workers: int, scheduler: str | None, jobs: int):
-    """The executor for ``workers`` local processes or the dask ``scheduler`` address (see the module)."""
+def make_pool(workers: int, scheduler: str | None, jobs: int, inherited_fd: int | None = None):
+    """The executor for ``workers`` local processes or the dask ``scheduler`` address (see the module).
+
+    ``inherited_fd``: a file descriptor forked local workers close at once (the directory lock)."""
     if scheduler:
         return DaskPool(scheduler)
     if workers <= 1:
         return InlinePool()
-    return LocalPool(min(workers, jobs))
+    return LocalPool(min(workers, jobs), inherited_fd)
 
 
 def is_broken_pool(exc) -> bool:

@@ -7,6 +7,16 @@ from pathlib import Path
 from vine_nlp.front.sweep.summary import FAILED, _mm
 
 
+def preload_matplotlib() -> None:
+    """Import what :func:`plot_summary` needs (run in a thread while a sweep waits for its workers)."""
+    try:
+        import matplotlib.backends.backend_agg  # noqa: F401
+        import matplotlib.figure  # noqa: F401
+        import matplotlib.ticker  # noqa: F401
+    except Exception:  # noqa: BLE001 - plot_summary imports them again and reports what is wrong
+        pass
+
+
 def plot_summary(rows, path, title: str | None = None) -> Path:
     """Summary figure of a sweep: RMSE and solve-time distributions per method, NLP against greedy.
 
@@ -34,7 +44,10 @@ def plot_summary(rows, path, title: str | None = None) -> Path:
         paired = {r["item"]: (greedy[r["item"]], r["rmse"]) for r in by_method["nlp"] if r["item"] in greedy}
 
     panels = 3 if paired else 2
-    fig = Figure(figsize=(4.6 * panels, 4.0), layout="constrained")
+    # fixed margins, no layout engine: constrained layout measured every text twice and drew the figure
+    # twice (more than half the time of the figure, which is drawn when everything else is done)
+    fig = Figure(figsize=(4.6 * panels, 4.0))
+    fig.subplots_adjust(left=0.2 / panels, right=1 - 0.05 / panels, bottom=0.13, top=0.85, wspace=0.32)
     FigureCanvasAgg(fig)
     axes = fig.subplots(1, panels)
     colors = {m: f"C{k}" for k, m in enumerate(methods)}

@@ -40,6 +40,12 @@ class SweepReport:
     rows: list = field(default_factory=list)  # summary rows (dicts), grid order
     failures: list = field(default_factory=list)  # (item, method, error)
     figure_error: str = ""
+    # where this process's time went (seconds): setup_s (start to workers started), first_result_s (start to
+    # the first finished task), waiting_s (waiting for workers), archives_s (writing archives and rows),
+    # summary_csv_s (start to the final summary.csv), figure_s (summary.png)
+    phases: dict = field(default_factory=lambda: {
+        "setup_s": 0.0, "first_result_s": None, "waiting_s": 0.0, "archives_s": 0.0, "summary_csv_s": None, "figure_s": None,
+    })
 
     @property
     def solved(self) -> int:

@@ -1,0 +1,267 @@
+"""Compiled NLP functions: CasADi's C code generation, compiled once per structure and cached on disk.
+
+IPOPT calls five functions of the NLP per iteration (objective, constraints, their
+derivatives, the Lagrangian Hessian). Interpreted, they run CasADi's MX virtual machine
+over the mapped per-stage SX blocks; compiled, the same expressions run as C. The
+answers agree to rounding (tests compare the iterates).
+
+The shared library is keyed by everything that decides the generated code: the
+solver's Spec (structure, terms, Hessian, IPOPT options), the CasADi version, the
+compiler and its flags, and the source of the model and design layers (a changed
+formula never loads a stale library). It is written atomically into the cache
+directory, so concurrent processes (sweep workers) may compile the same structure
+at once and each loads a whole file.
+
+Settings (environment):
+
+- ``VINE_NLP_CODEGEN``: ``auto`` (default: compile where a C compiler is found, else
+  run interpreted and say so once), ``on`` (a missing or failing compiler is an
+  error), ``off`` (always interpreted).
+- ``VINE_NLP_CACHE_DIR``: where libraries are kept (default
+  ``$XDG_CACHE_HOME/vine_nlp`` or ``~/.cache/vine_nlp``).
+- ``CC``, ``VINE_NLP_CFLAGS``: the compiler (default gcc, then cc) and its flags
+  (default ``-O1``).
+
+Notes go to the ``vine_nlp`` logger: compiling (INFO, shown by the command line)
+and falling back to interpreted functions (WARNING, once per process).
+"""
+
+from __future__ import annotations
+
+import fcntl
+import hashlib
+import logging
+import os
+import shlex
+import shutil
+import subprocess
+import tempfile
+import time
+from functools import lru_cache
+from pathlib import Path
+
+from vine_nlp.errors import InputError
+
+__all__ = ["mode", "cache_dir", "compiler", "nlpsol", "stored", "CompileError", "stats"]
+
+_log = logging.getLogger("vine_nlp.design.compiled")
+
+# the functions IPOPT's interface asks an imported NLP for, by the names CasADi expects
+_NAMES = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_grad", "nlp_jac_g")
+MODES = ("auto", "on", "off")
+DEFAULT_MODE = "auto"
+
+# what happened in this process: loads from the cache, compilations, interpreted builds
+stats = {"loaded": 0, "compiled": 0, "interpreted": 0, "compile_time_s": 0.0}
+_warned: set[str] = set()
+
+
+class CompileError(RuntimeError):
+    """VINE_NLP_CODEGEN=on and the NLP functions could not be compiled or loaded."""
+
+
+def mode() -> str:
+    """The codegen setting: ``auto``, ``on`` or ``off`` (raises InputError on anything else)."""
+    m = os.environ.get("VINE_NLP_CODEGEN", DEFAULT_MODE).strip().lower() or DEFAULT_MODE
+    if m not in MODES:
+        raise InputError("environment", "VINE_NLP_CODEGEN", f"expected one of {', '.join(MODES)}, got {m!r}")
+    return m
+
+
+def cache_dir() -> Path:
+    d = os.environ.get("VINE_NLP_CACHE_DIR")
+    if d:
+        return Path(d)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "vine_nlp"
+
+
+def compiler() -> list[str] | None:
+    """The C compiler command with its flags, or None where none is found."""
+    cc = os.environ.get("CC")
+    exe = shutil.which(cc) if cc else (shutil.which("gcc") or shutil.which("cc"))
+    if not exe:
+        return None
+    return [exe, *shlex.split(os.environ.get("VINE_NLP_CFLAGS", "-O1"))]
+
+
+@lru_cache(maxsize=1)
+def _code_fingerprint() -> str:
+    """The source of the layers whose formulas end up in the generated code."""
+    h = hashlib.sha256()
+    root = Path(__file__).resolve().parents[1]
+    for sub in ("model", "design"):
+        for f in sorted((root / sub).rglob("*.py")):
+            h.update(str(f.relative_to(root)).encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+def _key(spec_text: str, cc: list[str]) -> str | None:
+    import casadi as ca  # CasADi loads where code is built: the command line checks settings without it
+    # a repr that shows an address or numpy's elision does not describe the code: no disk cache
+    if " at 0x" in spec_text or "..." in spec_text:
+        return None
+    h = hashlib.sha256()
+    for part in (ca.__version__, _code_fingerprint(), " ".join(cc[1:]), os.path.basename(cc[0]), spec_text):
+        h.update(part.encode())
+        h.update(b"\0")
+    return h.hexdigest()[:40]
+
+
+def _warn_once(text: str) -> None:
+    if text not in _warned:
+        _warned.add(text)
+        _log.warning(text)
+
+
+def _fallback(text: str, strict: bool):
+    if strict:
+        raise CompileError(text)
+    _warn_once(text + ": the NLP functions run interpreted (slower)")
+    stats["interpreted"] += 1
+    return None
+
+
+def library(spec_text: str, build_functions) -> str | None:
+    """Path of the compiled library for a solver, compiling it first where needed.
+
+    ``build_functions()`` returns the CasADi functions to compile (called only on a
+    cache miss). None: run interpreted (codegen off, no compiler, or it failed).
+    """
+    import casadi as ca
+
+    m = mode()
+    if m == "off":
+        stats["interpreted"] += 1
+        return None
+    strict = m == "on"
+    cc = compiler()
+    if cc is None:
+        return _fallback("no C compiler found (gcc or cc; set CC)", strict)
+    key = _key(spec_text, cc)
+    if key is None:
+        stats["interpreted"] += 1
+        return None
+    target = cache_dir() / f"casadi-{ca.__version__}" / f"nlp-{key}.so"
+    if target.is_file():
+        stats["loaded"] += 1
+        return str(target)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        lock = open(target.with_suffix(".lock"), "a")
+    except OSError as e:
+        return _fallback(f"cannot write the code cache {target.parent} ({e.strerror or e})", strict)
+    with lock:
+        # one compile per structure: a second process (a sweep's other worker) waits, then loads
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if target.is_file():
+            stats["loaded"] += 1
+            return str(target)
+        return _compile(target, build_functions, cc, strict)
+
+
+def _compile(target: Path, build_functions, cc: list[str], strict: bool) -> str | None:
+    import casadi as ca
+
+    try:
+        work = tempfile.mkdtemp(prefix=".build-", dir=target.parent)
+    except OSError as e:
+        return _fallback(f"cannot write the code cache {target.parent} ({e.strerror or e})", strict)
+    try:
+        t0 = time.perf_counter()
+        _log.info("compiling the NLP functions for this structure (once; cached in %s)", target.parent)
+        cg = ca.CodeGenerator("nlp.c", {"with_header": False})
+        for f in build_functions():
+            cg.add(f)
+        cg.generate(work + os.sep)
+        tmp = os.path.join(work, target.name)
+        run = subprocess.run([*cc, "-shared", "-fPIC", os.path.join(work, "nlp.c"), "-o", tmp, "-lm"],
+                             capture_output=True, text=True)
+        if run.returncode != 0:
+            first = (run.stderr.strip().splitlines() or ["no message"])[0]
+            return _fallback(f"the C compiler failed ({first})", strict)
+        os.replace(tmp, target)
+        stats["compiled"] += 1
+        stats["compile_time_s"] += time.perf_counter() - t0
+        return str(target)
+    except OSError as e:
+        return _fallback(f"cannot compile into {target.parent} ({e.strerror or e})", strict)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def stored(name: str, build) -> list:
+    """CasADi functions kept serialized in the cache directory: reading them back takes
+    milliseconds where building the segment's SX expressions takes tens (a command's start-up).
+
+    ``build()`` returns the functions; it runs where codegen is off, on a miss, or when the
+    stored copy does not match its checksum (then it is written again)."""
+    import casadi as ca
+
+    if mode() == "off":
+        return build()
+    path = cache_dir() / f"casadi-{ca.__version__}" / f"{name}-{_code_fingerprint()[:24]}.casadi"
+    try:
+        blob = path.read_bytes()
+        digest, body = blob[:64], blob[64:]
+        if hashlib.sha256(body).hexdigest().encode() == digest:
+            return [ca.Function.deserialize(part.decode()) for part in body.split(b"\0")]
+    except (OSError, RuntimeError, UnicodeDecodeError):
+        pass
+    functions = build()
+    body = b"\0".join(f.serialize().encode() for f in functions)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}")
+        tmp.write_bytes(hashlib.sha256(body).hexdigest().encode() + body)
+        os.replace(tmp, path)
+    except OSError:
+        pass  # no cache: built again next time
+    return functions
+
+
+def oracle_functions(nlp: dict, interpreted):
+    """The functions an imported NLP needs, named as CasADi's IPOPT interface asks for them:
+    the oracle itself and the interpreted solver's derivative functions."""
+    import casadi as ca
+    out = [ca.Function("nlp", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"]], ["x", "p"], ["f", "g"])]
+    out += [interpreted.get_function(n) for n in _NAMES]
+    h = interpreted.get_function("nlp_hess_l")
+    args = [ca.MX.sym(h.name_in(i), h.sparsity_in(i)) for i in range(h.n_in())]
+    # the importer checks output names: the triangle is named as CasADi's own Hessian factory names it
+    out.append(ca.Function("nlp_hess_l", args, [h(*args)], ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"]))
+    return out
+
+
+def nlpsol(name: str, spec_text: str, nlp, opts: dict, enabled: bool = True):
+    """An IPOPT solver on the compiled functions (``nlp``: a callable building the symbolic
+    problem and the derivative options only when they are needed), or interpreted.
+    ``enabled=False``: a structure that seldom recurs (an active set), not worth a compile."""
+    import casadi as ca
+    derived = {}
+
+    def interpreted():
+        if "solver" not in derived:
+            problem, derivative_opts = nlp()
+            derived["problem"] = problem
+            derived["solver"] = ca.nlpsol(name, "ipopt", problem, dict(opts) | derivative_opts)
+        return derived["solver"]
+
+    def functions():
+        solver = interpreted()
+        return oracle_functions(derived["problem"], solver)
+
+    if not enabled:
+        stats["interpreted"] += 1
+        return interpreted()
+    path = library(spec_text, functions)
+    if path is None:
+        return interpreted()
+    try:
+        return ca.nlpsol(name, "ipopt", path, dict(opts))
+    except RuntimeError as e:
+        if mode() == "on":
+            raise CompileError(f"cannot load {path}: {str(e).splitlines()[0]}") from e
+        _warn_once(f"cannot load {path}: the NLP functions run interpreted (slower)")
+        return interpreted()
