@@ -73,6 +73,7 @@ import math
 import time
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import ClassVar
 
 import casadi as ca
 import numpy as np
@@ -280,6 +281,9 @@ class ObstacleRows:
     S: int
     levels: int = 0
     k: int = MESH_K
+    # large SX blocks: compiling them takes tens of seconds (measured 17-60 s with gcc -O1), more than
+    # the solves they would speed up, so they run interpreted (design.compiled)
+    compile: ClassVar[bool] = False
 
     def apply(self, c: Chain) -> None:
         s, lay = c.s, c.lay
