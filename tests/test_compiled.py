@@ -148,9 +148,8 @@ def test_a_bad_setting_is_one_clear_error(monkeypatch):
 
 
 def test_the_command_line_notes_the_compile_once(codegen, tmp_path, capsys, monkeypatch):
-    from vine_nlp.front.cli import main
-
     from vine_nlp.design.transcription import clear_caches
+    from vine_nlp.front.cli import main
 
     clear_caches()  # solvers built by earlier tests in this process would hide the compile
     monkeypatch.setenv("VINE_NLP_CODEGEN", "auto")
