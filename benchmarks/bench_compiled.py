@@ -1,7 +1,8 @@
 """Compiled NLP functions (design.compiled) against the interpreted ones, measured in the same run.
 
 Writes results/benchmarks/compiled.md.
-Run: python benchmarks/bench_compiled.py [--quick]
+Run: python benchmarks/bench_compiled.py [--quick] [--only calls]
+(--only calls: the whole design call table alone, printed, not written; a few minutes, most of it compiling the trefoil's solvers)
 
 For each case: the same Spec built twice, once interpreted (VINE_NLP_CODEGEN=off) and once
 compiled into a fresh cache (the compile is timed, then a second build loads the library);
@@ -24,6 +25,7 @@ from common import ROOT, table, write_report
 
 from vine_nlp import targets
 from vine_nlp.design import compiled
+from vine_nlp.design import nlp as nlp_module
 from vine_nlp.design.common import geometric_guess, pair_points
 from vine_nlp.design.nlp import design_bounds, design_nlp, nlp_parameters, nlp_spec, start_x
 from vine_nlp.design.problem import DesignOptions, DesignProblem
@@ -85,8 +87,23 @@ def per_iteration(repeat, hessians):
                   "compile, once [s]", "build from cache [s]"], rows)
 
 
+def _calls(pb, repeat):
+    """``repeat`` timed design_nlp calls (solvers built): wall times, IPOPT times, the last Result."""
+    design_nlp(pb)  # builds (and compiles or loads)
+    times, ipopt = [], []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        r = design_nlp(pb)
+        times.append(time.perf_counter() - t0)
+        ipopt.append(r.stats.get("ipopt_time_s", float("nan")))
+    return times, ipopt, r
+
+
 def design_calls(repeat):
-    """``design_nlp`` at the problem's defaults, solvers built: the whole call (guesses, starts, evaluation)."""
+    """``design_nlp`` at the problem's defaults, solvers built: the whole call (guesses, starts, evaluation).
+
+    Then, compiled, the plain NLP's Gauss-Newton IPOPT settings (design.nlp.GN_IPOPT) against
+    ipopt_options alone, the two alternating in blocks of 5 calls (a shared machine drifts)."""
     rows = []
     for name in ["trefoil-m4", "bezier-b"]:
         pb = load_problem(ROOT / "problems" / f"{name}.toml").problem
@@ -94,20 +111,32 @@ def design_calls(repeat):
         for m in ("off", "on"):
             os.environ["VINE_NLP_CODEGEN"] = m
             clear_caches()
-            design_nlp(pb)  # builds (and compiles or loads)
-            times, ipopt = [], []
-            for _ in range(repeat):
-                t0 = time.perf_counter()
-                r = design_nlp(pb)
-                times.append(time.perf_counter() - t0)
-                ipopt.append(r.stats.get("ipopt_time_s", float("nan")))
-            out.append((min(times), statistics.median(times), min(ipopt), r))
-        (a, am, ai, ra), (b, bm, bi, rb) = out
-        rows.append([name, f"{1e3 * a:.1f} ({1e3 * am:.1f})", f"{1e3 * b:.1f} ({1e3 * bm:.1f})", f"{1e3 * ai:.1f}", f"{1e3 * bi:.1f}",
-                     f"{a / b:.2f}x", f"{10 * ra.metrics['rmse']:.4f} / {10 * rb.metrics['rmse']:.4f}"])
+            out.append(_calls(pb, repeat))
+        (a, ai, ra), (b, bi, rb) = out
+        rows.append([name, f"{1e3 * min(a):.1f} ({1e3 * statistics.median(a):.1f})", f"{1e3 * min(b):.1f} ({1e3 * statistics.median(b):.1f})",
+                     f"{1e3 * min(ai):.1f}", f"{1e3 * min(bi):.1f} ({1e3 * statistics.median(bi):.1f})", f"{ra.iterations} / {rb.iterations}",
+                     f"{statistics.median(a) / statistics.median(b):.2f}x", f"{10 * ra.metrics['rmse']:.4f} / {10 * rb.metrics['rmse']:.4f}"])
         print(rows[-1], flush=True)
-    return table(["problem", "design call interpreted, best (median) [ms]", "compiled [ms]", "of it IPOPT, interpreted [ms]",
-                  "IPOPT, compiled [ms]", "speed-up", "RMSE [mm] interp. / compiled"], rows)
+    text = table(["problem", "design call interpreted, best (median) [ms]", "compiled, best (median) [ms]", "of it IPOPT, interpreted [ms]",
+                  "IPOPT, compiled, best (median) [ms]", "iterations interp. / compiled", "speed-up (medians)",
+                  "RMSE [mm] interp. / compiled"], rows)
+
+    os.environ["VINE_NLP_CODEGEN"] = "on"
+    pb = load_problem(ROOT / "problems" / "trefoil-m4.toml").problem
+    variants = {"ipopt_options + GN_IPOPT (default)": dict(nlp_module.GN_IPOPT), "ipopt_options alone": {}}
+    runs = {k: ([], [], None) for k in variants}
+    for _ in range(max(1, repeat // 5)):
+        for k, opts in variants.items():
+            nlp_module.GN_IPOPT = opts
+            times, ipopt, r = _calls(pb, 5)
+            runs[k] = (runs[k][0] + times, runs[k][1] + ipopt, r)
+    nlp_module.GN_IPOPT = variants["ipopt_options + GN_IPOPT (default)"]
+    rows = [[k, f"{1e3 * min(t):.1f}", f"{1e3 * statistics.median(t):.1f}", f"{1e3 * min(i):.1f}", f"{1e3 * statistics.median(i):.1f}",
+             r.iterations, f"{10 * r.metrics['rmse']:.5f}"] for k, (t, i, r) in runs.items()]
+    return text + (f"\n\nTrefoil (m = 4), compiled, {len(runs[k][0])} calls per variant, alternating in blocks of 5; the plain NLP's "
+                   "first solve is Gauss-Newton:\n\n") + table(
+        ["Gauss-Newton IPOPT settings", "design call best [ms]", "median [ms]", "IPOPT best [ms]", "IPOPT median [ms]", "iterations",
+         "RMSE [mm]"], rows)
 
 
 def command_line(repeat):
@@ -158,15 +187,20 @@ def scaling(sizes):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--only", choices=["calls"], help="calls: only the whole design call table, printed (nothing written)")
     a = ap.parse_args()
     repeat = 2 if a.quick else 5
     cache = tempfile.mkdtemp(prefix="vine_nlp-bench-cache-")
     os.environ["VINE_NLP_CACHE_DIR"] = cache
     cc = compiled.compiler()
     load = os.getloadavg()
+    if a.only == "calls":
+        text = design_calls(20 if a.quick else 40)
+        print(f"\n{text}\n\nLoad average before {load[0]:.2f}, after {os.getloadavg()[0]:.2f}.")
+        return
     blocks = [
         "### Time per IPOPT iteration, interpreted against compiled\n\n" + per_iteration(repeat, ["gauss-newton", "exact"] if not a.quick else ["exact"]),
-        "### The whole design call at the defaults (solvers built)\n\n" + design_calls(3 * repeat),
+        "### The whole design call at the defaults (solvers built)\n\n" + design_calls(20 if a.quick else 40),
         "### The command line, from command start to archive\n\n" + command_line(repeat),
         "### Scaling with the segment count (trefoil, one point per segment, default settings)\n\n" + scaling([100, 400, 1600] if not a.quick else [100, 400]),
     ]

@@ -13,7 +13,9 @@ Also: command start to archive for trefoil, multishape-spam and tip-target (whol
 objective and RMSE of the archived design (the design quality the timing must not trade away). The
 machine's load average is recorded before and after: the machine may be shared, so IPOPT's time is taken
 as the CPU time of each solve by default (``--clock wall``: elapsed time, as IPOPT's stats report it), and
-the commands' CPU time (user + system) is given beside their elapsed time.
+the commands' CPU time (user + system) is given beside their elapsed time. Each row also gives the share of
+IPOPT's time spent in the NLP's functions (the rest is IPOPT's own, mostly the KKT factorization), and the report
+says whether the NLP functions ran compiled (VINE_NLP_CODEGEN).
 Writes results/benchmarks/transcription.md. Run: python benchmarks/bench_transcription.py [--repeat 3]
 """
 
@@ -34,7 +36,7 @@ import numpy as np
 from common import ROOT, table, write_report
 
 from vine_nlp import targets
-from vine_nlp.design import transcription
+from vine_nlp.design import compiled, transcription
 from vine_nlp.design.clearance import design_with_clearance
 from vine_nlp.design.multishape import design_multishape
 from vine_nlp.design.nlp import design_nlp
@@ -49,28 +51,45 @@ from vine_nlp.model.routing import Sigmas
 SIGMAS = Sigmas.from_degrees(1.0, 0.02, 0.02)
 
 
-def cpu_clock() -> None:
-    """IPOPT's time as the CPU time of each solve: on a shared machine, waiting for a core is not the solver's cost."""
+# CPU seconds IPOPT spent in the NLP's functions (objective, rows, their derivatives), summed over solves;
+# the rest of its time is its own: mostly factorizing the KKT matrix
+FUNCTIONS = [0.0]
+
+
+def cpu_clock(cpu: bool) -> None:
+    """IPOPT's time as the CPU time of each solve (``cpu``: on a shared machine, waiting for a core is not the
+    solver's cost), and the time in the NLP's functions (CasADi's per-function CPU timers) added to FUNCTIONS."""
     solve = transcription.Solver.solve
 
     def timed(self, *a, **kw):
         t = time.process_time()
         x, status, st = solve(self, *a, **kw)
-        st["ipopt_time_s"] = time.process_time() - t
+        if cpu:
+            st["ipopt_time_s"] = time.process_time() - t
+        FUNCTIONS[0] += sum(v for k, v in self.nlpsol.stats().items() if k.startswith("t_proc_nlp_"))
         return x, status, st
 
     transcription.Solver.solve = timed
 
 
-def per_iteration(run, repeat):
-    """(median ms per IPOPT iteration, iterations, result): the solvers built by a first call, then ``repeat``
-    timed calls; IPOPT's time and iterations summed over every solve of the call (clearance: its rounds)."""
+def function_share(run):
+    """(result of ``run()``, the share of its IPOPT time spent in the NLP's functions)."""
+    FUNCTIONS[0] = 0.0
     r = run()
-    times = []
+    return r, FUNCTIONS[0] / max(r.stats["ipopt_time_s"], 1e-12)
+
+
+def per_iteration(run, repeat):
+    """(median ms per IPOPT iteration, iterations, result, median share in the NLP's functions): the solvers built
+    by a first call, then ``repeat`` timed calls; IPOPT's time and iterations summed over every solve of the call
+    (clearance: its rounds)."""
+    r = run()
+    times, shares = [], []
     for _ in range(repeat):
-        r = run()
-        times.append(r.stats["ipopt_time_s"] / max(r.stats.get("ipopt_iterations", r.iterations), 1))
-    return 1e3 * statistics.median(times), r.stats.get("ipopt_iterations", r.iterations), r
+        r, share = function_share(run)
+        times.append(ms_per_iteration(r))
+        shares.append(share)
+    return statistics.median(times), r.stats.get("ipopt_iterations", r.iterations), r, statistics.median(shares)
 
 
 def ms_per_iteration(r) -> float:
@@ -78,17 +97,19 @@ def ms_per_iteration(r) -> float:
 
 
 def paired(run, base, repeat):
-    """(median ms per iteration of ``run``, iterations, result, median ratio to ``base``): each timed call of
-    ``run`` right after one of its plain NLP ``base``, so a shared machine's changing load hits both alike."""
+    """(median ms per iteration of ``run``, iterations, result, median ratio to ``base``, median share in the NLP's
+    functions): each timed call of ``run`` right after one of its plain NLP ``base``, so a shared machine's changing
+    load hits both alike."""
     r = run()
     base()
-    times, ratios = [], []
+    times, ratios, shares = [], [], []
     for _ in range(repeat):
         b = base()
-        r = run()
+        r, share = function_share(run)
         times.append(ms_per_iteration(r))
         ratios.append(times[-1] / ms_per_iteration(b))
-    return statistics.median(times), r.stats.get("ipopt_iterations", r.iterations), r, statistics.median(ratios)
+        shares.append(share)
+    return statistics.median(times), r.stats.get("ipopt_iterations", r.iterations), r, statistics.median(ratios), statistics.median(shares)
 
 
 class Rows(list):
@@ -121,55 +142,58 @@ def quality(r):
     return f"{r.stats['objective']:.6g}"
 
 
+def pct(share: float) -> str:
+    return f"{100 * share:.0f} %"
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--clock", choices=("cpu", "wall"), default="cpu", help="IPOPT's time: CPU time of each solve, or elapsed")
     args = ap.parse_args()
-    if args.clock == "cpu":
-        cpu_clock()
+    cpu_clock(args.clock == "cpu")
     rep = args.repeat
     rows = Rows()
     load0 = os.getloadavg()
 
     tre = exact(load_problem(ROOT / "problems/trefoil-m4.toml").problem)
-    base_ms, base_it, base = per_iteration(lambda: design_nlp(tre), rep)
-    rows.append(("nlp (exact Hessian)", "trefoil, M = 40, n = 10", f"{base_ms:.2f}", base_it, quality(base), "1.00"))
+    base_ms, base_it, base, sh = per_iteration(lambda: design_nlp(tre), rep)
+    rows.append(("nlp (exact Hessian)", "trefoil, M = 40, n = 10", f"{base_ms:.2f}", base_it, quality(base), pct(sh), "1.00"))
     gn = dataclasses.replace(tre, options=dataclasses.replace(tre.options, hessian="gauss-newton"))
     plain = lambda: design_nlp(tre)  # noqa: E731
-    ms, it, r, ratio = paired(lambda: design_nlp(gn), plain, rep)
-    rows.append(("nlp (Gauss-Newton)", "trefoil", f"{ms:.2f}", it, quality(r), f"{ratio:.2f}"))
+    ms, it, r, ratio, sh = paired(lambda: design_nlp(gn), plain, rep)
+    rows.append(("nlp (Gauss-Newton)", "trefoil", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))
 
     spam = dataclasses.replace(tre, actuator=Actuator("spam", tre.actuator.lambda_min, tre.actuator.theta_max))
-    spam_ms, it, r = per_iteration(lambda: design_nlp(spam), rep)
-    rows.append(("nlp, sPAM", "trefoil", f"{spam_ms:.2f}", it, quality(r), "1.00"))
+    spam_ms, it, r, sh = per_iteration(lambda: design_nlp(spam), rep)
+    rows.append(("nlp, sPAM", "trefoil", f"{spam_ms:.2f}", it, quality(r), pct(sh), "1.00"))
     ms1 = MultiShapeProblem(tre.name, tre.diameter, [tre.target], [None], spam.actuator, spam.options)
-    ms, it, r, ratio = paired(lambda: design_multishape(ms1, starts=1), lambda: design_nlp(spam), rep)
-    rows.append(("multishape, K = 1", "trefoil, sPAM", f"{ms:.2f}", it, quality(r), f"{ratio:.2f} (vs sPAM nlp)"))
+    ms, it, r, ratio, sh = paired(lambda: design_multishape(ms1, starts=1), lambda: design_nlp(spam), rep)
+    rows.append(("multishape, K = 1", "trefoil, sPAM", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f} (vs sPAM nlp)"))
 
     # clearance: a helix whose turns are closer than D (the tube following it would collide)
     coil = DesignProblem("tight-helix", 2.0, targets.helix(radius=3.0, pitch=0.25, length=50.0, samples=101),
                          actuator=Actuator("tendon", 0.4), options=dataclasses.replace(tre.options, points_per_segment=5))
-    coil_ms, it, free = per_iteration(lambda: design_nlp(coil), rep)
-    rows.append(("nlp (exact Hessian)", "tight helix, M = 20, n = 5", f"{coil_ms:.2f}", it, quality(free), "1.00"))
-    ms, it, r, ratio = paired(lambda: design_with_clearance(coil, start=free), lambda: design_nlp(coil), rep)
+    coil_ms, it, free, sh = per_iteration(lambda: design_nlp(coil), rep)
+    rows.append(("nlp (exact Hessian)", "tight helix, M = 20, n = 5", f"{coil_ms:.2f}", it, quality(free), pct(sh), "1.00"))
+    ms, it, r, ratio, sh = paired(lambda: design_with_clearance(coil, start=free), lambda: design_nlp(coil), rep)
     rows.append(("clearance", f"tight helix ({r.stats['clearance_pairs']} pairs, {r.stats['clearance_rounds']} solves, "
-                 f"min clearance {r.stats['min_clearance']:.5f} D)", f"{ms:.2f}", it, quality(r), f"{ratio:.2f}"))
+                 f"min clearance {r.stats['min_clearance']:.5f} D)", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))
 
-    ms, it, r, ratio = paired(lambda: design_robust(tre, SIGMAS, start=base), plain, rep)
-    rows.append(("robust", "trefoil", f"{ms:.2f}", it, quality(r), f"{ratio:.2f}"))
+    ms, it, r, ratio, sh = paired(lambda: design_robust(tre, SIGMAS, start=base), plain, rep)
+    rows.append(("robust", "trefoil", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))
     bez = exact(load_problem(ROOT / "problems/bezier-b.toml").problem)
-    bez_ms, bez_it, bez_base = per_iteration(lambda: design_nlp(bez), rep)
-    rows.append(("nlp (exact Hessian)", "Bezier (b)", f"{bez_ms:.2f}", bez_it, quality(bez_base), "1.00"))
-    ms, it, r, ratio = paired(lambda: design_robust(bez, SIGMAS, start=bez_base), lambda: design_nlp(bez), rep)
-    rows.append(("robust", "Bezier (b)", f"{ms:.2f}", it, quality(r), f"{ratio:.2f}"))
+    bez_ms, bez_it, bez_base, sh = per_iteration(lambda: design_nlp(bez), rep)
+    rows.append(("nlp (exact Hessian)", "Bezier (b)", f"{bez_ms:.2f}", bez_it, quality(bez_base), pct(sh), "1.00"))
+    ms, it, r, ratio, sh = paired(lambda: design_robust(bez, SIGMAS, start=bez_base), lambda: design_nlp(bez), rep)
+    rows.append(("robust", "Bezier (b)", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))
 
     end = chain_frames(base.routing.theta, base.routing.lam, base.routing.length, tre.diameter, base.routing.initial_pose)
     T0 = end[0]
     tip = TipProblem("tip", tre.diameter, end[-1][:3, 3], float(base.routing.length.sum()), base.routing.segments,
                      direction=end[-1][:3, 0], initial_pose=T0, actuator=tre.actuator, options=tre.options)
-    ms, it, r, ratio = paired(lambda: design_tip(tip, starts=1), plain, rep)
-    rows.append(("tip", f"trefoil's tip, M = 40 ({r.status})", f"{ms:.2f}", it, quality(r), f"{ratio:.2f}"))
+    ms, it, r, ratio, sh = paired(lambda: design_tip(tip, starts=1), plain, rep)
+    rows.append(("tip", f"trefoil's tip, M = 40 ({r.status})", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))
 
     names = ("trefoil-m4", "multishape-spam", "tip-target")
     runs = [[command_time(ROOT / f"problems/{p}.toml") for p in names] for _ in range(rep)]  # the three in turn, each round
@@ -187,9 +211,13 @@ def main():
         "derivatives. Median over the timed calls of (IPOPT time / IPOPT iterations), the solvers already built, same "
         f"start (clearance: summed over its active-set solves; IPOPT's time: {args.clock} clock); ratio: the median over the "
         "timed calls of the ratio to the plain NLP on the same target and structure, timed right before each call. Goals: "
-        "<= 1.5x (robust <= 4x). Objective: the design's (units of D^2; the tip's: actuation and tie-break).",
-        load,
-        table(("formulation", "target", "ms / iteration", "iterations", "objective", "ratio"), rows),
+        "<= 1.5x (robust <= 4x). Objective: the design's (units of D^2; the tip's: actuation and tie-break). In functions: "
+        "the share of IPOPT's time spent in the NLP's functions (objective, rows, their derivatives; CasADi's CPU timers), "
+        "the rest is IPOPT's own, mostly factorizing the KKT matrix (clearance pairs couple segments a turn apart: "
+        "a much denser factor than the banded chain's).",
+        f"NLP functions: VINE_NLP_CODEGEN={compiled.mode()} (clearance, whose active set changes the structure, always "
+        "interpreted). " + load,
+        table(("formulation", "target", "ms / iteration", "iterations", "objective", "in functions", "ratio"), rows),
         "Command start to archive (`vine-nlp design P.toml`, whole process; the three commands in turn, "
         f"{rep} rounds, medians of the times and of the per-round ratios; goal: multishape and tip <= 2x the trefoil), "
         "with the archived design's objective and RMSE "

@@ -13,11 +13,14 @@ import pytest
 from vine_nlp.design import correct as C
 from vine_nlp.design.calibrate import Calibration, realized_of
 from vine_nlp.design.common import evaluate, pair_points
+from vine_nlp.design.transcription import frames12
 from vine_nlp.front.cli import main
 from vine_nlp.io.calibration import read_calibration
 from vine_nlp.io.correction import read_correction
 from vine_nlp.io.problem_file import load_problem
+from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.routing import Routing, Sigmas
+from vine_nlp.model.segment import so3_exp
 
 PROBLEM = """name = "small-trefoil"
 units = "cm"
@@ -423,3 +426,60 @@ def test_tampered_correction_archive_is_one_line(setup, tmp_path, capsys):
         del h5["correction/builds/0/lambda"]
     _fails(capsys, ["correct", str(bad), str(setup["dir"] / "m1.csv"), "-o", str(out)], out, "/correction/builds/0: missing lambda")
     _fails(capsys, ["calibrate", str(setup["dir"] / "c1.h5"), "-o", str(tmp_path / "cal.txt")], tmp_path / "cal.txt", ".toml")
+
+
+@pytest.mark.parametrize("free", [False, True])
+def test_measure_slot_is_the_point_to_line_residual_of_the_model(free):
+    # one slot of the estimate's NLP: the numpy model's line point at (segment, fraction), minus the measured
+    # point (moved by the rigid transform when free), with the tangent projected out, times the weight
+    rng = np.random.default_rng(4)
+    M = 5
+    r = Routing(rng.uniform(-0.6, 0.6, M), rng.uniform(0.4, 1.0, M), rng.uniform(1.0, 3.0, M), np.eye(4))
+    bt = C.measure_block(free)
+    shift = np.array([0.03, -0.02, 1.05])  # an earlier build: its theta and lambda shifted, its lengths scaled
+    built = Routing(r.theta + shift[0], r.lam + shift[1], r.length * shift[2], np.eye(4))
+    w_rot, t_move, c = np.array([0.1, -0.2, 0.05]), np.array([0.3, 0.1, -0.2]), np.array([1.0, 2.0, 0.5])
+    for j, u, side in ((0, 0.0, -0.5), (2, 0.4, 0.5), (4, 1.0, 0.0)):
+        m, t = rng.normal(size=3), rng.normal(size=3)
+        t /= np.linalg.norm(t)
+        P, _ = C._line_points(built, 1.0, [j], [u], side)
+        X = frames12(chain_frames(built.theta, built.lam, built.length, 1.0))[:, j]
+        v = np.r_[X, r.theta[j], r.lam[j], r.length[j]]
+        d = np.r_[shift, u, m, t, 0.7, side]
+        mm = m
+        if free:
+            v = np.r_[v, w_rot, t_move]
+            d = np.r_[d, c, 1.0]
+            mm = so3_exp(w_rot) @ (m - c) + c + t_move
+        e = P[0] - mm
+        want = 0.7 * (e - t * np.dot(t, e))
+        np.testing.assert_allclose(np.array(bt.residual(v, d)).ravel(), want, atol=1e-12)
+        assert float(bt.fn(v, d)[0]) == pytest.approx(np.sum(want**2), rel=1e-12)
+
+
+def test_estimate_compiles_once_and_takes_the_interpreted_steps(setup, monkeypatch, tmp_path):
+    # the ICP pairing is data: one structure serves every round, so the estimate compiles once, and its
+    # compiled functions give the interpreted estimate
+    from vine_nlp.design import compiled
+    from vine_nlp.design.transcription import get_solver
+
+    get_solver.cache_clear()  # built solvers are cached per structure, whatever the mode they were built in
+    monkeypatch.setenv("VINE_NLP_CODEGEN", "on")
+    monkeypatch.setenv("VINE_NLP_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("VINE_NLP_CFLAGS", "-O0")
+    if compiled.compiler() is None:
+        pytest.skip("no C compiler on this machine")
+    problem, nominal = setup["problem"], setup["nominal"]
+    pts = C.simulate_build(nominal, setup["dev"], problem.diameter, "outer", 60, NOISE, seed=9)
+    run = dict(nominals=[nominal], measurements=[C.Measurement(pts, "outer")], D=problem.diameter, sigmas=SIGMAS,
+               measurement_sigma=NOISE)
+    before = dict(compiled.stats)
+    fast = C.estimate_as_built(**run)
+    assert fast.rounds > 1
+    assert compiled.stats["compiled"] == before["compiled"] + 1
+    monkeypatch.setenv("VINE_NLP_CODEGEN", "off")
+    get_solver.cache_clear()  # the interpreted solver of the same structure
+    slow = C.estimate_as_built(**run)
+    assert (fast.iterations, fast.rounds) == (slow.iterations, slow.rounds)
+    for a, b in ((fast.routing.theta, slow.routing.theta), (fast.routing.lam, slow.routing.lam), (fast.std, slow.std)):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-8)

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from holdpoint import finish, hold_env, release, spawn, wait_for_claim, wait_for_marker
+from texts import TINY_TREFOIL
 
 from vine_nlp.errors import InputError
 from vine_nlp.front import sweep as sw
@@ -28,22 +29,7 @@ from vine_nlp.io.problem_file import load_sweep
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEM = ROOT / "problems/bezier-c.toml"
 
-BASE = """\
-name = "tiny-trefoil"
-units = "cm"
-[tube]
-diameter = 2.43
-[target]
-curve = "trefoil"
-scale = [4.0, 4.0, 4.0]
-samples = 41
-[actuator]
-kind = "tendon"
-lambda_min = 0.4
-theta_max_deg = 60.0
-[design]
-points_per_segment = 5
-"""
+BASE = TINY_TREFOIL
 
 
 def _sweep_file(folder: Path, count: int = 4) -> Path:

@@ -187,3 +187,18 @@ def test_basin_hopping_lowers_the_objective_on_a_corner_target():
     # deterministic for a seed
     again = design_nlp(pb, hops=6)
     np.testing.assert_array_equal(again.routing.theta, hopped.routing.theta)
+
+
+def test_guess_vector_helpers_give_numpys_bits():
+    """geometric_guess's scalar 3-vector helpers round exactly as the numpy calls they replace: the guess must
+    not move in its last bit (IPOPT's path from it would)."""
+    from vine_nlp.design.common import _cross3, _reject, _unit, _unit3
+
+    rng = np.random.default_rng(7)
+    for scale in (1e-9, 1.0, 1e4):
+        for _ in range(2000):
+            a, b = rng.normal(size=3) * scale, rng.normal(size=3)
+            assert np.array_equal(_cross3(a, b), np.cross(a, b))
+            assert np.array_equal(_unit3(_reject(a, b)), _unit(a - np.dot(a, b) * b))
+            assert np.array_equal(_unit3(a.tolist()), _unit(a))
+    assert np.array_equal(_unit3([0.0, 0.0, 0.0]), _unit(np.zeros(3)))  # no direction: left as it is

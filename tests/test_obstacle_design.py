@@ -301,3 +301,51 @@ def test_the_command_line_designs_a_tip_problem_among_its_obstacles(tmp_path, ca
     assert run.metrics["min_obstacle_gap"] >= need
     points = sample_chain(run.routing, pb.diameter, 20)["points"]
     assert float(min_gap(points, pb.diameter, list(pb.obstacles)).min()) >= need
+
+
+def test_the_pushed_target_clears_and_goes_to_one_side():
+    """pushed_target: a line through a sphere (off its center, and dead center) is moved across itself to ONE
+    side until every point clears; points already clear do not move; a run along a cylinder (a circle round
+    it) moves each point straight out."""
+    from vine_nlp.design.obstacles import pushed_target
+
+    x = np.linspace(-6.0, 6.0, 121)
+    need = 1.2
+    for off in (0.3, 0.0):
+        line = np.column_stack([x, np.full_like(x, off), np.zeros_like(x)])
+        ob = Sphere((0.0, 0.0, 0.0), 1.0)
+        out = pushed_target(line, [ob], need)
+        d = np.asarray(ob.distance(out), float)
+        assert d.min() >= need - 1e-3
+        moved = np.linalg.norm(out - line, axis=1) > 0
+        np.testing.assert_array_equal(out[~moved], line[~moved])
+        assert moved.sum() > 0 and np.all(np.abs(out[moved, 0] - line[moved, 0]) < 1e-9)  # across the line only
+        side = (out - line)[moved, 1:] / np.linalg.norm((out - line)[moved, 1:], axis=1, keepdims=True)
+        np.testing.assert_allclose(side, np.broadcast_to(side[0], side.shape), atol=1e-9)  # one side
+        if off > 0:
+            assert side[0, 0] > 0.99  # the side the line already passes on
+    a = np.linspace(0.0, 2 * np.pi, 73)
+    ring = np.column_stack([1.5 * np.cos(a), 1.5 * np.sin(a), np.zeros_like(a)])
+    cyl = Capsule((0.0, 0.0, -5.0), (0.0, 0.0, 5.0), 1.0)
+    out = pushed_target(ring, [cyl], 2.0)
+    np.testing.assert_allclose(np.linalg.norm(out[:, :2], axis=1), 3.0, atol=1e-3)
+    np.testing.assert_allclose(out[:, :2] / 3.0, ring[:, :2] / 1.5, atol=0.03)  # straight out (ends: one-sided tangents)
+
+
+def test_rows_only_on_segments_near_the_obstacles(free):
+    """A segment far from every obstacle carries no obstacle rows (no block column), one near carries one slot
+    per primitive near it, and a mesh block covers only the columns the tube can reach within a solve."""
+    from vine_nlp.design.obstacles import Plan
+
+    r = free.routing
+    near, far = PRIMITIVES["sphere"], Sphere((0.0, 30.0, 0.0), 1.0)
+    plan = Plan([near, far], D, MARGIN, "while-actuated", r.length, DesignProblem("t", D, TARGET).actuator)
+    data = plan.data(r)
+    pts = plan.sample_points(r, 1.0)
+    slack = (np.asarray(near.distance(pts.reshape(-1, 3)), float).reshape(r.segments, -1).min(axis=1)
+             - plan.need(near, r.length / D))
+    expect = (slack < 1.0 + 0.5 * r.length / D).astype(int)  # ACTIVE_REACH + REACH_DL dl_j
+    assert 0 < expect.sum() < r.segments
+    np.testing.assert_array_equal(plan.col_slots, expect)
+    assert set(data) == {"obstacle_prims_1"} and data["obstacle_prims_1"].shape[1] == expect.sum()
+    assert plan.term.slots == tuple(expect.tolist())

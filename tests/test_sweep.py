@@ -7,6 +7,7 @@ import dataclasses
 import os
 
 import pytest
+from texts import TINY_TREFOIL
 
 import vine_nlp.design
 from vine_nlp.errors import InputError
@@ -14,23 +15,7 @@ from vine_nlp.front import sweep as sw
 from vine_nlp.io.archive import load_archive
 from vine_nlp.io.problem_file import ProblemFile, load_sweep
 
-BASE = """\
-name = "tiny-trefoil"
-units = "cm"
-[tube]
-diameter = 2.43
-[target]
-curve = "trefoil"
-scale = [4.0, 4.0, 4.0]
-samples = 41
-[actuator]
-kind = "tendon"
-lambda_min = 0.4
-theta_max_deg = 60.0
-[design]
-points_per_segment = 5
-hessian = "exact"  # one solver variant per worker: the build count below is exact
-"""
+BASE = TINY_TREFOIL + 'hessian = "exact"  # one solver variant per worker: the build count below is exact\n'
 
 COLUMNS = ["item", "target.scale.0", "target.scale.1", "method", "status", "rmse", "max_error", "solve_time_s"]
 

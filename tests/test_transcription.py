@@ -50,7 +50,7 @@ def test_separable_derivatives_equal_casadi_automatic_ones(name):
     rng = np.random.default_rng(len(name))
     nx, npar, ng = s.layout.size, s.nlpsol.size_in("p")[0], s.nlpsol.size_out("g")[0]
     x, p, lam_g = rng.normal(size=nx) * 0.5, rng.uniform(0.1, 1.0, npar), rng.normal(size=ng)
-    if "R0g" in s._param_order:  # the guess rotations must be rotations
+    if "R0g" in s._param_shapes:  # the guess rotations must be rotations
         sl = s.param_slice("R0g")
         p[sl] = np.concatenate([Rotation.random(random_state=k).as_matrix().ravel(order="F") for k in range((sl.stop - sl.start) // 9)])
     J_auto, H_auto = (np.array(v) for v in _automatic(s)(x, p, 0.7, lam_g))

@@ -64,8 +64,25 @@ def _perpendicular(t):
     return _unit(a - np.dot(a, t) * t)
 
 
-def _signed_angle(a, b, axis):
-    return math.atan2(float(np.dot(np.cross(a, b), axis)), float(np.dot(a, b)))
+def _reject(v: np.ndarray, axis: np.ndarray) -> list:
+    """v minus its component along ``axis`` as floats, as ``v - np.dot(v, axis) * axis`` rounds it."""
+    d = float(np.dot(v, axis))
+    return [x - d * a for x, a in zip(v.tolist(), axis.tolist())]
+
+
+def _unit3(v: list) -> np.ndarray:
+    """``_unit`` of one 3-vector given as floats, bit-identical (norm's sum of squares runs left to right)."""
+    x, y, z = v
+    n = math.sqrt(x * x + y * y + z * z)
+    if not n > 0:
+        n = 1.0
+    return np.array([x / n, y / n, z / n])
+
+
+def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """np.cross of two 3-vectors, written out (the same products and differences, so the same bits)."""
+    (a0, a1, a2), (b0, b1, b2) = a.tolist(), b.tolist()
+    return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
 
 
 @dataclass
@@ -110,13 +127,18 @@ def geometric_guess(problem: DesignProblem, pairing: Pairing, flip_sign: float =
         if straight[j]:
             normal[j] = _perpendicular(tmid[j]) if last is None else _unit(last - np.dot(last, tmid[j]) * tmid[j])
         last = normal[j]
-    # torsion: rotation of the bending direction about the tangent from one segment middle to the next
+    # torsion: rotation of the bending direction about the tangent from one segment middle to the next.
+    # The loops below work on 3-vectors one at a time: in Python floats (IEEE doubles, one rounding per
+    # operation, the order numpy uses: bit-identical to np.cross and to np.linalg.norm(v, axis=-1)), and
+    # np.dot for dot products (its BLAS kernel may fuse multiply-adds: only np.dot itself gives its bits).
+    # The guess must not change in its last bit: IPOPT's path from it does (79 or 1217 iterations on
+    # obstacle-mesh).
     psi = np.zeros(M + 1)
     for j in range(M - 1):
         axis = tangent[b[j + 1]]
-        n0 = _unit(normal[j] - np.dot(normal[j], axis) * axis)
-        n1 = _unit(normal[j + 1] - np.dot(normal[j + 1], axis) * axis)
-        ang = _signed_angle(n0, n1, axis)
+        n0 = _unit3(_reject(normal[j], axis))
+        n1 = _unit3(_reject(normal[j + 1], axis))
+        ang = math.atan2(float(np.dot(_cross3(n0, n1), axis)), float(np.dot(n0, n1)))
         if abs(ang) > 0.8 * math.pi:
             # a near-reversal: the sign is arbitrary for planar targets, so choose it
             ang = flip_sign * abs(ang)
@@ -129,13 +151,18 @@ def geometric_guess(problem: DesignProblem, pairing: Pairing, flip_sign: float =
     theta, lam, length = clip_to_bounds(theta, lam, length, problem, pairing)
     # frames at the segment ends, on the target: normal rotated back from the segment middle
     frames = np.zeros((M + 1, 4, 4))
+    t_end = tangent[b]
+    n_end = np.empty((M + 1, 3))
     for j in range(M + 1):
-        t = tangent[b[j]]
-        nn = normal[min(j, M - 1)]
-        nn = _unit(nn - np.dot(nn, t) * t)
-        if np.linalg.norm(nn) < 0.5:
-            nn = _perpendicular(t)
-        frames[j, :3, 0], frames[j, :3, 1], frames[j, :3, 2] = t, nn, np.cross(t, nn)
-        frames[j, :3, 3] = tgt[b[j]]
-        frames[j, 3, 3] = 1.0
+        t = t_end[j]
+        nn = _unit3(_reject(normal[min(j, M - 1)], t))
+        n_end[j] = _perpendicular(t) if math.sqrt(float(np.dot(nn, nn))) < 0.5 else nn
+    frames[:, :3, 0], frames[:, :3, 1] = t_end, n_end
+    # np.cross(t, n) written out: the same products and differences, so the same bits
+    (t0x, t0y, t0z), (nx, ny, nz) = t_end.T, n_end.T
+    frames[:, 0, 2] = t0y * nz - t0z * ny
+    frames[:, 1, 2] = t0z * nx - t0x * nz
+    frames[:, 2, 2] = t0x * ny - t0y * nx
+    frames[:, :3, 3] = tgt[b]
+    frames[:, 3, 3] = 1.0
     return Guess(theta, lam, length, frames[0].copy(), frames)

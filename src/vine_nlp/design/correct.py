@@ -34,9 +34,16 @@ the exact Hessian (Gauss-Newton needed hundreds of iterations on the coarse stag
 where the exact one needs about 5 per round) and IPOPT's warm-start settings (the answer moves
 little from round to round): about 25 iterations in all for the paper's trefoil, where the earlier
 schedule (sigma halving, 6 rounds per stage, Gauss-Newton, tol 1e-10, cold starts) took 100-140
-(benchmarks/bench_correct.py). The measurement blocks are
-per-stage SX blocks with a fixed number of slots per segment (zero-weight padding), so
-re-pairing changes data only and the solver stays cached.
+(benchmarks/bench_correct.py). Each segment of each build has a fixed number S of measurement
+slots (S from the pairing's fullest segment, rounded up to a multiple of SLOT_STEP); a slot is one
+instance of one small SX block (the point-to-line residual of one point, :func:`measure_block`) and
+holds its point, fraction, tangent and weight as data, unused slots weight 0. Re-pairing changes data
+only: one structure per (M, S, builds, free pose) serves every ICP round and every measurement of that
+size, so it is built once and its functions are compiled (``design.compiled``; the generated code holds
+the one-point block once, whatever S, where a block of S unrolled points took many times longer to
+compile). Compiled, with MUMPS on the AMD ordering (SOLVER_OPTIONS) and a single-threaded Laplace
+step, an estimate iteration costs about a third of the interpreted one (results/BENCHMARKS.md, "As-built
+correction").
 
 Earlier builds (rounds): their nominals differ from the latest one by known amounts, so
 each earlier build is a second chain of frames (extra stage variables) whose segments are
@@ -127,6 +134,10 @@ THETA_TRUST = 2.0  # with theta adjusted, the corrected theta stays within this 
 TRIM = 4.0  # pairs farther than this many sigmas of the stage are left out of it
 SAMPLES_PER_SEGMENT = 24  # pieces per segment of the model lines the pairing projects onto
 SLOT_STEP = 8  # slots per segment are rounded up to a multiple of this (cached structures)
+# IPOPT settings of this module's solvers on top of the transcription's: MUMPS with the AMD ordering (cheaper than
+# its automatic choice on these banded KKT systems, whose symbolic analysis is redone at every solve, 7 or so per
+# estimate) and no multipliers of the parameters (unused; one derivative evaluation less)
+SOLVER_OPTIONS = {"ipopt.mumps_pivot_order": 0, "calc_lam_p": False}
 
 
 # ---------------------------------------------------------------- deviations (the contract's rule)
@@ -180,9 +191,10 @@ class Measurement:
             raise ValueError("frame must be 'archive' or 'free'")
 
 
-def _line_points(routing: Routing, D: float, seg, frac, side: float):
-    """Points of the line at (seg, frac) and the unit tangents of the center frames there."""
-    c, rot = chain_points(routing.theta, routing.lam, routing.length, D, seg, frac, routing.initial_pose)
+def _line_points(routing: Routing, D: float, seg, frac, side: float, frames=None):
+    """Points of the line at (seg, frac) and the unit tangents of the center frames there (``frames``: the
+    routing's chain frames, when known)."""
+    c, rot = chain_points(routing.theta, routing.lam, routing.length, D, seg, frac, routing.initial_pose, frames)
     return c + side * D * rot[:, :, 1], rot[:, :, 0]
 
 
@@ -192,12 +204,14 @@ class _Pairs:
     frac: np.ndarray
     tangent: np.ndarray  # zero rows: beyond an end of the line (full residual)
     l: np.ndarray  # material coordinate
+    point: np.ndarray  # the paired points of the model line
 
 
 def pair_with_line(points: np.ndarray, routing: Routing, D: float, side: float, per_segment: int = SAMPLES_PER_SEGMENT) -> _Pairs:
     """Closest points of the model line (``side``: offset along the normal in D) for measured points."""
     seg, frac = segment_end_samples(routing.length, per_segment)
-    P, _ = _line_points(routing, D, seg, frac, side)
+    F = chain_frames(routing.theta, routing.lam, routing.length, D, routing.initial_pose)
+    P, _ = _line_points(routing, D, seg, frac, side, F)
     cum = np.concatenate([[0.0], np.cumsum(routing.length)])
     lmat = cum[seg] + frac * routing.length[seg]
     d = np.diff(P, axis=0)
@@ -218,10 +232,10 @@ def pair_with_line(points: np.ndarray, routing: Routing, D: float, side: float, 
     M = routing.segments
     j = np.clip(np.searchsorted(cum, l, side="right") - 1, 0, M - 1)
     f = np.clip((l - cum[j]) / routing.length[j], 0.0, 1.0)
-    _, t = _line_points(routing, D, j, f, side)
+    Pj, t = _line_points(routing, D, j, f, side, F)
     end = ((piece == 0) & (uu <= 0.0)) | ((piece == d.shape[0] - 1) & (uu >= 1.0))
     t[end] = 0.0
-    return _Pairs(j, f, t, l)
+    return _Pairs(j, f, t, l, Pj)
 
 
 def simulate_build(nominal: Routing, dev: Deviations, D: float, line: str = "outer", count: int = 300, noise: float = 0.0,
@@ -254,42 +268,40 @@ def draw_deviations(nominal: Routing, sigmas: Sigmas, systematic=(0.0, 0.0, 0.0)
 # ---------------------------------------------------------------- blocks of the estimation NLP
 
 
-@lru_cache(maxsize=16)
-def measure_block(S: int, free: bool) -> BlockType:
-    """Point-to-line residuals of S measured points of one segment of one build (SX).
+# data rows of one measurement slot (measure_block): shift (3), u, m (3), tangent (3), sqrt weight, side
+# [, centroid (3), free flag]
+SLOT_DATA = 12
+SLOT_DATA_FREE = 16
 
+
+@lru_cache(maxsize=2)
+def measure_block(free: bool) -> BlockType:
+    """Point-to-line residual of one measured point (one slot of one segment of one build), SX.
+
+    One block instance per slot: the generated code holds the point's function and its derivatives once,
+    whatever the number of slots (module docstring).
     v = (X_j (12), theta, lam, dl[, w (3), t (3)]): the segment's local variables of the latest
     as-built chain (and the rigid transform of free-frame measurements);
     d = (shift (3): theta and lambda added, length factor (the build's nominal against the latest),
-    u (S), m (3 S), t (3 S) tangents, w (S) square roots of the weights, side (S) [, c (3) centroid, flag (S)]).
-    Residual w_i (I - t_i t_i^T)(P_i - m_i) (square roots as data: a zero-weight slot has finite derivatives); free-frame points (flag 1) are moved by
-    exp(w) (m - c) + c + t first (m stored as given, c their centroid)."""
+    u, m (3), t (3) tangent, w square root of the weight, side [, c (3) centroid, flag]).
+    Residual w (I - t t^T)(P - m) (the square root as data: a zero-weight slot has finite derivatives);
+    a free-frame point (flag 1) is moved by exp(w) (m - c) + c + t first (m stored as given, c their centroid)."""
     nv = 21 if free else 15
-    nd = 3 + 9 * S + (3 + S if free else 0)
+    nd = SLOT_DATA_FREE if free else SLOT_DATA
     v, d = ca.SX.sym("v", nv), ca.SX.sym("d", nd)
     th, la, dl = v[12] + d[0], v[13] + d[1], v[14] * d[2]
-    u = d[3 : 3 + S]
-    m = ca.reshape(d[3 + S : 3 + 4 * S], 3, S)
-    tg = ca.reshape(d[3 + 4 * S : 3 + 7 * S], 3, S)
-    w, side = d[3 + 7 * S : 3 + 8 * S], d[3 + 8 * S : 3 + 9 * S]
+    u, mi, tg, w, side = d[3], d[4:7], d[7:10], d[10], d[11]
     R, p = ca.reshape(v[:9], 3, 3), v[9:12]
     kappa, tau, lc = center_rates(th, la, 1.0)
+    Rs, q = twist_parts(kappa, tau, u * dl * lc)
+    local = ca.vertcat(q[0] + side * Rs[0][1], q[1] + side * Rs[1][1], q[2] + side * Rs[2][1])
+    P = p + ca.mtimes(R, local)
     if free:
-        c, flag = d[3 + 9 * S : 6 + 9 * S], d[6 + 9 * S :]
-        Rm = so3_exp(v[15:18])
-    res = []
-    for i in range(S):
-        Rs, q = twist_parts(kappa, tau, u[i] * dl * lc)
-        local = ca.vertcat(q[0] + side[i] * Rs[0][1], q[1] + side[i] * Rs[1][1], q[2] + side[i] * Rs[2][1])
-        P = p + ca.mtimes(R, local)
-        mi = m[:, i]
-        if free:
-            mi = mi + flag[i] * (ca.mtimes(Rm, mi - c) + c + v[18:21] - mi)
-        e = P - mi
-        e = e - tg[:, i] * ca.dot(tg[:, i], e)
-        res.append(w[i] * e)
-    res = ca.vertcat(*res)
-    return BlockType(f"measure{S}{'f' if free else ''}", ca.Function("measure_block", [v, d], [ca.sumsqr(res), ca.SX(0, 1)]),
+        c, flag = d[12:15], d[15]
+        mi = mi + flag * (ca.mtimes(so3_exp(v[15:18]), mi - c) + c + v[18:21] - mi)
+    e = P - mi
+    res = w * (e - tg * ca.dot(tg, e))
+    return BlockType(f"measure{'f' if free else ''}", ca.Function("measure_block", [v, d], [ca.sumsqr(res), ca.SX(0, 1)]),
                      ca.Function("measure_res", [v, d], [res]))
 
 
@@ -307,23 +319,23 @@ def shifted_segment_block() -> BlockType:
 class AsBuiltTerm:
     """The MAP estimate's terms (module docstring) for ``builds`` builds (the last is the chain itself,
     the others extra frames) with ``S`` slots per segment and build; ``free``: a rigid transform of the
-    free-frame measurements in globals 3..8. Parameters: meas (nd x M B), shift (3 x M (B-1)),
+    free-frame measurements in globals 3..8. Parameters: meas (nd x M B S, one column per slot), shift (3 x M (B-1)),
     prior (3 x M: nominal theta, lam, dl of the latest build), prior_sig (8: s_theta, s_lam, s_len_rel,
     s_len_abs (D), s_sys (3), scale)."""
 
     S: int
     builds: int = 1
     free: bool = False
-    # S follows each measurement's point count (and builds each round): a structure seldom seen twice,
-    # interpreted rather than compiled (design.compiled)
-    compile: ClassVar[bool] = False
+    # the pairing is data (slot fractions, points, weights 0 on unused slots): one structure per (M, S, builds,
+    # free) serves every ICP round and every measurement of that size, worth compiling (design.compiled)
+    compile: ClassVar[bool] = True
 
     def apply(self, c: Chain) -> None:
         s, lay = c.s, c.lay
-        M, B = s.M, self.builds
-        bt = measure_block(self.S, self.free)
+        M, B, S = s.M, self.builds, self.S
+        bt = measure_block(self.free)
         nd = bt.fn.size1_in(1)
-        meas = c.param("meas", (nd, M * B))
+        meas = c.param("meas", (nd, M * B * S))  # slot k of segment j of build b: column (b M + j) S + k
         shift = c.param("shift", (3, max(M * (B - 1), 1)))
         prior, sig = c.param("prior", (3, M)), c.param("prior_sig", (8, 1))
 
@@ -336,8 +348,9 @@ class AsBuiltTerm:
         idx = []
         for b in range(B):
             for j in range(M):
-                idx.append(np.r_[frame(b, j), lay.theta[j], lay.lam[j, 0], lay.dl[j], glob])
-        c.add_block(bt, np.array(idx).T, meas, term="fit")
+                col = np.r_[frame(b, j), lay.theta[j], lay.lam[j, 0], lay.dl[j], glob]
+                idx.append(np.repeat(col[:, None], S, axis=1))
+        c.add_block(bt, np.hstack(idx), meas, term="fit")
         if B > 1:
             idx = []
             for b in range(B - 1):
@@ -390,7 +403,8 @@ class Estimate:
 
 def _estimation_spec(M: int, shared: bool, builds: int, S: int, free: bool, hessian: str) -> Spec:
     st = Structure(M, 1, 1, "shared" if shared else "segment", "fixed", extra=12 * (builds - 1), globals=9 if free else 3)
-    return Spec(st, (AsBuiltTerm(S, builds, free),), hessian, options_key(ipopt_options(200, ESTIMATE_TOL, ESTIMATE_WARM)))
+    return Spec(st, (AsBuiltTerm(S, builds, free),), hessian,
+                options_key(ipopt_options(200, ESTIMATE_TOL, ESTIMATE_WARM) | SOLVER_OPTIONS))
 
 
 def _pose_of(R, t):
@@ -457,7 +471,7 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
     ValueError
         Sigmas that are not > 0.
     """
-    t_all = time.perf_counter()
+    t_all, cpu_all = time.perf_counter(), time.process_time()
     hessian = hessian or ESTIMATE_HESSIAN
     B = len(nominals)
     latest = nominals[-1]
@@ -481,11 +495,8 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
     def routings_of(ab: Routing):
         return [Routing(ab.theta + a, ab.lam + b, ab.length * c, T0) for a, b, c in shifts]
 
-    routings_now = [nominals]
-
     def pairs_of(ab, Tcorr):
         rs = routings_of(ab)
-        routings_now[0] = rs
         out = []
         for p, m in zip(pts, ms):
             q = p @ Tcorr[:3, :3].T + Tcorr[:3, 3] if m.frame == "free" else p
@@ -506,33 +517,32 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
         return [p @ Tc[:3, :3].T + Tc[:3, 3] if m.frame == "free" else p for p, m in zip(pts, ms)]
 
     def meas_data(pairs, S, s_stage, moved, trim):
-        nd = 3 + 9 * S + (3 + S if free else 0)
-        data = np.zeros((nd, M * B))
+        nd = SLOT_DATA_FREE if free else SLOT_DATA
+        data = np.zeros((nd, B * M * S))  # padding slots: weight 0, fraction 0
         for b in range(B):
-            a, bl, c = shifts[b]
-            col0 = b * M
-            data[0, col0 : col0 + M], data[1, col0 : col0 + M], data[2, col0 : col0 + M] = a, bl, c
-            fill = np.zeros(M, int)
-            for pr, m, p, q in zip(pairs, ms, pts, moved):
-                if m.build != b:
-                    continue
-                P, _ = _line_points(routings_now[0][b], D, pr.seg, pr.frac, LINE_SIDE[m.line])
-                keep = np.linalg.norm(P - q, axis=1) <= trim
-                for i in range(p.shape[0]):
-                    j = pr.seg[i]
-                    k = fill[j]
-                    fill[j] += 1
-                    col = col0 + j
-                    data[3 + k, col] = pr.frac[i]
-                    data[3 + S + 3 * k : 3 + S + 3 * k + 3, col] = p[i] / D
-                    data[3 + 4 * S + 3 * k : 3 + 4 * S + 3 * k + 3, col] = pr.tangent[i]
-                    data[3 + 7 * S + k, col] = math.sqrt(scale) * D / s_stage if keep[i] else 0.0
-                    data[3 + 8 * S + k, col] = LINE_SIDE[m.line]
-                    if free:
-                        data[6 + 9 * S + k, col] = 1.0 if m.frame == "free" else 0.0
+            cols = slice(b * M * S, (b + 1) * M * S)
+            for k in range(3):
+                data[k, cols] = np.repeat(shifts[b][k], S)
+        if free:
+            data[12:15] = (centroid / D)[:, None]
+        fill = np.zeros(B * M, int)
+        for pr, m, p, q in zip(pairs, ms, pts, moved):
+            keep = np.linalg.norm(pr.point - q, axis=1) <= trim
+            cell = m.build * M + pr.seg
+            # each point's rank among the points of its cell, in order: the next free slots of the cell
+            order = np.argsort(cell, kind="stable")
+            sorted_cells = cell[order]
+            rank = np.empty(cell.size, int)
+            rank[order] = np.arange(cell.size) - np.searchsorted(sorted_cells, sorted_cells, side="left")
+            col = cell * S + fill[cell] + rank
+            fill += np.bincount(cell, minlength=B * M)
+            data[3, col] = pr.frac
+            data[4:7, col] = (p / D).T
+            data[7:10, col] = pr.tangent.T
+            data[10, col] = np.where(keep, math.sqrt(scale) * D / s_stage, 0.0)
+            data[11, col] = LINE_SIDE[m.line]
             if free:
-                data[3 + 9 * S : 6 + 9 * S, col0 : col0 + M] = (centroid / D)[:, None]
-            # padding slots: weight 0, fraction 0
+                data[15, col] = 1.0 if m.frame == "free" else 0.0
         return data
 
     s_rel, s_abs = (sigmas.length, 0.0) if sigmas.relative_length else (0.0, sigmas.length / D)
@@ -593,6 +603,8 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
             new = pairs_of(ab, Tcorr)
             moved = max(float(np.max(np.abs(a.l - b.l))) for a, b in zip(new, pairs))
             pairs = new
+            _log.debug("estimate: stage sigma %.3g, %s after %d iterations, pairs moved up to %.2g D", s_stage, status,
+                       st["iterations"], moved / D)
             if moved < 1e-3 * D:
                 break
     g = solver.unpack(x)["globals"]
@@ -606,7 +618,7 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
         transform=T_total, residuals=residuals, status=status, iterations=iterations, solve_time_s=time.perf_counter() - t_all,
         rounds=rounds_done,
         stats={"measurement_sigma": sig_m, "slots_per_segment": S, "points": N, "builds": B, "hessian": hessian,
-               "objective": st.get("objective", float("nan")), "free_pose": free},
+               "objective": st.get("objective", float("nan")), "free_pose": free, "cpu_time_s": time.process_time() - cpu_all},
     )
 
 
@@ -742,15 +754,21 @@ def _laplace(ab, g, shifts, ms, pts, pairs, D, sig_m, sigmas, sys_sig, prior, sh
         dq[k] = steps[k]
         Jp[:, k] = (prior_residuals(q0 + dq) - prior_residuals(q0 - dq)) / (2 * steps[k])
     J = np.vstack(rows + [Jp])
-    H = J.T @ J
-    try:
+    from scipy.linalg import blas, lapack  # SciPy loads only where measurements are paired
+
+    # BLAS/LAPACK kernels that stay single-threaded at this size: numpy's J.T @ J and inv() go through
+    # threaded OpenBLAS paths, tens to hundreds of times slower on a loaded 2-core machine
+    H = blas.dsyrk(1.0, J, trans=1, lower=0)  # upper triangle of J^T J
+    U, info = lapack.dpotrf(H, lower=0, clean=1)  # H = U^T U
+    if info == 0:
         # the prior makes H positive definite (every variable but the pose has one, the pose is measured);
-        # Cholesky is cheaper and steadier than an eigendecomposition on a busy machine
-        Lc = np.linalg.cholesky(H)
-        Li = np.linalg.inv(Lc)
-        var = np.sum(Li * Li, axis=0)
-    except np.linalg.LinAlgError:
-        var = np.diag(np.linalg.pinv(H, rcond=1e-12, hermitian=True))
+        # diag(H^-1) = row sums of squares of U^-1
+        Ui, info = lapack.dtrtri(U, lower=0)
+    if info == 0:
+        var = np.sum(Ui * Ui, axis=1)
+    else:
+        Hs = np.triu(H) + np.triu(H, 1).T
+        var = np.diag(np.linalg.pinv(Hs, rcond=1e-12, hermitian=True))
     sd = np.sqrt(np.maximum(var, 0.0))
     th_sd, la_sd, ln_sd, g_sd, _ = unpack(sd)
     if shared:
@@ -765,7 +783,7 @@ def _laplace(ab, g, shifts, ms, pts, pairs, D, sig_m, sigmas, sys_sig, prior, sh
 def correction_spec(M: int, n: int, shared: bool, max_iter: int, tol: float, hessian: str) -> Spec:
     """The plain NLP with the base pose fixed (the robot's base stays where it was built)."""
     return Spec(Structure(M, n, 1, "shared" if shared else "segment", "fixed"), (Smoothness(), SoftTip()), hessian,
-                options_key(ipopt_options(max_iter, tol)))
+                options_key(ipopt_options(max_iter, tol) | SOLVER_OPTIONS))
 
 
 def correct_routing(problem: DesignProblem, as_built: Routing, dev: Deviations, adjust=("lambda",),

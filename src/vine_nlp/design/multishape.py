@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vine_nlp.design.common import LENGTH_FACTOR, evaluate, geometric_guess, pair_points
+from vine_nlp.design.nlp import routing_of
 from vine_nlp.design.problem import MultiShapeProblem, Routing
 from vine_nlp.design.result import Result, routing_metrics
 from vine_nlp.design.transcription import (
@@ -47,16 +48,15 @@ from vine_nlp.design.transcription import (
     Structure,
     cell_data,
     frames12,
+    get_solver,
     ipopt_options,
     multistart,
     options_key,
     record_starts,
     smoothing_steps,
 )
-from vine_nlp.design.transcription import get_solver as _get
 from vine_nlp.model.helix import center_rates
 from vine_nlp.model.pairing import Pairing
-from vine_nlp.model.segment import so3_exp
 
 RUN = "multishape"
 
@@ -83,24 +83,6 @@ class MultiShapeResult(Result):
     def count(self) -> int:
         return int(np.size(self.levels))
 
-    def level_routing(self, k: int) -> Routing:
-        r = self.routing
-        return Routing(r.theta, np.full(r.segments, float(self.levels[k])), r.length, self.poses[k])
-
-    def level_result(self, k: int) -> Result:
-        """Level k as a plain single-shape Result."""
-        return Result(
-            method=self.method,
-            routing=self.level_routing(k),
-            shape=self.shapes[k],
-            status=self.status,
-            solve_time_s=self.solve_time_s,
-            iterations=self.iterations,
-            metrics=dict(self.level_metrics[k]),
-            stats=dict(self.stats),
-            diameter=self.diameter,
-        )
-
 
 # ---------------------------------------------------------------- the NLP
 
@@ -109,11 +91,6 @@ def multishape_spec(M: int, n: int, K: int, shared_pose: bool, max_iter: int = 3
     """K chains of one routing (theta_j, dl_j shared), one lambda per level, one base pose or one per level."""
     return Spec(Structure(M, n, K, "level", "shared" if shared_pose else "level"), (Smoothness(lam=False), SoftTip()),
                 "exact", options_key(ipopt_options(max_iter, tol)))
-
-
-def get_solver(M: int, n: int, K: int, shared_pose: bool, max_iter: int = 3000, tol: float = 1e-8):
-    """Cached per structure: building costs more than one solve."""
-    return _get(multishape_spec(M, n, K, shared_pose, max_iter, tol))
 
 
 # ---------------------------------------------------------------- guesses
@@ -215,18 +192,12 @@ def start_guesses(problem: MultiShapeProblem, pairings, starts: int) -> list[Mul
 # ---------------------------------------------------------------- solve
 
 
-def _level_bounds(problem: MultiShapeProblem):
-    lo = np.array([problem.actuator.lambda_min if v is None else v for v in problem.levels])
-    hi = np.array([1.0 if v is None else v for v in problem.levels])
-    return lo, hi
-
-
 def solve_from(problem: MultiShapeProblem, guess: MultiGuess, pairings=None) -> MultiShapeResult:
     """One IPOPT solve of the multi-shape NLP from ``guess``."""
     o, D, K = problem.options, problem.diameter, problem.count
     pairings = pairings or _pairings(problem)
     M, n = pairings[0].segments, pairings[0].n
-    solver = get_solver(M, n, K, problem.shared_pose, o.max_iter, o.tol)
+    solver = get_solver(multishape_spec(M, n, K, problem.shared_pose, o.max_iter, o.tol))
     P = solver.structure.poses
     N = problem.targets[0].shape[0]
     cells = np.zeros((5 * n, M * K))
@@ -236,36 +207,20 @@ def solve_from(problem: MultiShapeProblem, guess: MultiGuess, pairings=None) -> 
     R0 = np.column_stack([G[:3, :3].ravel(order="F") for G in guess.poses[:P]])
     p = solver.pack_params({"cells": cells, "R0g": R0, "smooth": [o.smooth_theta, 0.0], "h": h, "L": L,
                             "tip": np.column_stack([t[-1] / D for t in problem.targets]), "wtip": np.full(K, 1.0 / (N * K))})
-    fr = []
-    for f in guess.frames:
-        f = f.copy()
-        f[:, :3, 3] /= D
-        fr.append(frames12(f))
+    fr = [frames12(f, D) for f in guess.frames]
     poses = np.array([np.r_[np.zeros(3), G[:3, 3] / D] for G in guess.poses[:P]])
     x0 = solver.pack_x(guess.theta, None, guess.length / D, np.array(fr), poses=poses, lam_global=guess.levels)
     seg_chord = np.max([pr.segment_chord for pr in pairings], axis=0) / D
     a = problem.actuator
-    lbx, ubx = solver.bounds((np.full(M, -a.theta_max), np.full(M, a.theta_max)), _level_bounds(problem),
+    levels = ([a.lambda_min if v is None else v for v in problem.levels], [1.0 if v is None else v for v in problem.levels])
+    lbx, ubx = solver.bounds((np.full(M, -a.theta_max), np.full(M, a.theta_max)), levels,
                              (LENGTH_FACTOR[0] * seg_chord, LENGTH_FACTOR[1] * seg_chord))
     x, status, st = solver.solve(x0, p, lbx, ubx)
     v = solver.unpack(x)
-    T = []
-    for q in range(P):
-        G = np.eye(4)
-        G[:3, :3] = guess.poses[q][:3, :3] @ so3_exp(v["poses"][q, :3])
-        G[:3, 3] = v["poses"][q, 3:] * D
-        T.append(G)
-    T = np.array(T * K if problem.shared_pose else T)
-    stats = st | {
-        "segments": M,
-        "points_per_segment": n,
-        "levels": K,
-        "shared_pose": problem.shared_pose,
-        "fixed_levels": [lv is not None for lv in problem.levels],
-        "smooth_theta": o.smooth_theta,
-        "tol": o.tol,
-        "max_iter": o.max_iter,
-    }
+    T = [routing_of(solver, x, guess.poses[q][:3, :3], D, k).initial_pose for k, q in enumerate(solver.layout.pose_of_level)]
+    stats = st | {"segments": M, "points_per_segment": n, "levels": K, "shared_pose": problem.shared_pose,
+                  "fixed_levels": [lv is not None for lv in problem.levels], "smooth_theta": o.smooth_theta, "tol": o.tol,
+                  "max_iter": o.max_iter}
     return assemble(problem, v["theta"], v["dl"] * D, v["lam_global"], T, pairings, status=status,
                     solve_time_s=stats.pop("solve_time_s"), iterations=stats.pop("iterations"), stats=stats)
 
@@ -281,20 +236,9 @@ def assemble(problem: MultiShapeProblem, theta, length, levels, poses, pairings=
     d2 = np.concatenate([np.sum((r.shape.center - t) ** 2, axis=1) for r, t in zip(per, problem.targets)])
     level_metrics = [{"rmse": r.metrics["rmse"], "max_error": r.metrics["max_error"], "lambda": float(levels[k])} for k, r in enumerate(per)]
     metrics = {"rmse": float(np.sqrt(d2.mean())), "max_error": float(np.sqrt(d2.max()))} | routing_metrics(per[0].routing)
-    return MultiShapeResult(
-        method=RUN,
-        routing=per[0].routing,
-        shape=per[0].shape,
-        metrics=metrics,
-        diameter=problem.diameter,
-        levels=levels,
-        fixed=tuple(v is not None for v in problem.levels),
-        poses=poses,
-        shapes=[r.shape for r in per],
-        level_metrics=level_metrics,
-        shared_pose=problem.shared_pose,
-        **kw,
-    )
+    return MultiShapeResult(method=RUN, routing=per[0].routing, shape=per[0].shape, metrics=metrics, diameter=problem.diameter,
+                            levels=levels, fixed=tuple(v is not None for v in problem.levels), poses=poses, shapes=[r.shape for r in per],
+                            level_metrics=level_metrics, shared_pose=problem.shared_pose, **kw)
 
 
 def design_multishape(problem: MultiShapeProblem, starts: int | None = None, progress=None) -> MultiShapeResult:
@@ -310,11 +254,4 @@ def design_multishape(problem: MultiShapeProblem, starts: int | None = None, pro
     return best
 
 
-__all__ = [
-    "MultiShapeResult",
-        "design_multishape",
-    "get_solver",
-    "start_guesses",
-    "solve_from",
-    "assemble",
-]
+__all__ = ["MultiShapeResult", "design_multishape", "multishape_spec", "start_guesses", "solve_from", "assemble"]

@@ -57,16 +57,38 @@ __all__ = ["design_nlp", "solve_from", "start_guesses", "guess_from_routing", "b
 AUTO_GN_MAX_ITER = 50
 
 
+# IPOPT settings of the plain NLP's Gauss-Newton solves from a guess (the default's first solve); their
+# effect on every paper case, the 125-knot study and the trefoil's time is in results/BENCHMARKS.md
+# ("Compiled NLP functions", "Sweep"):
+# - mu_oracle "probing" (Mehrotra's predictor rule for the adaptive barrier) in place of the quality function:
+#   Gauss-Newton converges on more targets before the exact Hessian has to take over;
+# - MUMPS's own scalings off: IPOPT scales the problem already, and on these small banded KKT systems the
+#   scaling pass is a large share of a factorization;
+# - constraint multipliers start at zero, not at a least-squares estimate: one factorization less per solve
+#   (the continuity rows hold at the start, frames on the target, so their multipliers start small anyway).
+# Exact-Hessian and warm solves keep ipopt_options: the corner search on the polyline (d) starts from the
+# exact solve, and which local minimum it ends in is sensitive to every bit of that start. Problems with
+# obstacles keep them too: the obstacle loop starts from the free design, and its path (rounds, detour)
+# changes with free designs that differ in the 1e-6 of a flat direction.
+GN_IPOPT = {"ipopt.mu_oracle": "probing", "ipopt.mumps_permuting_scaling": 0, "ipopt.mumps_scaling": 0,
+            "ipopt.constr_mult_init_max": 0.0}
+
+
 def nlp_spec(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False,
-             hessian: str = "exact", terms: tuple = ()) -> Spec:
-    """The plain NLP's structure and terms (more terms: the formulations built on it)."""
+             hessian: str = "exact", terms: tuple = (), tuned: bool = True) -> Spec:
+    """The plain NLP's structure and terms (more terms: the formulations built on it); ``tuned``: GN_IPOPT
+    on top of ipopt_options for a Gauss-Newton solve from a guess."""
+    opts = ipopt_options(max_iter, tol, warm)
+    if tuned and hessian == "gauss-newton" and not warm and not terms:
+        opts |= GN_IPOPT
     return Spec(Structure(M, n, 1, "shared" if shared_lambda else "segment", "free"), (Smoothness(), SoftTip()) + tuple(terms),
-                hessian, options_key(ipopt_options(max_iter, tol, warm)))
+                hessian, options_key(opts))
 
 
-def get_solver(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False, hessian: str = "exact"):
+def get_solver(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False, hessian: str = "exact",
+               tuned: bool = True):
     """The plain NLP's solver, cached per structure (building costs more than one solve)."""
-    return _get(nlp_spec(M, n, shared_lambda, max_iter, tol, warm, hessian))
+    return _get(nlp_spec(M, n, shared_lambda, max_iter, tol, warm, hessian, tuned=tuned))
 
 
 def nlp_parameters(problem: DesignProblem, pairing: Pairing, R0g: np.ndarray) -> dict:
@@ -126,7 +148,8 @@ def solve_from(
     closely; its answer is a true KKT point (IPOPT tests exact gradients). Where it
     does not converge within AUTO_GN_MAX_ITER iterations (large residuals: corners),
     the same start is solved again with the exact Hessian; where it stops at IPOPT's
-    "acceptable" level, the exact Hessian polishes its answer (a warm start).
+    "acceptable" level, the exact Hessian polishes its answer (a warm start). Gauss-Newton solves
+    from a guess run with GN_IPOPT's settings on top of ``ipopt_options`` (not for problems with obstacles).
     """
     o = problem.options
     pairing = pairing or pair_points(problem.target, o.points_per_segment)
@@ -152,7 +175,7 @@ def solve_from(
 def _solve(problem, guess, pairing, frames, warm, hessian, max_iter) -> Result:
     o, D = problem.options, problem.diameter
     M, n = pairing.segments, pairing.n
-    solver = get_solver(M, n, problem.actuator.shared_lambda, max_iter, o.tol, warm, hessian)
+    solver = get_solver(M, n, problem.actuator.shared_lambda, max_iter, o.tol, warm, hessian, tuned=not problem.obstacles)
     R0g = guess.initial_pose[:3, :3]
     p = solver.pack_params(nlp_parameters(problem, pairing, R0g))
     lbx, ubx = solver.bounds(*design_bounds(problem, pairing))

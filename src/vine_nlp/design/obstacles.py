@@ -15,16 +15,22 @@ every round, so the solver is built once.
 
 Blocks. Rows are per-stage SX blocks (design.transcription) over (shape, segment) instances;
 v = (X_j, theta_j, lam_j, dl_j), 15 local variables:
-  primitives (sphere, box, capsule, plane): ``P`` slots per segment, each a primitive written as
-      a rounded box (``rounded_box``: its exact smooth distance, analysis.obstacles) whose numbers
-      are data; the active set of a segment is the primitives whose slack (distance - need) at its
-      samples is below ACTIVE_REACH + dl_j, refreshed between solves like a mesh's (a primitive the
-      tube reaches in a solve is caught by the report and gets rows in the next round). One block
-      type per (S, P): a solver serves every scene with at most P primitives near a segment, and
-      neither the build nor an iteration grows with the number of obstacles far from the tube.
+  primitives (sphere, box, capsule, plane): slots per (shape, segment) column, each a primitive
+      written as a rounded box (``rounded_box``: its exact smooth distance, analysis.obstacles) whose
+      numbers are data; the active set of a column is the primitives whose slack (distance - need)
+      at its samples is below ACTIVE_REACH + REACH_DL dl_j, refreshed between solves like a mesh's (a
+      primitive the tube reaches in a solve is caught by the report and gets rows in the next round).
+      A column has as many slots as its active set (never fewer than it had: the solver stays within
+      a design), the columns with P slots share one block type (S, P), and a column with none has no
+      rows: neither an iteration nor the linear algebra grows with obstacles far from the tube, nor
+      with the busiest segment's count. (P slots on every column, most switched off, made the
+      20-primitive speed scene's rows 2080 instead of ~550; an off row still costs IPOPT a slack.)
+      The interpreted build of a solver is cheap (the rows are not compiled), so a new slot count
+      costs little.
   meshes: the active set, ``k`` nearest triangles of every sample (exact, nearest_triangles),
       refreshed between solves; the triangles are data, so a refresh changes data only, never
-      the solver. Rows: unsigned point-triangle distances (exact rows: a mesh's unsigned
+      the solver; only the columns with slack below MESH_REACH + REACH_DL dl_j carry a mesh block
+      (MESH_REACH). Rows: unsigned point-triangle distances (exact rows: a mesh's unsigned
       distance is the minimum over its triangles, and a triangle is convex, so each row is
       C^1 where it is positive). A sample the exact (trimesh) sign finds *inside* the mesh
       instead gets one linear row, the signed distance to the plane of its nearest face,
@@ -48,15 +54,25 @@ in M (automatic derivatives on the whole chain) and badly conditioned for long c
 levels keep everything banded, at 12 variables per stage and level.
 
 Weights. A target point closer than the margin to an obstacle is *blocked*: no design sits on it.
-``BLOCKED_WEIGHT`` scales its fit weight (default 1: unchanged). At 0.1 the detour is shaped more
-by the points the tube can follow: on obstacle-pipe-bend the RMSE more than 2 D from the obstacles
-fell from 0.020 D to 0.008 D (0.005 D at 0.01), the blocked points' RMSE rose 3 % (0.88 to 0.91 D)
-and IPOPT took 126 iterations instead of 217; but on obstacle-mesh it ended in a wider detour (gap
-4.6 cm against 0.9 cm, RMSE 5.0 cm against 2.5 cm) and on the 20-primitive speed scene it took 267
-iterations instead of 160, so it is not the default.
+``BLOCKED_WEIGHT`` scales its fit weight: 0.1 for primitives, so the detour is shaped more by the points
+the tube can follow. Measured with the pushed start (same machine, one session): RMSE more than 2 D
+from the obstacles 0.021 -> 0.0085 D on obstacle-pipe-bend, 0.013 -> 0.006 D on obstacle-gap, 0.069 ->
+0.048 D on the 20-primitive speed scene, with fewer iterations (102, 71, 78); the price is a wider
+detour where the target is blocked (the scene's RMSE over all points 1.42 -> 1.91 cm). Not with a mesh
+(weight 1): on obstacle-mesh it ended in a wider detour (gap 4.6 cm against 0.9 cm, RMSE 5.0 cm against
+2.5 cm, measured before the pushed start).
+
+Start. A design through an obstacle is a poor start for the rows: IPOPT spent most of its 239
+iterations on the speed scene pushing the tube out. Primitives only: the target is pushed out of
+the obstacles across itself (``pushed_target``: a run of points through one obstacle to one side),
+the plain NLP designs that (one solve, warm from the obstacle-free design), and the rows start from
+its chain (speed scene, same rows: 131 iterations instead of 244; with the rows on near columns
+only and BLOCKED_WEIGHT 0.1, 78 iterations and 2.6 s CPU where the session-start code took 228 and
+9.4 s, benchmarks/bench_obstacles.py). Not with a mesh: on the torus scene
+the push sent the tube round the long way (gap 4.9 cm, 4 rounds, 20x slower).
 
 Loop. Start from the obstacle-free design (design_nlp), keep it when it already clears;
-otherwise solve with the rows (warm, from the start's chain), check with the report
+otherwise solve with the rows (warm, from the start's chain, or the pushed start's), check with the report
 (analysis.obstacles.obstacle_report: 20 points per segment, exact mesh distances, refined
 minima), refresh the mesh active sets, raise the rows' requirement by 1.5x what is still
 missing, re-solve warm; until the report is clear or ``rounds`` solves are done.
@@ -98,7 +114,7 @@ from vine_nlp.analysis.obstacles import (
 )
 from vine_nlp.design.clearance import chain_guess, result_of
 from vine_nlp.design.common import pair_points
-from vine_nlp.design.nlp import design_bounds, design_nlp, nlp_parameters, nlp_spec, start_x
+from vine_nlp.design.nlp import design_bounds, design_nlp, guess_from_routing, nlp_parameters, nlp_spec, solve_from, start_x
 from vine_nlp.design.problem import DesignProblem, Routing, TipProblem
 from vine_nlp.design.result import Result
 from vine_nlp.design.tip import (
@@ -121,13 +137,20 @@ LENGTH_SLACK = 1.25  # segment lengths may grow this much during a solve before 
 MAX_SAMPLES = 40  # samples per segment
 AFTER_SLOTS = 5  # growth "after": intermediate shapes with rows at a time (their t are data, chosen from the report)
 MESH_K = 6  # nearest triangles per sample
-BLOCKED_WEIGHT = 1.0  # weight of the target points closer than the margin to an obstacle (their fit cannot be exact)
-ACTIVE_REACH = 2.0  # units of D: a primitive gets rows on a segment when its slack is below this plus REACH_DL times the segment's length
-REACH_DL = 1.0
+BLOCKED_WEIGHT = 0.1  # weight of the target points closer than the margin to an obstacle (their fit cannot be exact); primitives only
+ACTIVE_REACH = 1.0  # units of D: a primitive gets rows on a segment when its slack is below this plus REACH_DL times the segment's length
+REACH_DL = 0.5
 ROUNDS = 6
 MESH_ROUNDS = 12  # meshes: each round moves the tube at most MESH_TRUST, the active sets follow
 MESH_TRUST = 1.5  # units of D: a frame moves at most this far per solve with a mesh (its nearest triangles stay valid)
+# units of D: a column carries a mesh's rows when its slack is below this plus REACH_DL dl_j. Far fewer
+# rows than every column, with the same end on obstacle-mesh; a reach as short as the primitives' sent
+# obstacle-mesh round a far wider detour (the study: results/BENCHMARKS.md, "Obstacles")
+MESH_REACH = 8.0
 RAISE_FACTOR = 1.5  # the rows' requirement grows by this times the remaining shortfall
+PUSHED_START = True  # start from the plain design of the target pushed out of the obstacles (pushed_target)
+PUSH_EXTRA = 0.25  # units of D: the pushed target clears by this much more than the rows ask
+PUSH_PASSES = 8
 TRI_EPS = 1e-9  # sqrt(d2 + eps^2) (units of D): finite gradients at distance 0
 
 
@@ -269,15 +292,16 @@ def after_block() -> BlockType:
 
 @dataclass(frozen=True)
 class ObstacleRows:
-    """Obstacle rows on the chain (module docstring). ``P`` primitive slots per (shape, segment) (0: no
-    primitive); ``meshes`` mesh obstacles (their triangles are data); ``S`` samples per segment;
-    ``levels``: intermediate shapes of actuation after growth, each an extra level of 12 stage
-    variables (Structure.extra = 12 levels), their t the parameter ``after_t``; ``k`` triangles per
-    mesh sample. Parameters: ``obstacle_prims`` and ``obstacle_mesh_<q>`` (data of the blocks, one
-    column per (shape, segment), shape-major: the final shape, then the levels)."""
+    """Obstacle rows on the chain (module docstring). ``slots``: primitive slots of every (shape, segment)
+    column (0: no rows), shape-major (the final shape, then the levels); ``meshes``: per mesh obstacle, the
+    columns with its rows (their triangles are data); ``S`` samples per segment; ``levels``: intermediate
+    shapes of actuation after growth, each an extra level of 12 stage variables (Structure.extra = 12
+    levels), their t the parameter ``after_t``; ``k`` triangles per mesh sample. Parameters:
+    ``obstacle_prims_<P>`` (one column per (shape, segment) column with P slots) and ``obstacle_mesh_<q>``
+    (one per column of mesh q), the data of the blocks."""
 
-    P: int
-    meshes: int
+    slots: tuple  # primitive slots of every (shape, segment) column, shape-major
+    meshes: tuple  # per mesh obstacle, the columns with its rows (the others are far from it)
     S: int
     levels: int = 0
     k: int = MESH_K
@@ -303,12 +327,17 @@ class ObstacleRows:
                 frame = lay.X[j, 0] if a == 0 else lay.extra[j, 12 * (a - 1) : 12 * a]
                 cols.append(np.r_[frame, lay.theta[j], lay.lam[j, 0], lay.dl[j]])
         idx = np.array(cols).T
-        if self.P:
-            data = c.param("obstacle_prims", (prim_data_size(self.S, self.P), idx.shape[1]))
-            c.add_block(primitive_block(self.S, self.P), idx, data, lb=0.0, ub=np.inf, term="obstacles")
-        for q in range(self.meshes):
-            data = c.param(f"obstacle_mesh_{q}", (mesh_data_size(self.S, self.k), idx.shape[1]))
-            c.add_block(mesh_block(self.S, self.k), idx, data, lb=0.0, ub=np.inf, term="obstacles")
+        slots = np.asarray(self.slots, int)
+        for P in sorted(set(self.slots) - {0}):
+            # columns with P slots share one block type: no row for a primitive far from a segment
+            cols_P = np.flatnonzero(slots == P)
+            data = c.param(f"obstacle_prims_{P}", (prim_data_size(self.S, P), cols_P.size))
+            c.add_block(primitive_block(self.S, P), idx[:, cols_P], data, lb=0.0, ub=np.inf, term="obstacles")
+        for q, cols_q in enumerate(self.meshes):
+            if not cols_q:
+                continue
+            data = c.param(f"obstacle_mesh_{q}", (mesh_data_size(self.S, self.k), len(cols_q)))
+            c.add_block(mesh_block(self.S, self.k), idx[:, list(cols_q)], data, lb=0.0, ub=np.inf, term="obstacles")
 
 
 # ------------------------------------------------------------------ the plan: samples, requirements, active sets
@@ -335,12 +364,20 @@ class Plan:
         self.prims = [q for q, o in enumerate(self.obstacles) if not isinstance(o, Mesh)]
         self.meshes = [q for q, o in enumerate(self.obstacles) if isinstance(o, Mesh)]
         self.slots = np.array([rounded_box(self.scaled[q]) for q in self.prims]).reshape(len(self.prims), 17)
-        self.P = 0  # primitive slots per (shape, segment): grows (never shrinks) with the active sets
+        self.mesh_cols = [() for _ in self.meshes]  # per mesh, the columns near it (grow, never shrink)
+        self.col_slots = None  # primitive slots per (shape, segment) column: grow (never shrink) with the active sets
         self.raised = 0.0  # units of D: added to every requirement by the loop
 
     @property
     def term(self) -> ObstacleRows:
-        return ObstacleRows(self.P, len(self.meshes), self.S, self.levels, self.k)
+        return ObstacleRows(tuple(int(v) for v in self.col_slots) if self.col_slots is not None else (),
+                            tuple(tuple(int(c) for c in cols) for cols in self.mesh_cols), self.S,
+                            self.levels, self.k)
+
+    @property
+    def P(self) -> int:
+        """Most primitive slots of a column."""
+        return int(max(self.col_slots, default=0)) if self.col_slots is not None else 0
 
     @property
     def has_mesh(self) -> bool:
@@ -428,56 +465,62 @@ class Plan:
         points = {t: self.sample_points(routing, t) for t in levels}
         needs = {q: self.need(self.obstacles[q], dl) for q in range(len(self.obstacles))}
         if self.prims:
-            out["obstacle_prims"] = self._prim_data(points, levels, needs, u, dl)
+            out |= self._prim_data(points, levels, needs, u, dl)
         for m, q in enumerate(self.meshes):
             ob, sc, need = self.obstacles[q], self.scaled[q], needs[q]
-            cols = []
+            cols, near = [], []
             for t in levels:
                 head = np.vstack([u, np.full((1, M), t), need[None, :]])
                 p = points[t].reshape(-1, 3)
-                faces, _ = nearest_triangles(ob, p, k)
+                faces, dist = nearest_triangles(ob, p, k)
                 inside = mesh_signed_distance(ob, p) < 0
+                slack = (np.where(inside, -dist[:, 0], dist[:, 0]) / D).reshape(M, S).min(axis=1) - need
+                # a column gets rows where the tube can reach the mesh within one solve (MESH_TRUST)
+                near.append(slack < MESH_REACH + REACH_DL * dl)
                 tri = sc.triangles  # units of D
                 T = tri[faces].reshape(M, S, k * 9)  # per sample: k triangles, a b c each
                 nrm, off = _exit_planes(sc, faces, p / D, inside, np.repeat(need, S))
                 plane = np.hstack([nrm, off[:, None]]).reshape(M, S * 4)
                 a_plane = inside.astype(float).reshape(M, S)
                 cols.append(np.vstack([head, T.reshape(M, S * k * 9).T, (1 - a_plane).T, plane.T, a_plane.T]))
-            out[f"obstacle_mesh_{m}"] = np.hstack(cols)
+            chosen = sorted(set(self.mesh_cols[m]) | set(np.flatnonzero(np.concatenate(near)).tolist()))
+            self.mesh_cols[m] = tuple(chosen)
+            out[f"obstacle_mesh_{m}"] = np.hstack(cols)[:, chosen]
         return out
 
-    def _prim_data(self, points, levels, needs, u, dl) -> np.ndarray:
-        """The primitive slots of every (shape, segment) column: the primitives within ACTIVE_REACH + dl_j
-        of the segment's samples (beyond their requirement), nearest first; the others switched off."""
+    def _prim_data(self, points, levels, needs, u, dl) -> dict:
+        """The primitive slots of every (shape, segment) column: the primitives within ACTIVE_REACH + REACH_DL dl_j
+        of the segment's samples (beyond their requirement), nearest first. A column keeps at least the
+        slots it had (the solver stays), filled with the next nearest primitives; a column with none has
+        no rows. Returns the data of each group of columns with P slots (``obstacle_prims_<P>``)."""
         M, S, D = dl.size, self.S, self.D
         need = np.array([needs[q] for q in self.prims])  # (Q, M)
-        chosen = []
+        order, counts = [], []
         for t in levels:
             p = points[t].reshape(-1, 3)
             dist = np.array([np.asarray(self.obstacles[q].distance(p), float).reshape(M, S).min(axis=1) for q in self.prims]) / D
             slack = dist - need  # (Q, M)
             near = slack < ACTIVE_REACH + REACH_DL * dl[None, :]
-            chosen.append([np.flatnonzero(near[:, j])[np.argsort(slack[near[:, j], j])] for j in range(M)])
-        most = max(len(c) for cs in chosen for c in cs)
-        if most > self.P:
-            self.P = min(len(self.prims), 1 << max(0, most - 1).bit_length())
-        P = self.P
-        data = np.zeros((prim_data_size(S, P), len(levels) * M))
-        for a, t in enumerate(levels):
-            for j in range(M):
-                col = a * M + j
-                data[:S, col], data[S, col] = u[:, j], t
+            order += [np.argsort(slack[:, j], kind="stable") for j in range(M)]
+            counts += [int(near[:, j].sum()) for j in range(M)]
+        counts = np.array(counts)
+        if self.col_slots is not None and len(self.col_slots) == counts.size:
+            counts = np.maximum(counts, self.col_slots)
+        self.col_slots = counts
+        out = {}
+        for P in sorted(set(counts.tolist()) - {0}):
+            cols = np.flatnonzero(counts == P)
+            data = np.zeros((prim_data_size(S, P), cols.size))
+            for m, col in enumerate(cols):
+                a, j = divmod(int(col), M)
+                data[:S, m], data[S, m] = u[:, j], levels[a]
                 for slot in range(P):
                     o = S + 1 + PRIM_DATA * slot
-                    if slot < len(chosen[a][j]):
-                        i = chosen[a][j][slot]
-                        data[o : o + 17, col] = self.slots[i]
-                        data[o + 17, col], data[o + 18, col] = need[i, j], 1.0
-                    else:  # off: a unit sphere far away (finite rows, weight 0)
-                        data[o : o + 3, col] = points[t][j, 0] / D + 1e3
-                        data[o + 3 : o + 12, col] = np.eye(3).ravel()
-                        data[o + 15, col], data[o + 16, col] = 1.0, EPS_REL
-        return data
+                    i = order[col][slot]
+                    data[o : o + 17, m] = self.slots[i]
+                    data[o + 17, m], data[o + 18, m] = need[i, j], 1.0
+            out[f"obstacle_prims_{P}"] = data
+        return out
 
     def fill_extra(self, solver, x: np.ndarray, routing: Routing) -> np.ndarray:
         """Set the intermediate chains' frames in x from ``routing`` (problem units)."""
@@ -541,6 +584,62 @@ def _weigh_blocked(problem: DesignProblem, pairing, cells: np.ndarray, factor: f
     return cells
 
 
+def pushed_target(target: np.ndarray, obstacles, need: float, passes: int = PUSH_PASSES) -> np.ndarray:
+    """The target with every point closer than ``need`` (center distance, units) to an obstacle moved out
+    across the target: along the distance gradient with its component along the target's tangent taken
+    out (a target through an obstacle is pushed to one side of it, not back along itself), a run of
+    points through one obstacle to ONE side (their mean direction) unless their directions cancel (a run
+    along the obstacle, a helix round a cylinder: each point along its own), repeated ``passes`` times
+    (a point pushed out of one obstacle may land in another)."""
+    p = np.array(target, float)
+    tan = np.gradient(p, axis=0)
+    tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-300)
+    h = 1e-6 * max(1.0, float(np.ptp(p)))
+    for _ in range(passes):
+        moved = False
+        for ob in obstacles:
+            d = np.asarray(ob.distance(p), float).reshape(-1)
+            low = d < need
+            if not low.any():
+                continue
+            moved = True
+            g = np.zeros_like(p)
+            q = p[low]  # the gradient only where a point moves (a mesh's distance is not cheap)
+            steps = np.concatenate([q + h * e for e in np.eye(3)] + [q - h * e for e in np.eye(3)])
+            f = np.asarray(ob.distance(steps), float).reshape(6, -1)
+            g[low] = ((f[:3] - f[3:]) / (2 * h)).T
+            g -= np.sum(g * tan, axis=1, keepdims=True) * tan
+            m = np.concatenate([[False], low, [False]]).astype(int)
+            for i0, i1 in zip(np.flatnonzero(np.diff(m) == 1), np.flatnonzero(np.diff(m) == -1)):
+                run = slice(i0, i1)
+                gn = np.linalg.norm(g[run], axis=1)
+                w = g[run].mean(axis=0)
+                n = float(np.linalg.norm(w))
+                if n >= 0.5 * float(gn.mean()) and n > 1e-12:  # a pass through the obstacle: all to one side
+                    dirs = np.broadcast_to(w / n, g[run].shape)
+                elif np.all(gn > 1e-12):  # a run along the obstacle (a helix round a cylinder): each point outward
+                    dirs = g[run] / gn[:, None]
+                else:  # dead center: any side across the tangent
+                    w = np.cross(tan[i0], [0.0, 0.0, 1.0] if abs(tan[i0, 2]) < 0.9 else [1.0, 0.0, 0.0])
+                    dirs = np.broadcast_to(w / np.linalg.norm(w), g[run].shape)
+                rate = np.maximum(np.sum(dirs * g[run], axis=1), 0.2)  # the distance's rate along the push: a Newton step
+                p[run] += ((need - d[run]) / rate)[:, None] * dirs
+        if not moved:
+            break
+    return p
+
+
+def _pushed_start(problem: DesignProblem, start: Result, plan: Plan) -> Routing:
+    """A start around the obstacles: the plain design of the pushed target (:func:`pushed_target`, center
+    distance D/2 + margin + PUSH_EXTRA D), warm from the obstacle-free design."""
+    D = problem.diameter
+    tg = pushed_target(problem.target, problem.obstacles, D * (0.5 + PUSH_EXTRA) + plan.margin)
+    pushed = dataclasses.replace(problem, target=tg, obstacles=())
+    pairing = pair_points(tg, problem.options.points_per_segment)
+    r = solve_from(pushed, guess_from_routing(pushed, pairing, start.routing), pairing, frames="target")
+    return r.routing
+
+
 def obstacle_stats(report: dict) -> dict:
     """The run metrics of a report: min_obstacle_gap (and min_obstacle_gap_after for growth "after")."""
     out = {"min_obstacle_gap": float(report["min_gap"])}
@@ -598,16 +697,20 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
         best.stats.update(stats0 | {"obstacle_rounds": 0, "obstacle_clear": bool(first["clear"])})
         return best
     pairing = pair_points(problem.target, problem.options.points_per_segment)
-    R0g = start.routing.initial_pose[:3, :3].copy()
-    params = nlp_parameters(problem, pairing, R0g)
-    if BLOCKED_WEIGHT != 1.0:
-        params["cells"] = _weigh_blocked(problem, pairing, params["cells"], BLOCKED_WEIGHT)
     plan.choose_levels(first)
-    data = plan.data(start.routing)
+    routing = start.routing
+    if PUSHED_START and not plan.has_mesh:  # (a mesh: the push took a torus's scene the long way round)
+        plan.data(routing)  # the slots near the obstacle-free design stay
+        routing = _pushed_start(problem, start, plan)
+    R0g = routing.initial_pose[:3, :3].copy()
+    params = nlp_parameters(problem, pairing, R0g)
+    if BLOCKED_WEIGHT != 1.0 and not plan.has_mesh:
+        params["cells"] = _weigh_blocked(problem, pairing, params["cells"], BLOCKED_WEIGHT)
+    data = plan.data(routing)
     solver = _design_solver(problem, pairing, plan)
     lbx, ubx = solver.bounds(*design_bounds(problem, pairing))
-    x = plan.fill_extra(solver, start_x(solver, chain_guess(problem, start.routing), D, "chain"), start.routing)
-    routing, best, rep, solves = start.routing, None, first, 0
+    x = plan.fill_extra(solver, start_x(solver, chain_guess(problem, routing), D, "chain"), routing)
+    best, rep, solves = None, first, 0
     if plan.has_mesh:
         rounds = max(rounds, MESH_ROUNDS)
     while solves < rounds:
@@ -664,7 +767,8 @@ def _tip_solve(problem: TipProblem, plan: Plan, routing: Routing, rounds: int):
     e1, e2 = _perpendicular_pair(d)
     base = {"cells": np.zeros((5, M)), "smooth": [o.smooth_theta, o.smooth_lambda], "h": np.full(max(M - 1, 1), L / M / D),
             "L": L / D, "tip_position": problem.position / D, "tip_frame": np.column_stack([d, e1, e2]), "tube_length": L / D}
-    plan.raised, plan.ts = 0.0, []
+    plan.raised, plan.ts, plan.col_slots = 0.0, [], None
+    plan.mesh_cols = [() for _ in plan.meshes]
     plan.choose_levels(plan.report(routing))
     data = plan.data(routing)
     solver = _tip_solver(problem, plan)

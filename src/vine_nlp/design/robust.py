@@ -194,29 +194,26 @@ def robust_parameters(params: dict, sigmas: Sigmas, weight: float, D: float, n: 
     return {"robust": [sigmas.theta, sigmas.lam, rel, ab, weight], "robust_W": Wd, "robust_wtip": wtip}
 
 
+@lru_cache(maxsize=8)
+def _sums_function(solver) -> ca.Function:
+    """(x, p) -> each stage's (sum w p, sum w p p^T), the tip's (p, p p^T): on this solver's own variables and parameters."""
+    c, M, n = solver.chain, solver.structure.M, solver.structure.n
+    F = robust_segment_function(n).map(M, "serial")
+    _, _, _, P1, P2 = F(c.frames(0)[:, :M], c.theta, c.lam_of(0), c.dl, c.cells[:n, :], c.cells[4 * n :, :], ca.DM.zeros(3, M))
+    P = ca.vertcat(*[ca.vec(q) for _, q in c.params])
+    return ca.Function("sums", [c.x, P], [ca.vertcat(P1, P2), ca.vertcat(c.tip(0), _sym6(c.tip(0)))])
+
+
 def downstream_sums(solver, x, p) -> np.ndarray:
     """S (9, M) where the recursion holds for x's chain: suffix sums of each stage's (sum w p, sum w p p^T)."""
-    c = solver.chain
-    M, n = c.s.M, c.s.n
-    key = solver.spec  # the function reads this solver's own variables and parameters
-    if key not in _SUMS:
-        P = ca.vertcat(*[ca.vec(q) for _, q in c.params])
-        F = robust_segment_function(n).map(M, "serial")
-        frames = c.frames(0)
-        cells = c.cells
-        _, _, _, P1, P2 = F(frames[:, :M], c.theta, c.lam_of(0), c.dl, cells[:n, :], cells[4 * n :, :], ca.DM.zeros(3, M))
-        tip = c.tip(0)
-        _SUMS[key] = ca.Function("sums", [c.x, P], [ca.vertcat(P1, P2), ca.vertcat(tip, _sym6(tip))])
-    Lv, T = (np.array(v) for v in _SUMS[key](x, p))
+    M = solver.structure.M
+    Lv, T = (np.array(v) for v in _sums_function(solver)(x, p))
     wtip = float(p[solver.param_slice("robust_wtip")][0])
     S = np.zeros((9, M))
     S[:, M - 1] = wtip * T.ravel()
     for j in range(M - 2, -1, -1):
         S[:, j] = S[:, j + 1] + Lv[:, j + 1]
     return S
-
-
-_SUMS: dict = {}
 
 
 def robust_solver(problem: DesignProblem, pairing):

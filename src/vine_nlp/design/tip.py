@@ -58,7 +58,7 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from vine_nlp.design.common import geometric_guess, pair_points
+from vine_nlp.design.common import _perpendicular, _unit, geometric_guess, pair_points
 from vine_nlp.design.problem import DesignProblem, Routing, TipProblem
 from vine_nlp.design.result import Result, forward_shape, routing_metrics
 from vine_nlp.design.transcription import (
@@ -68,11 +68,12 @@ from vine_nlp.design.transcription import (
     Spec,
     Structure,
     frames12,
+    get_solver,
     ipopt_options,
     options_key,
     pick_best,
+    record_starts,
 )
-from vine_nlp.design.transcription import get_solver as _get
 from vine_nlp.model.chain import chain_frames
 
 RUN = "tip"
@@ -152,20 +153,8 @@ def tip_spec(M: int, shared: bool, direction: bool, objective: str, max_iter: in
                 "exact", options_key(opts))
 
 
-def get_solver(M: int, shared: bool, direction: bool, objective: str, max_iter: int = 3000, tol: float = 1e-8, closest: bool = False,
-               monotone: bool = True):
-    """Cached per structure (building costs more than one solve); ``closest`` is the variant without the tip constraints."""
-    return _get(tip_spec(M, shared, direction, objective, max_iter, tol, closest, monotone=monotone))
-
-
-def _unit(v):
-    n = np.linalg.norm(v)
-    return v / n if n > 0 else v
-
-
 def _perpendicular_pair(d):
-    a = np.array([0.0, 0.0, 1.0]) if abs(d[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    e1 = _unit(a - np.dot(a, d) * d)
+    e1 = _perpendicular(d)
     return e1, np.cross(d, e1)
 
 
@@ -234,10 +223,9 @@ def solve_from(problem: TipProblem, theta, lam, dl, frames, closest: bool = Fals
     ``monotone``: IPOPT's monotone barrier (TIP_BARRIER), else the adaptive one."""
     o, a, D, M, L = problem.options, problem.actuator, problem.diameter, problem.segments, problem.length
     has_dir = problem.direction is not None
-    solver = get_solver(M, a.shared_lambda, has_dir, problem.objective, o.max_iter, o.tol, closest, monotone)
+    solver = get_solver(tip_spec(M, a.shared_lambda, has_dir, problem.objective, o.max_iter, o.tol, closest, monotone))
     T0 = problem.initial_pose
-    X0 = frames12(T0[None])[:, 0].copy()
-    X0[9:] /= D
+    X0 = frames12(T0[None], D)[:, 0]
     d = problem.direction if has_dir else np.array([1.0, 0.0, 0.0])
     e1, e2 = _perpendicular_pair(d)
     scale = CLOSEST_ACTUATION if closest else 1.0
@@ -245,23 +233,12 @@ def solve_from(problem: TipProblem, theta, lam, dl, frames, closest: bool = Fals
         "cells": np.zeros((5, M)), "smooth": [scale * o.smooth_theta, scale * o.smooth_lambda], "h": np.full(max(M - 1, 1), L / M / D),
         "L": L / D, "tip_position": problem.position / D, "tip_frame": np.column_stack([d, e1, e2]), "tube_length": L / D,
     })
-    fr = frames.copy()
-    fr[:, :3, 3] /= D
     lbx, ubx = solver.bounds((-a.theta_max, a.theta_max), (a.lambda_min, 1.0), (MIN_LENGTH_FACTOR * L / M / D, L / D), X0=X0)
-    x, status, st = solver.solve(solver.pack_x(theta, lam, dl / D, frames12(fr)[None]), p, lbx, ubx)
+    x, status, st = solver.solve(solver.pack_x(theta, lam, dl / D, frames12(frames, D)[None]), p, lbx, ubx)
     v = solver.unpack(x)
-    stats = st | {
-        "objective_actuation": st["objective_actuation"] / scale,
-        "objective_miss": st.get("objective_miss", 0.0),
-        "objective_kind": problem.objective,
-        "closest_approach": closest,
-        "segments": M,
-        "tube_length": L,
-        "smooth_theta": o.smooth_theta,
-        "smooth_lambda": o.smooth_lambda,
-        "tol": o.tol,
-        "max_iter": o.max_iter,
-    }
+    stats = st | {"objective_actuation": st["objective_actuation"] / scale, "objective_miss": st.get("objective_miss", 0.0),
+                  "objective_kind": problem.objective, "closest_approach": closest, "segments": M, "tube_length": L,
+                  "smooth_theta": o.smooth_theta, "smooth_lambda": o.smooth_lambda, "tol": o.tol, "max_iter": o.max_iter}
     stats.pop("objective_fit", None)
     return evaluate_tip(problem, Routing(v["theta"], v["lam"][:, 0], v["dl"] * D, T0), status=status,
                         solve_time_s=stats.pop("solve_time_s"), iterations=stats.pop("iterations"), stats=stats)
@@ -323,7 +300,9 @@ def design_tip(problem: TipProblem, starts: int | None = None, progress=None, th
                 progress(len(results), len(guesses))
             if results[-1].status == "optimal" and not thorough:
                 break
-    best = _best(results) if results else None
+    # converged before not converged; then the lowest objective (converged) or tip error (not converged)
+    rank = lambda r: r.stats["objective"] if r.converged else r.metrics["tip_error"]  # noqa: E731
+    best = results[pick_best(results, objective=rank)] if results else None
     reason = "" if reach else "the tip is farther from the base than the tube is long"
     if best is None or not best.converged:
         near = solve_from(problem, *guesses[0], closest=True)
@@ -341,18 +320,9 @@ def design_tip(problem: TipProblem, starts: int | None = None, progress=None, th
             best.stats["closest_status"] = near.status
             best.status = "infeasible"
             reason = reason or f"no start reached the tip (statuses {', '.join(tried)}); nearest approach reported"
-    best.stats["starts"] = len(results)
-    best.stats["start_objectives"] = [r.stats["objective"] for r in results]
+    record_starts(best, next(k for k, r in enumerate(results) if r is best), results, t0)
     best.stats["start_status"] = [r.status for r in results]
-    best.stats["best_start"] = next(k for k, r in enumerate(results) if r is best)
     if reason:
         best.stats["infeasible_reason"] = reason
-    best.solve_time_s = time.perf_counter() - t0
-    best.iterations = sum(r.iterations for r in results)
     best.metrics["reachable"] = float(best.converged)
     return best
-
-
-def _best(results):
-    """Converged before not converged; then the lowest objective (converged) or tip error (not converged)."""
-    return results[pick_best(results, objective=lambda r: r.stats["objective"] if r.converged else r.metrics["tip_error"])]

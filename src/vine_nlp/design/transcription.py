@@ -23,7 +23,7 @@ carries its own SX derivatives, mapped over its instances and scattered into the
 global matrices (``_scatter``): CasADi's automatic MX derivatives would colour the
 whole banded matrix and sweep the mapped function once per colour, several times
 the cost per iteration (results/BENCHMARKS.md, "Derivatives"). Small global terms
-and rows (smoothness, tip, clearance pairs) keep CasADi's automatic derivatives.
+and rows (smoothness, tip rows) keep CasADi's automatic derivatives.
 
 Blocks every chain has:
   pose      X_0(k) = [vec(R0g exp(w)); p]          (not for a fixed pose: bounds fix X_0)
@@ -111,10 +111,10 @@ def ipopt_status(stats: dict, x=None) -> str:
     return IPOPT_STATUS.get(raw, str(raw or "failed"))
 
 
-def frames12(frames: np.ndarray) -> np.ndarray:
-    """(M+1, 4, 4) -> (12, M+1): rotation column-major, then position (the transcription's frame layout)."""
+def frames12(frames: np.ndarray, D: float = 1.0) -> np.ndarray:
+    """(M+1, 4, 4) -> (12, M+1): rotation column-major, then position / D (the transcription's frame layout)."""
     R = frames[:, :3, :3].transpose(0, 2, 1).reshape(-1, 9)
-    return np.hstack([R, frames[:, :3, 3]]).T
+    return np.hstack([R, frames[:, :3, 3] / D]).T
 
 
 # ---------------------------------------------------------------- structure and layout
@@ -153,31 +153,27 @@ class Layout:
     def __init__(self, s: Structure):
         M, K, E = s.M, s.K, s.extra
         i = 0
-        self.pose = np.arange(6 * s.poses).reshape(s.poses, 6)
-        i += 6 * s.poses
-        nglob = {"segment": 0, "shared": 1, "level": K}[s.lam]
-        self.lam_global = np.arange(i, i + nglob)
-        i += nglob
-        self.globals = np.arange(i, i + s.globals)
-        i += s.globals
+
+        def take(count: int) -> np.ndarray:  # the next ``count`` entries of x
+            nonlocal i
+            i += count
+            return np.arange(i - count, i)
+
+        self.pose = take(6 * s.poses).reshape(s.poses, 6)
+        self.lam_global = take({"segment": 0, "shared": 1, "level": K}[s.lam])
+        self.globals = take(s.globals)
         X = np.zeros((M + 1, K, 12), int)
-        X[0] = np.arange(i, i + 12 * K).reshape(K, 12)
-        i += 12 * K
+        X[0] = take(12 * K).reshape(K, 12)
         self.theta, self.dl = np.zeros(M, int), np.zeros(M, int)
         self.lam = np.zeros((M, K), int)
         self.extra = np.zeros((M, E), int)
         for j in range(M):
-            self.theta[j] = i
-            i += 1
+            self.theta[j] = take(1)[0]
             if s.lam == "segment":
-                self.lam[j, :] = i
-                i += 1
-            self.dl[j] = i
-            i += 1
-            self.extra[j] = np.arange(i, i + E)
-            i += E
-            X[j + 1] = np.arange(i, i + 12 * K).reshape(K, 12)
-            i += 12 * K
+                self.lam[j, :] = take(1)[0]
+            self.dl[j] = take(1)[0]
+            self.extra[j] = take(E)
+            X[j + 1] = take(12 * K).reshape(K, 12)
         if s.lam == "shared":
             self.lam[:, :] = self.lam_global[0]
         elif s.lam == "level":
@@ -315,7 +311,7 @@ class Chain:
     Views (MX, units of D): ``x``, ``theta``, ``dl`` (1 x M), ``lam_of(k)`` (1 x M),
     ``frames(k)`` (12 x (M+1)), ``tip(k)`` (3), ``extra`` (E x M). ``param(name, shape)``
     declares data; ``add_block``, ``add_term`` and ``add_rows`` add per-stage blocks, global
-    objective terms and global rows. ``Spec.build`` turns it into one solver.
+    objective terms and global rows. ``get_solver(spec)`` turns it into one solver.
     """
 
     def __init__(self, s: Structure):
@@ -426,9 +422,6 @@ class Spec:
     hessian: str = "exact"
     options: tuple = ()
 
-    def build(self) -> "Solver":
-        return get_solver(self)
-
 
 @lru_cache(maxsize=32)
 def get_solver(spec: Spec) -> "Solver":
@@ -461,36 +454,30 @@ class Solver:
         x, lay = c.x, c.lay
         p = ca.vertcat(*[ca.vec(q) for _, q in c.params])
         self._param_shapes = {name: q.shape for name, q in c.params}
-        self._param_order = [name for name, _ in c.params]
+        ends = np.cumsum([0] + [q.numel() for _, q in c.params])
+        self._param_slices = {name: slice(int(a), int(b)) for (name, _), a, b in zip(c.params, ends[:-1], ends[1:])}
         # objective and rows: blocks (mapped SX) first, then global rows
         f_blocks, g_parts, lbg, ubg = 0, [], [], []
-        gathered, block_terms = [], {}
+        gathered, reported = [], dict(c.terms)  # reported: the objective per term (global and blocks)
         for b in c.blocks:
             count = b.index.shape[1]
             V = c.gather(b.index)
             F = b.bt.fn.map(count, "serial")
             fb, rb = F(V, b.data)
             f_blocks = f_blocks + ca.sum2(fb)
-            block_terms[b.term] = block_terms.get(b.term, 0) + ca.sum2(fb)
+            reported[b.term] = reported.get(b.term, 0) + ca.sum2(fb)
             if b.bt.nr:
                 g_parts.append(ca.vec(rb))
                 lbg.append(np.tile(b.lb, count))
                 ubg.append(np.tile(b.ub, count))
             gathered.append((V, count))
         f_glob = sum(c.terms.values(), ca.MX(0))  # global terms: automatic derivatives
-        reported = dict(c.terms)
-        for k, v in block_terms.items():
-            reported[k] = reported.get(k, 0) + v
         g_glob = ca.vertcat(*[r for _, r, _, _ in c.rows]) if c.rows else ca.MX(0, 1)
         f = f_glob + f_blocks
         nb = int(sum(v.numel() for v in g_parts))
         g = ca.vertcat(*g_parts, g_glob)
-        self.lbg = np.concatenate(lbg + [r[2] for r in c.rows]) if (lbg or c.rows) else np.zeros(0)
-        self.ubg = np.concatenate(ubg + [r[3] for r in c.rows]) if (ubg or c.rows) else np.zeros(0)
-        self.row_slices, off = {}, nb
-        for name, r, _, _ in c.rows:
-            self.row_slices[name] = slice(off, off + r.numel())
-            off += r.numel()
+        self.lbg = np.concatenate([np.zeros(0)] + lbg + [r[2] for r in c.rows])
+        self.ubg = np.concatenate([np.zeros(0)] + ubg + [r[3] for r in c.rows])
 
         def problem_and_derivatives():
             # derivatives: per block type SX, mapped and scattered; global parts automatic
@@ -538,12 +525,11 @@ class Solver:
 
     # data
     def pack_params(self, values: dict) -> np.ndarray:
-        missing = [k for k in self._param_order if k not in values]
+        missing = [k for k in self._param_shapes if k not in values]
         if missing:
             raise ValueError(f"parameters missing: {missing}")
         out = []
-        for name in self._param_order:
-            shape = self._param_shapes[name]
+        for name, shape in self._param_shapes.items():
             v = np.asarray(values[name], float)
             if v.size != shape[0] * shape[1]:
                 raise ValueError(f"parameter {name!r}: {v.size} values for shape {shape}")
@@ -552,13 +538,7 @@ class Solver:
 
     def param_slice(self, name: str) -> slice:
         """Where parameter ``name`` sits in the packed parameter vector."""
-        off = 0
-        for k in self._param_order:
-            size = self._param_shapes[k][0] * self._param_shapes[k][1]
-            if k == name:
-                return slice(off, off + size)
-            off += size
-        raise KeyError(name)
+        return self._param_slices[name]
 
     def pack_x(self, theta, lam, dl, frames, poses=None, lam_global=None, extra=None, globals_=None) -> np.ndarray:
         """x from per-segment theta, dl (M,), lam (M,) or (M, K), frames (K, 12, M+1), poses (P, 6),

@@ -16,8 +16,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
 GLOBAL_POINTS = 300  # measured points used by the ICP of the global stage (all points are used for the polish)
 
@@ -81,6 +79,7 @@ def principal_axes(X):
 def _octahedral() -> np.ndarray:
     """The 24 proper rotations mapping the coordinate axes onto themselves; the four
     diagonal ones (identity and the sign flips of two axes) first."""
+    from scipy.spatial.transform import Rotation  # SciPy loads where it is used: the command line starts faster
     G = np.round(Rotation.create_group("O").as_matrix())
     diag = np.array([np.allclose(g, np.diag(np.diag(g))) for g in G])
     first = G[diag]
@@ -101,6 +100,7 @@ def pose_starts(source, target, starts: int = 24, seed: int = 0) -> list[np.ndar
     cy, Vy = principal_axes(np.asarray(target, float))
     Rs = [Vy @ g @ Vx.T for g in _octahedral()][: max(starts, 1)]
     if starts > 24:
+        from scipy.spatial.transform import Rotation  # SciPy loads where it is used: the command line starts faster
         Rs += list(Rotation.random(starts - 24, random_state=seed).as_matrix())
     return [make_transform(R, cy - R @ cx) for R in Rs]
 
@@ -120,6 +120,7 @@ class Polyline:
         self.p = p[keep]
         self.s_tube = None if s_tube is None else np.asarray(s_tube, float)[keep]
         self.path = path and self.p.shape[0] >= 2
+        from scipy.spatial import cKDTree  # SciPy loads where it is used: the command line starts faster
         self.tree = cKDTree(self.p)
         if self.path:
             self.d = np.diff(self.p, axis=0)
@@ -299,6 +300,7 @@ def polish_pose(sets, T, max_iter=50, tol=1e-10):
             step = np.linalg.solve(H + mu * dH, -g)
             if np.linalg.norm(step[:3]) * radius + np.linalg.norm(step[3:]) <= 1e-15 * scale:
                 break  # nothing left to gain at this precision
+            from scipy.spatial.transform import Rotation  # SciPy loads where it is used: the command line starts faster
             Rw = Rotation.from_rotvec(step[:3]).as_matrix()
             Tn = make_transform(Rw @ T[:3, :3], Rw @ (T[:3, 3] - c0) + c0 + step[3:])
             new = evaluate(Tn)

@@ -12,9 +12,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
 from vine_nlp.design.fit.align import clean_points, principal_axes, r_squared
 from vine_nlp.model import helix_forward, helix_inverse
@@ -68,6 +65,7 @@ def _helix_residuals(p, X, F0, line_idx, nradii, residual="orthogonal"):
     """
     alpha, beta, cx, cy, w, phi0 = p[:6]
     radii = np.asarray(p[6 : 6 + nradii])
+    from scipy.spatial.transform import Rotation  # SciPy loads where it is used: the command line starts faster
     F = F0 @ Rotation.from_rotvec([alpha, beta, 0.0]).as_matrix()
     q = X @ F
     qu, qv, qa = q[:, 0] - cx, q[:, 1] - cy, q[:, 2]
@@ -140,6 +138,7 @@ def _curve_order(X):
     while path[-1] != a and pred[path[-1]] >= 0:
         path.append(int(pred[path[-1]]))
     path = np.array(path[::-1])
+    from scipy.spatial import cKDTree  # SciPy loads where it is used: the command line starts faster
     _, near = cKDTree(X[path]).query(X)
     key = da[path][near] + 1e-9 * np.linalg.norm(X - X[path][near], axis=1)
     return np.argsort(key, kind="stable")
@@ -188,6 +187,7 @@ def _helix_candidates(X, n_dirs=96, max_points=400, residual="orthogonal"):
 
 
 def _solve_helix(X, F0, p0, line_idx, nradii, residual, tol=1e-14, max_nfev=2000):
+    from scipy.optimize import least_squares  # SciPy loads where it is used: the command line starts faster
     sol = least_squares(
         _helix_residuals, p0, args=(X, F0, line_idx, nradii, residual), method="lm", x_scale="jac",
         xtol=tol, ftol=tol, gtol=tol, max_nfev=max_nfev,
@@ -205,6 +205,7 @@ def _rate_mismatch(p, X, F0, radius, order):
     noise is comparable to the pitch; its phase does not follow the points, which this
     detects (> 1 means aliased)."""
     alpha, beta, cx, cy, w, _ = p[:6]
+    from scipy.spatial.transform import Rotation  # SciPy loads where it is used: the command line starts faster
     F = F0 @ Rotation.from_rotvec([alpha, beta, 0.0]).as_matrix()
     q = X @ F
     psi = np.arctan2(q[:, 1] - cy, q[:, 0] - cx) + (math.pi if radius < 0 else 0.0)
@@ -249,6 +250,7 @@ def _fit_helices(Xc, idx, nradii, inits, residual, check_line, keep=2, max_point
 def _helix_dict(p, F0, mean, nradii):
     """Axis point/direction, signed pitch b and radii in world coordinates from parameters."""
     alpha, beta, cx, cy, w, phi0 = p[:6]
+    from scipy.spatial.transform import Rotation  # SciPy loads where it is used: the command line starts faster
     F = F0 @ Rotation.from_rotvec([alpha, beta, 0.0]).as_matrix()
     return {
         "axis_point": mean + F[:, 0] * cx + F[:, 1] * cy,

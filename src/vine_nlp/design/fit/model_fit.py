@@ -18,7 +18,6 @@ import math
 import time
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from vine_nlp.design.fit.align import (
     PointSet,
@@ -167,6 +166,7 @@ class LineFitter:
             return fit.mse
 
         if b > a:
+            from scipy.optimize import minimize_scalar  # SciPy loads where it is used: the command line starts faster
             minimize_scalar(objective, bounds=(a, b), method="bounded", options={"xatol": 1e-5})
         return best["lam"], best["fit"]
 
