@@ -51,10 +51,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.optimize import minimize
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from vine_nlp.model.chain import chain_frames, chain_points, segment_end_samples
 from vine_nlp.model.helix import center_rates, helix_self_collides, helix_turns
@@ -151,6 +147,10 @@ def _regions(pairs, s, h):
     if K == 0:
         return []
     st = np.column_stack([s[pairs[:, 0]], s[pairs[:, 1]]])
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
     links = cKDTree(st).query_pairs(r=2.01 * h, p=np.inf, output_type="ndarray")
     g = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(K, K)) if len(links) else coo_matrix((K, K))
     _, label = connected_components(g, directed=False)
@@ -178,6 +178,7 @@ def _clearance(points, s, D, exclude_arc, margin, refine, closest=True):
     points = np.asarray(points, float)
     h = float(np.max(np.diff(s))) if len(s) > 1 else 0.0
     threshold = D + margin
+    from scipy.spatial import cKDTree
     tree = cKDTree(points)
 
     def candidates(r):
@@ -339,6 +340,7 @@ def routing_clearance(routing, D: float, spacing: float | None = None, exclude_a
             return float(np.sum((q[0] - q[1]) ** 2)) / D**2
 
         box = [(max(0.0, l[i] - 2 * hl), min(l[-1], l[i] + 2 * hl)), (max(0.0, l[j] - 2 * hl), min(l[-1], l[j] + 2 * hl))]
+        from scipy.optimize import minimize  # SciPy loads where it is used: commands start faster
         opt = minimize(f, np.array([l[i], l[j]]), method="L-BFGS-B", bounds=box, options={"ftol": 1e-15, "gtol": 1e-12, "maxiter": 200})
         za, zb = opt.x
         sa, sb = model.arc([za, zb])
