@@ -215,17 +215,20 @@ def test_ctrl_c_keeps_finished_archives_and_a_valid_summary(tmp_path):
     with pytest.raises(KeyboardInterrupt) as info:
         sw.run_sweep(load_sweep(path), out, workers=2, progress=False, callback=interrupt)
     report = info.value.sweep_report
-    assert report.interrupted and report.done == 1 and len(seen) == 1
-    assert _h5_files(out) == [f"{seen[0]}.h5"]
+    # the callback of the first finished item interrupts; the other worker's item may have
+    # finished in the same wait (both archives written before the callbacks): both are kept
+    assert report.interrupted and len(seen) == 1 and 1 <= report.done < 4
+    kept = _h5_files(out)
+    assert f"{seen[0]}.h5" in kept and len(kept) == report.done
     for p in out.glob("*.h5"):
         load_archive(p)
     assert not list(out.glob(".*.tmp"))  # no half-written files
     _, rows = _read_csv(out / "summary.csv")
-    assert [r["item"] for r in rows] == seen
+    assert [f"{r['item']}.h5" for r in rows] == kept
     assert "not run (interrupted)" in sw.format_report(report)
 
     again = sw.run_sweep(load_sweep(path), out, workers=2, progress=False)
-    assert (again.done, again.skipped, again.failed) == (3, 1, 0)
+    assert (again.done, again.skipped, again.failed) == (4 - report.done, report.done, 0)
     _, rows = _read_csv(out / "summary.csv")
     assert [r["item"] for r in rows] == [f"tiny-000{k}" for k in range(4)]
 
