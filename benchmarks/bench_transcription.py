@@ -7,7 +7,9 @@ timing (the build is reported apart), IPOPT's own iteration count:
 - multishape with K = 1 (the trefoil, sPAM) against the plain sPAM NLP;
 - clearance (a helix whose turns are closer than D) against the plain NLP on the same helix;
 - robust (trefoil and Bezier (b), sigmas 1 deg, 0.02, 2 %) against the plain NLP;
-- tip (the trefoil's tip position and direction, 40 segments) against the plain NLP with 40 segments.
+- tip (the trefoil's tip position and direction, 40 segments) against the plain NLP with 40 segments;
+- obstacles (obstacle-pipe-bend, obstacle-mesh: the solves with rows, not the obstacle-free or pushed starts)
+  against the plain NLP on the same target without its obstacles.
 
 Also: command start to archive for trefoil, multishape-spam and tip-target (whole processes), with the
 objective and RMSE of the archived design (the design quality the timing must not trade away). The
@@ -40,6 +42,7 @@ from vine_nlp.design import compiled, transcription
 from vine_nlp.design.clearance import design_with_clearance
 from vine_nlp.design.multishape import design_multishape
 from vine_nlp.design.nlp import design_nlp
+from vine_nlp.design.obstacles import design_with_obstacles
 from vine_nlp.design.problem import Actuator, DesignProblem, MultiShapeProblem, TipProblem
 from vine_nlp.design.robust import design_robust
 from vine_nlp.design.tip import design_tip
@@ -188,6 +191,20 @@ def main():
     ms, it, r, ratio, sh = paired(lambda: design_robust(bez, SIGMAS, start=bez_base), lambda: design_nlp(bez), rep)
     rows.append(("robust", "Bezier (b)", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))
 
+    # obstacles: the rows' solves (interpreted, like clearance: the active sets change the structure)
+    for name, label in (("obstacle-pipe-bend", "pipe bend, 5 capsules"), ("obstacle-mesh", "mesh, 360 triangles")):
+        # the rows' solves use the exact Hessian: the plain NLP to compare with does too; the obstacle design starts
+        # from the problem's own obstacle-free design, as `vine-nlp design` does (a mesh's active-set loop is
+        # sensitive to its start: from the exact-Hessian design, 1e-6 away, obstacle-mesh ends elsewhere)
+        pb = load_problem(ROOT / f"problems/{name}.toml").problem
+        nb = exact(dataclasses.replace(pb, obstacles=()))
+        ob_ms, ob_it, ob_base, sh = per_iteration(lambda: design_nlp(nb), rep)  # noqa: B023
+        rows.append(("nlp (exact Hessian)", f"{name} without its obstacles", f"{ob_ms:.2f}", ob_it, quality(ob_base), pct(sh), "1.00"))
+        ob_free = design_nlp(dataclasses.replace(pb, obstacles=()))
+        ms, it, r, ratio, sh = paired(lambda: design_with_obstacles(pb, start=ob_free), lambda: design_nlp(nb), rep)  # noqa: B023
+        rows.append(("obstacles", f"{label} ({r.stats['obstacle_rounds']} solves with rows, min gap "
+                     f"{r.metrics['min_obstacle_gap']:.4g} for margin {pb.obstacle_margin:g})", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))
+
     end = chain_frames(base.routing.theta, base.routing.lam, base.routing.length, tre.diameter, base.routing.initial_pose)
     T0 = end[0]
     tip = TipProblem("tip", tre.diameter, end[-1][:3, 3], float(base.routing.length.sum()), base.routing.segments,
@@ -214,9 +231,10 @@ def main():
         "<= 1.5x (robust <= 4x). Objective: the design's (units of D^2; the tip's: actuation and tie-break). In functions: "
         "the share of IPOPT's time spent in the NLP's functions (objective, rows, their derivatives; CasADi's CPU timers), "
         "the rest is IPOPT's own, mostly factorizing the KKT matrix (clearance pairs couple segments a turn apart: "
-        "a much denser factor than the banded chain's).",
-        f"NLP functions: VINE_NLP_CODEGEN={compiled.mode()} (clearance, whose active set changes the structure, always "
-        "interpreted). " + load,
+        "a much denser factor than the banded chain's; obstacle rows are inequalities on the chain's stages, whose "
+        "curvature makes IPOPT correct the KKT matrix's inertia, refactorizing, on most iterations).",
+        f"NLP functions: VINE_NLP_CODEGEN={compiled.mode()} (clearance and obstacles, whose active sets change the "
+        "structure, always interpreted). " + load,
         table(("formulation", "target", "ms / iteration", "iterations", "objective", "in functions", "ratio"), rows),
         "Command start to archive (`vine-nlp design P.toml`, whole process; the three commands in turn, "
         f"{rep} rounds, medians of the times and of the per-round ratios; goal: multishape and tip <= 2x the trefoil), "

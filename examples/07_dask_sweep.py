@@ -12,6 +12,7 @@ Makes: sweep/ (one archive per item, summary.csv, summary.png), summary.json.
 """
 
 import csv
+import logging
 
 from _common import DATA, arguments, vine_nlp, write_summary
 
@@ -30,8 +31,12 @@ def main():
     if address is None:
         from dask.distributed import LocalCluster
 
-        # one thread per worker: each design already keeps a core busy
-        cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        # one thread per worker: each design already keeps a core busy. Worker logs below CRITICAL stay quiet:
+        # on a busy machine a worker's heartbeat can meet the scheduler closing at shutdown, and distributed
+        # logs that race with a traceback although nothing failed (a failed design comes back as its item's
+        # status, through the task, not through the worker's log)
+        cluster = LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=logging.CRITICAL)
         address = cluster.scheduler_address
     try:
         vine_nlp("sweep", DATA / "small-sweep.toml", "-o", sweep_dir, "--scheduler", address, "--force")

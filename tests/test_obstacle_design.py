@@ -349,3 +349,23 @@ def test_rows_only_on_segments_near_the_obstacles(free):
     np.testing.assert_array_equal(plan.col_slots, expect)
     assert set(data) == {"obstacle_prims_1"} and data["obstacle_prims_1"].shape[1] == expect.sum()
     assert plan.term.slots == tuple(expect.tolist())
+
+
+def test_iterations_and_ipopt_time_add_up_over_the_solves_with_rows(monkeypatch, slab, free):
+    """Every solve with obstacle rows counts (a mesh takes rounds); the obstacle-free and pushed starts do not."""
+    from vine_nlp.design import transcription
+    from vine_nlp.design.obstacles import ObstacleRows
+
+    seen, solve = [], transcription.Solver.solve
+
+    def recorded(self, *a, **kw):
+        x, status, st = solve(self, *a, **kw)
+        if any(isinstance(t, ObstacleRows) for t in self.spec.terms):
+            seen.append((st["iterations"], st["ipopt_time_s"]))
+        return x, status, st
+
+    monkeypatch.setattr(transcription.Solver, "solve", recorded)
+    r = design_with_obstacles(_problem([slab]), start=free)
+    assert len(seen) == r.stats["obstacle_rounds"] >= 1
+    assert r.iterations == r.stats["ipopt_iterations"] == sum(i for i, _ in seen)
+    assert r.stats["ipopt_time_s"] == pytest.approx(sum(t for _, t in seen))

@@ -54,13 +54,15 @@ in M (automatic derivatives on the whole chain) and badly conditioned for long c
 levels keep everything banded, at 12 variables per stage and level.
 
 Weights. A target point closer than the margin to an obstacle is *blocked*: no design sits on it.
-``BLOCKED_WEIGHT`` scales its fit weight: 0.1 for primitives, so the detour is shaped more by the points
-the tube can follow. Measured with the pushed start (same machine, one session): RMSE more than 2 D
-from the obstacles 0.021 -> 0.0085 D on obstacle-pipe-bend, 0.013 -> 0.006 D on obstacle-gap, 0.069 ->
-0.048 D on the 20-primitive speed scene, with fewer iterations (102, 71, 78); the price is a wider
-detour where the target is blocked (the scene's RMSE over all points 1.42 -> 1.91 cm). Not with a mesh
-(weight 1): on obstacle-mesh it ended in a wider detour (gap 4.6 cm against 0.9 cm, RMSE 5.0 cm against
-2.5 cm, measured before the pushed start).
+Its fit weight is scaled, so the detour is shaped more by the points the tube can follow:
+``BLOCKED_WEIGHT`` (0.1) for primitives, ``MESH_BLOCKED_WEIGHT`` (0.05) where the scene has a mesh.
+Primitives, measured with the pushed start (same machine, one session): RMSE more than 2 D from the
+obstacles 0.021 -> 0.0085 D on obstacle-pipe-bend, 0.013 -> 0.006 D on obstacle-gap, 0.069 -> 0.048 D on
+the 20-primitive speed scene, with fewer iterations (102, 71, 78); the price is a wider detour where the
+target is blocked (the scene's RMSE over all points 1.42 -> 1.91 cm). Meshes (no pushed start), weight 1
+-> 0.05: obstacle-mesh 0.127 -> 0.036 D, the 10 000-triangle torus scene 0.047 -> 0.011 D, both still
+clear; 0.1 gave 0.030 and 0.026 D but a wider detour on obstacle-mesh (gap 1.53 cm against 0.49 cm for
+a 0.3 cm margin), and 0.01 sent obstacle-mesh round the far side (gap 5.6 cm, 6 rounds).
 
 Start. A design through an obstacle is a poor start for the rows: IPOPT spent most of its 239
 iterations on the speed scene pushing the tube out. Primitives only: the target is pushed out of
@@ -69,7 +71,8 @@ the plain NLP designs that (one solve, warm from the obstacle-free design), and 
 its chain (speed scene, same rows: 131 iterations instead of 244; with the rows on near columns
 only and BLOCKED_WEIGHT 0.1, 78 iterations and 2.6 s CPU where the session-start code took 228 and
 9.4 s, benchmarks/bench_obstacles.py). Not with a mesh: on the torus scene
-the push sent the tube round the long way (gap 4.9 cm, 4 rounds, 20x slower).
+the push sent the tube round the long way (gap 4.9 cm, 4 rounds, 20x slower), and on obstacle-mesh too
+(gap 5.4 cm, 6 rounds, RMSE away from the obstacle 0.81 D; with mesh weight 0.1).
 
 Loop. Start from the obstacle-free design (design_nlp), keep it when it already clears;
 otherwise solve with the rows (warm, from the start's chain, or the pushed start's), check with the report
@@ -137,7 +140,8 @@ LENGTH_SLACK = 1.25  # segment lengths may grow this much during a solve before 
 MAX_SAMPLES = 40  # samples per segment
 AFTER_SLOTS = 5  # growth "after": intermediate shapes with rows at a time (their t are data, chosen from the report)
 MESH_K = 6  # nearest triangles per sample
-BLOCKED_WEIGHT = 0.1  # weight of the target points closer than the margin to an obstacle (their fit cannot be exact); primitives only
+BLOCKED_WEIGHT = 0.1  # weight of the target points closer than the margin to an obstacle (their fit cannot be exact)
+MESH_BLOCKED_WEIGHT = 0.05  # the same where the scene has a mesh (module docstring, "Weights")
 ACTIVE_REACH = 1.0  # units of D: a primitive gets rows on a segment when its slack is below this plus REACH_DL times the segment's length
 REACH_DL = 0.5
 ROUNDS = 6
@@ -682,7 +686,8 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
         method "nlp_obstacles"; metrics min_obstacle_gap (and min_obstacle_gap_after); stats
         obstacle_rounds, obstacle_clear, obstacle_samples_per_segment, obstacle_margin, growth,
         start_rmse, start_min_obstacle_gap, obstacle_raise (the rows' extra requirement, units),
-        obstacle_slots (primitive slots per segment).
+        obstacle_slots (primitive slots per segment); iterations, ipopt_iterations and ipopt_time_s
+        summed over the solves with rows (not the obstacle-free or pushed starts).
     """
     t_all = time.perf_counter()
     start = start or design_nlp(problem, **kw)
@@ -704,13 +709,12 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
         routing = _pushed_start(problem, start, plan)
     R0g = routing.initial_pose[:3, :3].copy()
     params = nlp_parameters(problem, pairing, R0g)
-    if BLOCKED_WEIGHT != 1.0 and not plan.has_mesh:
-        params["cells"] = _weigh_blocked(problem, pairing, params["cells"], BLOCKED_WEIGHT)
+    params["cells"] = _weigh_blocked(problem, pairing, params["cells"], MESH_BLOCKED_WEIGHT if plan.has_mesh else BLOCKED_WEIGHT)
     data = plan.data(routing)
     solver = _design_solver(problem, pairing, plan)
     lbx, ubx = solver.bounds(*design_bounds(problem, pairing))
     x = plan.fill_extra(solver, start_x(solver, chain_guess(problem, routing), D, "chain"), routing)
-    best, rep, solves = None, first, 0
+    best, rep, solves, ipopt_time, ipopt_iterations = None, first, 0, 0.0, 0
     if plan.has_mesh:
         rounds = max(rounds, MESH_ROUNDS)
     while solves < rounds:
@@ -720,6 +724,8 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
         p = solver.pack_params(params | data)
         x, status, st = solver.solve(x, p, *plan.trust(solver, x, lbx, ubx))
         solves += 1
+        ipopt_time += st["ipopt_time_s"]
+        ipopt_iterations += st["iterations"]
         res = result_of(problem, pairing, solver, x, status, st, R0g, METHOD)
         rep = plan.report(res.routing)
         best, routing = res, res.routing
@@ -732,7 +738,8 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
     best.metrics.update(obstacle_stats(rep))
     best.stats.update(stats0 | {"obstacle_rounds": solves, "obstacle_clear": bool(rep["clear"]),
                                 "obstacle_samples_per_segment": plan.S, "obstacle_raise": plan.raised * D, "obstacle_slots": plan.P,
-                                "obstacle_after_t": list(plan.ts)})
+                                "obstacle_after_t": list(plan.ts), "ipopt_time_s": ipopt_time, "ipopt_iterations": ipopt_iterations})
+    best.iterations = ipopt_iterations
     best.solve_time_s = time.perf_counter() - t_all
     return best
 
