@@ -194,13 +194,13 @@ def main():
     # obstacles: the rows' solves (interpreted, like clearance: the active sets change the structure)
     for name, label in (("obstacle-pipe-bend", "pipe bend, 5 capsules"), ("obstacle-mesh", "mesh, 360 triangles")):
         # the rows' solves use the exact Hessian: the plain NLP to compare with does too; the obstacle design starts
-        # from the problem's own obstacle-free design, as `vine-nlp design` does (a mesh's active-set loop is
-        # sensitive to its start: from the exact-Hessian design, 1e-6 away, obstacle-mesh ends elsewhere)
+        # from design_nlp(problem), as `vine-nlp design` does (a mesh's active-set loop is sensitive to its start:
+        # from the design of the problem without obstacles, 1e-6 away, obstacle-mesh ends on the block's far side)
         pb = load_problem(ROOT / f"problems/{name}.toml").problem
         nb = exact(dataclasses.replace(pb, obstacles=()))
         ob_ms, ob_it, ob_base, sh = per_iteration(lambda: design_nlp(nb), rep)  # noqa: B023
         rows.append(("nlp (exact Hessian)", f"{name} without its obstacles", f"{ob_ms:.2f}", ob_it, quality(ob_base), pct(sh), "1.00"))
-        ob_free = design_nlp(dataclasses.replace(pb, obstacles=()))
+        ob_free = design_nlp(pb)
         ms, it, r, ratio, sh = paired(lambda: design_with_obstacles(pb, start=ob_free), lambda: design_nlp(nb), rep)  # noqa: B023
         rows.append(("obstacles", f"{label} ({r.stats['obstacle_rounds']} solves with rows, min gap "
                      f"{r.metrics['min_obstacle_gap']:.4g} for margin {pb.obstacle_margin:g})", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))
