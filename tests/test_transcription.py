@@ -10,7 +10,7 @@ from vine_nlp.design.multishape import multishape_spec
 from vine_nlp.design.nlp import nlp_spec
 from vine_nlp.design.robust import RobustTerm
 from vine_nlp.design.tip import tip_spec
-from vine_nlp.design.transcription import Solver, Spec, Structure, pick_best
+from vine_nlp.design.transcription import Smoothness, SoftTip, Solver, Spec, Structure, pick_best
 
 
 def _automatic(solver):
@@ -41,6 +41,8 @@ SPECS = {
     # rows of one segment pair share a block (pair_block(k)): two groups of different sizes, interleaved
     "clearance grouped": _with(nlp_spec(6, 2, False, terms=(ClearancePairs(((0, 4), (1, 5), (0, 4), (2, 5), (0, 4))),)), extra=0),
     "robust": _with(nlp_spec(5, 2, False, terms=(RobustTerm(),)), extra=9),
+    "stage form": Spec(Structure(6, 3, stages=True), (Smoothness(), SoftTip())),
+    "stage form M=1": Spec(Structure(1, 2, stages=True), (Smoothness(), SoftTip())),
 }
 
 

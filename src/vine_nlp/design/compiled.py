@@ -42,7 +42,7 @@ from pathlib import Path
 
 from vine_nlp.errors import InputError
 
-__all__ = ["mode", "cache_dir", "compiler", "nlpsol", "stored", "CompileError", "stats"]
+__all__ = ["mode", "cache_dir", "compiler", "nlpsol", "fatrop_nlpsol", "stored", "CompileError", "NotCompiled", "stats"]
 
 _log = logging.getLogger("vine_nlp.design.compiled")
 
@@ -58,6 +58,10 @@ _warned: set[str] = set()
 
 class CompileError(RuntimeError):
     """VINE_NLP_CODEGEN=on and the NLP functions could not be compiled or loaded."""
+
+
+class NotCompiled(RuntimeError):
+    """A solver that runs on compiled functions only (Fatrop) where there are none: use another."""
 
 
 def mode() -> str:
@@ -265,3 +269,19 @@ def nlpsol(name: str, spec_text: str, nlp, opts: dict, enabled: bool = True):
             raise CompileError(f"cannot load {path}: {str(e).splitlines()[0]}") from e
         _warn_once(f"cannot load {path}: the NLP functions run interpreted (slower)")
         return interpreted()
+
+
+def fatrop_nlpsol(name: str, spec_text: str, functions, opts: dict, equality):
+    """A Fatrop solver on compiled functions (``functions()``: named as Fatrop's interface imports them,
+    built on a cache miss only); ``equality``: which rows are equalities. Fatrop takes no derivative
+    functions from Python, and its own (CasADi's automatic ones) would cost more than IPOPT on ours:
+    where nothing is compiled (codegen off, no compiler) this raises NotCompiled, and the caller uses IPOPT.
+    Options "fatrop.X" go to Fatrop as X."""
+    import casadi as ca
+
+    path = library(spec_text, functions) if mode() != "off" and compiler() else None
+    if path is None:
+        raise NotCompiled("no compiled functions for Fatrop")
+    inner = {k.split(".", 1)[1]: v for k, v in opts.items() if k.startswith("fatrop.")}
+    outer = {k: v for k, v in opts.items() if not k.startswith("fatrop.")}
+    return ca.nlpsol(name, "fatrop", path, outer | {"fatrop": inner, "structure_detection": "auto", "equality": [bool(e) for e in equality]})

@@ -28,7 +28,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from vine_nlp.design import corners
+from vine_nlp.design import compiled, corners
 from vine_nlp.design.common import LENGTH_FACTOR, Guess, evaluate, geometric_guess, pair_points
 from vine_nlp.design.problem import DesignProblem, Routing
 from vine_nlp.design.result import Result
@@ -39,6 +39,7 @@ from vine_nlp.design.transcription import (
     Spec,
     Structure,
     cell_data,
+    fatrop_options,
     frames12,
     ipopt_options,
     options_key,
@@ -89,6 +90,31 @@ def get_solver(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: f
                tuned: bool = True):
     """The plain NLP's solver, cached per structure (building costs more than one solve)."""
     return _get(nlp_spec(M, n, shared_lambda, max_iter, tol, warm, hessian, tuned=tuned))
+
+
+def fatrop_spec(M: int, n: int, max_iter: int = 3000, tol: float = 1e-8, hessian: str = "gauss-newton") -> Spec:
+    """The plain NLP (lambda per segment) in the transcription's stage form, for Fatrop."""
+    return Spec(Structure(M, n, stages=True), (Smoothness(), SoftTip()), hessian, options_key(fatrop_options(max_iter, tol)), "fatrop")
+
+
+_NO_FATROP: set = set()  # specs whose Fatrop solver could not be built in this process (compiler failed)
+
+# Fatrop's set-up (CasADi's interface, once per structure and process) grows about as M^2: 16 ms at 40
+# segments, 68 ms at 100, 1.2 s at 400, where IPOPT's is a few ms; beyond this the solve it saves is smaller
+FATROP_MAX_SEGMENTS = 100
+
+
+def get_fatrop(M: int, n: int, max_iter: int = 3000, tol: float = 1e-8, hessian: str = "gauss-newton"):
+    """The plain NLP's Fatrop solver, cached like ``get_solver``; None where its functions are not compiled
+    (VINE_NLP_CODEGEN=off, no compiler, a failed compile): the caller uses IPOPT."""
+    spec = fatrop_spec(M, n, max_iter, tol, hessian)
+    if compiled.mode() == "off" or spec in _NO_FATROP:
+        return None
+    try:
+        return _get(spec)
+    except compiled.NotCompiled:
+        _NO_FATROP.add(spec)
+        return None
 
 
 def nlp_parameters(problem: DesignProblem, pairing: Pairing, R0g: np.ndarray) -> dict:
@@ -175,16 +201,35 @@ def solve_from(
 def _solve(problem, guess, pairing, frames, warm, hessian, max_iter) -> Result:
     o, D = problem.options, problem.diameter
     M, n = pairing.segments, pairing.n
-    solver = get_solver(M, n, problem.actuator.shared_lambda, max_iter, o.tol, warm, hessian, tuned=not problem.obstacles)
     R0g = guess.initial_pose[:3, :3]
-    p = solver.pack_params(nlp_parameters(problem, pairing, R0g))
-    lbx, ubx = solver.bounds(*design_bounds(problem, pairing))
-    x, status, st = solver.solve(start_x(solver, guess, D, frames), p, lbx, ubx)
+    data = nlp_parameters(problem, pairing, R0g)
+    bounds = design_bounds(problem, pairing)
+    tried = {}
+    # Fatrop: the Gauss-Newton solve from a guess of a chain it can take as stages (results/BENCHMARKS.md, "Fatrop")
+    if (o.solver == "auto" and hessian == "gauss-newton" and not warm and M <= FATROP_MAX_SEGMENTS and not problem.actuator.shared_lambda
+            and not problem.obstacles):
+        solver = get_fatrop(M, n, max_iter, o.tol, hessian)
+        if solver is not None:
+            lbx, ubx = solver.bounds(*bounds)
+            x, status, st = solver.solve(start_x(solver, guess, D, frames), solver.pack_params(data), lbx, ubx)
+            if status == "optimal":
+                return _result(problem, pairing, solver, x, R0g, status, st, max_iter, hessian)
+            tried = {"fatrop_status": status, "fatrop_iterations": st["iterations"], "fatrop_time_s": st["solve_time_s"]}
+    solver = get_solver(M, n, problem.actuator.shared_lambda, max_iter, o.tol, warm, hessian, tuned=not problem.obstacles)
+    lbx, ubx = solver.bounds(*bounds)
+    x, status, st = solver.solve(start_x(solver, guess, D, frames), solver.pack_params(data), lbx, ubx)
+    if tried:  # Fatrop's failed attempt counts in the solve's iterations and time
+        st |= tried | {"iterations": st["iterations"] + tried["fatrop_iterations"], "solve_time_s": st["solve_time_s"] + tried["fatrop_time_s"]}
+    return _result(problem, pairing, solver, x, R0g, status, st, max_iter, hessian)
+
+
+def _result(problem, pairing, solver, x, R0g, status, st, max_iter, hessian) -> Result:
+    o = problem.options
     return evaluate(
-        problem, routing_of(solver, x, R0g, D), pairing, "nlp", status=status, solve_time_s=st.pop("solve_time_s"),
+        problem, routing_of(solver, x, R0g, problem.diameter), pairing, "nlp", status=status, solve_time_s=st.pop("solve_time_s"),
         iterations=st.pop("iterations"),
-        stats=st | {"segments": M, "points_per_segment": n, "smooth_theta": o.smooth_theta, "smooth_lambda": o.smooth_lambda,
-                    "tol": o.tol, "max_iter": max_iter, "hessian": hessian},
+        stats=st | {"segments": pairing.segments, "points_per_segment": pairing.n, "smooth_theta": o.smooth_theta,
+                    "smooth_lambda": o.smooth_lambda, "tol": o.tol, "max_iter": max_iter, "hessian": hessian},
     )
 
 

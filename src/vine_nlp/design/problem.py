@@ -17,6 +17,7 @@ from vine_nlp.model.routing import MEASURED_LINES, Routing  # noqa: F401  (re-ex
 ACTUATOR_KINDS = ("tendon", "programmed", "spam")
 METHODS = ("nlp", "greedy")
 HESSIANS = ("auto", "exact", "gauss-newton")
+SOLVERS = ("auto", "ipopt")
 
 
 @dataclass(frozen=True)
@@ -77,6 +78,9 @@ class DesignOptions:
     budget : float
         Seconds the nlp's corner search may take where the first solve shows a corner-like target
         (design.corners); 0 turns it off.
+    solver : str
+        "auto": the plain NLP's Gauss-Newton solve from a guess runs on Fatrop where its functions are
+        compiled (IPOPT where not, and where Fatrop fails); "ipopt": IPOPT only.
     """
 
     method: str = "nlp"
@@ -96,6 +100,7 @@ class DesignOptions:
     tol: float = 1e-8
     hessian: str = "auto"  # nlp: "auto" (Gauss-Newton, exact if it does not converge), "exact" or "gauss-newton"
     budget: float = 20.0  # nlp: seconds for the corner search (design.corners; a safety stop, 0: off)
+    solver: str = "auto"  # nlp: "auto" (Fatrop for the first Gauss-Newton solve where compiled) or "ipopt"
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,19 @@ Blocks every chain has:
   segment   X_{j+1}(k) = X_j(k) T^{j+1}_j(theta_j, lam_j(k), dl_j)   (continuity)
             and the point fit sum_i w_i |r_c(u_i) - r_d,i|^2 of the slots of the cell
 
+Stage form (``Structure(stages=True)``, the plain chain only): for a solver that factors the
+KKT system stage by stage (Fatrop, a Riccati recursion), every Hessian entry must lie inside
+one stage (x_k, u_k) and the rows must be x_{k+1} - F(x_k, u_k), stage by stage. The
+smoothness penalty couples theta_j with theta_{j-1}, two stages; so each stage carries c_j =
+(theta_j, lam_j) to the next as a state, and the penalty on theta_j - c_{j-1} lies in stage j:
+
+    stage 0  x = (w, p)                    row  X_0 - [vec(R0g exp(w)); p]
+    stage 1  x = X_0, u = (theta_0, lam_0, dl_0)
+    stage j+1  x = (c_{j-1}, X_j), u = (theta_j, lam_j, dl_j)
+             rows  c_j - (theta_j, lam_j), X_{j+1} - X_j T^{j+1}_j
+
+The objective is the plain NLP's, term for term (tests compare them).
+
 A solver is built once per ``Spec`` (structure, terms, Hessian, IPOPT options) and
 cached; the data (targets, weights, fractions, guess rotations, smoothing weights)
 are parameters, so starts, hops and sweep items reuse it.
@@ -111,6 +124,26 @@ def ipopt_status(stats: dict, x=None) -> str:
     return IPOPT_STATUS.get(raw, str(raw or "failed"))
 
 
+# Fatrop (the stage form's solver): its objective is the NLP's times this (its absolute tolerances were
+# made for objectives of order one; the trefoil's is 1e-7), its barrier starts low (starts are close)
+FATROP_SCALE = 100.0
+
+
+def fatrop_options(max_iter: int, tol: float) -> dict:
+    """Fatrop's settings: quiet, the NLP's tolerance, a low initial barrier (results/BENCHMARKS.md, "Fatrop")."""
+    return {"fatrop.print_level": 0, "fatrop.tol": float(tol), "fatrop.max_iter": int(max_iter), "fatrop.mu_init": 1e-6, "print_time": False}
+
+
+def fatrop_status(stats: dict, x, max_iter) -> str:
+    """Archived status of one Fatrop solve: "optimal" on success, "max_iter" at the limit, else "failed";
+    like ``ipopt_status``, a solution with anything non-finite is "invalid_number"."""
+    if not np.all(np.isfinite(x)):
+        return "invalid_number"
+    if stats.get("success"):
+        return "optimal"
+    return "max_iter" if max_iter is not None and int(stats.get("iter_count", 0)) >= int(max_iter) else "failed"
+
+
 def frames12(frames: np.ndarray, D: float = 1.0) -> np.ndarray:
     """(M+1, 4, 4) -> (12, M+1): rotation column-major, then position / D (the transcription's frame layout)."""
     R = frames[:, :3, :3].transpose(0, 2, 1).reshape(-1, 9)
@@ -135,12 +168,15 @@ class Structure:
     pose: str = "free"  # "free" | "fixed" | "shared" (one for all levels) | "level" (one per level)
     extra: int = 0  # extra variables per stage
     globals: int = 0  # extra global variables (head), e.g. systematic construction errors
+    stages: bool = False  # stage form ("Stage form" below): the plain chain for a stage-structured solver
 
     def __post_init__(self):
         if self.M < 1 or self.n < 1 or self.K < 1:
             raise ValueError(f"a chain needs M, n, K >= 1 (got {self.M}, {self.n}, {self.K})")
         if self.lam not in LAMBDAS or self.pose not in POSES:
             raise ValueError(f"lam must be one of {LAMBDAS}, pose one of {POSES}")
+        if self.stages and (self.K, self.lam, self.pose, self.extra, self.globals) != (1, "segment", "free", 0, 0):
+            raise ValueError("the stage form is the plain chain: one level, lambda per segment, a free pose, no extra variables")
 
     @property
     def poses(self) -> int:
@@ -167,12 +203,14 @@ class Layout:
         self.theta, self.dl = np.zeros(M, int), np.zeros(M, int)
         self.lam = np.zeros((M, K), int)
         self.extra = np.zeros((M, E), int)
+        self.carry = np.zeros((M, 2 if s.stages else 0), int)  # stage form: (theta_j, lam_j) carried to stage j+1
         for j in range(M):
             self.theta[j] = take(1)[0]
             if s.lam == "segment":
                 self.lam[j, :] = take(1)[0]
             self.dl[j] = take(1)[0]
             self.extra[j] = take(E)
+            self.carry[j] = take(self.carry.shape[1])
             X[j + 1] = take(12 * K).reshape(K, 12)
         if s.lam == "shared":
             self.lam[:, :] = self.lam_global[0]
@@ -253,6 +291,31 @@ def pose_block() -> BlockType:
     return BlockType("pose", ca.Function("pose_block", [v, d], [ca.SX(0), r]), ca.Function("pose_res", [v, d], [ca.SX(0, 1)]))
 
 
+@lru_cache(maxsize=None)
+def stage_blocks(n: int) -> tuple[BlockType, BlockType, BlockType]:
+    """The blocks of the stage form (module docstring): (pose, segment, smoothness).
+
+    Rows close the gap to the next stage's state, x_{k+1} - F(x_k, u_k): the sign a stage-structured
+    solver reads its dynamics from. pose: v = (w, p, X_0), rows X_0 - [vec(R0g exp(w)); p].
+    segment: v = (X_j, theta_j, lam_j, dl_j, c_j, X_{j+1}), rows (c_j - (theta_j, lam_j), X_{j+1} - X_j T),
+    and the point fit. smoothness: v = (c_{j-1}, theta_j, lam_j), d = (w_theta, w_lambda) / (h_j L), no rows:
+    Smoothness's penalty on the step between segments j-1 and j, inside stage j."""
+    seg, pose = segment_block(n), pose_block()
+    v, d = ca.SX.sym("v", 18), ca.SX.sym("d", 9)
+    f, r = pose.fn(v, d)
+    stage_pose = BlockType("stage_pose", ca.Function("stage_pose", [v, d], [f, -r]), pose.residual)
+    v, d = ca.SX.sym("v", 29), ca.SX.sym("d", 5 * n)
+    cell = ca.vertcat(v[:15], v[17:])  # the segment block's variables
+    f, r = seg.fn(cell, d)
+    segment = BlockType(f"stage_segment{n}", ca.Function("stage_segment", [v, d], [f, ca.vertcat(v[15:17] - v[12:14], -r)]),
+                        ca.Function("stage_segment_res", [v, d], [seg.residual(cell, d)]))
+    v, d = ca.SX.sym("v", 4), ca.SX.sym("d", 2)
+    step = v[2:] - v[:2]
+    smooth = BlockType("stage_smooth", ca.Function("stage_smooth", [v, d], [ca.dot(d, step**2), ca.SX(0, 1)]),
+                       ca.Function("stage_smooth_res", [v, d], [ca.sqrt(d) * step]))
+    return stage_pose, segment, smooth
+
+
 def _scatter(shape, blocks, symmetric: bool):
     """Sparse MX of ``shape`` from per-instance dense-pattern blocks.
 
@@ -329,6 +392,9 @@ class Chain:
         M, K, n = s.M, s.K, s.n
         # the always-present blocks: base poses and the segment cells (continuity + point fit)
         self.cells = self.param("cells", (5 * n, M * K))  # per cell (j, k), j-major: u, target slots, w
+        if s.stages:
+            self._stage_blocks()
+            return
         if s.pose != "fixed":
             self.R0g = self.param("R0g", (9, s.poses))
             idx = np.vstack([lay.pose[lay.pose_of_level].T, lay.X[0].T])  # (18, K)
@@ -336,6 +402,20 @@ class Chain:
         cells = [(j, k) for j in range(M) for k in range(K)]
         idx = np.array([np.r_[lay.X[j, k], lay.theta[j], lay.lam[j, k], lay.dl[j], lay.X[j + 1, k]] for j, k in cells]).T
         self.add_block(segment_block(n), idx, self.cells)
+
+    def _stage_blocks(self) -> None:
+        """The stage form's blocks; rows stage by stage: pose, then segment j = 0 .. M-1. Smoothness's
+        parameters are declared here (its penalty is a block of every stage j >= 1)."""
+        lay, M, X = self.lay, self.s.M, self.lay.X[:, 0, :]
+        self.R0g = self.param("R0g", (9, 1))
+        w, h, L = self.param("smooth", (2, 1)), self.param("h", (max(M - 1, 1), 1)), self.param("L", (1, 1))
+        pose, segment, smooth = stage_blocks(self.s.n)
+        self.add_block(pose, np.r_[lay.pose[0], X[0]], self.R0g)
+        self.add_block(segment, np.array([np.r_[X[j], lay.theta[j], lay.lam[j, 0], lay.dl[j], lay.carry[j], X[j + 1]]
+                                          for j in range(M)]).T, self.cells)
+        if M > 1:
+            idx = np.array([np.r_[lay.carry[j - 1], lay.theta[j], lay.lam[j, 0]] for j in range(1, M)]).T
+            self.add_block(smooth, idx, ca.mtimes(w / L, 1 / h[: M - 1].T), term="smooth")
 
     # views
     def frames(self, k: int = 0) -> ca.MX:
@@ -388,6 +468,8 @@ class Smoothness:
 
     def apply(self, c: Chain) -> None:
         M = c.s.M
+        if c.s.stages:
+            return  # a stage cost of the stage form (Chain._stage_blocks)
         w, h, L = c.param("smooth", (2, 1)), c.param("h", (max(M - 1, 1), 1)), c.param("L", (1, 1))
         if M == 1:
             return
@@ -421,6 +503,7 @@ class Spec:
     terms: tuple = ()
     hessian: str = "exact"
     options: tuple = ()
+    backend: str = "ipopt"  # "ipopt" | "fatrop" (the stage form, compiled only: ``fatrop_nlpsol``)
 
 
 @lru_cache(maxsize=32)
@@ -479,9 +562,11 @@ class Solver:
         self.lbg = np.concatenate([np.zeros(0)] + lbg + [r[2] for r in c.rows])
         self.ubg = np.concatenate([np.zeros(0)] + ubg + [r[3] for r in c.rows])
 
-        def problem_and_derivatives():
-            # derivatives: per block type SX, mapped and scattered; global parts automatic
-            sigma, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.size1())
+        def derivatives(scale: float = 1.0):
+            # per block type SX, mapped and scattered; global parts automatic. (lam_f, lam_g, J, triu H) of
+            # the objective scale * f
+            lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", g.size1())
+            sigma = lam_f if scale == 1.0 else scale * lam_f
             jac_blocks, hess_blocks, row = [], [], 0
             for b, (V, count) in zip(c.blocks, gathered):
                 jac, hess, gn = block_derivatives(b.bt)
@@ -499,16 +584,39 @@ class Solver:
             lam_glob = lam_g[nb:]
             glob = sigma * f_glob + (ca.dot(lam_glob, g_glob) if c.rows else 0)
             H = _scatter((lay.size, lay.size), hess_blocks, True) + ca.triu(ca.hessian(glob, x)[0])
+            return lam_f, lam_g, J, H
+
+        def problem_and_derivatives():
+            lam_f, lam_g, J, H = derivatives()
             return {"x": x, "p": p, "f": f, "g": g}, {
                 "jac_g": ca.Function("nlp_jac_g", [x, p], [g, J], ["x", "p"], ["g", "jac_g_x"]),
-                "hess_lag": ca.Function("nlp_hess_l", [x, p, sigma, lam_g], [H], ["x", "p", "lam_f", "lam_g"], ["hess_gamma_x_x"]),
+                "hess_lag": ca.Function("nlp_hess_l", [x, p, lam_f, lam_g], [H], ["x", "p", "lam_f", "lam_g"], ["hess_gamma_x_x"]),
             }
 
+        def fatrop_functions():
+            # the functions Fatrop's interface imports, of the objective FATROP_SCALE * f; the full Hessian
+            lam_f, lam_g, J, H = derivatives(FATROP_SCALE)
+            fs = FATROP_SCALE * f
+            ell = lam_f * fs + ca.dot(lam_g, g)
+            gl = ca.gradient(ell, x)
+            xp, lag = ["x", "p"], ["x", "p", "lam_f", "lam_g"]
+            return [ca.Function("nlp", [x, p], [fs, g], xp, ["f", "g"]), ca.Function("nlp_f", [x, p], [fs], xp, ["f"]),
+                    ca.Function("nlp_g", [x, p], [g], xp, ["g"]),
+                    ca.Function("nlp_grad_f", [x, p], [ca.gradient(fs, x)], xp, ["grad_f_x"]),
+                    ca.Function("nlp_jac_g", [x, p], [g, J], xp, ["g", "jac_g_x"]),
+                    ca.Function("nlp_grad", [x, p, lam_f, lam_g], [fs, g, gl, ca.gradient(ell, p)], lag, ["f", "g", "grad_gamma_x", "grad_gamma_p"]),
+                    ca.Function("nlp_hess_l", [x, p, lam_f, lam_g], [gl, H + ca.triu(H, False).T], lag, ["grad_gamma_x", "hess_gamma_x_x"])]
+
         self.problem = {"x": x, "p": p, "f": f, "g": g}  # symbolic, for derivative checks and benchmarks
-        # compiled C where a compiler is found (cached on disk per spec), else interpreted
-        # a term whose structure changes from solve to solve (an active set of pairs) says compile = False
-        worth = all(getattr(t, "compile", True) for t in spec.terms)
-        self.nlpsol = compiled.nlpsol("vine_nlp", repr(spec), problem_and_derivatives, dict(spec.options), enabled=worth)
+        if spec.backend == "fatrop":
+            if not spec.structure.stages:
+                raise ValueError("Fatrop solves the stage form only (Structure(stages=True))")
+            self.nlpsol = compiled.fatrop_nlpsol("vine_nlp_fatrop", repr(spec), fatrop_functions, dict(spec.options), self.lbg == self.ubg)
+        else:
+            # compiled C where a compiler is found (cached on disk per spec), else interpreted
+            # a term whose structure changes from solve to solve (an active set of pairs) says compile = False
+            worth = all(getattr(t, "compile", True) for t in spec.terms)
+            self.nlpsol = compiled.nlpsol("vine_nlp", repr(spec), problem_and_derivatives, dict(spec.options), enabled=worth)
         self.term_names = list(reported)
         self._terms = ca.Function("terms", [x, p], [ca.MX(0) + v for v in reported.values()])
         self._g = ca.Function("g", [x, p], [g])
@@ -561,6 +669,8 @@ class Solver:
             x[lay.extra.T] = np.asarray(extra, float).reshape(s.extra, s.M)
         if globals_ is not None and s.globals:
             x[lay.globals] = globals_
+        if s.stages:  # the carried copies hold their rows at the start
+            x[lay.carry[:, 0]], x[lay.carry[:, 1]] = x[lay.theta], x[lay.lam[:, 0]]
         return x
 
     def unpack(self, x) -> dict:
@@ -616,17 +726,22 @@ class Solver:
         elapsed = time.perf_counter() - t0
         st = self.nlpsol.stats()
         x = np.array(sol["x"]).ravel()
-        status = ipopt_status(st, x)
+        f = float(sol["f"])
+        if self.spec.backend == "fatrop":
+            status = fatrop_status(st, x, dict(self.spec.options).get("fatrop.max_iter"))
+            x, f = np.clip(x, lbx, ubx), f / FATROP_SCALE  # its answers may sit at rounding outside a bound
+        else:
+            status = ipopt_status(st, x)
         gv = np.array(sol["g"]).ravel()
         viol = float(np.max(np.maximum(lbg - gv, 0) + np.maximum(gv - ubg, 0))) if gv.size else 0.0
         stats = {
-            "solver": "ipopt",
+            "solver": self.spec.backend,
             "return_status": st.get("return_status", ""),
             "build_time_s": build,
-            "objective": float(sol["f"]),
+            "objective": f,
             "iterations": int(st.get("iter_count", 0)),
             "solve_time_s": elapsed,
-            "ipopt_time_s": elapsed,  # IPOPT alone (solve_time_s may grow to cover a whole method)
+            "ipopt_time_s": elapsed,  # the solver's alone, IPOPT's or Fatrop's (solve_time_s may grow to cover a whole method)
             "max_constraint_violation": viol,
             "hessian": self.spec.hessian,
         } | {f"objective_{k}": v for k, v in self.terms(x, p).items()}

@@ -22,6 +22,7 @@ from vine_nlp.design.problem import (
     HESSIANS,
     MEASURED_LINES,
     METHODS,
+    SOLVERS,
     TIP_OBJECTIVES,
     Actuator,
     DesignOptions,
@@ -92,7 +93,7 @@ _ACTUATOR_KEYS = ("kind", "lambda_min", "theta_max_deg")
 
 _OPTION_INTS = {"points_per_segment": 1, "lookahead": 1, "starts": 1, "hops": 0, "greedy_starts": 1, "seed": 0, "max_iter": 1}
 
-_DESIGN_KEYS = ("method", *_OPTION_INTS, "tol", "hessian", "budget", "smoothness")
+_DESIGN_KEYS = ("method", *_OPTION_INTS, "tol", "hessian", "solver", "budget", "smoothness")
 
 _SMOOTHNESS_FIELDS = {"theta": "smooth_theta", "lambda": "smooth_lambda"}
 
@@ -304,6 +305,8 @@ def _options(f: SourceFile, table: dict) -> DesignOptions:
         check(f, "design.tol", changes["tol"] > 0, "must be > 0")
     if "hessian" in table:
         changes["hessian"] = choice(f, "design.hessian", table["hessian"], HESSIANS)
+    if "solver" in table:
+        changes["solver"] = choice(f, "design.solver", table["solver"], SOLVERS)
     if "budget" in table:
         changes["budget"] = real_number(f, "design.budget", table["budget"])
         check(f, "design.budget", changes["budget"] >= 0, "must be >= 0")
