@@ -3,6 +3,7 @@ where its functions are compiled, and IPOPT where they are not or where Fatrop f
 
 import dataclasses
 import logging
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,10 +11,14 @@ from scipy.spatial.transform import Rotation
 from texts import TINY_TREFOIL
 
 from vine_nlp.design import compiled
-from vine_nlp.design.nlp import design_nlp, get_fatrop, nlp_spec
+from vine_nlp.design.common import geometric_guess, pair_points
+from vine_nlp.design.nlp import design_bounds, design_nlp, get_fatrop, nlp_parameters, nlp_spec, start_x
 from vine_nlp.design.problem import Actuator, DesignOptions, DesignProblem
-from vine_nlp.design.transcription import Smoothness, SoftTip, Solver, Spec, Structure
+from vine_nlp.design.transcription import Smoothness, SoftTip, Solver, Spec, Structure, fatrop_safe
 from vine_nlp.front.cli import main
+from vine_nlp.io.problem_file import load_problem
+
+PROBLEMS = Path(__file__).resolve().parents[1] / "problems"
 
 
 @pytest.fixture(scope="module")
@@ -107,3 +112,33 @@ def test_solver_key_in_problem_files(tmp_path, capsys):
     assert main(["design", str(path), "-o", str(out)]) == 2
     assert capsys.readouterr().err == f"error: {path}: design.solver: must be one of 'auto', 'ipopt'; did you mean 'ipopt'?\n"
     assert not out.exists()
+
+
+def test_fatrop_gets_only_what_it_can_take(codegen, make_target):
+    """Fatrop loops without end on a non-finite evaluation: such data never reach it; where it raises
+    (inconsistent bounds), the solve is a failed one, not an exception."""
+    x, p, lo, hi = np.zeros(3), np.ones(4), -np.ones(3), np.ones(3)
+    assert fatrop_safe(x, p, lo, hi)
+    assert not fatrop_safe(x, np.r_[p[:3], np.nan], lo, hi)
+    assert not fatrop_safe(np.r_[x[:2], np.inf], p, lo, hi)
+    assert not fatrop_safe(x, p, lo, np.r_[hi[:2], -2.0])
+    problem, _ = _problem(make_target)
+    solver = get_fatrop(6, 3, 50)
+    pairing = pair_points(problem.target, 3)
+    guess = geometric_guess(problem, pairing)
+    lbx, ubx = solver.bounds(*design_bounds(problem, pairing))
+    x0 = start_x(solver, guess, problem.diameter)
+    j = solver.layout.theta[2]
+    lbx[j] = ubx[j] + 0.1
+    x, status, st = solver.solve(x0, solver.pack_params(nlp_parameters(problem, pairing, guess.initial_pose[:3, :3])), lbx, ubx)
+    assert (status, st["solver"], st["iterations"]) == ("failed", "fatrop", 0)
+
+
+@pytest.mark.parametrize("name", ["trefoil-m4", "bezier-a", "bezier-b", "bezier-c"])
+def test_fatrop_on_the_paper_cases_ends_where_ipopt_does(codegen, name):
+    problem = load_problem(PROBLEMS / f"{name}.toml").problem
+    fat = design_nlp(problem)
+    ipopt = design_nlp(dataclasses.replace(problem, options=dataclasses.replace(problem.options, solver="ipopt")))
+    assert (fat.status, fat.stats["solver"]) == ("optimal", "fatrop")
+    assert fat.stats["objective"] == pytest.approx(ipopt.stats["objective"], rel=1e-6)
+    assert fat.metrics["rmse"] == pytest.approx(ipopt.metrics["rmse"], rel=1e-4)

@@ -3,10 +3,11 @@
 IPOPT calls five functions of the NLP per iteration (objective, constraints, their
 derivatives, the Lagrangian Hessian). Interpreted, they run CasADi's MX virtual machine
 over the mapped per-stage SX blocks; compiled, the same expressions run as C. The
-answers agree to rounding (tests compare the iterates).
+answers agree to rounding (tests compare the iterates). Fatrop (``fatrop_nlpsol``) runs on
+compiled functions only, shaped as its interface imports them.
 
 The shared library is keyed by everything that decides the generated code: the
-solver's Spec (structure, terms, Hessian, IPOPT options), the CasADi version, the
+solver's Spec without the solver's settings (structure, terms, Hessian), the CasADi version, the
 compiler and its flags, and the source of the model and design layers (a changed
 formula never loads a stale library). It is written atomically into the cache
 directory, so concurrent processes (sweep workers) may compile the same structure

@@ -13,9 +13,10 @@ segment lengths within LENGTH_FACTOR of the target's chord of the segment.
 
 The solver is built once per structure (M segments, n points per segment, shared or
 per-segment lambda, Hessian, warm) and cached; target, weights and guesses are
-parameters, so multi-start and sweeps reuse it. Targets with corners have many
-local minima: by default the windowed search of ``design.corners`` takes over where the
-first solve shows them (within ``options.budget`` seconds); ``basin_hops`` searches them
+parameters, so multi-start and sweeps reuse it. Where its functions are compiled, the first
+Gauss-Newton solve runs on Fatrop, a solver for stage-structured problems (``solve_from``).
+Targets with corners have many local minima: by default the windowed search of
+``design.corners`` takes over where the first solve shows them (within ``options.budget`` seconds); ``basin_hops`` searches them
 when asked for (``options.hops``).
 """
 
@@ -40,6 +41,7 @@ from vine_nlp.design.transcription import (
     Structure,
     cell_data,
     fatrop_options,
+    fatrop_safe,
     frames12,
     ipopt_options,
     options_key,
@@ -99,8 +101,8 @@ def fatrop_spec(M: int, n: int, max_iter: int = 3000, tol: float = 1e-8, hessian
 
 _NO_FATROP: set = set()  # specs whose Fatrop solver could not be built in this process (compiler failed)
 
-# Fatrop's set-up (CasADi's interface, once per structure and process) grows about as M^2: 16 ms at 40
-# segments, 68 ms at 100, 1.2 s at 400, where IPOPT's is a few ms; beyond this the solve it saves is smaller
+# Fatrop's set-up (in CasADi's interface, once per structure and process) grows about as M^2 where IPOPT's
+# stays at milliseconds: beyond this many segments it costs more than the solve it saves (results/BENCHMARKS.md, "Fatrop")
 FATROP_MAX_SEGMENTS = 100
 
 
@@ -176,6 +178,12 @@ def solve_from(
     the same start is solved again with the exact Hessian; where it stops at IPOPT's
     "acceptable" level, the exact Hessian polishes its answer (a warm start). Gauss-Newton solves
     from a guess run with GN_IPOPT's settings on top of ``ipopt_options`` (not for problems with obstacles).
+
+    ``options.solver`` "auto": a Gauss-Newton solve from a guess runs on Fatrop (the transcription's
+    stage form) where its functions are compiled, the chain has at most FATROP_MAX_SEGMENTS segments
+    and a lambda per segment, and the problem has no obstacles; IPOPT solves the same start where
+    Fatrop fails (stats ``fatrop_status``, ``fatrop_iterations``, ``fatrop_time_s``; its iterations
+    and time count in the result's).
     """
     o = problem.options
     pairing = pairing or pair_points(problem.target, o.points_per_segment)
@@ -211,7 +219,8 @@ def _solve(problem, guess, pairing, frames, warm, hessian, max_iter) -> Result:
         solver = get_fatrop(M, n, max_iter, o.tol, hessian)
         if solver is not None:
             lbx, ubx = solver.bounds(*bounds)
-            x, status, st = solver.solve(start_x(solver, guess, D, frames), solver.pack_params(data), lbx, ubx)
+            x0, p = start_x(solver, guess, D, frames), solver.pack_params(data)
+            x, status, st = solver.solve(x0, p, lbx, ubx) if fatrop_safe(x0, p, lbx, ubx) else (x0, "invalid_number", {"iterations": 0, "solve_time_s": 0.0})
             if status == "optimal":
                 return _result(problem, pairing, solver, x, R0g, status, st, max_iter, hessian)
             tried = {"fatrop_status": status, "fatrop_iterations": st["iterations"], "fatrop_time_s": st["solve_time_s"]}

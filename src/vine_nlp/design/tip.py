@@ -39,6 +39,16 @@ did (0.01903, 575 iterations), and on the benchmark's tip (the trefoil's, M = 40
 0.02567 against 0.02599. Among the solved starts the lowest objective among
 converged ones wins.
 
+Why a start takes many iterations: the least-contraction optimum is a few sharp
+bends (theta at its bound, lambda low, segments near their shortest) joined by
+straight runs, while the guess bends a little everywhere. On the way the reduced
+Hessian is indefinite, so IPOPT corrects the KKT matrix's inertia on nearly every
+iteration and creeps with regularized steps while the frames travel many D. The
+changes tried (a lower initial barrier, objective scaling, the inertia correction's
+factors, MUMPS settings, other guide curves, a coarse-to-fine start) saved some
+iterations on average but moved many designs to other local optima, more often
+worse than better: the path from the guess is chaotic, and the settings below stay.
+
 Reachability: the center line is never longer than the tube (lambda_c <= 1 for
 lambda <= 1 and |theta| <= 60 deg), so a tip farther than L from the base is out
 of reach. That, or no converged start, gives status "infeasible" (the CLI exits

@@ -50,6 +50,7 @@ are parameters, so starts, hops and sweep items reuse it.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from functools import lru_cache
@@ -124,8 +125,8 @@ def ipopt_status(stats: dict, x=None) -> str:
     return IPOPT_STATUS.get(raw, str(raw or "failed"))
 
 
-# Fatrop (the stage form's solver): its objective is the NLP's times this (its absolute tolerances were
-# made for objectives of order one; the trefoil's is 1e-7), its barrier starts low (starts are close)
+# Fatrop (the stage form's solver): its objective is the NLP's times this (its tolerances are absolute, and
+# a close fit's objective is orders of magnitude below one); its barrier starts low (the starts are close)
 FATROP_SCALE = 100.0
 
 
@@ -137,11 +138,18 @@ def fatrop_options(max_iter: int, tol: float) -> dict:
 def fatrop_status(stats: dict, x, max_iter) -> str:
     """Archived status of one Fatrop solve: "optimal" on success, "max_iter" at the limit, else "failed";
     like ``ipopt_status``, a solution with anything non-finite is "invalid_number"."""
+    interrupt.check()
     if not np.all(np.isfinite(x)):
         return "invalid_number"
     if stats.get("success"):
         return "optimal"
     return "max_iter" if max_iter is not None and int(stats.get("iter_count", 0)) >= int(max_iter) else "failed"
+
+
+def fatrop_safe(x0, p, lbx, ubx) -> bool:
+    """Whether a solve may go to Fatrop: it loops without end where an evaluation gives NaN or inf (IPOPT
+    reports those), so only finite data and starts and consistent bounds go to it."""
+    return bool(np.all(np.isfinite(x0)) and np.all(np.isfinite(p)) and np.all(lbx <= ubx))
 
 
 def frames12(frames: np.ndarray, D: float = 1.0) -> np.ndarray:
@@ -608,15 +616,16 @@ class Solver:
                     ca.Function("nlp_hess_l", [x, p, lam_f, lam_g], [gl, H + ca.triu(H, False).T], lag, ["grad_gamma_x", "hess_gamma_x_x"])]
 
         self.problem = {"x": x, "p": p, "f": f, "g": g}  # symbolic, for derivative checks and benchmarks
+        code = repr(dataclasses.replace(spec, options=()))  # what the generated code depends on: not the solver's settings
         if spec.backend == "fatrop":
             if not spec.structure.stages:
                 raise ValueError("Fatrop solves the stage form only (Structure(stages=True))")
-            self.nlpsol = compiled.fatrop_nlpsol("vine_nlp_fatrop", repr(spec), fatrop_functions, dict(spec.options), self.lbg == self.ubg)
+            self.nlpsol = compiled.fatrop_nlpsol("vine_nlp_fatrop", code, fatrop_functions, dict(spec.options), self.lbg == self.ubg)
         else:
             # compiled C where a compiler is found (cached on disk per spec), else interpreted
             # a term whose structure changes from solve to solve (an active set of pairs) says compile = False
             worth = all(getattr(t, "compile", True) for t in spec.terms)
-            self.nlpsol = compiled.nlpsol("vine_nlp", repr(spec), problem_and_derivatives, dict(spec.options), enabled=worth)
+            self.nlpsol = compiled.nlpsol("vine_nlp", code, problem_and_derivatives, dict(spec.options), enabled=worth)
         self.term_names = list(reported)
         self._terms = ca.Function("terms", [x, p], [ca.MX(0) + v for v in reported.values()])
         self._g = ca.Function("g", [x, p], [g])
@@ -722,9 +731,15 @@ class Solver:
         lbg = self.lbg if lbg is None else lbg
         ubg = self.ubg if ubg is None else ubg
         t0 = time.perf_counter()
-        sol = self.nlpsol(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+        try:
+            sol = self.nlpsol(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+            st = self.nlpsol.stats()
+        except RuntimeError:
+            if self.spec.backend != "fatrop":
+                raise
+            # Fatrop raises where IPOPT returns a status (a failed factorization, say): a failed solve
+            sol, st = {"x": x0, "f": np.nan, "g": np.full(lbg.shape, np.nan)}, {}
         elapsed = time.perf_counter() - t0
-        st = self.nlpsol.stats()
         x = np.array(sol["x"]).ravel()
         f = float(sol["f"])
         if self.spec.backend == "fatrop":
