@@ -250,9 +250,11 @@ def main():
         f"obstacle) the RMSE is within 10 % of the obstacle-free design's or within {ACC_FLOOR:g} D, whichever is "
         "larger. The obstacle-free designs follow these targets to about 1e-4 cm (4e-5 D), so 10 % of that alone "
         "would ask for sub-micron errors beside a detour of a few D; 0.01 D (0.24 mm on these 2.43 cm tubes) is "
-        "below what a tube of this size can be built to. Design defaults (primitives: the pushed start and "
-        "BLOCKED_WEIGHT = 0.1, blocked target points weigh a tenth; meshes: no push, MESH_BLOCKED_WEIGHT = 0.05; design.obstacles, "
-        "\"Start\" and \"Weights\").",
+        "below what a tube of this size can be built to. Design defaults (primitives: the pushed start from its own "
+        "geometric guess and BLOCKED_WEIGHT = 0.1, blocked target points weigh a tenth; meshes: the pushed start "
+        "(one direction per run through the mesh, MESH_PUSH_EXTRA = 0.05 D) from its own geometric guess, "
+        "tangent-plane rows near the mesh, MESH_BLOCKED_WEIGHT = 0.01; design.obstacles, \"Start\", \"Blocks\" and "
+        "\"Weights\").",
         "Speed scenes (benchmarks/bench_obstacles.py, written to a temporary directory): scene-primitives, 20 "
         "primitives (7 spheres, 7 capsules, 6 boxes) along a 110 cm Bezier target, 4 of them across it, 10 within "
         "0.5 to 3 D of it, 6 farther; scene-mesh, a 10 000-triangle torus (trimesh) whose ring the target crosses. "

@@ -126,6 +126,36 @@ def test_a_mesh_obstacle_is_cleared_by_the_exact_distance(slab, free):
     assert float(mesh_signed_distance(slab, pts).min()) - D / 2 >= MARGIN - 1e-3 * D
 
 
+def test_a_mesh_design_does_not_depend_on_a_tiny_change_of_its_start(slab, free):
+    """The mesh loop starts from the design of the pushed target (its own geometric guess), not from the
+    obstacle-free design: starts 1e-6 apart (and IPOPT settings that differ in the obstacle-free solve)
+    reach the same design; before, the active-set rounds took different routes round the obstacle (here
+    0.9 D apart). Samples 0.5 D apart (half the default count) keep it fast."""
+    nudged = dataclasses.replace(free, routing=dataclasses.replace(free.routing, theta=free.routing.theta + 1e-6))
+    a, b = (design_with_obstacles(_problem([slab]), start=s, spacing=0.5) for s in (free, nudged))
+    assert a.converged and a.stats["obstacle_clear"] and b.converged
+    assert _sampled_gap(a.routing, [slab]) >= MARGIN - 1e-3 * D
+    np.testing.assert_allclose(b.shape.center, a.shape.center, atol=1e-6 * D)
+
+
+def test_after_a_miss_every_sample_also_has_rows_to_the_faces_it_passed(slab):
+    """_with_memory: the k nearest faces, then the nearest of the remembered ones (distinct), then the next nearest."""
+    from vine_nlp.analysis.obstacles import nearest_triangles
+    from vine_nlp.design.obstacles import _with_memory
+
+    p = np.array([[12.0, 3.0, 0.0], [12.0, -2.0, 2.0]])  # beside two faces of the slab
+    faces, _ = nearest_triangles(slab, p, 3)
+    far = nearest_triangles(slab, np.array([[20.0, 0.9, 0.0]]), 2)[0][0]  # faces at the other end of the slab
+    rows = _with_memory(slab, p, faces, far, nearest_triangles(slab, p, 6)[0])
+    assert rows.shape == (2, 6)
+    np.testing.assert_array_equal(rows[:, :3], faces)
+    for i in range(2):
+        assert len(set(rows[i])) == 6
+        assert set(far) - set(faces[i]) <= set(rows[i])
+    np.testing.assert_array_equal(_with_memory(slab, p, faces, None, nearest_triangles(slab, p, 6)[0]),
+                                  nearest_triangles(slab, p, 6)[0])
+
+
 @pytest.mark.slow
 def test_growth_after_clears_every_intermediate_shape(free):
     ob = PRIMITIVES["sphere"]

@@ -70,28 +70,25 @@ AUTO_GN_MAX_ITER = 50
 # - constraint multipliers start at zero, not at a least-squares estimate: one factorization less per solve
 #   (the continuity rows hold at the start, frames on the target, so their multipliers start small anyway).
 # Exact-Hessian and warm solves keep ipopt_options: the corner search on the polyline (d) starts from the
-# exact solve, and which local minimum it ends in is sensitive to every bit of that start. Problems with
-# obstacles keep them too: the obstacle loop starts from the free design, and its path (rounds, detour)
-# changes with free designs that differ in the 1e-6 of a flat direction.
+# exact solve, and which local minimum it ends in is sensitive to every bit of that start.
 GN_IPOPT = {"ipopt.mu_oracle": "probing", "ipopt.mumps_permuting_scaling": 0, "ipopt.mumps_scaling": 0,
             "ipopt.constr_mult_init_max": 0.0}
 
 
 def nlp_spec(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False,
-             hessian: str = "exact", terms: tuple = (), tuned: bool = True) -> Spec:
-    """The plain NLP's structure and terms (more terms: the formulations built on it); ``tuned``: GN_IPOPT
-    on top of ipopt_options for a Gauss-Newton solve from a guess."""
+             hessian: str = "exact", terms: tuple = ()) -> Spec:
+    """The plain NLP's structure and terms (more terms: the formulations built on it); GN_IPOPT on top of
+    ipopt_options for a Gauss-Newton solve from a guess."""
     opts = ipopt_options(max_iter, tol, warm)
-    if tuned and hessian == "gauss-newton" and not warm and not terms:
+    if hessian == "gauss-newton" and not warm and not terms:
         opts |= GN_IPOPT
     return Spec(Structure(M, n, 1, "shared" if shared_lambda else "segment", "free"), (Smoothness(), SoftTip()) + tuple(terms),
                 hessian, options_key(opts))
 
 
-def get_solver(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False, hessian: str = "exact",
-               tuned: bool = True):
+def get_solver(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False, hessian: str = "exact"):
     """The plain NLP's solver, cached per structure (building costs more than one solve)."""
-    return _get(nlp_spec(M, n, shared_lambda, max_iter, tol, warm, hessian, tuned=tuned))
+    return _get(nlp_spec(M, n, shared_lambda, max_iter, tol, warm, hessian))
 
 
 def fatrop_spec(M: int, n: int, max_iter: int = 3000, tol: float = 1e-8, hessian: str = "gauss-newton") -> Spec:
@@ -177,11 +174,11 @@ def solve_from(
     does not converge within AUTO_GN_MAX_ITER iterations (large residuals: corners),
     the same start is solved again with the exact Hessian; where it stops at IPOPT's
     "acceptable" level, the exact Hessian polishes its answer (a warm start). Gauss-Newton solves
-    from a guess run with GN_IPOPT's settings on top of ``ipopt_options`` (not for problems with obstacles).
+    from a guess run with GN_IPOPT's settings on top of ``ipopt_options``.
 
     ``options.solver`` "auto": a Gauss-Newton solve from a guess runs on Fatrop (the transcription's
     stage form) where its functions are compiled, the chain has at most FATROP_MAX_SEGMENTS segments
-    and a lambda per segment, and the problem has no obstacles; IPOPT solves the same start where
+    and a lambda per segment; IPOPT solves the same start where
     Fatrop fails (stats ``fatrop_status``, ``fatrop_iterations``, ``fatrop_time_s``; its iterations
     and time count in the result's).
     """
@@ -214,8 +211,7 @@ def _solve(problem, guess, pairing, frames, warm, hessian, max_iter) -> Result:
     bounds = design_bounds(problem, pairing)
     tried = {}
     # Fatrop: the Gauss-Newton solve from a guess of a chain it can take as stages (results/BENCHMARKS.md, "Fatrop")
-    if (o.solver == "auto" and hessian == "gauss-newton" and not warm and M <= FATROP_MAX_SEGMENTS and not problem.actuator.shared_lambda
-            and not problem.obstacles):
+    if o.solver == "auto" and hessian == "gauss-newton" and not warm and M <= FATROP_MAX_SEGMENTS and not problem.actuator.shared_lambda:
         solver = get_fatrop(M, n, max_iter, o.tol, hessian)
         if solver is not None:
             lbx, ubx = solver.bounds(*bounds)
@@ -224,7 +220,7 @@ def _solve(problem, guess, pairing, frames, warm, hessian, max_iter) -> Result:
             if status == "optimal":
                 return _result(problem, pairing, solver, x, R0g, status, st, max_iter, hessian)
             tried = {"fatrop_status": status, "fatrop_iterations": st["iterations"], "fatrop_time_s": st["solve_time_s"]}
-    solver = get_solver(M, n, problem.actuator.shared_lambda, max_iter, o.tol, warm, hessian, tuned=not problem.obstacles)
+    solver = get_solver(M, n, problem.actuator.shared_lambda, max_iter, o.tol, warm, hessian)
     lbx, ubx = solver.bounds(*bounds)
     x, status, st = solver.solve(start_x(solver, guess, D, frames), solver.pack_params(data), lbx, ubx)
     if tried:  # Fatrop's failed attempt counts in the solve's iterations and time

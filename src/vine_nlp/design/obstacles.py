@@ -35,8 +35,11 @@ v = (X_j, theta_j, lam_j, dl_j), 15 local variables:
       C^1 where it is positive). A sample the exact (trimesh) sign finds *inside* the mesh
       instead gets one linear row, the signed distance to the plane of its nearest face,
       pushing it out through that face, and no triangle rows (they would push it deeper, away
-      from the surface); the next refresh gives it triangle rows again. A row switched off by
-      its data weight a = 0 is the constant 1 (always satisfied).
+      from the surface); the next refresh gives it triangle rows again. An outside sample closer
+      than its requirement plus TANGENT_REACH keeps its triangle rows and gets the plane row too, with
+      the tangent plane at its nearest point (a half-space the few triangles of a fine mesh's active
+      set do not make: the tube slipped past them). A row switched off by its data weight a = 0 is
+      the constant 1 (always satisfied).
 
 Growth. Grown while actuated, every intermediate body is a prefix of the final shape: the
 final rows cover it. Actuated after growth ("after"), the tube sweeps lambda_t = 1 - t (1 -
@@ -62,23 +65,42 @@ the 20-primitive speed scene, with fewer iterations (102, 71, 78); the price is 
 target is blocked (the scene's RMSE over all points 1.42 -> 1.91 cm). Meshes (no pushed start), weight 1
 -> 0.05: obstacle-mesh 0.127 -> 0.036 D, the 10 000-triangle torus scene 0.047 -> 0.011 D, both still
 clear; 0.1 gave 0.030 and 0.026 D but a wider detour on obstacle-mesh (gap 1.53 cm against 0.49 cm for
-a 0.3 cm margin), and 0.01 sent obstacle-mesh round the far side (gap 5.6 cm, 6 rounds).
+a 0.3 cm margin), and 0.01 sent obstacle-mesh round the far side (gap 5.6 cm, 6 rounds). With the
+pushed mesh start and its tangent-plane rows (one session): weight 0.05 -> 0.01 and the pushed target's
+extra clearance PUSH_EXTRA 0.25 -> MESH_PUSH_EXTRA 0.05 D: obstacle-mesh 0.0235 -> 0.0138 D, the torus
+scene 0.0137 -> 0.0043 D, one round each (weight 0.01 alone: 0.0207 and 0.0045 D; extra 0.1: 0.0139
+and 0.015 D, another way round the torus).
 
 Start. A design through an obstacle is a poor start for the rows: IPOPT spent most of its 239
-iterations on the speed scene pushing the tube out. Primitives only: the target is pushed out of
-the obstacles across itself (``pushed_target``: a run of points through one obstacle to one side),
-the plain NLP designs that (one solve, warm from the obstacle-free design), and the rows start from
-its chain (speed scene, same rows: 131 iterations instead of 244; with the rows on near columns
-only and BLOCKED_WEIGHT 0.1, 78 iterations and 2.6 s CPU where the session-start code took 228 and
-9.4 s, benchmarks/bench_obstacles.py). Not with a mesh: on the torus scene
-the push sent the tube round the long way (gap 4.9 cm, 4 rounds, 20x slower), and on obstacle-mesh too
-(gap 5.4 cm, 6 rounds, RMSE away from the obstacle 0.81 D; with mesh weight 0.1).
+iterations on the speed scene pushing the tube out. The target is pushed out of the obstacles across
+itself (``pushed_target``): past a primitive along the distance gradient, a run of points through one
+obstacle to one side; through a mesh, a run along ONE direction across its chord, of PUSH_DIRECTIONS the
+one with the least total push (sphere tracing on the exact signed distance: the shortest way round). The
+plain NLP designs that from its own geometric guess (one solve), and the rows start from its chain: the
+rows' start is a function of the problem alone, and so is the design (the obstacle-free design only
+decides whether there is anything to do, the samples per segment and which primitives get slots: discrete
+choices that a tiny change of it leaves alone). Started from the obstacle-free design instead (which crosses
+obstacle-mesh's block ~2.5 D deep while a solve moves a frame at most MESH_TRUST = 1.5 D), the first
+solve ended "infeasible" (the plane rows of the samples inside asked them out through one face while the
+samples before the block were held on the other: no tube satisfies both) wherever IPOPT happened to stop,
+and the rounds after it took routes that changed with a change of 1e-8 in the start (final gaps 0.49 to
+8.9 cm, 2 to 9 rounds); warm from the obstacle-free design, the pushed target's plain design also
+changed with the start (the 20-primitive scene: designs up to 3.7 cm apart, RMSE away 0.047 to 0.083 D).
+Measured (one session, starts 1e-6 apart and the obstacle-free design with other IPOPT settings):
+every bundled design problem (the tip problem does not start from design_nlp) and both speed scenes
+reach the same design, bit for bit (results/BENCHMARKS.md, "Obstacles"). An earlier gradient push of meshes sent the tube round the long way (gap 4.9 cm on the
+torus scene).
 
 Loop. Start from the obstacle-free design (design_nlp), keep it when it already clears;
-otherwise solve with the rows (warm, from the start's chain, or the pushed start's), check with the report
+otherwise solve with the rows (warm, from the pushed start's chain), check with the report
 (analysis.obstacles.obstacle_report: 20 points per segment, exact mesh distances, refined
-minima), refresh the mesh active sets, raise the rows' requirement by 1.5x what is still
-missing, re-solve warm; until the report is clear or ``rounds`` solves are done.
+minima), refresh the mesh active sets, re-solve warm; until the report is clear or ``rounds`` solves
+are done. The rows' requirement is raised by 1.5x what is still missing only where every sample held
+its requirement against the exact obstacle (``Plan.samples_hold``): then the tube dips between samples.
+A sample that did not hold passed a mesh where its active set had no triangle (a fine mesh: the torus
+scene's 6 nearest triangles span a fraction of D): from then on every sample also has rows to its k
+nearest faces among those near the samples at every such miss (``Plan.remember``). Raising there (as
+before) asked every sample for 2 D more after such a miss and sent the tube far round.
 
 Tip problems (design.tip) take the same rows on the tip formulation's chain (fixed base):
 every start of the tip design (the obstacle-free tip design first) is solved with them,
@@ -113,11 +135,12 @@ from vine_nlp.analysis.obstacles import (
     min_gap,
     nearest_triangles,
     obstacle_report,
+    point_triangle_distance,
     sharpness_radius,
 )
 from vine_nlp.design.clearance import chain_guess, result_of
 from vine_nlp.design.common import pair_points
-from vine_nlp.design.nlp import design_bounds, design_nlp, guess_from_routing, nlp_parameters, nlp_spec, solve_from, start_x
+from vine_nlp.design.nlp import design_bounds, design_nlp, nlp_parameters, nlp_spec, solve_from, start_x
 from vine_nlp.design.problem import DesignProblem, Routing, TipProblem
 from vine_nlp.design.result import Result
 from vine_nlp.design.tip import (
@@ -141,7 +164,7 @@ MAX_SAMPLES = 40  # samples per segment
 AFTER_SLOTS = 5  # growth "after": intermediate shapes with rows at a time (their t are data, chosen from the report)
 MESH_K = 6  # nearest triangles per sample
 BLOCKED_WEIGHT = 0.1  # weight of the target points closer than the margin to an obstacle (their fit cannot be exact)
-MESH_BLOCKED_WEIGHT = 0.05  # the same where the scene has a mesh (module docstring, "Weights")
+MESH_BLOCKED_WEIGHT = 0.01  # the same where the scene has a mesh (module docstring, "Weights")
 ACTIVE_REACH = 1.0  # units of D: a primitive gets rows on a segment when its slack is below this plus REACH_DL times the segment's length
 REACH_DL = 0.5
 ROUNDS = 6
@@ -151,10 +174,19 @@ MESH_TRUST = 1.5  # units of D: a frame moves at most this far per solve with a 
 # rows than every column, with the same end on obstacle-mesh; a reach as short as the primitives' sent
 # obstacle-mesh round a far wider detour (the study: results/BENCHMARKS.md, "Obstacles")
 MESH_REACH = 8.0
+# units of D: an outside sample closer than its requirement plus this also gets its plane row, the tangent
+# plane at its nearest point on the mesh (a half-space: the tube cannot slip past the few triangles of its
+# active set, as it did between the 6 nearest of the torus scene's 10 000, diving 1.2 D deep and out again
+# for 4 to 8 rounds); on obstacle-mesh and the torus scene one round instead of 3 and 4
+TANGENT_REACH = 0.5
 RAISE_FACTOR = 1.5  # the rows' requirement grows by this times the remaining shortfall
 PUSHED_START = True  # start from the plain design of the target pushed out of the obstacles (pushed_target)
 PUSH_EXTRA = 0.25  # units of D: the pushed target clears by this much more than the rows ask
+MESH_PUSH_EXTRA = 0.05  # the same where the scene has a mesh (module docstring, "Weights")
 PUSH_PASSES = 8
+PUSH_DIRECTIONS = 16  # meshes: directions tried around a run's chord
+PUSH_PROBES = 9  # meshes: points of a run that choose its direction
+MARCH_STEPS = 80
 TRI_EPS = 1e-9  # sqrt(d2 + eps^2) (units of D): finite gradients at distance 0
 
 
@@ -371,12 +403,23 @@ class Plan:
         self.mesh_cols = [() for _ in self.meshes]  # per mesh, the columns near it (grow, never shrink)
         self.col_slots = None  # primitive slots per (shape, segment) column: grow (never shrink) with the active sets
         self.raised = 0.0  # units of D: added to every requirement by the loop
+        # meshes: after a sample passed its active set (``samples_hold``), every sample gets k more rows,
+        # its nearest faces among those nearest to the samples at every such miss (``remember``): the
+        # tube cannot dive again where it dived once (on the torus scene it went in and out 6 times)
+        self.k_mem = 0
+        self.memory = {}  # (mesh, t) -> the faces of the misses so far
+        self._remember = False
+
+    def remember(self) -> None:
+        """The next ``data`` keeps its mesh active sets as the memory (the samples passed a mesh)."""
+        if self.meshes:
+            self._remember, self.k_mem = True, self.k
 
     @property
     def term(self) -> ObstacleRows:
         return ObstacleRows(tuple(int(v) for v in self.col_slots) if self.col_slots is not None else (),
                             tuple(tuple(int(c) for c in cols) for cols in self.mesh_cols), self.S,
-                            self.levels, self.k)
+                            self.levels, self.k + self.k_mem)
 
     @property
     def P(self) -> int:
@@ -478,18 +521,31 @@ class Plan:
                 p = points[t].reshape(-1, 3)
                 faces, dist = nearest_triangles(ob, p, k)
                 inside = mesh_signed_distance(ob, p) < 0
+                if self._remember:
+                    self.memory[m, t] = np.union1d(self.memory.get((m, t), []), faces).astype(np.int64)
+                rows = _with_memory(ob, p, faces, self.memory.get((m, t)), nearest_triangles(ob, p, 2 * k)[0]) if self.k_mem else faces
+                kr = rows.shape[1]
                 slack = (np.where(inside, -dist[:, 0], dist[:, 0]) / D).reshape(M, S).min(axis=1) - need
                 # a column gets rows where the tube can reach the mesh within one solve (MESH_TRUST)
                 near.append(slack < MESH_REACH + REACH_DL * dl)
                 tri = sc.triangles  # units of D
-                T = tri[faces].reshape(M, S, k * 9)  # per sample: k triangles, a b c each
+                T = tri[rows].reshape(M, S, kr * 9)  # per sample: kr triangles, a b c each
                 nrm, off = _exit_planes(sc, faces, p / D, inside, np.repeat(need, S))
-                plane = np.hstack([nrm, off[:, None]]).reshape(M, S * 4)
+                a_tri = (~inside).astype(float).reshape(M, S)
                 a_plane = inside.astype(float).reshape(M, S)
-                cols.append(np.vstack([head, T.reshape(M, S * k * 9).T, (1 - a_plane).T, plane.T, a_plane.T]))
+                if TANGENT_REACH > 0:
+                    close = ~inside & (dist[:, 0] / D < np.repeat(need, S) + TANGENT_REACH)
+                    if close.any():
+                        c, _, _ = ob.trimesh.nearest.on_surface(p[close])
+                        n = (p[close] - c) / np.maximum(np.linalg.norm(p[close] - c, axis=1, keepdims=True), 1e-300)
+                        nrm[close], off[close] = n, np.sum(n * c / D, axis=1)
+                        a_plane = (inside | close).astype(float).reshape(M, S)
+                plane = np.hstack([nrm, off[:, None]]).reshape(M, S * 4)
+                cols.append(np.vstack([head, T.reshape(M, S * kr * 9).T, a_tri.T, plane.T, a_plane.T]))
             chosen = sorted(set(self.mesh_cols[m]) | set(np.flatnonzero(np.concatenate(near)).tolist()))
             self.mesh_cols[m] = tuple(chosen)
             out[f"obstacle_mesh_{m}"] = np.hstack(cols)[:, chosen]
+        self._remember = False
         return out
 
     def _prim_data(self, points, levels, needs, u, dl) -> dict:
@@ -537,8 +593,46 @@ class Plan:
             x[lay.extra[:, 12 * a : 12 * a + 12].T] = F[:, :-1]
         return x
 
+    def samples_hold(self, routing: Routing, tol: float = 1e-4) -> bool:
+        """Whether every sample of the rows clears its requirement against the exact obstacle (units of D,
+        within ``tol``). A converged solve whose report still finds the tube too close then dips between
+        samples (raise the requirement); a sample that does not hold passed a mesh where its active set
+        had no triangle (refresh the active set, raising would only push the tube farther than needed)."""
+        dl = routing.length / self.D
+        for t in [1.0] + list(self.ts):
+            p = self.sample_points(routing, t).reshape(-1, 3)
+            for ob in self.obstacles:
+                d = np.asarray(ob.distance(p), float).reshape(-1, self.S) / self.D
+                if np.any(d < (self.need(ob, dl) - tol)[:, None]):
+                    return False
+        return True
+
     def report(self, routing: Routing, per_segment: int = DEFAULT_PER_SEGMENT) -> dict:
         return obstacle_report(routing, self.D, self.obstacles, self.growth, self.margin, per_segment, self.report_ts)
+
+
+def _with_memory(mesh: Mesh, p, faces: np.ndarray, memory, more: np.ndarray) -> np.ndarray:
+    """Per sample (``p``), its k nearest ``faces``, then its nearest faces of ``memory`` that are not among
+    them (then the next nearest of ``more``): 2 k distinct faces, no duplicate row."""
+    k = faces.shape[1]
+    if memory is not None and len(memory):
+        tri = mesh.triangles[memory]
+        d = point_triangle_distance(p[:, None, :], tri[None, :, 0], tri[None, :, 1], tri[None, :, 2])
+        mem = memory[np.argsort(d, axis=1, kind="stable")[:, : 2 * k]]
+    else:
+        mem = np.zeros((len(p), 0), np.int64)
+    out = np.empty((len(faces), 2 * k), np.int64)
+    for i in range(len(faces)):
+        row = list(faces[i])
+        for f in list(mem[i]) + list(more[i]):
+            if len(row) == 2 * k:
+                break
+            if f not in row:
+                row.append(f)
+        while len(row) < 2 * k:  # a mesh with fewer than 2 k faces: repeat the nearest (the same row twice)
+            row.append(row[0])
+        out[i] = row
+    return out
 
 
 def _exit_planes(mesh: Mesh, faces, p, inside, need):
@@ -588,12 +682,57 @@ def _weigh_blocked(problem: DesignProblem, pairing, cells: np.ndarray, factor: f
     return cells
 
 
+def _march(mesh: Mesh, p, w, need: float, tmax: float) -> np.ndarray:
+    """Per row of p, the first t >= 0 with signed distance(p + t w) >= need (a hair beyond: a second pass
+    finds the point clear), sphere tracing along w: the signed distance is 1-Lipschitz, so a step of
+    need - distance never passes that point; at most tmax."""
+    t = np.zeros(len(p))
+    act = np.ones(len(p), bool)
+    tol = 1e-6 * tmax
+    for _ in range(MARCH_STEPS):
+        idx = np.flatnonzero(act)
+        if not idx.size:
+            break
+        step = need + tol - mesh_signed_distance(mesh, p[idx] + t[idx, None] * w[idx])
+        go = step > 0
+        t[idx[go]] += step[go] + tol
+        act[idx[~go]] = False
+        act &= t < tmax
+    return np.minimum(t, tmax)
+
+
+def _push_mesh(p: np.ndarray, mesh: Mesh, d: np.ndarray, need: float) -> np.ndarray:
+    """Every run of points closer than ``need`` to ``mesh`` (``d``: their signed distances) moved out along
+    ONE direction across the run's chord: of PUSH_DIRECTIONS directions around it, the one whose pushes
+    (each point the least that clears it, :func:`_march`) sum least over PUSH_PROBES points of the run,
+    the shortest way round the mesh. It depends on the target and the mesh alone, never on a design."""
+    p = p.copy()
+    lo, hi = mesh.bounds()
+    tmax = float(np.linalg.norm(hi - lo)) + 2 * need
+    m = np.concatenate([[False], d < need, [False]]).astype(int)
+    for i0, i1 in zip(np.flatnonzero(np.diff(m) == 1), np.flatnonzero(np.diff(m) == -1)):
+        c = p[min(i1, len(p) - 1)] - p[max(i0 - 1, 0)]
+        c /= max(float(np.linalg.norm(c)), 1e-300)
+        e1 = np.cross(c, [1.0, 0.0, 0.0] if abs(c[0]) < 0.9 else [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        ang = 2 * np.pi * np.arange(PUSH_DIRECTIONS) / PUSH_DIRECTIONS
+        W = np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * np.cross(c, e1)
+        probe = p[np.unique(np.linspace(i0, i1 - 1, PUSH_PROBES).round().astype(int))]
+        n = len(probe)
+        t = _march(mesh, np.tile(probe, (PUSH_DIRECTIONS, 1)), np.repeat(W, n, axis=0), need, tmax).reshape(PUSH_DIRECTIONS, n)
+        w = W[int(np.argmin(t.sum(axis=1)))]
+        q = p[i0:i1]
+        p[i0:i1] = q + _march(mesh, q, np.broadcast_to(w, q.shape), need, tmax)[:, None] * w
+    return p
+
+
 def pushed_target(target: np.ndarray, obstacles, need: float, passes: int = PUSH_PASSES) -> np.ndarray:
     """The target with every point closer than ``need`` (center distance, units) to an obstacle moved out
     across the target: along the distance gradient with its component along the target's tangent taken
     out (a target through an obstacle is pushed to one side of it, not back along itself), a run of
     points through one obstacle to ONE side (their mean direction) unless their directions cancel (a run
-    along the obstacle, a helix round a cylinder: each point along its own), repeated ``passes`` times
+    along the obstacle, a helix round a cylinder: each point along its own); a run through a mesh along
+    the one direction across its chord that pushes least (:func:`_push_mesh`); repeated ``passes`` times
     (a point pushed out of one obstacle may land in another)."""
     p = np.array(target, float)
     tan = np.gradient(p, axis=0)
@@ -607,6 +746,9 @@ def pushed_target(target: np.ndarray, obstacles, need: float, passes: int = PUSH
             if not low.any():
                 continue
             moved = True
+            if isinstance(ob, Mesh):
+                p = _push_mesh(p, ob, d, need)
+                continue
             g = np.zeros_like(p)
             q = p[low]  # the gradient only where a point moves (a mesh's distance is not cheap)
             steps = np.concatenate([q + h * e for e in np.eye(3)] + [q - h * e for e in np.eye(3)])
@@ -633,15 +775,14 @@ def pushed_target(target: np.ndarray, obstacles, need: float, passes: int = PUSH
     return p
 
 
-def _pushed_start(problem: DesignProblem, start: Result, plan: Plan) -> Routing:
+def _pushed_start(problem: DesignProblem, plan: Plan) -> Routing:
     """A start around the obstacles: the plain design of the pushed target (:func:`pushed_target`, center
-    distance D/2 + margin + PUSH_EXTRA D), warm from the obstacle-free design."""
+    distance D/2 + margin + PUSH_EXTRA D, MESH_PUSH_EXTRA with a mesh) from its own geometric guess, a function of the problem alone
+    (module docstring, "Start")."""
     D = problem.diameter
-    tg = pushed_target(problem.target, problem.obstacles, D * (0.5 + PUSH_EXTRA) + plan.margin)
+    tg = pushed_target(problem.target, problem.obstacles, D * (0.5 + (MESH_PUSH_EXTRA if plan.has_mesh else PUSH_EXTRA)) + plan.margin)
     pushed = dataclasses.replace(problem, target=tg, obstacles=())
-    pairing = pair_points(tg, problem.options.points_per_segment)
-    r = solve_from(pushed, guess_from_routing(pushed, pairing, start.routing), pairing, frames="target")
-    return r.routing
+    return solve_from(pushed, None, pair_points(tg, problem.options.points_per_segment), frames="target").routing
 
 
 def obstacle_stats(report: dict) -> dict:
@@ -704,9 +845,9 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
     pairing = pair_points(problem.target, problem.options.points_per_segment)
     plan.choose_levels(first)
     routing = start.routing
-    if PUSHED_START and not plan.has_mesh:  # (a mesh: the push took a torus's scene the long way round)
+    if PUSHED_START:
         plan.data(routing)  # the slots near the obstacle-free design stay
-        routing = _pushed_start(problem, start, plan)
+        routing = _pushed_start(problem, plan)
     R0g = routing.initial_pose[:3, :3].copy()
     params = nlp_parameters(problem, pairing, R0g)
     params["cells"] = _weigh_blocked(problem, pairing, params["cells"], MESH_BLOCKED_WEIGHT if plan.has_mesh else BLOCKED_WEIGHT)
@@ -731,8 +872,10 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
         best, routing = res, res.routing
         if rep["clear"] and res.converged:
             break
-        if res.converged:  # the rows held, yet the tube dips between samples: ask the samples for more
+        if res.converged and plan.samples_hold(routing):  # the tube dips between samples: ask the samples for more
             plan.raised += RAISE_FACTOR * _shortfall(plan, rep)
+        elif res.converged:  # a sample passed a mesh beside its active set: rows there from now on
+            plan.remember()
         plan.choose_levels(rep)
         x = plan.fill_extra(solver, x, routing)
     best.metrics.update(obstacle_stats(rep))
@@ -774,7 +917,7 @@ def _tip_solve(problem: TipProblem, plan: Plan, routing: Routing, rounds: int):
     e1, e2 = _perpendicular_pair(d)
     base = {"cells": np.zeros((5, M)), "smooth": [o.smooth_theta, o.smooth_lambda], "h": np.full(max(M - 1, 1), L / M / D),
             "L": L / D, "tip_position": problem.position / D, "tip_frame": np.column_stack([d, e1, e2]), "tube_length": L / D}
-    plan.raised, plan.ts, plan.col_slots = 0.0, [], None
+    plan.raised, plan.ts, plan.col_slots, plan.k_mem, plan.memory = 0.0, [], None, 0, {}
     plan.mesh_cols = [() for _ in plan.meshes]
     plan.choose_levels(plan.report(routing))
     data = plan.data(routing)
@@ -799,8 +942,10 @@ def _tip_solve(problem: TipProblem, plan: Plan, routing: Routing, rounds: int):
         rep = plan.report(routing)
         if rep["clear"] and res.converged:
             break
-        if res.converged:  # the rows held, yet the tube dips between samples: ask the samples for more
+        if res.converged and plan.samples_hold(routing):  # the tube dips between samples: ask the samples for more
             plan.raised += RAISE_FACTOR * _shortfall(plan, rep)
+        elif res.converged:  # a sample passed a mesh beside its active set: rows there from now on
+            plan.remember()
         plan.choose_levels(rep)
         x = plan.fill_extra(solver, x, routing)
     res.stats["obstacle_rounds"] = solves
