@@ -34,7 +34,8 @@ Stage form (``Structure(stages=True)``, the plain chain only): for a solver that
 KKT system stage by stage (Fatrop, a Riccati recursion), every Hessian entry must lie inside
 one stage (x_k, u_k) and the rows must be x_{k+1} - F(x_k, u_k), stage by stage. The
 smoothness penalty couples theta_j with theta_{j-1}, two stages; so each stage carries c_j =
-(theta_j, lam_j) to the next as a state, and the penalty on theta_j - c_{j-1} lies in stage j:
+(theta_j, lam_j) to the next as a state, and the penalty on theta_j - c_{j-1} lies in the stage
+whose controls are segment j's:
 
     stage 0  x = (w, p)                    row  X_0 - [vec(R0g exp(w)); p]
     stage 1  x = X_0, u = (theta_0, lam_0, dl_0)
@@ -505,7 +506,8 @@ def segment_point_index(c: Chain, j: int, k: int = 0) -> np.ndarray:
 @dataclass(frozen=True)
 class Spec:
     """A cache key for one built solver: structure, terms (frozen dataclasses with ``apply(chain)``),
-    Hessian ("exact" | "gauss-newton") and IPOPT options (a sorted tuple of items)."""
+    Hessian ("exact" | "gauss-newton"), the solver's options (a sorted tuple of items) and the solver
+    ("ipopt" | "fatrop")."""
 
     structure: Structure
     terms: tuple = ()
