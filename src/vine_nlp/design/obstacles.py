@@ -58,38 +58,24 @@ levels keep everything banded, at 12 variables per stage and level.
 
 Weights. A target point closer than the margin to an obstacle is *blocked*: no design sits on it.
 Its fit weight is scaled, so the detour is shaped more by the points the tube can follow:
-``BLOCKED_WEIGHT`` (0.1) for primitives, ``MESH_BLOCKED_WEIGHT`` (0.05) where the scene has a mesh.
-Primitives, measured with the pushed start (same machine, one session): RMSE more than 2 D from the
-obstacles 0.021 -> 0.0085 D on obstacle-pipe-bend, 0.013 -> 0.006 D on obstacle-gap, 0.069 -> 0.048 D on
-the 20-primitive speed scene, with fewer iterations (102, 71, 78); the price is a wider detour where the
-target is blocked (the scene's RMSE over all points 1.42 -> 1.91 cm). Meshes (no pushed start), weight 1
--> 0.05: obstacle-mesh 0.127 -> 0.036 D, the 10 000-triangle torus scene 0.047 -> 0.011 D, both still
-clear; 0.1 gave 0.030 and 0.026 D but a wider detour on obstacle-mesh (gap 1.53 cm against 0.49 cm for
-a 0.3 cm margin), and 0.01 sent obstacle-mesh round the far side (gap 5.6 cm, 6 rounds). With the
-pushed mesh start and its tangent-plane rows (one session): weight 0.05 -> 0.01 and the pushed target's
-extra clearance PUSH_EXTRA 0.25 -> MESH_PUSH_EXTRA 0.05 D: obstacle-mesh 0.0235 -> 0.0138 D, the torus
-scene 0.0137 -> 0.0043 D, one round each (weight 0.01 alone: 0.0207 and 0.0045 D; extra 0.1: 0.0139
-and 0.015 D, another way round the torus).
+``BLOCKED_WEIGHT`` for primitives, ``MESH_BLOCKED_WEIGHT`` where the scene has a mesh. The price is a
+wider detour where the target is blocked; heavier blocked points pulled the tube's error into the
+target away from the obstacles, lighter ones (with a mesh) sent it round the far side. The values were
+chosen on the bundled problems and the speed scenes (results/BENCHMARKS.md, "Obstacles").
 
-Start. A design through an obstacle is a poor start for the rows: IPOPT spent most of its 239
-iterations on the speed scene pushing the tube out. The target is pushed out of the obstacles across
-itself (``pushed_target``): past a primitive along the distance gradient, a run of points through one
-obstacle to one side; through a mesh, a run along ONE direction across its chord, of PUSH_DIRECTIONS the
-one with the least total push (sphere tracing on the exact signed distance: the shortest way round). The
-plain NLP designs that from its own geometric guess (one solve), and the rows start from its chain: the
-rows' start is a function of the problem alone, and so is the design (the obstacle-free design only
-decides whether there is anything to do, the samples per segment and which primitives get slots: discrete
-choices that a tiny change of it leaves alone). Started from the obstacle-free design instead (which crosses
-obstacle-mesh's block ~2.5 D deep while a solve moves a frame at most MESH_TRUST = 1.5 D), the first
-solve ended "infeasible" (the plane rows of the samples inside asked them out through one face while the
-samples before the block were held on the other: no tube satisfies both) wherever IPOPT happened to stop,
-and the rounds after it took routes that changed with a change of 1e-8 in the start (final gaps 0.49 to
-8.9 cm, 2 to 9 rounds); warm from the obstacle-free design, the pushed target's plain design also
-changed with the start (the 20-primitive scene: designs up to 3.7 cm apart, RMSE away 0.047 to 0.083 D).
-Measured (one session, starts 1e-6 apart and the obstacle-free design with other IPOPT settings):
-every bundled design problem (the tip problem does not start from design_nlp) and both speed scenes
-reach the same design, bit for bit (results/BENCHMARKS.md, "Obstacles"). An earlier gradient push of meshes sent the tube round the long way (gap 4.9 cm on the
-torus scene).
+Start. A design through an obstacle is a poor start for the rows: IPOPT spends most of its iterations
+pushing the tube out. The target is pushed out of the obstacles across itself (``pushed_target``): past
+a primitive along the distance gradient, a run of points through one obstacle to one side; through a
+mesh, a run along ONE direction across its chord, of PUSH_DIRECTIONS the one with the least total push
+(sphere tracing on the exact signed distance: the shortest way round; a gradient push sent the tube
+round the long way). The plain NLP designs that from its own geometric guess (one solve), and the rows
+start from its chain: the rows' start is a function of the problem alone, and so is the design (the
+obstacle-free design only decides whether there is anything to do, the samples per segment and which
+primitives get slots: discrete choices that a tiny change of it leaves alone; tests check it). Started
+from the obstacle-free design instead, which may cross a mesh deeper than a solve moves a frame
+(MESH_TRUST), the first solve's rows contradicted each other (the samples inside asked out through one
+face while the samples before the block were held on the other), IPOPT stopped wherever it happened to,
+and the rounds after it took routes that changed with a change of 1e-8 in the start.
 
 Loop. Start from the obstacle-free design (design_nlp), keep it when it already clears;
 otherwise solve with the rows (warm, from the pushed start's chain), check with the report
