@@ -215,6 +215,7 @@ def test_repr_and_html(designed):
         (dict(points_per_segment=0), "points_per_segment: must be an integer >= 1"),
         (dict(starts=1.5), "starts: must be an integer >= 1"),
         (dict(hops=-1), "hops: must be an integer >= 0"),
+        (dict(solver="fatrop"), "solver: must be one of 'auto', 'ipopt'; did you mean 'auto'?"),
         (dict(smoothing=-1e-3), "smoothing: must be >= 0"),
         (dict(clearance=-0.1), "clearance: must be >= 0, got -0.1"),
         (dict(robust={"theta": 1.0}), "robust: unknown key 'theta'; the keys are theta_deg, lambda, length, length_abs"),
@@ -436,3 +437,11 @@ def test_correct_through_the_api_lowers_the_built_error(tmp_path):
     assert sorted(vn.load(out).runs) >= ["as_built", "corrected"]
     with pytest.raises(InputError):
         vn.correct(arch, [tmp_path / "missing.csv"])
+
+
+def test_solver_choice_reaches_the_problem_and_its_source(target, tmp_path):
+    points, _ = target
+    d = vn.design(points, D, points_per_segment=N_PER, solver="ipopt")
+    assert d.result.stats["solver"] == "ipopt"
+    d.save(tmp_path / "d.h5")
+    assert 'solver = "ipopt"' in vn.load(tmp_path / "d.h5").source

@@ -110,6 +110,7 @@ _DESIGN_ARGUMENTS = {
     "design.starts": "starts",
     "design.hops": "hops",
     "design.budget": "budget",
+    "design.solver": "solver",
     "design.seed": "seed",
     "design.max_iter": "max_iter",
     "design.smoothness": "smoothing",
@@ -191,7 +192,7 @@ def _smoothness(value) -> dict:
 
 
 def _design_problem(points, diameter, *, actuator, theta_max_deg, lambda_min, points_per_segment, smoothing, starts, hops,
-                    method, seed, units, name, budget=DesignOptions.budget) -> DesignProblem:
+                    method, seed, units, name, budget=DesignOptions.budget, solver=DesignOptions.solver) -> DesignProblem:
     args = _Arguments(_DESIGN_ARGUMENTS)
     name = _text(args, "name", name)
     units = _units(args, units)
@@ -203,7 +204,7 @@ def _design_problem(points, diameter, *, actuator, theta_max_deg, lambda_min, po
         table["theta_max_deg"] = _plain(theta_max_deg)
     act = problems._actuator(args, table)
     options = {"method": method, "points_per_segment": points_per_segment, "starts": starts, "hops": hops, "seed": seed,
-               "budget": budget}
+               "budget": budget, "solver": solver}
     options = {k: _plain(v) for k, v in options.items()}
     smooth = _smoothness(smoothing)
     if smooth:
@@ -284,6 +285,8 @@ def _options_table(o: DesignOptions, kind: str = "design") -> dict:
     if kind == "design":
         table["hops"] = o.hops
         table["budget"] = o.budget
+        if o.solver != DesignOptions.solver:
+            table["solver"] = o.solver
     table["seed"] = o.seed
     return table
 
@@ -791,6 +794,7 @@ def design(
     starts: int = DesignOptions.starts,
     hops: int = DesignOptions.hops,
     budget: float = DesignOptions.budget,
+    solver: str = DesignOptions.solver,
     method: str = DesignOptions.method,
     clearance: float | None = None,
     robust=None,
@@ -825,6 +829,9 @@ def design(
     budget : float
         nlp: seconds for the corner search that runs where the first solve finds a corner-like
         target (>= 0; 0 turns it off), as ``[design] budget`` and ``--budget``.
+    solver : {"auto", "ipopt"}
+        nlp: "auto" runs the first Gauss-Newton solve on Fatrop where the NLP's functions are compiled
+        (IPOPT where not, and where Fatrop fails); "ipopt" keeps IPOPT throughout (``[design] solver``).
     method : {"nlp", "greedy"}
     clearance : float, optional
         Also a design keeping the tube clear of itself by this gap beyond D (>= 0, ``units``):
@@ -862,7 +869,7 @@ def design(
     """
     problem = _design_problem(points, diameter, actuator=actuator, theta_max_deg=theta_max_deg, lambda_min=lambda_min,
                               points_per_segment=points_per_segment, smoothing=smoothing, starts=starts, hops=hops,
-                              method=method, seed=seed, units=units, name=name, budget=budget)
+                              method=method, seed=seed, units=units, name=name, budget=budget, solver=solver)
     args = _Arguments()
     workers = _integer(args, "workers", workers, 1)
     min_gap = None if clearance is None else _number(args, "clearance", clearance, low=0.0, low_open=False)
@@ -1097,7 +1104,7 @@ def solve(problem, method: str | None = None, **options) -> Design:
         _design_problem(problem.target, problem.diameter, actuator=a.kind, theta_max_deg=math.degrees(a.theta_max),
                         lambda_min=a.lambda_min, points_per_segment=o.points_per_segment,
                         smoothing=(o.smooth_theta, o.smooth_lambda), starts=o.starts, hops=o.hops, method=o.method,
-                        seed=o.seed, units=problem.units, name=problem.name, budget=o.budget)
+                        seed=o.seed, units=problem.units, name=problem.name, budget=o.budget, solver=o.solver)
     if isinstance(problem, (ForwardProblem, FitProblem)):
         r = problem.routing
         _routing(r.theta, r.lam, r.length, initial_pose=r.initial_pose, argument_prefix="routing: ")
