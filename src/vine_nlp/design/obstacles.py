@@ -376,7 +376,6 @@ class Plan:
             self.report_ts = sorted(set(self.grid) | {1.0})
         else:
             self.grid, self.report_ts = [], None
-        self.ts = []  # the intermediate shapes with rows (choose_levels)
         self.levels = min(AFTER_SLOTS, len(self.grid))
         self.k = int(min([k] + [len(o.faces) for o in obstacles if isinstance(o, Mesh)]))
         longest = float(np.max(lengths)) / D
@@ -386,6 +385,11 @@ class Plan:
         self.prims = [q for q, o in enumerate(self.obstacles) if not isinstance(o, Mesh)]
         self.meshes = [q for q, o in enumerate(self.obstacles) if isinstance(o, Mesh)]
         self.slots = np.array([rounded_box(self.scaled[q]) for q in self.prims]).reshape(len(self.prims), 17)
+        self.reset_rounds()
+
+    def reset_rounds(self) -> None:
+        """Forget what a loop of rounds learned (every start of a tip design begins anew)."""
+        self.ts = []  # the intermediate shapes with rows (choose_levels)
         self.mesh_cols = [() for _ in self.meshes]  # per mesh, the columns near it (grow, never shrink)
         self.col_slots = None  # primitive slots per (shape, segment) column: grow (never shrink) with the active sets
         self.raised = 0.0  # units of D: added to every requirement by the loop
@@ -395,6 +399,16 @@ class Plan:
         self.k_mem = 0
         self.memory = {}  # (mesh, t) -> the faces of the misses so far
         self._remember = False
+
+    def next_round(self, converged: bool, routing: Routing, rep: dict) -> None:
+        """After a solve whose tube does not clear (``rep``: its report): where every sample held, the tube
+        dips between samples and the requirement is raised; where one did not, it passed a mesh beside
+        its active set and the faces there get rows from now on; then the shapes with rows are chosen."""
+        if converged and self.samples_hold(routing):
+            self.raised += RAISE_FACTOR * _shortfall(self, rep)
+        elif converged:
+            self.remember()
+        self.choose_levels(rep)
 
     def remember(self) -> None:
         """The next ``data`` keeps its mesh active sets as the memory (the samples passed a mesh)."""
@@ -858,11 +872,7 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
         best, routing = res, res.routing
         if rep["clear"] and res.converged:
             break
-        if res.converged and plan.samples_hold(routing):  # the tube dips between samples: ask the samples for more
-            plan.raised += RAISE_FACTOR * _shortfall(plan, rep)
-        elif res.converged:  # a sample passed a mesh beside its active set: rows there from now on
-            plan.remember()
-        plan.choose_levels(rep)
+        plan.next_round(res.converged, routing, rep)
         x = plan.fill_extra(solver, x, routing)
     best.metrics.update(obstacle_stats(rep))
     best.stats.update(stats0 | {"obstacle_rounds": solves, "obstacle_clear": bool(rep["clear"]),
@@ -903,8 +913,7 @@ def _tip_solve(problem: TipProblem, plan: Plan, routing: Routing, rounds: int):
     e1, e2 = _perpendicular_pair(d)
     base = {"cells": np.zeros((5, M)), "smooth": [o.smooth_theta, o.smooth_lambda], "h": np.full(max(M - 1, 1), L / M / D),
             "L": L / D, "tip_position": problem.position / D, "tip_frame": np.column_stack([d, e1, e2]), "tube_length": L / D}
-    plan.raised, plan.ts, plan.col_slots, plan.k_mem, plan.memory = 0.0, [], None, 0, {}
-    plan.mesh_cols = [() for _ in plan.meshes]
+    plan.reset_rounds()
     plan.choose_levels(plan.report(routing))
     data = plan.data(routing)
     solver = _tip_solver(problem, plan)
@@ -928,11 +937,7 @@ def _tip_solve(problem: TipProblem, plan: Plan, routing: Routing, rounds: int):
         rep = plan.report(routing)
         if rep["clear"] and res.converged:
             break
-        if res.converged and plan.samples_hold(routing):  # the tube dips between samples: ask the samples for more
-            plan.raised += RAISE_FACTOR * _shortfall(plan, rep)
-        elif res.converged:  # a sample passed a mesh beside its active set: rows there from now on
-            plan.remember()
-        plan.choose_levels(rep)
+        plan.next_round(res.converged, routing, rep)
         x = plan.fill_extra(solver, x, routing)
     res.stats["obstacle_rounds"] = solves
     return res, rep
