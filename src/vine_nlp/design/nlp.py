@@ -16,8 +16,8 @@ per-segment lambda, Hessian, warm) and cached; target, weights and guesses are
 parameters, so multi-start and sweeps reuse it. Where its functions are compiled, the first
 Gauss-Newton solve runs on Fatrop, a solver for stage-structured problems (``solve_from``).
 Targets with corners have many local minima: by default the windowed search of
-``design.corners`` takes over where the first solve shows them (within ``options.budget`` seconds); ``basin_hops`` searches them
-when asked for (``options.hops``).
+``design.corners`` takes over where the first solve shows them (within ``options.budget``
+seconds); ``basin_hops`` searches them when asked for (``options.hops``).
 """
 
 from __future__ import annotations

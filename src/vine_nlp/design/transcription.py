@@ -726,7 +726,8 @@ class Solver:
         return {k: float(v) for k, v in zip(self.term_names, self._terms(x, p))}
 
     def solve(self, x0, p, lbx, ubx, lbg=None, ubg=None) -> tuple[np.ndarray, str, dict]:
-        """One IPOPT solve from x0 (clipped into the bounds): (x, status, stats)."""
+        """One solve, IPOPT's or Fatrop's (``spec.backend``), from x0 clipped into the bounds: (x, status, stats).
+        Fatrop loops without end on non-finite data: callers check ``fatrop_safe`` first."""
         build = 0.0 if self._built else self.build_time_s
         self._built = True
         x0 = np.clip(np.asarray(x0, float), lbx, ubx)
