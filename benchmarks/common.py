@@ -13,6 +13,11 @@ import platform
 import subprocess
 from pathlib import Path
 
+from vine_nlp.design import blas
+
+# the benchmarks run as the command line does: one BLAS thread (design.blas)
+blas.own_process()
+
 ROOT = Path(__file__).resolve().parents[1]
 SECTIONS = ROOT / "results" / "benchmarks"
 FIGURES = ROOT / "results" / "figures"
@@ -42,7 +47,7 @@ def machine() -> str:
         rev = "?"
     return (
         f"{cpu}, {os.cpu_count()} cores{mem}; Python {platform.python_version()}, casadi {casadi.__version__}, "
-        f"numpy {numpy.__version__}; commit {rev}; {_dt.datetime.now(_dt.timezone.utc).isoformat(timespec='minutes')}"
+        f"numpy {numpy.__version__}; BLAS threads {os.environ.get('OPENBLAS_NUM_THREADS', 'default')}; commit {rev}; {_dt.datetime.now(_dt.timezone.utc).isoformat(timespec='minutes')}"
     )
 
 

@@ -41,6 +41,7 @@ import time
 from functools import lru_cache
 from pathlib import Path
 
+from vine_nlp.design import blas
 from vine_nlp.errors import InputError
 
 __all__ = ["mode", "cache_dir", "compiler", "nlpsol", "fatrop_nlpsol", "stored", "CompileError", "NotCompiled", "stats"]
@@ -244,6 +245,7 @@ def nlpsol(name: str, spec_text: str, nlp, opts: dict, enabled: bool = True):
     problem and the derivative options only when they are needed), or interpreted.
     ``enabled=False``: a structure that seldom recurs (an active set), not worth a compile."""
     import casadi as ca
+    blas.one_thread()
     derived = {}
 
     def interpreted():
@@ -280,6 +282,7 @@ def fatrop_nlpsol(name: str, spec_text: str, functions, opts: dict, equality):
     Options "fatrop.X" go to Fatrop as X."""
     import casadi as ca
 
+    blas.one_thread()
     path = library(spec_text, functions) if mode() != "off" and compiler() else None
     if path is None:
         raise NotCompiled("no compiled functions for Fatrop")

@@ -51,6 +51,7 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
+from vine_nlp.design import blas
 from vine_nlp.design.common import LENGTH_FACTOR
 from vine_nlp.design.problem import DesignProblem
 from vine_nlp.design.result import Result
@@ -141,6 +142,7 @@ def _window_solver(W: int, n1: int, shared: bool, slot: int) -> ca.Function:
     """One IPOPT solver of the window NLP per thread slot: a CasADi solver keeps its workspace in
     itself, so two threads never share one."""
     opts = ipopt_quiet(WINDOW_MAX_ITER, WINDOW_TOL) | {"ipopt.acceptable_tol": 1e-5, "ipopt.mu_strategy": "adaptive"}
+    blas.one_thread()
     return ca.nlpsol(f"vine_window{slot}", "ipopt", _window_nlp(W, n1, shared), opts)
 
 

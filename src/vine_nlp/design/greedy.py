@@ -66,6 +66,7 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
+from vine_nlp.design import blas
 from vine_nlp.design.common import (
     Pairing,
     clip_to_bounds,
@@ -154,6 +155,7 @@ class WindowSolver:
         # the n slots of a segment repeat its helix rates: merging them speeds up the build
         sq, dist = ca.vertsplit(ca.cse(ca.vertcat(sq, dist)))
         opts = ipopt_quiet(max_iter, tol) | {"ipopt.acceptable_tol": 1e-6}
+        blas.one_thread()
         self.solver = ca.nlpsol(f"greedy_window_{K}", "ipopt", {"x": x, "p": pvec, "f": sq}, opts)
         self.terms = ca.Function("window_terms", [x, pvec], [sq, dist])
         self.build_time_s = time.perf_counter() - t0

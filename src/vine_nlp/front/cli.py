@@ -13,7 +13,7 @@ import sys
 from pathlib import Path
 
 from vine_nlp import __version__
-from vine_nlp.design import compiled
+from vine_nlp.design import blas, compiled
 from vine_nlp.errors import InputError
 
 EXIT_OK, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
@@ -866,6 +866,7 @@ def main(argv=None) -> int:
     from vine_nlp import interrupt
 
     _show_notes()
+    blas.own_process()  # the command line's process is ours: one BLAS thread (design.blas)
     parser = build_parser()
     # SIGTERM unwinds like Ctrl-C: atomic writers remove their temporary files on the way out
     restore = interrupt.install()

@@ -7,6 +7,8 @@ conventions, whatever the function behind it:
 * ``solve(problem, **options) -> (Result, extra)``: ``extra`` holds arrays to
   archive beside the run, keyed by archive path (the fit's ``measured/...``;
   ``{}`` for the others). Options a formulation does not take raise TypeError.
+  It runs with one BLAS thread (``design.blas.limited``: NumPy's and SciPy's
+  threads spin beside the solver on problems this small).
 * ``write_archive(path, problem_file, runs, extra=None)``: ``problem_file`` has
   ``name``, ``kind``, ``source``, ``units`` and ``problem`` (an
   ``io.problem_file.ProblemFile`` or the API's equivalent); ``runs`` maps run
@@ -31,6 +33,7 @@ from __future__ import annotations
 import importlib
 from dataclasses import dataclass
 
+from vine_nlp.design import blas
 from vine_nlp.design.problem import DesignProblem, FitProblem, ForwardProblem, MultiShapeProblem, TipProblem
 
 _REFS: list = []  # every function the registry names (tests resolve them all)
@@ -102,6 +105,7 @@ class Formulation:
     def __post_init__(self):
         if not self.run:
             object.__setattr__(self, "run", self.name)
+        object.__setattr__(self, "solve", _one_blas_thread(self.solve))
 
 
 # ---------------------------------------------------------------- adapters to the common conventions
@@ -114,6 +118,14 @@ _FIT_PROBLEM = _Ref("vine_nlp.design.fit:fit_problem")
 _DESCRIBE_FIT = _Ref("vine_nlp.design.fit:describe_fit")
 _MULTISHAPE_REPORT = _Ref("vine_nlp.front.reports:multishape_report")
 _TIP_REPORT = _Ref("vine_nlp.front.reports:tip_report")
+
+
+def _one_blas_thread(solve):
+    def run(problem, **options):
+        with blas.limited():
+            return solve(problem, **options)
+
+    return run
 
 
 def _with_empty_extra(solve):

@@ -1,0 +1,97 @@
+"""One BLAS thread while designing: the OpenBLAS copies in the process run single-threaded.
+
+A process that designs holds up to three OpenBLAS libraries: CasADi's private one
+(``libcasadi-tp-openblas``, which MUMPS calls for the dense fronts of IPOPT's KKT factorization),
+NumPy's and SciPy's. Each starts a thread per core, and on this project's systems (a few hundred
+to a few ten thousand variables, fronts of a few dozen rows, small NumPy arrays) the extra threads
+mostly spin, even while another library works: they doubled the CPU time of the designs and, on a
+busy 2-core machine, the wall time of the clearance designs (results/BENCHMARKS.md, "Solver
+threads"). A sweep already runs one process per core.
+
+Unless the user's environment sets OpenBLAS's thread count (``OPENBLAS_NUM_THREADS``,
+``GOTO_NUM_THREADS`` or ``OMP_NUM_THREADS``, which OpenBLAS reads itself), so that their choice
+wins:
+
+- ``one_thread``: the first solver built sets CasADi's private copy to one thread, for good
+  (nothing else in the process uses it);
+- ``limited``: a context in which NumPy's and SciPy's copies run one thread, restored on the way
+  out (threadpoolctl); every formulation's solve runs in it (front.registry), so the Python API,
+  the command line and sweeps alike;
+- ``own_process``: for processes vine_nlp owns (the command line, its sweep workers, the
+  benchmarks): the copies loaded now get one thread, and those loaded later read it from the
+  environment, which workers inherit.
+
+A CasADi built against another BLAS has no private copy, and nothing is changed there.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import os
+from functools import lru_cache
+
+__all__ = ["one_thread", "limited", "own_process", "openblas_threads", "ENV_VARS"]
+
+ENV_VARS = ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")
+_set_here = False  # own_process set OPENBLAS_NUM_THREADS: not the user's choice
+
+
+@lru_cache(maxsize=1)
+def _casadi_openblas():
+    import casadi as ca  # loaded where solvers are built: the command line checks its input without it
+
+    path = os.path.join(os.path.dirname(ca.__file__), "libcasadi-tp-openblas.so.0")
+    if not os.path.exists(path):
+        return None
+    try:
+        # the soname MUMPS links: the same loaded copy, or the one MUMPS will find already loaded
+        return ctypes.CDLL(path)
+    except OSError:
+        return None
+
+
+def openblas_threads() -> int | None:
+    """The thread count of CasADi's OpenBLAS, or None where CasADi has no such library."""
+    lib = _casadi_openblas()
+    return None if lib is None else int(lib.openblas_get_num_threads())
+
+
+@lru_cache(maxsize=1)
+def one_thread() -> None:
+    """Set CasADi's OpenBLAS to one thread, once per process, unless the environment chose a count."""
+    if _user_chose():
+        return
+    lib = _casadi_openblas()
+    if lib is not None:
+        lib.openblas_set_num_threads(1)
+
+
+def _user_chose() -> bool:
+    return not _set_here and any(os.environ.get(v) for v in ENV_VARS)
+
+
+def limited():
+    """A context in which the BLAS libraries loaded in the process (NumPy's, SciPy's) run one thread,
+    restored on exit; a no-op where the environment chose a thread count."""
+    one_thread()
+    if _user_chose():
+        return contextlib.nullcontext()
+    import threadpoolctl  # loaded where a solve runs: the command line checks its input without it
+
+    # the cached controller: a fresh one scans the loaded libraries (~0.6 ms, a tenth of a small design)
+    return threadpoolctl.get_cached_controller().limit(limits=1, user_api="blas")
+
+
+def own_process() -> None:
+    """One BLAS thread for the rest of a process vine_nlp owns (the command line, a benchmark): the
+    libraries loaded now are set, the ones loaded later read ``OPENBLAS_NUM_THREADS=1`` from the
+    environment (child processes inherit it). A no-op where the environment chose a thread count."""
+    global _set_here
+    if _user_chose():
+        return
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"
+    _set_here = True
+    import threadpoolctl
+
+    threadpoolctl.get_cached_controller().limit(limits=1, user_api="blas")
