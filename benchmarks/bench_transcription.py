@@ -57,6 +57,7 @@ SIGMAS = Sigmas.from_degrees(1.0, 0.02, 0.02)
 # CPU seconds IPOPT spent in the NLP's functions (objective, rows, their derivatives), summed over solves;
 # the rest of its time is its own: mostly factorizing the KKT matrix
 FUNCTIONS = [0.0]
+REGULARIZED = [0]  # iterations on which IPOPT corrected the KKT matrix's inertia (refactorizing) in the timed call
 
 
 def cpu_clock(cpu: bool) -> None:
@@ -69,7 +70,9 @@ def cpu_clock(cpu: bool) -> None:
         x, status, st = solve(self, *a, **kw)
         if cpu:
             st["ipopt_time_s"] = time.process_time() - t
-        FUNCTIONS[0] += sum(v for k, v in self.nlpsol.stats().items() if k.startswith("t_proc_nlp_"))
+        stats = self.nlpsol.stats()
+        FUNCTIONS[0] += sum(v for k, v in stats.items() if k.startswith("t_proc_nlp_"))
+        REGULARIZED[0] += sum(1 for v in stats.get("iterations", {}).get("regularization_size", []) if v > 0)
         return x, status, st
 
     transcription.Solver.solve = timed
@@ -78,7 +81,9 @@ def cpu_clock(cpu: bool) -> None:
 def function_share(run):
     """(result of ``run()``, the share of its IPOPT time spent in the NLP's functions)."""
     FUNCTIONS[0] = 0.0
+    REGULARIZED[0] = 0
     r = run()
+    r.stats["regularized_iterations"] = REGULARIZED[0]
     return r, FUNCTIONS[0] / max(r.stats["ipopt_time_s"], 1e-12)
 
 
@@ -92,7 +97,12 @@ def per_iteration(run, repeat):
         r, share = function_share(run)
         times.append(ms_per_iteration(r))
         shares.append(share)
-    return statistics.median(times), r.stats.get("ipopt_iterations", r.iterations), r, statistics.median(shares)
+    return statistics.median(times), iterations(r), r, statistics.median(shares)
+
+
+def iterations(r) -> str:
+    """IPOPT iterations of the last timed call, and (in parentheses) those with an inertia correction."""
+    return f"{r.stats.get('ipopt_iterations', r.iterations)} ({r.stats['regularized_iterations']})"
 
 
 def ms_per_iteration(r) -> float:
@@ -112,7 +122,7 @@ def paired(run, base, repeat):
         times.append(ms_per_iteration(r))
         ratios.append(times[-1] / ms_per_iteration(b))
         shares.append(share)
-    return statistics.median(times), r.stats.get("ipopt_iterations", r.iterations), r, statistics.median(ratios), statistics.median(shares)
+    return statistics.median(times), iterations(r), r, statistics.median(ratios), statistics.median(shares)
 
 
 class Rows(list):
@@ -231,11 +241,13 @@ def main():
         "<= 1.5x (robust <= 4x). Objective: the design's (units of D^2; the tip's: actuation and tie-break). In functions: "
         "the share of IPOPT's time spent in the NLP's functions (objective, rows, their derivatives; CasADi's CPU timers), "
         "the rest is IPOPT's own, mostly factorizing the KKT matrix (clearance pairs couple segments a turn apart: "
-        "a much denser factor than the banded chain's; obstacle rows are inequalities on the chain's stages, whose "
-        "curvature makes IPOPT correct the KKT matrix's inertia, refactorizing, on most iterations).",
+        "a much denser factor than the banded chain's). Iterations: of the last timed call, in parentheses those on "
+        "which IPOPT corrected the KKT matrix's inertia (a nonconvex step: the matrix is factorized again, at least "
+        "twice per such iteration; the tip's path to its few sharp bends and the obstacle rows' curvature). One BLAS "
+        "thread (design.blas).",
         f"NLP functions: VINE_NLP_CODEGEN={compiled.mode()} (clearance and obstacles, whose active sets change the "
         "structure, always interpreted). " + load,
-        table(("formulation", "target", "ms / iteration", "iterations", "objective", "in functions", "ratio"), rows),
+        table(("formulation", "target", "ms / iteration", "iterations (inertia corrected)", "objective", "in functions", "ratio"), rows),
         "Command start to archive (`vine-nlp design P.toml`, whole process; the three commands in turn, "
         f"{rep} rounds, medians of the times and of the per-round ratios; goal: multishape and tip <= 2x the trefoil), "
         "with the archived design's objective and RMSE "
