@@ -118,6 +118,10 @@ def test_multistart_is_deterministic_and_keeps_the_best(make_target):
     from vine_nlp.design.nlp import TIE_RTOL
 
     assert a.stats["objective"] <= min(a.stats["start_objectives"]) * (1 + TIE_RTOL)
+    # iterations: every start's once, then every hop's (the winner's were once counted twice)
+    assert a.iterations == sum(a.stats["start_iterations"]) and len(a.stats["start_iterations"]) == 4
+    h = design_nlp(pb, hops=1)
+    assert h.iterations == sum(h.stats["start_iterations"]) + sum(h.stats["hop_iterations"])
     g = start_guesses(pb, pair_points(tgt, 5), 4)
     assert len(g) == 4 and not np.allclose(g[2].theta, g[0].theta)
 

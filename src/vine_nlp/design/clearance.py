@@ -35,8 +35,8 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp.analysis.collision import _ModelLine, routing_clearance
-from vine_nlp.design.common import Guess, evaluate, pair_points
-from vine_nlp.design.nlp import design_bounds, design_nlp, nlp_parameters, nlp_spec, routing_of, start_x
+from vine_nlp.design.common import Guess, pair_points
+from vine_nlp.design.nlp import design_bounds, design_nlp, nlp_parameters, nlp_spec, result_of, start_x
 from vine_nlp.design.problem import DesignProblem, Routing
 from vine_nlp.design.result import Result
 from vine_nlp.design.transcription import HARD_ROWS, BlockType, Chain, get_solver, options_key, segment_point_index
@@ -106,17 +106,6 @@ def chain_guess(problem: DesignProblem, routing: Routing) -> Guess:
     """A start on a routing's own chain (frames where the routing puts them)."""
     return Guess(routing.theta, routing.lam, routing.length, routing.initial_pose,
                  chain_frames(routing.theta, routing.lam, routing.length, problem.diameter, routing.initial_pose))
-
-
-def result_of(problem, pairing, solver, x, status, st, R0g, method, **extra) -> Result:
-    """A Result of a solution x of a plain-NLP-based solver."""
-    o = problem.options
-    return evaluate(
-        problem, routing_of(solver, x, R0g, problem.diameter), pairing, method, status=status, solve_time_s=st.pop("solve_time_s"),
-        iterations=st.pop("iterations"),
-        stats=st | {"segments": pairing.segments, "points_per_segment": pairing.n, "smooth_theta": o.smooth_theta,
-                    "smooth_lambda": o.smooth_lambda, "tol": o.tol, "max_iter": o.max_iter} | extra,
-    )
 
 
 MARGIN_FACTOR = 1.5
@@ -204,8 +193,7 @@ def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, pairs=No
     active = [(float(a), float(b)) for a, b in (pairs or [])]
     x, best, solves, row_margin = None, start, 0, 0.0
     ipopt_time, ipopt_iterations = 0.0, 0
-    first = routing_clearance(routing, D, exclude_arc=exclude_arc, margin=min_gap + margin)
-    check = first
+    check = first = routing_clearance(routing, D, exclude_arc=exclude_arc, margin=min_gap + margin)
     while True:
         short = need - check["clearance"]
         if (short <= tol_gap * D and (solves or not active)) or solves >= rounds:
@@ -233,16 +221,10 @@ def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, pairs=No
         routing = best.routing
         check = routing_clearance(routing, D, exclude_arc=exclude_arc, margin=min_gap + margin)
     best.stats.update({
-        "clearance_rounds": solves,
-        "clearance_met": bool(check["clearance"] >= need - tol_gap * D),
-        "clearance_pairs": len(active),
-        "clearance_row_margin": row_margin,
-        "min_clearance": float(check["clearance"]),
-        "min_gap": float(min_gap),
-        "start_rmse": float(start.metrics["rmse"]),
-        "start_min_clearance": float(first["clearance"]),
-        "ipopt_time_s": ipopt_time,
-        "ipopt_iterations": ipopt_iterations,
+        "clearance_rounds": solves, "clearance_met": bool(check["clearance"] >= need - tol_gap * D), "clearance_pairs": len(active),
+        "clearance_row_margin": row_margin, "min_clearance": float(check["clearance"]), "min_gap": float(min_gap),
+        "start_rmse": float(start.metrics["rmse"]), "start_min_clearance": float(first["clearance"]),
+        "ipopt_time_s": ipopt_time, "ipopt_iterations": ipopt_iterations,
     })
     best.solve_time_s = time.perf_counter() - t_all
     return best

@@ -29,10 +29,8 @@ improves that design window by window, using the NLP's structure:
   (no window or polish is started that the time measured so far says would not fit;
   a round cut short is not polished and its changes are dropped).
 
-Measured on the polyline (d) (results/BENCHMARKS.md, "compare"): 10.06 mm RMSE after the
-first solve, 9.02 mm after the one default round (9 windows, about 1000 window IPOPT
-iterations; the greedy: 9.10 mm). Which corner shapes the random starts find depends on
-the seed: over seeds 0-3 one round ends at 9.02, 9.25, 9.01 and 9.02 mm (MAX_ROUNDS).
+On the polyline (d) one round takes the first solve's 10.06 mm RMSE to about 9 mm (the
+greedy: 9.10 mm; results/BENCHMARKS.md, "compare"); the corner shapes found depend on the seed.
 
 Deterministic for a given ``options.seed``: the work of a window does not depend on
 which thread ran it, and the budget is only a safety stop (stats ``search_budget_hit``
@@ -55,7 +53,7 @@ from vine_nlp.design import blas
 from vine_nlp.design.common import LENGTH_FACTOR
 from vine_nlp.design.problem import DesignProblem
 from vine_nlp.design.result import Result
-from vine_nlp.design.transcription import ipopt_quiet, ipopt_status, pick_best
+from vine_nlp.design.transcription import frames12, ipopt_quiet, ipopt_status, pick_best
 from vine_nlp.model.chain import chain_frames, chain_points
 from vine_nlp.model.pairing import Pairing
 from vine_nlp.model.routing import Routing
@@ -75,9 +73,7 @@ WINDOW_TOL = 1e-6  # the polish that ends the round converges the design fully
 # the share of the windows (those of largest error) a round visits
 WINDOW_SHARE = 0.5
 MIN_WINDOWS = 3  # ... but at least this many (short designs)
-# rounds by default: one, measured on the polyline (d) (the greedy: 9.10 mm): seeds 0-3 end at 9.02, 9.25,
-# 9.01 and 9.02 mm; a second round (measured with the polish's warm-start options) took seed 0 from 9.02 to
-# 8.995 mm for about 1.6x the search's CPU time
+# rounds by default: one; on the polyline (d) a second took seed 0 from 9.02 to 8.995 mm for about 1.6x the CPU time
 MAX_ROUNDS = 1
 # a window's new values must lower the design's error by this much (relative) to be taken
 WINDOW_GAIN = 1e-4
@@ -155,10 +151,6 @@ def clear_caches() -> None:
 # ---------------------------------------------------------------- one window of a design
 
 
-def _frame12(T: np.ndarray, D: float) -> np.ndarray:
-    return np.r_[T[:3, :3].ravel(order="F"), T[:3, 3] / D]
-
-
 class _Window:
     """The data of window a..b-1 of ``routing`` (units of D): start frame, slot targets, rigid tail."""
 
@@ -190,7 +182,7 @@ class _Window:
             c = float(np.sum(wt * (np.sum(q * q, 1) + np.sum(t * t, 1))))
             Ws, Q, C, T = float(wt.sum()), wt @ q, (wt[:, None] * t).T @ q, wt @ t
         lam_shared = float(routing.lam[0]) if self.shared else 0.0
-        self.p = np.r_[_frame12(frames[a], D), u.ravel(order="F"), slots.ravel(order="F"), w.ravel(order="F"), lam_shared,
+        self.p = np.r_[frames12(frames[a : a + 1], D)[:, 0], u.ravel(order="F"), slots.ravel(order="F"), w.ravel(order="F"), lam_shared,
                        c, Ws, Q, C.ravel(order="F"), T]
         a_, chord = problem.actuator, pairing.segment_chord[a : self.b] / D
         lo = [np.full(W, -a_.theta_max)] + ([] if self.shared else [np.full(W, a_.lambda_min)]) + [LENGTH_FACTOR[0] * chord]
@@ -244,7 +236,8 @@ def _solve_start(window: _Window, x0: np.ndarray, slots: queue.SimpleQueue, stop
     return float(sol["f"]), x, status in ("optimal", "acceptable"), int(st.get("iter_count", 0))
 
 
-def _error_per_segment(problem: DesignProblem, pairing: Pairing, result: Result) -> np.ndarray:
+def error_per_segment(problem: DesignProblem, pairing: Pairing, result: Result) -> np.ndarray:
+    """Squared error of ``result``'s points to the target, summed per segment."""
     err2 = np.sum((result.shape.center - problem.target) ** 2, axis=1)
     return np.bincount(pairing.seg, weights=err2, minlength=pairing.segments)
 
@@ -315,7 +308,7 @@ def search(
     window_time, polish_time, window_iterations = 0.0, 0.0, 0
     try:
         for rnd in range(max(1, rounds)):
-            err = _error_per_segment(problem, pairing, best)
+            err = error_per_segment(problem, pairing, best)
             window_err = np.convolve(err, np.ones(W), "valid")
             order = np.argsort(-window_err, kind="stable")  # the corners first
             order = order[: max(min(MIN_WINDOWS, order.size), int(np.ceil(WINDOW_SHARE * order.size)))]

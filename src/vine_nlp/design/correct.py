@@ -30,20 +30,15 @@ pair, solve warm, pair again until the pairs stop moving; coarse to fine, the no
 of the fit shrinking by STAGE_FACTOR from D/2 down to sigma_m (the closest points of a robot
 built far off its nominal are wrong at first) and pairs farther than TRIM sigmas of the stage
 left out; COARSE_ROUNDS rounds per coarse stage, up to ICP_ROUNDS in the last. Each solve uses
-the exact Hessian (Gauss-Newton needed hundreds of iterations on the coarse stages of Bezier (a),
-where the exact one needs about 5 per round) and IPOPT's warm-start settings (the answer moves
-little from round to round): about 25 iterations in all for the paper's trefoil, where the earlier
-schedule (sigma halving, 6 rounds per stage, Gauss-Newton, tol 1e-10, cold starts) took 100-140
-(benchmarks/bench_correct.py). Each segment of each build has a fixed number S of measurement
-slots (S from the pairing's fullest segment, rounded up to a multiple of SLOT_STEP); a slot is one
-instance of one small SX block (the point-to-line residual of one point, :func:`measure_block`) and
-holds its point, fraction, tangent and weight as data, unused slots weight 0. Re-pairing changes data
-only: one structure per (M, S, builds, free pose) serves every ICP round and every measurement of that
-size, so it is built once and its functions are compiled (``design.compiled``; the generated code holds
-the one-point block once, whatever S, where a block of S unrolled points took many times longer to
-compile). Compiled, with MUMPS on the AMD ordering (SOLVER_OPTIONS) and a single-threaded Laplace
-step, an estimate iteration costs about a third of the interpreted one (results/BENCHMARKS.md, "As-built
-correction").
+the exact Hessian (ESTIMATE_HESSIAN) and IPOPT's warm-start settings (the answer moves little from
+round to round; benchmarks/bench_correct.py). Each segment of each build has a fixed number S of
+measurement slots (S from the pairing's fullest segment, rounded up to a multiple of SLOT_STEP); a
+slot is one instance of one small SX block (the point-to-line residual of one point,
+:func:`measure_block`) and holds its point, fraction, tangent and weight as data, unused slots weight
+0. Re-pairing changes data only: one structure per (M, S, builds, free pose) serves every ICP round
+and every measurement of that size, so it is built once and its functions are compiled
+(``design.compiled``; the generated code holds the one-point block once, whatever S;
+results/BENCHMARKS.md, "As-built correction").
 
 Earlier builds (rounds): their nominals differ from the latest one by known amounts, so
 each earlier build is a second chain of frames (extra stage variables) whose segments are
@@ -113,7 +108,6 @@ _log = logging.getLogger(__name__)
 # offset of each line from the center line along the frame's normal, in units of D
 LINE_SIDE = {"center": 0.0, "inner": 0.5, "outer": -0.5}
 ADJUST = (("lambda",), ("lambda", "theta"))
-SYSTEMATIC = ("theta_offset", "lambda_offset", "log_length_scale")
 # weak priors on the systematic parts: wide against any construction method seen
 DEFAULT_SYSTEMATIC_SIGMAS = (math.radians(10.0), 0.2, 0.2)
 DEFAULT_MEASUREMENT_SIGMA_MM = 1.0
@@ -191,6 +185,11 @@ class Measurement:
             raise ValueError("frame must be 'archive' or 'free'")
 
 
+def _moved(points: np.ndarray, m: Measurement, T: np.ndarray) -> np.ndarray:
+    """``points`` of measurement ``m`` moved by the rigid transform T where m's frame is free."""
+    return points @ T[:3, :3].T + T[:3, 3] if m.frame == "free" else points
+
+
 def _line_points(routing: Routing, D: float, seg, frac, side: float, frames=None):
     """Points of the line at (seg, frac) and the unit tangents of the center frames there (``frames``: the
     routing's chain frames, when known)."""
@@ -218,9 +217,8 @@ def pair_with_line(points: np.ndarray, routing: Routing, D: float, side: float, 
     n2 = np.maximum(np.sum(d * d, axis=1), 1e-300)
     from scipy.spatial import cKDTree  # SciPy loads only where measurements are paired
 
-    tree = cKDTree(P)
     k = min(4, P.shape[0])
-    _, idx = tree.query(points, k=k)
+    _, idx = cKDTree(P).query(points, k=k)
     idx = idx.reshape(points.shape[0], k)
     cand = np.clip(np.concatenate([idx - 1, idx], axis=1), 0, d.shape[0] - 1)
     u = np.clip(np.einsum("kcj,kcj->kc", points[:, None, :] - P[cand], d[cand]) / n2[cand], 0.0, 1.0)
@@ -229,8 +227,7 @@ def pair_with_line(points: np.ndarray, routing: Routing, D: float, side: float, 
     rows = np.arange(points.shape[0])
     piece, uu = cand[rows, best], u[rows, best]
     l = lmat[piece] + uu * (lmat[piece + 1] - lmat[piece])
-    M = routing.segments
-    j = np.clip(np.searchsorted(cum, l, side="right") - 1, 0, M - 1)
+    j = np.clip(np.searchsorted(cum, l, side="right") - 1, 0, routing.segments - 1)
     f = np.clip((l - cum[j]) / routing.length[j], 0.0, 1.0)
     Pj, t = _line_points(routing, D, j, f, side, F)
     end = ((piece == 0) & (uu <= 0.0)) | ((piece == d.shape[0] - 1) & (uu >= 1.0))
@@ -345,17 +342,11 @@ class AsBuiltTerm:
             return lay.extra[j - 1, 12 * b : 12 * b + 12]
 
         glob = lay.globals[3:9] if self.free else np.zeros(0, int)
-        idx = []
-        for b in range(B):
-            for j in range(M):
-                col = np.r_[frame(b, j), lay.theta[j], lay.lam[j, 0], lay.dl[j], glob]
-                idx.append(np.repeat(col[:, None], S, axis=1))
-        c.add_block(bt, np.hstack(idx), meas, term="fit")
+        cols = [np.r_[frame(b, j), lay.theta[j], lay.lam[j, 0], lay.dl[j], glob] for b in range(B) for j in range(M)]
+        c.add_block(bt, np.hstack([np.repeat(col[:, None], S, axis=1) for col in cols]), meas, term="fit")
         if B > 1:
-            idx = []
-            for b in range(B - 1):
-                for j in range(M):
-                    idx.append(np.r_[frame(b, j), lay.theta[j], lay.lam[j, 0], lay.dl[j], lay.extra[j, 12 * b : 12 * b + 12]])
+            idx = [np.r_[frame(b, j), lay.theta[j], lay.lam[j, 0], lay.dl[j], lay.extra[j, 12 * b : 12 * b + 12]]
+                   for b in range(B - 1) for j in range(M)]
             c.add_block(shifted_segment_block(), np.array(idx).T, shift)
         g = c.globals
         L = prior[2, :] * ca.exp(g[2])
@@ -407,12 +398,6 @@ def _estimation_spec(M: int, shared: bool, builds: int, S: int, free: bool, hess
                 options_key(ipopt_options(200, ESTIMATE_TOL, ESTIMATE_WARM) | SOLVER_OPTIONS))
 
 
-def _pose_of(R, t):
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, t
-    return T
-
-
 def _rigid_start(measurements, routings, D):
     """A rigid transform (4x4) of the free-frame measurements onto the model lines of their builds (ICP)."""
     sets = []
@@ -427,9 +412,7 @@ def _rigid_start(measurements, routings, D):
         return np.eye(4)
     X = np.concatenate([s.points for s in sets])
     Y = np.concatenate([s.line.p for s in sets])
-    T = fit_pose(sets, pose_starts(X, Y, 24, 0)).T
-    T, _, _ = polish_pose(sets, T)
-    return T
+    return polish_pose(sets, fit_pose(sets, pose_starts(X, Y, 24, 0)).T)[0]
 
 
 def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigmas, shared_lambda: bool = False,
@@ -473,10 +456,8 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
     """
     t_all, cpu_all = time.perf_counter(), time.process_time()
     hessian = hessian or ESTIMATE_HESSIAN
-    B = len(nominals)
-    latest = nominals[-1]
-    M = latest.segments
-    T0 = latest.initial_pose
+    B, latest = len(nominals), nominals[-1]
+    M, T0 = latest.segments, latest.initial_pose
     sig_m = (DEFAULT_MEASUREMENT_SIGMA_MM * units_per_mm) if measurement_sigma is None else float(measurement_sigma)
     ms = [replace(m, build=m.build % B) for m in measurements]
     N = sum(m.points.shape[0] for m in ms)
@@ -484,37 +465,26 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
     scale = 1.0 / N
     # shifts of every build against the latest nominal (known differences of what was built)
     shifts = [(n.theta - latest.theta, n.lam - latest.lam, n.length / latest.length) for n in nominals]
-    if free:
-        T_free = _rigid_start(ms, nominals, D)
-    else:
-        T_free = np.eye(4)
-    pts = [m.points @ T_free[:3, :3].T + T_free[:3, 3] if m.frame == "free" else m.points for m in ms]
+    T_free = _rigid_start(ms, nominals, D) if free else np.eye(4)
+    pts = [_moved(m.points, m, T_free) for m in ms]
     centroid = np.mean(np.concatenate([p for p, m in zip(pts, ms) if m.frame == "free"]), axis=0) if free else np.zeros(3)
     g_free = np.zeros(6)
 
     def routings_of(ab: Routing):
         return [Routing(ab.theta + a, ab.lam + b, ab.length * c, T0) for a, b, c in shifts]
 
+    def pts_now(Tc):
+        return [_moved(p, m, Tc) for p, m in zip(pts, ms)]
+
     def pairs_of(ab, Tcorr):
         rs = routings_of(ab)
-        out = []
-        for p, m in zip(pts, ms):
-            q = p @ Tcorr[:3, :3].T + Tcorr[:3, 3] if m.frame == "free" else p
-            out.append(pair_with_line(q, rs[m.build], D, LINE_SIDE[m.line]))
-        return out
+        return [pair_with_line(q, rs[m.build], D, LINE_SIDE[m.line]) for q, m in zip(pts_now(Tcorr), ms)]
 
     def slots_needed(pairs):
-        need = 1
-        for b in range(B):
-            cnt = np.zeros(M, int)
-            for pr, m in zip(pairs, ms):
-                if m.build == b:
-                    cnt += np.bincount(pr.seg, minlength=M)
-            need = max(need, int(cnt.max()))
-        return need
-
-    def pts_now(Tc):
-        return [p @ Tc[:3, :3].T + Tc[:3, 3] if m.frame == "free" else p for p, m in zip(pts, ms)]
+        cnt = np.zeros((B, M), int)
+        for pr, m in zip(pairs, ms):
+            cnt[m.build] += np.bincount(pr.seg, minlength=M)
+        return max(1, int(cnt.max()))
 
     def meas_data(pairs, S, s_stage, moved, trim):
         nd = SLOT_DATA_FREE if free else SLOT_DATA
@@ -551,13 +521,11 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
         raise ValueError("the construction-error sigmas must be > 0")
     prior = np.vstack([latest.theta, latest.lam, latest.length / D])
 
-    ab = latest
-    Tcorr = np.eye(4)
-    x = None
+    ab, Tcorr = latest, np.eye(4)
+    x = solver = None
     pairs = pairs_of(ab, Tcorr)
     S = int(math.ceil(1.25 * slots_needed(pairs) / SLOT_STEP) * SLOT_STEP)
     iterations, status, rounds_done, st = 0, "failed", 0, {}
-    solver = None
     shift_data = np.vstack([np.concatenate([shifts[b][k] for b in range(B - 1)]) for k in range(3)]) if B > 1 else np.zeros((3, 1))
     # coarse to fine: the noise sigma of the fit starts at D/2 and halves down to the measurement's
     # (closest-point pairs of a robot built far off its nominal are wrong at first), pairs farther than
@@ -582,14 +550,13 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
             p = solver.pack_params({"cells": np.zeros((5, M)), "meas": data, "shift": shift_data, "prior": prior,
                                     "prior_sig": prior_sig})
             if x is None:
-                x = _start_x(solver, ab, D, routings_of(ab), B, free, None, lay)
+                x = _start_x(solver, ab, D, routings_of(ab), B, lay)
                 if free:
                     x[lay.globals[3:9]] = g_free
             lbx, ubx = np.full(lay.size, -np.inf), np.full(lay.size, np.inf)
             lbx[lay.X[0, 0]] = ubx[lay.X[0, 0]] = np.r_[T0[:3, :3].ravel(order="F"), T0[:3, 3] / D]
             lbx[lay.dl], ubx[lay.dl] = 0.2 * latest.length / D, 5.0 * latest.length / D
-            lam_idx = lay.lam_global if shared_lambda else lay.lam[:, 0]
-            lbx[lam_idx] = 0.05
+            lbx[lay.lam_global if shared_lambda else lay.lam[:, 0]] = 0.05
             lbx[lay.theta], ubx[lay.theta] = -1.45, 1.45
             x, status, st = solver.solve(x, p, lbx, ubx)
             iterations += st["iterations"]
@@ -608,14 +575,12 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
             if moved < 1e-3 * D:
                 break
     g = solver.unpack(x)["globals"]
-    T_total = Tcorr @ T_free
     # Laplace approximation around the estimate
     std, sys_std, residuals = _laplace(ab, g[:3], shifts, ms, pts, pairs, D, sig_m, sigmas, systematic_sigmas, prior, shared_lambda,
                                        free, centroid, Tcorr)
-    dev = deviations_of(latest, ab)
     return Estimate(
-        routing=ab, deviations=dev, systematic=np.array([g[0], g[1], math.exp(g[2])]), systematic_std=sys_std, std=std,
-        transform=T_total, residuals=residuals, status=status, iterations=iterations, solve_time_s=time.perf_counter() - t_all,
+        routing=ab, deviations=deviations_of(latest, ab), systematic=np.array([g[0], g[1], math.exp(g[2])]), systematic_std=sys_std,
+        std=std, transform=Tcorr @ T_free, residuals=residuals, status=status, iterations=iterations, solve_time_s=time.perf_counter() - t_all,
         rounds=rounds_done,
         stats={"measurement_sigma": sig_m, "slots_per_segment": S, "points": N, "builds": B, "hessian": hessian,
                "objective": st.get("objective", float("nan")), "free_pose": free, "cpu_time_s": time.process_time() - cpu_all},
@@ -631,10 +596,12 @@ def _unit_scale(D):
 def _free_transform(g, centroid, D):
     """The transform x -> exp(w) (x - c) + c + t of the globals 3..8 (t in units of D)."""
     R = so3_exp(np.asarray(g[3:6], float))
-    return _pose_of(R, centroid - R @ centroid + np.asarray(g[6:9], float) * D)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, centroid - R @ centroid + np.asarray(g[6:9], float) * D
+    return T
 
 
-def _start_x(solver, ab, D, routings, B, free, x_old, lay):
+def _start_x(solver, ab, D, routings, B, lay):
     frames = chain_frames(ab.theta, ab.lam, ab.length, D, ab.initial_pose) * _unit_scale(D)
     x = solver.pack_x(ab.theta, ab.lam, ab.length / D, frames12(frames)[None], lam_global=np.mean(ab.lam),
                       globals_=np.zeros(lay.globals.size))
@@ -666,16 +633,14 @@ def _line_jacobian(r: Routing, D: float, seg, frac, side: float, step: float = 1
     largs = [r.theta[seg], r.lam[seg], r.length[seg]]
     for q in range(3):
         h = step * (r.length if q == 2 else np.ones(M))
-        up, dn = [v.copy() for v in args], [v.copy() for v in args]
-        up[q] = up[q] + h
-        dn[q] = dn[q] - h
+        up, dn = list(args), list(args)
+        up[q], dn[q] = args[q] + h, args[q] - h
         dA = (segment_transform(*up, D) - segment_transform(*dn, D)) / (2 * h)[:, None, None]
         Xi = F[:-1] @ dA @ Ainv @ Finv  # (M, 4, 4)
         moved = np.einsum("kij,nj->ikn", Xi[:, :3, :], P) * before[None]  # (3, M, N)
         hl = h[seg]
-        lu, ld = [v.copy() for v in largs], [v.copy() for v in largs]
-        lu[q] = lu[q] + hl
-        ld[q] = ld[q] - hl
+        lu, ld = list(largs), list(largs)
+        lu[q], ld[q] = largs[q] + hl, largs[q] - hl
         lu[2], ld[2] = frac * lu[2], frac * ld[2]
         dloc = (segment_transform(*lu, D) - segment_transform(*ld, D)) / (2 * hl)[:, None, None]
         own = ((F[seg][:, :3, :] @ dloc) @ y).T  # (3, N)
@@ -702,11 +667,9 @@ def _laplace(ab, g, shifts, ms, pts, pairs, D, sig_m, sigmas, sys_sig, prior, sh
         return th, la, ln, gg, q[2 * M + nl + 3 :]
 
     def moved(p, m, pose):
-        x = p
-        if m.frame == "free":
-            x = p @ Tcorr[:3, :3].T + Tcorr[:3, 3]
-            x = (x - centroid) @ so3_exp(pose[:3]).T + centroid + pose[3:]
-        return x
+        if m.frame != "free":
+            return p
+        return (_moved(p, m, Tcorr) - centroid) @ so3_exp(pose[:3]).T + centroid + pose[3:]
 
     def prior_residuals(q):
         th, la, ln, gg, _ = unpack(q)
@@ -715,21 +678,18 @@ def _laplace(ab, g, shifts, ms, pts, pairs, D, sig_m, sigmas, sys_sig, prior, sh
         out = [(th - prior[0] - gg[0]) / sigmas.theta]
         if not shared:
             out.append((la - prior[1] - gg[1]) / sigmas.lam)
-        out.append((ln - L) / sl)
-        out.append(np.asarray(gg) / np.asarray(sys_sig))
+        out += [(ln - L) / sl, np.asarray(gg) / np.asarray(sys_sig)]
         return np.concatenate(out)
 
     q0 = np.concatenate([ab.theta, ab.lam[:1] if shared else ab.lam, ab.length, g, np.zeros(n_free)])
     nq = q0.size
     rows, dists = [], []
-    pose0 = np.zeros(6)
     for p, m, pr in zip(pts, ms, pairs):
         a, b, c = shifts[m.build]
         r = Routing(ab.theta + a, ab.lam + b, ab.length * c, T0)
         P, JP = _line_jacobian(r, D, pr.seg, pr.frac, LINE_SIDE[m.line])
         t = pr.tangent
-        e = P - moved(p, m, pose0)
-        dists.append(np.linalg.norm(e, axis=1))
+        dists.append(np.linalg.norm(P - moved(p, m, np.zeros(6)), axis=1))
         # point-to-line: the tangent at the pair projected out, as in the estimate
         JP = JP - t.T[:, :, None] * np.einsum("in,ink->nk", t.T, JP)[None]
         Jm = np.zeros((3, P.shape[0], nq))
@@ -817,8 +777,7 @@ def correct_routing(problem: DesignProblem, as_built: Routing, dev: Deviations, 
         else:
             th = (as_built.theta, as_built.theta)
         dl = as_built.length / D
-        frames = chain_frames(as_built.theta, as_built.lam, as_built.length, D, as_built.initial_pose) * _unit_scale(D)
-        f12 = frames12(frames)
+        f12 = frames12(chain_frames(as_built.theta, as_built.lam, as_built.length, D, as_built.initial_pose) * _unit_scale(D))
         if shared:
             off = float(np.mean(dev.lam))
             lam_b = (np.full(M, a.lambda_min + off), np.full(M, 1.0 + off))
@@ -903,14 +862,10 @@ def correct(problem: DesignProblem, nominals: list, measurements: list, *, adjus
     nominal, realized, status, st = correct_routing(problem, est.routing, est.deviations, adjust, nominals[-1], theta_trust=trust)
     pred = evaluate(problem, realized, pairing, "corrected")
     corr = Result(method="corrected", routing=nominal, shape=pred.shape, status=status, solve_time_s=time.perf_counter() - t1,
-                  iterations=st.pop("iterations"), diameter=D,
-                  metrics=pred.metrics | routing_metrics(nominal),
+                  iterations=st.pop("iterations"), diameter=D, metrics=pred.metrics | routing_metrics(nominal),
                   stats={k: v for k, v in st.items() if k != "solve_time_s"} | {"adjust": ",".join(adjust), "shape": "predicted as built"}
                   | ({"theta_trust_rad": float(trust)} if "theta" in adjust else {}))
-    moved = []
-    for m in measurements:
-        pts = m.points @ est.transform[:3, :3].T + est.transform[:3, 3] if m.frame == "free" else m.points
-        moved.append(replace(m, points=pts, frame="archive", build=m.build % len(nominals)))
+    moved = [replace(m, points=_moved(m.points, m, est.transform), frame="archive", build=m.build % len(nominals)) for m in measurements]
     ab_res.stats["total_time_s"] = time.perf_counter() - t0
     return CorrectionResult(nominals[-1], ab_res, corr, est, moved, tuple(adjust))
 
@@ -941,6 +896,3 @@ def combine_systematic(estimates, std) -> tuple[np.ndarray, np.ndarray, float]:
     out[2] = math.exp(mean[2])
     out_se[2] = out[2] * se[2]
     return out, out_se, float(birge.max())
-
-
-# ---------------------------------------------------------------- designs for the robot as it gets built

@@ -41,10 +41,9 @@ others draw theta and lambda uniformly inside the bounds, in a box of half-width
 ``SPREAD`` x (bound range) around the carried-over values, from
 ``numpy.random.default_rng(options.seed)``. The best start is kept.
 
-Cost: window solves = starts x windows = greedy_starts * (M + 3) for M segments
-(e.g. trefoil, 400 points, n = 10: M = 40, default greedy_starts = 8 -> 344
-small IPOPT solves). The sPAM variant multiplies this by the number of lambda
-candidates that are not abandoned early (11 + up to 4 refinement values).
+Cost: greedy_starts * (M + 3) small IPOPT solves for M segments (starts x windows). The
+sPAM variant multiplies this by the number of lambda candidates that are not abandoned
+early (11 + up to 4 refinement values).
 
 sPAM (one shared lambda): lambda is not a window variable. An outer loop runs
 the greedy for each candidate in linspace(lambda_min, 1, 11), then for 5 values
@@ -93,10 +92,7 @@ SPAM_REFINE = 5  # second pass: 5 values within +-half a step of the best
 FILTER_ORDER = 2
 
 
-
-# ---------------------------------------------------------------------------------------------
-# The window NLP
-# ---------------------------------------------------------------------------------------------
+# ---------------------------------------------------------------- the window NLP
 
 
 class WindowSolver:
@@ -117,13 +113,8 @@ class WindowSolver:
         self.npose = 6 if first else 0
         self.size = self.npose + self.per_seg * K
         x = ca.SX.sym("x", self.size)
-        P_R0 = ca.SX.sym("R0", 9)
-        P_p0 = ca.SX.sym("p0", 3)
-        P_tgt = ca.SX.sym("tgt", 3, n * K)
-        P_w = ca.SX.sym("w", n * K)
-        P_u = ca.SX.sym("u", n, K)
-        P_end = ca.SX.sym("end", 3)
-        P_lam = ca.SX.sym("lam")
+        P_R0, P_p0, P_tgt = ca.SX.sym("R0", 9), ca.SX.sym("p0", 3), ca.SX.sym("tgt", 3, n * K)
+        P_w, P_u, P_end, P_lam = ca.SX.sym("w", n * K), ca.SX.sym("u", n, K), ca.SX.sym("end", 3), ca.SX.sym("lam")
         params = [P_R0, P_p0, P_tgt, P_w, P_u, P_end, P_lam]
         self._param_sizes = [q.numel() for q in params]
 
@@ -132,8 +123,7 @@ class WindowSolver:
         if first:
             R = ca.mtimes(R, so3_exp(x[0:3]))
             p = p + x[3:6]
-        sq = 0
-        dist = 0
+        sq = dist = 0
         for c in range(K):
             off = self.npose + self.per_seg * c
             theta = x[off]
@@ -180,9 +170,7 @@ class WindowSolver:
         x = np.asarray(x, float).ravel()
         pose = x[: self.npose]
         st = x[self.npose :].reshape(self.per_seg, self.K, order="F")
-        theta, dl = st[0], st[-1]
-        lam = None if self.shared else st[1]
-        return pose, theta, lam, dl
+        return pose, st[0], None if self.shared else st[1], st[-1]  # pose, theta, lam, dl
 
     def bounds(self, lo, hi):
         """Box bounds from per-segment (theta, lam, dl) bounds of the window's segments (scaled)."""
@@ -241,10 +229,8 @@ def window_error(problem: DesignProblem, routing: Routing, j: int, K: int, pairi
     """
     pairing = pairing or pair_points(problem.target, problem.options.points_per_segment)
     D = problem.diameter
-    first = j == 0
-    solver = _window_solver_for(problem, pairing.n, K, first)
-    frames = _frames(routing, D, j)
-    T = frames[-1]
+    solver = _window_solver_for(problem, pairing.n, K, j == 0)
+    T = _frame_at(routing, D, j)
     tgt, w, u, end = _window_data(problem, pairing, j, K)
     lam_fixed = float(routing.lam[0]) if problem.actuator.shared_lambda else 0.0
     p = solver.pack_params(T[:3, :3], T[:3, 3] / D, tgt, w, u, end, lam_fixed)
@@ -254,19 +240,16 @@ def window_error(problem: DesignProblem, routing: Routing, j: int, K: int, pairi
     return float(sq) * D**2, float(dist) * D
 
 
-def _frames(routing: Routing, D: float, j: int):
-    """Frames T^0_w .. T^j_w of the routing's first j segments (numpy)."""
-    T = [np.asarray(routing.initial_pose, float)]
+def _frame_at(routing: Routing, D: float, j: int):
+    """Frame T^j_w at the start of segment j of the routing (numpy)."""
+    T = np.asarray(routing.initial_pose, float)
     if j:
-        steps = segment_transform(routing.theta[:j], routing.lam[:j], routing.length[:j], D)
-        for s in steps:
-            T.append(T[-1] @ s)
+        for s in segment_transform(routing.theta[:j], routing.lam[:j], routing.length[:j], D):
+            T = T @ s
     return T
 
 
-# ---------------------------------------------------------------------------------------------
-# One greedy pass
-# ---------------------------------------------------------------------------------------------
+# ---------------------------------------------------------------- one greedy pass
 
 
 class _Counter:
@@ -292,10 +275,7 @@ def _greedy_pass(problem: DesignProblem, pairing: Pairing, counter: _Counter, la
     (tl, ll, dlo), (tu, lu, dhi) = variable_bounds(problem, pairing)
     chord = pairing.segment_chord
 
-    theta = np.zeros(M)
-    lam = np.full(M, float(lam_fixed) if shared else LAMBDA_START)
-    dl = chord.copy()
-    theta, lam, dl = clip_to_bounds(theta, lam, dl, problem, pairing)
+    theta, lam, dl = clip_to_bounds(np.zeros(M), np.full(M, float(lam_fixed) if shared else LAMBDA_START), chord, problem, pairing)
     guess = geometric_guess(problem, pairing)
     T = guess.initial_pose.copy()  # frame at the current window's start (fixed numeric parameter)
     T0 = T.copy()
@@ -304,8 +284,7 @@ def _greedy_pass(problem: DesignProblem, pairing: Pairing, counter: _Counter, la
     starts_later = max(1, int(o.greedy_starts))
     solves = iterations = 0
     statuses: dict = {}
-    window_status = []
-    window_sq, window_dist = [], []
+    window_status, window_sq, window_dist = [], [], []
     abandoned = False
     for j in range(M):
         K = min(k, M - j)
@@ -314,17 +293,14 @@ def _greedy_pass(problem: DesignProblem, pairing: Pairing, counter: _Counter, la
         sl = slice(j, j + K)
         tgt, w, u, end = _window_data(problem, pairing, j, K)
         p = solver.pack_params(T[:3, :3], T[:3, 3] / D, tgt, w, u, end, lam_fixed if shared else 0.0)
-        lo = (tl[sl], ll[sl], dlo[sl] / D)
-        hi = (tu[sl], lu[sl], dhi[sl] / D)
-        lbx, ubx = solver.bounds(lo, hi)
+        lbx, ubx = solver.bounds((tl[sl], ll[sl], dlo[sl] / D), (tu[sl], lu[sl], dhi[sl] / D))
         x_carry = np.clip(solver.pack_x(theta[sl], lam[sl], dl[sl] / D), lbx, ubx)
         best = None
         for s in range(starts_first if first else starts_later):
             x0 = x_carry.copy()
             if s > 0:
                 # theta and lambda uniformly in a box around the carried-over values, inside the bounds
-                rows = [0] if shared else [0, 1]
-                for r in rows:
+                for r in ([0] if shared else [0, 1]):
                     idx = solver.npose + r + solver.per_seg * np.arange(K)
                     half = SPREAD * (ubx[idx] - lbx[idx])
                     x0[idx] = rng.uniform(np.maximum(lbx[idx], x_carry[idx] - half), np.minimum(ubx[idx], x_carry[idx] + half))
@@ -372,25 +348,14 @@ def _greedy_pass(problem: DesignProblem, pairing: Pairing, counter: _Counter, la
             abandoned = True
             counter.step(M - 1 - j)
             break
-    return {
-        "routing": Routing(theta, lam, dl, T0),
-        "solves": solves,
-        "iterations": iterations,
-        "statuses": statuses,
-        "window_status": window_status,
-        "window_sq": window_sq,
-        "window_dist": window_dist,
-        "abandoned": abandoned,
-        "windows_done": len(window_status),
-        "starts": (starts_first, starts_later),
-    }
+    return {"routing": Routing(theta, lam, dl, T0), "solves": solves, "iterations": iterations, "statuses": statuses,
+            "window_status": window_status, "window_sq": window_sq, "window_dist": window_dist, "abandoned": abandoned,
+            "windows_done": len(window_status), "starts": (starts_first, starts_later)}
 
 
 def _overall_status(window_status) -> str:
     bad = [s for s in window_status if s not in ("optimal", "acceptable")]
-    if bad:
-        return bad[0]
-    return "acceptable" if "acceptable" in window_status else "optimal"
+    return bad[0] if bad else ("acceptable" if "acceptable" in window_status else "optimal")
 
 
 def _total_error(problem, pairing, routing) -> float:
@@ -398,9 +363,7 @@ def _total_error(problem, pairing, routing) -> float:
     return path_error(pts, problem.target)
 
 
-# ---------------------------------------------------------------------------------------------
-# Public API
-# ---------------------------------------------------------------------------------------------
+# ---------------------------------------------------------------- public API
 
 
 def design_greedy(problem: DesignProblem, pairing: Pairing | None = None, progress: Callable[[int, int], None] | None = None) -> Result:
@@ -420,9 +383,8 @@ def design_greedy(problem: DesignProblem, pairing: Pairing | None = None, progre
 
     if not problem.actuator.shared_lambda:
         counter = _Counter(M, progress)
-        run = _greedy_pass(problem, pairing, counter)
-        runs = [run]
-        best = run
+        best = _greedy_pass(problem, pairing, counter)
+        runs = [best]
     else:
         a = problem.actuator
         threshold = pairing.n * k * problem.diameter / 2.0
@@ -462,31 +424,23 @@ def design_greedy(problem: DesignProblem, pairing: Pairing | None = None, progre
             done = [runs[-1]]
         best = min(done, key=lambda r: r["error"])
         stats.update({
-            "lambda": best["lambda"],
-            "lambda_candidates": [r["lambda"] for r in runs],
+            "lambda": best["lambda"], "lambda_candidates": [r["lambda"] for r in runs],
             "lambda_candidate_errors": [None if r["abandoned"] else r["error"] for r in runs],  # sum sq.
-            "lambda_candidates_tried": len(runs),
-            "lambda_candidates_abandoned": int(sum(r["abandoned"] for r in runs)),
-            "abandoned_lambdas": [r["lambda"] for r in runs if r["abandoned"]],
-            "abandon_threshold": threshold,
+            "lambda_candidates_tried": len(runs), "lambda_candidates_abandoned": int(sum(r["abandoned"] for r in runs)),
+            "abandoned_lambdas": [r["lambda"] for r in runs if r["abandoned"]], "abandon_threshold": threshold,
         })
     statuses: dict = {}
     for r in runs:
         for key, v in r["statuses"].items():
             statuses[key] = statuses.get(key, 0) + v
     stats.update({
-        "window_solves": int(sum(r["solves"] for r in runs)),
-        "starts_per_window": best["starts"][1],
-        "starts_first_window": best["starts"][0],
-        "return_statuses": statuses,
-        "window_status": best["window_status"],
-        "window_error_max": float(max(best["window_sq"])) if best["window_sq"] else 0.0,
-        "solver": "ipopt (window)",
+        "window_solves": int(sum(r["solves"] for r in runs)), "starts_per_window": best["starts"][1],
+        "starts_first_window": best["starts"][0], "return_statuses": statuses, "window_status": best["window_status"],
+        "window_error_max": float(max(best["window_sq"])) if best["window_sq"] else 0.0, "solver": "ipopt (window)",
     })
     iterations = int(sum(r["iterations"] for r in runs))
     elapsed = time.perf_counter() - t_start
-    if counter.done < counter.total:
-        counter.step(counter.total - counter.done)
+    counter.step(counter.total - counter.done)
     return evaluate(problem, best["routing"], pairing, "greedy", status=_overall_status(best["window_status"]),
                     solve_time_s=elapsed, iterations=iterations, stats=stats)
 
@@ -520,7 +474,5 @@ def lowpass(result_or_routing, problem: DesignProblem, pairing: Pairing | None =
     stats = dict(src.stats) if isinstance(src, Result) else {}
     stats.update({"filter": "butterworth+filtfilt", "filter_order": FILTER_ORDER, "cutoff": float(cutoff),
                   "filtered": bool(filtered)})
-    kw = {}
-    if isinstance(src, Result):
-        kw = {"status": src.status, "solve_time_s": src.solve_time_s, "iterations": src.iterations}
+    kw = {"status": src.status, "solve_time_s": src.solve_time_s, "iterations": src.iterations} if isinstance(src, Result) else {}
     return evaluate(problem, new, pairing, "greedy_filtered", stats=stats, **kw)

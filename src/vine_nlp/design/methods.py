@@ -36,18 +36,17 @@ def run_design(problem, method: str | None = None, **kw):
     method = method or problem.options.method
     if method not in METHODS:
         raise ValueError(f"unknown design method {method!r}")
-    result = METHODS[method](problem, **kw)
     # a calibrated problem: the design is what the robot should realize, the nominal to build has the
     # builder's systematic errors taken out (apply_calibration)
-    return apply_calibration(problem, result) if getattr(problem, "calibration", None) is not None else result
+    return apply_calibration(problem, METHODS[method](problem, **kw))
 
 
 def apply_calibration(problem: DesignProblem, result: Result) -> Result:
     """A design made with a calibration (``problem.calibration``): the result's routing becomes the nominal
     to build (design.calibrate.nominal_of: the systematic parts taken out, clipped to the bounds), its shape
     and metrics what that nominal realizes on a robot with the calibration's systematic errors.
-    stats: calibration_* (the values and the number of clipped entries)."""
-    from_cal = problem.calibration
+    stats: calibration_* (the values and the number of clipped entries). Without a calibration: ``result``."""
+    from_cal = getattr(problem, "calibration", None)
     if from_cal is None:
         return result
     a = problem.actuator

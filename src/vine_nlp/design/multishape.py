@@ -11,11 +11,9 @@ how the shapes differ relative to each other, which is what a user measuring one
 robot at several pressures wants. ``shared_pose=False`` gives each level its own
 pose (targets measured or drawn in different frames).
 
-One NLP over all K chains, multiple shooting per chain exactly as in
-``design.nlp``: the frames at the segment ends of every chain are variables,
-created in stage order (theta_j, dl_j, then the K frames T^{j+1}_w(k)), so the
-KKT matrix stays block-banded; ``nlp.segment_function(n)`` is mapped over the
-K M (segment, level) pairs. Lengths are scaled by D.
+One NLP over all K chains on the multiple-shooting transcription of ``design.nlp``
+(``design.transcription``): the frames at the segment ends of every chain are
+variables, in stage order, so the KKT matrix stays block-banded. Lengths are scaled by D.
 
 Objective (dimensionless):
   J = (1/K) sum_k (1/N) sum_i |r_k(i) - r_dk(i)|^2 / D^2 + w_theta (1/L) int (D dtheta/ds)^2 ds,
@@ -123,10 +121,7 @@ def _lambda_for_length(theta, length, arc, lo) -> float:
     a, b = lo, 1.0
     for _ in range(60):
         m = 0.5 * (a + b)
-        if total(m) < arc:
-            a = m
-        else:
-            b = m
+        a, b = (m, b) if total(m) < arc else (a, m)
     return 0.5 * (a + b)
 
 
@@ -156,12 +151,9 @@ def initial_guess(problem: MultiShapeProblem, pairings, flip: float = 1.0) -> Mu
             levels[k] = lam_r
         else:
             levels[k] = _lambda_for_length(theta, length / problem.diameter, pairings[k].chord[-1] / problem.diameter, a.lambda_min)
-    frames, poses = [], []
-    for k in range(K):
-        gk = g if k == r else geometric_guess(problem.level_problem(k), pairings[k], flip)
-        fr = gk.frames.copy()
-        frames.append(fr)
-        poses.append(gk.initial_pose.copy())
+    gs = [g if k == r else geometric_guess(problem.level_problem(k), pairings[k], flip) for k in range(K)]
+    frames = [gk.frames.copy() for gk in gs]
+    poses = [gk.initial_pose.copy() for gk in gs]
     if problem.shared_pose:
         poses = [g.initial_pose.copy()]
         for fr in frames:

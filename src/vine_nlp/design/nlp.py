@@ -143,7 +143,6 @@ def start_x(solver, guess: Guess, D: float, frames: str = "target") -> np.ndarra
         fr[0] = guess.initial_pose
     else:
         fr = chain_frames(guess.theta, guess.lam, guess.length, D, guess.initial_pose)
-    fr = fr.copy()
     fr[:, :3, 3] /= D
     pose = np.r_[np.zeros(3), guess.initial_pose[:3, 3] / D]
     return solver.pack_x(guess.theta, guess.lam, guess.length / D, frames12(fr)[None], poses=pose[None])
@@ -218,23 +217,24 @@ def _solve(problem, guess, pairing, frames, warm, hessian, max_iter) -> Result:
             x0, p = start_x(solver, guess, D, frames), solver.pack_params(data)
             x, status, st = solver.solve(x0, p, lbx, ubx) if fatrop_safe(x0, p, lbx, ubx) else (x0, "invalid_number", {"iterations": 0, "solve_time_s": 0.0})
             if status == "optimal":
-                return _result(problem, pairing, solver, x, R0g, status, st, max_iter, hessian)
+                return result_of(problem, pairing, solver, x, status, st, R0g, "nlp", max_iter=max_iter, hessian=hessian)
             tried = {"fatrop_status": status, "fatrop_iterations": st["iterations"], "fatrop_time_s": st["solve_time_s"]}
     solver = get_solver(M, n, problem.actuator.shared_lambda, max_iter, o.tol, warm, hessian)
     lbx, ubx = solver.bounds(*bounds)
     x, status, st = solver.solve(start_x(solver, guess, D, frames), solver.pack_params(data), lbx, ubx)
     if tried:  # Fatrop's failed attempt counts in the solve's iterations and time
         st |= tried | {"iterations": st["iterations"] + tried["fatrop_iterations"], "solve_time_s": st["solve_time_s"] + tried["fatrop_time_s"]}
-    return _result(problem, pairing, solver, x, R0g, status, st, max_iter, hessian)
+    return result_of(problem, pairing, solver, x, status, st, R0g, "nlp", max_iter=max_iter, hessian=hessian)
 
 
-def _result(problem, pairing, solver, x, R0g, status, st, max_iter, hessian) -> Result:
+def result_of(problem, pairing, solver, x, status, st, R0g, method, **extra) -> Result:
+    """A Result of a solution x of the plain NLP or a formulation built on it; ``extra``: more stats."""
     o = problem.options
     return evaluate(
-        problem, routing_of(solver, x, R0g, problem.diameter), pairing, "nlp", status=status, solve_time_s=st.pop("solve_time_s"),
+        problem, routing_of(solver, x, R0g, problem.diameter), pairing, method, status=status, solve_time_s=st.pop("solve_time_s"),
         iterations=st.pop("iterations"),
         stats=st | {"segments": pairing.segments, "points_per_segment": pairing.n, "smooth_theta": o.smooth_theta,
-                    "smooth_lambda": o.smooth_lambda, "tol": o.tol, "max_iter": max_iter, "hessian": hessian},
+                    "smooth_lambda": o.smooth_lambda, "tol": o.tol, "max_iter": o.max_iter} | extra,
     )
 
 
@@ -331,7 +331,7 @@ def design_nlp(
     if warm is not None:
         best.stats["warm_start"] = True
     if n_hops:
-        before = sum(r.iterations for r in results) if len(results) > 1 else best.iterations
+        before = best.iterations  # all the starts' (record_starts)
         best = basin_hops(problem, best, n_hops, pairing, lambda k: progress and progress(len(results) + k, total))
         best.iterations = before + sum(best.stats["hop_iterations"])
         best.solve_time_s = time.perf_counter() - t0
@@ -385,8 +385,7 @@ def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairi
     rng = np.random.default_rng([o.seed, 1])  # a stream apart from start_guesses'
     best, objectives, iterations, accepted = result, [], [], 0
     for k in range(hops):
-        err2 = np.sum((best.shape.center - problem.target) ** 2, axis=1)
-        per_segment = np.bincount(pairing.seg, weights=err2, minlength=M) + 1e-300
+        per_segment = corners.error_per_segment(problem, pairing, best) + 1e-300
         j = int(rng.choice(M, p=per_segment / per_segment.sum()))
         start = max(0, min(j - HOP_WINDOW // 2, M - HOP_WINDOW))
         w = slice(start, start + HOP_WINDOW)

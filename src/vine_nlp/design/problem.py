@@ -48,8 +48,8 @@ class DesignOptions:
     """Method settings; every method reads the fields it needs and ignores the rest.
 
     The smoothing weights multiply w (1/L) int (D theta')^2 ds (and the same for lambda) against the mean
-    squared error / D^2; 4e-7 is the largest measured weight that costs about 3 % RMSE at most on the paper's
-    smooth cases (results/BENCHMARKS.md, "Smoothing weight").
+    squared error / D^2 (they damp twisting that does not shape the tube); 4e-7 is the largest measured weight
+    that costs about 3 % RMSE at most on the paper's smooth cases (results/BENCHMARKS.md, "Smoothing weight").
 
     Parameters
     ----------
@@ -86,10 +86,6 @@ class DesignOptions:
     method: str = "nlp"
     points_per_segment: int = 10  # n
     lookahead: int = 4  # k, greedy only
-    # weights of w (1/L) int (D theta')^2 ds etc. against the mean squared error / D^2: damps
-    # twisting that does not shape the tube. 4e-7: the largest of the weights measured that costs
-    # about 3 % RMSE at most on the paper's smooth cases (Bezier a: -16 % TV theta for +1.8 % RMSE,
-    # Bezier c +3.1 %; 1e-6 costs Bezier c 11 %); results/BENCHMARKS.md, "Smoothing weight"
     smooth_theta: float = 4e-7
     smooth_lambda: float = 4e-7
     starts: int = 1  # nlp multi-start: number of starts (1 = the geometric guess only)
@@ -138,13 +134,10 @@ class DesignProblem:
     actuator: Actuator = Actuator()
     options: DesignOptions = DesignOptions()
     units: str = "cm"
-    # issue 15: obstacles (vine_nlp.analysis.obstacles shapes, problem units), the required gap
-    # between tube surface and obstacles, and how the tube grows ("while-actuated" | "after")
     obstacles: tuple = ()
     obstacle_margin: float = 0.0
     growth: str = "while-actuated"
-    # issue 14: systematic construction errors of the builder (design.calibrate); the design is made
-    # for the robot as built, the nominal to build has them taken out (design.methods.run_design)
+    # the nominal to build has the calibration's systematic errors taken out (design.methods.run_design)
     calibration: Calibration | None = None
 
 

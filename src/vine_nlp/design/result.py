@@ -67,11 +67,5 @@ def run_forward(problem) -> Result:
     """Shape of a given routing (``vine-nlp forward``): a Result with method "forward"."""
     assert isinstance(problem, ForwardProblem)
     r = problem.routing
-    return Result(
-        method="forward",
-        routing=r,
-        shape=forward_shape(r, problem.diameter),
-        status="optimal",
-        metrics=routing_metrics(r),
-        diameter=problem.diameter,
-    )
+    return Result(method="forward", routing=r, shape=forward_shape(r, problem.diameter), status="optimal", metrics=routing_metrics(r),
+                  diameter=problem.diameter)

@@ -41,9 +41,9 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp.analysis.tolerance import tolerance_report
-from vine_nlp.design.clearance import chain_guess, extended_solver, result_of
+from vine_nlp.design.clearance import chain_guess, extended_solver
 from vine_nlp.design.common import pair_points
-from vine_nlp.design.nlp import design_bounds, design_nlp, nlp_parameters, start_x
+from vine_nlp.design.nlp import design_bounds, design_nlp, nlp_parameters, result_of, start_x
 from vine_nlp.design.problem import DesignProblem
 from vine_nlp.design.result import Result
 from vine_nlp.design.transcription import BlockType, Chain, segment_point_index
@@ -55,10 +55,6 @@ from vine_nlp.model.segment import _exp_coefficients, twist_parts
 def _sym6(p):
     """Upper triangle of p p^T: (xx, xy, xz, yy, yz, zz)."""
     return ca.vertcat(p[0] * p[0], p[0] * p[1], p[0] * p[2], p[1] * p[1], p[1] * p[2], p[2] * p[2])
-
-
-def _full3(v):
-    return ca.vertcat(ca.horzcat(v[0], v[1], v[2]), ca.horzcat(v[1], v[3], v[4]), ca.horzcat(v[2], v[4], v[5]))
 
 
 @lru_cache(maxsize=8)
@@ -118,7 +114,7 @@ def _downstream_function() -> ca.Function:
     """E|dp|^2 summed over the downstream points of one segment, from (A, B, o, W, P1, P2)."""
     A, B = ca.SX.sym("A", 3, 3), ca.SX.sym("B", 3, 3)
     o, W, P1, P2v = ca.SX.sym("o", 3), ca.SX.sym("W"), ca.SX.sym("P1", 3), ca.SX.sym("P2", 6)
-    P2 = _full3(P2v)
+    P2 = ca.vertcat(ca.horzcat(P2v[0], P2v[1], P2v[2]), ca.horzcat(P2v[1], P2v[3], P2v[4]), ca.horzcat(P2v[2], P2v[4], P2v[5]))
     c = P1 - W * o
     Q = P2 - ca.mtimes(P1, o.T) - ca.mtimes(o, P1.T) + W * ca.mtimes(o, o.T)
     trQ = ca.trace(Q)
@@ -180,8 +176,7 @@ class RobustTerm:
             c.add_block(rec, idx, ca.vertcat(u[:, 1:], w[:, 1:]))
         tip = c.tip(0)
         wtip = c.param("robust_wtip", (1, 1))
-        S_last = c.extra[:, M - 1]
-        c.add_rows("robust_tail", S_last - wtip * ca.vertcat(tip, _sym6(tip)), 0.0, 0.0)
+        c.add_rows("robust_tail", c.extra[:, M - 1] - wtip * ca.vertcat(tip, _sym6(tip)), 0.0, 0.0)
 
 
 def robust_parameters(params: dict, sigmas: Sigmas, weight: float, D: float, n: int) -> dict:

@@ -32,21 +32,18 @@ direction, stretched to about the actuated tube length), its mirrored side, then
 seeded uniform helices, tried in this order until one is solved to optimality (a
 guess equal to an earlier one is skipped). The landscape is rugged (many local
 optima of bends at the shortest segments) and every start costs 100-300 IPOPT
-iterations, so the later starts are fallbacks. With IPOPT's monotone barrier the
-guide curve's start alone reaches a lower objective on problems/tip-target.toml
-(0.01818 in 134 iterations) than the best of four starts with the adaptive barrier
-did (0.01903, 575 iterations), and on the benchmark's tip (the trefoil's, M = 40)
-0.02567 against 0.02599. Among the solved starts the lowest objective among
+iterations, so the later starts are fallbacks. IPOPT's monotone barrier (TIP_BARRIER)
+lets the guide curve's start alone reach lower objectives than the best of four starts
+with the adaptive barrier did. Among the solved starts the lowest objective among
 converged ones wins.
 
 Why a start takes many iterations: the least-contraction optimum is a few sharp
 bends (theta at its bound, lambda low, segments near their shortest) joined by
 straight runs, while the guess bends a little everywhere. On the way the reduced
 Hessian is indefinite, so IPOPT corrects the KKT matrix's inertia on nearly every
-iteration and creeps with regularized steps while the frames travel many D. The
-changes tried (a lower initial barrier, objective scaling, the inertia correction's
-factors, MUMPS settings, other guide curves, a coarse-to-fine start) saved some
-iterations on average but moved many designs to other local optima, more often
+iteration. The changes tried (a lower initial barrier, objective scaling, the inertia
+correction's factors, MUMPS settings, other guide curves, a coarse-to-fine start) saved
+some iterations on average but moved many designs to other local optima, more often
 worse than better: the path from the guess is chaotic, and the settings below stay.
 
 Reachability: the center line is never longer than the tube (lambda_c <= 1 for
@@ -114,7 +111,6 @@ class TipTerms:
 
     def apply(self, c: Chain) -> None:
         P_tip, P_dir, P_L = c.param("tip_position", (3, 1)), c.param("tip_frame", (3, 3)), c.param("tube_length", (1, 1))
-        dl = c.dl
         tip, tangent = c.tip(0), c.frames(0)[0:3, -1]  # tangent: first column of the tip rotation
         scale = CLOSEST_ACTUATION if self.closest else 1.0
         M, lay = c.s.M, c.lay
@@ -123,7 +119,7 @@ class TipTerms:
         main, tie = actuation_blocks(self.objective)
         c.add_block(main, idx, w, term="actuation")
         c.add_block(tie, idx, TIE_BREAK * w, term="smooth")
-        c.add_rows("length", ca.sum2(dl) - P_L, 0.0, 0.0)
+        c.add_rows("length", ca.sum2(c.dl) - P_L, 0.0, 0.0)
         if self.closest:
             # the nearest the tube can get: tip distance (and direction) as the objective, actuation as a tie-break
             miss = ca.sumsqr(tip - P_tip)
@@ -204,8 +200,7 @@ def guide_curve(problem: TipProblem, samples: int) -> np.ndarray:
 def start_guesses(problem: TipProblem, starts: int):
     """(theta, lam, dl, frames (M+1, 4, 4)) per start: the geometric guess of a guide curve
     (frames on the curve), its mirrored side, then uniform helices (frames on their chains)."""
-    M, D, a = problem.segments, problem.diameter, problem.actuator
-    L = problem.length
+    M, D, a, L = problem.segments, problem.diameter, problem.actuator, problem.length
     out = []
     curve = guide_curve(problem, M * GUESS_POINTS + 1)
     dp = DesignProblem(problem.name, D, curve, a, replace(problem.options, points_per_segment=GUESS_POINTS))

@@ -792,9 +792,11 @@ def multistart(solve: Callable, guesses, progress=None, **pick) -> tuple:
 
 
 def record_starts(best, k: int, results, t0: float) -> None:
-    """The multi-start's stats on the winner: starts, start_objectives, best_start, total time and iterations."""
+    """The multi-start's stats on the winner: starts, start_objectives, start_iterations, best_start, total time
+    and iterations."""
     best.stats["starts"] = len(results)
     best.stats["start_objectives"] = [r.stats["objective"] for r in results]
+    best.stats["start_iterations"] = [r.iterations for r in results]
     best.stats["best_start"] = k
     best.solve_time_s = time.perf_counter() - t0
     best.iterations = sum(r.iterations for r in results)
