@@ -69,8 +69,12 @@ a primitive along the distance gradient, a run of points through one obstacle to
 mesh, a run along ONE direction across its chord, of PUSH_DIRECTIONS the one with the least total push
 (sphere tracing on the exact signed distance: the shortest way round; a gradient push sent the tube
 round the long way). The plain NLP designs that from its own geometric guess (one solve), and the rows
-start from its chain: the rows' start is a function of the problem alone, and so is the design (the
-obstacle-free design only decides whether there is anything to do, the samples per segment and which
+start from its chain. Without a mesh, where that chain still does not clear (it cannot follow the pushed
+target's corners, and a start inside an obstacle costs the first solve many iterations at a large barrier
+parameter regaining feasibility), its own points are pushed out the same way and designed once more
+(``REPUSH``): a curve the model can follow, pushed. A second pass, pushing only the chain's points near an
+obstacle, and per-solve frame bounds like MESH_TRUST did worse over several random primitive scenes.
+The rows start from that chain: the rows' start is a function of the problem alone, and so is the design (the obstacle-free design only decides whether there is anything to do, the samples per segment and which
 primitives get slots: discrete choices that a tiny change of it leaves alone; tests check it). Started
 from the obstacle-free design instead, which may cross a mesh deeper than a solve moves a frame
 (MESH_TRUST), the first solve's rows contradicted each other (the samples inside asked out through one
@@ -170,6 +174,7 @@ PUSHED_START = True  # start from the plain design of the target pushed out of t
 PUSH_EXTRA = 0.25  # units of D: the pushed target clears by this much more than the rows ask
 MESH_PUSH_EXTRA = 0.05  # the same where the scene has a mesh (module docstring, "Weights")
 PUSH_PASSES = 8
+REPUSH = 1  # primitives: times the designed chain of the pushed target is pushed and designed again where it does not clear
 PUSH_DIRECTIONS = 16  # meshes: directions tried around a run's chord
 PUSH_PROBES = 9  # meshes: points of a run that choose its direction
 MARCH_STEPS = 80
@@ -777,12 +782,22 @@ def pushed_target(target: np.ndarray, obstacles, need: float, passes: int = PUSH
 
 def _pushed_start(problem: DesignProblem, plan: Plan) -> Routing:
     """A start around the obstacles: the plain design of the pushed target (:func:`pushed_target`, center
-    distance D/2 + margin + PUSH_EXTRA D, MESH_PUSH_EXTRA with a mesh) from its own geometric guess, a function of the problem alone
-    (module docstring, "Start")."""
+    distance D/2 + margin + PUSH_EXTRA D, MESH_PUSH_EXTRA with a mesh) from its own geometric guess; without
+    a mesh, where it does not clear, the plain design of its own chain pushed out (REPUSH times); a
+    function of the problem alone (module docstring, "Start")."""
     D = problem.diameter
-    tg = pushed_target(problem.target, problem.obstacles, D * (0.5 + (MESH_PUSH_EXTRA if plan.has_mesh else PUSH_EXTRA)) + plan.margin)
-    pushed = dataclasses.replace(problem, target=tg, obstacles=())
-    return solve_from(pushed, None, pair_points(tg, problem.options.points_per_segment), frames="target").routing
+    need = D * (0.5 + (MESH_PUSH_EXTRA if plan.has_mesh else PUSH_EXTRA)) + plan.margin
+    tg, passes = problem.target, 0 if plan.has_mesh else REPUSH
+    for k in range(passes + 1):
+        tg = pushed_target(tg, problem.obstacles, need)
+        res = solve_from(dataclasses.replace(problem, target=tg, obstacles=()), None,
+                         pair_points(tg, problem.options.points_per_segment), frames="target")
+        if k == passes or plan.report(res.routing)["min_gap"] >= plan.margin:
+            break
+        # the chain cuts an obstacle where it could not follow the pushed target's corners: push the
+        # chain itself (a curve the model follows) and design that
+        tg = np.asarray(res.shape.center, float)
+    return res.routing
 
 
 def obstacle_stats(report: dict) -> dict:
