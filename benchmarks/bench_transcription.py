@@ -203,7 +203,7 @@ def main():
     ms, it, r, ratio, sh = paired(lambda: design_robust(bez, SIGMAS, start=bez_base), lambda: design_nlp(bez), rep)
     rows.append(("robust", "Bezier (b)", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))
 
-    # obstacles: the rows' solves (interpreted, like clearance: the active sets change the structure)
+    # obstacles: the rows' solves (like clearance, an active set: interpreted structure, small blocks compiled)
     for name, label in (("obstacle-pipe-bend", "pipe bend, 5 capsules"), ("obstacle-mesh", "mesh, 360 triangles")):
         # the rows' solves use the exact Hessian: the plain NLP to compare with does too; the obstacle design starts
         # from design_nlp(problem), as `vine-nlp design` does (a mesh's active-set loop is sensitive to its start:
@@ -249,8 +249,9 @@ def main():
         "which IPOPT corrected the KKT matrix's inertia (a nonconvex step: the matrix is factorized again, at least "
         "twice per such iteration; the tip's path to its few sharp bends and the obstacle rows' curvature). One BLAS "
         "thread (design.blas).",
-        f"NLP functions: VINE_NLP_CODEGEN={compiled.mode()} (clearance and obstacles, whose active sets change the "
-        "structure, always interpreted). " + load,
+        f"NLP functions: VINE_NLP_CODEGEN={compiled.mode()}. Clearance and obstacles, whose active sets change the "
+        "structure, run it interpreted with each block type under design.compiled.BLOCK_BUDGET compiled on its own "
+        "(the segment, the pose, the clearance pairs; the obstacle rows' blocks are over it and stay interpreted). " + load,
         table(("formulation", "target", "ms / iteration", "iterations (inertia corrected)", "objective", "in functions", "ratio"), rows),
         "Command start to archive (`vine-nlp design P.toml`, whole process; the three commands in turn, "
         f"{rep} rounds, medians of the times and of the per-round ratios; goal: multishape and tip <= 2x the trefoil), "

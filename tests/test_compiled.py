@@ -11,7 +11,7 @@ from vine_nlp.design import compiled
 from vine_nlp.design.common import geometric_guess, pair_points
 from vine_nlp.design.nlp import design_bounds, nlp_parameters, nlp_spec, start_x
 from vine_nlp.design.problem import DesignOptions, DesignProblem
-from vine_nlp.design.transcription import Solver
+from vine_nlp.design.transcription import Solver, clear_caches
 from vine_nlp.errors import InputError
 
 # small structures compile in about a second without optimization
@@ -191,10 +191,77 @@ def test_stored_functions_round_trip_and_a_damaged_copy_is_rebuilt(codegen):
     assert compiled.stored("probe", build) and len(calls) == 2  # written again, whole
 
 
-def test_an_active_set_of_pairs_is_not_compiled(codegen):
+def _pair_solver(pairs):
     from vine_nlp.design.clearance import ClearancePairs
 
+    return Solver(nlp_spec(6, 2, False, terms=(ClearancePairs(pairs),)))
+
+
+def _blocks(cache: Path) -> list[Path]:
+    return sorted(cache.rglob("blk-*.so"))
+
+
+def test_an_active_set_of_pairs_compiles_its_block_types_once(codegen):
+    # the structure (which segments the pairs join) changes every solve: never compiled as a whole
     before = dict(compiled.stats)
-    Solver(nlp_spec(6, 2, False, terms=(ClearancePairs(((0, 4), (1, 5))),)))
-    assert compiled.stats["compiled"] == before["compiled"] and compiled.stats["interpreted"] == before["interpreted"] + 1
-    assert _libraries(codegen) == []
+    _pair_solver(((0, 4), (1, 5)))
+    assert compiled.stats["interpreted"] == before["interpreted"] + 1
+    assert not sorted(codegen.rglob("nlp-*.so"))
+    # its block types are: the pose, the segment of 2 points, a pair of rows
+    first = _blocks(codegen)
+    assert len(first) == 3 and compiled.stats["compiled"] == before["compiled"] + 3
+    # another active set of one row per segment pair reuses all three
+    _pair_solver(((0, 3), (2, 5), (1, 4)))
+    assert _blocks(codegen) == first and compiled.stats["compiled"] == before["compiled"] + 3
+    # two rows between the same two segments are a new block type: one more library
+    _pair_solver(((0, 4), (0, 4)))
+    assert len(_blocks(codegen)) == 4
+
+
+def test_compiled_blocks_give_the_interpreted_functions(codegen, monkeypatch):
+    pairs = ((0, 4), (1, 5), (1, 5))
+    fast = _pair_solver(pairs)
+    assert _blocks(codegen)
+    monkeypatch.setenv("VINE_NLP_CODEGEN", "off")
+    slow = _pair_solver(pairs)
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=slow.nlpsol.size_in("x0")[0])
+    p = rng.uniform(0.1, 1.0, slow.nlpsol.size_in("p")[0])
+    lam = rng.normal(size=slow.nlpsol.size_out("g")[0])
+    for name, args in [("nlp_f", (x, p)), ("nlp_g", (x, p)), ("nlp_grad_f", (x, p)), ("nlp_jac_g", (x, p)),
+                       ("nlp_hess_l", (x, p, 0.7, lam))]:
+        a, b = fast.nlpsol.get_function(name)(*args), slow.nlpsol.get_function(name)(*args)
+        a, b = (a, b) if isinstance(a, (list, tuple)) else ([a], [b])
+        for u, v in zip(a, b):
+            assert u.sparsity() == v.sparsity(), name
+            np.testing.assert_allclose(np.array(u), np.array(v), rtol=1e-12, atol=1e-12, err_msg=name)
+
+
+def test_a_clearance_design_takes_the_same_steps_on_compiled_blocks(codegen, monkeypatch, make_target):
+    from vine_nlp.design.clearance import design_with_clearance
+    from vine_nlp.design.nlp import design_nlp
+    from vine_nlp.design.problem import Actuator
+    from vine_nlp.targets import helix
+
+    # a helix whose turns are closer than D: the tube must open it up (rows between neighbouring turns)
+    coil = DesignProblem("coil", 2.0, helix(radius=3.0, pitch=0.25, length=30.0, samples=61), actuator=Actuator("tendon", 0.4),
+                         options=DesignOptions(points_per_segment=3, hessian="exact", starts=1, hops=0))
+    monkeypatch.setenv("VINE_NLP_CODEGEN", "off")
+    start = design_nlp(coil)
+    slow = design_with_clearance(coil, start=start)
+    monkeypatch.setenv("VINE_NLP_CODEGEN", "on")
+    clear_caches()  # the built solvers are kept per structure, whatever the setting they were built under
+    fast = design_with_clearance(coil, start=start)
+    assert _blocks(codegen)
+    assert slow.stats["clearance_met"] and fast.stats["clearance_met"]
+    assert fast.stats["ipopt_iterations"] == slow.stats["ipopt_iterations"]
+    assert fast.stats["clearance_pairs"] == slow.stats["clearance_pairs"]
+    np.testing.assert_allclose(fast.routing.theta, slow.routing.theta, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(fast.routing.length, slow.routing.length, rtol=0, atol=1e-8)
+
+
+def test_a_block_over_the_budget_stays_interpreted(codegen, monkeypatch):
+    monkeypatch.setattr(compiled, "BLOCK_BUDGET", 10)
+    before = dict(compiled.stats)
+    _pair_solver(((0, 4),))
+    assert _blocks(codegen) == [] and compiled.stats["compiled"] == before["compiled"]

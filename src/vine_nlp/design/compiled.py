@@ -6,6 +6,11 @@ over the mapped per-stage SX blocks; compiled, the same expressions run as C. Th
 answers agree to rounding (tests compare the iterates). Fatrop (``fatrop_nlpsol``) runs on
 compiled functions only, shaped as its interface imports them.
 
+A structure built from an active set (clearance pairs, obstacle rows) seldom recurs: it is not
+compiled as a whole but runs interpreted with each block type's functions compiled on their own
+(``block_functions``, cached per block type, up to BLOCK_BUDGET instructions), so every later
+active set of the same block types loads them.
+
 The shared library is keyed by everything that decides the generated code: the
 solver's Spec without the solver's settings (structure, terms, Hessian), the CasADi version, the
 compiler and its flags, and the source of the model and design layers (a changed
@@ -44,7 +49,7 @@ from pathlib import Path
 from vine_nlp.design import blas
 from vine_nlp.errors import InputError
 
-__all__ = ["mode", "cache_dir", "compiler", "nlpsol", "fatrop_nlpsol", "stored", "CompileError", "NotCompiled", "stats"]
+__all__ = ["mode", "cache_dir", "compiler", "nlpsol", "fatrop_nlpsol", "block_functions", "stored", "CompileError", "NotCompiled", "stats"]
 
 _log = logging.getLogger("vine_nlp.design.compiled")
 
@@ -129,8 +134,9 @@ def _fallback(text: str, strict: bool):
     return None
 
 
-def library(spec_text: str, build_functions) -> str | None:
-    """Path of the compiled library for a solver, compiling it first where needed.
+def library(spec_text: str, build_functions, prefix: str = "nlp", what: str = "the NLP functions for this structure") -> str | None:
+    """Path of the compiled library for a solver (or one block type: ``prefix``, ``what``), compiling
+    it first where needed.
 
     ``build_functions()`` returns the CasADi functions to compile (called only on a
     cache miss). None: run interpreted (codegen off, no compiler, or it failed).
@@ -149,7 +155,7 @@ def library(spec_text: str, build_functions) -> str | None:
     if key is None:
         stats["interpreted"] += 1
         return None
-    target = cache_dir() / f"casadi-{ca.__version__}" / f"nlp-{key}.so"
+    target = cache_dir() / f"casadi-{ca.__version__}" / f"{prefix}-{key}.so"
     if target.is_file():
         stats["loaded"] += 1
         return str(target)
@@ -164,10 +170,10 @@ def library(spec_text: str, build_functions) -> str | None:
         if target.is_file():
             stats["loaded"] += 1
             return str(target)
-        return _compile(target, build_functions, cc, strict)
+        return _compile(target, build_functions, cc, strict, what)
 
 
-def _compile(target: Path, build_functions, cc: list[str], strict: bool) -> str | None:
+def _compile(target: Path, build_functions, cc: list[str], strict: bool, what: str) -> str | None:
     import casadi as ca
 
     try:
@@ -176,7 +182,7 @@ def _compile(target: Path, build_functions, cc: list[str], strict: bool) -> str 
         return _fallback(f"cannot write the code cache {target.parent} ({e.strerror or e})", strict)
     try:
         t0 = time.perf_counter()
-        _log.info("compiling the NLP functions for this structure (once; cached in %s)", target.parent)
+        _log.info("compiling %s (once; cached in %s)", what, target.parent)
         cg = ca.CodeGenerator("nlp.c", {"with_header": False})
         for f in build_functions():
             cg.add(f)
@@ -195,6 +201,37 @@ def _compile(target: Path, build_functions, cc: list[str], strict: bool) -> str 
         return _fallback(f"cannot compile into {target.parent} ({e.strerror or e})", strict)
     finally:
         shutil.rmtree(work, ignore_errors=True)
+
+
+# a block type is compiled on its own only up to this many SX instructions (its functions and derivatives):
+# gcc -O1 takes about 0.15 ms an instruction (a 2 s compile for a pair of clearance rows, 4 s for a segment
+# of 10 points); larger blocks (an obstacle segment's samples against its primitives or triangles) would
+# take tens of seconds, more than the solves they speed up
+BLOCK_BUDGET = 25_000
+
+
+def block_functions(name: str, functions: list) -> list | None:
+    """Compiled copies of one block type's SX ``functions`` (value, derivatives), for a solver whose
+    structure seldom recurs (an active set): the structure stays interpreted, its blocks run as C.
+
+    Cached on disk per the functions' serialized form, so every structure built of the same block
+    types (each new active set of pairs) loads them. None where they stay interpreted: codegen off, no
+    compiler, a failed compile, or more than BLOCK_BUDGET instructions."""
+    import casadi as ca
+
+    if mode() == "off" or sum(f.n_instructions() for f in functions) > BLOCK_BUDGET:
+        return None
+    digest = hashlib.sha256("\0".join(f.serialize() for f in functions).encode()).hexdigest()
+    path = library(f"block {digest}", lambda: functions, prefix="blk", what=f"the block {name}")
+    if path is None:
+        return None
+    try:
+        return [ca.external(f.name(), path) for f in functions]
+    except RuntimeError as e:
+        if mode() == "on":
+            raise CompileError(f"cannot load {path}: {str(e).splitlines()[0]}") from e
+        _warn_once(f"cannot load {path}: the block {name} runs interpreted (slower)")
+        return None
 
 
 def stored(name: str, build) -> list:

@@ -332,9 +332,10 @@ class ObstacleRows:
     S: int
     levels: int = 0
     k: int = MESH_K
-    # large SX blocks: compiling them takes tens of seconds (measured 17-60 s with gcc -O1), more than
-    # the solves they would speed up, so they run interpreted (design.compiled)
-    compile: ClassVar[bool] = False
+    # an active set: the structure runs interpreted, its small block types (segment, pose, intermediate
+    # shapes) compiled on their own; the obstacle blocks are large (compiling one takes 8-90 s with gcc -O1,
+    # more than the solves it would speed up) and stay interpreted (design.compiled.BLOCK_BUDGET)
+    compile: ClassVar[bool | str] = "blocks"
 
     def apply(self, c: Chain) -> None:
         s, lay = c.s, c.lay

@@ -269,6 +269,33 @@ def block_derivatives(bt: BlockType):
     return jac, hess, gn
 
 
+def block_functions(bt: BlockType, as_c: bool = False) -> tuple:
+    """(fn, grad (v, d) -> df/dv, jac, hess, gauss_newton) of a block type: SX, or with ``as_c`` compiled on
+    their own where design.compiled allows (codegen on or auto, a compiler, within its BLOCK_BUDGET)."""
+    if not as_c:
+        return _sx_functions(bt)
+    return _c_functions(bt, compiled.mode(), str(compiled.cache_dir()), tuple(compiled.compiler() or ()))
+
+
+@lru_cache(maxsize=None)
+def _sx_functions(bt: BlockType) -> tuple:
+    v, d = ca.SX.sym("v", bt.nv), ca.SX.sym("d", bt.fn.size1_in(1))
+    f, _ = bt.fn(v, d)
+    return (bt.fn, ca.Function(f"{bt.name}_grad", [v, d], [ca.gradient(f, v)]), *block_derivatives(bt))
+
+
+@lru_cache(maxsize=None)
+def _c_functions(bt: BlockType, *setting) -> tuple:
+    # ``setting``: codegen mode, cache directory and compiler, so a changed environment finds the right copy
+    fn, grad, jac, hess, gn = sx = _sx_functions(bt)
+    v, d = ca.SX.sym("v", bt.nv), ca.SX.sym("d", bt.fn.size1_in(1))
+    own = [ca.Function(f"{bt.name}_f", [v, d], bt.fn(v, d)), grad, jac, hess] + ([gn] if gn is not hess else [])
+    c = compiled.block_functions(bt.name, own)
+    if c is None:
+        return sx
+    return (*c[:4], c[4] if gn is not hess else c[3])
+
+
 @lru_cache(maxsize=None)
 def segment_block(n: int) -> BlockType:
     """Continuity and point fit of one (segment, level) cell.
@@ -526,6 +553,8 @@ def clear_caches() -> None:
     """Forget every built solver and SX derivative (benchmarks: time a cold start)."""
     get_solver.cache_clear()
     block_derivatives.cache_clear()
+    _sx_functions.cache_clear()
+    _c_functions.cache_clear()
     segment_block.cache_clear()
     pose_block.cache_clear()
     segment_function.cache_clear()
@@ -549,13 +578,20 @@ class Solver:
         self._param_shapes = {name: q.shape for name, q in c.params}
         ends = np.cumsum([0] + [q.numel() for _, q in c.params])
         self._param_slices = {name: slice(int(a), int(b)) for (name, _), a, b in zip(c.params, ends[:-1], ends[1:])}
+        # how the NLP's functions run: compiled as a whole (cached per structure); or, where a term's
+        # structure changes from solve to solve (an active set: compile = "blocks"), interpreted with each
+        # block type compiled on its own (cached per block type); or interpreted (compile = False)
+        kinds = {getattr(t, "compile", True) for t in spec.terms}
+        whole = kinds <= {True}
+        per_block = not whole and kinds <= {True, "blocks"} and spec.backend != "fatrop"
+        fns = {b.bt: block_functions(b.bt, per_block) for b in c.blocks}
         # objective and rows: blocks (mapped SX) first, then global rows
         f_blocks, g_parts, lbg, ubg = 0, [], [], []
         gathered, reported = [], dict(c.terms)  # reported: the objective per term (global and blocks)
         for b in c.blocks:
             count = b.index.shape[1]
             V = c.gather(b.index)
-            F = b.bt.fn.map(count, "serial")
+            F = fns[b.bt][0].map(count, "serial")
             fb, rb = F(V, b.data)
             f_blocks = f_blocks + ca.sum2(fb)
             reported[b.term] = reported.get(b.term, 0) + ca.sum2(fb)
@@ -579,7 +615,7 @@ class Solver:
             sigma = lam_f if scale == 1.0 else scale * lam_f
             jac_blocks, hess_blocks, row = [], [], 0
             for b, (V, count) in zip(c.blocks, gathered):
-                jac, hess, gn = block_derivatives(b.bt)
+                _, _, jac, hess, gn = fns[b.bt]
                 h = gn if spec.hessian == "gauss-newton" else hess
                 nr = b.bt.nr
                 LR = ca.reshape(lam_g[row : row + nr * count], nr, count) if nr else ca.MX(0, count)
@@ -596,12 +632,24 @@ class Solver:
             H = _scatter((lay.size, lay.size), hess_blocks, True) + ca.triu(ca.hessian(glob, x)[0])
             return lam_f, lam_g, J, H
 
+        def gradient():
+            # compiled blocks carry no derivatives of their own for CasADi to chain: the gradient of f, as J and H
+            grads = [(fns[b.bt][1].map(count, "serial")(V, b.data), fns[b.bt][1].sparsity_out(0), b.index, np.zeros((1, count), int))
+                     for b, (V, count) in zip(c.blocks, gathered)]
+            return _scatter((lay.size, 1), grads, False) + ca.gradient(f_glob, x)
+
         def problem_and_derivatives():
             lam_f, lam_g, J, H = derivatives()
-            return {"x": x, "p": p, "f": f, "g": g}, {
+            opts = {
                 "jac_g": ca.Function("nlp_jac_g", [x, p], [g, J], ["x", "p"], ["g", "jac_g_x"]),
                 "hess_lag": ca.Function("nlp_hess_l", [x, p, lam_f, lam_g], [H], ["x", "p", "lam_f", "lam_g"], ["hess_gamma_x_x"]),
             }
+            if per_block:
+                opts["grad_f"] = ca.Function("nlp_grad_f", [x, p], [f, gradient()], ["x", "p"], ["f", "grad_f_x"])
+                # no gradient of the Lagrangian after the solve (multipliers of x and p, never read): it would
+                # differentiate through the compiled blocks; IPOPT returns f and g itself
+                opts |= {"no_nlp_grad": True, "calc_lam_p": False, "calc_lam_x": False, "calc_f": False, "calc_g": False}
+            return {"x": x, "p": p, "f": f, "g": g}, opts
 
         def fatrop_functions():
             # the functions Fatrop's interface imports, of the objective FATROP_SCALE * f; the full Hessian
@@ -625,9 +673,7 @@ class Solver:
             self.nlpsol = compiled.fatrop_nlpsol("vine_nlp_fatrop", code, fatrop_functions, dict(spec.options), self.lbg == self.ubg)
         else:
             # compiled C where a compiler is found (cached on disk per spec), else interpreted
-            # a term whose structure changes from solve to solve (an active set of pairs) says compile = False
-            worth = all(getattr(t, "compile", True) for t in spec.terms)
-            self.nlpsol = compiled.nlpsol("vine_nlp", code, problem_and_derivatives, dict(spec.options), enabled=worth)
+            self.nlpsol = compiled.nlpsol("vine_nlp", code, problem_and_derivatives, dict(spec.options), enabled=whole)
         self.term_names = list(reported)
         self._terms = ca.Function("terms", [x, p], [ca.MX(0) + v for v in reported.values()])
         self._g = ca.Function("g", [x, p], [g])
