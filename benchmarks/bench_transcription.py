@@ -251,7 +251,7 @@ def main():
         "thread (design.blas).",
         f"NLP functions: VINE_NLP_CODEGEN={compiled.mode()}. Clearance and obstacles, whose active sets change the "
         "structure, run it interpreted with each block type under design.compiled.BLOCK_BUDGET compiled on its own "
-        "(the segment, the pose, the clearance pairs; the obstacle rows' blocks are over it and stay interpreted). " + load,
+        "(the segment, the pose, the clearance pairs; an obstacle block, over it, as a map of its one-sample block). " + load,
         table(("formulation", "target", "ms / iteration", "iterations (inertia corrected)", "objective", "in functions", "ratio"), rows),
         "Command start to archive (`vine-nlp design P.toml`, whole process; the three commands in turn, "
         f"{rep} rounds, medians of the times and of the per-round ratios; goal: multishape and tip <= 2x the trefoil), "

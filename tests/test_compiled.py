@@ -4,6 +4,7 @@ and a clear fallback where no compiler works."""
 import logging
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -265,3 +266,27 @@ def test_a_block_over_the_budget_stays_interpreted(codegen, monkeypatch):
     before = dict(compiled.stats)
     _pair_solver(((0, 4),))
     assert _blocks(codegen) == [] and compiled.stats["compiled"] == before["compiled"]
+
+
+def test_obstacle_rows_run_on_one_samples_compiled_block(codegen, monkeypatch, caplog):
+    # 12 samples a segment against 1 or 2 primitives, or 2 mesh triangles each: each block is over the budget,
+    # so the block of one sample is compiled and mapped over the 12 (the same for every sample count)
+    from vine_nlp.design.obstacles import ObstacleRows
+
+    spec = nlp_spec(6, 2, False, terms=(ObstacleRows(slots=(0, 2, 0, 1, 1, 0), meshes=((2, 3, 4),), S=12, k=2),))
+    with caplog.at_level(logging.INFO, logger="vine_nlp"):
+        fast = Solver(spec)
+    built = sorted(r.getMessage().split()[3] for r in caplog.records if r.getMessage().startswith("compiling the block"))
+    assert built == ["obstacle_mesh1x2", "obstacle_prims1x1", "obstacle_prims1x2", "pose", "segment2"]
+    assert len(_blocks(codegen)) == 5
+    monkeypatch.setenv("VINE_NLP_CODEGEN", "off")
+    slow = Solver(spec)
+    rng = np.random.default_rng(2)
+    x = rng.normal(size=slow.nlpsol.size_in("x0")[0])
+    p = rng.uniform(0.1, 1.0, slow.nlpsol.size_in("p")[0])
+    lam = rng.normal(size=slow.nlpsol.size_out("g")[0])
+    for name, args in [("nlp_g", (x, p)), ("nlp_grad_f", (x, p)), ("nlp_jac_g", (x, p)), ("nlp_hess_l", (x, p, 0.7, lam))]:
+        a, b = fast.nlpsol.get_function(name)(*args), slow.nlpsol.get_function(name)(*args)
+        a, b = (a, b) if isinstance(a, (list, tuple)) else ([a], [b])
+        for u, v in zip(a, b):
+            np.testing.assert_allclose(np.array(ca.densify(u)), np.array(ca.densify(v)), rtol=1e-11, atol=1e-11, err_msg=name)

@@ -141,7 +141,7 @@ from vine_nlp.design.tip import (
     start_guesses,
     tip_spec,
 )
-from vine_nlp.design.transcription import HARD_ROWS, BlockType, Chain, frames12, get_solver, options_key, pick_best
+from vine_nlp.design.transcription import HARD_ROWS, BlockType, Chain, Samples, frames12, get_solver, options_key, pick_best
 from vine_nlp.model.chain import chain_frames, chain_points
 from vine_nlp.model.segment import segment_function
 
@@ -252,7 +252,10 @@ def primitive_block(S: int, P: int) -> BlockType:
         sl = d[S + 1 + PRIM_DATA * q : S + 1 + PRIM_DATA * (q + 1)]
         need, a = sl[17], sl[18]
         rows.append(a * (rounded_box_sx(pts, sl[:17]).T - need) + (1 - a))
-    return BlockType(f"obstacle_prims{S}x{P}", ca.Function("obstacle_block", [v, d], [ca.SX(0), ca.vertcat(*rows)]))
+    # as a map of one sample's block: sample i reads u_i, t and the slots; rows are slot-major
+    index = [[i, *range(S, prim_data_size(S, P))] for i in range(S)]
+    samples = Samples(primitive_block(1, P), tuple(zip(*index)), tuple(i * P + q for q in range(P) for i in range(S))) if S > 1 else None
+    return BlockType(f"obstacle_prims{S}x{P}", ca.Function("obstacle_block", [v, d], [ca.SX(0), ca.vertcat(*rows)]), samples=samples)
 
 
 def _seg_d2(p, a, b):
@@ -303,7 +306,12 @@ def mesh_block(S: int, k: int) -> BlockType:
             t9 = tri[9 * (i * k + q) : 9 * (i * k + q) + 9]
             dist = triangle_distance_sx(p, t9[0:3], t9[3:6], t9[6:9])
             rows.append(a_tri[i] * (dist - need) + (1 - a_tri[i]))
-    return BlockType(f"obstacle_mesh{S}x{k}", ca.Function("obstacle_mesh_block", [v, d], [ca.SX(0), ca.vertcat(*rows)]))
+    # as a map of one sample's block: u_i, t, need, then the sample's own triangles, switches and plane
+    o, o2 = S + 2, S + 2 + 9 * k * S
+    index = [[i, S, S + 1, *range(o + 9 * k * i, o + 9 * k * (i + 1)), o2 + i, *range(o2 + S + 4 * i, o2 + S + 4 * i + 4), o2 + 5 * S + i]
+             for i in range(S)]
+    samples = Samples(mesh_block(1, k), tuple(zip(*index)), tuple(range(S * (k + 1)))) if S > 1 else None
+    return BlockType(f"obstacle_mesh{S}x{k}", ca.Function("obstacle_mesh_block", [v, d], [ca.SX(0), ca.vertcat(*rows)]), samples=samples)
 
 
 @lru_cache(maxsize=1)
@@ -333,8 +341,8 @@ class ObstacleRows:
     levels: int = 0
     k: int = MESH_K
     # an active set: the structure runs interpreted, its small block types (segment, pose, intermediate
-    # shapes) compiled on their own; the obstacle blocks are large (compiling one takes 8-90 s with gcc -O1,
-    # more than the solves it would speed up) and stay interpreted (design.compiled.BLOCK_BUDGET)
+    # shapes) compiled on their own; an obstacle block of S samples is large (compiling it would take 8-90 s
+    # with gcc -O1), so it runs as a map of its one-sample block (Samples), compiled once for every S
     compile: ClassVar[bool | str] = "blocks"
 
     def apply(self, c: Chain) -> None:

@@ -233,14 +233,27 @@ class Layout:
 # ---------------------------------------------------------------- blocks
 
 
+@dataclass(frozen=True)
+class Samples:
+    """A block that is ``sub`` at each of S samples (one segment's sample points, say): sample i reads the
+    block's data d[index[:, i]] (``index``: nd_sub x S), and the block's rows are vec(R)[order] of the
+    samples' rows R (nr_sub x S). Compiled, the small ``sub`` serves every S (block_functions)."""
+
+    sub: "BlockType"
+    index: tuple
+    order: tuple
+
+
 @dataclass(frozen=True, eq=False)
 class BlockType:
     """A per-stage piece: ``fn`` (v (nv), d (nd)) -> (f (1), r (nr)), SX; ``residual`` (v, d) -> res,
-    the weighted residuals whose 2 J^T J is the block's Gauss-Newton Hessian (None: exact)."""
+    the weighted residuals whose 2 J^T J is the block's Gauss-Newton Hessian (None: exact); ``samples``:
+    the same piece as a map of a smaller one (None: none)."""
 
     name: str
     fn: ca.Function
     residual: ca.Function | None = None
+    samples: Samples | None = None
 
     @property
     def nv(self) -> int:
@@ -291,9 +304,41 @@ def _c_functions(bt: BlockType, *setting) -> tuple:
     v, d = ca.SX.sym("v", bt.nv), ca.SX.sym("d", bt.fn.size1_in(1))
     own = [ca.Function(f"{bt.name}_f", [v, d], bt.fn(v, d)), grad, jac, hess] + ([gn] if gn is not hess else [])
     c = compiled.block_functions(bt.name, own)
-    if c is None:
-        return sx
-    return (*c[:4], c[4] if gn is not hess else c[3])
+    if c is not None:
+        return (*c[:4], c[4] if gn is not hess else c[3])
+    if bt.samples is not None:
+        sub = _c_functions(bt.samples.sub, *setting)
+        if sub is not _sx_functions(bt.samples.sub):
+            return _sampled(bt, sub)
+    return sx
+
+
+def _sampled(bt: BlockType, sub: tuple) -> tuple:
+    """(fn, grad, jac, hess, gauss_newton) of a Samples block from its sub-block's (compiled) functions,
+    mapped over the samples: rows and Jacobian rows gathered, gradients and Hessians summed (every sample
+    shares the block's variables v)."""
+    fn_s, grad_s, jac_s, hess_s, gn_s = sub
+    idx, order = np.array(bt.samples.index, int), list(bt.samples.order)
+    nd_s, S = idx.shape
+    nv, nr_s = bt.nv, bt.samples.sub.nr
+    inverse = np.argsort(order).tolist()
+    v, d = ca.MX.sym("v", nv), ca.MX.sym("d", bt.fn.size1_in(1))
+    sigma, lr = ca.MX.sym("sigma"), ca.MX.sym("lam_r", bt.nr)
+    V, Ds = ca.repmat(v, 1, S), ca.reshape(d[idx.T.ravel().tolist()], nd_s, S)
+    LS = ca.reshape(lr[inverse], nr_s, S) if bt.nr else ca.MX(0, S)
+
+    def summed(blocks):  # nv x (nv S) -> the sum of its S blocks
+        return sum(ca.horzsplit(blocks, nv), ca.MX(nv, nv))
+
+    f_s, r_s = fn_s.map(S)(V, Ds)
+    fn = ca.Function(f"{bt.name}_f", [v, d], [ca.sum2(f_s), ca.vec(r_s)[order]])
+    grad = ca.Function(f"{bt.name}_grad", [v, d], [ca.sum2(grad_s.map(S)(V, Ds))])
+    J = ca.vertcat(*ca.horzsplit(jac_s.map(S)(V, Ds), nv)) if bt.nr else ca.MX(0, nv)
+    jac = ca.Function(f"{bt.name}_jac", [v, d], [J[order, :]])
+    args = [v, d, sigma, lr]
+    hess = ca.Function(f"{bt.name}_hess", args, [summed(hess_s.map(S)(V, Ds, ca.repmat(sigma, 1, S), LS))])
+    gn = hess if gn_s is hess_s else ca.Function(f"{bt.name}_gn", args, [summed(gn_s.map(S)(V, Ds, ca.repmat(sigma, 1, S), LS))])
+    return fn, grad, jac, hess, gn
 
 
 @lru_cache(maxsize=None)
