@@ -193,7 +193,7 @@ def main():
     rows.append(("nlp (exact Hessian)", "tight helix, M = 20, n = 5", f"{coil_ms:.2f}", it, quality(free), pct(sh), "1.00"))
     ms, it, r, ratio, sh = paired(lambda: design_with_clearance(coil, start=free), lambda: design_nlp(coil), rep)
     rows.append(("clearance", f"tight helix ({r.stats['clearance_pairs']} pairs, {r.stats['clearance_rounds']} solves, "
-                 f"min clearance {r.stats['min_clearance']:.5f} D)", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))
+                 f"min clearance {r.stats['min_clearance'] / coil.diameter:.5f} D)", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))
 
     ms, it, r, ratio, sh = paired(lambda: design_robust(tre, SIGMAS, start=base), plain, rep)
     rows.append(("robust", "trefoil", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))

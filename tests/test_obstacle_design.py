@@ -310,6 +310,33 @@ def test_blocked_target_points_weigh_less():
     np.testing.assert_array_equal(np.delete(out, np.s_[4 * n:], axis=0), np.delete(cells, np.s_[4 * n:], axis=0))
 
 
+def test_a_weight_ramp_rises_from_the_blocked_weight_to_one():
+    """With a ramp (meshes), weights are the blocked factor inside the margin, then rise as s^2 to full weight
+    at margin + ramp; farther points keep theirs."""
+    from vine_nlp.design.common import pair_points
+    from vine_nlp.design.nlp import nlp_parameters
+    from vine_nlp.design.obstacles import _weigh_blocked
+
+    ob, ramp = PRIMITIVES["sphere"], 1.5
+    problem = _problem([ob])
+    pairing = pair_points(TARGET, 10)
+    cells = nlp_parameters(problem, pairing, np.eye(3))["cells"]
+    out = _weigh_blocked(problem, pairing, cells, 0.1, ramp=ramp)
+    n, i = pairing.n, np.arange(len(TARGET) - 1)
+    at = (4 * n + i - pairing.bounds[pairing.seg[i]], pairing.seg[i])
+    ratio = out[at] / cells[at]
+    gap = min_gap(TARGET[:-1], D, [ob])[:, 0]
+    s = (gap - MARGIN) / (ramp * D)
+    inside, rising, far = gap < MARGIN, (s > 0) & (s < 1), s >= 1
+    assert inside.any() and rising.sum() >= 3 and far.any()
+    np.testing.assert_allclose(ratio[inside], 0.1)
+    np.testing.assert_allclose(ratio[rising], 0.1 + 0.9 * s[rising] ** 2)
+    np.testing.assert_array_equal(out[at][far], cells[at][far])
+    # nearer points never weigh more
+    order = np.argsort(gap)
+    assert np.all(np.diff(ratio[order]) >= -1e-12)
+
+
 def test_the_command_line_designs_a_tip_problem_among_its_obstacles(tmp_path, capsys):
     """The bundled tip behind a wall: `vine-nlp design` keeps the tube clear of the wall and floor
     (the obstacles were once read and then ignored for tip problems)."""

@@ -60,8 +60,11 @@ Weights. A target point closer than the margin to an obstacle is *blocked*: no d
 Its fit weight is scaled, so the detour is shaped more by the points the tube can follow:
 ``BLOCKED_WEIGHT`` for primitives, ``MESH_BLOCKED_WEIGHT`` where the scene has a mesh. The price is a
 wider detour where the target is blocked; heavier blocked points pulled the tube's error into the
-target away from the obstacles, lighter ones (with a mesh) sent it round the far side. The values were
-chosen on the bundled problems and the speed scenes (results/BENCHMARKS.md, "Obstacles").
+target away from the obstacles, lighter ones (with a mesh) sent it round the far side. With a mesh the
+weight does not step back to 1 at the margin but rises over MESH_WEIGHT_RAMP (quadratically): points
+just outside the margin that the tube cannot follow past its detour pulled the neighbouring segments
+into a zig-zag (a bending angle at its bound) that spread the error 5 segments either way. The values
+were chosen on the bundled problems and the speed scenes (results/BENCHMARKS.md, "Obstacles").
 
 Start. A design through an obstacle is a poor start for the rows: IPOPT spends most of its iterations
 pushing the tube out. The target is pushed out of the obstacles across itself (``pushed_target``): past
@@ -155,6 +158,7 @@ AFTER_SLOTS = 5  # growth "after": intermediate shapes with rows at a time (thei
 MESH_K = 6  # nearest triangles per sample
 BLOCKED_WEIGHT = 0.1  # weight of the target points closer than the margin to an obstacle (their fit cannot be exact)
 MESH_BLOCKED_WEIGHT = 0.01  # the same where the scene has a mesh (module docstring, "Weights")
+MESH_WEIGHT_RAMP = 1.0  # units of D: with a mesh, weights rise from MESH_BLOCKED_WEIGHT at the margin to 1 at margin + this
 ACTIVE_REACH = 1.0  # units of D: a primitive gets rows on a segment when its slack is below this plus REACH_DL times the segment's length
 REACH_DL = 0.5
 ROUNDS = 6
@@ -685,14 +689,18 @@ def _exit_planes(mesh: Mesh, faces, p, inside, need):
     return nrm, off
 
 
-def _weigh_blocked(problem: DesignProblem, pairing, cells: np.ndarray, factor: float) -> np.ndarray:
+def _weigh_blocked(problem: DesignProblem, pairing, cells: np.ndarray, factor: float, ramp: float = 0.0) -> np.ndarray:
     """The cells with the weights of the blocked target points (where the tube cannot be: closer than
-    the margin to an obstacle) times ``factor``."""
+    the margin to an obstacle) times ``factor``; with ``ramp`` > 0 (units of D) the weight then rises
+    as s^2 to 1, s = (gap - margin) / ramp in [0, 1] (module docstring, "Weights")."""
     tg = problem.target
     i = np.arange(tg.shape[0] - 1)
-    blocked = np.flatnonzero(min_gap(tg[i], problem.diameter, problem.obstacles).min(axis=1) < problem.obstacle_margin)
+    gap = min_gap(tg[i], problem.diameter, problem.obstacles).min(axis=1)
+    s = np.clip((gap - problem.obstacle_margin) / (ramp * problem.diameter), 0, 1) ** 2 if ramp > 0 else (gap >= problem.obstacle_margin)
+    w = factor + (1 - factor) * s
+    blocked = np.flatnonzero(w < 1)
     cells = cells.copy()
-    cells[4 * pairing.n + blocked - pairing.bounds[pairing.seg[blocked]], pairing.seg[blocked]] *= factor
+    cells[4 * pairing.n + blocked - pairing.bounds[pairing.seg[blocked]], pairing.seg[blocked]] *= w[blocked]
     return cells
 
 
@@ -874,7 +882,7 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
         routing = _pushed_start(problem, plan)
     R0g = routing.initial_pose[:3, :3].copy()
     params = nlp_parameters(problem, pairing, R0g)
-    params["cells"] = _weigh_blocked(problem, pairing, params["cells"], MESH_BLOCKED_WEIGHT if plan.has_mesh else BLOCKED_WEIGHT)
+    params["cells"] = _weigh_blocked(problem, pairing, params["cells"], *((MESH_BLOCKED_WEIGHT, MESH_WEIGHT_RAMP) if plan.has_mesh else (BLOCKED_WEIGHT, 0.0)))
     data = plan.data(routing)
     solver = _design_solver(problem, pairing, plan)
     lbx, ubx = solver.bounds(*design_bounds(problem, pairing))
