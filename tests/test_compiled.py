@@ -224,8 +224,12 @@ def test_compiled_blocks_give_the_interpreted_functions(codegen, monkeypatch):
     fast = _pair_solver(pairs)
     assert _blocks(codegen)
     monkeypatch.setenv("VINE_NLP_CODEGEN", "off")
-    slow = _pair_solver(pairs)
-    rng = np.random.default_rng(1)
+    _same_functions(fast, _pair_solver(pairs), seed=1, tol=1e-12)
+
+
+def _same_functions(fast, slow, seed, tol):
+    """The NLP functions of two solvers of one spec agree at a random point (x, p and multipliers)."""
+    rng = np.random.default_rng(seed)
     x = rng.normal(size=slow.nlpsol.size_in("x0")[0])
     p = rng.uniform(0.1, 1.0, slow.nlpsol.size_in("p")[0])
     lam = rng.normal(size=slow.nlpsol.size_out("g")[0])
@@ -234,8 +238,7 @@ def test_compiled_blocks_give_the_interpreted_functions(codegen, monkeypatch):
         a, b = fast.nlpsol.get_function(name)(*args), slow.nlpsol.get_function(name)(*args)
         a, b = (a, b) if isinstance(a, (list, tuple)) else ([a], [b])
         for u, v in zip(a, b):
-            assert u.sparsity() == v.sparsity(), name
-            np.testing.assert_allclose(np.array(u), np.array(v), rtol=1e-12, atol=1e-12, err_msg=name)
+            np.testing.assert_allclose(np.array(ca.densify(u)), np.array(ca.densify(v)), rtol=tol, atol=tol, err_msg=name)
 
 
 def test_a_clearance_design_takes_the_same_steps_on_compiled_blocks(codegen, monkeypatch, make_target):
@@ -280,13 +283,4 @@ def test_obstacle_rows_run_on_one_samples_compiled_block(codegen, monkeypatch, c
     assert built == ["obstacle_mesh1x2", "obstacle_prims1x1", "obstacle_prims1x2", "pose", "segment2"]
     assert len(_blocks(codegen)) == 5
     monkeypatch.setenv("VINE_NLP_CODEGEN", "off")
-    slow = Solver(spec)
-    rng = np.random.default_rng(2)
-    x = rng.normal(size=slow.nlpsol.size_in("x0")[0])
-    p = rng.uniform(0.1, 1.0, slow.nlpsol.size_in("p")[0])
-    lam = rng.normal(size=slow.nlpsol.size_out("g")[0])
-    for name, args in [("nlp_g", (x, p)), ("nlp_grad_f", (x, p)), ("nlp_jac_g", (x, p)), ("nlp_hess_l", (x, p, 0.7, lam))]:
-        a, b = fast.nlpsol.get_function(name)(*args), slow.nlpsol.get_function(name)(*args)
-        a, b = (a, b) if isinstance(a, (list, tuple)) else ([a], [b])
-        for u, v in zip(a, b):
-            np.testing.assert_allclose(np.array(ca.densify(u)), np.array(ca.densify(v)), rtol=1e-11, atol=1e-11, err_msg=name)
+    _same_functions(fast, Solver(spec), seed=2, tol=1e-11)
