@@ -805,9 +805,12 @@ def _pushed_start(problem: DesignProblem, plan: Plan) -> Routing:
     D = problem.diameter
     need = D * (0.5 + (MESH_PUSH_EXTRA if plan.has_mesh else PUSH_EXTRA)) + plan.margin
     tg, passes = problem.target, 0 if plan.has_mesh else REPUSH
+    # the exact Hessian from the start: Gauss-Newton does not converge on a pushed target's corners, and
+    # "auto" then solves the same start again with it (the same design, ~100 Gauss-Newton iterations later)
+    options = dataclasses.replace(problem.options, hessian="exact") if problem.options.hessian == "auto" else problem.options
     for k in range(passes + 1):
         tg = pushed_target(tg, problem.obstacles, need)
-        res = solve_from(dataclasses.replace(problem, target=tg, obstacles=()), None,
+        res = solve_from(dataclasses.replace(problem, target=tg, obstacles=(), options=options), None,
                          pair_points(tg, problem.options.points_per_segment), frames="target")
         if k == passes or plan.report(res.routing)["min_gap"] >= plan.margin:
             break
