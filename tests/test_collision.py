@@ -148,3 +148,26 @@ def test_clearance_design_separates_a_helix_target_with_a_pitch_below_d():
     assert routing_clearance(r.routing, D)["clearance"] >= D - 1e-6
     # pushing turns 1.57 -> 2 apart costs about half the shortfall at each turn
     assert r.metrics["rmse"] < 0.5 * D * 0.5 and r.metrics["rmse"] > free.metrics["rmse"]
+
+
+def test_a_clearance_beyond_d_counts_only_parts_that_are_not_neighbours():
+    """min_gap > 0: neighbours are half a turn of the tightest circle keeping them D + min_gap apart. With
+    the exclusion of min_gap = 0 the points just past it on every bend already fell short of D + min_gap,
+    rows asked for chords longer than their arcs, and the loop ran away (IPOPT's iteration limit, the
+    clearance not met)."""
+    from vine_nlp.design.clearance import design_with_clearance
+    from vine_nlp.design.nlp import design_nlp
+
+    # turns 2 pi 0.5 = 3.14 = 1.57 D apart along the axis: clear, but not by 0.7 D
+    tgt = targets.helix(radius=2.5, pitch=0.5, length=50.0, samples=101)
+    pb = DesignProblem("helix", D, tgt, actuator=Actuator("tendon", 0.4), options=DesignOptions(points_per_segment=5, hessian="exact"))
+    free = design_nlp(pb)
+    gap = 0.7 * D
+    start = routing_clearance(free.routing, D, exclude_arc=0.5 * math.pi * (D + gap))["clearance"]
+    assert D < start < D + gap
+    r = design_with_clearance(pb, min_gap=gap, start=free)
+    assert r.converged and r.stats["clearance_met"] and r.stats["clearance_rounds"] <= 3
+    assert routing_clearance(r.routing, D, exclude_arc=0.5 * math.pi * (D + gap))["clearance"] >= D + gap - 1e-6
+    # each turn opens by about 0.16 D and the openings add up along the 3 turns: a fraction of D (the runaway
+    # loop ended several D off the target)
+    assert r.metrics["rmse"] < 0.25 * D

@@ -176,6 +176,7 @@ def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, pairs=No
     when it is already clear and no ``pairs`` are given. ``pairs``: extra (l_a, l_b)
     material-coordinate pairs (problem units) constrained from the first solve on (at least one).
     ``detect_margin`` (default D/4): pairs closer than D + min_gap + margin are constrained.
+    ``exclude_arc`` (default pi (D + min_gap) / 2): nearer points along the tube are neighbours, never paired.
     The loop stops when the continuous minimum clearance (analysis.collision.routing_clearance)
     is >= D + min_gap - tol_gap D and no region needs new rows, or after ``rounds`` solves.
     stats: clearance_rounds, clearance_pairs, min_clearance, start_rmse, start_min_clearance.
@@ -184,7 +185,10 @@ def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, pairs=No
     need = D + min_gap
     margin = 0.25 * D if detect_margin is None else float(detect_margin)
     step = 0.5 * D if pair_step is None else float(pair_step)
-    exclude_arc = 0.5 * math.pi * D if exclude_arc is None else float(exclude_arc)
+    # neighbours: half a turn of the tightest circle that keeps them ``need`` apart (analysis.collision,
+    # "Neighbours", with D + min_gap for D): nearer points of any tube bent more gently are farther apart
+    # than need, and a row between them would ask for a chord longer than their arc
+    exclude_arc = 0.5 * math.pi * need if exclude_arc is None else float(exclude_arc)
     t_all = time.perf_counter()
     start = start or design_nlp(problem, **kw)
     routing = start.routing
