@@ -8,9 +8,9 @@ compiled functions only, shaped as its interface imports them.
 
 A structure built from an active set (clearance pairs, obstacle rows) seldom recurs: it is not
 compiled as a whole but runs interpreted with each block type's functions compiled on their own
-(``block_functions``, cached per block type, up to BLOCK_BUDGET instructions; a larger block that
-is a map of samples runs on its one-sample block), so every later active set of the same block
-types loads them.
+(``block_functions``, cached per block type, up to BLOCK_BUDGET instructions; a block that is a
+map of samples runs on its one-sample block), so every later active set of the same block types
+loads them.
 
 The shared library is keyed by everything that decides the generated code: the
 solver's Spec without the solver's settings (structure, terms, Hessian), the CasADi version, the
@@ -207,8 +207,8 @@ def _compile(target: Path, build_functions, cc: list[str], strict: bool, what: s
 # a block type is compiled on its own only up to this many SX instructions (its functions and derivatives):
 # gcc -O1 takes about 0.15 ms an instruction (a 2 s compile for a pair of clearance rows, 4 s for a segment
 # of 10 points, 5 s for one sample against 6 mesh triangles); larger blocks (an obstacle segment's samples
-# against its primitives or triangles) would take tens of seconds, more than the solves they speed up: where
-# such a block is a map of one sample's (transcription.Samples), that sample's block is compiled instead
+# against its primitives or triangles) would take tens of seconds, more than the solves they speed up: such a
+# block is a map of one sample's (transcription.Samples), and that sample's block is compiled instead
 BLOCK_BUDGET = 30_000
 
 

@@ -77,7 +77,8 @@ target's corners, and a start inside an obstacle costs the first solve many iter
 parameter regaining feasibility), its own points are pushed out the same way and designed once more
 (``REPUSH``): a curve the model can follow, pushed. A second pass, pushing only the chain's points near an
 obstacle, and per-solve frame bounds like MESH_TRUST did worse over several random primitive scenes.
-The rows start from that chain: the rows' start is a function of the problem alone, and so is the design (the obstacle-free design only decides whether there is anything to do, the samples per segment and which
+The rows start from that chain: the rows' start is a function of the problem alone, and so is the
+design (the obstacle-free design only decides whether there is anything to do, the samples per segment and which
 primitives get slots: discrete choices that a tiny change of it leaves alone; tests check it). Started
 from the obstacle-free design instead, which may cross a mesh deeper than a solve moves a frame
 (MESH_TRUST), the first solve's rows contradicted each other (the samples inside asked out through one
@@ -885,7 +886,8 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
         routing = _pushed_start(problem, plan)
     R0g = routing.initial_pose[:3, :3].copy()
     params = nlp_parameters(problem, pairing, R0g)
-    params["cells"] = _weigh_blocked(problem, pairing, params["cells"], *((MESH_BLOCKED_WEIGHT, MESH_WEIGHT_RAMP) if plan.has_mesh else (BLOCKED_WEIGHT, 0.0)))
+    factor, ramp = (MESH_BLOCKED_WEIGHT, MESH_WEIGHT_RAMP) if plan.has_mesh else (BLOCKED_WEIGHT, 0.0)
+    params["cells"] = _weigh_blocked(problem, pairing, params["cells"], factor, ramp)
     data = plan.data(routing)
     solver = _design_solver(problem, pairing, plan)
     lbx, ubx = solver.bounds(*design_bounds(problem, pairing))

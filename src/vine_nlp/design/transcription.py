@@ -300,17 +300,16 @@ def _sx_functions(bt: BlockType) -> tuple:
 @lru_cache(maxsize=None)
 def _c_functions(bt: BlockType, *setting) -> tuple:
     # ``setting``: codegen mode, cache directory and compiler, so a changed environment finds the right copy
+    if bt.samples is not None:
+        # the one-sample block, compiled once for every sample count (no library, and no derivatives of the
+        # whole block, per sample count)
+        sub = _c_functions(bt.samples.sub, *setting)
+        return _sampled(bt, sub) if sub is not _sx_functions(bt.samples.sub) else _sx_functions(bt)
     fn, grad, jac, hess, gn = sx = _sx_functions(bt)
     v, d = ca.SX.sym("v", bt.nv), ca.SX.sym("d", bt.fn.size1_in(1))
     own = [ca.Function(f"{bt.name}_f", [v, d], bt.fn(v, d)), grad, jac, hess] + ([gn] if gn is not hess else [])
     c = compiled.block_functions(bt.name, own)
-    if c is not None:
-        return (*c[:4], c[4] if gn is not hess else c[3])
-    if bt.samples is not None:
-        sub = _c_functions(bt.samples.sub, *setting)
-        if sub is not _sx_functions(bt.samples.sub):
-            return _sampled(bt, sub)
-    return sx
+    return sx if c is None else (*c[:4], c[4] if gn is not hess else c[3])
 
 
 def _sampled(bt: BlockType, sub: tuple) -> tuple:
