@@ -59,6 +59,18 @@ SIGMAS = Sigmas.from_degrees(1.0, 0.02, 0.02)
 FUNCTIONS = [0.0]
 REGULARIZED = [0]  # iterations on which IPOPT corrected the KKT matrix's inertia (refactorizing) in the timed call
 ONLY_TERM = [None]  # count only solvers with this term (the obstacle design's own start solves are not its rows')
+SIZE = [None]  # the NLP size of the last counted solve (nlp_size)
+
+
+def nlp_size(solver) -> tuple:
+    """(variables, equality rows, inequality rows, nonzeros of the constraint Jacobian, of the Lagrangian Hessian's
+    upper triangle): what IPOPT's KKT matrix is made of (its factor grows with them)."""
+    f = solver.nlpsol
+    jac = f.get_function("nlp_jac_g").sparsity_out("jac_g_x")
+    hess = f.get_function("nlp_hess_l")
+    rows, cols = hess.sparsity_out(hess.n_out() - 1).get_triplet()
+    eq = int(np.sum(solver.lbg == solver.ubg))
+    return f.size1_in(0), eq, solver.lbg.size - eq, jac.nnz(), sum(1 for r, c in zip(rows, cols) if r <= c)
 
 
 def cpu_clock(cpu: bool) -> None:
@@ -75,6 +87,7 @@ def cpu_clock(cpu: bool) -> None:
         if ONLY_TERM[0] is None or ONLY_TERM[0] in self.term_names:
             FUNCTIONS[0] += sum(v for k, v in stats.items() if k.startswith("t_proc_nlp_"))
             REGULARIZED[0] += sum(1 for v in stats.get("iterations", {}).get("regularization_size", []) if v > 0)
+            SIZE[0] = nlp_size(self)
         return x, status, st
 
     transcription.Solver.solve = timed
@@ -153,6 +166,14 @@ def command_time(problem):
     return elapsed, r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime, run.stats["objective"], run.metrics["rmse"]
 
 
+def size_cols(base=None) -> tuple:
+    """The last counted solve's NLP size (nlp_size) and its KKT nonzeros (Jacobian + Hessian triangle + one per
+    variable and row: IPOPT's diagonal) as a ratio to ``base``'s (the plain NLP's size)."""
+    nx, eq, ineq, nj, nh = SIZE[0]
+    kkt = lambda s: s[3] + s[4] + s[0] + s[1] + 2 * s[2]  # noqa: E731 (an inequality row also brings its slack)
+    return f"{nx}, {eq} / {ineq}, {nj} + {nh}", f"{kkt(SIZE[0]) / kkt(base or SIZE[0]):.2f}"
+
+
 def quality(r):
     return f"{r.stats['objective']:.6g}"
 
@@ -173,35 +194,40 @@ def main():
 
     tre = exact(load_problem(ROOT / "problems/trefoil-m4.toml").problem)
     base_ms, base_it, base, sh = per_iteration(lambda: design_nlp(tre), rep)
-    rows.append(("nlp (exact Hessian)", "trefoil, M = 40, n = 10", f"{base_ms:.2f}", base_it, quality(base), pct(sh), "1.00"))
+    tre_size = SIZE[0]
+    rows.append(("nlp (exact Hessian)", "trefoil, M = 40, n = 10", f"{base_ms:.2f}", base_it, quality(base), pct(sh), "1.00", *size_cols()))
     gn = dataclasses.replace(tre, options=dataclasses.replace(tre.options, hessian="gauss-newton"))
     plain = lambda: design_nlp(tre)  # noqa: E731
     ms, it, r, ratio, sh = paired(lambda: design_nlp(gn), plain, rep)
-    rows.append(("nlp (Gauss-Newton)", "trefoil", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))
+    rows.append(("nlp (Gauss-Newton)", "trefoil", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}", *size_cols(tre_size)))
 
     spam = dataclasses.replace(tre, actuator=Actuator("spam", tre.actuator.lambda_min, tre.actuator.theta_max))
     spam_ms, it, r, sh = per_iteration(lambda: design_nlp(spam), rep)
-    rows.append(("nlp, sPAM", "trefoil", f"{spam_ms:.2f}", it, quality(r), pct(sh), "1.00"))
+    spam_size = SIZE[0]
+    rows.append(("nlp, sPAM", "trefoil", f"{spam_ms:.2f}", it, quality(r), pct(sh), "1.00", *size_cols()))
     ms1 = MultiShapeProblem(tre.name, tre.diameter, [tre.target], [None], spam.actuator, spam.options)
     ms, it, r, ratio, sh = paired(lambda: design_multishape(ms1, starts=1), lambda: design_nlp(spam), rep)
-    rows.append(("multishape, K = 1", "trefoil, sPAM", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f} (vs sPAM nlp)"))
+    rows.append(("multishape, K = 1", "trefoil, sPAM", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f} (vs sPAM nlp)", *size_cols(spam_size)))
 
     # clearance: a helix whose turns are closer than D (the tube following it would collide)
     coil = DesignProblem("tight-helix", 2.0, targets.helix(radius=3.0, pitch=0.25, length=50.0, samples=101),
                          actuator=Actuator("tendon", 0.4), options=dataclasses.replace(tre.options, points_per_segment=5))
     coil_ms, it, free, sh = per_iteration(lambda: design_nlp(coil), rep)
-    rows.append(("nlp (exact Hessian)", "tight helix, M = 20, n = 5", f"{coil_ms:.2f}", it, quality(free), pct(sh), "1.00"))
+    coil_size = SIZE[0]
+    rows.append(("nlp (exact Hessian)", "tight helix, M = 20, n = 5", f"{coil_ms:.2f}", it, quality(free), pct(sh), "1.00", *size_cols()))
     ms, it, r, ratio, sh = paired(lambda: design_with_clearance(coil, start=free), lambda: design_nlp(coil), rep)
     rows.append(("clearance", f"tight helix ({r.stats['clearance_pairs']} pairs, {r.stats['clearance_rounds']} solves, "
-                 f"min clearance {r.stats['min_clearance'] / coil.diameter:.5f} D)", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))
+                 f"min clearance {r.stats['min_clearance'] / coil.diameter:.5f} D)", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}",
+                 *size_cols(coil_size)))
 
     ms, it, r, ratio, sh = paired(lambda: design_robust(tre, SIGMAS, start=base), plain, rep)
-    rows.append(("robust", "trefoil", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))
+    rows.append(("robust", "trefoil", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}", *size_cols(tre_size)))
     bez = exact(load_problem(ROOT / "problems/bezier-b.toml").problem)
     bez_ms, bez_it, bez_base, sh = per_iteration(lambda: design_nlp(bez), rep)
-    rows.append(("nlp (exact Hessian)", "Bezier (b)", f"{bez_ms:.2f}", bez_it, quality(bez_base), pct(sh), "1.00"))
+    bez_size = SIZE[0]
+    rows.append(("nlp (exact Hessian)", "Bezier (b)", f"{bez_ms:.2f}", bez_it, quality(bez_base), pct(sh), "1.00", *size_cols()))
     ms, it, r, ratio, sh = paired(lambda: design_robust(bez, SIGMAS, start=bez_base), lambda: design_nlp(bez), rep)
-    rows.append(("robust", "Bezier (b)", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))
+    rows.append(("robust", "Bezier (b)", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}", *size_cols(bez_size)))
 
     # obstacles: the rows' solves (like clearance, an active set: interpreted structure, small blocks compiled)
     for name, label in (("obstacle-pipe-bend", "pipe bend, 5 capsules"), ("obstacle-mesh", "mesh, 360 triangles")):
@@ -211,20 +237,23 @@ def main():
         pb = load_problem(ROOT / f"problems/{name}.toml").problem
         nb = exact(dataclasses.replace(pb, obstacles=()))
         ob_ms, ob_it, ob_base, sh = per_iteration(lambda: design_nlp(nb), rep)  # noqa: B023
-        rows.append(("nlp (exact Hessian)", f"{name} without its obstacles", f"{ob_ms:.2f}", ob_it, quality(ob_base), pct(sh), "1.00"))
+        ob_size = SIZE[0]
+        rows.append(("nlp (exact Hessian)", f"{name} without its obstacles", f"{ob_ms:.2f}", ob_it, quality(ob_base), pct(sh), "1.00",
+                     *size_cols()))
         ob_free = design_nlp(pb)
         ONLY_TERM[0] = "obstacles"  # like ipopt_iterations: the solves with rows
         ms, it, r, ratio, sh = paired(lambda: design_with_obstacles(pb, start=ob_free), lambda: design_nlp(nb), rep)  # noqa: B023
         ONLY_TERM[0] = None
         rows.append(("obstacles", f"{label} ({r.stats['obstacle_rounds']} solves with rows, min gap "
-                     f"{r.metrics['min_obstacle_gap']:.4g} for margin {pb.obstacle_margin:g})", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))
+                     f"{r.metrics['min_obstacle_gap']:.4g} for margin {pb.obstacle_margin:g})", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}",
+                     *size_cols(ob_size)))
 
     end = chain_frames(base.routing.theta, base.routing.lam, base.routing.length, tre.diameter, base.routing.initial_pose)
     T0 = end[0]
     tip = TipProblem("tip", tre.diameter, end[-1][:3, 3], float(base.routing.length.sum()), base.routing.segments,
                      direction=end[-1][:3, 0], initial_pose=T0, actuator=tre.actuator, options=tre.options)
     ms, it, r, ratio, sh = paired(lambda: design_tip(tip, starts=1), plain, rep)
-    rows.append(("tip", f"trefoil's tip, M = 40 ({r.status})", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}"))
+    rows.append(("tip", f"trefoil's tip, M = 40 ({r.status})", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}", *size_cols(tre_size)))
 
     names = ("trefoil-m4", "multishape-spam", "tip-target")
     runs = [[command_time(ROOT / f"problems/{p}.toml") for p in names] for _ in range(rep)]  # the three in turn, each round
@@ -247,12 +276,17 @@ def main():
         "the rest is IPOPT's own, mostly factorizing the KKT matrix (clearance pairs couple segments a turn apart: "
         "a much denser factor than the banded chain's). Iterations: of the last timed call, in parentheses those on "
         "which IPOPT corrected the KKT matrix's inertia (a nonconvex step: the matrix is factorized again, at least "
-        "twice per such iteration; the tip's path to its few sharp bends and the obstacle rows' curvature). One BLAS "
-        "thread (design.blas).",
+        "twice per such iteration; the tip's path to its few sharp bends and the obstacle rows' curvature). NLP: the "
+        "last counted solve's variables, equality / inequality rows, and nonzeros of the constraint Jacobian and of the "
+        "Lagrangian Hessian's upper triangle; KKT nonzeros ratio: J + H + one per variable, equality row and (with its "
+        "slack) two per inequality row, against the plain NLP's on the same target: the matrix IPOPT factorizes at "
+        "least once per iteration. Clearance pairs also fill the factor beyond these nonzeros (they couple segments a "
+        "turn apart). One BLAS thread (design.blas).",
         f"NLP functions: VINE_NLP_CODEGEN={compiled.mode()}. Clearance and obstacles, whose active sets change the "
         "structure, run it interpreted with each block type under design.compiled.BLOCK_BUDGET compiled on its own "
         "(the segment, the pose, the clearance pairs; an obstacle block, over it, as a map of its one-sample block). " + load,
-        table(("formulation", "target", "ms / iteration", "iterations (inertia corrected)", "objective", "in functions", "ratio"), rows),
+        table(("formulation", "target", "ms / iteration", "iterations (inertia corrected)", "objective", "in functions", "ratio",
+               "NLP: variables, rows = / >=, nonzeros J + H", "KKT nonzeros ratio"), rows),
         "Command start to archive (`vine-nlp design P.toml`, whole process; the three commands in turn, "
         f"{rep} rounds, medians of the times and of the per-round ratios; goal: multishape and tip <= 2x the trefoil), "
         "with the archived design's objective and RMSE "

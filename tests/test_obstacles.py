@@ -318,6 +318,22 @@ def test_grown_prefixes_never_come_closer_than_the_final_shape():
     assert grown_prefixes(r, D, [32.0])[0]["points"][-1] == pytest.approx(full["points"][-1])
 
 
+def test_obstacle_report_refines_every_minimum_between_samples():
+    # straight tube along x (samples every 0.25), D = 2: a sphere of radius r centred d off the axis at x = xc, none
+    # of them at a sample, has its smallest gap d - r - 1 at x = xc; the samples alone miss it by up to ~1e-3
+    D = 2.0
+    r = _straight(20.0)
+    spheres = [(3.07, 3.0, 1.0), (10.11, 2.5, 0.5), (12.37, 4.0, 1.5), (17.9, 3.3, 0.8)]
+    obs = [Sphere((xc, 0.0, d), rad) for xc, d, rad in spheres]
+    rep = obstacle_report(r, D, obs)
+    sampled = obstacle_report(r, D, obs, refine=False)
+    for (xc, d, rad), f, g in zip(spheres, rep["final"], sampled["final"]):
+        assert f["min_gap"] == pytest.approx(d - rad - 1.0, abs=1e-9)
+        assert f["l"] == pytest.approx(xc, abs=1e-4)
+        assert g["min_gap"] - f["min_gap"] > 1e-4  # the refinement did the work
+    assert rep["min_gap"] == pytest.approx(min(d - rad - 1.0 for _, d, rad in spheres), abs=1e-9)
+
+
 def test_obstacle_report_finds_a_known_contact():
     # straight tube along x, D = 2, a sphere of radius 1 at distance 3 from the axis at x = 10:
     # gap = 3 - 1 - 1 = 1 at s = 10; below margin 1.5 where |x - 10| < sqrt(3.5^2 - 9)
