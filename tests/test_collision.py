@@ -150,6 +150,38 @@ def test_clearance_design_separates_a_helix_target_with_a_pitch_below_d():
     assert r.metrics["rmse"] < 0.5 * D * 0.5 and r.metrics["rmse"] > free.metrics["rmse"]
 
 
+def test_the_row_target_rises_only_for_a_dip_between_constrained_pairs():
+    from vine_nlp.design.clearance import _covered
+
+    active = [(1.0, 9.0), (3.0, 12.0)]
+    dip = {"l_i": 9.2, "l_j": 1.1, "clearance": 1.9}  # beside a pair (either order): a dip between rows
+    new = {"l_i": 5.0, "l_j": 20.0, "clearance": 1.5}  # no pair near: a new contact
+    clear = {"l_i": 5.0, "l_j": 20.0, "clearance": 2.5}  # within the detection margin, not short
+    assert _covered([dip], active, 2.0, 0.5) and _covered([dip, clear], active, 2.0, 0.5)
+    assert not _covered([dip, new], active, 2.0, 0.5)
+    assert not _covered([dip], active, 2.0, 0.1)
+
+
+@pytest.mark.slow
+def test_a_tight_coil_opened_beyond_d_does_not_run_away():
+    """Turns 2 pi 0.25 = 1.57 cm apart, D = 2, asked for 0.3 D: the tube must open the coil to 2.6 cm. Each
+    solve moves it into new contacts; raising every row's target for them (as for a dip between rows) pushed
+    the coil ever farther open: 567 IPOPT iterations, a row target 7.6 cm beyond D + min_gap, the clearance not
+    met (0.15 cm) and RMSE 3.2 cm."""
+    from vine_nlp.design.clearance import design_with_clearance
+    from vine_nlp.design.nlp import design_nlp
+
+    tgt = targets.helix(radius=3.0, pitch=0.25, length=50.0, samples=101)
+    pb = DesignProblem("coil", D, tgt, actuator=Actuator("tendon", 0.4))
+    free = design_nlp(pb)
+    gap = 0.3 * D
+    r = design_with_clearance(pb, min_gap=gap, start=free)
+    assert r.converged and r.stats["clearance_met"]
+    assert routing_clearance(r.routing, D, exclude_arc=0.5 * math.pi * (D + gap))["clearance"] >= D + gap - 1e-6
+    assert r.stats["clearance_row_margin"] < D
+    assert r.metrics["rmse"] < 1.0 * D
+
+
 def test_a_clearance_beyond_d_counts_only_parts_that_are_not_neighbours():
     """min_gap > 0: neighbours are half a turn of the tightest circle keeping them D + min_gap apart. With
     the exclusion of min_gap = 0 the points just past it on every bend already fell short of D + min_gap,

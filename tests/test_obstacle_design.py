@@ -426,3 +426,28 @@ def test_iterations_and_ipopt_time_add_up_over_the_solves_with_rows(monkeypatch,
     assert len(seen) == r.stats["obstacle_rounds"] >= 1
     assert r.iterations == r.stats["ipopt_iterations"] == sum(i for i, _ in seen)
     assert r.stats["ipopt_time_s"] == pytest.approx(sum(t for _, t in seen))
+
+
+def test_a_solve_before_the_last_round_stops_at_the_round_cap(monkeypatch, free):
+    """Every solve with rows but the last stops after ROUND_MAX_ITER iterations and the next round goes on from
+    its iterate; the last is IPOPT's own limit. A cap of 10 forces several rounds on the sphere; the design
+    still clears, converged."""
+    from vine_nlp.design import obstacles, transcription
+    from vine_nlp.design.obstacles import ObstacleRows
+
+    seen, solve = [], transcription.Solver.solve
+
+    def recorded(self, *a, **kw):
+        x, status, st = solve(self, *a, **kw)
+        if any(isinstance(t, ObstacleRows) for t in self.spec.terms):
+            seen.append((st["iterations"], status, self.spec.options))
+        return x, status, st
+
+    monkeypatch.setattr(transcription.Solver, "solve", recorded)
+    monkeypatch.setattr(obstacles, "ROUND_MAX_ITER", 10)
+    ob = PRIMITIVES["sphere"]
+    r = design_with_obstacles(_problem([ob]), start=free, rounds=4)
+    assert r.converged and r.stats["obstacle_clear"] and _sampled_gap(r.routing, [ob]) >= MARGIN - 1e-3 * D
+    assert len(seen) == r.stats["obstacle_rounds"] == 4
+    assert [(it, status, dict(o)["ipopt.max_iter"]) for it, status, o in seen[:-1]] == [(10, "max_iter", 10)] * 3
+    assert seen[-1][1] == "optimal" and dict(seen[-1][2])["ipopt.max_iter"] == DesignOptions().max_iter > 10
