@@ -801,8 +801,8 @@ REFINE_ROUNDS = 8  # each round shrinks every bracket 8-fold: 8 rounds leave ~1e
 def _refined_minima(routing, D, obstacles, l, gaps, frames) -> list[tuple[float, float]]:
     """Per obstacle, (gap, material length) of the minimum of the gap over the material interval around its
     smallest sample: a grid search whose bracket shrinks round by round to the best point's neighbours, every
-    obstacle's grid in one chain evaluation per round (a search per obstacle, point by point, took 8 times as
-    long on 16 obstacles). Never above the smallest sample."""
+    obstacle's grid in one chain evaluation per round (a search per obstacle, point by point, paid the chain's
+    evaluation for every point). Never above the smallest sample."""
     n = len(l)
     idx = np.argmin(gaps, axis=0)
     best = [(float(gaps[i, k]), float(l[i])) for k, i in enumerate(idx)]

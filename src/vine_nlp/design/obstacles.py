@@ -90,9 +90,9 @@ otherwise solve with the rows (warm, from the pushed start's chain), check with 
 (analysis.obstacles.obstacle_report: 20 points per segment, exact mesh distances, refined
 minima), refresh the mesh active sets, re-solve warm; until the report is clear or ``rounds`` solves
 are done. Every solve but the last stops after ROUND_MAX_ITER iterations and the next round goes on
-from where it stopped, with fresh active sets: after new primitive slots, a warm re-solve crawled to
-IPOPT's max_iter (3000 iterations, 38 s on a scene of large primitives) where the next round, from an
-iterate 400 iterations in, converged in 143 (7.6 s in all, the same gap). The rows' requirement is raised by 1.5x what is still missing only where every sample held
+from where it stopped, with fresh active sets: after new primitive slots, a warm re-solve could crawl
+to IPOPT's max_iter where the next round, from an iterate ROUND_MAX_ITER in, converged quickly to the
+same gap (CHANGELOG). The rows' requirement is raised by 1.5x what is still missing only where every sample held
 its requirement against the exact obstacle (``Plan.samples_hold``): then the tube dips between samples.
 A sample that did not hold passed a mesh where its active set had no triangle (a fine mesh: the torus
 scene's 6 nearest triangles span a fraction of D): from then on every sample also has rows to its k
