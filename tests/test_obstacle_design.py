@@ -451,3 +451,35 @@ def test_a_solve_before_the_last_round_stops_at_the_round_cap(monkeypatch, free)
     assert len(seen) == r.stats["obstacle_rounds"] == 4
     assert [(it, status, dict(o)["ipopt.max_iter"]) for it, status, o in seen[:-1]] == [(10, "max_iter", 10)] * 3
     assert seen[-1][1] == "optimal" and dict(seen[-1][2])["ipopt.max_iter"] == DesignOptions().max_iter > 10
+
+
+def test_the_rows_start_inside_their_bounds_where_the_detour_lengthens_a_segment(monkeypatch, free):
+    """The pushed start's detour may lengthen a segment past its bound on the target's chord (LENGTH_FACTOR); the
+    rows' bound then makes room for it. A start outside the bounds is moved inside by IPOPT, its chain torn
+    apart. Tight length bounds (1.05 chords) make every detour such a segment."""
+    from vine_nlp.design import nlp, transcription
+    from vine_nlp.design.obstacles import ObstacleRows
+
+    starts, solve = [], transcription.Solver.solve
+
+    def recorded(self, x0, p, lbx, ubx, *a, **kw):
+        if any(isinstance(t, ObstacleRows) for t in self.spec.terms):
+            starts.append((x0[self.layout.dl], lbx[self.layout.dl], ubx[self.layout.dl]))
+        return solve(self, x0, p, lbx, ubx, *a, **kw)
+
+    monkeypatch.setattr(transcription.Solver, "solve", recorded)
+    monkeypatch.setattr(nlp, "LENGTH_FACTOR", (0.2, 1.05))
+    ob = PRIMITIVES["sphere"]
+    problem = _problem([ob])
+    chord_bound = nlp.design_bounds(problem, _pairing(problem))[2][1]
+    r = design_with_obstacles(problem, start=free)
+    dl, lo, hi = starts[0]
+    assert np.any(dl > chord_bound)  # the detour's segments are longer than the target's bound
+    assert np.all(lo <= dl) and np.all(dl <= hi)
+    assert r.converged and r.stats["obstacle_clear"] and _sampled_gap(r.routing, [ob]) >= MARGIN - 1e-3 * D
+
+
+def _pairing(problem):
+    from vine_nlp.design.common import pair_points
+
+    return pair_points(problem.target, problem.options.points_per_segment)

@@ -894,7 +894,12 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
     params["cells"] = _weigh_blocked(problem, pairing, params["cells"], factor, ramp)
     data = plan.data(routing)
     solver = _design_solver(problem, pairing, plan, ROUND_MAX_ITER)  # the loop's first solver (its layout and bounds)
-    lbx, ubx = solver.bounds(*design_bounds(problem, pairing))
+    theta_b, lam_b, (dl_lo, dl_hi) = design_bounds(problem, pairing)
+    # the pushed start's detour may lengthen a segment past LENGTH_FACTOR of its chord on the target: there the
+    # bound makes room for it (a start outside the bounds is moved inside by IPOPT, its chain torn apart: a
+    # 20-primitive scene with growth "after" then crawled through IPOPT's regularization for minutes)
+    dl0 = routing.length / D
+    lbx, ubx = solver.bounds(theta_b, lam_b, (dl_lo, np.where(dl0 > dl_hi, LENGTH_SLACK * dl0, dl_hi)))
     x = plan.fill_extra(solver, start_x(solver, chain_guess(problem, routing), D, "chain"), routing)
     best, rep, solves, ipopt_time, ipopt_iterations = None, first, 0, 0.0, 0
     if plan.has_mesh:
