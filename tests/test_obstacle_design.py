@@ -23,6 +23,7 @@ from vine_nlp.analysis.obstacles import (
     point_triangle_distance,
     sample_chain,
 )
+from vine_nlp.design.common import pair_points
 from vine_nlp.design.nlp import design_nlp
 from vine_nlp.design.obstacles import (
     design_tip_with_obstacles,
@@ -471,15 +472,9 @@ def test_the_rows_start_inside_their_bounds_where_the_detour_lengthens_a_segment
     monkeypatch.setattr(nlp, "LENGTH_FACTOR", (0.2, 1.05))
     ob = PRIMITIVES["sphere"]
     problem = _problem([ob])
-    chord_bound = nlp.design_bounds(problem, _pairing(problem))[2][1]
+    chord_bound = nlp.design_bounds(problem, pair_points(problem.target, problem.options.points_per_segment))[2][1]
     r = design_with_obstacles(problem, start=free)
     dl, lo, hi = starts[0]
     assert np.any(dl > chord_bound)  # the detour's segments are longer than the target's bound
     assert np.all(lo <= dl) and np.all(dl <= hi)
     assert r.converged and r.stats["obstacle_clear"] and _sampled_gap(r.routing, [ob]) >= MARGIN - 1e-3 * D
-
-
-def _pairing(problem):
-    from vine_nlp.design.common import pair_points
-
-    return pair_points(problem.target, problem.options.points_per_segment)
