@@ -89,10 +89,11 @@ Loop. Start from the obstacle-free design (design_nlp), keep it when it already 
 otherwise solve with the rows (warm, from the pushed start's chain), check with the report
 (analysis.obstacles.obstacle_report: 20 points per segment, exact mesh distances, refined
 minima), refresh the mesh active sets, re-solve warm; until the report is clear or ``rounds`` solves
-are done. Every solve but the last stops after ROUND_MAX_ITER iterations and the next round goes on
-from where it stopped, with fresh active sets: after new primitive slots, a warm re-solve could crawl
-to IPOPT's max_iter where the next round, from an iterate ROUND_MAX_ITER in, converged quickly to the
-same gap (CHANGELOG). The rows' requirement is raised by 1.5x what is still missing only where every sample held
+are done. A re-solve before the last round stops after ROUND_MAX_ITER iterations and the next round
+goes on from where it stopped, with fresh active sets: after new primitive slots, a warm re-solve could
+crawl to IPOPT's max_iter where the next round, from an iterate ROUND_MAX_ITER in, converged quickly to
+the same gap (CHANGELOG). The first solve is not cut: from the pushed start it may need more (a
+scene's 550 iterations, cut at 400, became six rounds ending at max_iter). The rows' requirement is raised by 1.5x what is still missing only where every sample held
 its requirement against the exact obstacle (``Plan.samples_hold``): then the tube dips between samples.
 A sample that did not hold passed a mesh where its active set had no triangle (a fine mesh: the torus
 scene's 6 nearest triangles span a fraction of D): from then on every sample also has rows to its k
@@ -893,7 +894,7 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
     factor, ramp = (MESH_BLOCKED_WEIGHT, MESH_WEIGHT_RAMP) if plan.has_mesh else (BLOCKED_WEIGHT, 0.0)
     params["cells"] = _weigh_blocked(problem, pairing, params["cells"], factor, ramp)
     data = plan.data(routing)
-    solver = _design_solver(problem, pairing, plan, ROUND_MAX_ITER)  # the loop's first solver (its layout and bounds)
+    solver = _design_solver(problem, pairing, plan)  # the loop's first solver (its layout and bounds)
     theta_b, lam_b, (dl_lo, dl_hi) = design_bounds(problem, pairing)
     # the pushed start's detour may lengthen a segment past LENGTH_FACTOR of its chord on the target: there the
     # bound makes room for it (a start outside the bounds is moved inside by IPOPT, its chain torn apart: a
@@ -907,9 +908,9 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
     while solves < rounds:
         if solves:
             data = plan.data(routing)
-        # cached; new only when P grew. A solve before the last stops at ROUND_MAX_ITER: the next round goes on
-        # from its iterate with fresh active sets (a re-solve after new slots could crawl to max_iter)
-        solver = _design_solver(problem, pairing, plan, ROUND_MAX_ITER if solves < rounds - 1 else None)
+        # cached; new only when P grew. A re-solve before the last stops at ROUND_MAX_ITER: the next round goes
+        # on from its iterate with fresh active sets (a re-solve after new slots could crawl to max_iter)
+        solver = _design_solver(problem, pairing, plan, ROUND_MAX_ITER if 0 < solves < rounds - 1 else None)
         p = solver.pack_params(params | data)
         x, status, st = solver.solve(x, p, *plan.trust(solver, x, lbx, ubx))
         solves += 1
