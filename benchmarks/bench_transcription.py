@@ -59,7 +59,7 @@ SIGMAS = Sigmas.from_degrees(1.0, 0.02, 0.02)
 FUNCTIONS = [0.0]
 REGULARIZED = [0]  # iterations on which IPOPT corrected the KKT matrix's inertia (refactorizing) in the timed call
 ONLY_TERM = [None]  # count only solvers with this term (the obstacle design's own start solves are not its rows')
-SIZE = [None]  # the NLP size of the last counted solve (nlp_size)
+LAST = [None]  # the solver of the last counted solve (its size: nlp_size, read where a row is reported)
 
 
 def nlp_size(solver) -> tuple:
@@ -87,7 +87,7 @@ def cpu_clock(cpu: bool) -> None:
         if ONLY_TERM[0] is None or ONLY_TERM[0] in self.term_names:
             FUNCTIONS[0] += sum(v for k, v in stats.items() if k.startswith("t_proc_nlp_"))
             REGULARIZED[0] += sum(1 for v in stats.get("iterations", {}).get("regularization_size", []) if v > 0)
-            SIZE[0] = nlp_size(self)
+            LAST[0] = self
         return x, status, st
 
     transcription.Solver.solve = timed
@@ -169,9 +169,10 @@ def command_time(problem):
 def size_cols(base=None) -> tuple:
     """The last counted solve's NLP size (nlp_size) and its KKT nonzeros (Jacobian + Hessian triangle + one per
     variable and row: IPOPT's diagonal) as a ratio to ``base``'s (the plain NLP's size)."""
-    nx, eq, ineq, nj, nh = SIZE[0]
+    size = nlp_size(LAST[0])
+    nx, eq, ineq, nj, nh = size
     kkt = lambda s: s[3] + s[4] + s[0] + s[1] + 2 * s[2]  # noqa: E731 (an inequality row also brings its slack)
-    return f"{nx}, {eq} / {ineq}, {nj} + {nh}", f"{kkt(SIZE[0]) / kkt(base or SIZE[0]):.2f}"
+    return f"{nx}, {eq} / {ineq}, {nj} + {nh}", f"{kkt(size) / kkt(base or size):.2f}"
 
 
 def quality(r):
@@ -194,7 +195,7 @@ def main():
 
     tre = exact(load_problem(ROOT / "problems/trefoil-m4.toml").problem)
     base_ms, base_it, base, sh = per_iteration(lambda: design_nlp(tre), rep)
-    tre_size = SIZE[0]
+    tre_size = nlp_size(LAST[0])
     rows.append(("nlp (exact Hessian)", "trefoil, M = 40, n = 10", f"{base_ms:.2f}", base_it, quality(base), pct(sh), "1.00", *size_cols()))
     gn = dataclasses.replace(tre, options=dataclasses.replace(tre.options, hessian="gauss-newton"))
     plain = lambda: design_nlp(tre)  # noqa: E731
@@ -203,7 +204,7 @@ def main():
 
     spam = dataclasses.replace(tre, actuator=Actuator("spam", tre.actuator.lambda_min, tre.actuator.theta_max))
     spam_ms, it, r, sh = per_iteration(lambda: design_nlp(spam), rep)
-    spam_size = SIZE[0]
+    spam_size = nlp_size(LAST[0])
     rows.append(("nlp, sPAM", "trefoil", f"{spam_ms:.2f}", it, quality(r), pct(sh), "1.00", *size_cols()))
     ms1 = MultiShapeProblem(tre.name, tre.diameter, [tre.target], [None], spam.actuator, spam.options)
     ms, it, r, ratio, sh = paired(lambda: design_multishape(ms1, starts=1), lambda: design_nlp(spam), rep)
@@ -213,7 +214,7 @@ def main():
     coil = DesignProblem("tight-helix", 2.0, targets.helix(radius=3.0, pitch=0.25, length=50.0, samples=101),
                          actuator=Actuator("tendon", 0.4), options=dataclasses.replace(tre.options, points_per_segment=5))
     coil_ms, it, free, sh = per_iteration(lambda: design_nlp(coil), rep)
-    coil_size = SIZE[0]
+    coil_size = nlp_size(LAST[0])
     rows.append(("nlp (exact Hessian)", "tight helix, M = 20, n = 5", f"{coil_ms:.2f}", it, quality(free), pct(sh), "1.00", *size_cols()))
     ms, it, r, ratio, sh = paired(lambda: design_with_clearance(coil, start=free), lambda: design_nlp(coil), rep)
     rows.append(("clearance", f"tight helix ({r.stats['clearance_pairs']} pairs, {r.stats['clearance_rounds']} solves, "
@@ -224,7 +225,7 @@ def main():
     rows.append(("robust", "trefoil", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}", *size_cols(tre_size)))
     bez = exact(load_problem(ROOT / "problems/bezier-b.toml").problem)
     bez_ms, bez_it, bez_base, sh = per_iteration(lambda: design_nlp(bez), rep)
-    bez_size = SIZE[0]
+    bez_size = nlp_size(LAST[0])
     rows.append(("nlp (exact Hessian)", "Bezier (b)", f"{bez_ms:.2f}", bez_it, quality(bez_base), pct(sh), "1.00", *size_cols()))
     ms, it, r, ratio, sh = paired(lambda: design_robust(bez, SIGMAS, start=bez_base), lambda: design_nlp(bez), rep)
     rows.append(("robust", "Bezier (b)", f"{ms:.2f}", it, quality(r), pct(sh), f"{ratio:.2f}", *size_cols(bez_size)))
@@ -237,7 +238,7 @@ def main():
         pb = load_problem(ROOT / f"problems/{name}.toml").problem
         nb = exact(dataclasses.replace(pb, obstacles=()))
         ob_ms, ob_it, ob_base, sh = per_iteration(lambda: design_nlp(nb), rep)  # noqa: B023
-        ob_size = SIZE[0]
+        ob_size = nlp_size(LAST[0])
         rows.append(("nlp (exact Hessian)", f"{name} without its obstacles", f"{ob_ms:.2f}", ob_it, quality(ob_base), pct(sh), "1.00",
                      *size_cols()))
         ob_free = design_nlp(pb)

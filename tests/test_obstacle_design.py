@@ -409,80 +409,73 @@ def test_rows_only_on_segments_near_the_obstacles(free):
     assert plan.term.slots == tuple(expect.tolist())
 
 
-def test_iterations_and_ipopt_time_add_up_over_the_solves_with_rows(monkeypatch, slab, free):
-    """Every solve with obstacle rows counts (a mesh takes rounds); the obstacle-free and pushed starts do not."""
+@pytest.fixture
+def rows_solves(monkeypatch):
+    """Every solve with obstacle rows, recorded: its start and bounds on the segment lengths, status, iterations,
+    IPOPT time and iteration limit (the obstacle-free and pushed starts' solves are not recorded)."""
     from vine_nlp.design import transcription
     from vine_nlp.design.obstacles import ObstacleRows
 
     seen, solve = [], transcription.Solver.solve
 
-    def recorded(self, *a, **kw):
-        x, status, st = solve(self, *a, **kw)
+    def recorded(self, x0, p, lbx, ubx, *a, **kw):
+        x, status, st = solve(self, x0, p, lbx, ubx, *a, **kw)
         if any(isinstance(t, ObstacleRows) for t in self.spec.terms):
-            seen.append((st["iterations"], st["ipopt_time_s"]))
+            dl = self.layout.dl
+            seen.append({"dl": x0[dl], "lo": lbx[dl], "hi": ubx[dl], "status": status, "iterations": st["iterations"],
+                         "time": st["ipopt_time_s"], "max_iter": dict(self.spec.options)["ipopt.max_iter"]})
         return x, status, st
 
     monkeypatch.setattr(transcription.Solver, "solve", recorded)
+    return seen
+
+
+def test_iterations_and_ipopt_time_add_up_over_the_solves_with_rows(rows_solves, slab, free):
+    """Every solve with obstacle rows counts (a mesh takes rounds); the obstacle-free and pushed starts do not."""
     r = design_with_obstacles(_problem([slab]), start=free)
-    assert len(seen) == r.stats["obstacle_rounds"] >= 1
-    assert r.iterations == r.stats["ipopt_iterations"] == sum(i for i, _ in seen)
-    assert r.stats["ipopt_time_s"] == pytest.approx(sum(t for _, t in seen))
+    assert len(rows_solves) == r.stats["obstacle_rounds"] >= 1
+    assert r.iterations == r.stats["ipopt_iterations"] == sum(s["iterations"] for s in rows_solves)
+    assert r.stats["ipopt_time_s"] == pytest.approx(sum(s["time"] for s in rows_solves))
 
 
-def test_a_re_solve_before_the_last_round_stops_at_the_round_cap(monkeypatch, free):
+def test_a_re_solve_before_the_last_round_stops_at_the_round_cap(monkeypatch, rows_solves, free):
     """A re-solve with rows before the last round stops after ROUND_MAX_ITER iterations and the next round goes
     on from its iterate; the first solve and the last run to IPOPT's own limit. The report is made to find the
     first three designs unclear, so the loop takes 4 rounds; with a cap of 10 the two re-solves between run with
     IPOPT's limit at 10, and the design still ends clear, converged."""
-    from vine_nlp.design import obstacles, transcription
-    from vine_nlp.design.obstacles import ObstacleRows, Plan
+    from vine_nlp.design import obstacles
+    from vine_nlp.design.obstacles import Plan
 
-    seen, solve, report = [], transcription.Solver.solve, Plan.report
-
-    def recorded(self, *a, **kw):
-        x, status, st = solve(self, *a, **kw)
-        if any(isinstance(t, ObstacleRows) for t in self.spec.terms):
-            seen.append((status, dict(self.spec.options)["ipopt.max_iter"], st["iterations"]))
-        return x, status, st
+    seen, report = rows_solves, Plan.report
 
     def reported(self, *a, **kw):
         rep = report(self, *a, **kw)
         return rep | {"clear": False} if len(seen) in (1, 2, 3) else rep  # the first three designs with rows
 
-    monkeypatch.setattr(transcription.Solver, "solve", recorded)
     monkeypatch.setattr(Plan, "report", reported)
     monkeypatch.setattr(obstacles, "ROUND_MAX_ITER", 10)
     ob = PRIMITIVES["sphere"]
     r = design_with_obstacles(_problem([ob]), start=free, rounds=4)
     limit = DesignOptions().max_iter
     assert len(seen) == r.stats["obstacle_rounds"] == 4
-    assert seen[0][:2] == ("optimal", limit) and seen[0][2] > 10
-    assert all(s[1] == 10 and s[2] <= 10 for s in seen[1:3])
-    assert seen[3][:2] == ("optimal", limit)
+    assert (seen[0]["status"], seen[0]["max_iter"]) == ("optimal", limit) and seen[0]["iterations"] > 10
+    assert all(s["max_iter"] == 10 and s["iterations"] <= 10 for s in seen[1:3])
+    assert (seen[3]["status"], seen[3]["max_iter"]) == ("optimal", limit)
     assert r.converged and r.stats["obstacle_clear"] and _sampled_gap(r.routing, [ob]) >= MARGIN - 1e-3 * D
 
 
-def test_the_rows_start_inside_their_bounds_where_the_detour_lengthens_a_segment(monkeypatch, free):
+def test_the_rows_start_inside_their_bounds_where_the_detour_lengthens_a_segment(monkeypatch, rows_solves, free):
     """The pushed start's detour may lengthen a segment past its bound on the target's chord (LENGTH_FACTOR); the
     rows' bound then makes room for it. A start outside the bounds is moved inside by IPOPT, its chain torn
     apart. Tight length bounds (1.05 chords) make every detour such a segment."""
-    from vine_nlp.design import nlp, transcription
-    from vine_nlp.design.obstacles import ObstacleRows
+    from vine_nlp.design import nlp
 
-    starts, solve = [], transcription.Solver.solve
-
-    def recorded(self, x0, p, lbx, ubx, *a, **kw):
-        if any(isinstance(t, ObstacleRows) for t in self.spec.terms):
-            starts.append((x0[self.layout.dl], lbx[self.layout.dl], ubx[self.layout.dl]))
-        return solve(self, x0, p, lbx, ubx, *a, **kw)
-
-    monkeypatch.setattr(transcription.Solver, "solve", recorded)
     monkeypatch.setattr(nlp, "LENGTH_FACTOR", (0.2, 1.05))
     ob = PRIMITIVES["sphere"]
     problem = _problem([ob])
     chord_bound = nlp.design_bounds(problem, pair_points(problem.target, problem.options.points_per_segment))[2][1]
     r = design_with_obstacles(problem, start=free)
-    dl, lo, hi = starts[0]
-    assert np.any(dl > chord_bound)  # the detour's segments are longer than the target's bound
-    assert np.all(lo <= dl) and np.all(dl <= hi)
+    first = rows_solves[0]
+    assert np.any(first["dl"] > chord_bound)  # the detour's segments are longer than the target's bound
+    assert np.all(first["lo"] <= first["dl"]) and np.all(first["dl"] <= first["hi"])
     assert r.converged and r.stats["obstacle_clear"] and _sampled_gap(r.routing, [ob]) >= MARGIN - 1e-3 * D

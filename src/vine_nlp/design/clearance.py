@@ -166,14 +166,16 @@ def _region_pairs(region, line, model, exclude_arc, step):
     return out
 
 
+def _near(active, a, b, tol) -> bool:
+    """Whether a pair of ``active`` lies within ``tol`` of (a, b) in both coordinates."""
+    return any(abs(a - a2) < tol and abs(b - b2) < tol for a2, b2 in active)
+
+
 def _covered(regions, active, need, step) -> bool:
     """Whether every region closer than ``need`` has a constrained pair within ``step`` of its minimum (both
-    material coordinates): its shortfall then dips between rows that hold."""
-    def near(a, b):
-        return any(abs(a - a2) < step and abs(b - b2) < step for a2, b2 in active) or \
-            any(abs(b - a2) < step and abs(a - b2) < step for a2, b2 in active)
-
-    return all(near(r["l_i"], r["l_j"]) for r in regions if r["clearance"] < need)
+    material coordinates, either order): its shortfall then dips between rows that hold."""
+    return all(_near(active, r["l_i"], r["l_j"], step) or _near(active, r["l_j"], r["l_i"], step)
+               for r in regions if r["clearance"] < need)
 
 
 def _rank(res, check, need) -> tuple:
@@ -186,7 +188,7 @@ def _rank(res, check, need) -> tuple:
 def _add_pairs(active, new, tol):
     """Add pairs not within ``tol`` (both coordinates) of one already there."""
     for a, b in new:
-        if not any(abs(a - a2) < tol and abs(b - b2) < tol for a2, b2 in active):
+        if not _near(active, a, b, tol):
             active.append((a, b))
 
 

@@ -92,9 +92,10 @@ minima), refresh the mesh active sets, re-solve warm; until the report is clear 
 are done. A re-solve before the last round stops after ROUND_MAX_ITER iterations and the next round
 goes on from where it stopped, with fresh active sets: after new primitive slots, a warm re-solve could
 crawl to IPOPT's max_iter where the next round, from an iterate ROUND_MAX_ITER in, converged quickly to
-the same gap (CHANGELOG). The first solve is not cut: from the pushed start it may need more (a
-scene's 550 iterations, cut at 400, became six rounds ending at max_iter). The rows' requirement is raised by 1.5x what is still missing only where every sample held
-its requirement against the exact obstacle (``Plan.samples_hold``): then the tube dips between samples.
+the same gap (CHANGELOG). The first solve is not cut: from the pushed start it may legitimately need
+more, and cut it turned into rounds of restarts ending at max_iter. The rows' length bounds make room
+for a segment the pushed start's detour lengthened past its bound. The rows' requirement is raised by
+1.5x what is still missing only where every sample held its requirement against the exact obstacle (``Plan.samples_hold``): then the tube dips between samples.
 A sample that did not hold passed a mesh where its active set had no triangle (a fine mesh: the torus
 scene's 6 nearest triangles span a fraction of D): from then on every sample also has rows to its k
 nearest faces among those near the samples at every such miss (``Plan.remember``). Raising there (as
