@@ -178,6 +178,49 @@ def test_tip_behind_a_wall_is_reached_around_it():
     assert _sampled_gap(r.routing, [wall]) >= MARGIN - 1e-3 * D
 
 
+@pytest.fixture(scope="module")
+def tip_and_path():
+    """A tip problem behind a wall, and the center line of its design, which clears the wall by itself."""
+    wall = Box((10.0, 0.0, 0.0), (1.0, 8.0, 40.0), name="wall")
+    base = TipProblem("tip", D, position=np.array([16.0, 0.0, 0.0]), length=24.0, segments=8,
+                      options=DesignOptions(starts=2), obstacles=(wall,), obstacle_margin=MARGIN)
+    free = design_tip_with_obstacles(base)  # the obstacle-free design itself
+    assert free.stats["obstacle_rounds"] == 0
+    return base, free.shape.center
+
+
+def _ball_on(tip_and_path, fraction):
+    """The tip problem with a ball (radius 0.5 D) centered on its design's path at ``fraction`` of its points."""
+    base, c = tip_and_path
+    ball = Sphere(tuple(c[int(fraction * (len(c) - 1))]), 0.5, name="ball")
+    return dataclasses.replace(base, obstacles=base.obstacles + (ball,))
+
+
+def _tip_ok(r, problem):
+    assert r.status == "optimal" and r.stats["obstacle_clear"] and r.metrics["tip_error"] < 1e-6
+    assert _sampled_gap(r.routing, problem.obstacles) >= MARGIN - 1e-3 * D
+
+
+@pytest.mark.slow
+def test_tip_starts_stop_at_the_first_that_clears_and_thorough_tries_every_one(tip_and_path):
+    problem = _ball_on(tip_and_path, 0.3)
+    first = design_tip_with_obstacles(problem)
+    every = design_tip_with_obstacles(problem, thorough=True)
+    assert first.stats["starts"] == 1 and first.stats["obstacle_rounds"] >= 1
+    assert every.stats["starts"] == 4  # the obstacle-free design, its chain pushed out, 2 guesses
+    _tip_ok(first, problem)
+    _tip_ok(every, problem)
+    assert every.stats["objective"] <= first.stats["objective"] + 1e-9
+
+
+@pytest.mark.slow
+def test_tip_design_goes_round_a_ball_centered_on_its_path(tip_and_path):
+    # the rows of a chain through a sphere's center have no direction out (its distance's gradient
+    # vanishes there): every start used to end "infeasible"; the pushed chain picks a side
+    problem = _ball_on(tip_and_path, 0.7)
+    _tip_ok(design_tip_with_obstacles(problem), problem)
+
+
 # ------------------------------------------------------------------ archives and the command line
 
 

@@ -135,12 +135,13 @@ from vine_nlp.analysis.obstacles import (
     nearest_triangles,
     obstacle_report,
     point_triangle_distance,
+    sample_chain,
     sharpness_radius,
 )
 from vine_nlp.design.clearance import chain_guess, result_of
 from vine_nlp.design.common import pair_points
 from vine_nlp.design.nlp import design_bounds, design_nlp, nlp_parameters, nlp_spec, solve_from, start_x
-from vine_nlp.design.problem import DesignProblem, Routing, TipProblem
+from vine_nlp.design.problem import DesignOptions, DesignProblem, Routing, TipProblem
 from vine_nlp.design.result import Result
 from vine_nlp.design.tip import (
     MIN_LENGTH_FACTOR,
@@ -827,6 +828,19 @@ def _pushed_start(problem: DesignProblem, plan: Plan) -> Routing:
     return res.routing
 
 
+def _pushed_chain(problem: TipProblem, plan: Plan, routing: Routing) -> Routing:
+    """A tip problem's start around the obstacles: the chain of ``routing`` pushed out of them
+    (:func:`pushed_target`, as the design's pushed start) and followed by the plain design of as many
+    segments, from the problem's base pose. A chain through an obstacle's center gives its rows no
+    direction out (the distance's gradient vanishes there); the push picks a side."""
+    D, n = problem.diameter, DesignOptions().points_per_segment
+    need = D * (0.5 + (MESH_PUSH_EXTRA if plan.has_mesh else PUSH_EXTRA)) + plan.margin
+    tg = pushed_target(sample_chain(routing, D, n)["points"], problem.obstacles, need)
+    fit = DesignProblem(problem.name, D, tg, problem.actuator, DesignOptions(points_per_segment=n, hessian="exact"), problem.units)
+    r = solve_from(fit, None, pair_points(tg, n), frames="target").routing
+    return Routing(r.theta, r.lam, r.length, routing.initial_pose)
+
+
 def obstacle_stats(report: dict) -> dict:
     """The run metrics of a report: min_obstacle_gap (and min_obstacle_gap_after for growth "after")."""
     out = {"min_obstacle_gap": float(report["min_gap"])}
@@ -1016,19 +1030,23 @@ def tip_design(problem: TipProblem, starts: int | None = None, progress=None) ->
 
 
 def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, rounds: int = ROUNDS, ts=None, k: int = MESH_K,
-                              spacing: float = SPACING, progress=None) -> Result:
+                              spacing: float = SPACING, progress=None, thorough: bool = False) -> Result:
     """Least-actuation tip design that keeps the tube ``problem.obstacle_margin`` clear of ``problem.obstacles``.
 
     Parameters
     ----------
     problem : TipProblem
     starts : int, optional
-        Starts of the tip design (default options.starts); each is solved with the obstacle rows,
-        after the obstacle-free tip design itself.
+        Starts of the tip design (default options.starts). Solved with the obstacle rows, in order,
+        after the obstacle-free tip design and its chain pushed out of the obstacles
+        (:func:`_pushed_chain`), until one is optimal and clear: the later starts are fallbacks, as
+        in design_tip, and each runs its own active-set loop of 100-1000 iterations.
     rounds, ts, k, spacing
         As :func:`design_with_obstacles`.
     progress : callable, optional
         progress(done, total) after every start.
+    thorough : bool
+        Solve every start and keep the best (a lower objective, at several times the cost).
 
     Returns
     -------
@@ -1049,12 +1067,17 @@ def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, ro
         free.stats.update(stats0 | {"obstacle_rounds": 0, "obstacle_clear": bool(first["clear"])})
         return free
     n = max(1, problem.options.starts if starts is None else starts)
-    guesses = [free.routing] + [Routing(th, lam, dl, problem.initial_pose) for th, lam, dl, _ in start_guesses(problem, n)]
+    # each made when it is tried: the pushed chain costs a design solve
+    guesses = [lambda: free.routing, lambda: _pushed_chain(problem, plan, free.routing)]
+    guesses += [lambda g=g: Routing(g[0], g[1], g[2], problem.initial_pose) for g in start_guesses(problem, n)]
     results = []
     for g in guesses:
-        results.append(_tip_solve(problem, plan, g, rounds))
+        results.append(_tip_solve(problem, plan, g(), rounds))
         if progress:
             progress(len(results), len(guesses))
+        r, rep = results[-1]
+        if r.status == "optimal" and rep["clear"] and not thorough:
+            break
     score = [(0 if (r.converged and rep["clear"]) else 1 if r.converged else 2,
               r.stats["objective"] if r.converged else r.metrics["tip_error"]) for r, rep in results]
     kbest = pick_best(list(range(len(results))), objective=lambda i: score[i][1], converged=lambda i: score[i][0] == 0)
