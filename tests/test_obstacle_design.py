@@ -23,6 +23,7 @@ from vine_nlp.analysis.obstacles import (
     point_triangle_distance,
     sample_chain,
 )
+from vine_nlp.design import obstacles as obstacle_design
 from vine_nlp.design.common import pair_points
 from vine_nlp.design.nlp import design_nlp
 from vine_nlp.design.obstacles import (
@@ -211,6 +212,14 @@ def test_tip_starts_stop_at_the_first_that_clears_and_thorough_tries_every_one(t
     _tip_ok(first, problem)
     _tip_ok(every, problem)
     assert every.stats["objective"] <= first.stats["objective"] + 1e-9
+
+
+def test_tip_start_that_reaches_its_iteration_cap_is_left_for_the_next(tip_and_path, monkeypatch):
+    monkeypatch.setattr(obstacle_design, "TIP_MAX_ITER", 5)
+    r = design_tip_with_obstacles(_ball_on(tip_and_path, 0.3))
+    # every start's first solve stops at 5 iterations and is its last: 4 starts of one round each
+    assert r.stats["start_status"] == ["max_iter"] * 4 and r.stats["obstacle_rounds"] == 1
+    assert not r.converged
 
 
 @pytest.mark.slow

@@ -169,6 +169,7 @@ MESH_WEIGHT_RAMP = 1.0  # units of D: with a mesh, weights rise from MESH_BLOCKE
 ACTIVE_REACH = 1.0  # units of D: a primitive gets rows on a segment when its slack is below this plus REACH_DL times the segment's length
 REACH_DL = 0.5
 ROUNDS = 6
+TIP_MAX_ITER = 1200  # IPOPT iterations of a tip solve with rows; a start that needs more is left for the next
 ROUND_MAX_ITER = 400  # IPOPT iterations of a solve with rows before the last round (module docstring, "Loop")
 MESH_ROUNDS = 12  # meshes: each round moves the tube at most MESH_TRUST, the active sets follow
 MESH_TRUST = 1.5  # units of D: a frame moves at most this far per solve with a mesh (its nearest triangles stay valid)
@@ -962,7 +963,8 @@ def _design_solver(problem: DesignProblem, pairing, plan: Plan, max_iter: int | 
 
 def _tip_solver(problem: TipProblem, plan: Plan):
     o, a = problem.options, problem.actuator
-    spec = tip_spec(problem.segments, a.shared_lambda, problem.direction is not None, problem.objective, o.max_iter, o.tol)
+    spec = tip_spec(problem.segments, a.shared_lambda, problem.direction is not None, problem.objective,
+                    min(o.max_iter, TIP_MAX_ITER), o.tol)
     opts = dict(spec.options) | HARD_ROWS
     return get_solver(dataclasses.replace(spec, structure=dataclasses.replace(spec.structure, extra=plan.extra),
                                           terms=spec.terms + (plan.term,), options=options_key(opts)))
@@ -1000,8 +1002,8 @@ def _tip_solve(problem: TipProblem, plan: Plan, routing: Routing, rounds: int):
         res = evaluate_tip(problem, routing, status=status, solve_time_s=st.pop("solve_time_s"), iterations=iters,
                            stats=st | {"objective_kind": problem.objective, "segments": M, "tube_length": L})
         rep = plan.report(routing)
-        if rep["clear"] and res.converged:
-            break
+        if (rep["clear"] and res.converged) or status == "max_iter":
+            break  # a start that crawls to TIP_MAX_ITER is left for the next
         plan.next_round(res.converged, routing, rep)
         x = plan.fill_extra(solver, x, routing)
     res.stats["obstacle_rounds"] = solves
@@ -1040,7 +1042,9 @@ def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, ro
         Starts of the tip design (default options.starts). Solved with the obstacle rows, in order,
         after the obstacle-free tip design and its chain pushed out of the obstacles
         (:func:`_pushed_chain`), until one is optimal and clear: the later starts are fallbacks, as
-        in design_tip, and each runs its own active-set loop of 100-1000 iterations.
+        in design_tip, and each runs its own active-set loop of 100-1000 iterations. A start whose
+        solve reaches TIP_MAX_ITER iterations is left there for the next (such a solve crawled on
+        to IPOPT's 3000 where another start converged in a few hundred).
     rounds, ts, k, spacing
         As :func:`design_with_obstacles`.
     progress : callable, optional
