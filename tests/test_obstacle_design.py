@@ -461,6 +461,48 @@ def test_rows_only_on_segments_near_the_obstacles(free):
     assert plan.term.slots == tuple(expect.tolist())
 
 
+def test_samples_hold_against_what_their_rows_asked():
+    """A solve lengthens segments, which raises their requirement (its allowance for dips between samples):
+    samples that clear what their rows asked hold, or a design short by its dips is never raised."""
+    from vine_nlp.design.obstacles import Plan
+    from vine_nlp.model.routing import Routing
+
+    M, eye = 6, np.eye(4)
+    before = Routing(np.zeros(M), np.ones(M), np.full(M, 2.0), eye)  # a straight tube along x
+    after = Routing(np.zeros(M), np.ones(M), np.full(M, 2.6), eye)
+    actuator = DesignProblem("t", D, TARGET).actuator
+
+    def plan_beside(y):  # a unit ball beside a sample of the longer tube, its center y off the axis
+        x = Plan([], D, MARGIN, "while-actuated", after.length, actuator).sample_points(after, 1.0)[2, 1, 0]
+        plan = Plan([Sphere((x, y, 0.0), 1.0)], D, MARGIN, "while-actuated", before.length, actuator)
+        plan.data(before)
+        return plan
+
+    plan = plan_beside(30.0)
+    ball = plan.obstacles[0]
+    asked, now = plan.need(ball, before.length / D)[2], plan.need(ball, after.length / D)[2]
+    assert now > asked + 0.01
+    assert plan_beside(1.0 + (asked + now) / 2 * D).samples_hold(after)  # between the two requirements
+    assert not plan_beside(1.0 + asked * D - 0.01).samples_hold(after)  # closer than its rows asked
+
+
+def test_raise_only_for_the_shapes_with_rows():
+    """Growth "after": the requirement is raised by what the shapes with rows miss (their dips between
+    samples), not by an intermediate shape without rows, which gets rows instead."""
+    from vine_nlp.design.obstacles import Plan, _shortfall
+
+    plan = Plan([PRIMITIVES["sphere"]], D, MARGIN, "after", np.full(6, 2.0), DesignProblem("t", D, TARGET).actuator)
+    plan.ts = [0.5]
+    t = np.array([0.25, 0.5, 0.75])
+
+    def rep(final, *inter):
+        return {"min_gap": final, "intermediate": {"t": t, "gaps": np.array(inter)[:, None]}, "min_gap_intermediate": min(inter)}
+
+    assert _shortfall(plan, rep(MARGIN, -1.0, MARGIN, MARGIN)) == 0.0  # t = 0.25 has no rows
+    assert _shortfall(plan, rep(MARGIN, -1.0, MARGIN - 0.05, MARGIN)) == pytest.approx(0.05 / D)
+    assert _shortfall(plan, rep(MARGIN - 0.02, MARGIN, MARGIN, -1.0)) == pytest.approx(0.02 / D)
+
+
 @pytest.fixture
 def rows_solves(monkeypatch):
     """Every solve with obstacle rows, recorded: its start and bounds on the segment lengths, status, iterations,

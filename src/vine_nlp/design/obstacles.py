@@ -538,6 +538,7 @@ class Plan:
         out = {"after_t": np.array(self.ts)} if self.levels else {}
         points = {t: self.sample_points(routing, t) for t in levels}
         needs = {q: self.need(self.obstacles[q], dl) for q in range(len(self.obstacles))}
+        self.needs = needs  # what the rows ask (samples_hold)
         if self.prims:
             out |= self._prim_data(points, levels, needs, u, dl)
         for m, q in enumerate(self.meshes):
@@ -621,16 +622,19 @@ class Plan:
         return x
 
     def samples_hold(self, routing: Routing, tol: float = 1e-4) -> bool:
-        """Whether every sample of the rows clears its requirement against the exact obstacle (units of D,
-        within ``tol``). A converged solve whose report still finds the tube too close then dips between
-        samples (raise the requirement); a sample that does not hold passed a mesh where its active set
-        had no triangle (refresh the active set, raising would only push the tube farther than needed)."""
-        dl = routing.length / self.D
+        """Whether every sample of the rows clears the requirement its rows asked (the last ``data``)
+        against the exact obstacle (units of D, within ``tol``). A converged solve whose report still finds
+        the tube too close then dips between samples (raise the requirement); a sample that does not hold
+        passed a mesh where its active set had no triangle, or a primitive its column had no slot for
+        (the next ``data`` adds it; raising would only push the tube farther than needed). Not the
+        requirement of the new segment lengths: their growth in the solve raises it, samples that held
+        their rows' seemed not to, and a design short by its dips was never raised (points_per_segment 4
+        on the 20-primitive scene: six rounds 0.05 D short)."""
         for t in [1.0] + list(self.ts):
             p = self.sample_points(routing, t).reshape(-1, 3)
-            for ob in self.obstacles:
+            for q, ob in enumerate(self.obstacles):
                 d = np.asarray(ob.distance(p), float).reshape(-1, self.S) / self.D
-                if np.any(d < (self.need(ob, dl) - tol)[:, None]):
+                if np.any(d < (self.needs[q] - tol)[:, None]):
                     return False
         return True
 
@@ -851,7 +855,14 @@ def obstacle_stats(report: dict) -> dict:
 
 
 def _shortfall(plan: Plan, rep: dict) -> float:
-    worst = min(rep["min_gap"], rep["min_gap_intermediate"])
+    """What the shapes with rows (the final one, the intermediate ones at ``plan.ts``) miss of the margin,
+    units of D: their dips between samples. An intermediate shape without rows that misses gets rows
+    (``choose_levels``); raising every requirement by its miss pushed a growth "after" scene's tube
+    ever farther out (CHANGELOG)."""
+    worst = rep["min_gap"]
+    if plan.ts:
+        inter = rep["intermediate"]
+        worst = min([worst] + [float(g) for t, g in zip(inter["t"], inter["gaps"].min(axis=1)) if float(t) in plan.ts])
     return max(plan.margin - worst, 0.0) / plan.D
 
 
