@@ -36,7 +36,7 @@ from vine_nlp.io.problem_file import load_problem
 NAMES = ["obstacle-gap", "obstacle-pipe-bend", "obstacle-wrap-cylinder", "obstacle-mesh", "obstacle-tip-wall"]
 AWAY = (2.0, 4.0)  # target points farther than this many D from every obstacle (gap) count as "away"
 ACC_FLOOR = 0.01  # units of D: the accuracy goal's floor (module docstring)
-SCENES = ["scene-primitives", "scene-primitives-beside", "scene-mesh"]
+SCENES = ["scene-primitives", "scene-primitives-fine", "scene-primitives-beside", "scene-mesh"]
 WARM = 5  # warm calls of each, alternating; their median
 
 # ------------------------------------------------------------------ speed scenes (written to a temporary directory)
@@ -58,7 +58,7 @@ lambda_min = 0.4
 theta_max_deg = 60.0
 
 [design]
-points_per_segment = 10
+points_per_segment = {pps}
 obstacle_margin = 0.3
 '''
 
@@ -74,12 +74,13 @@ def _frame(tg, i):
     n /= np.linalg.norm(n)
     return t, n, np.cross(t, n)
 
-def primitive_scene(d: Path, crossing: bool = True) -> Path:
+def primitive_scene(d: Path, crossing: bool = True, pps: int = 10) -> Path:
     """20 primitives (7 spheres, 7 capsules, 6 boxes) around the target: 4 cross it, 10 lie 0.5 to 3 D off, 6 farther;
-    without ``crossing``, the same scene without the 4 that cross (scene-primitives-beside: the target is free)."""
-    name = "scene-primitives" if crossing else "scene-primitives-beside"
+    without ``crossing``, the same scene without the 4 that cross (scene-primitives-beside: the target is free);
+    ``pps`` target points per segment (5: scene-primitives-fine, twice the segments)."""
+    name = ("scene-primitives" if crossing else "scene-primitives-beside") + ("-fine" if pps != 10 else "")
     p = d / f"{name}.toml"
-    p.write_text(SCENE_HEAD.format(name=name))
+    p.write_text(SCENE_HEAD.format(name=name, pps=pps))
     tg = load_problem(p).problem.target
     D = 2.43
     rng = np.random.default_rng(7)
@@ -114,14 +115,14 @@ def primitive_scene(d: Path, crossing: bool = True) -> Path:
             obs.append(f'[[obstacles]]\nshape = "box"\ncenter = {_f(c)}\nsize = {_f(2 * size * rng.uniform(0.6, 1.2, 3))}\nrotation_deg = {_f(rot)}\n')
         if skip:
             obs.pop()
-    p.write_text(SCENE_HEAD.format(name=name) + "\n" + "\n".join(obs))
+    p.write_text(SCENE_HEAD.format(name=name, pps=pps) + "\n" + "\n".join(obs))
     return p
 
 def mesh_scene(d: Path) -> Path:
     """A 10 000-triangle torus (trimesh, 100 x 50 sections) whose ring the target crosses."""
     import trimesh
     p = d / "scene-mesh.toml"
-    p.write_text(SCENE_HEAD.format(name="scene-mesh"))
+    p.write_text(SCENE_HEAD.format(name="scene-mesh", pps=10))
     tg = load_problem(p).problem.target
     m = trimesh.creation.torus(major_radius=8.0, minor_radius=2.0, major_sections=100, minor_sections=50)
     # ring axis across the target at point 100: the target passes through the ring's tube
@@ -131,7 +132,7 @@ def mesh_scene(d: Path) -> Path:
     T[:3, :3], T[:3, 3] = R, tg[100] + 8.0 * b
     m.apply_transform(T)
     m.export(d / "torus.stl")
-    p.write_text(SCENE_HEAD.format(name="scene-mesh") + '\n[[obstacles]]\nshape = "mesh"\nfile = "torus.stl"\n')
+    p.write_text(SCENE_HEAD.format(name="scene-mesh", pps=10) + '\n[[obstacles]]\nshape = "mesh"\nfile = "torus.stl"\n')
     return p
 
 
@@ -149,7 +150,8 @@ def speed_rows(names):
     rows = []
     d = Path(tempfile.mkdtemp(prefix="vine-obstacle-scenes-"))
     for name in names:
-        path = mesh_scene(d) if name == "scene-mesh" else primitive_scene(d, crossing=name == "scene-primitives")
+        path = (mesh_scene(d) if name == "scene-mesh" else
+                primitive_scene(d, crossing=name != "scene-primitives-beside", pps=5 if name.endswith("-fine") else 10))
         pb = load_problem(path).problem
         D, m = pb.diameter, pb.obstacle_margin
         free_pb = dataclasses.replace(pb, obstacles=())
@@ -270,7 +272,8 @@ def main():
         "Speed scenes (benchmarks/bench_obstacles.py, written to a temporary directory): scene-primitives, 20 "
         "primitives (7 spheres, 7 capsules, 6 boxes) along a 110 cm Bezier target, 4 of them across it, 10 within "
         "0.5 to 3 D of it, 6 farther; scene-primitives-beside, the same without the 4 across it (the obstacle-free "
-        "design already clears: the obstacle design checks and returns it); scene-mesh, a 10 000-triangle torus "
+        "design already clears: the obstacle design checks and returns it); scene-primitives-fine, the first with 5 target "
+        "points per segment instead of 10 (twice the segments: the tube rejoins its target sooner after a detour); scene-mesh, a 10 000-triangle torus "
         "(trimesh) whose ring the target crosses. "
         "Timed from the design functions in one process: free = design_nlp on the same target without obstacles, "
         "obstacles = design_with_obstacles (its own obstacle-free start included); cold = first call (solvers "
