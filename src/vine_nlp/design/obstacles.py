@@ -628,8 +628,7 @@ class Plan:
         passed a mesh where its active set had no triangle, or a primitive its column had no slot for
         (the next ``data`` adds it; raising would only push the tube farther than needed). Not the
         requirement of the new segment lengths: their growth in the solve raises it, samples that held
-        their rows' seemed not to, and a design short by its dips was never raised (points_per_segment 4
-        on the 20-primitive scene: six rounds 0.05 D short)."""
+        their rows' seemed not to, and a design short by its dips was never raised (CHANGELOG)."""
         for t in [1.0] + list(self.ts):
             p = self.sample_points(routing, t).reshape(-1, 3)
             for q, ob in enumerate(self.obstacles):
@@ -1053,9 +1052,9 @@ def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, ro
         Starts of the tip design (default options.starts). Solved with the obstacle rows, in order,
         after the obstacle-free tip design and its chain pushed out of the obstacles
         (:func:`_pushed_chain`), until one is optimal and clear: the later starts are fallbacks, as
-        in design_tip, and each runs its own active-set loop of 100-1000 iterations. A start whose
-        solve reaches TIP_MAX_ITER iterations is left there for the next (such a solve crawled on
-        to IPOPT's 3000 where another start converged in a few hundred).
+        in design_tip, and each runs its own active-set loop of hundreds of iterations. A start whose
+        solve reaches TIP_MAX_ITER iterations is left there for the next (such a solve could crawl on
+        to IPOPT's limit where another start converged quickly; CHANGELOG).
     rounds, ts, k, spacing
         As :func:`design_with_obstacles`.
     progress : callable, optional
