@@ -14,6 +14,8 @@ from vine_nlp.analysis.collision import (
     routing_clearance,
     uniform_sections,
 )
+from vine_nlp.design.clearance import _covered, design_with_clearance
+from vine_nlp.design.nlp import design_nlp
 from vine_nlp.design.problem import Actuator, DesignOptions, DesignProblem, Routing
 from vine_nlp.model.helix import helix_forward
 
@@ -134,8 +136,6 @@ def test_collision_metrics_without_contact():
 
 @pytest.mark.slow
 def test_clearance_design_separates_a_helix_target_with_a_pitch_below_d():
-    from vine_nlp.design.clearance import design_with_clearance
-    from vine_nlp.design.nlp import design_nlp
 
     # rise per turn 2 pi 0.25 = 1.57 < D = 2: turns of a tube following it overlap
     tgt = targets.helix(radius=3.0, pitch=0.25, length=50.0, samples=101)
@@ -151,7 +151,6 @@ def test_clearance_design_separates_a_helix_target_with_a_pitch_below_d():
 
 
 def test_the_row_target_rises_only_for_a_dip_between_constrained_pairs():
-    from vine_nlp.design.clearance import _covered
 
     active = [(1.0, 9.0), (3.0, 12.0)]
     dip = {"l_i": 9.2, "l_j": 1.1, "clearance": 1.9}  # beside a pair (either order): a dip between rows
@@ -168,8 +167,6 @@ def test_a_tight_coil_opened_beyond_d_does_not_run_away():
     solve moves it into new contacts; raising every row's target for them (as for a dip between rows) pushed
     the coil ever farther open: 567 IPOPT iterations, a row target 7.6 cm beyond D + min_gap, the clearance not
     met (0.15 cm) and RMSE 3.2 cm."""
-    from vine_nlp.design.clearance import design_with_clearance
-    from vine_nlp.design.nlp import design_nlp
 
     tgt = targets.helix(radius=3.0, pitch=0.25, length=50.0, samples=101)
     pb = DesignProblem("coil", D, tgt, actuator=Actuator("tendon", 0.4))
@@ -187,8 +184,6 @@ def test_a_clearance_beyond_d_counts_only_parts_that_are_not_neighbours():
     the exclusion of min_gap = 0 the points just past it on every bend already fell short of D + min_gap,
     rows asked for chords longer than their arcs, and the loop ran away (IPOPT's iteration limit, the
     clearance not met)."""
-    from vine_nlp.design.clearance import design_with_clearance
-    from vine_nlp.design.nlp import design_nlp
 
     # turns 2 pi 0.5 = 3.14 = 1.57 D apart along the axis: clear, but not by 0.7 D
     tgt = targets.helix(radius=2.5, pitch=0.5, length=50.0, samples=101)

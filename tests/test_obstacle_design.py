@@ -24,14 +24,18 @@ from vine_nlp.analysis.obstacles import (
     sample_chain,
 )
 from vine_nlp.design import obstacles as obstacle_design
+from vine_nlp.design import transcription
 from vine_nlp.design.common import pair_points
 from vine_nlp.design.nlp import design_nlp
 from vine_nlp.design.obstacles import (
+    ObstacleRows,
+    Plan,
+    _shortfall,
     design_tip_with_obstacles,
     design_with_obstacles,
     triangle_distance_sx,
 )
-from vine_nlp.design.problem import DesignOptions, DesignProblem, TipProblem
+from vine_nlp.design.problem import DesignOptions, DesignProblem, Routing, TipProblem
 from vine_nlp.front.cli import main
 from vine_nlp.io.archive import Archive, load_archive, write_archive
 
@@ -445,8 +449,6 @@ def test_the_pushed_target_clears_and_goes_to_one_side():
 def test_rows_only_on_segments_near_the_obstacles(free):
     """A segment far from every obstacle carries no obstacle rows (no block column), one near carries one slot
     per primitive near it, and a mesh block covers only the columns the tube can reach within a solve."""
-    from vine_nlp.design.obstacles import Plan
-
     r = free.routing
     near, far = PRIMITIVES["sphere"], Sphere((0.0, 30.0, 0.0), 1.0)
     plan = Plan([near, far], D, MARGIN, "while-actuated", r.length, DesignProblem("t", D, TARGET).actuator)
@@ -464,9 +466,6 @@ def test_rows_only_on_segments_near_the_obstacles(free):
 def test_samples_hold_against_what_their_rows_asked():
     """A solve lengthens segments, which raises their requirement (its allowance for dips between samples):
     samples that clear what their rows asked hold, or a design short by its dips is never raised."""
-    from vine_nlp.design.obstacles import Plan
-    from vine_nlp.model.routing import Routing
-
     M, eye = 6, np.eye(4)
     before = Routing(np.zeros(M), np.ones(M), np.full(M, 2.0), eye)  # a straight tube along x
     after = Routing(np.zeros(M), np.ones(M), np.full(M, 2.6), eye)
@@ -489,8 +488,6 @@ def test_samples_hold_against_what_their_rows_asked():
 def test_raise_only_for_the_shapes_with_rows():
     """Growth "after": the requirement is raised by what the shapes with rows miss (their dips between
     samples), not by an intermediate shape without rows, which gets rows instead."""
-    from vine_nlp.design.obstacles import Plan, _shortfall
-
     plan = Plan([PRIMITIVES["sphere"]], D, MARGIN, "after", np.full(6, 2.0), DesignProblem("t", D, TARGET).actuator)
     plan.ts = [0.5]
     t = np.array([0.25, 0.5, 0.75])
@@ -507,9 +504,6 @@ def test_raise_only_for_the_shapes_with_rows():
 def rows_solves(monkeypatch):
     """Every solve with obstacle rows, recorded: its start and bounds on the segment lengths, status, iterations,
     IPOPT time and iteration limit (the obstacle-free and pushed starts' solves are not recorded)."""
-    from vine_nlp.design import transcription
-    from vine_nlp.design.obstacles import ObstacleRows
-
     seen, solve = [], transcription.Solver.solve
 
     def recorded(self, x0, p, lbx, ubx, *a, **kw):
@@ -537,9 +531,6 @@ def test_a_re_solve_before_the_last_round_stops_at_the_round_cap(monkeypatch, ro
     on from its iterate; the first solve and the last run to IPOPT's own limit. The report is made to find the
     first three designs unclear, so the loop takes 4 rounds; with a cap of 10 the two re-solves between run with
     IPOPT's limit at 10, and the design still ends clear, converged."""
-    from vine_nlp.design import obstacles
-    from vine_nlp.design.obstacles import Plan
-
     seen, report = rows_solves, Plan.report
 
     def reported(self, *a, **kw):
@@ -547,7 +538,7 @@ def test_a_re_solve_before_the_last_round_stops_at_the_round_cap(monkeypatch, ro
         return rep | {"clear": False} if len(seen) in (1, 2, 3) else rep  # the first three designs with rows
 
     monkeypatch.setattr(Plan, "report", reported)
-    monkeypatch.setattr(obstacles, "ROUND_MAX_ITER", 10)
+    monkeypatch.setattr(obstacle_design, "ROUND_MAX_ITER", 10)
     ob = PRIMITIVES["sphere"]
     r = design_with_obstacles(_problem([ob]), start=free, rounds=4)
     limit = DesignOptions().max_iter

@@ -457,6 +457,11 @@ class Plan:
     def has_mesh(self) -> bool:
         return any(isinstance(o, Mesh) for o in self.obstacles)
 
+    @property
+    def push_need(self) -> float:
+        """Center distance (units) a pushed start clears by: D/2 + margin + PUSH_EXTRA D (MESH_PUSH_EXTRA with a mesh)."""
+        return self.D * (0.5 + (MESH_PUSH_EXTRA if self.has_mesh else PUSH_EXTRA)) + self.margin
+
     def trust(self, solver, x, lbx, ubx):
         """Bounds of one solve: with a mesh, every frame position within MESH_TRUST of where it is (the
         active sets are the nearest triangles of the current samples: a tube that moved farther could
@@ -480,8 +485,7 @@ class Plan:
         shape with rows that clears by the most (never one that does not clear)."""
         if not self.levels:
             return
-        inter = rep["intermediate"]
-        gap = {float(t): float(g) for t, g in zip(inter["t"], inter["gaps"].min(axis=1)) if float(t) in self.grid}
+        gap = {t: g for t, g in _intermediate_gaps(rep).items() if t in self.grid}
         order = sorted(gap, key=lambda t: gap[t])
         if not self.ts:
             self.ts = sorted(order[: self.levels])
@@ -814,8 +818,7 @@ def _pushed_start(problem: DesignProblem, plan: Plan) -> Routing:
     distance D/2 + margin + PUSH_EXTRA D, MESH_PUSH_EXTRA with a mesh) from its own geometric guess; without
     a mesh, where it does not clear, the plain design of its own chain pushed out (REPUSH times); a
     function of the problem alone (module docstring, "Start")."""
-    D = problem.diameter
-    need = D * (0.5 + (MESH_PUSH_EXTRA if plan.has_mesh else PUSH_EXTRA)) + plan.margin
+    need = plan.push_need
     tg, passes = problem.target, 0 if plan.has_mesh else REPUSH
     # the exact Hessian from the start: Gauss-Newton does not converge on a pushed target's corners, and
     # "auto" then solves the same start again with it (the same design, ~100 Gauss-Newton iterations later)
@@ -838,8 +841,7 @@ def _pushed_chain(problem: TipProblem, plan: Plan, routing: Routing) -> Routing:
     segments, from the problem's base pose. A chain through an obstacle's center gives its rows no
     direction out (the distance's gradient vanishes there); the push picks a side."""
     D, n = problem.diameter, DesignOptions().points_per_segment
-    need = D * (0.5 + (MESH_PUSH_EXTRA if plan.has_mesh else PUSH_EXTRA)) + plan.margin
-    tg = pushed_target(sample_chain(routing, D, n)["points"], problem.obstacles, need)
+    tg = pushed_target(sample_chain(routing, D, n)["points"], problem.obstacles, plan.push_need)
     fit = DesignProblem(problem.name, D, tg, problem.actuator, DesignOptions(points_per_segment=n, hessian="exact"), problem.units)
     r = solve_from(fit, None, pair_points(tg, n), frames="target").routing
     return Routing(r.theta, r.lam, r.length, routing.initial_pose)
@@ -860,9 +862,14 @@ def _shortfall(plan: Plan, rep: dict) -> float:
     ever farther out (CHANGELOG)."""
     worst = rep["min_gap"]
     if plan.ts:
-        inter = rep["intermediate"]
-        worst = min([worst] + [float(g) for t, g in zip(inter["t"], inter["gaps"].min(axis=1)) if float(t) in plan.ts])
+        worst = min([worst] + [g for t, g in _intermediate_gaps(rep).items() if t in plan.ts])
     return max(plan.margin - worst, 0.0) / plan.D
+
+
+def _intermediate_gaps(rep: dict) -> dict:
+    """t -> the smallest gap of the intermediate shape at t, from a growth "after" report."""
+    inter = rep["intermediate"]
+    return {float(t): float(g) for t, g in zip(inter["t"], inter["gaps"].min(axis=1))}
 
 
 # ------------------------------------------------------------------ design problems
