@@ -36,12 +36,12 @@ CASES = {
 
 def child(case: str, repeat: int) -> dict:
     from vine_nlp import targets
-    from vine_nlp.design import compiled
-    from vine_nlp.design.clearance import design_with_clearance
-    from vine_nlp.design.nlp import design_nlp
-    from vine_nlp.design.obstacles import design_with_obstacles
-    from vine_nlp.design.problem import Actuator, DesignProblem
     from vine_nlp.io.problem_file import load_problem
+    from vine_nlp.methods import compiled
+    from vine_nlp.methods.clearance import design_with_clearance
+    from vine_nlp.methods.nlp import design_nlp
+    from vine_nlp.methods.obstacles import design_with_obstacles
+    from vine_nlp.problem import Actuator, DesignProblem
 
     cpu_clock(True)
     tre = load_problem(ROOT / "problems/trefoil-m4.toml").problem

@@ -11,10 +11,10 @@ import time
 
 from common import ROOT, machine, table, write_section
 
-from vine_nlp.design import corners, run_design, transcription
-from vine_nlp.design import greedy as greedy_mod
-from vine_nlp.design.greedy import lowpass
 from vine_nlp.io.problem_file import load_problem
+from vine_nlp.methods import corners, run_design, transcription
+from vine_nlp.methods import greedy as greedy_mod
+from vine_nlp.methods.greedy import lowpass
 
 CASES = ["trefoil-m4", "bezier-a", "bezier-b", "bezier-c", "polyline-d", "spam-helix"]
 PAPER = {"trefoil-m4": "0.22 / 0.48 mm, 138 s", "bezier-a": "2.0 / 21.9 mm", "bezier-b": "1.3 / 12.2 mm",

@@ -25,13 +25,13 @@ import numpy as np
 from common import ROOT, table, write_report
 
 from vine_nlp import targets
-from vine_nlp.design import compiled
-from vine_nlp.design import nlp as nlp_module
-from vine_nlp.design.common import geometric_guess, pair_points
-from vine_nlp.design.nlp import design_bounds, design_nlp, nlp_parameters, nlp_spec, start_x
-from vine_nlp.design.problem import DesignOptions, DesignProblem
-from vine_nlp.design.transcription import Solver, clear_caches
 from vine_nlp.io.problem_file import load_problem
+from vine_nlp.methods import compiled
+from vine_nlp.methods import nlp as nlp_module
+from vine_nlp.methods.common import geometric_guess, pair_points
+from vine_nlp.methods.nlp import design_bounds, design_nlp, nlp_parameters, nlp_spec, start_x
+from vine_nlp.methods.transcription import Solver, clear_caches
+from vine_nlp.problem import DesignOptions, DesignProblem
 
 CASES = ["trefoil-m4", "bezier-a", "bezier-b", "polyline-d", "spam-helix"]
 

@@ -31,12 +31,12 @@ import time
 import numpy as np
 from common import ROOT, table, write_report
 
-from vine_nlp.design import compiled
-from vine_nlp.design import correct as C
-from vine_nlp.design.common import evaluate, pair_points
-from vine_nlp.design.nlp import design_nlp
-from vine_nlp.design.transcription import clear_caches, get_solver
 from vine_nlp.io.problem_file import load_problem
+from vine_nlp.methods import compiled
+from vine_nlp.methods import correct as C
+from vine_nlp.methods.common import evaluate, pair_points
+from vine_nlp.methods.nlp import design_nlp
+from vine_nlp.methods.transcription import clear_caches, get_solver
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.routing import Sigmas
 

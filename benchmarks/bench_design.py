@@ -17,12 +17,12 @@ import numpy as np
 from common import FIGURES, ROOT, table, write_report
 
 from vine_nlp import targets
-from vine_nlp.design.common import Guess, geometric_guess, pair_points
-from vine_nlp.design.nlp import design_nlp, get_solver, solve_from
-from vine_nlp.design.problem import DesignOptions, DesignProblem
-from vine_nlp.design.transcription import clear_caches
 from vine_nlp.io.problem_file import load_problem
+from vine_nlp.methods.common import Guess, geometric_guess, pair_points
+from vine_nlp.methods.nlp import design_nlp, get_solver, solve_from
+from vine_nlp.methods.transcription import clear_caches
 from vine_nlp.model import chain_frames
+from vine_nlp.problem import DesignOptions, DesignProblem
 
 # (problem file, paper RMSE [cm], paper max [cm], goal RMSE [cm])
 CASES = [
@@ -184,7 +184,7 @@ def smoothing(weights=SMOOTH_WEIGHTS):
     """RMSE and TV(theta) of the NLP design against the smoothing weight, the greedy (no smoothing) for reference."""
     import dataclasses
 
-    from vine_nlp.design.greedy import design_greedy
+    from vine_nlp.methods.greedy import design_greedy
 
     default = DesignOptions().smooth_theta
     rows = []
@@ -215,8 +215,8 @@ def derivatives(repeat):
     """Cost per IPOPT iteration: nlp.py's separable derivatives against CasADi's automatic ones on the same NLP."""
     import casadi as ca
 
-    from vine_nlp.design.nlp import design_bounds, nlp_parameters, start_x
-    from vine_nlp.design.transcription import ipopt_options
+    from vine_nlp.methods.nlp import design_bounds, nlp_parameters, start_x
+    from vine_nlp.methods.transcription import ipopt_options
 
     rows = []
     for name in ["trefoil-m4", "bezier-a", "polyline-d"]:

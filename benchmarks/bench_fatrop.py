@@ -23,12 +23,12 @@ import time
 from common import ROOT, table, write_report
 
 from vine_nlp import targets
-from vine_nlp.design import compiled
-from vine_nlp.design import nlp as nlp_module
-from vine_nlp.design.nlp import FATROP_MAX_SEGMENTS, design_nlp, get_fatrop, get_solver
-from vine_nlp.design.problem import DesignOptions, DesignProblem
-from vine_nlp.design.transcription import clear_caches
 from vine_nlp.io.problem_file import load_problem
+from vine_nlp.methods import compiled
+from vine_nlp.methods import nlp as nlp_module
+from vine_nlp.methods.nlp import FATROP_MAX_SEGMENTS, design_nlp, get_fatrop, get_solver
+from vine_nlp.methods.transcription import clear_caches
+from vine_nlp.problem import DesignOptions, DesignProblem
 
 CASES = ["trefoil-m4", "bezier-a", "bezier-b", "bezier-c", "polyline-d", "spam-helix"]
 

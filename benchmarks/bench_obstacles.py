@@ -28,10 +28,10 @@ import numpy as np
 from common import ROOT, table, write_report
 
 from vine_nlp.analysis.obstacles import after_growth_shapes, min_gap, sample_chain
-from vine_nlp.design.nlp import design_nlp
-from vine_nlp.design.obstacles import design_tip_with_obstacles, design_with_obstacles
-from vine_nlp.design.tip import design_tip
 from vine_nlp.io.problem_file import load_problem
+from vine_nlp.methods.nlp import design_nlp
+from vine_nlp.methods.obstacles import design_tip_with_obstacles, design_with_obstacles
+from vine_nlp.methods.tip import design_tip
 
 NAMES = ["obstacle-gap", "obstacle-pipe-bend", "obstacle-wrap-cylinder", "obstacle-mesh", "obstacle-tip-wall"]
 AWAY = (2.0, 4.0)  # target points farther than this many D from every obstacle (gap) count as "away"

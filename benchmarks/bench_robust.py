@@ -17,11 +17,11 @@ from common import FIGURES, ROOT, machine, table, write_section
 
 from vine_nlp.analysis.collision import collision_metrics, growth_contacts
 from vine_nlp.analysis.tolerance import Sigmas, tolerance_report
-from vine_nlp.design.nlp import design_nlp
-from vine_nlp.design.robust import design_robust
-from vine_nlp.design.transcription import clear_caches
 from vine_nlp.front.analysis_plots import tolerance_figure
 from vine_nlp.io.problem_file import load_problem
+from vine_nlp.methods.nlp import design_nlp
+from vine_nlp.methods.robust import design_robust
+from vine_nlp.methods.transcription import clear_caches
 
 SIGMAS = Sigmas.from_degrees(1.0, 0.02, 0.02)  # theta 1 deg, lambda 0.02, length 2 % (relative)
 

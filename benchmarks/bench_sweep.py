@@ -49,7 +49,7 @@ from vine_nlp.io.problem_file import load_sweep
 SWEEP = ROOT / "problems" / "sweeps" / "trefoil125.toml"
 SWEEP_PKG = Path("src") / "vine_nlp" / "front" / "sweep"
 # what "before" takes from --baseline: the sweep package and the plain NLP (its IPOPT settings, its guess)
-BASELINE_PATHS = (SWEEP_PKG, Path("src/vine_nlp/design/nlp.py"), Path("src/vine_nlp/design/common.py"))
+BASELINE_PATHS = (SWEEP_PKG, Path("src/vine_nlp/methods/nlp.py"), Path("src/vine_nlp/methods/common.py"))
 GOAL_WALL_S = 5.0
 BEFORE_MEAN_MM, BEFORE_WORST_MM = 0.046, 0.162  # issue 18: "no worse than today"
 PAPER = "mean 0.65 mm, worst 1.57 mm, 157 s per knot (greedy Algorithm 1, MATLAB)"
@@ -184,7 +184,7 @@ def breakdown(after: dict, workers: int, baseline: Path | None) -> list[list[str
     rows.append(["command-line imports", f"{cli[0] - bare[0]:.2f}", f"{cli[1] - bare[1]:.2f}", "what `vine-nlp sweep` imports (cli, problem files, the sweep package; numpy, casadi, h5py) beyond that"])
     _, c, w = _cpu(load_sweep, SWEEP)
     rows.append(["reading the sweep (125 problems)", f"{w:.2f}", f"{c:.2f}", "`load_sweep`, in this process (imports done)"])
-    worker = _fresh_python("import vine_nlp.front.sweep.executors, vine_nlp.design.methods, vine_nlp.io.problems", src)
+    worker = _fresh_python("import vine_nlp.front.sweep.executors, vine_nlp.methods.methods, vine_nlp.io.problems", src)
     rows.append(["a worker's imports (forkserver/spawn)", f"{worker[0] - bare[0]:.2f}", f"{worker[1] - bare[1]:.2f}",
                  "per spawned worker; a forked worker (the default now) has them already; a forkserver imports them once"])
     archives = [load_archive(p) for p in after["archives"]]
@@ -225,7 +225,7 @@ def _executors(args, root: Path):
     items = sweep.items()
     step = max(1, len(items) // args.subset)
     part = dataclasses.replace(sweep, _items=items[::step][: args.subset])
-    from vine_nlp.design.transcription import clear_caches
+    from vine_nlp.methods.transcription import clear_caches
 
     def local(workers, label):
         if workers <= 1:

@@ -25,32 +25,32 @@ import dataclasses, json, sys, tempfile, time
 from pathlib import Path
 sys.path.insert(0, sys.argv[2])
 from vine_nlp import targets
-from vine_nlp.design.problem import Actuator, DesignOptions, DesignProblem
+from vine_nlp.problem import Actuator, DesignOptions, DesignProblem
 from vine_nlp.io.problem_file import load_problem
 root = Path(sys.argv[3])
 name = sys.argv[1]
 if name == "trefoil":
-    from vine_nlp.design.nlp import design_nlp
+    from vine_nlp.methods.nlp import design_nlp
     pb = load_problem(root / "problems/trefoil-m4.toml").problem
     run = lambda: design_nlp(pb)
 elif name == "trefoil-1600":
-    from vine_nlp.design.nlp import design_nlp
+    from vine_nlp.methods.nlp import design_nlp
     pb = DesignProblem("trefoil-n1", 2.43, targets.trefoil(samples=1601), options=DesignOptions(points_per_segment=1))
     run = lambda: design_nlp(pb)
 elif name == "tip-target":
-    from vine_nlp.design.tip import design_tip
+    from vine_nlp.methods.tip import design_tip
     pb = load_problem(root / "problems/tip-target.toml").problem
     run = lambda: design_tip(pb)
 elif name == "clearance":
-    from vine_nlp.design.clearance import design_with_clearance
-    from vine_nlp.design.nlp import design_nlp
+    from vine_nlp.methods.clearance import design_with_clearance
+    from vine_nlp.methods.nlp import design_nlp
     pb = DesignProblem("tight-helix", 2.0, targets.helix(radius=3.0, pitch=0.25, length=50.0, samples=101),
                        actuator=Actuator("tendon", 0.4), options=DesignOptions(points_per_segment=5, hessian="exact", starts=1, hops=0))
     free = design_nlp(pb)
     run = lambda: design_with_clearance(pb, start=free)
 elif name == "obstacles":
     from bench_obstacles import primitive_scene
-    from vine_nlp.design.obstacles import design_with_obstacles
+    from vine_nlp.methods.obstacles import design_with_obstacles
     pb = load_problem(primitive_scene(Path(tempfile.mkdtemp()))).problem
     run = lambda: design_with_obstacles(pb)
 run()

@@ -38,18 +38,18 @@ import numpy as np
 from common import ROOT, table, write_report
 
 from vine_nlp import targets
-from vine_nlp.design import compiled, transcription
-from vine_nlp.design.clearance import design_with_clearance
-from vine_nlp.design.multishape import design_multishape
-from vine_nlp.design.nlp import design_nlp
-from vine_nlp.design.obstacles import design_with_obstacles
-from vine_nlp.design.problem import Actuator, DesignProblem, MultiShapeProblem, TipProblem
-from vine_nlp.design.robust import design_robust
-from vine_nlp.design.tip import design_tip
 from vine_nlp.io.archive import load_archive
 from vine_nlp.io.problem_file import load_problem
+from vine_nlp.methods import compiled, transcription
+from vine_nlp.methods.clearance import design_with_clearance
+from vine_nlp.methods.multishape import design_multishape
+from vine_nlp.methods.nlp import design_nlp
+from vine_nlp.methods.obstacles import design_with_obstacles
+from vine_nlp.methods.robust import design_robust
+from vine_nlp.methods.tip import design_tip
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.routing import Sigmas
+from vine_nlp.problem import Actuator, DesignProblem, MultiShapeProblem, TipProblem
 
 SIGMAS = Sigmas.from_degrees(1.0, 0.02, 0.02)
 

@@ -13,7 +13,7 @@ import platform
 import subprocess
 from pathlib import Path
 
-from vine_nlp.design import blas
+from vine_nlp.methods import blas
 
 # the benchmarks run as the command line does: one BLAS thread (design.blas)
 blas.own_process()

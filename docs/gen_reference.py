@@ -46,7 +46,7 @@ READER_MODULES = (
     "vine_nlp.io.data_files",
     "vine_nlp.io.problem_file",
 )
-CHOICE_MODULES = ("vine_nlp.model.routing", "vine_nlp.design.problem", *READER_MODULES)
+CHOICE_MODULES = ("vine_nlp.model.routing", "vine_nlp.problem", *READER_MODULES)
 
 
 class DriftError(RuntimeError):

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from vine_nlp.design.problem import Routing
 from vine_nlp.model import shape_lines
 from vine_nlp.model.chain import segment_end_samples
+from vine_nlp.problem import Routing
 
 # The suite runs the interpreted NLP functions (compiling every structure a test builds would
 # take minutes); tests/test_compiled.py turns compiled code on for itself. Never the user's cache.

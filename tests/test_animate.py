@@ -14,11 +14,11 @@ import pytest
 from PIL import Image
 
 from vine_nlp.analysis.collision import growth_contacts
-from vine_nlp.design.problem import ForwardProblem, Routing
-from vine_nlp.design.result import run_forward
 from vine_nlp.front import animate
 from vine_nlp.front.cli import main
 from vine_nlp.io.archive import Archive, write_archive
+from vine_nlp.methods.common import run_forward
+from vine_nlp.problem import ForwardProblem, Routing
 
 D = 2.0
 

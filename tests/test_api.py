@@ -49,12 +49,10 @@ def test_import_loads_no_heavy_package():
     out = _run("""
         import sys
         import vine_nlp
-        print(sorted(m for m in ("casadi", "matplotlib", "h5py", "scipy", "vine_nlp.api", "vine_nlp.design") if m in sys.modules))
-        assert callable(vine_nlp.design)
-        print(sorted(m for m in ("matplotlib", "h5py", "vine_nlp.api") if m in sys.modules))
+        print(sorted(m for m in ("casadi", "matplotlib", "h5py", "scipy", "vine_nlp.api", "vine_nlp.methods") if m in sys.modules))
     """)
-    # importing the package loads nothing heavy; naming vine_nlp.design loads the subpackage, not the API
-    assert out.splitlines() == ["[]", "[]"]
+    # importing the package loads nothing heavy: the API's names load on first use
+    assert out.splitlines() == ["[]"]
 
 
 def test_backend_unchanged_by_the_api(tmp_path):
@@ -72,14 +70,17 @@ def test_backend_unchanged_by_the_api(tmp_path):
     assert out == "svg svg"
 
 
-def test_design_is_the_callable_subpackage(designed):
-    import vine_nlp.design
-    from vine_nlp.design import run_design
+def test_help_shows_the_api_functions(designed):
+    import inspect
 
-    # the subpackage stays what lower layers and tests import, and a call goes to the API function
-    assert vn.design is sys.modules["vine_nlp.design"] and callable(vn.design)
-    assert vine_nlp.design.run_design is run_design
-    assert "points" in str(__import__("inspect").signature(vn.design))
+    import vine_nlp.api
+
+    # plain functions: help(vn.design) is the function's own documentation and signature
+    for name in ("design", "forward", "fit", "load", "solve", "correct"):
+        assert getattr(vn, name) is getattr(vine_nlp.api, name)
+        assert inspect.isfunction(getattr(vn, name))
+    assert "points" in str(inspect.signature(vn.design))
+    assert vn.design.__doc__.startswith("Inverse design")
     assert isinstance(designed, vn.Design)
 
 

@@ -8,20 +8,14 @@ import numpy as np
 import pytest
 
 from vine_nlp import __version__
-from vine_nlp.design.common import evaluate, pair_points
-from vine_nlp.design.nlp import design_nlp
-from vine_nlp.design.problem import (
-    Actuator,
-    DesignOptions,
-    DesignProblem,
-    ForwardProblem,
-    Routing,
-)
-from vine_nlp.design.result import forward_shape, run_forward
 from vine_nlp.errors import InputError
 from vine_nlp.io import archive as archive_module
 from vine_nlp.io import limits
 from vine_nlp.io.archive import Archive, load_archive, write_archive
+from vine_nlp.methods.common import evaluate, pair_points, run_forward
+from vine_nlp.methods.nlp import design_nlp
+from vine_nlp.model.shape import forward_shape
+from vine_nlp.problem import Actuator, DesignOptions, DesignProblem, ForwardProblem, Routing
 
 ROOT = Path(__file__).resolve().parents[1]
 D = 2.43

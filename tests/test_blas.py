@@ -11,7 +11,7 @@ import sys
 
 import pytest
 
-from vine_nlp.design import blas
+from vine_nlp.methods import blas
 
 pytestmark = pytest.mark.skipif(blas.openblas_threads() is None, reason="this CasADi has no private OpenBLAS")
 
@@ -19,7 +19,7 @@ PROBE = r"""
 import json, os, sys
 import numpy as np
 import threadpoolctl
-from vine_nlp.design import blas
+from vine_nlp.methods import blas
 import vine_nlp as vn
 
 def counts():

@@ -14,10 +14,10 @@ from vine_nlp.analysis.collision import (
     routing_clearance,
     uniform_sections,
 )
-from vine_nlp.design.clearance import _covered, design_with_clearance
-from vine_nlp.design.nlp import design_nlp
-from vine_nlp.design.problem import Actuator, DesignOptions, DesignProblem, Routing
+from vine_nlp.methods.clearance import _covered, design_with_clearance
+from vine_nlp.methods.nlp import design_nlp
 from vine_nlp.model.helix import helix_forward
+from vine_nlp.problem import Actuator, DesignOptions, DesignProblem, Routing
 
 D = 2.0
 

@@ -8,12 +8,12 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from vine_nlp.design import compiled
-from vine_nlp.design.common import geometric_guess, pair_points
-from vine_nlp.design.nlp import design_bounds, nlp_parameters, nlp_spec, start_x
-from vine_nlp.design.problem import DesignOptions, DesignProblem
-from vine_nlp.design.transcription import Solver, clear_caches
 from vine_nlp.errors import InputError
+from vine_nlp.methods import compiled
+from vine_nlp.methods.common import geometric_guess, pair_points
+from vine_nlp.methods.nlp import design_bounds, nlp_parameters, nlp_spec, start_x
+from vine_nlp.methods.transcription import Solver, clear_caches
+from vine_nlp.problem import DesignOptions, DesignProblem
 
 # small structures compile in about a second without optimization
 SPEC = nlp_spec(6, 3, False, hessian="gauss-newton")
@@ -90,8 +90,8 @@ def test_two_processes_compile_one_structure_once(codegen):
     import subprocess
     import sys
 
-    code = ("from vine_nlp.design import compiled; from vine_nlp.design.transcription import Solver; "
-            "from vine_nlp.design.nlp import nlp_spec; Solver(nlp_spec(5, 2, False, hessian='gauss-newton')); "
+    code = ("from vine_nlp.methods import compiled; from vine_nlp.methods.transcription import Solver; "
+            "from vine_nlp.methods.nlp import nlp_spec; Solver(nlp_spec(5, 2, False, hessian='gauss-newton')); "
             "print(compiled.stats['compiled'], compiled.stats['loaded'])")
     procs = [subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True) for _ in range(2)]
     counts = [tuple(map(int, p.communicate()[0].split())) for p in procs]
@@ -149,8 +149,8 @@ def test_a_bad_setting_is_one_clear_error(monkeypatch):
 
 
 def test_the_command_line_notes_the_compile_once(codegen, tmp_path, capsys, monkeypatch):
-    from vine_nlp.design.transcription import clear_caches
     from vine_nlp.front.cli import main
+    from vine_nlp.methods.transcription import clear_caches
 
     clear_caches()  # solvers built by earlier tests in this process would hide the compile
     monkeypatch.setenv("VINE_NLP_CODEGEN", "auto")
@@ -193,7 +193,7 @@ def test_stored_functions_round_trip_and_a_damaged_copy_is_rebuilt(codegen):
 
 
 def _pair_solver(pairs):
-    from vine_nlp.design.clearance import ClearancePairs
+    from vine_nlp.methods.clearance import ClearancePairs
 
     return Solver(nlp_spec(6, 2, False, terms=(ClearancePairs(pairs),)))
 
@@ -242,9 +242,9 @@ def _same_functions(fast, slow, seed, tol):
 
 
 def test_a_clearance_design_takes_the_same_steps_on_compiled_blocks(codegen, monkeypatch, make_target):
-    from vine_nlp.design.clearance import design_with_clearance
-    from vine_nlp.design.nlp import design_nlp
-    from vine_nlp.design.problem import Actuator
+    from vine_nlp.methods.clearance import design_with_clearance
+    from vine_nlp.methods.nlp import design_nlp
+    from vine_nlp.problem import Actuator
     from vine_nlp.targets import helix
 
     # a helix whose turns are closer than D: the tube must open it up (rows between neighbouring turns)
@@ -274,7 +274,7 @@ def test_a_block_over_the_budget_stays_interpreted(codegen, monkeypatch):
 def test_obstacle_rows_run_on_one_samples_compiled_block(codegen, monkeypatch, caplog):
     # 12 samples a segment against 1 or 2 primitives, or 2 mesh triangles each: each block is over the budget,
     # so the block of one sample is compiled and mapped over the 12 (the same for every sample count)
-    from vine_nlp.design.obstacles import ObstacleRows
+    from vine_nlp.methods.obstacles import ObstacleRows
 
     spec = nlp_spec(6, 2, False, terms=(ObstacleRows(slots=(0, 2, 0, 1, 1, 0), meshes=((2, 3, 4),), S=12, k=2),))
     with caplog.at_level(logging.INFO, logger="vine_nlp"):

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 from vine_nlp import targets
-from vine_nlp.design import corners
-from vine_nlp.design.common import pair_points
-from vine_nlp.design.nlp import _solve, design_nlp, guess_from_routing, solve_from
-from vine_nlp.design.problem import Actuator, DesignOptions, DesignProblem
-from vine_nlp.design.transcription import TIE_RTOL
 from vine_nlp.front.cli import main
 from vine_nlp.io.problem_file import load_problem
+from vine_nlp.methods import corners
+from vine_nlp.methods.common import pair_points
+from vine_nlp.methods.nlp import _solve, design_nlp, guess_from_routing, solve_from
+from vine_nlp.methods.transcription import TIE_RTOL
 from vine_nlp.model.chain import chain_points
+from vine_nlp.problem import Actuator, DesignOptions, DesignProblem
 
 D = 2.43
 # one sharp corner: the first solve ends at 0.587 cm RMSE (0.24 D), the search lower (measured: objective

@@ -10,14 +10,14 @@ import h5py
 import numpy as np
 import pytest
 
-from vine_nlp.design import correct as C
-from vine_nlp.design.calibrate import Calibration, realized_of
-from vine_nlp.design.common import evaluate, pair_points
-from vine_nlp.design.transcription import frames12
 from vine_nlp.front.cli import main
 from vine_nlp.io.calibration import read_calibration
 from vine_nlp.io.correction import read_correction
 from vine_nlp.io.problem_file import load_problem
+from vine_nlp.methods import correct as C
+from vine_nlp.methods.common import evaluate, pair_points
+from vine_nlp.methods.transcription import frames12
+from vine_nlp.model.calibration import Calibration, realized_of
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.routing import Routing, Sigmas
 from vine_nlp.model.segment import so3_exp
@@ -460,8 +460,8 @@ def test_measure_slot_is_the_point_to_line_residual_of_the_model(free):
 def test_estimate_compiles_once_and_takes_the_interpreted_steps(setup, monkeypatch, tmp_path):
     # the ICP pairing is data: one structure serves every round, so the estimate compiles once, and its
     # compiled functions give the interpreted estimate
-    from vine_nlp.design import compiled
-    from vine_nlp.design.transcription import get_solver
+    from vine_nlp.methods import compiled
+    from vine_nlp.methods.transcription import get_solver
 
     get_solver.cache_clear()  # built solvers are cached per structure, whatever the mode they were built in
     monkeypatch.setenv("VINE_NLP_CODEGEN", "on")

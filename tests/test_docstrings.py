@@ -106,9 +106,7 @@ def test_public_names_exist():
 
 
 def _target(name):
-    obj = getattr(vine_nlp, name)
-    # vine_nlp.design is also a subpackage made callable: its documentation is the API function's
-    return getattr(vine_nlp.api, name) if not (inspect.isfunction(obj) or isinstance(obj, type)) else obj
+    return getattr(vine_nlp, name)
 
 
 @pytest.mark.parametrize("name", [n for n in PUBLIC if not isinstance(getattr(vine_nlp, n), type)])

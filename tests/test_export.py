@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from vine_nlp.design.problem import ForwardProblem, Routing
-from vine_nlp.design.result import run_forward
 from vine_nlp.front import export
 from vine_nlp.front.cli import main
 from vine_nlp.io.archive import Archive, load_archive, write_archive
+from vine_nlp.methods.common import run_forward
+from vine_nlp.problem import ForwardProblem, Routing
 
 ROOT = Path(__file__).resolve().parents[1]
 D = 2.0

@@ -10,13 +10,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 from texts import TINY_TREFOIL
 
-from vine_nlp.design import compiled
-from vine_nlp.design.common import geometric_guess, pair_points
-from vine_nlp.design.nlp import design_bounds, design_nlp, get_fatrop, nlp_parameters, nlp_spec, start_x
-from vine_nlp.design.problem import Actuator, DesignOptions, DesignProblem
-from vine_nlp.design.transcription import Smoothness, SoftTip, Solver, Spec, Structure, fatrop_safe
 from vine_nlp.front.cli import main
 from vine_nlp.io.problem_file import load_problem
+from vine_nlp.methods import compiled
+from vine_nlp.methods.common import geometric_guess, pair_points
+from vine_nlp.methods.nlp import design_bounds, design_nlp, get_fatrop, nlp_parameters, nlp_spec, start_x
+from vine_nlp.methods.transcription import Smoothness, SoftTip, Solver, Spec, Structure, fatrop_safe
+from vine_nlp.problem import Actuator, DesignOptions, DesignProblem
 
 PROBLEMS = Path(__file__).resolve().parents[1] / "problems"
 

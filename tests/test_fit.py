@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from vine_nlp.design.fit import (
+from vine_nlp.methods.fit import (
     Polyline,
     apply_transform,
     best_fit_helix,
@@ -27,9 +27,9 @@ from vine_nlp.design.fit import (
     pose_starts,
     r_squared,
 )
-from vine_nlp.design.problem import FitProblem, Routing
-from vine_nlp.design.result import forward_shape
 from vine_nlp.model import helix_forward
+from vine_nlp.model.shape import forward_shape
+from vine_nlp.problem import FitProblem, Routing
 
 SIGMA = 0.14 / math.sqrt(3)  # cm per coordinate: 1.4 mm RMS in 3-D
 

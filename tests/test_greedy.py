@@ -5,12 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from vine_nlp.design.common import pair_points, path_error, variable_bounds
-from vine_nlp.design.greedy import design_greedy, lowpass, window_error
-from vine_nlp.design.problem import Actuator, DesignOptions, DesignProblem, Routing
-from vine_nlp.design.result import total_variation
+from vine_nlp.methods.common import pair_points, path_error, variable_bounds
+from vine_nlp.methods.greedy import design_greedy, lowpass, window_error
 from vine_nlp.model import chain_points
 from vine_nlp.model.chain import segment_end_samples
+from vine_nlp.model.shape import total_variation
+from vine_nlp.problem import Actuator, DesignOptions, DesignProblem, Routing
 
 N_PTS = 5  # points per segment
 D = 2.0

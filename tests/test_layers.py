@@ -38,7 +38,7 @@ def all_modules() -> list[str]:
 def test_all_modules_found():
     names = all_modules()
     # one module of each layer, so a broken walk cannot pass the tests below vacuously
-    for name in ("vine_nlp.model.segment", "vine_nlp.analysis.tolerance", "vine_nlp.design.problem", "vine_nlp.io.archive",
+    for name in ("vine_nlp.model.segment", "vine_nlp.analysis.tolerance", "vine_nlp.problem", "vine_nlp.io.archive",
                  "vine_nlp.front.plot", "vine_nlp.front.cli"):
         assert name in names
 
@@ -154,28 +154,10 @@ def test_no_import_inside_a_function_hides_a_circle():
 @pytest.mark.parametrize("name", ["vine_nlp.model", "vine_nlp.analysis", "vine_nlp.targets"])
 def test_lower_layers_do_not_load_upper_layers(name):
     # the model, analysis and targets layers load nothing of design, io or front
-    code = f"import sys, {name}; print(sorted(m for m in sys.modules if m.startswith(('vine_nlp.design', 'vine_nlp.io', 'vine_nlp.front'))))"
+    code = f"import sys, {name}; print(sorted(m for m in sys.modules if m.startswith(('vine_nlp.methods', 'vine_nlp.io', 'vine_nlp.front'))))"
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "[]"
-
-
-def test_moved_names_are_the_model_layer_objects():
-    # the pure value types and model functions moved down into vine_nlp.model; their old
-    # homes re-export the very same objects, so isinstance checks agree everywhere
-    import vine_nlp.analysis.tolerance as tolerance
-    import vine_nlp.design.problem as problem
-    import vine_nlp.design.result as result
-    import vine_nlp.model as model
-    from vine_nlp.model import pairing, routing, segment, shape
-
-    assert problem.Routing is routing.Routing is model.Routing
-    assert problem.MEASURED_LINES is routing.MEASURED_LINES == ("center", "inner", "outer")
-    assert tolerance.Sigmas is routing.Sigmas is model.Sigmas
-    assert model.pair_points is pairing.pair_points and model.Pairing is pairing.Pairing
-    assert model.segment_function is segment.segment_function
-    for name in ("Shape", "forward_shape", "error_metrics", "routing_metrics", "total_variation"):
-        assert getattr(result, name) is getattr(shape, name) is getattr(model, name)
 
 
 def test_segment_function_is_cached_and_matches_the_numpy_chain():

@@ -9,17 +9,17 @@ import pytest
 from conftest import mutate
 from scipy.spatial.transform import Rotation
 
-from vine_nlp.design.multishape import MultiShapeResult, design_multishape
-from vine_nlp.design.problem import Actuator, DesignOptions, MultiShapeProblem
-from vine_nlp.design.transcription import get_solver
 from vine_nlp.errors import InputError
 from vine_nlp.front.multishape_plot import plot_multishape_file as plot_multishape
 from vine_nlp.front.reports import multishape_report as report_lines
 from vine_nlp.io.archive import load_archive
 from vine_nlp.io.formulations import read_multishape_archive, write_multishape_archive
 from vine_nlp.io.problem_file import load_problem, parse_problem
+from vine_nlp.methods.multishape import MultiShapeResult, design_multishape
+from vine_nlp.methods.transcription import get_solver
 from vine_nlp.model import shape_lines
 from vine_nlp.model.chain import segment_end_samples
+from vine_nlp.problem import Actuator, DesignOptions, MultiShapeProblem
 
 ROOT = Path(__file__).resolve().parents[1]
 M, N_PER, D = 10, 4, 2.0

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from vine_nlp import targets
-from vine_nlp.design import run_design
-from vine_nlp.design.common import geometric_guess, pair_points
-from vine_nlp.design.nlp import design_nlp, start_guesses
-from vine_nlp.design.problem import Actuator, DesignOptions, DesignProblem
-from vine_nlp.design.result import total_variation
+from vine_nlp.methods.common import geometric_guess, pair_points
+from vine_nlp.methods.methods import run_design
+from vine_nlp.methods.nlp import design_nlp, start_guesses
+from vine_nlp.model.shape import total_variation
+from vine_nlp.problem import Actuator, DesignOptions, DesignProblem
 
 NO_SMOOTH = dict(smooth_theta=0.0, smooth_lambda=0.0)
 
@@ -83,7 +83,7 @@ def test_theta_zero_start_is_a_stationary_point_for_planar_targets():
     from vine_nlp.model import chain_frames
 
     g.frames = chain_frames(g.theta, g.lam, g.length, 2.43, g.initial_pose)
-    from vine_nlp.design.nlp import solve_from
+    from vine_nlp.methods.nlp import solve_from
 
     stuck = solve_from(pb, g, pairing, frames="chain")
     assert np.abs(stuck.routing.theta).max() < 1e-6
@@ -115,7 +115,7 @@ def test_multistart_is_deterministic_and_keeps_the_best(make_target):
     b = design_nlp(pb)
     np.testing.assert_allclose(a.routing.theta, b.routing.theta, atol=1e-9)
     assert a.stats["starts"] == 4
-    from vine_nlp.design.nlp import TIE_RTOL
+    from vine_nlp.methods.nlp import TIE_RTOL
 
     assert a.stats["objective"] <= min(a.stats["start_objectives"]) * (1 + TIE_RTOL)
     # iterations: every start's once, then every hop's (the winner's were once counted twice)
@@ -136,7 +136,7 @@ def test_warm_start_from_an_earlier_design(make_target):
 
 
 def test_solver_is_built_once_per_structure(make_target):
-    from vine_nlp.design.transcription import get_solver
+    from vine_nlp.methods.transcription import get_solver
 
     tgt, _ = make_target(seed=8, M=9)
     design_nlp(_problem(tgt))
@@ -148,8 +148,8 @@ def test_solver_is_built_once_per_structure(make_target):
 
 def test_gauss_newton_hessian_is_the_exact_one_at_a_perfect_fit(make_target):
     # f = |r|^2: the exact Hessian is 2 J^T J + sum r_i Hess(r_i); the second part vanishes where r = 0
-    from vine_nlp.design.common import Guess
-    from vine_nlp.design.nlp import get_solver, nlp_parameters, start_x
+    from vine_nlp.methods.common import Guess
+    from vine_nlp.methods.nlp import get_solver, nlp_parameters, start_x
     from vine_nlp.model import chain_frames
 
     tgt, truth = make_target(seed=3, M=6)
@@ -184,7 +184,7 @@ def test_basin_hopping_lowers_the_objective_on_a_corner_target():
     assert hopped.stats["objective"] < single.stats["objective"] * (1 - 1e-3)  # measured: 0.1034 vs 0.1094
     assert hopped.metrics["rmse"] < single.metrics["rmse"]
     # the kept design is the best one seen, up to the tie rule (all hops converge here)
-    from vine_nlp.design.transcription import TIE_RTOL
+    from vine_nlp.methods.transcription import TIE_RTOL
 
     assert st["hops_accepted"] >= 1 and hopped.stats["objective"] <= min(st["hop_objectives"]) * (1 + TIE_RTOL)
     assert hopped.iterations == single.iterations + sum(st["hop_iterations"])
@@ -196,7 +196,7 @@ def test_basin_hopping_lowers_the_objective_on_a_corner_target():
 def test_guess_vector_helpers_give_numpys_bits():
     """geometric_guess's scalar 3-vector helpers round exactly as the numpy calls they replace: the guess must
     not move in its last bit (IPOPT's path from it would)."""
-    from vine_nlp.design.common import _cross3, _reject, _unit, _unit3
+    from vine_nlp.methods.common import _cross3, _reject, _unit, _unit3
 
     rng = np.random.default_rng(7)
     for scale in (1e-9, 1.0, 1e4):

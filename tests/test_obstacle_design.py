@@ -10,24 +10,14 @@ import numpy as np
 import pytest
 
 from vine_nlp import targets
-from vine_nlp.analysis.obstacles import (
-    Box,
-    Capsule,
-    Mesh,
-    Plane,
-    Sphere,
-    after_growth_shapes,
-    mesh_signed_distance,
-    min_gap,
-    obstacle_report,
-    point_triangle_distance,
-    sample_chain,
-)
-from vine_nlp.design import obstacles as obstacle_design
-from vine_nlp.design import transcription
-from vine_nlp.design.common import pair_points
-from vine_nlp.design.nlp import design_nlp
-from vine_nlp.design.obstacles import (
+from vine_nlp.analysis.obstacles import after_growth_shapes, min_gap, obstacle_report, sample_chain
+from vine_nlp.front.cli import main
+from vine_nlp.io.archive import Archive, load_archive, write_archive
+from vine_nlp.methods import obstacles as obstacle_design
+from vine_nlp.methods import transcription
+from vine_nlp.methods.common import pair_points
+from vine_nlp.methods.nlp import design_nlp
+from vine_nlp.methods.obstacles import (
     ObstacleRows,
     Plan,
     _shortfall,
@@ -35,9 +25,8 @@ from vine_nlp.design.obstacles import (
     design_with_obstacles,
     triangle_distance_sx,
 )
-from vine_nlp.design.problem import DesignOptions, DesignProblem, Routing, TipProblem
-from vine_nlp.front.cli import main
-from vine_nlp.io.archive import Archive, load_archive, write_archive
+from vine_nlp.model.obstacles import Box, Capsule, Mesh, Plane, Sphere, mesh_signed_distance, point_triangle_distance
+from vine_nlp.problem import DesignOptions, DesignProblem, Routing, TipProblem
 
 D = 1.0
 MARGIN = 0.2
@@ -146,8 +135,8 @@ def test_a_mesh_design_does_not_depend_on_a_tiny_change_of_its_start(slab, free)
 
 def test_after_a_miss_every_sample_also_has_rows_to_the_faces_it_passed(slab):
     """_with_memory: the k nearest faces, then the nearest of the remembered ones (distinct), then the next nearest."""
-    from vine_nlp.analysis.obstacles import nearest_triangles
-    from vine_nlp.design.obstacles import _with_memory
+    from vine_nlp.methods.obstacles import _with_memory
+    from vine_nlp.model.obstacles import nearest_triangles
 
     p = np.array([[12.0, 3.0, 0.0], [12.0, -2.0, 2.0]])  # beside two faces of the slab
     faces, _ = nearest_triangles(slab, p, 3)
@@ -328,7 +317,7 @@ def test_rounded_box_slot_is_the_exact_distance(ob):
     """A primitive slot (numbers as data) reproduces the primitive's own distance, inside and outside."""
     import casadi as ca
 
-    from vine_nlp.design.obstacles import rounded_box, rounded_box_sx
+    from vine_nlp.methods.obstacles import rounded_box, rounded_box_sx
 
     p = np.random.default_rng(3).normal(8.0, 4.0, (200, 3))
     x = ca.SX.sym("x", 3, len(p))
@@ -347,9 +336,9 @@ def test_only_primitives_near_the_tube_get_slots(free):
 
 def test_blocked_target_points_weigh_less():
     """Only the weights of the target points closer than the margin to an obstacle change."""
-    from vine_nlp.design.common import pair_points
-    from vine_nlp.design.nlp import nlp_parameters
-    from vine_nlp.design.obstacles import _weigh_blocked
+    from vine_nlp.methods.common import pair_points
+    from vine_nlp.methods.nlp import nlp_parameters
+    from vine_nlp.methods.obstacles import _weigh_blocked
 
     ob = PRIMITIVES["sphere"]
     problem = _problem([ob])
@@ -370,9 +359,9 @@ def test_blocked_target_points_weigh_less():
 def test_a_weight_ramp_rises_from_the_blocked_weight_to_one():
     """With a ramp (meshes), weights are the blocked factor inside the margin, then rise as s^2 to full weight
     at margin + ramp; farther points keep theirs."""
-    from vine_nlp.design.common import pair_points
-    from vine_nlp.design.nlp import nlp_parameters
-    from vine_nlp.design.obstacles import _weigh_blocked
+    from vine_nlp.methods.common import pair_points
+    from vine_nlp.methods.nlp import nlp_parameters
+    from vine_nlp.methods.obstacles import _weigh_blocked
 
     ob, ramp = PRIMITIVES["sphere"], 1.5
     problem = _problem([ob])
@@ -421,7 +410,7 @@ def test_the_pushed_target_clears_and_goes_to_one_side():
     """pushed_target: a line through a sphere (off its center, and dead center) is moved across itself to ONE
     side until every point clears; points already clear do not move; a run along a cylinder (a circle round
     it) moves each point straight out."""
-    from vine_nlp.design.obstacles import pushed_target
+    from vine_nlp.methods.obstacles import pushed_target
 
     x = np.linspace(-6.0, 6.0, 121)
     need = 1.2
@@ -553,7 +542,7 @@ def test_the_rows_start_inside_their_bounds_where_the_detour_lengthens_a_segment
     """The pushed start's detour may lengthen a segment past its bound on the target's chord (LENGTH_FACTOR); the
     rows' bound then makes room for it. A start outside the bounds is moved inside by IPOPT, its chain torn
     apart. Tight length bounds (1.05 chords) make every detour such a segment."""
-    from vine_nlp.design import nlp
+    from vine_nlp.methods import nlp
 
     monkeypatch.setattr(nlp, "LENGTH_FACTOR", (0.2, 1.05))
     ob = PRIMITIVES["sphere"]

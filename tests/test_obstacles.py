@@ -14,27 +14,15 @@ import trimesh  # the test extra has it (and rtree, for its proximity queries)
 
 from vine_nlp import targets
 from vine_nlp.analysis.obstacles import (
-    Box,
-    Capsule,
-    Mesh,
-    Plane,
-    Sphere,
     after_growth_shapes,
     dip,
     grown_prefixes,
-    mesh_rows,
-    mesh_signed_distance,
     min_gap,
-    nearest_triangles,
     obstacle_metrics,
     obstacle_report,
-    point_triangle_distance,
-    refresh_active_set,
-    rotation_from_degrees,
     sample_chain,
     sample_spacing,
     samples_needed,
-    triangle_plane_distance,
 )
 from vine_nlp.errors import InputError
 from vine_nlp.io.obstacles import (
@@ -46,6 +34,20 @@ from vine_nlp.io.obstacles import (
     write_obstacles,
 )
 from vine_nlp.model.helix import center_rates
+from vine_nlp.model.obstacles import (
+    Box,
+    Capsule,
+    Mesh,
+    Plane,
+    Sphere,
+    mesh_rows,
+    mesh_signed_distance,
+    nearest_triangles,
+    point_triangle_distance,
+    refresh_active_set,
+    rotation_from_degrees,
+    triangle_plane_distance,
+)
 from vine_nlp.model.routing import Routing
 
 PROBLEMS = Path(__file__).resolve().parents[1] / "problems"

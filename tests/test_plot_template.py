@@ -9,20 +9,14 @@ import numpy as np
 import pytest
 from matplotlib.text import Text
 
-from vine_nlp.design.common import evaluate, pair_points
-from vine_nlp.design.nlp import design_nlp
-from vine_nlp.design.problem import (
-    Actuator,
-    DesignOptions,
-    DesignProblem,
-    ForwardProblem,
-    Routing,
-)
-from vine_nlp.design.result import forward_shape, run_forward
 from vine_nlp.front import template as tpl
 from vine_nlp.front.plot import plot_archive, plot_archive_file, point_s, tube_surface
 from vine_nlp.front.show import summarize
 from vine_nlp.io.archive import Archive, load_archive, write_archive
+from vine_nlp.methods.common import evaluate, pair_points, run_forward
+from vine_nlp.methods.nlp import design_nlp
+from vine_nlp.model.shape import forward_shape
+from vine_nlp.problem import Actuator, DesignOptions, DesignProblem, ForwardProblem, Routing
 
 D = 2.43
 N = 4  # points per segment

@@ -12,13 +12,6 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from vine_nlp import targets
-from vine_nlp.design.problem import (
-    Actuator,
-    DesignOptions,
-    DesignProblem,
-    FitProblem,
-    ForwardProblem,
-)
 from vine_nlp.errors import InputError
 from vine_nlp.io.problem_file import (
     apply_override,
@@ -26,6 +19,7 @@ from vine_nlp.io.problem_file import (
     load_sweep,
     parse_problem,
 )
+from vine_nlp.problem import Actuator, DesignOptions, DesignProblem, FitProblem, ForwardProblem
 
 TUBE = "[tube]\ndiameter = 2.0\n"
 

@@ -9,7 +9,7 @@ import os
 import pytest
 from texts import TINY_TREFOIL
 
-import vine_nlp.design
+import vine_nlp.methods.methods
 from vine_nlp.errors import InputError
 from vine_nlp.front import sweep as sw
 from vine_nlp.io.archive import load_archive
@@ -123,14 +123,14 @@ def test_dask_cluster_gives_the_same_summary(local_run, tmp_path):
 def test_a_failing_item_is_reported_and_the_others_finish(tmp_path, monkeypatch):
     path = _write_sweep(tmp_path / "in")
     out = tmp_path / "out"
-    real = vine_nlp.design.run_design
+    real = vine_nlp.methods.methods.run_design
 
     def flaky(problem, method=None, **kw):
         if problem.name == "tiny-0002":
             raise RuntimeError("boom\nsecond line")
         return real(problem, method, **kw)
 
-    monkeypatch.setattr(vine_nlp.design, "run_design", flaky)
+    monkeypatch.setattr(vine_nlp.methods.methods, "run_design", flaky)
     report = sw.run_sweep(load_sweep(path), out, workers=1, progress=False)
     assert (report.done, report.failed) == (3, 1)
     assert report.executor == "in this process"
@@ -144,7 +144,7 @@ def test_a_failing_item_is_reported_and_the_others_finish(tmp_path, monkeypatch)
     assert "failed: tiny-0002 nlp: RuntimeError: boom" in sw.format_report(report)
 
     # the next run retries only the failed item
-    monkeypatch.setattr(vine_nlp.design, "run_design", real)
+    monkeypatch.setattr(vine_nlp.methods.methods, "run_design", real)
     before = _mtimes(out)
     again = sw.run_sweep(load_sweep(path), out, workers=0, progress=False)
     assert (again.done, again.skipped, again.failed) == (1, 3, 0)
@@ -156,7 +156,7 @@ def test_a_failing_item_is_reported_and_the_others_finish(tmp_path, monkeypatch)
 def test_a_failing_method_keeps_the_other_methods_of_its_item(tmp_path, monkeypatch):
     path = _write_sweep(tmp_path / "in", methods=("nlp", "greedy"))
     out = tmp_path / "out"
-    real = vine_nlp.design.run_design
+    real = vine_nlp.methods.methods.run_design
     calls = []
     broken = {"tiny-0001"}
 
@@ -169,7 +169,7 @@ def test_a_failing_method_keeps_the_other_methods_of_its_item(tmp_path, monkeypa
             return dataclasses.replace(r, method="greedy", solve_time_s=2 * r.solve_time_s, metrics={**r.metrics, "rmse": 1.5 * r.metrics["rmse"]})
         return real(problem, method, **kw)
 
-    monkeypatch.setattr(vine_nlp.design, "run_design", fake_greedy)
+    monkeypatch.setattr(vine_nlp.methods.methods, "run_design", fake_greedy)
     report = sw.run_sweep(load_sweep(path), out, workers=1, progress=False)
     assert (report.done, report.failed) == (3, 1)
     assert list(load_archive(out / "tiny-0001.h5").runs) == ["nlp"]  # the finished run is kept
@@ -196,7 +196,7 @@ def test_an_interrupt_inside_a_worker_fails_the_run_not_the_sweep(tmp_path, monk
     def interrupted(problem, method=None, **kw):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(vine_nlp.design, "run_design", interrupted)
+    monkeypatch.setattr(vine_nlp.methods.methods, "run_design", interrupted)
     runs, timings = sw.solve_item(pf, ["nlp"], remote=True)
     assert runs == {} and "KeyboardInterrupt" in timings["errors"]["nlp"]
     with pytest.raises(KeyboardInterrupt):  # in this process it is the user's Ctrl-C
@@ -312,14 +312,14 @@ def test_the_package_imports_dask_only_for_a_scheduler():
 def test_a_chunk_returns_each_item_in_order_and_keeps_failures_apart(tmp_path, monkeypatch):
     path = _write_sweep(tmp_path / "in")
     items = load_sweep(path).items()[:2]
-    real = vine_nlp.design.run_design
+    real = vine_nlp.methods.methods.run_design
 
     def second_fails(problem, method=None, **kw):
         if problem.name == items[1][0]:
             raise RuntimeError("second item")
         return real(problem, method, **kw)
 
-    monkeypatch.setattr(vine_nlp.design, "run_design", second_fails)
+    monkeypatch.setattr(vine_nlp.methods.methods, "run_design", second_fails)
     (runs0, t0), (runs1, t1) = sw.solve_chunk([(pf, ["nlp"]) for _, _, pf in items], remote=True)
     assert runs0["nlp"].status == "optimal" and t0["errors"] == {}
     assert runs1 == {} and t1["errors"] == {"nlp": "RuntimeError: second item"}
@@ -365,7 +365,7 @@ def test_a_fresh_process_forks_its_workers_and_never_loads_the_solver(tmp_path):
         "import vine_nlp.front.sweep.engine as engine\n"
         "engine.make_pool = spy\n"
         f"r = run_sweep(load_sweep({str(path)!r}), {str(tmp_path / 'out')!r}, workers=2, progress=False)\n"
-        "print(r.done, r.failed, pools[0].start_method, 'vine_nlp.design.transcription' in sys.modules)\n"
+        "print(r.done, r.failed, pools[0].start_method, 'vine_nlp.methods.transcription' in sys.modules)\n"
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr

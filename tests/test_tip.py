@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from conftest import mutate
 
-from vine_nlp.design.problem import Actuator, DesignOptions, Routing, TipProblem
-from vine_nlp.design.tip import MIN_LENGTH_FACTOR, actuation, design_tip
 from vine_nlp.errors import InputError
 from vine_nlp.front.reports import tip_report as report_lines
 from vine_nlp.io.archive import load_archive
 from vine_nlp.io.formulations import write_tip_archive
 from vine_nlp.io.problem_file import load_problem, parse_problem
+from vine_nlp.methods.tip import MIN_LENGTH_FACTOR, actuation, design_tip
 from vine_nlp.model.chain import chain_frames
+from vine_nlp.problem import Actuator, DesignOptions, Routing, TipProblem
 
 ROOT = Path(__file__).resolve().parents[1]
 M, D, SEG = 8, 2.0, 3.0

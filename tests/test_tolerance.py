@@ -12,9 +12,9 @@ from vine_nlp.analysis.tolerance import (
     tolerance_metrics,
     tolerance_report,
 )
-from vine_nlp.design.nlp import design_nlp
-from vine_nlp.design.problem import DesignOptions, DesignProblem
+from vine_nlp.methods.nlp import design_nlp
 from vine_nlp.model import chain_points
+from vine_nlp.problem import DesignOptions, DesignProblem
 
 D = 2.0
 
@@ -73,8 +73,8 @@ def test_first_order_tip_covariance_matches_monte_carlo(designed):
 
 @pytest.mark.parametrize("sigmas", [Sigmas.from_degrees(1.0, 0.02, 0.02), Sigmas(0.01, 0.0, 0.05, relative_length=False)])
 def test_robust_term_is_the_first_order_expected_increase(designed, sigmas):
-    from vine_nlp.design.common import pair_points
-    from vine_nlp.design.robust import _robust_start, expected_increase, robust_solver
+    from vine_nlp.methods.common import pair_points
+    from vine_nlp.methods.robust import _robust_start, expected_increase, robust_solver
 
     pb, res = designed
     expected = tolerance_report(pb, res, sigmas, samples=10)["first_order"]["mse_increase"]
@@ -90,7 +90,7 @@ def test_robust_term_is_the_first_order_expected_increase(designed, sigmas):
 
 @pytest.mark.slow
 def test_robust_design_lowers_the_monte_carlo_error(designed):
-    from vine_nlp.design.robust import design_robust
+    from vine_nlp.methods.robust import design_robust
 
     pb, res = designed
     sg = Sigmas.from_degrees(1.0, 0.02, 0.02)
@@ -120,7 +120,7 @@ def test_robust_direct_term_equals_the_differentiated_points():
     sum_i w_i |d rho_i / d q diag(sigma)|^2 differentiated through the helix in all three parameters."""
     import casadi as ca
 
-    from vine_nlp.design.robust import direct_term
+    from vine_nlp.methods.robust import direct_term
     from vine_nlp.model.helix import center_rates
     from vine_nlp.model.segment import twist_parts
 

@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from vine_nlp.design.clearance import ClearancePairs
-from vine_nlp.design.multishape import multishape_spec
-from vine_nlp.design.nlp import nlp_spec
-from vine_nlp.design.robust import RobustTerm
-from vine_nlp.design.tip import tip_spec
-from vine_nlp.design.transcription import Smoothness, SoftTip, Solver, Spec, Structure, pick_best
+from vine_nlp.methods.clearance import ClearancePairs
+from vine_nlp.methods.multishape import multishape_spec
+from vine_nlp.methods.nlp import nlp_spec
+from vine_nlp.methods.robust import RobustTerm
+from vine_nlp.methods.tip import tip_spec
+from vine_nlp.methods.transcription import Smoothness, SoftTip, Solver, Spec, Structure, pick_best
 
 
 def _automatic(solver):

@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vine_nlp.design.problem import ForwardProblem, Routing
-from vine_nlp.design.result import run_forward
 from vine_nlp.front import view
 from vine_nlp.front.cli import main
 from vine_nlp.io.archive import Archive, load_archive, write_archive
+from vine_nlp.methods.common import run_forward
+from vine_nlp.problem import ForwardProblem, Routing
 
 CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
 CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -115,7 +115,7 @@ def test_figure_traces_frames_and_sliders():
 
 def test_obstacles_round_trip_through_the_archive(tmp_path):
     # /obstacles/<k> as the archive writes and reads them (attr shape, one dataset per parameter)
-    from vine_nlp.analysis.obstacles import Box, Capsule, Mesh, Plane, Sphere
+    from vine_nlp.model.obstacles import Box, Capsule, Mesh, Plane, Sphere
 
     a = design_archive()
     R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # 90 degrees about z

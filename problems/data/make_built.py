@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from vine_nlp.design.correct import draw_deviations, simulate_build
-from vine_nlp.design.nlp import design_nlp
+from vine_nlp.methods.correct import draw_deviations, simulate_build
+from vine_nlp.methods.nlp import design_nlp
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.model.routing import Sigmas
 

@@ -34,20 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from vine_nlp import _API_NAMES, targets
-from vine_nlp.design.calibrate import Calibration
-from vine_nlp.design.problem import (
-    MEASURED_LINES,
-    Actuator,
-    DesignOptions,
-    DesignProblem,
-    FitProblem,
-    ForwardProblem,
-    MultiShapeProblem,
-    Routing,
-    TipProblem,
-)
-from vine_nlp.design.result import Result
+from vine_nlp import __all__ as _API_NAMES
+from vine_nlp import targets
 from vine_nlp.errors import InputError
 from vine_nlp.front import registry
 from vine_nlp.front.correct import correct_files, correct_to_file
@@ -57,7 +45,9 @@ from vine_nlp.io.archive import Archive, load_archive, write_atomic
 from vine_nlp.io.calibration import KEYS as CALIBRATION_KEYS
 from vine_nlp.io.calibration import read_calibration
 from vine_nlp.io.problem_file import ProblemFile
-from vine_nlp.model.routing import Sigmas
+from vine_nlp.model.calibration import Calibration
+from vine_nlp.model.routing import MEASURED_LINES, Routing, Sigmas
+from vine_nlp.problem import Actuator, DesignOptions, DesignProblem, FitProblem, ForwardProblem, MultiShapeProblem, Result, TipProblem
 
 # figures, templates and views load matplotlib (and plotly): imported on first use, so that a
 # design does not wait for them
@@ -68,7 +58,7 @@ _write_template = registry.lazy("vine_nlp.front.template:write_template")
 _view_html = registry.lazy("vine_nlp.front.view:view_html")
 
 # the API's names, listed once: the package exports them lazily (vine_nlp.__init__)
-__all__ = list(_API_NAMES)
+__all__ = [n for n in _API_NAMES if n != "__version__"]
 
 _API_FILE = "<vine_nlp API>"  # ProblemFile.path of problems made by this API (no file behind them)
 _SOURCE_ARRAY_MAX = 200  # per-segment arrays longer than this stay out of the source text (HDF5 attributes are small)
@@ -767,7 +757,7 @@ def _calibrated(problem, method: str, result: Result) -> Result:
     """The nlp and greedy designs of a calibrated problem: the nominal to build, as ``vine-nlp design``
     makes it (design.methods.apply_calibration, the one place the calibration is applied)."""
     if method in ("nlp", "greedy") and isinstance(problem, DesignProblem) and getattr(problem, "calibration", None) is not None:
-        from vine_nlp.design.methods import apply_calibration
+        from vine_nlp.methods.methods import apply_calibration
 
         return apply_calibration(problem, result)
     return result
@@ -852,7 +842,7 @@ def design(
         Problem name in the archive.
     calibration : Calibration or str or Path, optional
         The systematic construction errors of the builder (``vine-nlp calibrate``'s CAL.toml, or a
-        ``vine_nlp.design.calibrate.Calibration``): the nlp or greedy run is then the nominal to build,
+        ``vine_nlp.model.calibration.Calibration``): the nlp or greedy run is then the nominal to build,
         its shape what that nominal realizes on the calibrated robot (as ``vine-nlp design`` with a
         ``[calibration]`` table).
 

@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 
 from vine_nlp.analysis.collision import growth_contacts, routing_clearance
-from vine_nlp.design.problem import Routing
 from vine_nlp.front.view import tube_rings
 from vine_nlp.io.archive import Archive, write_atomic
 from vine_nlp.model import shape_lines
 from vine_nlp.model.chain import chain_points, segment_end_samples
+from vine_nlp.problem import Routing
 
 MODES = ("grow", "after", "both")
 MOVIE_FORMATS = (".gif", ".mp4")

@@ -13,8 +13,8 @@ import sys
 from pathlib import Path
 
 from vine_nlp import __version__
-from vine_nlp.design import blas, compiled
 from vine_nlp.errors import InputError
+from vine_nlp.methods import blas, compiled
 
 EXIT_OK, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
 
@@ -94,9 +94,9 @@ def _archive_from(pf, runs, target=None):
 
 
 def cmd_forward(args) -> int:
-    from vine_nlp.design.result import run_forward
     from vine_nlp.io.archive import write_archive
     from vine_nlp.io.problem_file import load_problem
+    from vine_nlp.methods.common import run_forward
 
     pf = load_problem(args.problem)
     if pf.kind != "forward":
@@ -166,7 +166,7 @@ def _report(name, r, units):
 
 
 def _run_method(pf, method, args):
-    from vine_nlp.design import run_design
+    from vine_nlp.methods.methods import run_design
 
     kw = {}
     if method == "nlp":
@@ -224,17 +224,17 @@ def cmd_design(args) -> int:
     result = _run_method(pf, method, args)
     runs = {method: result}
     if pf.problem.obstacles:
-        from vine_nlp.design.obstacles import FREE_RUN, design_with_obstacles
+        from vine_nlp.methods.obstacles import FREE_RUN, design_with_obstacles
 
         # run "nlp" is the design among the obstacles; the obstacle-free design it started from is kept beside it
         runs = {method: design_with_obstacles(pf.problem, start=result), FREE_RUN: result}
         result = runs[method]
     if args.robust:
-        from vine_nlp.design.robust import design_robust
+        from vine_nlp.methods.robust import design_robust
 
         runs["nlp_robust"] = design_robust(pf.problem, _sigmas(args), start=result, weight=args.robust_weight)
     if args.clearance:
-        from vine_nlp.design.clearance import design_with_clearance
+        from vine_nlp.methods.clearance import design_with_clearance
 
         runs["nlp_clearance"] = design_with_clearance(pf.problem, min_gap=args.min_gap, start=result)
     _obstacle_metrics(pf.problem, runs)
@@ -302,8 +302,8 @@ def _design_other(pf, args) -> int:
 
 
 def cmd_compare(args) -> int:
-    from vine_nlp.design.greedy import lowpass
     from vine_nlp.io.archive import write_archive
+    from vine_nlp.methods.greedy import lowpass
 
     pf = _load(args.problem, "design")
     out = _check_output(args.output, args.force)
@@ -329,8 +329,8 @@ def _design_problem_of(archive, path):
     import dataclasses
     import tomllib
 
-    from vine_nlp.design.problem import DesignProblem
     from vine_nlp.io.problem_file import parse_problem
+    from vine_nlp.problem import DesignProblem
 
     try:
         pf = parse_problem(tomllib.loads(archive.source), str(path), archive.source)
@@ -477,8 +477,8 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_fit(args) -> int:
-    from vine_nlp.design.fit import describe_fit, fit_problem
     from vine_nlp.io.archive import write_archive
+    from vine_nlp.methods.fit import describe_fit, fit_problem
 
     pf = _load(args.problem, "fit")
     out = _check_output(args.output, args.force)
@@ -519,7 +519,7 @@ def _fit_frames(pf, args, measured) -> dict:
     """Batch of frames of one actuator (paper Fig. 9(d)): lambda and RMSE per frame."""
     import numpy as np
 
-    from vine_nlp.design.fit import fit_frames
+    from vine_nlp.methods.fit import fit_frames
 
     update, close = _progress_bar(f"{pf.name} frames", "frames")
     try:

@@ -1,5 +1,5 @@
 """``vine-nlp correct`` and ``vine-nlp calibrate``: close the loop on a built robot (spec/formats.md,
-"As-built correction"). The estimate and the correction are ``vine_nlp.design.correct``; the archive
+"As-built correction"). The estimate and the correction are ``vine_nlp.methods.correct``; the archive
 layout is ``vine_nlp.io.correction``; this module reads files, reports and draws."""
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ UNITS_PER_MM = {"mm": 1.0, "cm": 0.1, "m": 0.001, "in": 1 / 25.4, "inch": 1 / 25
 
 def design_problem_of(archive, path):
     """The archive's design problem, parsed again from its stored source (the archived target kept)."""
-    from vine_nlp.design.problem import DesignProblem
     from vine_nlp.io.problem_file import parse_problem
+    from vine_nlp.problem import DesignProblem
 
     try:
         pf = parse_problem(tomllib.loads(archive.source), str(path), archive.source)
@@ -57,9 +57,9 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
     InputError
         Bad archive, bad CSV, unknown run, mismatched lines.
     """
-    from vine_nlp.design.correct import ADJUST, Measurement, correct
     from vine_nlp.io.archive import Archive
     from vine_nlp.io.correction import read_correction
+    from vine_nlp.methods.correct import ADJUST, Measurement, correct
     from vine_nlp.model.routing import MEASURED_LINES, Sigmas
 
     if isinstance(archive_path, Archive):
@@ -291,9 +291,9 @@ def add_correct_arguments(p, add_sigma_args) -> None:
 
 def cmd_calibrate(args, check_output) -> int:
     """Systematic parts over several built prototypes -> a [calibration] table (TOML)."""
-    from vine_nlp.design.correct import combine_systematic
     from vine_nlp.io.calibration import Calibration, write_calibration
     from vine_nlp.io.correction import read_correction
+    from vine_nlp.methods.correct import combine_systematic
 
     out = check_output(args.output, args.force)
     if out.suffix.lower() != ".toml":

@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from vine_nlp.design.problem import Routing
 from vine_nlp.io.archive import Archive, write_atomic
 from vine_nlp.model import shape_lines
 from vine_nlp.model.chain import segment_end_samples
+from vine_nlp.problem import Routing
 
 FORMATS = (".stl", ".obj", ".ply", ".glb")
 METRES_PER_UNIT = {"m": 1.0, "cm": 0.01, "mm": 0.001}

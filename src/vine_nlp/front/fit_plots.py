@@ -47,7 +47,7 @@ def plot_fit(source, path, extras=None, title=None):
     """Measured points against the fitted model, and the error against length.
 
     ``source``: an archive written by ``vine-nlp fit`` (an :class:`Archive` or its
-    path), a ``(Result, extras)`` pair from :func:`vine_nlp.design.fit.fit_problem`, or a
+    path), a ``(Result, extras)`` pair from :func:`vine_nlp.methods.fit.fit_problem`, or a
     Result with ``extras`` given separately. Writes ``path`` (png or pdf).
     """
     result, ex, units, name = _fit_inputs(source, extras)
@@ -107,7 +107,7 @@ def plot_fit(source, path, extras=None, title=None):
 def plot_frames(results, path, units: str = "cm", show: int = 5, title=None, frame_times=None):
     """Lambda over the frames of a sequence and the error against length of a few frames.
 
-    ``results``: the list from :func:`vine_nlp.design.fit.fit_frames` (frames that could
+    ``results``: the list from :func:`vine_nlp.methods.fit.fit_frames` (frames that could
     not be fitted are gaps); ``show``: how many frames (evenly spread, labelled with
     their lambda) get an error-against-length curve; ``frame_times``: optional x
     values instead of the frame index.

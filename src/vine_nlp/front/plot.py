@@ -29,10 +29,10 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
-from vine_nlp.analysis.obstacles import Box, Capsule, Mesh, Plane, Sphere
 from vine_nlp.front.show import ordered_runs, source_table
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
 from vine_nlp.model import chain_frames, chain_points
+from vine_nlp.model.obstacles import Box, Capsule, Mesh, Plane, Sphere
 from vine_nlp.model.pairing import pair_points
 
 FORMATS = ("png", "pdf", "svg")

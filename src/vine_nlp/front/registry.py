@@ -33,8 +33,8 @@ from __future__ import annotations
 import importlib
 from dataclasses import dataclass
 
-from vine_nlp.design import blas
-from vine_nlp.design.problem import DesignProblem, FitProblem, ForwardProblem, MultiShapeProblem, TipProblem
+from vine_nlp.methods import blas
+from vine_nlp.problem import DesignProblem, FitProblem, ForwardProblem, MultiShapeProblem, TipProblem
 
 _REFS: list = []  # every function the registry names (tests resolve them all)
 
@@ -113,9 +113,9 @@ class Formulation:
 _ARCHIVE = _Ref("vine_nlp.io.archive:Archive")
 _WRITE_ARCHIVE = _Ref("vine_nlp.io.archive:write_archive")
 _READ_MULTISHAPE = _Ref("vine_nlp.io.formulations:read_multishape_archive")
-_RUN_FORWARD = _Ref("vine_nlp.design.result:run_forward")
-_FIT_PROBLEM = _Ref("vine_nlp.design.fit:fit_problem")
-_DESCRIBE_FIT = _Ref("vine_nlp.design.fit:describe_fit")
+_RUN_FORWARD = _Ref("vine_nlp.methods.common:run_forward")
+_FIT_PROBLEM = _Ref("vine_nlp.methods.fit:fit_problem")
+_DESCRIBE_FIT = _Ref("vine_nlp.methods.fit:describe_fit")
 _MULTISHAPE_REPORT = _Ref("vine_nlp.front.reports:multishape_report")
 _TIP_REPORT = _Ref("vine_nlp.front.reports:tip_report")
 
@@ -208,22 +208,22 @@ _DESIGN = dict(problem_type=DesignProblem, write_archive=write_standard_archive,
 FORMULATIONS: dict[str, Formulation] = {
     f.name: f
     for f in (
-        Formulation("nlp", solve=_with_empty_extra(_Ref("vine_nlp.design.nlp:design_nlp")),
+        Formulation("nlp", solve=_with_empty_extra(_Ref("vine_nlp.methods.nlp:design_nlp")),
                     options=("starts", "workers", "warm", "progress", "hops"), **_DESIGN),
-        Formulation("greedy", solve=_with_empty_extra(_Ref("vine_nlp.design.greedy:design_greedy")),
+        Formulation("greedy", solve=_with_empty_extra(_Ref("vine_nlp.methods.greedy:design_greedy")),
                     options=("progress",), **_DESIGN),
         # clearance and robust start from a design (``start=``, default: design_nlp's)
         Formulation("clearance", run="nlp_clearance",
-                    solve=_with_empty_extra(_Ref("vine_nlp.design.clearance:design_with_clearance")),
+                    solve=_with_empty_extra(_Ref("vine_nlp.methods.clearance:design_with_clearance")),
                     options=("min_gap", "start", "starts", "workers", "hops"), **_DESIGN),
-        Formulation("robust", run="nlp_robust", solve=_with_empty_extra(_Ref("vine_nlp.design.robust:design_robust")),
+        Formulation("robust", run="nlp_robust", solve=_with_empty_extra(_Ref("vine_nlp.methods.robust:design_robust")),
                     options=("sigmas", "weight", "samples", "seed", "start", "starts", "workers", "hops"), **_DESIGN),
         Formulation("multishape", problem_type=MultiShapeProblem, kind="multishape",
-                    solve=_with_empty_extra(_Ref("vine_nlp.design.multishape:design_multishape")),
+                    solve=_with_empty_extra(_Ref("vine_nlp.methods.multishape:design_multishape")),
                     write_archive=_single_run(_Ref("vine_nlp.io.formulations:write_multishape_archive"), "multishape"),
                     report=_multishape_report, figure=_Ref("vine_nlp.front.multishape_plot:plot_multishape_figure"),
                     figure_needs_path=True, options=("starts", "progress"), read_archive=_read_multishape),
-        Formulation("tip", problem_type=TipProblem, kind="tip", solve=_with_empty_extra(_Ref("vine_nlp.design.obstacles:tip_design")),
+        Formulation("tip", problem_type=TipProblem, kind="tip", solve=_with_empty_extra(_Ref("vine_nlp.methods.obstacles:tip_design")),
                     write_archive=_single_run(_Ref("vine_nlp.io.formulations:write_tip_archive"), "tip"),
                     report=_tip_report, figure=_plot_archive, options=("starts", "progress")),
         # the fit's own figure (front.fit_plots.plot_fit) writes a file; the archive figure shows

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import math
 
-from vine_nlp.design.multishape import RUN as MULTISHAPE_RUN
-from vine_nlp.design.multishape import MultiShapeResult
-from vine_nlp.design.problem import TipProblem
-from vine_nlp.design.result import Result
-from vine_nlp.design.tip import RUN as TIP_RUN
+from vine_nlp.methods.multishape import RUN as MULTISHAPE_RUN
+from vine_nlp.methods.multishape import MultiShapeResult
+from vine_nlp.methods.tip import RUN as TIP_RUN
+from vine_nlp.problem import Result, TipProblem
 
 
 def multishape_report(result: MultiShapeResult, units: str) -> list[str]:

@@ -36,11 +36,11 @@ from pathlib import Path
 
 import numpy as np
 
-from vine_nlp.design.problem import Routing
 from vine_nlp.front.sweep.summary import SUMMARY_CSV, read_summary
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
 from vine_nlp.model import shape_lines
 from vine_nlp.model.chain import segment_end_samples
+from vine_nlp.problem import Routing
 
 GROWTH_STEPS = 20  # slider steps of growth (21 positions, 0 to full length)
 ACTUATION_STEPS = 10  # slider steps of actuation after growth

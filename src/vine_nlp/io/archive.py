@@ -33,11 +33,11 @@ import h5py
 import numpy as np
 
 from vine_nlp import __version__
-from vine_nlp.design.problem import Routing
-from vine_nlp.design.result import Result, Shape
 from vine_nlp.errors import InputError
 from vine_nlp.io import limits
 from vine_nlp.io.obstacles import read_obstacles, write_obstacles
+from vine_nlp.model.shape import Shape
+from vine_nlp.problem import Result, Routing
 
 FORMAT = "vine_nlp/result"
 FORMAT_VERSION = 1

@@ -7,9 +7,9 @@ import dataclasses
 import math
 from pathlib import Path
 
-from vine_nlp.design.calibrate import Calibration
 from vine_nlp.io.archive import write_atomic
 from vine_nlp.io.validate import SourceFile, parse_toml, read_text
+from vine_nlp.model.calibration import Calibration
 
 KEYS = ("lambda_offset", "theta_offset_deg", "length_scale", "lambda_offset_se", "theta_offset_deg_se", "length_scale_se", "prototypes")
 

@@ -27,12 +27,12 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from vine_nlp.design.correct import CorrectionResult, Measurement
 from vine_nlp.errors import InputError
 from vine_nlp.io import limits
 from vine_nlp.io.archive import Archive, ArchiveError, load_archive, write_archive
 from vine_nlp.io.data_files import read_csv
 from vine_nlp.io.validate import SourceFile
+from vine_nlp.methods.correct import CorrectionResult, Measurement
 from vine_nlp.model.routing import MEASURED_LINES, Routing
 
 FORMAT = "vine_nlp/correction"

@@ -6,12 +6,12 @@ from __future__ import annotations
 import h5py
 import numpy as np
 
-from vine_nlp.design.multishape import RUN as MULTISHAPE_RUN
-from vine_nlp.design.multishape import MultiShapeResult
-from vine_nlp.design.result import Result
-from vine_nlp.design.tip import RUN as TIP_RUN
 from vine_nlp.io.archive import Archive, load_archive, write_archive
+from vine_nlp.methods.multishape import RUN as MULTISHAPE_RUN
+from vine_nlp.methods.multishape import MultiShapeResult
+from vine_nlp.methods.tip import RUN as TIP_RUN
 from vine_nlp.model.shape import Shape
+from vine_nlp.problem import Result
 
 RUN = MULTISHAPE_RUN
 

@@ -21,19 +21,9 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from vine_nlp.analysis.obstacles import (
-    GROWTH_MODES,
-    OBSTACLE_TYPES,
-    SHAPES,
-    Box,
-    Capsule,
-    Mesh,
-    Plane,
-    Sphere,
-    is_rotation,
-    rotation_from_degrees,
-)
+from vine_nlp.analysis.obstacles import GROWTH_MODES
 from vine_nlp.errors import InputError
+from vine_nlp.model.obstacles import OBSTACLE_TYPES, SHAPES, Box, Capsule, Mesh, Plane, Sphere, is_rotation, rotation_from_degrees
 
 MAX_OBSTACLES = 1000
 MAX_MESH_FACES = 20_000

@@ -1,4 +1,4 @@
-"""Problem files (spec/formats.md) read into the typed problems of ``vine_nlp.design.problem``.
+"""Problem files (spec/formats.md) read into the typed problems of ``vine_nlp.problem``.
 
 One problem kind per file, decided by its tables: [target] design, [routing] forward,
 [measured] fit, [[targets]] multishape (one sPAM routing, K shapes), [tip] tip. Every
@@ -17,22 +17,6 @@ from pathlib import Path
 import numpy as np
 
 from vine_nlp import targets
-from vine_nlp.design.problem import (
-    ACTUATOR_KINDS,
-    HESSIANS,
-    MEASURED_LINES,
-    METHODS,
-    SOLVERS,
-    TIP_OBJECTIVES,
-    Actuator,
-    DesignOptions,
-    DesignProblem,
-    FitProblem,
-    ForwardProblem,
-    MultiShapeProblem,
-    Routing,
-    TipProblem,
-)
 from vine_nlp.errors import InputError
 from vine_nlp.io.calibration import calibration_of
 from vine_nlp.io.data_files import data_points
@@ -55,6 +39,21 @@ from vine_nlp.io.validate import (
     rigid_pose,
     sub_table,
     unknown_key,
+)
+from vine_nlp.model.routing import MEASURED_LINES, Routing
+from vine_nlp.problem import (
+    ACTUATOR_KINDS,
+    HESSIANS,
+    METHODS,
+    SOLVERS,
+    TIP_OBJECTIVES,
+    Actuator,
+    DesignOptions,
+    DesignProblem,
+    FitProblem,
+    ForwardProblem,
+    MultiShapeProblem,
+    TipProblem,
 )
 
 # Guards against inputs that would exhaust memory long before they are useful.

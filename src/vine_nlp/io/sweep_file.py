@@ -12,10 +12,10 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from vine_nlp.design.problem import METHODS
 from vine_nlp.errors import InputError
 from vine_nlp.io.problems import ProblemFile, parse_problem
 from vine_nlp.io.validate import SourceFile, check, check_keys, choice, nonempty_text, parse_toml, read_text, required_value
+from vine_nlp.problem import METHODS
 
 MAX_SWEEP_ITEMS = 100_000
 

@@ -38,7 +38,7 @@ from vine_nlp.errors import InputError
 _MAX_ERROR_TEXT = 500
 MAX_CHUNK = 8  # items per local task at most: results still stream to disk every second or so
 # imported once by the forkserver, so its workers start with them (and the main module, the default)
-_WORKER_MODULES = ("vine_nlp.front.sweep.executors", "vine_nlp.design.methods")
+_WORKER_MODULES = ("vine_nlp.front.sweep.executors", "vine_nlp.methods.methods")
 
 
 def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]:
@@ -54,7 +54,7 @@ def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]
     (vine_nlp.interrupt maps an exception thrown inside IPOPT to KeyboardInterrupt)
     and fails that run instead of stopping the whole sweep.
     """
-    from vine_nlp import design
+    from vine_nlp.methods import methods as design
 
     runs, errors, wall = {}, {}, {}
     t_item, c_item = time.perf_counter(), time.process_time()
@@ -113,7 +113,7 @@ def _worker_init(inherited_fd=None):
 
 def _warm_up():
     """The first task of every local worker: the solver modules imported before the first item arrives."""
-    import vine_nlp.design.methods  # noqa: F401
+    import vine_nlp.methods.methods  # noqa: F401
 
     return os.getpid()
 
@@ -127,7 +127,7 @@ def fork_is_safe() -> bool:
         "fork" in mp.get_all_start_methods()
         and sys.platform != "darwin"
         and threading.active_count() == 1
-        and "vine_nlp.design.transcription" not in sys.modules
+        and "vine_nlp.methods.transcription" not in sys.modules
     )
 
 

@@ -41,13 +41,12 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp.analysis.collision import _ModelLine, routing_clearance
-from vine_nlp.design.common import Guess, pair_points
-from vine_nlp.design.nlp import design_bounds, design_nlp, nlp_parameters, nlp_spec, result_of, start_x
-from vine_nlp.design.problem import DesignProblem, Routing
-from vine_nlp.design.result import Result
-from vine_nlp.design.transcription import HARD_ROWS, BlockType, Chain, get_solver, options_key, segment_point_index
+from vine_nlp.methods.common import Guess, pair_points
+from vine_nlp.methods.nlp import design_bounds, design_nlp, nlp_parameters, nlp_spec, result_of, start_x
+from vine_nlp.methods.transcription import HARD_ROWS, BlockType, Chain, get_solver, options_key, segment_point_index
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.segment import segment_function
+from vine_nlp.problem import DesignProblem, Result, Routing
 
 
 @lru_cache(maxsize=None)

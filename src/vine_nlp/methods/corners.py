@@ -49,15 +49,14 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
-from vine_nlp.design import blas
-from vine_nlp.design.common import LENGTH_FACTOR
-from vine_nlp.design.problem import DesignProblem
-from vine_nlp.design.result import Result
-from vine_nlp.design.transcription import frames12, ipopt_quiet, ipopt_status, pick_best
+from vine_nlp.methods import blas
+from vine_nlp.methods.common import LENGTH_FACTOR
+from vine_nlp.methods.transcription import frames12, ipopt_quiet, ipopt_status, pick_best
 from vine_nlp.model.chain import chain_frames, chain_points
 from vine_nlp.model.pairing import Pairing
 from vine_nlp.model.routing import Routing
 from vine_nlp.model.segment import segment_function
+from vine_nlp.problem import DesignProblem, Result
 
 __all__ = ["corner_like", "search", "DEFAULT_BUDGET", "CORNER_RMSE", "clear_caches"]
 

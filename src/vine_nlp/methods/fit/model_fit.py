@@ -2,7 +2,7 @@
 
 Measured points in any order and any pose are fitted to the model's center, inner
 or outer line (:func:`fit_problem`, :func:`fit_lines`): only the rigid pose (see
-``vine_nlp.design.fit.align``) and, with ``free = ("lambda",)``, the shared lambda
+``vine_nlp.methods.fit.align``) and, with ``free = ("lambda",)``, the shared lambda
 of an sPAM are estimated: an outer 1-D search over lambda (coarse grid, then
 bounded Brent) re-runs the pose fit.
 
@@ -19,7 +19,7 @@ import time
 
 import numpy as np
 
-from vine_nlp.design.fit.align import (
+from vine_nlp.methods.fit.align import (
     PointSet,
     Polyline,
     PoseFit,
@@ -34,12 +34,11 @@ from vine_nlp.design.fit.align import (
     stack_points,
     subsample,
 )
-from vine_nlp.design.problem import FitProblem
-from vine_nlp.design.result import Result
 from vine_nlp.model import shape_lines
 from vine_nlp.model.chain import segment_end_samples
 from vine_nlp.model.routing import MEASURED_LINES, Routing
 from vine_nlp.model.shape import Shape
+from vine_nlp.problem import FitProblem, Result
 
 SPACING = 0.1  # model lines are sampled at <= SPACING * D
 

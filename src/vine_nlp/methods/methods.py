@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from vine_nlp.design.calibrate import nominal_of, realized_of
-from vine_nlp.design.common import evaluate, pair_points
-from vine_nlp.design.greedy import design_greedy
-from vine_nlp.design.nlp import design_nlp
-from vine_nlp.design.problem import DesignProblem
-from vine_nlp.design.result import Result, routing_metrics
+from vine_nlp.methods.common import evaluate, pair_points
+from vine_nlp.methods.greedy import design_greedy
+from vine_nlp.methods.nlp import design_nlp
+from vine_nlp.model.calibration import nominal_of, realized_of
+from vine_nlp.model.shape import routing_metrics
+from vine_nlp.problem import DesignProblem, Result
 
 METHODS = {"nlp": design_nlp, "greedy": design_greedy}
 

@@ -65,8 +65,8 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
-from vine_nlp.design import blas
-from vine_nlp.design.common import (
+from vine_nlp.methods import blas
+from vine_nlp.methods.common import (
     Pairing,
     clip_to_bounds,
     evaluate,
@@ -75,11 +75,10 @@ from vine_nlp.design.common import (
     path_error,
     variable_bounds,
 )
-from vine_nlp.design.problem import DesignProblem, Routing
-from vine_nlp.design.result import Result
-from vine_nlp.design.transcription import ipopt_quiet, ipopt_status
+from vine_nlp.methods.transcription import ipopt_quiet, ipopt_status
 from vine_nlp.model.chain import chain_points
 from vine_nlp.model.segment import segment_parts, segment_transform, so3_exp
+from vine_nlp.problem import DesignProblem, Result, Routing
 
 __all__ = ["design_greedy", "lowpass", "window_error", "WindowSolver", "get_window_solver"]
 

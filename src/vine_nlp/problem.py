@@ -1,7 +1,8 @@
-"""Typed problem descriptions shared by every design method, the forward model runner and the fit.
+"""The problem and result types, in one place: what every door (command line, API, sweeps) hands to the
+pipeline and what every method returns.
 
-These are plain, validated-elsewhere containers: ``vine_nlp.io.problem_file`` builds
-them from TOML files, tests and scripts build them directly.
+Plain, validated-elsewhere containers: ``vine_nlp.io.problems`` builds them from TOML files, the API from
+its arguments, tests and scripts directly.
 """
 
 from __future__ import annotations
@@ -11,8 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vine_nlp.design.calibrate import Calibration
-from vine_nlp.model.routing import MEASURED_LINES, Routing  # noqa: F401  (re-exported: their old home)
+from vine_nlp.model import phi_from_theta
+from vine_nlp.model.calibration import Calibration
+from vine_nlp.model.routing import Routing
+from vine_nlp.model.shape import Shape
 
 ACTUATOR_KINDS = ("tendon", "programmed", "spam")
 METHODS = ("nlp", "greedy")
@@ -124,7 +127,7 @@ class DesignProblem:
     growth : str
         "while-actuated" or "after" (the intermediate shapes of actuation after growth must clear too).
     calibration : Calibration or None
-        Systematic construction errors of the builder (vine_nlp.design.calibrate): the design is made for
+        Systematic construction errors of the builder (vine_nlp.model.calibration): the design is made for
         the robot as built.
     """
 
@@ -137,7 +140,7 @@ class DesignProblem:
     obstacles: tuple = ()
     obstacle_margin: float = 0.0
     growth: str = "while-actuated"
-    # the nominal to build has the calibration's systematic errors taken out (design.methods.run_design)
+    # the nominal to build has the calibration's systematic errors taken out (the pipeline)
     calibration: Calibration | None = None
 
 
@@ -201,7 +204,7 @@ TIP_OBJECTIVES = ("contraction", "turns")
 
 @dataclass(frozen=True)
 class MultiShapeProblem:
-    """One sPAM routing, K target shapes at K contraction levels (``vine_nlp.design.multishape``).
+    """One sPAM routing, K target shapes at K contraction levels (``vine_nlp.methods.multishape``).
 
     All targets have the same number of points, so the pairing structure (segments, points per
     segment) is shared.
@@ -260,7 +263,7 @@ class MultiShapeProblem:
 
 @dataclass(frozen=True)
 class TipProblem:
-    """Reach a tip position (and optionally a tip direction) with the least actuation (``vine_nlp.design.tip``).
+    """Reach a tip position (and optionally a tip direction) with the least actuation (``vine_nlp.methods.tip``).
 
     Parameters
     ----------
@@ -322,3 +325,50 @@ class TipProblem:
             raise ValueError(f"objective must be one of {TIP_OBJECTIVES}")
         if not (self.length > 0 and int(self.segments) >= 1):
             raise ValueError("length must be > 0 and segments >= 1")
+
+
+# ---------------------------------------------------------------- what every method returns
+
+@dataclass(eq=False)
+class Result:
+    """What every method returns: one routing, its shape, its metrics and solver statistics.
+
+    Parameters
+    ----------
+    method : str
+        The run's name ("nlp", "greedy", "multishape", "tip", "nlp_robust", ...).
+    routing : Routing
+        The design (per segment theta, lambda, length) and its base pose.
+    shape : Shape
+        The modeled center, actuator and opposite lines; design runs: row i pairs with target row i.
+    status : str
+        "optimal", "acceptable", "max_iter", "failed", ... (IPOPT's return status, archived).
+    solve_time_s : float
+        Time of the method, in seconds.
+    iterations : int
+        IPOPT iterations (summed over starts, hops and rounds).
+    metrics : dict
+        rmse, max_error (problem units), tv_theta, tv_lambda and formulation-specific figures.
+    stats : dict
+        Solver statistics and options, archived as attributes of ``/runs/<run>/solver``.
+    diameter : float
+        Tube diameter D.
+    """
+
+    method: str
+    routing: Routing
+    shape: Shape
+    status: str = "optimal"  # optimal | acceptable | max_iter | failed | ...
+    solve_time_s: float = 0.0
+    iterations: int = 0
+    metrics: dict = field(default_factory=dict)
+    stats: dict = field(default_factory=dict)  # solver statistics and options, archived as attributes
+    diameter: float = 1.0
+
+    @property
+    def phi(self) -> np.ndarray:
+        return phi_from_theta(self.routing.theta, self.routing.length, self.diameter)
+
+    @property
+    def converged(self) -> bool:
+        return self.status in ("optimal", "acceptable")

@@ -29,11 +29,9 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from vine_nlp.design import compiled, corners
-from vine_nlp.design.common import LENGTH_FACTOR, Guess, evaluate, geometric_guess, pair_points
-from vine_nlp.design.problem import DesignProblem, Routing
-from vine_nlp.design.result import Result
-from vine_nlp.design.transcription import (
+from vine_nlp.methods import compiled, corners
+from vine_nlp.methods.common import LENGTH_FACTOR, Guess, evaluate, geometric_guess, pair_points
+from vine_nlp.methods.transcription import (
     TIE_RTOL,
     Smoothness,
     SoftTip,
@@ -49,10 +47,11 @@ from vine_nlp.design.transcription import (
     record_starts,
     smoothing_steps,
 )
-from vine_nlp.design.transcription import get_solver as _get
+from vine_nlp.methods.transcription import get_solver as _get
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.pairing import Pairing
 from vine_nlp.model.segment import segment_function, so3_exp  # noqa: F401  (segment_function: its old home)
+from vine_nlp.problem import DesignProblem, Result, Routing
 
 __all__ = ["design_nlp", "solve_from", "start_guesses", "guess_from_routing", "basin_hops", "get_solver", "nlp_parameters", "TIE_RTOL"]
 

@@ -80,12 +80,10 @@ from typing import ClassVar
 import casadi as ca
 import numpy as np
 
-from vine_nlp.design.common import evaluate, pair_points
-from vine_nlp.design.fit.align import PointSet, Polyline, fit_pose, polish_pose, pose_starts
-from vine_nlp.design.nlp import nlp_parameters
-from vine_nlp.design.problem import DesignProblem
-from vine_nlp.design.result import Result
-from vine_nlp.design.transcription import (
+from vine_nlp.methods.common import evaluate, pair_points
+from vine_nlp.methods.fit.align import PointSet, Polyline, fit_pose, polish_pose, pose_starts
+from vine_nlp.methods.nlp import nlp_parameters
+from vine_nlp.methods.transcription import (
     BlockType,
     Chain,
     Smoothness,
@@ -102,6 +100,7 @@ from vine_nlp.model.helix import center_rates
 from vine_nlp.model.routing import MEASURED_LINES, Routing, Sigmas
 from vine_nlp.model.segment import segment_function, segment_transform, so3_exp, twist_parts
 from vine_nlp.model.shape import routing_metrics
+from vine_nlp.problem import DesignProblem, Result
 
 _log = logging.getLogger(__name__)
 

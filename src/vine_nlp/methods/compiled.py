@@ -47,12 +47,12 @@ import time
 from functools import lru_cache
 from pathlib import Path
 
-from vine_nlp.design import blas
 from vine_nlp.errors import InputError
+from vine_nlp.methods import blas
 
 __all__ = ["mode", "cache_dir", "compiler", "nlpsol", "fatrop_nlpsol", "block_functions", "stored", "CompileError", "NotCompiled", "stats"]
 
-_log = logging.getLogger("vine_nlp.design.compiled")
+_log = logging.getLogger("vine_nlp.methods.compiled")
 
 # the functions IPOPT's interface asks an imported NLP for, by the names CasADi expects
 _NAMES = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_grad", "nlp_jac_g")

@@ -41,15 +41,14 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp.analysis.tolerance import tolerance_report
-from vine_nlp.design.clearance import chain_guess, extended_solver
-from vine_nlp.design.common import pair_points
-from vine_nlp.design.nlp import design_bounds, design_nlp, nlp_parameters, result_of, start_x
-from vine_nlp.design.problem import DesignProblem
-from vine_nlp.design.result import Result
-from vine_nlp.design.transcription import BlockType, Chain, segment_point_index
+from vine_nlp.methods.clearance import chain_guess, extended_solver
+from vine_nlp.methods.common import pair_points
+from vine_nlp.methods.nlp import design_bounds, design_nlp, nlp_parameters, result_of, start_x
+from vine_nlp.methods.transcription import BlockType, Chain, segment_point_index
 from vine_nlp.model.helix import center_rates
 from vine_nlp.model.routing import Sigmas
 from vine_nlp.model.segment import _exp_coefficients, twist_parts
+from vine_nlp.problem import DesignProblem, Result
 
 
 def _sym6(p):

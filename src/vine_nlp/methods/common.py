@@ -11,11 +11,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vine_nlp.design.problem import DesignProblem, Routing
-from vine_nlp.design.result import Result, Shape, error_metrics, routing_metrics
 from vine_nlp.model import shape_lines
 from vine_nlp.model.helix import center_rates, helix_from_curvature
 from vine_nlp.model.pairing import Pairing, pair_points  # noqa: F401  (pair_points: used by every method)
+from vine_nlp.model.shape import Shape, error_metrics, forward_shape, routing_metrics
+from vine_nlp.problem import DesignProblem, ForwardProblem, Result, Routing
 
 # Segment lengths stay within this factor of the target's chord length of the segment:
 # a loose box that keeps IPOPT away from dl -> 0 without constraining real designs.
@@ -166,3 +166,11 @@ def geometric_guess(problem: DesignProblem, pairing: Pairing, flip_sign: float =
     frames[:, :3, 3] = tgt[b]
     frames[:, 3, 3] = 1.0
     return Guess(theta, lam, length, frames[0].copy(), frames)
+
+
+def run_forward(problem) -> Result:
+    """Shape of a given routing (``vine-nlp forward``): a Result with method "forward"."""
+    assert isinstance(problem, ForwardProblem)
+    r = problem.routing
+    return Result(method="forward", routing=r, shape=forward_shape(r, problem.diameter), status="optimal", metrics=routing_metrics(r),
+                  diameter=problem.diameter)

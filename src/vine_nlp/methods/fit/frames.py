@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 
-from vine_nlp.design.fit.model_fit import LAMBDA_BOUNDS, SPACING, LineFitter, finish_fit
-from vine_nlp.design.problem import FitProblem
+from vine_nlp.methods.fit.model_fit import LAMBDA_BOUNDS, SPACING, LineFitter, finish_fit
+from vine_nlp.problem import FitProblem
 
 
 class FrameFit(tuple):

@@ -35,11 +35,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vine_nlp.design.common import LENGTH_FACTOR, evaluate, geometric_guess, pair_points
-from vine_nlp.design.nlp import routing_of
-from vine_nlp.design.problem import MultiShapeProblem, Routing
-from vine_nlp.design.result import Result, routing_metrics
-from vine_nlp.design.transcription import (
+from vine_nlp.methods.common import LENGTH_FACTOR, evaluate, geometric_guess, pair_points
+from vine_nlp.methods.nlp import routing_of
+from vine_nlp.methods.transcription import (
     Smoothness,
     SoftTip,
     Spec,
@@ -55,6 +53,8 @@ from vine_nlp.design.transcription import (
 )
 from vine_nlp.model.helix import center_rates
 from vine_nlp.model.pairing import Pairing
+from vine_nlp.model.shape import routing_metrics
+from vine_nlp.problem import MultiShapeProblem, Result, Routing
 
 RUN = "multishape"
 

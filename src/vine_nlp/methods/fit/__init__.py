@@ -15,10 +15,10 @@ Transforms are 4x4 homogeneous matrices. ``T`` returned by the fits maps measure
 points into the model frame (``T @ measured ~ model``).
 """
 
-from vine_nlp.design.fit.align import Polyline, apply_transform, icp, invert_transform, pose_starts, r_squared
-from vine_nlp.design.fit.frames import FrameFit, fit_frames
-from vine_nlp.design.fit.helix import best_fit_helix, best_fit_helix_pair, parameter_errors
-from vine_nlp.design.fit.model_fit import describe_fit, fit_lines, fit_problem, model_lines
+from vine_nlp.methods.fit.align import Polyline, apply_transform, icp, invert_transform, pose_starts, r_squared
+from vine_nlp.methods.fit.frames import FrameFit, fit_frames
+from vine_nlp.methods.fit.helix import best_fit_helix, best_fit_helix_pair, parameter_errors
+from vine_nlp.methods.fit.model_fit import describe_fit, fit_lines, fit_problem, model_lines
 
 __all__ = [
     "fit_problem",

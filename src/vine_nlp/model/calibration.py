@@ -3,7 +3,7 @@
 A design problem may carry one (``[calibration]`` or ``calibration = "CAL.toml"``): the design is then
 made for the robot as it actually gets built. The design method designs as usual (what the robot
 should realize); the nominal to build is that design with the systematic parts taken out
-(:func:`nominal_of`, applied in ``design.methods.run_design`` by ``design.methods.apply_calibration``).
+(:func:`nominal_of`, applied by the pipeline).
 """
 
 from __future__ import annotations
@@ -18,7 +18,21 @@ from vine_nlp.model.routing import Routing
 
 @dataclass(frozen=True)
 class Calibration:
-    """Built = nominal + offsets, lengths times the scale (the contract's deviation rule, shared by all segments)."""
+    """Built = nominal + offsets, lengths times the scale (the contract's deviation rule, shared by all segments).
+
+    Parameters
+    ----------
+    lambda_offset : float
+        Systematic lambda error (built minus nominal).
+    theta_offset_deg : float
+        Systematic theta error, degrees.
+    length_scale : float
+        Built segment length over nominal (> 0).
+    lambda_offset_se, theta_offset_deg_se, length_scale_se : float
+        Their standard errors.
+    prototypes : int
+        Prototypes the calibration was estimated from.
+    """
 
     lambda_offset: float = 0.0
     theta_offset_deg: float = 0.0

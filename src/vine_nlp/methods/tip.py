@@ -65,10 +65,8 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from vine_nlp.design.common import _perpendicular, _unit, geometric_guess, pair_points
-from vine_nlp.design.problem import DesignProblem, Routing, TipProblem
-from vine_nlp.design.result import Result, forward_shape, routing_metrics
-from vine_nlp.design.transcription import (
+from vine_nlp.methods.common import _perpendicular, _unit, geometric_guess, pair_points
+from vine_nlp.methods.transcription import (
     BlockType,
     Chain,
     Smoothness,
@@ -82,6 +80,8 @@ from vine_nlp.design.transcription import (
     record_starts,
 )
 from vine_nlp.model.chain import chain_frames
+from vine_nlp.model.shape import forward_shape, routing_metrics
+from vine_nlp.problem import DesignProblem, Result, Routing, TipProblem
 
 RUN = "tip"
 MIN_LENGTH_FACTOR = 0.2  # dl_j >= 0.2 L / M

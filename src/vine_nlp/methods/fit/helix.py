@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from vine_nlp.design.fit.align import clean_points, principal_axes, r_squared
+from vine_nlp.methods.fit.align import clean_points, principal_axes, r_squared
 from vine_nlp.model import helix_forward, helix_inverse
 
 

@@ -61,7 +61,7 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp import interrupt
-from vine_nlp.design import compiled
+from vine_nlp.methods import compiled
 from vine_nlp.model.segment import segment_function, so3_exp
 
 # ---------------------------------------------------------------- IPOPT settings and statuses

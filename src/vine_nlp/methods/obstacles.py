@@ -121,29 +121,17 @@ import numpy as np
 from vine_nlp.analysis.obstacles import (
     DEFAULT_AFTER_STEPS,
     DEFAULT_PER_SEGMENT,
-    EPS_REL,
-    Box,
-    Capsule,
-    Mesh,
-    Plane,
-    Sphere,
     after_growth_routing,
     curvature_bound,
     dip,
-    mesh_signed_distance,
     min_gap,
-    nearest_triangles,
     obstacle_report,
-    point_triangle_distance,
     sample_chain,
-    sharpness_radius,
 )
-from vine_nlp.design.clearance import chain_guess, result_of
-from vine_nlp.design.common import pair_points
-from vine_nlp.design.nlp import design_bounds, design_nlp, nlp_parameters, nlp_spec, solve_from, start_x
-from vine_nlp.design.problem import DesignOptions, DesignProblem, Routing, TipProblem
-from vine_nlp.design.result import Result
-from vine_nlp.design.tip import (
+from vine_nlp.methods.clearance import chain_guess, result_of
+from vine_nlp.methods.common import pair_points
+from vine_nlp.methods.nlp import design_bounds, design_nlp, nlp_parameters, nlp_spec, solve_from, start_x
+from vine_nlp.methods.tip import (
     MIN_LENGTH_FACTOR,
     _perpendicular_pair,
     design_tip,
@@ -151,9 +139,22 @@ from vine_nlp.design.tip import (
     start_guesses,
     tip_spec,
 )
-from vine_nlp.design.transcription import HARD_ROWS, BlockType, Chain, Samples, frames12, get_solver, options_key, pick_best
+from vine_nlp.methods.transcription import HARD_ROWS, BlockType, Chain, Samples, frames12, get_solver, options_key, pick_best
 from vine_nlp.model.chain import chain_frames, chain_points
+from vine_nlp.model.obstacles import (
+    EPS_REL,
+    Box,
+    Capsule,
+    Mesh,
+    Plane,
+    Sphere,
+    mesh_signed_distance,
+    nearest_triangles,
+    point_triangle_distance,
+    sharpness_radius,
+)
 from vine_nlp.model.segment import segment_function
+from vine_nlp.problem import DesignOptions, DesignProblem, Result, Routing, TipProblem
 
 RUN = "nlp"  # the obstacle design is the problem's design (archived as run "nlp"); the obstacle-free start: FREE_RUN
 FREE_RUN = "nlp_free"
@@ -1029,7 +1030,7 @@ def _tip_solve(problem: TipProblem, plan: Plan, routing: Routing, rounds: int):
 
 def tip_design(problem: TipProblem, starts: int | None = None, progress=None) -> Result:
     """A tip problem's design, as ``vine-nlp design`` makes it: among its obstacles where it has any
-    (:func:`design_tip_with_obstacles`), else :func:`vine_nlp.design.tip.design_tip`.
+    (:func:`design_tip_with_obstacles`), else :func:`vine_nlp.methods.tip.design_tip`.
 
     Parameters
     ----------
