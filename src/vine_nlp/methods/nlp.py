@@ -25,14 +25,13 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from vine_nlp.methods import compiled, corners
+from vine_nlp.methods import compiled, corners, drive
 from vine_nlp.methods.common import LENGTH_FACTOR, Guess, evaluate, geometric_guess, pair_points
+from vine_nlp.methods.drive import TIE_RTOL
 from vine_nlp.methods.transcription import (
-    TIE_RTOL,
     Smoothness,
     SoftTip,
     Spec,
@@ -43,8 +42,6 @@ from vine_nlp.methods.transcription import (
     frames12,
     ipopt_options,
     options_key,
-    pick_best,
-    record_starts,
     smoothing_steps,
 )
 from vine_nlp.methods.transcription import get_solver as _get
@@ -185,20 +182,20 @@ def solve_from(
     guess = guess or geometric_guess(problem, pairing)
     if o.hessian != "auto":
         return _solve(problem, guess, pairing, frames, warm, o.hessian, o.max_iter)
-    t0 = time.perf_counter()
-    first = _solve(problem, guess, pairing, frames, warm, "gauss-newton", min(o.max_iter, AUTO_GN_MAX_ITER))
-    if first.status == "optimal":
-        first.stats["hessian"] = "gauss-newton"
-        return first
-    if first.status == "acceptable":
-        second = _solve(problem, guess_from_routing(problem, pairing, first.routing), pairing, "chain", True, "exact", o.max_iter)
-        second.stats["hessian"] = "exact, polishing gauss-newton's acceptable point"
-    else:
-        second = _solve(problem, guess, pairing, frames, warm, "exact", o.max_iter)
-        second.stats["hessian"] = "exact (after gauss-newton did not converge)"
-    second.iterations += first.iterations
-    second.solve_time_s = time.perf_counter() - t0
-    return second
+
+    def step(hessian, max_iter, previous):
+        if previous is None:
+            r = _solve(problem, guess, pairing, frames, warm, hessian, max_iter)
+            r.stats["hessian"] = hessian
+        elif previous.status == "acceptable":  # the exact Hessian polishes Gauss-Newton's acceptable point
+            r = _solve(problem, guess_from_routing(problem, pairing, previous.routing), pairing, "chain", True, hessian, max_iter)
+            r.stats["hessian"] = "exact, polishing gauss-newton's acceptable point"
+        else:
+            r = _solve(problem, guess, pairing, frames, warm, hessian, max_iter)
+            r.stats["hessian"] = "exact (after gauss-newton did not converge)"
+        return r
+
+    return drive.schedule(step, (("gauss-newton", min(o.max_iter, AUTO_GN_MAX_ITER)), ("exact", o.max_iter)))
 
 
 def _solve(problem, guess, pairing, frames, warm, hessian, max_iter) -> Result:
@@ -309,37 +306,22 @@ def design_nlp(
         n = max(1, problem.options.starts if starts is None else starts)
         jobs = [(problem, g, "target", False) for g in start_guesses(problem, pairing, n)]
     total = len(jobs) + n_hops
-    t0 = time.perf_counter()
-    results = []
-    if workers > 1 and len(jobs) > 1:
-        with ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
-            for r in pool.map(_solve_start, jobs):  # map keeps start order: deterministic choice
-                results.append(r)
-                if progress:
-                    progress(len(results), total)
-    else:
-        for job in jobs:
-            results.append(_solve_start(job))
-            if progress:
-                progress(len(results), total)
-
-    k_best = pick_best(results)
-    best = results[k_best]
-    if len(results) > 1:
-        record_starts(best, k_best, results, t0)
+    stats = drive.Stats()
+    found = drive.multistart(_solve_start, jobs, workers=workers, progress=progress and (lambda done, _: progress(done, total)))
+    best = drive.record_starts(found, stats)
     if warm is not None:
         best.stats["warm_start"] = True
     if n_hops:
-        before = best.iterations  # all the starts' (record_starts)
-        best = basin_hops(problem, best, n_hops, pairing, lambda k: progress and progress(len(results) + k, total))
-        best.iterations = before + sum(best.stats["hop_iterations"])
-        best.solve_time_s = time.perf_counter() - t0
-        return best
+        best = basin_hops(problem, best, n_hops, pairing, lambda k: progress and progress(len(jobs) + k, total))
+        stats.iterations += sum(best.stats["hop_iterations"])
+        stats.solves += len(best.stats["hop_iterations"])
+        return stats.stamp(best)
     budget = problem.options.budget if budget is None else budget
     if budget > 0 and corners.corner_like(problem, best):
-        best = _corner_search(problem, best, pairing, budget, workers, progress, note, len(results))
-        best.solve_time_s = time.perf_counter() - t0
-    return best
+        best = _corner_search(problem, best, pairing, budget, workers, progress, note, len(jobs))
+        best.solve_time_s = time.perf_counter() - stats.started
+        return best
+    return stats.stamp(best)
 
 
 def _corner_search(problem, best, pairing, budget, workers, progress, note, done) -> Result:
