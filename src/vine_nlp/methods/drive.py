@@ -141,7 +141,7 @@ def schedule(solve: Callable, steps) -> Result:
         if tried[-1].status == "optimal":
             break
     best = tried[-1] if tried[-1].status == "optimal" else tried[pick_best(tried)]
-    best.stats["hessian_schedule"] = [f"{h}: {r.status}" for (h, _), r in zip(steps, tried)]
+    best.stats["hessian_schedule"] = "; ".join(f"{h}: {r.status}" for (h, _), r in zip(steps, tried))
     return stats.stamp(best)
 
 
