@@ -7,28 +7,13 @@ import tomllib
 
 from vine_nlp.analysis.collision import collision_metrics, growth_contacts, helix_collisions, routing_clearance
 from vine_nlp.analysis.obstacles import obstacle_report, report_rows
-from vine_nlp.analysis.tolerance import Sigmas, tolerance_metrics, tolerance_report
+from vine_nlp.analysis.tolerance import tolerance_metrics, tolerance_report
 from vine_nlp.errors import InputError
 from vine_nlp.front.analysis_plots import clearance_figure, tolerance_figure
-from vine_nlp.front.files import archive_run, check_figure, read_archive
+from vine_nlp.front.files import archive_run, check_figure, read_archive, sigmas
 from vine_nlp.io.archive import write_archive
 from vine_nlp.io.obstacles import DEFAULT_GROWTH, parse_obstacle_design
 from vine_nlp.io.problems import design_problem_of
-
-
-def sigmas(args) -> Sigmas:
-    """The construction-error sigmas of the command line's --sigma-* options."""
-    if args.sigma_length_abs is not None:
-        return Sigmas.from_degrees(args.sigma_theta_deg, args.sigma_lambda, args.sigma_length_abs, relative_length=False)
-    return Sigmas.from_degrees(args.sigma_theta_deg, args.sigma_lambda, args.sigma_length, relative_length=True)
-
-
-def add_sigma_args(p) -> None:
-    """The --sigma-* options (analyze, design --robust, correct)."""
-    p.add_argument("--sigma-theta-deg", type=float, default=1.0, metavar="DEG", help="construction error of theta (default 1)")
-    p.add_argument("--sigma-lambda", type=float, default=0.02, metavar="S", help="construction error of lambda (default 0.02)")
-    p.add_argument("--sigma-length", type=float, default=0.02, metavar="F", help="relative error of segment lengths (default 0.02)")
-    p.add_argument("--sigma-length-abs", type=float, metavar="L", help="absolute error of segment lengths instead, in units")
 
 
 def cmd_analyze(args) -> int:

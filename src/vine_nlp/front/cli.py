@@ -14,16 +14,17 @@ from pathlib import Path
 
 from vine_nlp import __version__
 from vine_nlp.errors import InputError
-from vine_nlp.front.analyze import add_sigma_args, cmd_analyze, sigmas
-from vine_nlp.front.files import archive_run, check_figure, check_output, read_archive
+from vine_nlp.front.files import add_sigma_args, archive_run, check_figure, check_output, read_archive, sigmas
 from vine_nlp.methods import blas, compiled
+from vine_nlp.pipeline.runs import COMPARE
+from vine_nlp.problem import METHODS
 
 EXIT_OK, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
 # the pipeline names what a problem cannot be asked for by the request's field; the command line by its flag
 FLAGS = {"method": "--method", "warm": "--warm", "hops": "--hops", "budget": "--budget", "robust": "--robust",
          "clearance": "--clearance", "starts": "--starts"}
 # what each solving command takes: the problem kinds, and the design runs (None: the problem's method)
-SOLVES = {"design": (("design", "tip", "multishape"), None), "compare": (("design",), ("nlp", "greedy", "greedy_filtered")),
+SOLVES = {"design": (("design", "tip", "multishape"), None), "compare": (("design",), COMPARE),
           "forward": (("forward",), None), "fit": (("fit",), None)}
 KIND_KEY = {"design": "target", "forward": "routing", "fit": "measured"}
 
@@ -211,6 +212,24 @@ def cmd_sweep(args) -> int:
     return EXIT_OK if not (report.failed or report.not_converged) else EXIT_NOT_CONVERGED
 
 
+def cmd_analyze(args) -> int:
+    from vine_nlp.front import analyze  # matplotlib and SciPy load when the command runs
+
+    return analyze.cmd_analyze(args)
+
+
+def cmd_correct(args) -> int:
+    from vine_nlp.front import correct  # the solvers load when the command runs
+
+    return correct.cmd_correct(args)
+
+
+def cmd_calibrate(args) -> int:
+    from vine_nlp.front import correct
+
+    return correct.cmd_calibrate(args)
+
+
 def cmd_plot(args) -> int:
     from vine_nlp.front.figures import draw
 
@@ -364,6 +383,21 @@ def _need_extra(command, *modules):
         raise InputError("command line", command, f"needs {', '.join(missing)}: python3 -m pip install 'vine_nlp[view]'")
 
 
+def _add_correct_arguments(p) -> None:
+    p.add_argument("archive", metavar="ARCHIVE.h5")
+    p.add_argument("measured", nargs="+", metavar="MEASURED.csv", help="points measured on the built robot (rows x y z, any order)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.h5")
+    p.add_argument("--run", help="the nominal that was built (default: corrected in a correction archive, else the design run)")
+    p.add_argument("--line", default="outer", metavar="LINE[,LINE...]", help="measured line: center, inner or outer; one per file or one for all (default outer)")
+    p.add_argument("--adjust", default="lambda", choices=("lambda", "lambda,theta"), metavar="lambda|lambda,theta", help="what the builder changes (default lambda: stopper or pinch lengths)")
+    p.add_argument("--free-pose", action="store_true", help="the measurement is in an unknown frame: estimate its rigid pose")
+    add_sigma_args(p)
+    p.add_argument("--sigma-measurement", type=float, metavar="S", help="measurement noise, in units (default 1 mm)")
+    p.add_argument("--plot", metavar="FIG.png", help="measured, estimated and corrected shapes; deviations per segment")
+    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(
         prog="vine-nlp",
@@ -389,7 +423,7 @@ def build_parser() -> argparse.ArgumentParser:
         d.add_argument("problem", metavar="PROBLEM.toml")
         d.add_argument("-o", "--output", required=True, metavar="OUT.h5")
         if name == "design":
-            d.add_argument("--method", choices=("nlp", "greedy"), help="default: the problem's [design] method (nlp)")
+            d.add_argument("--method", choices=METHODS, help="default: the problem's [design] method (nlp)")
             d.add_argument("--warm", metavar="ARCHIVE.h5", help="nlp: start from the design in an earlier archive")
             d.add_argument("--robust", action="store_true", help="also a design minimizing the expected error under construction errors (run nlp_robust)")
             d.add_argument("--robust-weight", type=float, default=1.0, metavar="W", help="weight of the expected error increase")
@@ -476,13 +510,13 @@ def build_parser() -> argparse.ArgumentParser:
     ex.set_defaults(func=cmd_export)
 
     co = sub.add_parser("correct", help="estimate a built robot from measured points and correct it -> correction archive")
-    from vine_nlp.front import correct as correct_cmd  # argument tables and commands; the solvers load when run
-
-    correct_cmd.add_correct_arguments(co, add_sigma_args)
-    co.set_defaults(func=correct_cmd.cmd_correct)
+    _add_correct_arguments(co)
+    co.set_defaults(func=cmd_correct)
     cb = sub.add_parser("calibrate", help="systematic construction errors over several correction archives -> CAL.toml")
-    correct_cmd.add_calibrate_arguments(cb)
-    cb.set_defaults(func=correct_cmd.cmd_calibrate)
+    cb.add_argument("archives", nargs="+", metavar="ARCHIVE.h5", help="correction archives of prototypes of one construction method")
+    cb.add_argument("-o", "--output", required=True, metavar="CAL.toml")
+    cb.add_argument("--force", action="store_true", help="overwrite an existing file")
+    cb.set_defaults(func=cmd_calibrate)
 
     sh = sub.add_parser("show", help="readable summary of an archive")
     sh.add_argument("archive", metavar="OUT.h5")

@@ -7,11 +7,9 @@ import math
 import sys
 
 import numpy as np
-from matplotlib.figure import Figure
 
 from vine_nlp.errors import InputError
-from vine_nlp.front.analyze import sigmas
-from vine_nlp.front.files import check_figure, check_output
+from vine_nlp.front.files import check_figure, check_output, sigmas
 from vine_nlp.front.plot import save_figure
 from vine_nlp.io.calibration import write_calibration
 from vine_nlp.io.correction import write_correction_archive
@@ -43,6 +41,8 @@ def report(result, units: str) -> list[str]:
 
 def correction_figure(result, problem, units: str = "cm"):
     """Target, measured points, estimated as-built line and predicted corrected shape; deviations per segment."""
+    from matplotlib.figure import Figure  # matplotlib loads when a figure is asked for
+
     fig = Figure(figsize=(12, 5.5))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     ax.plot(*problem.target.T, "k-", lw=1, label="target")
@@ -109,26 +109,3 @@ def cmd_calibrate(args) -> int:
           f"{cal.length_scale_se:.4f}" + (f" (scatter {birge:.2f}x the standard errors)" if cal.prototypes > 1 else ""))
     print(f"calibration -> {out}")
     return 0
-
-
-def add_correct_arguments(p, add_sigma_args) -> None:
-    p.add_argument("archive", metavar="ARCHIVE.h5")
-    p.add_argument("measured", nargs="+", metavar="MEASURED.csv", help="points measured on the built robot (rows x y z, any order)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.h5")
-    p.add_argument("--run", help="the nominal that was built (default: corrected in a correction archive, else the design run)")
-    p.add_argument("--line", default="outer", metavar="LINE[,LINE...]", help="measured line: center, inner or outer; one per file or one for all (default outer)")
-    p.add_argument("--adjust", default="lambda", choices=("lambda", "lambda,theta"), metavar="lambda|lambda,theta", help="what the builder changes (default lambda: stopper or pinch lengths)")
-    p.add_argument("--free-pose", action="store_true", help="the measurement is in an unknown frame: estimate its rigid pose")
-    add_sigma_args(p)
-    p.add_argument("--sigma-measurement", type=float, metavar="S", help="measurement noise, in units (default 1 mm)")
-    p.add_argument("--plot", metavar="FIG.png", help="measured, estimated and corrected shapes; deviations per segment")
-    p.add_argument("--force", action="store_true", help="overwrite existing output files")
-
-
-# ---------------------------------------------------------------- calibrate
-
-
-def add_calibrate_arguments(p) -> None:
-    p.add_argument("archives", nargs="+", metavar="ARCHIVE.h5", help="correction archives of prototypes of one construction method")
-    p.add_argument("-o", "--output", required=True, metavar="CAL.toml")
-    p.add_argument("--force", action="store_true", help="overwrite an existing file")

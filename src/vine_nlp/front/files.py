@@ -1,13 +1,15 @@
-"""The command line's checks of the files it names: outputs not overwritten without --force, figure
-formats, archives read and validated, runs that exist."""
+"""What the commands share: checks of the files they name (outputs not overwritten without --force,
+figure formats, archives read and validated, runs that exist) and the construction-error options."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from vine_nlp.errors import InputError
-from vine_nlp.front.plot import figure_format
 from vine_nlp.io.archive import load_archive
+from vine_nlp.model.routing import Sigmas
+
+FIGURE_FORMATS = ("png", "pdf", "svg")
 
 
 def check_output(path: str, force: bool, arg: str = "-o") -> Path:
@@ -32,6 +34,14 @@ def check_figure(path, force, key="--plot"):
     return out
 
 
+def figure_format(figure_path) -> str:
+    """The format of a figure file by its suffix (ValueError for another)."""
+    fmt = Path(figure_path).suffix.lower().lstrip(".")
+    if fmt not in FIGURE_FORMATS:
+        raise ValueError(f"{figure_path}: figure format must be one of {', '.join('.' + f for f in FIGURE_FORMATS)}")
+    return fmt
+
+
 def read_archive(path, key="ARCHIVE"):
     """The archive at ``path``, validated; any problem is one InputError ``(path, dataset, reason)``
     (``key``: the command-line argument that named it, for a path that is no file at all)."""
@@ -49,3 +59,18 @@ def archive_run(archive, path, run):
     if run not in archive.runs:
         raise InputError(path, "--run", f"no run {run!r} (runs: {', '.join(archive.runs) or 'none'})")
     return run
+
+
+def sigmas(args) -> Sigmas:
+    """The construction-error sigmas of the command line's --sigma-* options."""
+    if args.sigma_length_abs is not None:
+        return Sigmas.from_degrees(args.sigma_theta_deg, args.sigma_lambda, args.sigma_length_abs, relative_length=False)
+    return Sigmas.from_degrees(args.sigma_theta_deg, args.sigma_lambda, args.sigma_length, relative_length=True)
+
+
+def add_sigma_args(p) -> None:
+    """The --sigma-* options (analyze, design --robust, correct)."""
+    p.add_argument("--sigma-theta-deg", type=float, default=1.0, metavar="DEG", help="construction error of theta (default 1)")
+    p.add_argument("--sigma-lambda", type=float, default=0.02, metavar="S", help="construction error of lambda (default 0.02)")
+    p.add_argument("--sigma-length", type=float, default=0.02, metavar="F", help="relative error of segment lengths (default 0.02)")
+    p.add_argument("--sigma-length-abs", type=float, metavar="L", help="absolute error of segment lengths instead, in units")

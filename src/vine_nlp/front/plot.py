@@ -29,13 +29,13 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
+from vine_nlp.front.files import figure_format
 from vine_nlp.front.show import ordered_runs, source_table
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
 from vine_nlp.model import chain_frames, chain_points
 from vine_nlp.model.obstacles import Box, Capsule, Mesh, Plane, Sphere
 from vine_nlp.model.pairing import pair_points
 
-FORMATS = ("png", "pdf", "svg")
 ERROR_CMAP = "plasma"
 ACTUATOR_COLOR = "tab:blue"
 OPPOSITE_COLOR = "tab:red"
@@ -444,13 +444,6 @@ def plot_archive(archive, obstacles=None) -> Figure:
             ax.set_title(f"({chr(ord('a') + k + i)})", loc="left", pad=2)
         fig.suptitle(f"{archive.name} ({archive.kind}), D = {fmt_len(archive.diameter, archive.units)}")
     return fig
-
-
-def figure_format(figure_path) -> str:
-    fmt = Path(figure_path).suffix.lower().lstrip(".")
-    if fmt not in FORMATS:
-        raise ValueError(f"{figure_path}: figure format must be one of {', '.join('.' + f for f in FORMATS)}")
-    return fmt
 
 
 def save_figure(fig, figure_path, dpi: int = 300) -> Path:
