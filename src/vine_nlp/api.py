@@ -256,6 +256,16 @@ class _Context:
         return self.archive if self.archive is not None else self.outcome.archive()
 
 
+def _of(holder: str, name: str, doc: str) -> property:
+    """A read-only attribute that is ``getattr(self.<holder>, name)``, documented ``doc``."""
+
+    def get(self):
+        return getattr(getattr(self, holder), name)
+
+    get.__doc__ = doc
+    return property(get)
+
+
 class Design:
     """One run (a routing, its shape, metrics and solver statistics) with its problem context.
 
@@ -274,147 +284,61 @@ class Design:
         self._context = context
         self.run = run
 
-    # -- the run
     @property
     def result(self) -> Result:
         """The design layer's Result of this run."""
         return self._context.runs[self.run]
 
-    @property
-    def method(self) -> str:
-        """The method that made this run (nlp, greedy, forward, fit, multishape, tip, ...)."""
-        return self.result.method
-
-    @property
-    def status(self) -> str:
-        """Solver status: "optimal", "acceptable", "max_iter", "failed", ..."""
-        return self.result.status
-
-    @property
-    def converged(self) -> bool:
-        """Whether the solver reached its tolerance (status optimal or acceptable)."""
-        return self.result.converged
-
-    @property
-    def clear(self) -> bool:
-        """Whether the design meets every hard requirement of its problem (bounds, obstacle margin, clearance)."""
-        return self.result.clear
-
-    @property
-    def ok(self) -> bool:
-        """Converged and clear: what the command line's exit status 0 means."""
-        return self.result.ok
-
-    @property
-    def shortfall(self) -> tuple:
-        """What the design misses of its problem's hard requirements, one line each (empty when clear)."""
-        return self.result.shortfall
+    # -- the run's figures (the Result's, a few from its routing)
+    method = _of("result", "method", "The method that made this run (nlp, greedy, forward, fit, multishape, tip, ...).")
+    status = _of("result", "status", 'Solver status: "optimal", "acceptable", "max_iter", "failed", ...')
+    converged = _of("result", "converged", "Whether the solver reached its tolerance (status optimal or acceptable).")
+    clear = _of("result", "clear", "Whether the design meets every hard requirement of its problem (bounds, obstacle margin, clearance).")
+    ok = _of("result", "ok", "Converged and clear: what the command line's exit status 0 means.")
+    shortfall = _of("result", "shortfall", "What the design misses of its problem's hard requirements, one line each (empty when clear).")
+    routing = _of("result", "routing", "theta (rad), lam, length per segment and initial_pose (4 x 4).")
+    phi = _of("result", "phi", "Actuator angle around the tube at the segment ends (M + 1,), phi[0] = 0.")
+    shape = _of("result", "shape", "The modeled lines ``center``, ``inner`` (actuator), ``outer``, each (P, 3).")
+    metrics = _of("result", "metrics", "The run's metrics as archived: rmse, max_error, tv_theta, tv_lambda, ...")
+    stats = _of("result", "stats", "Solver statistics as archived: IPOPT return status, build time, objective terms, options.")
+    solve_time_s = _of("result", "solve_time_s", "Wall time of the solve, in seconds.")
+    iterations = _of("result", "iterations", "Solver iterations.")
+    theta = _of("routing", "theta", "Drawn angle of the actuator per segment (M,), rad.")
+    lam = _of("routing", "lam", "Contraction ratio lambda per segment (M,).")
+    length = _of("routing", "length", "Unactuated center-line length of each segment (M,), in ``units``.")
+    initial_pose = _of("routing", "initial_pose", "Base pose T^0_w (4, 4).")
+    segments = _of("routing", "segments", "Number of segments M.")
 
     @property
     def rmse(self) -> float:
         """Root mean square distance to the paired target (or measured) points, in ``units``; nan without a target."""
-        return float(self.result.metrics.get("rmse", math.nan))
+        return float(self.metrics.get("rmse", math.nan))
 
     @property
     def max_error(self) -> float:
         """Largest distance to a paired target (or measured) point, in ``units``; nan without a target."""
-        return float(self.result.metrics.get("max_error", math.nan))
-
-    @property
-    def routing(self) -> Routing:
-        """theta (rad), lam, length per segment and initial_pose (4 x 4)."""
-        return self.result.routing
-
-    @property
-    def theta(self) -> np.ndarray:
-        """Drawn angle of the actuator per segment (M,), rad."""
-        return self.routing.theta
-
-    @property
-    def lam(self) -> np.ndarray:
-        """Contraction ratio lambda per segment (M,)."""
-        return self.routing.lam
-
-    @property
-    def length(self) -> np.ndarray:
-        """Unactuated center-line length of each segment (M,), in ``units``."""
-        return self.routing.length
-
-    @property
-    def initial_pose(self) -> np.ndarray:
-        """Base pose T^0_w (4, 4)."""
-        return self.routing.initial_pose
-
-    @property
-    def phi(self) -> np.ndarray:
-        """Actuator angle around the tube at the segment ends (M + 1,), phi[0] = 0."""
-        return self.result.phi
-
-    @property
-    def segments(self) -> int:
-        """Number of segments M."""
-        return self.routing.segments
-
-    @property
-    def shape(self):
-        """The modeled lines ``center``, ``inner`` (actuator), ``outer``, each (P, 3)."""
-        return self.result.shape
-
-    @property
-    def metrics(self) -> dict:
-        """The run's metrics as archived: rmse, max_error, tv_theta, tv_lambda, ..."""
-        return self.result.metrics
-
-    @property
-    def stats(self) -> dict:
-        """Solver statistics as archived: IPOPT return status, build time, objective terms, options."""
-        return self.result.stats
-
-    @property
-    def solve_time_s(self) -> float:
-        """Wall time of the solve, in seconds."""
-        return self.result.solve_time_s
-
-    @property
-    def iterations(self) -> int:
-        """Solver iterations."""
-        return self.result.iterations
+        return float(self.metrics.get("max_error", math.nan))
 
     # -- the context
-    @property
-    def name(self) -> str:
-        """The problem's name (archived as ``/problem`` attribute ``name``)."""
-        return self._context.name
+    name = _of("_problem_file", "name", "The problem's name (archived as ``/problem`` attribute ``name``).")
+    kind = _of("_problem_file", "kind", "The archive kind: design, forward, fit, multishape or tip.")
+    units = _of("_problem_file", "units", "Length unit of every length of this design.")
+    source = _of("_problem_file", "source", "The problem text archived in /problem attrs source.")
+    problem = _of("_problem_file", "problem", "The problem object solved (loaded archives: rebuilt from the archive, without solver settings).")
 
     @property
-    def kind(self) -> str:
-        """The archive kind: design, forward, fit, multishape or tip."""
-        return self._context.problem_file.kind
-
-    @property
-    def units(self) -> str:
-        """Length unit of every length of this design."""
-        return self._context.problem_file.units
+    def _problem_file(self) -> ProblemFile:
+        return self._context.problem_file
 
     @property
     def diameter(self) -> float:
         """Tube diameter D, in ``units``."""
-        return float(self._context.problem_file.problem.diameter)
+        return float(self.problem.diameter)
 
     @property
     def target(self) -> np.ndarray | None:
         """The target points (N, 3) of design runs (row i pairs with ``shape.center`` row i), else None."""
-        return getattr(self._context.problem_file.problem, "target", None)
-
-    @property
-    def problem(self):
-        """The problem object solved (loaded archives: rebuilt from the archive, without solver settings)."""
-        return self._context.problem_file.problem
-
-    @property
-    def source(self) -> str:
-        """The problem text archived in /problem attrs source."""
-        return self._context.problem_file.source
+        return getattr(self.problem, "target", None)
 
     @property
     def runs(self) -> dict:
@@ -583,40 +507,13 @@ class Project:
         """The archive as ``vine_nlp.io.archive.load_archive`` reads it."""
         return self._context.archive
 
-    @property
-    def target(self) -> np.ndarray | None:
-        """The target points (N, 3) of a design archive, else None."""
-        return self._context.archive.target
-
-    @property
-    def name(self) -> str:
-        """The problem's name."""
-        return self._context.archive.name
-
-    @property
-    def kind(self) -> str:
-        """The archive kind: design, forward, fit, multishape or tip."""
-        return self._context.archive.kind
-
-    @property
-    def units(self) -> str:
-        """Length unit of every length in the archive."""
-        return self._context.archive.units
-
-    @property
-    def diameter(self) -> float:
-        """Tube diameter D, in ``units``."""
-        return self._context.archive.diameter
-
-    @property
-    def source(self) -> str:
-        """The problem text archived in ``/problem`` attribute ``source``."""
-        return self._context.archive.source
-
-    @property
-    def extra(self) -> dict:
-        """Datasets beyond the contract's core layout ("measured/points", "tip/position", ...)."""
-        return self._context.archive.extra
+    target = _of("archive", "target", "The target points (N, 3) of a design archive, else None.")
+    name = _of("archive", "name", "The problem's name.")
+    kind = _of("archive", "kind", "The archive kind: design, forward, fit, multishape or tip.")
+    units = _of("archive", "units", "Length unit of every length in the archive.")
+    diameter = _of("archive", "diameter", "Tube diameter D, in ``units``.")
+    source = _of("archive", "source", "The problem text archived in ``/problem`` attribute ``source``.")
+    extra = _of("archive", "extra", 'Datasets beyond the contract\'s core layout ("measured/points", "tip/position", ...).')
 
     def __repr__(self) -> str:
         return f"<Project {self.name!r} ({self.kind}) from {self._context.path}: runs {', '.join(self._context.runs) or 'none'}>"
