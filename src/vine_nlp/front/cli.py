@@ -150,9 +150,9 @@ def _request(args, pf, methods):
 
 def cmd_solve(args) -> int:
     """forward, design, compare, fit: problem -> pipeline -> archive, lines, figure; the exit status of the outcome."""
-    from vine_nlp import pipeline
     from vine_nlp.front.figures import draw
     from vine_nlp.front.reports import comparison_table, outcome_lines
+    from vine_nlp.pipeline import run  # CasADi loads when a command solves
 
     kinds, methods = SOLVES[args.command]
     pf = _problem_file(args, kinds)
@@ -162,7 +162,7 @@ def cmd_solve(args) -> int:
     request = _request(args, pf, methods)
     update, close = _progress_bar(f"{pf.name} {pf.kind}", "solves")
     try:
-        outcome = pipeline.run(pf, _with_progress(request, update))
+        outcome = run(pf, _with_progress(request, update))
     except InputError as e:
         raise InputError(e.file, FLAGS.get(e.key, e.key), e.reason) from None
     except ValueError as e:  # a fit with too few usable points after the reader's checks
