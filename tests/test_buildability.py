@@ -101,10 +101,10 @@ def test_needed_turning_is_the_shortest_way_round():
 def test_violations_features_and_stoppers():
     lam = [0.98, 0.6, 0.42, 1.0, 0.5]
     r = routing([0, 30, 0, 0, 0], lam)
-    rep = B.buildability(r, D, "tendon", lambda_min=0.4, margin=0.05, min_feature=0.2)
+    rep = B.buildability(r, D, "tendon", lambda_min=0.4, margin=0.05)
     assert rep.violations == [0, 2]  # 0.98 > 1 - margin, 0.42 < lambda_min + margin
     path = r.length / np.cos(r.theta)
-    # the template's geometry: stoppers and gaps cover each actuated piece's path; gaps are (1 - lambda) of a segment's path
+    # the template's geometry: centred gaps of (1 - lambda) of a segment's path; stoppers and gaps cover each actuated piece
     stoppers = rep.parts["stoppers"]
     gaps = [f for f in rep.features if f[1] == "stopper gap"]
     assert [g[2] for g in gaps] == [0, 1, 2, 4]
@@ -112,9 +112,25 @@ def test_violations_features_and_stoppers():
     assert sum(b - a for a, b in stoppers) + sum(g[0] for g in gaps) == pytest.approx(path[[0, 1, 2, 4]].sum())
     assert stoppers[0] == (0.0, pytest.approx(0.98)) and stoppers[1][0] == pytest.approx(1.02)  # lambda / 2 of a 2-long path, then the gap
     assert rep.parts["tendons"] == [pytest.approx(path[:3].sum()), pytest.approx(path[4])]
-    assert rep.smallest == (pytest.approx(0.04), "stopper gap", 0) and rep.below == [rep.smallest]
+    assert rep.smallest == (pytest.approx(0.04), "stopper gap", 0) and rep.below == []
     pinches = B.buildability(r, D, "programmed").parts["pinches"]
     assert len(pinches) == 4 and pinches[0] == pytest.approx((0.98, 1.02))
+
+
+def test_short_gaps_merge_with_their_partners():
+    lam = [0.98, 0.6, 0.42, 1.0, 0.5]
+    r = routing([0, 30, 0, 0, 0], lam)
+    path = r.length / np.cos(r.theta)
+    assert B.partners(np.array(lam) != 1).tolist() == [1, 0, -1, -1, -1]
+    f = B.gap_fractions(lam, path, 0.2)
+    np.testing.assert_allclose(f[:2], [[0.98, 1.0], [0.0, 0.4]])  # at the partners' common end
+    assert np.isnan(f[3]).all()
+    rep = B.buildability(r, D, "tendon", min_feature=0.2)
+    gaps = [g for g in rep.features if g[1] == "stopper gap"]
+    assert gaps[0] == (pytest.approx(0.04 + 0.4 * path[1]), "stopper gap", 0) and [g[2] for g in gaps] == [0, 2, 4]
+    assert rep.below == []
+    # each segment keeps its contraction: stoppers are still lambda of each path in all
+    assert sum(b - a for a, b in rep.parts["stoppers"]) == pytest.approx(np.dot(lam, path) - path[3])
 
 
 def test_pouches_of_the_ideal_pouch_motor():
@@ -131,3 +147,82 @@ def test_pouches_of_the_ideal_pouch_motor():
 def test_default_min_feature_is_two_millimetres():
     assert B.default_min_feature("cm") == pytest.approx(0.2) and B.default_min_feature("mm") == 2.0
     assert B.default_min_feature("furlong") == 0.0
+
+
+# ------------------------------------------------------------------ show and the template
+
+
+def archive(lam, kind="tendon", theta_deg=10.0, dl=4.0, extra=""):
+    from vine_nlp.io.archive import Archive
+    from vine_nlp.methods.common import run_forward
+    from vine_nlp.problem import ForwardProblem
+
+    lam = np.asarray(lam, float)
+    r = Routing(np.full(lam.size, math.radians(theta_deg)), lam, np.full(lam.size, dl))
+    source = f"[actuator]\nkind = '{kind}'\nlambda_min = 0.4\n[design]\nmin_feature = 0.2\n{extra}"
+    return Archive("b", "forward", source, D, runs={"forward": run_forward(ForwardProblem("b", D, r))})
+
+
+def read_csv(path):
+    import csv
+
+    with open(path, newline="") as f:
+        return [{k: float(v) if v != "" else math.nan for k, v in row.items()} for row in csv.DictReader(f)]
+
+
+def test_template_draws_no_actuator_as_removed_and_lists_the_parts(tmp_path):
+    ezdxf = pytest.importorskip("ezdxf")
+    from vine_nlp.front import template as tpl
+
+    a = archive([0.8, 0.7, 0.9, 1.0, 1.0, 0.6, 0.6], dl=2.5)
+    info = tpl.write_template(a, tmp_path / "t.dxf", tmp_path / "c.csv")
+    assert info["unactuated"] == 2 and info["refused"] == [] and info["strips"] == 1
+    rows = read_csv(tmp_path / "c.csv")
+    path = 2.5 / math.cos(math.radians(10))
+    assert [r["actuated"] for r in rows] == [1, 1, 1, 0, 0, 1, 1]
+    assert [r["piece"] for r in rows][:3] == [0, 0, 0] and math.isnan(rows[3]["piece"]) and rows[6]["piece"] == 1
+    assert rows[3]["stopper_length"] == rows[3]["gap_length"] == 0 and math.isnan(rows[3]["gap_start"])
+    assert rows[0]["tendon_length"] == pytest.approx(3 * path) and rows[5]["tendon_length"] == pytest.approx(2 * path)
+    assert rows[1]["gap_end"] - rows[1]["gap_start"] == pytest.approx(0.3 * path)  # 0.76 cm: centred, alone
+    assert rows[1]["gap_start"] == pytest.approx(path + 0.35 * path)
+    assert math.isnan(rows[0]["pouches"]) and math.isnan(rows[0]["pinch_length"])
+    doc = ezdxf.readfile(tmp_path / "t.dxf")
+
+    def length(layer):
+        return sum(math.dist(tuple(e.dxf.start)[:2], tuple(e.dxf.end)[:2]) for e in doc.modelspace().query(f'LINE[layer=="{layer}"]'))
+
+    # 1:1 in mm: stoppers, gaps, and the unactuated segments' path on the layer "removed"
+    assert length("stoppers") == pytest.approx(10 * sum(r["stopper_length"] for r in rows), rel=1e-9)
+    assert length("removed") == pytest.approx(10 * (sum(r["gap_length"] for r in rows) + 2 * path), rel=1e-9)
+    pdf = tpl.write_template(a, tmp_path / "t.pdf")
+    assert pdf["unactuated"] == 2 and pdf["gaps"] == 5
+
+
+def test_template_parts_per_actuator_kind(tmp_path):
+    from vine_nlp.front import template as tpl
+
+    tpl.write_template(archive([0.9, 0.95, 1.0], "programmed"), tmp_path / "p.pdf", tmp_path / "p.csv")
+    rows = read_csv(tmp_path / "p.csv")
+    assert [r["pinch_length"] for r in rows[:2]] == [pytest.approx(r["gap_length"]) for r in rows[:2]] and math.isnan(rows[2]["pinch_length"])
+    info = tpl.write_template(archive([0.8] * 4 + [1.0], "spam", dl=2.5), tmp_path / "s.pdf", tmp_path / "s.csv")
+    rows = read_csv(tmp_path / "s.csv")
+    assert info["spam"] and info["refused"] == []
+    path = 2.5 / math.cos(math.radians(10))
+    assert rows[0]["pouches"] == 4 and rows[0]["pouch_length"] == pytest.approx(path) and math.isnan(rows[4]["pouches"])
+    info = tpl.write_template(archive([0.6] * 3, "spam"), tmp_path / "r.pdf", tmp_path / "r.csv")
+    assert info["refused"] == ["piece 0 (segments 0-2): lambda 0.6 is below the ideal pouch motor's 2/pi = 0.637: no pouch contracts that far"]
+    assert math.isnan(read_csv(tmp_path / "r.csv")[0]["pouches"])
+
+
+def test_show_reports_buildability():
+    from vine_nlp.front.show import summarize
+
+    text = summarize(archive([0.8, 0.7, 0.9, 1.0, 1.0, 0.6, 0.6], extra="correction_margin = 0.15\n"))
+    assert "actuated    2 piece(s) (segments 0-2, 5-6), 2 segment(s) without an actuator (lambda = 1)" in text
+    assert "stoppers    7, tendon(s) 12.1851, 8.12341 cm" in text  # a stopper at each end of a piece and between its gaps
+    turns = [t / (2 * math.pi) for t in (7 * step(10, 4.0), 2 * step(10, 4.0), 2 * step(10, 4.0))]
+    assert f"line turns  {turns[0]:.3g} in all, {turns[1]:.3g} where lambda = 1 (the routing needs {turns[2]:.3g} there)" in text
+    assert "smallest    0.406171 cm stopper gap (0 below min_feature 0.2 cm)" in text
+    assert "margin      1 segment(s) with lambda neither 1 nor in [0.55, 0.85]" in text
+    text = summarize(archive([0.6] * 3, "spam"))
+    assert "pouches     - (ideal pouch motor); refused: piece 0" in text

@@ -7,9 +7,11 @@ segment j; where lambda is 1 this only moves the line around a straight tube, an
 there is the change of side from one actuated piece to the next, the shortest way round (and, with a
 fixed base, from the base to the first piece).
 
-Features follow the template's geometry (front/template.py): an actuated segment's path, dl / cos(theta)
-long, holds a centred gap (stopper gap, or pinch) of 1 - lambda of it between two stoppers of lambda / 2 that
-join the neighbouring segments' into one. Pouches (sPAM) follow the ideal pouch motor (Niiyama et al.,
+Features follow the template's geometry (``gap_fractions``, drawn by front/template.py): an actuated segment's
+path, dl / cos(theta) long, holds a centred gap (stopper gap, or pinch) of 1 - lambda of it; the stoppers
+between gaps join across segment ends. Where a gap alone would be shorter than min_feature, the gaps of
+partners (segments start + 2i and start + 2i + 1 of an actuated piece) merge into one at their common end
+(each segment keeps its own contraction). Pouches (sPAM) follow the ideal pouch motor (Niiyama et al.,
 2015): a flat pouch of length L0 inflates to arc faces of half angle a and contracts to L0 sin(a) / a, so
 lambda >= 2 / pi; a piece's path is split into pouches about POUCH_LENGTH_D tube diameters long.
 """
@@ -67,6 +69,30 @@ def pieces(actuated, length, path) -> list[Piece]:
     S, P = np.concatenate([[0.0], np.cumsum(length)]), np.concatenate([[0.0], np.cumsum(path)])
     cuts = [0, *(np.flatnonzero(np.diff(act)) + 1).tolist(), act.size]
     return [Piece(a, b, bool(act[a]), float(S[a]), float(S[b]), float(P[b] - P[a])) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
+
+
+def partners(actuated) -> np.ndarray:
+    """Each segment's gap partner (start + 2i with start + 2i + 1 of an actuated piece), -1 where none."""
+    act = np.asarray(actuated, bool)
+    out = np.full(act.size, -1)
+    for p in pieces(act, np.ones(act.size), np.ones(act.size)):
+        if p.actuated:
+            first = np.arange(p.start, p.stop - 1, 2)
+            out[first], out[first + 1] = first + 1, first
+    return out
+
+
+def gap_fractions(lam, path, min_feature: float = 0.0) -> np.ndarray:
+    """(M, 2): where each segment's gap lies along its path, fractions (t0, t1); NaN where there is no actuator.
+    Centred, or at the common end of partners where either gap alone would be shorter than min_feature."""
+    lam, path = np.asarray(lam, float), np.asarray(path, float)
+    out = np.column_stack([0.5 * lam, 1 - 0.5 * lam])
+    out[lam == 1.0] = np.nan
+    mate = partners(lam != 1.0)
+    for j in np.flatnonzero(mate > np.arange(lam.size)):
+        if min((1 - lam[j]) * path[j], (1 - lam[j + 1]) * path[j + 1]) < min_feature:
+            out[j], out[j + 1] = (lam[j], 1.0), (0.0, 1 - lam[j + 1])
+    return out
 
 
 def turning(theta, length, D: float, actuated, base_free: bool = True) -> tuple[float, float, float]:
@@ -127,17 +153,24 @@ def buildability(routing, D: float, kind: str = "tendon", lambda_min: float = 0.
         _pouches(report, lam, path, D)
         return report
     gap_name, stopper_name = GAP_NAMES.get(kind, GAP_NAMES["tendon"])
-    gaps = [(P[j] + 0.5 * lam[j] * path[j], P[j + 1] - 0.5 * lam[j] * path[j], int(j)) for j in np.flatnonzero(act)]
+    f = gap_fractions(lam, path, min_feature)
+    gaps = []  # (start, end, first segment) along the line; partners' touching gaps are one
+    for j in np.flatnonzero(act):
+        a, b = P[j] + f[j, 0] * path[j], P[j] + f[j, 1] * path[j]
+        if gaps and abs(gaps[-1][1] - a) < 1e-12:
+            a, j = gaps.pop()[::2]
+        gaps.append((float(a), float(b), int(j)))
     features += [(b - a, gap_name, j) for a, b, j in gaps]
     stoppers = []
     for p in (p for p in ps if p.actuated):
         edges = [P[p.start]] + [v for a, b, j in gaps if p.start <= j < p.stop for v in (a, b)] + [P[p.stop]]
-        stoppers += [(float(a), float(b), p.start + max(i - 1, 0)) for i, (a, b) in enumerate(zip(edges[::2], edges[1::2]))]
-    features += [(b - a, stopper_name, j) for a, b, j in stoppers]
+        stoppers += [(float(a), float(b)) for a, b in zip(edges[::2], edges[1::2]) if b - a > 1e-12]
+    starts = np.searchsorted(P, [a for a, _ in stoppers], side="right") - 1  # the segment each stopper starts in
+    features += [(b - a, stopper_name, int(j)) for (a, b), j in zip(stoppers, starts)]
     if kind == "programmed":
         report.parts["pinches"] = [(float(a), float(b)) for a, b, _ in gaps]
     else:
-        report.parts["stoppers"] = [(a, b) for a, b, _ in stoppers]
+        report.parts["stoppers"] = stoppers
         report.parts["tendons"] = [p.path for p in ps if p.actuated]
     return report
 
