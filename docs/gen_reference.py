@@ -64,7 +64,7 @@ DESCRIPTIONS = {
         "targets": "Array of tables `[[targets]]`: one target per pressure level (a **multishape** sPAM problem).",
         "actuator": "Table `[actuator]`: kind of actuator and its bounds.",
         "design": "Table `[design]`: solver options.",
-        "routing": "Table `[routing]`: a given routing (a **forward** problem, or the known routing of a **fit**).",
+        "routing": "Table `[routing]`: a given routing (a **forward** problem, or the known routing of a **fit**); in a **design** problem only `initial_pose`, the base of `[design] base = \"fixed\"`.",
         "measured": "Table `[measured]`: points measured on a built robot (a **fit** problem).",
         "fit": "Table `[fit]`: what a fit estimates besides the rigid pose.",
         "tip": "Table `[tip]`: a tip position and direction to reach (a **tip** problem).",
@@ -107,6 +107,9 @@ DESCRIPTIONS = {
         "shared_pose": "multishape: all levels grow from one base pose (default true).",
         "obstacle_margin": "Required gap between the tube surface and every obstacle, in `units`.",
         "growth": "`while-actuated` (the tube grows already actuated) or `after` (the intermediate shapes of actuation after growth must clear the obstacles too).",
+        "correction_margin": "Buildable designs: every lambda is exactly 1 (no actuator) or inside [lambda_min + margin, 1 - margin], so an as-built error can be corrected both ways (>= 0, default 0.05).",
+        "min_feature": "Smallest stopper gap, pinch, pouch or piece, in `units` (>= 0; default 2 mm in the file's units).",
+        "base": '`free` (the design chooses the base pose, with no arbitrary roll) or `fixed` (the pose is `[routing] initial_pose`).',
     },
     "design.smoothness": {
         "theta": "w_theta of (1/L) int (D theta')^2 ds against the mean squared error / D^2 (>= 0).",
@@ -206,7 +209,7 @@ KEY_TABLES = {
     "_ALL_TARGET_KEYS": ("target", None),
 }
 # Tables the page uses in other ways (per kind, per curve) or that are derived from the above.
-OTHER_TABLES = {"_TOP_KEYS", "_ALL_TOP_KEYS", "_CURVE_KEYS", "_OPTION_INTS", "_ANGLE_KEYS", "_CURVE_MAIN_KEY"}
+OTHER_TABLES = {"_BUILD_KEYS", "_TOP_KEYS", "_ALL_TOP_KEYS", "_CURVE_KEYS", "_OPTION_INTS", "_ANGLE_KEYS", "_CURVE_MAIN_KEY"}
 CHOICES = {
     "ACTUATOR_KINDS": "`[actuator] kind`",
     "METHODS": "`[design] method`, a sweep's `methods`",
@@ -373,6 +376,9 @@ def formats_page(archives: bool = True) -> str:
             marks = " | ".join("yes" if key in ks else "" for _, ks in variants)
             out.append(f"| `{key}` | {marks} | {_cell(DESCRIPTIONS[section][key])} |")
 
+    build = list(table("_BUILD_KEYS"))
+    used["design"].update(build)
+    out += ["", "`[design]` keys of design problems for buildable designs:", "", *_key_table("design", build, problems)]
     if "obstacles" in all_top:
         out += obstacles_section(used, problems)
     if "calibration" in all_top:

@@ -157,7 +157,7 @@ def pdf_pages(path):
 def read_cuts(path):
     with open(path, newline="") as f:
         rows = list(csv.DictReader(f))
-    return [{k: float(v) for k, v in row.items()} for row in rows]
+    return [{k: float(v) if v != "" else math.nan for k, v in row.items()} for row in rows]  # "": does not apply
 
 
 @pytest.mark.parametrize("paper", ["A4", "Letter"])

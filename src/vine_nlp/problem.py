@@ -21,6 +21,7 @@ ACTUATOR_KINDS = ("tendon", "programmed", "spam")
 METHODS = ("nlp", "greedy")
 HESSIANS = ("auto", "exact", "gauss-newton")
 SOLVERS = ("auto", "ipopt")
+BASES = ("free", "fixed")
 
 
 @dataclass(frozen=True)
@@ -84,6 +85,16 @@ class DesignOptions:
     solver : str
         "auto": the plain NLP's Gauss-Newton solve from a guess runs on Fatrop where its functions are
         compiled (IPOPT where not, and where Fatrop fails); "ipopt": IPOPT only.
+    correction_margin : float
+        Buildable designs: every lambda is exactly 1 (no actuator) or inside [lambda_min + margin,
+        1 - margin], so the next round can correct an as-built error both ways.
+    min_feature : float or None
+        Smallest stopper gap, pinch, pouch or piece, in length units; None: 2 mm in the problem's units
+        (``analysis.buildability.default_min_feature``).
+    base : str
+        "free" (the design chooses the base pose, with no arbitrary roll) or "fixed" (``base_pose``).
+    base_pose : tuple or None
+        The fixed base pose T^0_w (4 x 4, nested tuples).
     """
 
     method: str = "nlp"
@@ -100,6 +111,10 @@ class DesignOptions:
     hessian: str = "auto"  # nlp: "auto" (Gauss-Newton, exact if it does not converge), "exact" or "gauss-newton"
     budget: float = 20.0  # nlp: seconds for the corner search (design.corners; a safety stop, 0: off)
     solver: str = "auto"  # nlp: "auto" (Fatrop for the first Gauss-Newton solve where compiled) or "ipopt"
+    correction_margin: float = 0.05
+    min_feature: float | None = None
+    base: str = "free"
+    base_pose: tuple | None = None  # nested tuples: the options stay hashable and comparable
 
 
 @dataclass(frozen=True)

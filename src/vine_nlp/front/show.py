@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import math
 import tomllib
 
 import numpy as np
 
+from vine_nlp.analysis.buildability import buildability, default_min_feature
 from vine_nlp.io.archive import Archive, load_archive
+from vine_nlp.problem import ACTUATOR_KINDS, Actuator, DesignOptions
 
 RUN_ORDER = ("nlp", "greedy", "greedy_filtered", "forward", "fit")
 METRICS = ("rmse", "max_error", "r2", "tv_theta", "tv_lambda")
@@ -26,6 +29,49 @@ def source_table(archive: Archive, table: str) -> dict:
     except (tomllib.TOMLDecodeError, TypeError, ValueError):
         return {}
     return value if isinstance(value, dict) else {}
+
+
+def build_settings(archive: Archive) -> dict:
+    """The buildability report's settings from the archived problem file (defaults where absent or not valid):
+    kind, lambda_min, margin, min_feature, base_free."""
+    act, des = source_table(archive, "actuator"), source_table(archive, "design")
+
+    def number(table, key, default):
+        v = table.get(key)
+        return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0 else default
+
+    kind = act.get("kind") if act.get("kind") in ACTUATOR_KINDS else Actuator.kind
+    mf = number(des, "min_feature", default_min_feature(archive.units))
+    return {"kind": kind, "lambda_min": number(act, "lambda_min", 0.5 if kind == "spam" else Actuator.lambda_min),
+            "margin": number(des, "correction_margin", DesignOptions.correction_margin), "min_feature": mf,
+            "base_free": des.get("base") != "fixed"}
+
+
+def _build_lines(a: Archive, routing) -> list[str]:
+    """What ``show`` says of a run's buildability (analysis.buildability)."""
+    b, u = build_settings(a), a.units
+    with np.errstate(all="ignore"):
+        rep = buildability(routing, a.diameter, **b)
+    on = [p for p in rep.pieces if p.actuated]
+    spans = ", ".join(f"{p.start}-{p.stop - 1}" for p in on[:6]) + (", ..." if len(on) > 6 else "")
+    lines = [f"  actuated    {len(on)} piece(s) (segments {spans or '-'}), {sum(p.stop - p.start for p in rep.pieces if not p.actuated)}"
+             " segment(s) without an actuator (lambda = 1)"]
+    parts = rep.parts
+    if "pouches" in parts:
+        made = [f"{c} x {_num(length)} {u}" for c, length, _ in filter(None, parts["pouches"])]
+        lines.append(f"  pouches     {', '.join(made) or '-'} (ideal pouch motor)" + "".join(f"; refused: {r}" for r in rep.refused))
+    elif "pinches" in parts:
+        lines.append(f"  pinches     {len(parts['pinches'])}")
+    else:
+        lines.append(f"  stoppers    {len(parts['stoppers'])}, tendon(s) {', '.join(_num(t) for t in parts['tendons']) or '-'} {u}")
+    turns = [v / (2 * math.pi) for v in (rep.turning, rep.turning_unactuated, rep.turning_needed)]
+    lines.append(f"  line turns  {turns[0]:.3g} in all, {turns[1]:.3g} where lambda = 1 (the routing needs {turns[2]:.3g} there)")
+    if rep.smallest:
+        lines.append(f"  smallest    {_num(rep.smallest[0])} {u} {rep.smallest[1]} ({len(rep.below)} below min_feature {_num(rep.min_feature)} {u})")
+    if rep.violations:
+        lines.append(f"  margin      {len(rep.violations)} segment(s) with lambda neither 1 nor in "
+                     f"[{_num(b['lambda_min'] + b['margin'])}, {_num(1 - b['margin'])}]")
+    return lines
 
 
 def _num(v: float) -> str:
@@ -88,6 +134,7 @@ def summarize(archive) -> str:
         if ro.segments:
             lines.append(f"  theta       {_range(np.degrees(ro.theta))} deg")
             lines.append(f"  lambda      {_range(ro.lam)}")
+            lines += _build_lines(a, ro)
         for m in METRICS:
             if m in r.metrics:
                 unit = f" {u}" if m in LENGTH_METRICS else (" rad" if m == "tv_theta" else "")

@@ -9,9 +9,13 @@ on the unrolled tube (dc/ds = tan theta), of length dl / cos(theta).
 Each segment's path is split into the part that stays (stopper, or unpinched
 material: blue, a fraction lambda of the path) and the part removed or pinched
 (gap between stoppers, or material taped together: red, 1 - lambda). The red gap
-is centred in its segment, so the stoppers of neighbouring segments meet at the
-segment ends (drawn as small ticks). sPAM designs (actuator kind "spam") have one
-lambda for the whole muscle: the path is drawn in one color, without stoppers.
+is centred in its segment, or, where it would be shorter than min_feature, joined
+with its partner's at their common end (analysis.buildability.gap_fractions), so the
+stoppers of neighbouring segments meet (segment ends drawn as small ticks). A
+segment with lambda exactly 1 has no actuator: red dashed, "removed" (no stopper,
+pouch or pinch). sPAM designs (actuator kind "spam") have one lambda for the whole
+muscle: the path is drawn in one color, without stoppers. The CSV adds the
+fabrication numbers of analysis.buildability per actuator kind.
 
 Pages are drawn at real scale: 1 cm on paper is 1 cm of tube (problem units cm or
 mm). A tube longer than a page is cut into strips, several per page when the
@@ -36,7 +40,8 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Rectangle
 from matplotlib.ticker import MultipleLocator
 
-from vine_nlp.front.show import source_table
+from vine_nlp.analysis.buildability import buildability, gap_fractions
+from vine_nlp.front.show import build_settings, source_table
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
 from vine_nlp.model.chain import phi_from_theta
 
@@ -49,6 +54,9 @@ CHANGE_COLOR = "#ff7f0e"  # orange: a segment that changes against the robot bui
 CSV_COLUMNS = (
     "segment", "s_start", "s_end", "theta_deg", "lambda", "phi_start_rad", "phi_end_rad",
     "c_start", "c_end", "actuator_length", "stopper_length", "gap_length",
+    # analysis.buildability: piece = index of the actuated piece; gap_* along the line from the base (stoppers fill the
+    # rest of a piece); tendon_length (tendon), pinch_length (programmed), pouches and pouch_length (spam) per piece
+    "actuated", "piece", "gap_start", "gap_end", "tendon_length", "pinch_length", "pouches", "pouch_length",
 )
 
 # page layout, mm
@@ -113,8 +121,9 @@ def pick_run(archive: Archive, run: str | None = None) -> str:
     return archive.default_run()
 
 
-def cut_table(archive: Archive, run: str) -> dict:
-    """Per-segment fabrication numbers (the CUTS.csv columns) as arrays, in the problem's units."""
+def cut_table(archive: Archive, run: str, kind: str | None = None) -> dict:
+    """Per-segment fabrication numbers (the CUTS.csv columns) as arrays, in the problem's units; NaN where a
+    column does not apply. ``kind``: the actuator kind (default: the archived problem's)."""
     r = archive.runs[run].routing
     D = archive.diameter
     S = np.concatenate([[0.0], np.cumsum(r.length)])
@@ -122,6 +131,22 @@ def cut_table(archive: Archive, run: str) -> dict:
     C = math.pi * D
     c = 0.5 * D * phi
     actuator = r.length / np.cos(r.theta)
+    act = r.lam != 1.0
+    settings = build_settings(archive) | ({"kind": kind} if kind else {})
+    frac = gap_fractions(r.lam, actuator, settings["min_feature"])
+    rep = buildability(r, D, **settings)
+    extra = {k: np.full(r.segments, np.nan) for k in CSV_COLUMNS[-7:]}
+    line = np.concatenate([[0.0], np.cumsum(actuator)])[:-1]
+    extra["gap_start"], extra["gap_end"] = line + frac[:, 0] * actuator, line + frac[:, 1] * actuator
+    pouches = rep.parts.get("pouches", [])
+    for k, p in enumerate(q for q in rep.pieces if q.actuated):
+        extra["piece"][p.start:p.stop] = k
+        if settings["kind"] == "tendon":
+            extra["tendon_length"][p.start:p.stop] = p.path
+        if pouches and pouches[k] is not None:
+            extra["pouches"][p.start:p.stop], extra["pouch_length"][p.start:p.stop] = pouches[k][:2]
+    if settings["kind"] == "programmed":
+        extra["pinch_length"] = np.where(act, (1.0 - r.lam) * actuator, np.nan)
     return {
         "segment": np.arange(r.segments),
         "s_start": S[:-1],
@@ -133,8 +158,12 @@ def cut_table(archive: Archive, run: str) -> dict:
         "c_start": wrap(c[:-1], C),
         "c_end": wrap(c[1:], C),
         "actuator_length": actuator,
-        "stopper_length": r.lam * actuator,
-        "gap_length": (1.0 - r.lam) * actuator,
+        "stopper_length": np.where(act, r.lam, 0.0) * actuator,
+        "gap_length": np.where(act, 1.0 - r.lam, 0.0) * actuator,
+        "actuated": act.astype(float),
+        **extra,
+        "refused": rep.refused,
+        "gap_fractions": frac,
     }
 
 
@@ -149,7 +178,7 @@ def cuts_csv(table: dict) -> str:
     w = csv.writer(out, lineterminator="\n")
     w.writerow(CSV_COLUMNS)
     for i in range(len(table["segment"])):
-        w.writerow([int(table["segment"][i])] + [f"{float(table[k][i]):.10g}" for k in CSV_COLUMNS[1:]])
+        w.writerow([int(table["segment"][i])] + [f"{float(table[k][i]):.10g}" if np.isfinite(table[k][i]) else "" for k in CSV_COLUMNS[1:]])
     return out.getvalue()
 
 
@@ -252,7 +281,8 @@ def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str 
     Returns {"pages" (1 for SVG and DXF), "strips", "paper", "paper_mm" (width,
     height as printed; the sheet's for SVG and DXF), "orientation", "run", "spam",
     "segments", "stoppers" (segments drawn with a stopper/gap split), "gaps"
-    (segments with a gap drawn), "tube_length", "format"}.
+    (segments with a gap drawn), "unactuated" (segments without an actuator), "refused"
+    (analysis.buildability's reasons), "tube_length", "format"}.
 
     changes: rows of ``front.changes.change_rows`` (a correction archive against the robot built
     last); each changing segment is framed in orange on the template with its stopper change
@@ -264,8 +294,9 @@ def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str 
     if a.units not in CM_PER_UNIT:
         raise ValueError(f"a 1:1 template needs lengths in cm or mm, not {a.units!r}")
     name = pick_run(a, run)
-    spam = source_table(a, "actuator").get("kind") == "spam" if spam is None else bool(spam)
-    table = cut_table(a, name)
+    kind = source_table(a, "actuator").get("kind")
+    spam = kind == "spam" if spam is None else bool(spam)
+    table = cut_table(a, name, "spam" if spam else (None if kind in ("tendon", "programmed") else "tendon"))
     table["changes"] = {int(r["segment"]): r for r in (changes or [])}
     k = CM_PER_UNIT[a.units]
     D = a.diameter
@@ -309,6 +340,8 @@ def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str 
         "tube_length": L,
         "format": fmt[1:],
         "changes": len(table["changes"]),
+        "unactuated": int((table["actuated"] == 0).sum()),
+        "refused": table["refused"],
     }
 
 
@@ -316,12 +349,13 @@ def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str 
 
 
 def _segment_parts(table, j, spam):
-    """(t0, t1, kind) parts of segment j along its path: stopper, gap (centred), stopper; or one muscle part."""
+    """(t0, t1, kind) parts of segment j along its path: stopper, gap, stopper; one muscle part; or "none" (no actuator)."""
+    if not table["actuated"][j]:
+        return [(0.0, 1.0, "none")]
     if spam:
         return [(0.0, 1.0, "muscle")]
-    lam = float(table["lambda"][j])
-    h = 0.5 * lam
-    parts = [(0.0, h, "stopper"), (h, 1.0 - h, "gap"), (1.0 - h, 1.0, "stopper")]
+    a, b = table["gap_fractions"][j]
+    parts = [(0.0, a, "stopper"), (a, b, "gap"), (b, 1.0, "stopper")]
     return [p for p in parts if p[1] - p[0] > 1e-9]
 
 
@@ -337,11 +371,12 @@ def _page(a: Archive, run: str, table: dict, lay: Layout, page: int, spam: bool)
     r = a.runs[run]
     lines = [
         f"{a.name}: fabrication template of run {run} ({r.method}), D = {D:.4g} {u}",
-        f"tube length {float(table['s_end'][-1]):.4g} {u}, {len(table['segment'])} segments, circumference \u03c0D = {C:.4g} {u}. "
-        "Print at 100 % (actual size, no fit to page): 1 cm on paper = 1 cm of tube.",
+        f"tube length {float(table['s_end'][-1]):.4g} {u}, {len(table['segment'])} segments ({_none_count(table)} without an actuator), "
+        f"circumference \u03c0D = {C:.4g} {u}. Print at 100 % (actual size, no fit to page): 1 cm on paper = 1 cm of tube.",
         "s: length along the unactuated tube. c = (D/2) \u03c6: position around the tube, wrapped at \u03c0D "
         "(both band edges are the same line on the tube).",
     ]
+    lines += [f"refused: {reason}" for reason in table["refused"][:1]]  # the title has room for one
     fig.text(fx(MARGIN), fy(H - MARGIN), lines[0], fontsize=8, va="top", ha="left", weight="bold")
     for i, line in enumerate(lines[1:]):
         fig.text(fx(MARGIN), fy(H - MARGIN - 4.2 - 3.3 * i), line, fontsize=FONT, va="top", ha="left")
@@ -428,7 +463,7 @@ def strip_geometry(table: dict, tile: Tile, D: float, units: str, spam: bool) ->
 
     S0, S1 = table["s_start"], table["s_end"]
     c_unwrapped = 0.5 * D * np.concatenate([table["phi_start_rad"][:1], table["phi_end_rad"]])
-    paths = {"stopper": [], "gap": [], "muscle": []}
+    paths = {"stopper": [], "gap": [], "muscle": [], "none": []}
     ticks, labels, changes = [], [], []
     tick = 1.2 / (10 * k)  # segment-end ticks: 1.2 mm either side of the path
     last_label = -np.inf
@@ -491,8 +526,10 @@ def _change_mark(row, sa, sb, ca, cb, C, box, k, with_text=True):
     return lines, ((s_mid, min(max(c_text, box[1]), box[3]), text) if with_text else None)
 
 
-PATH_COLORS = {"stopper": STOPPER_COLOR, "gap": GAP_COLOR, "muscle": SPAM_COLOR}
-PATH_WIDTHS_PT = {"stopper": 1.6, "gap": 2.4, "muscle": 1.6}
+PATH_COLORS = {"stopper": STOPPER_COLOR, "gap": GAP_COLOR, "muscle": SPAM_COLOR, "none": GAP_COLOR}
+PATH_WIDTHS_PT = {"stopper": 1.6, "gap": 2.4, "muscle": 1.6, "none": 0.8}
+NONE_DASH = (0, (3, 2))  # no actuator: red dashed
+NONE_LEGEND = "removed: no actuator (\u03bb = 1): no stopper, pouch or pinch"
 
 
 def _strip(ax, a: Archive, table: dict, tile: Tile, spam: bool, lay: Layout):
@@ -527,7 +564,7 @@ def _strip(ax, a: Archive, table: dict, tile: Tile, spam: bool, lay: Layout):
     for kind, lines in g.paths.items():
         if lines:
             ax.add_collection(LineCollection(lines, colors=PATH_COLORS[kind], linewidths=PATH_WIDTHS_PT[kind],
-                                             capstyle="butt", zorder=3))
+                                             linestyles=NONE_DASH if kind == "none" else "solid", capstyle="butt", zorder=3))
     if g.ticks:
         ax.add_collection(LineCollection(g.ticks, colors="k", linewidths=0.5, zorder=4))
     for s, c, text in g.labels:
@@ -545,6 +582,16 @@ def _shared_ends(a: float, b: float, end: float, cm: float) -> list[float]:
     marks = [a, a + min(OVERLAP_CM * cm, end - a)] if a > 0 else []
     marks += [b, end] if end > b + 1e-12 else []
     return sorted(set(round(v, 12) for v in marks))
+
+
+def _none_count(table: dict) -> int:
+    return int((table["actuated"] == 0).sum())
+
+
+def _muscle_lambda(table: dict) -> float:
+    """The sPAM's one lambda: of the segments with an actuator (1 where there is none)."""
+    lam = table["lambda"][table["actuated"] == 1]
+    return float(np.mean(lam)) if lam.size else 1.0
 
 
 def split_counts(table: dict, spam: bool) -> dict:
@@ -568,15 +615,17 @@ def _footer(fig, W, H, spam, table):
     fig.text(fx(x0), fy(y0 - 1.5), f"scale check: this bar must measure {SCALE_BAR_CM * 10:.0f} mm ({SCALE_BAR_CM:.0f} cm) on the print",
              fontsize=FONT, va="top", ha="left")
     lx = x1 + 8.0
-    items = ([(SPAM_COLOR, 1.6, f"sPAM muscle path, one \u03bb = {float(np.mean(table['lambda'])):.3g}")] if spam else
+    items = ([(SPAM_COLOR, 1.6, f"sPAM muscle path, one \u03bb = {_muscle_lambda(table):.3g}")] if spam else
              [(STOPPER_COLOR, 1.6, "stays: stopper / unpinched (\u03bb)"), (GAP_COLOR, 2.4, "removed: gap / pinched (1 \u2212 \u03bb)")])
+    if not table["actuated"].all():
+        items.append((GAP_COLOR, 0.8, NONE_LEGEND))
     if table.get("changes"):
         items.append((CHANGE_COLOR, 0.9, f"framed: {len(table['changes'])} segment(s) to change against the robot built last"))
     items.append((None, 0, "+ alignment marks, shaded: 1 cm overlap"))
     for i, (color, lw, text) in enumerate(items):
         y = y0 + 3.0 - 3.6 * i
         if color is not None:
-            fig.add_artist(Line2D([fx(lx), fx(lx + 7)], [fy(y), fy(y)], color=color, lw=lw))
+            fig.add_artist(Line2D([fx(lx), fx(lx + 7)], [fy(y), fy(y)], color=color, lw=lw, ls=NONE_DASH if text == NONE_LEGEND else "-"))
         fig.text(fx(lx + 9), fy(y), text, fontsize=FONT, va="center", ha="left")
 
 
@@ -627,7 +676,10 @@ def template_sheet(a: Archive, run: str, table: dict, lay: Layout, spam: bool) -
     sh = Sheet(W, H)
     L = float(table["s_end"][-1])
     sh.text("text", MARGIN, H - MARGIN - 3.0, f"{a.name}: fabrication template of run {run} ({a.runs[run].method}), "
-            f"D = {D:.4g} {u}, tube length {L:.4g} {u}, {len(table['segment'])} segments, circumference \u03c0D = {C:.4g} {u}", 3.0)
+            f"D = {D:.4g} {u}, tube length {L:.4g} {u}, {len(table['segment'])} segments ({_none_count(table)} without an actuator), "
+            f"circumference \u03c0D = {C:.4g} {u}", 3.0)
+    for i, reason in enumerate(table["refused"][:1]):  # the title has room for one
+        sh.text("text", MARGIN, H - MARGIN - 11.0 - 3.0 * i, f"refused: {reason}", 2.2)
     sh.text("text", MARGIN, H - MARGIN - 8.0, "1:1 in millimetres. s: length along the unactuated tube; c = (D/2) \u03c6: "
             "position around the tube, wrapped at \u03c0D (both band edges are the same line on the tube).", 2.2)
     top = H - MARGIN - TITLE_H
@@ -652,7 +704,7 @@ def template_sheet(a: Archive, run: str, table: dict, lay: Layout, spam: bool) -
             sh.line("marks", [xy(s, tile.c0 - mark), xy(s, tile.c_end + mark)])
             x, y = xy(s, g.mark_c[1])
             sh.text("text", x + (1.0 if word == "base" else -1.0), y - 0.8, word, anchor="start" if word == "base" else "end")
-        layer = {"stopper": "stoppers", "gap": "removed", "muscle": None}
+        layer = {"stopper": "stoppers", "gap": "removed", "muscle": None, "none": "removed"}
         for kind, lines in g.paths.items():
             for p, q in lines:
                 sh.line("actuator_path", [xy(*p), xy(*q)])
@@ -684,8 +736,10 @@ def template_sheet(a: Archive, run: str, table: dict, lay: Layout, spam: bool) -
         sh.line("scale", [(bx + 10.0 * i, by), (bx + 10.0 * i, by + (2.0 if i % 5 == 0 else 1.0))])
     sh.text("text", bx, by - 4.0, f"scale check: this bar must measure {SCALE_BAR_CM * 10:.0f} mm ({SCALE_BAR_CM:.0f} cm)", 2.2)
     lx = bx + SCALE_BAR_CM * 10.0 + 8.0
-    legend = ([("actuator_path", f"sPAM muscle path, one \u03bb = {float(np.mean(table['lambda'])):.3g}")] if spam else
+    legend = ([("actuator_path", f"sPAM muscle path, one \u03bb = {_muscle_lambda(table):.3g}")] if spam else
               [("stoppers", "stays: stopper / unpinched (\u03bb)"), ("removed", "removed: gap / pinched (1 \u2212 \u03bb)")])
+    if not table["actuated"].all():
+        legend.append(("removed", NONE_LEGEND))
     if table.get("changes"):
         legend.append(("changes", f"framed: {len(table['changes'])} segment(s) to change against the robot built last"))
     legend.append(("marks", "alignment marks; outlined: 1 cm overlap"))

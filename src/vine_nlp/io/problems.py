@@ -44,6 +44,7 @@ from vine_nlp.io.validate import (
 from vine_nlp.model.routing import MEASURED_LINES, Routing
 from vine_nlp.problem import (
     ACTUATOR_KINDS,
+    BASES,
     HESSIANS,
     METHODS,
     SOLVERS,
@@ -68,7 +69,7 @@ SPAM_LAMBDA_MIN = 0.5
 
 
 _TOP_KEYS = {
-    "design": ("name", "units", "tube", "target", "actuator", "design", "calibration", "obstacles"),
+    "design": ("name", "units", "tube", "target", "actuator", "design", "calibration", "obstacles", "routing"),
     "forward": ("name", "units", "tube", "routing"),
     "fit": ("name", "units", "tube", "measured", "routing", "fit"),
     "multishape": ("name", "units", "tube", "targets", "actuator", "design"),
@@ -94,6 +95,9 @@ _ACTUATOR_KEYS = ("kind", "lambda_min", "theta_max_deg")
 _OPTION_INTS = {"points_per_segment": 1, "lookahead": 1, "starts": 1, "hops": 0, "greedy_starts": 1, "seed": 0, "max_iter": 1}
 
 _DESIGN_KEYS = ("method", *_OPTION_INTS, "tol", "hessian", "solver", "budget", "smoothness")
+
+# buildable designs (design problems only): [design] keys; a fixed base's pose is [routing] initial_pose
+_BUILD_KEYS = ("correction_margin", "min_feature", "base")
 
 _SMOOTHNESS_FIELDS = {"theta": "smooth_theta", "lambda": "smooth_lambda"}
 
@@ -199,7 +203,8 @@ def _kind(f: SourceFile, data: dict) -> str:
 def _design(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> DesignProblem:
     points, points_key = _target(f, data)
     actuator = _actuator(f, sub_table(f, data, "actuator", _ACTUATOR_KEYS))
-    options = _options(f, sub_table(f, data, "design", (*_DESIGN_KEYS, *OBSTACLE_DESIGN_KEYS)))
+    design = sub_table(f, data, "design", (*_DESIGN_KEYS, *OBSTACLE_DESIGN_KEYS, *_BUILD_KEYS))
+    options = _build_options(f, data, design, actuator, _options(f, {k: v for k, v in design.items() if k not in _BUILD_KEYS}))
     need = options.points_per_segment + 1
     check(
         f,
@@ -232,6 +237,28 @@ def _obstacles_of(f: SourceFile, data: dict) -> dict:
     margin, growth = parse_obstacle_design(design if isinstance(design, dict) else {}, f.path)
     obstacles = tuple(parse_obstacles(data["obstacles"], f.path, f.dir)) if "obstacles" in data else ()
     return {"obstacles": obstacles, "obstacle_margin": margin, "growth": growth}
+
+
+def _build_options(f: SourceFile, data: dict, table: dict, actuator: Actuator, options: DesignOptions) -> DesignOptions:
+    """[design] correction_margin, min_feature, base, and a fixed base's [routing] initial_pose. Without
+    correction_margin, the default shrinks to leave room: min(default, (1 - lambda_min) / 2)."""
+    margin = min(options.correction_margin, (1 - actuator.lambda_min) / 2)
+    if "correction_margin" in table:
+        margin = real_number(f, "design.correction_margin", table["correction_margin"])
+        check(f, "design.correction_margin", margin >= 0, "must be >= 0")
+        low, high = actuator.lambda_min + margin, 1 - margin
+        check(f, "design.correction_margin", low <= high, f"leaves no room: actuator.lambda_min + margin = {low:g} > 1 - margin = {high:g}")
+    changes = {"correction_margin": margin}
+    if "min_feature" in table:
+        changes["min_feature"] = real_number(f, "design.min_feature", table["min_feature"])
+        check(f, "design.min_feature", changes["min_feature"] >= 0, "must be >= 0")
+    base = changes["base"] = choice(f, "design.base", table.get("base", "free"), BASES)
+    routing = sub_table(f, data, "routing", ("initial_pose",))
+    if "initial_pose" in routing:
+        check(f, "routing.initial_pose", base == "fixed", 'a design problem\'s base pose needs [design] base = "fixed"')
+        changes["base_pose"] = tuple(map(tuple, rigid_pose(f, "routing.initial_pose", routing["initial_pose"]).tolist()))
+    check(f, "design.base", base == "free" or "base_pose" in changes, '"fixed" needs a base pose: give [routing] initial_pose (4 x 4)')
+    return dataclasses.replace(options, **changes)
 
 
 def _target(f: SourceFile, data: dict) -> tuple[np.ndarray, str]:
