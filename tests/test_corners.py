@@ -12,8 +12,8 @@ from vine_nlp.front.cli import main
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import corners
 from vine_nlp.methods.common import pair_points
+from vine_nlp.methods.drive import TIE_RTOL
 from vine_nlp.methods.nlp import _solve, design_nlp, guess_from_routing, solve_from
-from vine_nlp.methods.transcription import TIE_RTOL
 from vine_nlp.model.chain import chain_points
 from vine_nlp.problem import Actuator, DesignOptions, DesignProblem
 

@@ -16,7 +16,7 @@ from vine_nlp.io.correction import read_correction
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import correct as C
 from vine_nlp.methods.common import evaluate, pair_points
-from vine_nlp.methods.transcription import frames12
+from vine_nlp.methods.structure import frames12
 from vine_nlp.model.calibration import Calibration, realized_of
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.routing import Routing, Sigmas

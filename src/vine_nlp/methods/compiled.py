@@ -102,7 +102,7 @@ def _code_fingerprint() -> str:
     """The source of the layers whose formulas end up in the generated code."""
     h = hashlib.sha256()
     root = Path(__file__).resolve().parents[1]
-    for sub in ("model", "design"):
+    for sub in ("model", "methods"):
         for f in sorted((root / sub).rglob("*.py")):
             h.update(str(f.relative_to(root)).encode())
             h.update(f.read_bytes())

@@ -49,9 +49,11 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
-from vine_nlp.methods import blas
+from vine_nlp.methods import blas, drive
 from vine_nlp.methods.common import LENGTH_FACTOR
-from vine_nlp.methods.transcription import frames12, ipopt_quiet, ipopt_status, pick_best
+from vine_nlp.methods.settings import CORNER_WINDOW, quiet
+from vine_nlp.methods.structure import frames12
+from vine_nlp.methods.transcription import ipopt_status
 from vine_nlp.model.chain import chain_frames, chain_points
 from vine_nlp.model.pairing import Pairing
 from vine_nlp.model.routing import Routing
@@ -136,7 +138,7 @@ def _window_objective(W: int, n1: int, shared: bool) -> ca.Function:
 def _window_solver(W: int, n1: int, shared: bool, slot: int) -> ca.Function:
     """One IPOPT solver of the window NLP per thread slot: a CasADi solver keeps its workspace in
     itself, so two threads never share one."""
-    opts = ipopt_quiet(WINDOW_MAX_ITER, WINDOW_TOL) | {"ipopt.acceptable_tol": 1e-5, "ipopt.mu_strategy": "adaptive"}
+    opts = quiet(WINDOW_MAX_ITER, WINDOW_TOL) | CORNER_WINDOW
     blas.one_thread()
     return ca.nlpsol(f"vine_window{slot}", "ipopt", _window_nlp(W, n1, shared), opts)
 
@@ -324,7 +326,7 @@ def search(
                 # one task per start, in start order; results are read back in that order: the choice
                 # does not depend on which thread finished first
                 solved = [f.result() for f in [pool.submit(_solve_start, win, x0, slots, stop) for x0 in starts]]
-                k = pick_best(solved, objective=lambda r: r[0], converged=lambda r: r[2])
+                k = drive.pick_best(solved, key=lambda r: (not r[2], r[0]))
                 f_new, x_new, ok, _ = solved[k]
                 window_iterations += sum(r[3] for r in solved if r is not None)
                 if ok and f_new < f_cur * (1 - WINDOW_GAIN):
@@ -354,7 +356,7 @@ def search(
             if note:
                 note(f"corner search round {rnd + 1}: {changed} windows changed, objective {best.stats['objective']:.6g} -> "
                      f"{polished.stats['objective']:.6g} ({time.perf_counter() - t0:.1f} s)")
-            if pick_best([best, polished]) == 0:  # not better (ties keep the earlier design)
+            if drive.pick_best([best, polished]) == 0:  # not better (ties keep the earlier design)
                 break
             best, routing = polished, polished.routing
             if hit or time.perf_counter() > deadline:

@@ -80,21 +80,22 @@ from typing import ClassVar
 import casadi as ca
 import numpy as np
 
+from vine_nlp.methods.blocks import BlockType
 from vine_nlp.methods.common import evaluate, pair_points
 from vine_nlp.methods.fit.align import PointSet, Polyline, fit_pose, polish_pose, pose_starts
 from vine_nlp.methods.nlp import nlp_parameters
-from vine_nlp.methods.transcription import (
-    BlockType,
-    Chain,
-    Smoothness,
-    SoftTip,
-    Spec,
-    Structure,
-    frames12,
-    get_solver,
-    ipopt_options,
-    options_key,
+from vine_nlp.methods.settings import (
+    COARSE_ROUNDS,
+    CORRECTION_SCHEDULE,
+    ESTIMATE,
+    ESTIMATE_HESSIAN,
+    ICP_ROUNDS,
+    STAGE_FACTOR,
+    STAGE_MERGE,
+    Settings,
 )
+from vine_nlp.methods.structure import Structure, frames12
+from vine_nlp.methods.transcription import Chain, Smoothness, SoftTip, Spec, get_solver
 from vine_nlp.model.chain import chain_frames, chain_points, segment_end_samples
 from vine_nlp.model.helix import center_rates
 from vine_nlp.model.routing import MEASURED_LINES, Routing, Sigmas
@@ -110,27 +111,10 @@ ADJUST = (("lambda",), ("lambda", "theta"))
 # weak priors on the systematic parts: wide against any construction method seen
 DEFAULT_SYSTEMATIC_SIGMAS = (math.radians(10.0), 0.2, 0.2)
 DEFAULT_MEASUREMENT_SIGMA_MM = 1.0
-ICP_ROUNDS = 6  # pair-and-solve rounds of the last (finest) stage of the coarse-to-fine loop, at most
-COARSE_ROUNDS = 2  # and of each coarser stage: its pairs only need to be good enough for the next stage
-STAGE_FACTOR = 0.25  # the noise sigma of the fit shrinks by this factor from stage to stage
-STAGE_MERGE = 1.5  # a stage within this factor of the measurement sigma is merged into the last one
-# the estimate's Hessian: exact, since Gauss-Newton converges slowly on the coarse stages (large residuals of
-# a robot built far off its nominal; Bezier (a): 200+ iterations against about 5 per round, exact)
-ESTIMATE_HESSIAN = "exact"
-ESTIMATE_TOL = 1e-8
-# re-pairing moves the answer little: start IPOPT near it (small barrier), round after round
-ESTIMATE_WARM = True
-# the correction starts at the as-built routing, near its answer: the exact Hessian converges in a few
-# tens of iterations where Gauss-Newton ran into its cap; Gauss-Newton only where the exact one fails
-CORRECTION_SCHEDULE = (("exact", 300), ("gauss-newton", 300))
 THETA_TRUST = 2.0  # with theta adjusted, the corrected theta stays within this many sigma_theta of the as-built one
 TRIM = 4.0  # pairs farther than this many sigmas of the stage are left out of it
 SAMPLES_PER_SEGMENT = 24  # pieces per segment of the model lines the pairing projects onto
 SLOT_STEP = 8  # slots per segment are rounded up to a multiple of this (cached structures)
-# IPOPT settings of this module's solvers on top of the transcription's: MUMPS with the AMD ordering (cheaper than
-# its automatic choice on these banded KKT systems, whose symbolic analysis is redone at every solve, 7 or so per
-# estimate) and no multipliers of the parameters (unused; one derivative evaluation less)
-SOLVER_OPTIONS = {"ipopt.mumps_pivot_order": 0, "calc_lam_p": False}
 
 
 # ---------------------------------------------------------------- deviations (the contract's rule)
@@ -394,7 +378,7 @@ class Estimate:
 def _estimation_spec(M: int, shared: bool, builds: int, S: int, free: bool, hessian: str) -> Spec:
     st = Structure(M, 1, 1, "shared" if shared else "segment", "fixed", extra=12 * (builds - 1), globals=9 if free else 3)
     return Spec(st, (AsBuiltTerm(S, builds, free),), hessian,
-                options_key(ipopt_options(200, ESTIMATE_TOL, ESTIMATE_WARM) | SOLVER_OPTIONS))
+                ESTIMATE)
 
 
 def _rigid_start(measurements, routings, D):
@@ -742,7 +726,7 @@ def _laplace(ab, g, shifts, ms, pts, pairs, D, sig_m, sigmas, sys_sig, prior, sh
 def correction_spec(M: int, n: int, shared: bool, max_iter: int, tol: float, hessian: str) -> Spec:
     """The plain NLP with the base pose fixed (the robot's base stays where it was built)."""
     return Spec(Structure(M, n, 1, "shared" if shared else "segment", "fixed"), (Smoothness(), SoftTip()), hessian,
-                options_key(ipopt_options(max_iter, tol) | SOLVER_OPTIONS))
+                Settings(max_iter, tol, repeated=True))
 
 
 def correct_routing(problem: DesignProblem, as_built: Routing, dev: Deviations, adjust=("lambda",),

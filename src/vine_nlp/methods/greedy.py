@@ -75,7 +75,8 @@ from vine_nlp.methods.common import (
     path_error,
     variable_bounds,
 )
-from vine_nlp.methods.transcription import ipopt_quiet, ipopt_status
+from vine_nlp.methods.settings import GREEDY_WINDOW, quiet
+from vine_nlp.methods.transcription import ipopt_status
 from vine_nlp.model.chain import chain_points
 from vine_nlp.model.segment import segment_parts, segment_transform, so3_exp
 from vine_nlp.problem import DesignProblem, Result, Routing
@@ -143,7 +144,7 @@ class WindowSolver:
         pvec = ca.vertcat(*[ca.vec(q) for q in params])
         # the n slots of a segment repeat its helix rates: merging them speeds up the build
         sq, dist = ca.vertsplit(ca.cse(ca.vertcat(sq, dist)))
-        opts = ipopt_quiet(max_iter, tol) | {"ipopt.acceptable_tol": 1e-6}
+        opts = quiet(max_iter, tol) | GREEDY_WINDOW
         blas.one_thread()
         self.solver = ca.nlpsol(f"greedy_window_{K}", "ipopt", {"x": x, "p": pvec, "f": sq}, opts)
         self.terms = ca.Function("window_terms", [x, pvec], [sq, dist])

@@ -1,6 +1,6 @@
 """Inverse design as ONE nonlinear program, solved with IPOPT (the plain formulation).
 
-The chain's multiple-shooting transcription (design.transcription) with the point
+The chain's multiple-shooting transcription (methods.transcription) with the point
 fit, the tip paired with the chain's end, and the smoothness penalties:
 
   J = (1/N) sum_k |r_c(k) - r_cd(k)|^2 / D^2
@@ -16,7 +16,7 @@ per-segment lambda, Hessian, warm) and cached; target, weights and guesses are
 parameters, so multi-start and sweeps reuse it. Where its functions are compiled, the first
 Gauss-Newton solve runs on Fatrop, a solver for stage-structured problems (``solve_from``).
 Targets with corners have many local minima: by default the windowed search of
-``design.corners`` takes over where the first solve shows them (within ``options.budget``
+``methods.corners`` takes over where the first solve shows them (within ``options.budget``
 seconds); ``basin_hops`` searches them when asked for (``options.hops``).
 """
 
@@ -31,55 +31,32 @@ import numpy as np
 from vine_nlp.methods import compiled, corners, drive
 from vine_nlp.methods.common import LENGTH_FACTOR, Guess, evaluate, geometric_guess, pair_points
 from vine_nlp.methods.drive import TIE_RTOL
-from vine_nlp.methods.transcription import (
-    Smoothness,
-    SoftTip,
-    Spec,
-    Structure,
-    cell_data,
-    fatrop_options,
-    fatrop_safe,
-    frames12,
-    ipopt_options,
-    options_key,
-    smoothing_steps,
-)
+from vine_nlp.methods.settings import AUTO_GN_MAX_ITER, FATROP_MAX_SEGMENTS, Settings
+from vine_nlp.methods.structure import Structure, frames12
+from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, cell_data, fatrop_safe, routing_of, smoothing_steps
 from vine_nlp.methods.transcription import get_solver as _get
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.pairing import Pairing
-from vine_nlp.model.segment import segment_function, so3_exp  # noqa: F401  (segment_function: its old home)
 from vine_nlp.problem import DesignProblem, Result, Routing
 
 __all__ = ["design_nlp", "solve_from", "start_guesses", "guess_from_routing", "basin_hops", "get_solver", "nlp_parameters", "TIE_RTOL"]
 
-# "auto": Gauss-Newton first, capped at this many iterations, then the exact Hessian if it did not converge
-AUTO_GN_MAX_ITER = 50
-
-
-# IPOPT settings of the plain NLP's Gauss-Newton solves from a guess (the default's first solve); their
-# effect on every paper case, the 125-knot study and the trefoil's time is in results/BENCHMARKS.md
-# ("Compiled NLP functions", "Sweep"):
-# - mu_oracle "probing" (Mehrotra's predictor rule for the adaptive barrier) in place of the quality function:
-#   Gauss-Newton converges on more targets before the exact Hessian has to take over;
-# - MUMPS's own scalings off: IPOPT scales the problem already, and on these small banded KKT systems the
-#   scaling pass is a large share of a factorization;
-# - constraint multipliers start at zero, not at a least-squares estimate: one factorization less per solve
-#   (the continuity rows hold at the start, frames on the target, so their multipliers start small anyway).
-# Exact-Hessian and warm solves keep ipopt_options: the corner search on the polyline (d) starts from the
-# exact solve, and which local minimum it ends in is sensitive to every bit of that start.
-GN_IPOPT = {"ipopt.mu_oracle": "probing", "ipopt.mumps_permuting_scaling": 0, "ipopt.mumps_scaling": 0,
-            "ipopt.constr_mult_init_max": 0.0}
-
 
 def nlp_spec(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False,
-             hessian: str = "exact", terms: tuple = ()) -> Spec:
-    """The plain NLP's structure and terms (more terms: the formulations built on it); GN_IPOPT on top of
-    ipopt_options for a Gauss-Newton solve from a guess."""
-    opts = ipopt_options(max_iter, tol, warm)
-    if hessian == "gauss-newton" and not warm and not terms:
-        opts |= GN_IPOPT
-    return Spec(Structure(M, n, 1, "shared" if shared_lambda else "segment", "free"), (Smoothness(), SoftTip()) + tuple(terms),
-                hessian, options_key(opts))
+             hessian: str = "exact", terms: tuple = (), hard: bool = False, extra: int = 0) -> Spec:
+    """The plain NLP's structure and terms; more ``terms`` (with ``extra`` stage variables and ``hard`` rows): a
+    formulation built on it. A Gauss-Newton solve of the plain chain from a guess declares itself so."""
+    guess = hessian == "gauss-newton" and not warm and not terms
+    return Spec(Structure(M, n, 1, "shared" if shared_lambda else "segment", "free", extra=extra), (Smoothness(), SoftTip()) + tuple(terms),
+                hessian, Settings(max_iter, tol, warm=warm, guess=guess, hard=hard))
+
+
+def extended_solver(problem: DesignProblem, pairing: Pairing, terms: tuple, extra: int = 0, max_iter: int | None = None):
+    """The plain NLP of ``problem`` plus ``terms`` with hard rows and ``extra`` variables per stage, exact Hessian
+    (clearance, robust, obstacles); ``max_iter``: a cap below ``options.max_iter``."""
+    o = problem.options
+    max_iter = o.max_iter if max_iter is None else min(o.max_iter, max_iter)
+    return _get(nlp_spec(pairing.segments, pairing.n, problem.actuator.shared_lambda, max_iter, o.tol, terms=terms, hard=True, extra=extra))
 
 
 def get_solver(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False, hessian: str = "exact"):
@@ -89,15 +66,10 @@ def get_solver(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: f
 
 def fatrop_spec(M: int, n: int, max_iter: int = 3000, tol: float = 1e-8, hessian: str = "gauss-newton") -> Spec:
     """The plain NLP (lambda per segment) in the transcription's stage form, for Fatrop."""
-    return Spec(Structure(M, n, stages=True), (Smoothness(), SoftTip()), hessian, options_key(fatrop_options(max_iter, tol)), "fatrop")
+    return Spec(Structure(M, n, stages=True), (Smoothness(), SoftTip()), hessian, Settings(max_iter, tol, backend="fatrop"))
 
 
 _NO_FATROP: set = set()  # specs whose Fatrop solver could not be built in this process (compiler failed)
-
-# Fatrop's set-up (in CasADi's interface, once per structure and process) grows about as M^2 where IPOPT's
-# stays at milliseconds: beyond this many segments it costs more than the solve it saves (results/BENCHMARKS.md, "Fatrop")
-FATROP_MAX_SEGMENTS = 100
-
 
 def get_fatrop(M: int, n: int, max_iter: int = 3000, tol: float = 1e-8, hessian: str = "gauss-newton"):
     """The plain NLP's Fatrop solver, cached like ``get_solver``; None where its functions are not compiled
@@ -144,16 +116,6 @@ def start_x(solver, guess: Guess, D: float, frames: str = "target") -> np.ndarra
     return solver.pack_x(guess.theta, guess.lam, guess.length / D, frames12(fr)[None], poses=pose[None])
 
 
-def routing_of(solver, x, R0g: np.ndarray, D: float, k: int = 0) -> Routing:
-    """The routing (problem units) in a solution x of a free-pose chain."""
-    v = solver.unpack(x)
-    T0 = np.eye(4)
-    q = solver.layout.pose_of_level[k]
-    T0[:3, :3] = R0g @ so3_exp(v["poses"][q, :3])
-    T0[:3, 3] = v["poses"][q, 3:] * D
-    return Routing(v["theta"], v["lam"][:, k], v["dl"] * D, T0)
-
-
 def solve_from(
     problem: DesignProblem, guess: Guess | None = None, pairing: Pairing | None = None, frames: str = "target", warm: bool = False
 ) -> Result:
@@ -168,8 +130,7 @@ def solve_from(
     closely; its answer is a true KKT point (IPOPT tests exact gradients). Where it
     does not converge within AUTO_GN_MAX_ITER iterations (large residuals: corners),
     the same start is solved again with the exact Hessian; where it stops at IPOPT's
-    "acceptable" level, the exact Hessian polishes its answer (a warm start). Gauss-Newton solves
-    from a guess run with GN_IPOPT's settings on top of ``ipopt_options``.
+    "acceptable" level, the exact Hessian polishes its answer (a warm start).
 
     ``options.solver`` "auto": a Gauss-Newton solve from a guess runs on Fatrop (the transcription's
     stage form) where its functions are compiled, the chain has at most FATROP_MAX_SEGMENTS segments
@@ -227,7 +188,7 @@ def result_of(problem, pairing, solver, x, status, st, R0g, method, **extra) -> 
     """A Result of a solution x of the plain NLP or a formulation built on it; ``extra``: more stats."""
     o = problem.options
     return evaluate(
-        problem, routing_of(solver, x, R0g, problem.diameter), pairing, method, status=status, solve_time_s=st.pop("solve_time_s"),
+        problem, routing_of(solver, x, problem.diameter, R0g), pairing, method, status=status, solve_time_s=st.pop("solve_time_s"),
         iterations=st.pop("iterations"),
         stats=st | {"segments": pairing.segments, "points_per_segment": pairing.n, "smooth_theta": o.smooth_theta,
                     "smooth_lambda": o.smooth_lambda, "tol": o.tol, "max_iter": o.max_iter} | extra,
@@ -260,6 +221,12 @@ def start_guesses(problem: DesignProblem, pairing: Pairing, starts: int) -> list
 def _solve_start(args):
     problem, guess, frames, warm = args
     return solve_from(problem, guess, frames=frames, warm=warm)
+
+
+def chain_guess(problem: DesignProblem, routing: Routing) -> Guess:
+    """A start on a routing's own chain (frames where the routing puts them)."""
+    return Guess(routing.theta, routing.lam, routing.length, routing.initial_pose,
+                 chain_frames(routing.theta, routing.lam, routing.length, problem.diameter, routing.initial_pose))
 
 
 def guess_from_routing(problem: DesignProblem, pairing: Pairing, routing: Routing) -> Guess:

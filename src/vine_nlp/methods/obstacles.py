@@ -128,9 +128,11 @@ from vine_nlp.analysis.obstacles import (
     obstacle_report,
     sample_chain,
 )
-from vine_nlp.methods.clearance import chain_guess, result_of
+from vine_nlp.methods import drive
+from vine_nlp.methods.blocks import BlockType, Samples
 from vine_nlp.methods.common import pair_points
-from vine_nlp.methods.nlp import design_bounds, design_nlp, nlp_parameters, nlp_spec, solve_from, start_x
+from vine_nlp.methods.nlp import chain_guess, design_bounds, design_nlp, extended_solver, nlp_parameters, result_of, solve_from, start_x
+from vine_nlp.methods.structure import frames12
 from vine_nlp.methods.tip import (
     MIN_LENGTH_FACTOR,
     _perpendicular_pair,
@@ -139,7 +141,7 @@ from vine_nlp.methods.tip import (
     start_guesses,
     tip_spec,
 )
-from vine_nlp.methods.transcription import HARD_ROWS, BlockType, Chain, Samples, frames12, get_solver, options_key, pick_best
+from vine_nlp.methods.transcription import Chain, get_solver
 from vine_nlp.model.chain import chain_frames, chain_points
 from vine_nlp.model.obstacles import (
     EPS_REL,
@@ -971,21 +973,13 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
 
 def _design_solver(problem: DesignProblem, pairing, plan: Plan, max_iter: int | None = None):
     """The plain NLP plus the plan's rows (cached per spec: a new one only when the plan's slots grew)."""
-    o = problem.options
-    max_iter = o.max_iter if max_iter is None else min(o.max_iter, max_iter)
-    spec = nlp_spec(pairing.segments, pairing.n, problem.actuator.shared_lambda, max_iter, o.tol, terms=(plan.term,))
-    opts = dict(spec.options) | HARD_ROWS
-    return get_solver(dataclasses.replace(spec, structure=dataclasses.replace(spec.structure, extra=plan.extra),
-                                          options=options_key(opts)))
+    return extended_solver(problem, pairing, (plan.term,), extra=plan.extra, max_iter=max_iter)
 
 
 def _tip_solver(problem: TipProblem, plan: Plan):
-    o, a = problem.options, problem.actuator
-    spec = tip_spec(problem.segments, a.shared_lambda, problem.direction is not None, problem.objective,
-                    min(o.max_iter, TIP_MAX_ITER), o.tol)
-    opts = dict(spec.options) | HARD_ROWS
-    return get_solver(dataclasses.replace(spec, structure=dataclasses.replace(spec.structure, extra=plan.extra),
-                                          terms=spec.terms + (plan.term,), options=options_key(opts)))
+    o = problem.options
+    return get_solver(tip_spec(problem.segments, problem.actuator.shared_lambda, problem.direction is not None, problem.objective,
+                               min(o.max_iter, TIP_MAX_ITER), o.tol, hard=True, extra=plan.extra, terms=(plan.term,)))
 
 
 def _tip_solve(problem: TipProblem, plan: Plan, routing: Routing, rounds: int):
@@ -1102,7 +1096,7 @@ def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, ro
             break
     score = [(0 if (r.converged and rep["clear"]) else 1 if r.converged else 2,
               r.stats["objective"] if r.converged else r.metrics["tip_error"]) for r, rep in results]
-    kbest = pick_best(list(range(len(results))), objective=lambda i: score[i][1], converged=lambda i: score[i][0] == 0)
+    kbest = drive.pick_best(list(range(len(results))), key=lambda i: (score[i][0] != 0, score[i][1]))
     if score[kbest][0] == 2 and any(s[0] == 1 for s in score):
         kbest = min((i for i in range(len(score)) if score[i][0] == 1), key=lambda i: score[i][1])
     best, rep = results[kbest]
