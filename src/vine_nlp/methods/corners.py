@@ -290,89 +290,108 @@ def search(
         ``search_time_s``, ``search_budget_hit``, ``search_workers``, ``search_window_iterations``;
         its iterations are the first solve's and the polishes', its solve time includes the search.
     """
-    t0 = time.perf_counter()
-    deadline = t0 + max(0.0, budget)
-    D, M = problem.diameter, pairing.segments
-    W = min(WINDOW, M)
-    rng = np.random.default_rng([problem.options.seed, 2])  # a stream apart from the starts' and hops'
-    best, routing = result, result.routing
-    objectives, windows_done, accepted, rounds_done, hit = [], 0, 0, 0, False
-    iterations = result.iterations
-    per_round = max(min(MIN_WINDOWS, M - W + 1), int(np.ceil(WINDOW_SHARE * (M - W + 1)))) + 1  # windows + the polish
-    total = max(1, rounds) * per_round
-    stop = threading.Event()
-    workers = max(1, workers)
-    pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="vine-nlp-window")
-    slots = queue.SimpleQueue()  # one window solver per thread: a CasADi solver keeps its workspace in itself
-    for k in range(workers):
-        slots.put(k)
-    window_time, polish_time, window_iterations = 0.0, 0.0, 0
+    run = _Search(problem, result, pairing, budget, workers, progress, rounds)
     try:
         for rnd in range(max(1, rounds)):
-            err = error_per_segment(problem, pairing, best)
-            window_err = np.convolve(err, np.ones(W), "valid")
-            order = np.argsort(-window_err, kind="stable")  # the corners first
-            order = order[: max(min(MIN_WINDOWS, order.size), int(np.ceil(WINDOW_SHARE * order.size)))]
-            changed = 0
-            for i, a in enumerate(order):
-                now = time.perf_counter()
-                if now >= deadline or (windows_done and now + window_time / windows_done > deadline):
-                    hit = True
-                    break
-                tw = time.perf_counter()
-                win = _Window(problem, pairing, routing, int(a), W)
-                f_cur = win.objective(win.x)
-                starts = win.starts(rng, WINDOW_STARTS)
-                # one task per start, in start order; results are read back in that order: the choice
-                # does not depend on which thread finished first
-                solved = [f.result() for f in [pool.submit(_solve_start, win, x0, slots, stop) for x0 in starts]]
-                k = drive.pick_best(solved, key=lambda r: (not r[2], r[0]))
-                f_new, x_new, ok, _ = solved[k]
-                window_iterations += sum(r[3] for r in solved if r is not None)
-                if ok and f_new < f_cur * (1 - WINDOW_GAIN):
-                    routing = win.apply(routing, x_new, D)
-                    changed += 1
-                windows_done += 1
-                window_time += time.perf_counter() - tw
-                if progress:
-                    progress(rnd * per_round + i + 1, total)
-            rounds_done += 1
-            if not changed or hit:  # a round the budget cut short is not polished: its design stays as it was
+            changed = run.windows(rnd)
+            run.rounds += 1
+            if not changed or run.hit:  # a round the budget cut short is not polished: its design stays as it was
                 if note:
-                    note(f"corner search round {rnd + 1}: " + ("stopped by the budget" if hit else "no window changed")
-                         + f", objective {best.stats['objective']:.6g} ({time.perf_counter() - t0:.1f} s)")
+                    note(f"corner search round {rnd + 1}: " + ("stopped by the budget" if run.hit else "no window changed")
+                         + f", objective {run.best.stats['objective']:.6g} ({time.perf_counter() - run.t0:.1f} s)")
                 break
-            if polish_time and time.perf_counter() + polish_time > deadline:
-                hit = True
+            if run.polish_time and time.perf_counter() + run.polish_time > run.deadline:
+                run.hit = True
                 break
             tp = time.perf_counter()
-            polished = polish(routing)
-            polish_time = max(polish_time, time.perf_counter() - tp)
-            iterations += polished.iterations
-            objectives.append(polished.stats["objective"])
-            accepted += changed
-            if progress:
-                progress((rnd + 1) * per_round, total)
+            polished = polish(run.routing)
+            run.polish_time = max(run.polish_time, time.perf_counter() - tp)
+            run.iterations += polished.iterations
+            run.objectives.append(polished.stats["objective"])
+            run.accepted += changed
+            run.report((rnd + 1) * run.per_round)
             if note:
-                note(f"corner search round {rnd + 1}: {changed} windows changed, objective {best.stats['objective']:.6g} -> "
-                     f"{polished.stats['objective']:.6g} ({time.perf_counter() - t0:.1f} s)")
-            if drive.pick_best([best, polished]) == 0:  # not better (ties keep the earlier design)
+                note(f"corner search round {rnd + 1}: {changed} windows changed, objective {run.best.stats['objective']:.6g} -> "
+                     f"{polished.stats['objective']:.6g} ({time.perf_counter() - run.t0:.1f} s)")
+            if drive.pick_best([run.best, polished]) == 0:  # not better (ties keep the earlier design)
                 break
-            best, routing = polished, polished.routing
-            if hit or time.perf_counter() > deadline:
-                hit = True
+            run.best, run.routing = polished, polished.routing
+            if time.perf_counter() > run.deadline:
+                run.hit = True
                 break
     except BaseException:
-        stop.set()  # Ctrl-C or an error: no further window solve starts
+        run.stop.set()  # Ctrl-C or an error: no further window solve starts
         raise
     finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-    if progress:
-        progress(total, total)
-    elapsed = time.perf_counter() - t0
-    best.stats |= {"search_rounds": rounds_done, "search_windows": windows_done, "search_accepted": accepted,
-                   "search_objectives": objectives, "search_time_s": elapsed, "search_budget_hit": hit,
-                   "search_workers": workers, "search_window_iterations": window_iterations}
-    best.iterations = iterations
-    best.solve_time_s = result.solve_time_s + elapsed
-    return best
+        run.pool.shutdown(wait=True, cancel_futures=True)
+    return run.finish(result)
+
+
+class _Search:
+    """The corner search's state: the best design and its routing, the budget, the window threads and
+    solver slots, and what the stats report."""
+
+    def __init__(self, problem, result, pairing, budget, workers, progress, rounds):
+        self.problem, self.pairing, self.progress, self.rounds_asked = problem, pairing, progress, rounds
+        self.t0 = time.perf_counter()
+        self.deadline = self.t0 + max(0.0, budget)
+        M = pairing.segments
+        self.W = min(WINDOW, M)
+        self.rng = np.random.default_rng([problem.options.seed, 2])  # a stream apart from the starts' and hops'
+        self.best, self.routing = result, result.routing
+        self.objectives, self.windows_done, self.accepted, self.rounds, self.hit = [], 0, 0, 0, False
+        self.iterations, self.window_time, self.polish_time, self.window_iterations = result.iterations, 0.0, 0.0, 0
+        n = M - self.W + 1
+        self.per_round = max(min(MIN_WINDOWS, n), int(np.ceil(WINDOW_SHARE * n))) + 1  # windows + the polish
+        self.workers = max(1, workers)
+        self.stop = threading.Event()
+        self.pool = ThreadPoolExecutor(max_workers=self.workers, thread_name_prefix="vine-nlp-window")
+        self.slots = queue.SimpleQueue()  # one window solver per thread: a CasADi solver keeps its workspace in itself
+        for k in range(self.workers):
+            self.slots.put(k)
+
+    def report(self, done: int) -> None:
+        if self.progress:
+            self.progress(done, self.per_round * max(1, self.rounds_asked))
+
+    def windows(self, rnd: int) -> int:
+        """One round's windows, those of largest error first; returns how many changed the routing."""
+        problem, W = self.problem, self.W
+        err = error_per_segment(problem, self.pairing, self.best)
+        order = np.argsort(-np.convolve(err, np.ones(W), "valid"), kind="stable")  # the corners first
+        order = order[: max(min(MIN_WINDOWS, order.size), int(np.ceil(WINDOW_SHARE * order.size)))]
+        changed = 0
+        for i, a in enumerate(order):
+            now = time.perf_counter()
+            if now >= self.deadline or (self.windows_done and now + self.window_time / self.windows_done > self.deadline):
+                self.hit = True
+                break
+            tw = time.perf_counter()
+            win = _Window(problem, self.pairing, self.routing, int(a), W)
+            f_cur = win.objective(win.x)
+            # one task per start, in start order; results are read back in that order: the choice does not
+            # depend on which thread finished first
+            tasks = [self.pool.submit(_solve_start, win, x0, self.slots, self.stop) for x0 in win.starts(self.rng, WINDOW_STARTS)]
+            solved = [f.result() for f in tasks]
+            f_new, x_new, ok, _ = solved[drive.pick_best(solved, key=lambda r: (not r[2], r[0]))]
+            self.window_iterations += sum(r[3] for r in solved if r is not None)
+            if ok and f_new < f_cur * (1 - WINDOW_GAIN):
+                self.routing = win.apply(self.routing, x_new, problem.diameter)
+                changed += 1
+            self.windows_done += 1
+            self.window_time += time.perf_counter() - tw
+            self.report(rnd * self.per_round + i + 1)
+        return changed
+
+    def finish(self, result: Result) -> Result:
+        total = self.per_round * max(1, self.rounds_asked)
+        if self.progress:
+            self.progress(total, total)
+        elapsed = time.perf_counter() - self.t0
+        best = self.best
+        best.stats |= {"search_rounds": self.rounds, "search_windows": self.windows_done, "search_accepted": self.accepted,
+                       "search_objectives": self.objectives, "search_time_s": elapsed, "search_budget_hit": self.hit,
+                       "search_workers": self.workers, "search_window_iterations": self.window_iterations}
+        best.iterations = self.iterations
+        best.solve_time_s = result.solve_time_s + elapsed
+        return best
