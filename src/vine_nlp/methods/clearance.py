@@ -1,31 +1,17 @@
 """Inverse design that keeps the tube clear of itself: the plain NLP plus clearance rows.
 
-Formulation (smooth): for chosen pairs of material points (l_a, l_b) of the tube,
-
-    |r_c(l_a) - r_c(l_b)|^2 >= (D + min_gap)^2,
-
-each point evaluated inside the multiple-shooting transcription as frame X_j of its
-segment times the partial segment (model.segment.segment_function with the fraction
-as data). Which pairs: an active-set outer loop. Start from design_nlp's result;
-detect the contact regions of the current design (analysis.collision.routing_clearance
-with a detection margin); constrain, for every sampled point of a region, the pair with
-its closest partner, plus each region's refined (continuous) minimum; re-solve warm;
-repeat until the continuous minimum clearance is >= D + min_gap (to ``tol_gap`` D) or
-``rounds`` is exhausted: a refresh rule of the drive's active-set loop (``drive.refine``).
-Pairs are never dropped, so the rounds only add rows. Rows hold material points apart
-where they are; between them, and as the optimizer slides points along the tube (segment
-lengths are variables), the clearance can dip below the target. After a solve the rows'
-target is raised by RAISE_FACTOR times the remaining shortfall (stats clearance_row_margin),
-but only where every region short of the clearance has a constrained pair near its minimum
-(a dip between rows that hold). A region without one is a new contact (the tube moved into
-it): it gets its pairs and the target stays. Raising every row for it pushed tight coils
-ever farther open, into new contacts: the loop ran away (tests/test_collision.py). A solve
-that does not converge does not end the loop, and the design returned is the best round's
-(``drive.rank``: converged first, then meeting the clearance, then the lower objective, else
-the larger clearance).
-
-The pairs' segments are structure (the solver is built once per active set and cached);
-their fractions and the required distance are data.
+For chosen pairs of material points (l_a, l_b): |r_c(l_a) - r_c(l_b)|^2 >= (D + min_gap)^2, each point
+the frame X_j of its segment times the partial segment (the fraction as data). Which pairs: an active set
+on the drive (``drive.refine``, the rule :class:`_Pairs`). Start from design_nlp's result; detect the
+contact regions of the current design (analysis.collision.routing_clearance, with a detection margin);
+constrain, for every sampled point of a region, the pair with its closest partner, plus each region's
+continuous minimum; re-solve warm; until the continuous minimum clearance is >= D + min_gap (to
+``tol_gap`` D). Pairs are never dropped. Between the rows, and as material points slide along the tube,
+the clearance can dip below the target: after a solve the rows' target rises by settings.RAISE_FACTOR
+times the shortfall, but only where every short region has a constrained pair near its minimum (a dip
+between rows that hold); a region without one is a new contact and gets its pairs instead (raising for it
+pushed tight coils ever farther open: the loop ran away). The pairs' segments are structure (a solver per
+active set, cached), their fractions and the required distance data.
 """
 
 from __future__ import annotations

@@ -1,40 +1,29 @@
 """Corner-like targets: a windowed search after the first solve of the design NLP (issue 18).
 
-A target with corners (the paper's polyline (d)) has many local minima: each corner
-can be taken on several sides and swings, and no single descent crosses between
-them. ``corner_like`` recognizes such a target from the first solve; ``search`` then
-improves that design window by window, using the NLP's structure:
+A target with corners (the paper's polyline (d)) has many local minima: each corner can be taken on several
+sides and swings, and no single descent crosses between them. ``corner_like`` recognizes such a target from
+the first solve; ``search`` then improves that design window by window:
 
-* A *window* is W = WINDOW neighbouring segments a..b-1. Everything before it is
-  held (the frame at its start is a fixed number) and everything after it is held
-  *as a rigid body* attached to the window's end frame: its routing does not change,
-  so its points move with that frame. Their error is then a quadratic form in the
-  12 numbers of the end frame (rotation R, position p; |R q| = |q| for a rotation):
+* A *window* is W = settings.WINDOW neighbouring segments a..b-1. Everything before it is held (the frame at
+  its start is a fixed number), everything after it is held *as a rigid body* attached to the window's end
+  frame, so its points' error is a quadratic form in the 12 numbers of that frame (rotation R, position p):
 
       sum_i w_i |R q_i + p - t_i|^2 = c + W |p|^2 + 2 p.(R Q) - 2 <R, C> - 2 p.T,
 
-  with q_i the points in the end frame, Q = sum w_i q_i, C = sum w_i t_i q_i^T,
-  T = sum w_i t_i, W = sum w_i. The window NLP (a few variables, single shooting)
-  thus minimizes the *whole* design's point error over the window's theta, lambda
-  and lengths, at the cost of the window's own points.
-* Each window is solved from WINDOW_STARTS starts: the current values, the same
-  with theta mirrored, and random draws inside the bounds. The starts are tasks for
-  ``workers`` threads (CasADi releases the GIL inside IPOPT; each thread has its own
-  solver), read back in start order; the best by ``transcription.pick_best``'s rule
-  replaces the window if it lowers the error by WINDOW_GAIN. A round visits the
-  WINDOW_SHARE of the windows with the largest error (the corners), largest first.
-* A round that changed a window ends with one polish: the full NLP from the new
-  design (exact Hessian, frames on its chain). The search stops after MAX_ROUNDS, when a round
-  changes nothing or its polish does not improve, or when the time budget is spent
-  (no window or polish is started that the time measured so far says would not fit;
-  a round cut short is not polished and its changes are dropped).
+  q_i the points in the end frame, Q = sum w_i q_i, C = sum w_i t_i q_i^T, T = sum w_i t_i, W = sum w_i.
+  The window NLP (single shooting, a few variables) thus minimizes the *whole* design's point error over the
+  window's theta, lambda and lengths.
+* Each window is solved from WINDOW_STARTS starts (the current values, theta mirrored, random draws inside
+  the bounds), tasks for ``workers`` threads (CasADi releases the GIL inside IPOPT; each thread has its own
+  solver) read back in start order; the best (``drive.pick_best``) replaces the window if it lowers the error
+  by WINDOW_GAIN. A round visits the WINDOW_SHARE of the windows of largest error, largest first.
+* A round that changed a window ends with one polish: the full NLP from the new design (exact Hessian,
+  frames on its chain). The search stops after SEARCH_ROUNDS, when a round changes nothing or its polish does
+  not improve, or when the budget is spent (a round cut short is not polished; its changes are dropped).
 
-On the polyline (d) one round takes the first solve's 10.06 mm RMSE to about 9 mm (the
-greedy: 9.10 mm; results/BENCHMARKS.md, "compare"); the corner shapes found depend on the seed.
-
-Deterministic for a given ``options.seed``: the work of a window does not depend on
-which thread ran it, and the budget is only a safety stop (stats ``search_budget_hit``
-says when it cut the search, the one case where the result depends on timing).
+Deterministic for a given ``options.seed``: a window's work does not depend on which thread ran it, and the
+budget is only a safety stop (stats ``search_budget_hit`` says when it cut the search). The constants are
+methods.settings'; what a round gains on the polyline (d) is in results/BENCHMARKS.md ("compare").
 """
 
 from __future__ import annotations
@@ -51,7 +40,20 @@ import numpy as np
 
 from vine_nlp.methods import blas, drive
 from vine_nlp.methods.common import LENGTH_FACTOR
-from vine_nlp.methods.settings import CORNER_WINDOW, quiet
+from vine_nlp.methods.settings import (
+    CORNER_RMSE,
+    CORNER_WINDOW,
+    DEFAULT_BUDGET,
+    MIN_WINDOWS,
+    SEARCH_ROUNDS,
+    WINDOW,
+    WINDOW_GAIN,
+    WINDOW_MAX_ITER,
+    WINDOW_SHARE,
+    WINDOW_STARTS,
+    WINDOW_TOL,
+    quiet,
+)
 from vine_nlp.methods.structure import frames12
 from vine_nlp.methods.transcription import ipopt_status
 from vine_nlp.model.chain import chain_frames, chain_points
@@ -60,43 +62,12 @@ from vine_nlp.model.routing import Routing
 from vine_nlp.model.segment import segment_function
 from vine_nlp.problem import DesignProblem, Result
 
-__all__ = ["corner_like", "search", "DEFAULT_BUDGET", "CORNER_RMSE", "clear_caches"]
-
-# A first solve is corner-like when Gauss-Newton did not converge on it AND its RMSE exceeds this
-# fraction of the tube diameter. Measured 2026-12-01 on the bundled paper cases: the smooth ones end at
-# <= 0.001 D (bezier-a also needs the exact Hessian, at 0.0006 D), the polyline (d) at 0.41 D.
-CORNER_RMSE = 0.05
-DEFAULT_BUDGET = 20.0  # s; a safety stop, the polyline (d)'s search ends by itself well within it
-WINDOW = 3  # segments per window: a corner spans about three at n = 10 points per segment
-WINDOW_STARTS = 4
-WINDOW_MAX_ITER = 50  # a window has <= 3 W variables: a start that needs more is a bad start
-WINDOW_TOL = 1e-6  # the polish that ends the round converges the design fully
-# the share of the windows (those of largest error) a round visits
-WINDOW_SHARE = 0.5
-MIN_WINDOWS = 3  # ... but at least this many (short designs)
-# rounds by default: one; on the polyline (d) a second took seed 0 from 9.02 to 8.995 mm for about 1.6x the CPU time
-MAX_ROUNDS = 1
-# a window's new values must lower the design's error by this much (relative) to be taken
-WINDOW_GAIN = 1e-4
-
+__all__ = ["corner_like", "search", "clear_caches"]
 
 def corner_like(problem: DesignProblem, result: Result) -> bool:
-    """Whether the first solve ``result`` of ``problem`` shows a corner-like target.
-
-    Parameters
-    ----------
-    problem : DesignProblem
-        The problem solved.
-    result : Result
-        Its first NLP solve (``design.nlp.solve_from``).
-
-    Returns
-    -------
-    bool
-        True when Gauss-Newton did not converge on it (``stats["hessian"]`` is not
-        "gauss-newton") and its RMSE is above CORNER_RMSE tube diameters: large residuals
-        the smooth paper cases never show.
-    """
+    """Whether the first solve ``result`` of ``problem`` shows a corner-like target: Gauss-Newton did not
+    converge on it (``stats["hessian"]``) and its RMSE is above settings.CORNER_RMSE tube diameters, large
+    residuals the smooth paper cases never show."""
     gauss_newton = str(result.stats.get("hessian", "")) == "gauss-newton" and result.status == "optimal"
     return (not gauss_newton) and float(result.metrics["rmse"]) > CORNER_RMSE * problem.diameter
 
@@ -255,40 +226,18 @@ def search(
     workers: int = 2,
     progress: Callable[[int, int], None] | None = None,
     note: Callable[[str], None] | None = None,
-    rounds: int = MAX_ROUNDS,
+    rounds: int = SEARCH_ROUNDS,
 ) -> Result:
     """Improve the design ``result`` of a corner-like target window by window (module docstring).
 
-    Parameters
-    ----------
-    problem : DesignProblem
-        The problem; ``options.seed`` seeds the random starts.
-    result : Result
-        The first solve's design.
-    pairing : Pairing
-        The problem's pairing.
-    polish : callable
-        ``polish(routing) -> Result``: the full NLP from a design (ends every round).
-    budget : float
-        Seconds the search may take, counted from the call; no window or polish is started that
-        the time measured so far says would not fit.
-    workers : int
-        Threads that share the starts of a window.
-    progress : callable, optional
-        ``progress(done, total)`` after every window and polish.
-    note : callable, optional
-        ``note(line)``: one line of text per round, also one that changed nothing (the command line
-        prints it on stderr).
-    rounds : int
-        Rounds at most (every round: the windows of largest error, then one polish).
-
-    Returns
-    -------
-    Result
-        The best design found (``result`` itself if nothing was better), with stats ``search_rounds``,
-        ``search_windows``, ``search_accepted``, ``search_objectives`` (after each polish),
-        ``search_time_s``, ``search_budget_hit``, ``search_workers``, ``search_window_iterations``;
-        its iterations are the first solve's and the polishes', its solve time includes the search.
+    ``polish(routing) -> Result``: the full NLP from a design (ends every round); ``budget``: seconds from
+    the call, no window or polish started that the time measured so far says would not fit; ``workers``:
+    threads sharing a window's starts; ``progress(done, total)`` after every window and polish;
+    ``note(line)``: one line per round (the command line prints it on stderr); ``rounds``: at most.
+    Returns the best design found (``result`` itself if nothing was better), with stats search_rounds,
+    search_windows, search_accepted, search_objectives (after each polish), search_time_s,
+    search_budget_hit, search_workers, search_window_iterations; its iterations are the first solve's and
+    the polishes', its solve time includes the search.
     """
     run = _Search(problem, result, pairing, budget, workers, progress, rounds)
     try:

@@ -31,7 +31,7 @@ import numpy as np
 from vine_nlp.methods import compiled, corners, drive
 from vine_nlp.methods.common import LENGTH_FACTOR, Guess, evaluate, geometric_guess, pair_points
 from vine_nlp.methods.drive import TIE_RTOL
-from vine_nlp.methods.settings import AUTO_GN_MAX_ITER, FATROP_MAX_SEGMENTS, Settings
+from vine_nlp.methods.settings import AUTO_GN_MAX_ITER, FATROP_MAX_SEGMENTS, WINDOW, Settings
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, cell_data, fatrop_safe, routing_of, smoothing_steps
 from vine_nlp.methods.transcription import get_solver as _get
@@ -279,10 +279,7 @@ def design_nlp(
     if warm is not None:
         best.stats["warm_start"] = True
     if n_hops:
-        best = basin_hops(problem, best, n_hops, pairing, lambda k: progress and progress(len(jobs) + k, total))
-        stats.iterations += sum(best.stats["hop_iterations"])
-        stats.solves += len(best.stats["hop_iterations"])
-        return stats.stamp(best)
+        return stats.stamp(basin_hops(problem, best, n_hops, pairing, lambda k: progress and progress(len(jobs) + k, total), stats))
     budget = problem.options.budget if budget is None else budget
     if budget > 0 and corners.corner_like(problem, best):
         best = _corner_search(problem, best, pairing, budget, workers, progress, note, len(jobs))
@@ -307,14 +304,11 @@ def _corner_search(problem, best, pairing, budget, workers, progress, note, done
     return corners.search(problem, best, pairing, polish, budget=budget, workers=threads, progress=report, note=note)
 
 
-# basin hopping: the number of neighbouring segments re-drawn around the chosen one (a corner
-# spans about three segments at n = 10 points per segment)
-HOP_WINDOW = 3
-
-
-def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairing | None = None, progress=None) -> Result:
+def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairing | None = None, progress=None,
+               stats: drive.Stats | None = None) -> Result:
     """Basin hopping for rugged targets (corners): ``hops`` rounds of re-drawing theta and lambda
-    of HOP_WINDOW neighbouring segments and solving again, keeping a lower objective.
+    of settings.WINDOW neighbouring segments and solving again, keeping the better design (``drive.pick_best``:
+    a hop is taken where it is lower beyond the tie rule); every hop's solves count in ``stats``.
 
     The window's middle segment is drawn with probability proportional to its squared
     error, so the search goes where the design misses the target (on a polyline, the
@@ -335,8 +329,8 @@ def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairi
     for k in range(hops):
         per_segment = corners.error_per_segment(problem, pairing, best) + 1e-300
         j = int(rng.choice(M, p=per_segment / per_segment.sum()))
-        start = max(0, min(j - HOP_WINDOW // 2, M - HOP_WINDOW))
-        w = slice(start, start + HOP_WINDOW)
+        start = max(0, min(j - WINDOW // 2, M - WINDOW))
+        w = slice(start, start + WINDOW)
         old = best.routing
         theta, lam = old.theta.copy(), old.lam.copy()
         theta[w] = rng.uniform(-a.theta_max, a.theta_max, theta[w].shape)
@@ -345,12 +339,14 @@ def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairi
         # multiple shooting: frames inside the window follow the new values, the others stay where
         # the design put them, so the only continuity defect is at the window's end
         frames = chain_frames(old.theta, old.lam, old.length, problem.diameter, old.initial_pose)
-        frames[start + 1 : start + HOP_WINDOW] = chain_frames(theta, lam, old.length, problem.diameter, old.initial_pose)[start + 1 : start + HOP_WINDOW]
+        frames[start + 1 : start + WINDOW] = chain_frames(theta, lam, old.length, problem.diameter, old.initial_pose)[start + 1 : start + WINDOW]
         guess = Guess(theta, lam, old.length.copy(), old.initial_pose.copy(), frames)
         r = solve_from(problem, guess, pairing, frames="target")
+        if stats is not None:
+            stats.absorb(r)
         objectives.append(r.stats["objective"])
         iterations.append(r.iterations)
-        if r.converged and r.stats["objective"] < best.stats["objective"] * (1 - TIE_RTOL):
+        if drive.pick_best([best, r]) == 1:
             best, accepted = r, accepted + 1
         if progress:
             progress(k + 1)

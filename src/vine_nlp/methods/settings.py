@@ -129,3 +129,18 @@ RAISE_FACTOR = 1.5
 ROUND_MAX_ITER = 400
 # obstacles on a tip problem: a start whose solve needs more is left for the next start ("Obstacles")
 TIP_MAX_ITER = 1200
+
+# ---------------------------------------------------------------- corner-like targets (methods.corners)
+
+# a first solve is corner-like when Gauss-Newton did not converge on it and its RMSE exceeds this share of D:
+# the smooth paper cases end far below it, the polyline (d) far above ("Inverse design: the paper's cases")
+CORNER_RMSE = 0.05
+DEFAULT_BUDGET = 20.0  # seconds of the corner search: a safety stop, the polyline (d)'s search ends well within it
+WINDOW = 3  # segments per window of the corner search and of a basin hop: a corner spans about three at 10 points each
+WINDOW_STARTS = 4  # starts per window: the current values, theta mirrored, random draws
+WINDOW_MAX_ITER = 50  # a window has <= 3 W variables: a start that needs more is a bad start
+WINDOW_TOL = 1e-6  # the polish that ends the round converges the design fully
+WINDOW_SHARE = 0.5  # the share of the windows (those of largest error) a round visits ...
+MIN_WINDOWS = 3  # ... but at least this many (short designs)
+SEARCH_ROUNDS = 1  # rounds by default: a second gains little for much more time ("compare")
+WINDOW_GAIN = 1e-4  # a window's new values must lower the design's error by this much (relative) to be taken

@@ -1,54 +1,30 @@
 """Tip targets: reach a tip position (and optionally a tip direction) with the least actuation (paper, Conclusion).
 
-The robot grows from a FIXED base pose T^0_w (given, default identity) with a
-given tube length L cut into M segments (sum_j dl_j = L, dl_j >= 0.2 L/M: the
-tube length is a design input, the segment lengths are free). Among all routings
-that put the tip at ``position`` (and its tangent along ``direction`` when given)
-it picks the one with the least actuation:
+The robot grows from a FIXED base pose T^0_w with a given tube length L cut into M segments (sum_j dl_j = L,
+dl_j >= MIN_LENGTH_FACTOR L/M). Among the routings that put the tip at ``position`` (and its tangent along
+``direction``) it picks the one with the least actuation:
 
   "contraction" (default):  J = (1/L) sum_j (1 - lambda_j) dl_j
-  "turns":                  J = (1/L) sum_j sqrt(tan^2 theta_j + eps) dl_j,  eps = 1e-6
-                            (the actuator's turning around the tube is (2/D) sum |tan theta_j| dl_j)
+  "turns":                  J = (1/L) sum_j sqrt(tan^2 theta_j + eps) dl_j   (turning: (2/D) sum |tan theta_j| dl_j)
 
-Each objective leaves the other actuator parameter free (contraction does not
-price twisting, turns does not price contracting), which makes the optimum
-degenerate and IPOPT slow; a tie-break with weight 1e-2 picks the least of the
-other measure: + 1e-2 (1/L) sum tan^2 theta_j dl_j for "contraction",
-+ 1e-2 (1/L) sum (1 - lambda_j)^2 dl_j for "turns"; plus the smoothness terms of
-``methods.nlp`` (weights ``options.smooth_theta``, ``options.smooth_lambda``, on
-the uniform spacing L/M). Bounds as in design: |theta| <= theta_max,
-lambda_min <= lambda <= 1 (one lambda for an sPAM).
+Each leaves the other actuator parameter free (a degenerate optimum, slow for IPOPT): a tie-break of weight
+TIE_BREAK adds the least of the other measure (tan^2 theta_j dl_j, resp. (1 - lambda_j)^2 dl_j), plus the
+smoothness terms of ``methods.nlp`` on the uniform spacing L/M. Rows: continuity, tip position, tip tangent
+(t . e1 = t . e2 = 0 with e1, e2 perpendicular to the direction, and t . direction >= 0: rank 2), sum dl = L;
+exact bounds (``Settings.exact_bounds``: no relaxation, no "acceptable" stop leaving the tip loosely met).
 
-Multiple shooting as in ``methods.nlp``: frames at the segment ends are variables
-(stage order), lengths scaled by D. Constraints: continuity, tip position
-(3 equalities), tip tangent (2 equalities t . e1 = t . e2 = 0 with e1, e2
-perpendicular to the direction, and t . direction >= 0: rank 2, no redundant
-equality), sum dl = L. IPOPT runs with exact bounds (``Settings.exact_bounds``): no
-relaxation and no "acceptable" stop that would leave the tip loosely met.
+Starts (``drive.multistart``), tried in order until one is optimal: the geometric guess of a guide curve (a
+cubic Bezier from the base along its tangent to the tip along the direction, stretched to about the actuated
+tube length), its mirrored side, then seeded uniform helices. The landscape is rugged (many local optima of
+bends at the shortest segments) and a start costs hundreds of iterations, so later starts are fallbacks.
+IPOPT's monotone barrier (``Settings.monotone``) takes fewer iterations and finds lower optima here than the
+adaptive one; the other changes tried (barrier, scaling, inertia correction, MUMPS, guide curves, a
+coarse-to-fine start) moved designs to other local optima, more often worse.
 
-Initial guesses: the geometric guess (``methods.common.geometric_guess``) of a
-guide curve (a cubic Bezier from the base along its tangent to the tip along the
-direction, stretched to about the actuated tube length), its mirrored side, then
-seeded uniform helices, tried in this order until one is solved to optimality
-(``drive.multistart``; a guess equal to an earlier one is skipped): the landscape is
-rugged (many local optima of bends at the shortest segments), every start costs
-hundreds of iterations, so the later starts are fallbacks. Among the solved starts the
-lowest objective among converged ones wins. The least-contraction optimum is a few
-sharp bends joined by straight runs while the guess bends a little everywhere: on the
-way the reduced Hessian is indefinite and IPOPT corrects the KKT matrix's inertia on
-nearly every iteration. IPOPT's monotone barrier (``Settings.monotone``) takes fewer
-iterations and finds lower optima here than the adaptive one; other changes tried (a
-lower initial barrier, objective scaling, inertia correction, MUMPS settings, other
-guide curves, a coarse-to-fine start) moved designs to other local optima, more often
-worse than better.
-
-Reachability: the center line is never longer than the tube (lambda_c <= 1 for
-lambda <= 1 and |theta| <= 60 deg), so a tip farther than L from the base is out
-of reach. That, or no converged start, gives status "infeasible" (the CLI exits
-1); the result is then the nearest approach (the same NLP with the tip distance
-as the objective instead of a constraint), so tip_error tells how far out of
-reach the target is. A nearest approach that does reach the tip (IPOPT's
-infeasibility is local) is used to re-solve the design.
+Reachability: the center line is never longer than the tube, so a tip farther than L from the base is out of
+reach. That, or no converged start, gives status "infeasible" and the nearest approach (the tip distance as
+the objective instead of rows), so tip_error tells how far out of reach the target is; a nearest approach
+that does reach the tip (IPOPT's infeasibility is local) re-solves the design.
 """
 
 from __future__ import annotations

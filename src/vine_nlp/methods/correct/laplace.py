@@ -119,11 +119,20 @@ def laplace(ab, g, shifts, ms, pts, pairs, D, sig_m, sigmas, sys_sig, prior, sha
         dq = np.zeros_like(q0)
         dq[k] = steps[k]
         Jp[:, k] = (prior_residuals(q0 + dq) - prior_residuals(q0 - dq)) / (2 * steps[k])
-    J = np.vstack(rows + [Jp])
+    var = _inverse_diagonal(np.vstack(rows + [Jp]))
+    sd = np.sqrt(np.maximum(var, 0.0))
+    th_sd, la_sd, ln_sd, g_sd, _ = unpack(sd)
+    if shared:
+        la_sd = np.full(M, g_sd[1])
+    sys_std = np.array([g_sd[0], g_sd[1], math.exp(g[2]) * g_sd[2]])
+    return np.column_stack([th_sd, la_sd, ln_sd]), sys_std, dists
+
+
+def _inverse_diagonal(J: np.ndarray) -> np.ndarray:
+    """diag((J^T J)^-1), by BLAS/LAPACK kernels that stay single-threaded at this size (numpy's J.T @ J and inv()
+    go through threaded OpenBLAS paths, tens to hundreds of times slower on a loaded 2-core machine)."""
     from scipy.linalg import blas, lapack  # SciPy loads only where measurements are paired
 
-    # BLAS/LAPACK kernels that stay single-threaded at this size: numpy's J.T @ J and inv() go through
-    # threaded OpenBLAS paths, tens to hundreds of times slower on a loaded 2-core machine
     H = blas.dsyrk(1.0, J, trans=1, lower=0)  # upper triangle of J^T J
     U, info = lapack.dpotrf(H, lower=0, clean=1)  # H = U^T U
     if info == 0:
@@ -131,13 +140,5 @@ def laplace(ab, g, shifts, ms, pts, pairs, D, sig_m, sigmas, sys_sig, prior, sha
         # diag(H^-1) = row sums of squares of U^-1
         Ui, info = lapack.dtrtri(U, lower=0)
     if info == 0:
-        var = np.sum(Ui * Ui, axis=1)
-    else:
-        Hs = np.triu(H) + np.triu(H, 1).T
-        var = np.diag(np.linalg.pinv(Hs, rcond=1e-12, hermitian=True))
-    sd = np.sqrt(np.maximum(var, 0.0))
-    th_sd, la_sd, ln_sd, g_sd, _ = unpack(sd)
-    if shared:
-        la_sd = np.full(M, g_sd[1])
-    sys_std = np.array([g_sd[0], g_sd[1], math.exp(g[2]) * g_sd[2]])
-    return np.column_stack([th_sd, la_sd, ln_sd]), sys_std, dists
+        return np.sum(Ui * Ui, axis=1)
+    return np.diag(np.linalg.pinv(np.triu(H) + np.triu(H, 1).T, rcond=1e-12, hermitian=True))
