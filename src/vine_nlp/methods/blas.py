@@ -64,7 +64,7 @@ def limited():
         return contextlib.nullcontext()
     import threadpoolctl  # loaded where a solve runs: the command line checks its input without it
 
-    # the cached controller: a fresh one scans the loaded libraries (~0.6 ms, a tenth of a small design)
+    # the cached controller: a fresh one scans the loaded libraries (a tenth of a small design)
     return threadpoolctl.get_cached_controller().limit(limits=1, user_api="blas")
 
 

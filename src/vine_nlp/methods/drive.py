@@ -117,14 +117,16 @@ def multistart(solve: Callable, starts, *, key: Callable = rank, accept: Callabl
     return Starts(results[k], k, results)
 
 
-def record_starts(found: Starts, stats: Stats) -> Result:
-    """The multi-start's figures on its winner (stats starts, start_objectives, start_iterations, best_start)
-    and every start's solves counted in ``stats``."""
+def record_starts(found: Starts, stats: Stats, always: bool = False) -> Result:
+    """Every start's solves counted in ``stats``; the multi-start's figures on its winner (stats starts,
+    best_start, start_objectives, start_iterations) where there were several starts (``always``: also one)."""
     best = found.best
     for r in found.results:
         stats.absorb(r)
-    best.stats.update(starts=len(found.results), best_start=found.index, start_objectives=[r.stats.get("objective") for r in found.results],
-                      start_iterations=[r.iterations for r in found.results])
+    if always or len(found.results) > 1:
+        best.stats.update(starts=len(found.results), best_start=found.index,
+                          start_objectives=[r.stats.get("objective") for r in found.results],
+                          start_iterations=[r.iterations for r in found.results])
     return best
 
 

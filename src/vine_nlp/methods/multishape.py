@@ -1,31 +1,18 @@
 """Multi-shape sPAM design: ONE routing, K shapes at K pressures (paper, Conclusion).
 
-An sPAM contracts its whole actuator line to one ratio lambda that the pressure
-sets. One routing theta_j with segment lengths dl_j is shared by K chains; chain k
-uses contraction level lambda_k (one scalar per level, bounded [lambda_min, 1],
-free or fixed by the problem) and should take the shape of target k.
+An sPAM contracts its whole actuator line to one ratio lambda that the pressure sets. One routing theta_j,
+dl_j is shared by K chains; chain k uses the level lambda_k (bounded [lambda_min, 1], free or fixed by the
+problem) and should take the shape of target k. The K shapes grow from the SAME base, so by default one
+base pose is shared (the routing then also explains how the shapes differ, what a user measuring one robot
+at several pressures wants); ``shared_pose=False`` gives each level its own (targets in different frames).
+One NLP over all K chains on the transcription, every chain's frames variables in stage order:
 
-Base pose: the K shapes grow from the SAME physical base, so by default ONE base
-pose (6 variables) is shared by all K chains: the routing must then also explain
-how the shapes differ relative to each other, which is what a user measuring one
-robot at several pressures wants. ``shared_pose=False`` gives each level its own
-pose (targets measured or drawn in different frames).
-
-One NLP over all K chains on the multiple-shooting transcription of ``methods.nlp``
-(``methods.transcription``): the frames at the segment ends of every chain are
-variables, in stage order, so the KKT matrix stays block-banded. Lengths are scaled by D.
-
-Objective (dimensionless):
   J = (1/K) sum_k (1/N) sum_i |r_k(i) - r_dk(i)|^2 / D^2 + w_theta (1/L) int (D dtheta/ds)^2 ds,
-the smoothness term as in ``methods.nlp`` (on the mean of the targets' chord lengths).
 
-Initialization: the geometric guess (``methods.common.geometric_guess``) of the
-target of the most actuated level (the fixed smallest lambda when all levels are
-fixed, else the target with the shortest chord length: the center line shortens
-as lambda drops), free lambda_k from the chord length of target k (the chord
-length of the shared routing at lambda_k equals it), frames on each level's own
-target; then a multi-start over the mirrored side and seeded perturbations
-(lambda spread between lambda_min and 1 in chord order, theta perturbed).
+the smoothness on the mean of the targets' chord lengths. Starts (``drive.multistart``): the geometric
+guess of the most actuated level's target (the smallest fixed lambda when all are fixed, else the shortest
+target), free lambda_k from the chord length of target k, frames on each level's own target; its mirrored
+side; seeded perturbations (lambdas spread in chord order, theta perturbed).
 """
 
 from __future__ import annotations
@@ -230,7 +217,7 @@ def design_multishape(problem: MultiShapeProblem, starts: int | None = None, pro
     guesses = start_guesses(problem, pairings, n_starts)
     stats = drive.Stats()
     found = drive.multistart(lambda g: solve_from(problem, g, pairings), guesses, progress=progress)
-    return stats.stamp(drive.record_starts(found, stats))
+    return stats.stamp(drive.record_starts(found, stats, always=True))
 
 
 __all__ = ["MultiShapeResult", "design_multishape", "multishape_spec", "start_guesses", "solve_from", "assemble"]

@@ -1,23 +1,17 @@
 """Inverse design as ONE nonlinear program, solved with IPOPT (the plain formulation).
 
-The chain's multiple-shooting transcription (methods.transcription) with the point
-fit, the tip paired with the chain's end, and the smoothness penalties:
+The chain's multiple-shooting transcription (methods.transcription) with the point fit, the tip paired
+with the chain's end, and the smoothness penalties:
 
   J = (1/N) sum_k |r_c(k) - r_cd(k)|^2 / D^2
       + w_theta (1/L) int (D dtheta/ds)^2 ds + w_lambda (1/L) int (D dlambda/ds)^2 ds,
 
-the derivative integrals taken on the target's arc length so the penalties mean the
-same whatever the discretization (they replace the paper's low-pass filter); one
-lambda variable for an sPAM. Bounds |theta| <= theta_max, lambda_min <= lambda <= 1,
-segment lengths within LENGTH_FACTOR of the target's chord of the segment.
-
-The solver is built once per structure (M segments, n points per segment, shared or
-per-segment lambda, Hessian, warm) and cached; target, weights and guesses are
-parameters, so multi-start and sweeps reuse it. Where its functions are compiled, the first
-Gauss-Newton solve runs on Fatrop, a solver for stage-structured problems (``solve_from``).
-Targets with corners have many local minima: by default the windowed search of
-``methods.corners`` takes over where the first solve shows them (within ``options.budget``
-seconds); ``basin_hops`` searches them when asked for (``options.hops``).
+the derivative integrals on the target's arc length so the penalties mean the same at any discretization
+(they replace the paper's low-pass filter); one lambda for an sPAM. Bounds |theta| <= theta_max,
+lambda_min <= lambda <= 1, segment lengths within LENGTH_FACTOR of the target's chord of the segment.
+The solver is built once per structure and cached; targets, weights and guesses are data. On the drive:
+the starts (``drive.multistart``), the Hessian schedule (``solve_from``), basin hops; where the first
+solve shows a corner-like target the windowed search of ``methods.corners`` follows.
 """
 
 from __future__ import annotations
@@ -119,24 +113,16 @@ def start_x(solver, guess: Guess, D: float, frames: str = "target") -> np.ndarra
 def solve_from(
     problem: DesignProblem, guess: Guess | None = None, pairing: Pairing | None = None, frames: str = "target", warm: bool = False
 ) -> Result:
-    """One IPOPT solve of the inverse-design NLP for ``problem`` from ``guess`` (default: the geometric guess).
+    """One solve of the inverse-design NLP for ``problem`` from ``guess`` (default: the geometric guess).
 
-    frames="target" starts the shooting frames on the target; frames="chain" on the chain
-    of the guessed design. ``warm`` uses the solver variant that keeps a start close to
-    the answer (IPOPT warm-start options).
-
-    ``options.hessian``: "exact", "gauss-newton", or "auto" (default): Gauss-Newton is
-    several times cheaper per iteration and converges on targets the model can follow
-    closely; its answer is a true KKT point (IPOPT tests exact gradients). Where it
-    does not converge within AUTO_GN_MAX_ITER iterations (large residuals: corners),
-    the same start is solved again with the exact Hessian; where it stops at IPOPT's
-    "acceptable" level, the exact Hessian polishes its answer (a warm start).
-
-    ``options.solver`` "auto": a Gauss-Newton solve from a guess runs on Fatrop (the transcription's
-    stage form) where its functions are compiled, the chain has at most FATROP_MAX_SEGMENTS segments
-    and a lambda per segment; IPOPT solves the same start where
-    Fatrop fails (stats ``fatrop_status``, ``fatrop_iterations``, ``fatrop_time_s``; its iterations
-    and time count in the result's).
+    ``frames``: "target" starts the shooting frames on the target, "chain" on the guessed design's chain;
+    ``warm``: IPOPT's warm-start options. ``options.hessian`` "auto" (default) is the drive's Hessian
+    schedule: Gauss-Newton (several times cheaper per iteration, and a true KKT point where it converges)
+    for settings.AUTO_GN_MAX_ITER iterations, then the exact Hessian from the same start, or from
+    Gauss-Newton's "acceptable" point (a polish). ``options.solver`` "auto": a Gauss-Newton solve from a
+    guess runs on Fatrop (the stage form) where its functions are compiled, the chain has at most
+    settings.FATROP_MAX_SEGMENTS segments and a lambda per segment; IPOPT solves the same start where Fatrop
+    fails (stats fatrop_status, fatrop_iterations, fatrop_time_s; counted in the result's).
     """
     o = problem.options
     pairing = pairing or pair_points(problem.target, o.points_per_segment)
@@ -253,17 +239,12 @@ def design_nlp(
     problem: DesignProblem, starts: int | None = None, workers: int = 1, warm: Routing | None = None, progress=None, hops: int | None = None,
     budget: float | None = None, note=None,
 ) -> Result:
-    """Inverse design as one NLP: multi-start (``options.starts``) keeping the lowest objective,
-    then ``options.hops`` rounds of basin hopping (``basin_hops``), or, where the design shows a
-    corner-like target (``corners.corner_like``: Gauss-Newton failed and the residuals are large)
-    and no hops were asked for, the windowed corner search (``corners.search``) within ``budget``.
-
-    ``warm``: start from an earlier design instead (one start, frames on its chain).
-    ``workers`` > 1 runs the starts in parallel processes (each builds its own solver).
-    ``progress(done, total)`` is called after each start, each hop and each window of the search.
-    ``budget``: seconds the corner search may take (default ``options.budget``; 0: no search); it
-    runs in at least two threads where the machine has two cores, with the same result as in one.
-    ``note(line)``: one line per round of the corner search (the command line prints it on stderr).
+    """Inverse design as one NLP: multi-start (``options.starts``, the drive's ranking), then ``options.hops``
+    rounds of basin hopping, or, where the design shows a corner-like target and no hops were asked for,
+    the windowed corner search within ``budget`` seconds (default ``options.budget``; 0: none; two threads
+    where the machine has two cores, the same result as one). ``warm``: one start from an earlier design
+    (frames on its chain); ``workers`` > 1: the starts in a process pool; ``progress(done, total)`` after
+    each start, hop and window; ``note(line)``: one line per round of the corner search.
     """
     pairing = pair_points(problem.target, problem.options.points_per_segment)
     n_hops = max(0, problem.options.hops if hops is None else hops)
@@ -290,8 +271,8 @@ def design_nlp(
 
 def _corner_search(problem, best, pairing, budget, workers, progress, note, done) -> Result:
     """corners.search with the full NLP as its polish: exact Hessian, frames on the design's chain, IPOPT's
-    ordinary start (measured on the polyline (d): 64 iterations where the warm-start options take 73, the
-    windows' changes leave the design away from a KKT point)."""
+    ordinary start (the windows' changes leave the design away from a KKT point: warm-start options cost
+    more iterations there)."""
     o = problem.options
 
     def polish(routing: Routing) -> Result:
@@ -306,17 +287,13 @@ def _corner_search(problem, best, pairing, budget, workers, progress, note, done
 
 def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairing | None = None, progress=None,
                stats: drive.Stats | None = None) -> Result:
-    """Basin hopping for rugged targets (corners): ``hops`` rounds of re-drawing theta and lambda
-    of settings.WINDOW neighbouring segments and solving again, keeping the better design (``drive.pick_best``:
-    a hop is taken where it is lower beyond the tie rule); every hop's solves count in ``stats``.
-
-    The window's middle segment is drawn with probability proportional to its squared
-    error, so the search goes where the design misses the target (on a polyline, the
-    corners: each corner can be taken on several sides and swings, separate local
-    minima of the one NLP that no single descent crosses). The new values are drawn
-    uniformly inside the bounds; the rest of the design, its lengths and its frames
-    are kept. Deterministic for a given ``options.seed``. Stats: ``hops``,
-    ``hops_accepted``, ``hop_objectives``, ``hop_iterations``.
+    """Basin hopping for rugged targets (corners): ``hops`` rounds of re-drawing theta and lambda of
+    settings.WINDOW neighbouring segments (uniformly inside the bounds; the rest of the design, its lengths
+    and frames kept) and solving again, keeping the better design (``drive.pick_best``). The window's middle
+    segment is drawn with probability proportional to its squared error: the search goes where the design
+    misses the target (a polyline's corners, separate local minima no single descent crosses).
+    Deterministic for ``options.seed``; every hop's solves count in ``stats``. Stats hops, hops_accepted,
+    hop_objectives, hop_iterations.
     """
     o, a = problem.options, problem.actuator
     if o.hessian == "auto" and str(result.stats.get("hessian", "")).startswith("exact"):

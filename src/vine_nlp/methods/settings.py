@@ -51,24 +51,11 @@ CORNER_WINDOW = {"ipopt.acceptable_tol": 1e-5, "ipopt.mu_strategy": "adaptive"}
 class Settings:
     """What a formulation declares about its solves; :meth:`options` turns it into the solver's options.
 
-    Parameters
-    ----------
-    max_iter, tol : int, float
-        The solver's iteration limit and tolerance.
-    warm : bool
-        The start is near the answer (WARM).
-    guess : bool
-        A Gauss-Newton solve of the plain chain from a guess (GAUSS_NEWTON).
-    exact_bounds : bool
-        The bounds hold exactly (EXACT_BOUNDS).
-    monotone : bool
-        IPOPT's monotone barrier (MONOTONE).
-    hard : bool
-        Rows that are hard requirements (HARD).
-    repeated : bool
-        One structure solved many times (REPEATED).
-    backend : str
-        "ipopt", or "fatrop" for the stage form (its own options; the flags do not apply).
+    ``max_iter``, ``tol``: the solver's limit and tolerance; ``warm``: the start is near the answer (WARM);
+    ``guess``: a Gauss-Newton solve of the plain chain from a guess (GAUSS_NEWTON); ``exact_bounds``: the
+    bounds hold exactly (EXACT_BOUNDS); ``monotone``: IPOPT's monotone barrier (MONOTONE); ``hard``: rows
+    that are hard requirements (HARD); ``repeated``: one structure solved many times (REPEATED);
+    ``backend``: "ipopt", or "fatrop" for the stage form (its own options; the flags do not apply).
     """
 
     max_iter: int = 3000

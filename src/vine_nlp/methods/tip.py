@@ -290,7 +290,7 @@ def design_tip(problem: TipProblem, starts: int | None = None, progress=None, th
             best.stats["closest_status"] = near.status
             best.status = "infeasible"
             reason = reason or f"no start reached the tip (statuses {', '.join(tried)}); nearest approach reported"
-    drive.record_starts(drive.Starts(best, next(k for k, r in enumerate(results) if r is best), results), stats)
+    drive.record_starts(drive.Starts(best, next(k for k, r in enumerate(results) if r is best), results), stats, always=True)
     best.stats["start_status"] = [r.status for r in results]
     if reason:
         best.stats["infeasible_reason"] = reason

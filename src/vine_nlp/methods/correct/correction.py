@@ -111,27 +111,13 @@ def correct(problem: DesignProblem, nominals: list, measurements: list, *, adjus
             theta_trust: float | None = None) -> CorrectionResult:
     """Estimate the built robot and correct it (package docstring): the methods layer, no file I/O.
 
-    Parameters
-    ----------
-    problem : DesignProblem
-        The target the robot should match (the archive's design problem).
-    nominals : list of Routing
-        The nominal of each build measured so far, oldest first; the last is the one just built.
-    measurements : list of Measurement
-        Their measured points (``build`` indexes ``nominals``).
-    adjust : ("lambda",) or ("lambda", "theta")
-        What the builder changes.
-    sigmas : Sigmas
-        Construction errors (default 1 deg, 0.02, 2 %), the prior of the estimate.
-    theta_trust : float, optional
-        With theta adjusted: how far (rad) the corrected theta may move from the as-built one (default
-        THETA_TRUST sigma_theta). The estimate is made around the measured shape; a redrawn line far from it
-        would extrapolate the estimated deviations (Bezier (a): the median gain of round 1 was 4x without
-        this bound, 38x with 2 sigma).
-
-    Returns
-    -------
-    CorrectionResult
+    ``problem``: the target the robot should match (the archive's design problem); ``nominals``: the nominal
+    of each build measured so far, oldest first (the last just built); ``measurements``: their points
+    (``build`` indexes ``nominals``); ``adjust``: what the builder changes, ("lambda",) or ("lambda",
+    "theta"); ``sigmas``: the construction errors, the estimate's prior (default 1 deg, 0.02, 2 %);
+    ``theta_trust``: with theta adjusted, how far (rad) the corrected theta may move from the as-built one
+    (default THETA_TRUST sigma_theta: the estimate holds near the measured shape, and a line redrawn far
+    from it would extrapolate the deviations; "As-built correction").
     """
     t0 = time.perf_counter()
     sigmas = sigmas or Sigmas.from_degrees(1.0, 0.02, 0.02)

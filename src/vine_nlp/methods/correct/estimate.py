@@ -2,33 +2,26 @@
 
 The chain's theta_j, lam_j, dl_j ARE the as-built values of the latest build; three global variables are
 the systematic parts g = (theta offset, lambda offset, log length scale) shared by every segment. With
-Gaussian construction errors (sigmas as in ``vine-nlp analyze``) and Gaussian measurement noise of standard
-deviation sigma_m, the negative log posterior times 2 / N (N measured points) is
+Gaussian construction errors (sigmas as in ``vine-nlp analyze``) and Gaussian measurement noise sigma_m,
+the negative log posterior times 2 / N (N measured points) is
 
     (1/N) [ sum_i |P_i(q) - m_i|_perp^2 / sigma_m^2
             + sum_j ((theta_j - theta_nom,j - g0) / s_theta)^2 + ((lam_j - lam_nom,j - g1) / s_lam)^2
                     + ((dl_j - l_nom,j e^g2) / (s_len l_nom,j e^g2))^2
             + sum_k (g_k / s_sys,k)^2 ],
 
-P_i the model point paired with measured point m_i (``pairing``: point-to-line). sPAM: one shared lambda,
-whose deviation is the systematic offset only (lam_ab = lam_nom + g1 for every segment).
+P_i the model point paired with measured point m_i (``pairing``, point-to-line). sPAM: the lambda
+deviation is the systematic offset only. Earlier builds are second chains of frames (extra stage
+variables) whose segments are the latest as-built values shifted by their known differences; free-frame
+measurements carry a rigid transform (6 more globals), started from a rigid ICP alignment.
 
 The ICP loop (:class:`_ICP`, a rule of ``drive.refine``): pair, solve warm, pair again until the pairs stop
-moving; coarse to fine, the noise sigma of the fit shrinking by settings.STAGE_FACTOR from D/2 down to
-sigma_m (the closest points of a robot built far off its nominal are wrong at first), pairs farther than
-TRIM sigmas of the stage left out. Each segment of each build has S measurement slots (from the fullest
-segment, rounded up to a multiple of SLOT_STEP); a slot is one instance of one small SX block (the
-point-to-line residual of one point, :func:`measure_block`) holding its point, fraction, tangent and weight
-as data, unused slots weight 0: re-pairing changes data only, one structure per (M, S, builds, free pose)
-serves every round and every measurement of that size, compiled once (results/BENCHMARKS.md, "As-built
-correction").
-
-Earlier builds: their nominals differ from the latest one by known amounts, so each is a second chain of
-frames (extra stage variables) whose segments are the latest as-built values shifted by the known
-differences; its measurements pair with that chain. One set of deviations explains every measurement.
-
-Pose: the chain's base is fixed at the archive's pose (the measurement is in the archive frame). Free-frame
-measurements carry a rigid transform (6 more global variables), started from a rigid ICP alignment.
+moving; coarse to fine, the fit's noise sigma shrinking by settings.STAGE_FACTOR from D/2 to sigma_m (the
+closest points of a robot built far off its nominal are wrong at first), pairs beyond TRIM sigmas left
+out. Each segment of each build has S slots (the fullest segment's count, rounded up to SLOT_STEP), each
+one instance of the one-point block :func:`measure_block` with its point, fraction, tangent and weight as
+data (unused slots weight 0): re-pairing changes data only, and one structure per (M, S, builds, free
+pose) serves every round, compiled once ("As-built correction").
 """
 
 from __future__ import annotations
@@ -194,39 +187,13 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
                       hessian: str | None = None, rounds: int = settings.ICP_ROUNDS, units_per_mm: float = 0.1) -> Estimate:
     """MAP estimate of the as-built robot from measurements of one or more builds (module docstring).
 
-    Parameters
-    ----------
-    nominals : list of Routing
-        The nominal routing of each build, oldest first; the last is the one the estimate is of.
-        All have the same segments and initial pose (the robot's base).
-    measurements : list of Measurement
-        Points of any build (``build`` indexes ``nominals``; -1 the latest), any line, any order.
-    D : float
-        Tube diameter (problem units).
-    sigmas : Sigmas
-        Standard deviations of the per-segment construction errors (the prior).
-    shared_lambda : bool
-        sPAM: one lambda (its deviation is the lambda offset only).
-    measurement_sigma : float, optional
-        Standard deviation of the measurement noise, problem units (default 1 mm).
-    systematic_sigmas : (3,)
-        Prior standard deviations of theta offset (rad), lambda offset, log length scale.
-    hessian : str, optional
-        "exact" or "gauss-newton", of the transcription's blocks (default settings.ESTIMATE_HESSIAN, exact).
-    rounds : int
-        Pair-and-solve rounds of the last stage of the coarse-to-fine loop, at most (settings.COARSE_ROUNDS
-        for each earlier stage).
-    units_per_mm : float
-        Problem units per millimetre (for the default measurement sigma).
-
-    Returns
-    -------
-    Estimate
-
-    Raises
-    ------
-    ValueError
-        Sigmas that are not > 0.
+    ``nominals``: the nominal routing of each build, oldest first (the estimate is of the last; all share
+    the segments and the base pose); ``measurements``: points of any build (``build`` indexes ``nominals``,
+    -1 the latest), any line, any order; ``D``: the tube diameter; ``sigmas``: the per-segment
+    construction errors (the prior); ``shared_lambda``: sPAM; ``measurement_sigma``: the noise (problem
+    units, default DEFAULT_MEASUREMENT_SIGMA_MM); ``systematic_sigmas``: the prior of the theta offset
+    (rad), lambda offset and log length scale; ``hessian``: default settings.ESTIMATE_HESSIAN; ``rounds``:
+    of the last stage (settings.COARSE_ROUNDS for each earlier one). Raises ValueError for sigmas <= 0.
     """
     stats, cpu = drive.Stats(), time.process_time()
     sig_m = (DEFAULT_MEASUREMENT_SIGMA_MM * units_per_mm) if measurement_sigma is None else float(measurement_sigma)

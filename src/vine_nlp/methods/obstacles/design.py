@@ -75,31 +75,15 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
                           k: int = MESH_K, spacing: float = SPACING, **kw) -> Result:
     """Inverse design that keeps the tube ``problem.obstacle_margin`` clear of ``problem.obstacles``.
 
-    Parameters
-    ----------
-    problem : DesignProblem
-        With obstacles, obstacle_margin and growth.
-    start : Result, optional
-        The obstacle-free design to start from (default design_nlp(problem, **kw)); returned
-        (with the obstacle metrics) when it already clears.
-    rounds : int
-        Most solves of the active-set loop (settings.MESH_ROUNDS at least with a mesh).
-    ts : sequence of float, optional
-        Growth "after": the shapes t with rows (default the report's grid 0, 1/20, ..., 19/20).
-    k : int
-        Nearest triangles per mesh sample.
-    spacing : float
-        Target sample spacing, units of D.
-
-    Returns
-    -------
-    Result
-        method "nlp_obstacles", the best round (``drive.rank``: clear and converged first); metrics
-        min_obstacle_gap (and min_obstacle_gap_after); stats obstacle_rounds, obstacle_clear,
-        obstacle_samples_per_segment, obstacle_margin, growth, start_rmse, start_min_obstacle_gap,
-        obstacle_raise (the rows' extra requirement, units), obstacle_slots (primitive slots per segment);
-        iterations, ipopt_iterations and ipopt_time_s summed over the solves with rows (not the
-        obstacle-free or pushed starts).
+    ``start``: the obstacle-free design (default design_nlp(problem, **kw)), returned (with the obstacle
+    metrics) when it already clears; ``rounds``: solves of the active-set loop at most (settings.MESH_ROUNDS
+    at least with a mesh); ``ts``: growth "after", the shapes t with rows (default the report's grid);
+    ``k``: nearest triangles per mesh sample; ``spacing``: target sample spacing, units of D.
+    Returns the best round (method "nlp_obstacles"; ``drive.rank``) with metrics min_obstacle_gap (and
+    min_obstacle_gap_after) and stats obstacle_rounds, obstacle_clear, obstacle_samples_per_segment,
+    obstacle_margin, growth, start_rmse, start_min_obstacle_gap, obstacle_raise (the rows' extra
+    requirement, units), obstacle_slots (primitive slots per segment); iterations, ipopt_iterations and
+    ipopt_time_s summed over the solves with rows (not the obstacle-free or pushed starts).
     """
     stats = drive.Stats()
     start = start or design_nlp(problem, **kw)

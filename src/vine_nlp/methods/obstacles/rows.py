@@ -139,9 +139,8 @@ class ObstacleRows:
     S: int
     levels: int = 0
     k: int = MESH_K
-    # an active set: the structure runs interpreted, its small block types (segment, pose, intermediate
-    # shapes) compiled on their own; an obstacle block of S samples is large (compiling it would take 8-90 s
-    # with gcc -O1), so it runs as a map of its one-sample block (Samples), compiled once for every S
+    # an active set: the structure runs interpreted, its small block types compiled on their own; an obstacle
+    # block of S samples is too large to compile, so it runs as a map of its one-sample block (Samples)
     compile: ClassVar[bool | str] = "blocks"
 
     def apply(self, c: Chain) -> None:

@@ -26,20 +26,8 @@ from vine_nlp.problem import Result, Routing, TipProblem
 
 def tip_design(problem: TipProblem, starts: int | None = None, progress=None) -> Result:
     """A tip problem's design, as ``vine-nlp design`` makes it: among its obstacles where it has any
-    (:func:`design_tip_with_obstacles`), else :func:`vine_nlp.methods.tip.design_tip`.
-
-    Parameters
-    ----------
-    problem : TipProblem
-    starts : int, optional
-        Starts (default options.starts).
-    progress : callable, optional
-        progress(done, total) after every start.
-
-    Returns
-    -------
-    Result
-    """
+    (:func:`design_tip_with_obstacles`), else :func:`vine_nlp.methods.tip.design_tip`; ``starts``
+    (default options.starts); ``progress(done, total)`` after every start."""
     if problem.obstacles:
         return design_tip_with_obstacles(problem, starts=starts, progress=progress)
     return design_tip(problem, starts=starts, progress=progress)
@@ -49,24 +37,11 @@ def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, ro
                               k: int = MESH_K, spacing: float = SPACING, progress=None, thorough: bool = False) -> Result:
     """Least-actuation tip design that keeps the tube ``problem.obstacle_margin`` clear of ``problem.obstacles``.
 
-    Parameters
-    ----------
-    problem : TipProblem
-    starts : int, optional
-        Starts of the tip design (default options.starts), after the obstacle-free tip design and its chain
-        pushed out of the obstacles (module docstring).
-    rounds, ts, k, spacing
-        As :func:`vine_nlp.methods.obstacles.design_with_obstacles`.
-    progress : callable, optional
-        progress(done, total) after every start.
-    thorough : bool
-        Solve every start and keep the best (a lower objective, at several times the cost).
-
-    Returns
-    -------
-    Result
-        The best converged start that clears (else the best converged, else the lowest tip error: :func:`rank`);
-        metrics as design_tip's plus min_obstacle_gap; stats obstacle_* as design_with_obstacles'.
+    ``starts``: the tip design's (default options.starts), after the obstacle-free tip design and its chain
+    pushed out (module docstring); ``rounds``, ``ts``, ``k``, ``spacing`` as design_with_obstacles';
+    ``progress(done, total)`` after every start; ``thorough``: every start, the best kept (a lower
+    objective, at several times the cost). Returns the best start by :func:`rank`, metrics as design_tip's
+    plus min_obstacle_gap, stats obstacle_* as design_with_obstacles'.
     """
     stats = drive.Stats()
     free = stats.absorb(design_tip(problem, starts=starts, thorough=True))
@@ -86,7 +61,7 @@ def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, ro
     guesses += [lambda g=g: Routing(g[0], g[1], g[2], problem.initial_pose) for g in start_guesses(problem, n)]
     found = drive.multistart(lambda routing: _tip_start(problem, plan, routing, rounds), guesses, key=rank,
                              accept=None if thorough else (lambda r: r.status == "optimal" and r.stats["obstacle_clear"]), progress=progress)
-    best = drive.record_starts(found, stats)
+    best = drive.record_starts(found, stats, always=True)
     best.method = "tip"
     best.metrics["reachable"] = float(best.converged)
     best.stats.update(stats0 | {"obstacle_samples_per_segment": plan.S, "start_status": [r.status for r in found.results]})
