@@ -9,7 +9,7 @@ built with the SAME deviations and measured again; round 2 uses both measurement
 built robot to the target: RMSE at the design's pairing and the tip's distance to the target's end.
 
 Calibration: the prototypes of one construction method share the systematic lambda offset; the round-1
-estimates of 5 seeds (5 prototypes) are combined by design.correct.combine_systematic (as
+estimates of 5 seeds (5 prototypes) are combined by methods.correct.combine_systematic (as
 ``vine-nlp calibrate`` does) and compared with the true offset, for every group of 5 consecutive seeds.
 
 Speed: one correction (estimate + correction, warm caches) timed in wall-clock and process CPU time, the
