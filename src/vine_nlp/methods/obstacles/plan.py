@@ -207,7 +207,7 @@ class Plan:
         """Every block's data for the current design (``routing``, problem units): fractions, t,
         requirements from its segment lengths, the primitives near every segment (``ACTIVE_REACH``)
         and the mesh active sets at its sample points. May raise ``P`` (then ``term`` changes)."""
-        M, S, k, D = routing.segments, self.S, self.k, self.D
+        M, D = routing.segments, self.D
         u = self.fractions(M)
         levels = [1.0] + list(self.ts)
         dl = routing.length / D
@@ -218,39 +218,40 @@ class Plan:
         if self.prims:
             out |= self._prim_data(points, levels, needs, u, dl)
         for m, q in enumerate(self.meshes):
-            ob, sc, need = self.obstacles[q], self.scaled[q], needs[q]
-            cols, near = [], []
-            for t in levels:
-                head = np.vstack([u, np.full((1, M), t), need[None, :]])
-                p = points[t].reshape(-1, 3)
-                faces, dist = nearest_triangles(ob, p, k)
-                inside = mesh_signed_distance(ob, p) < 0
-                if self._remember:
-                    self.memory[m, t] = np.union1d(self.memory.get((m, t), []), faces).astype(np.int64)
-                rows = _with_memory(ob, p, faces, self.memory.get((m, t)), nearest_triangles(ob, p, 2 * k)[0]) if self.k_mem else faces
-                kr = rows.shape[1]
-                slack = (np.where(inside, -dist[:, 0], dist[:, 0]) / D).reshape(M, S).min(axis=1) - need
-                # a column gets rows where the tube can reach the mesh within one solve (MESH_TRUST)
-                near.append(slack < MESH_REACH + REACH_DL * dl)
-                tri = sc.triangles  # units of D
-                T = tri[rows].reshape(M, S, kr * 9)  # per sample: kr triangles, a b c each
-                nrm, off = _exit_planes(sc, faces, p / D, inside, np.repeat(need, S))
-                a_tri = (~inside).astype(float).reshape(M, S)
-                a_plane = inside.astype(float).reshape(M, S)
-                if TANGENT_REACH > 0:
-                    close = ~inside & (dist[:, 0] / D < np.repeat(need, S) + TANGENT_REACH)
-                    if close.any():
-                        c, _, _ = ob.trimesh.nearest.on_surface(p[close])
-                        n = (p[close] - c) / np.maximum(np.linalg.norm(p[close] - c, axis=1, keepdims=True), 1e-300)
-                        nrm[close], off[close] = n, np.sum(n * c / D, axis=1)
-                        a_plane = (inside | close).astype(float).reshape(M, S)
-                plane = np.hstack([nrm, off[:, None]]).reshape(M, S * 4)
-                cols.append(np.vstack([head, T.reshape(M, S * kr * 9).T, a_tri.T, plane.T, a_plane.T]))
-            chosen = sorted(set(self.mesh_cols[m]) | set(np.flatnonzero(np.concatenate(near)).tolist()))
-            self.mesh_cols[m] = tuple(chosen)
-            out[f"obstacle_mesh_{m}"] = np.hstack(cols)[:, chosen]
+            out[f"obstacle_mesh_{m}"] = self._mesh_data(m, q, points, levels, needs[q], u, dl)
         self._remember = False
         return out
+
+    def _mesh_data(self, m: int, q: int, points, levels, need, u, dl) -> np.ndarray:
+        """Mesh q's block data (its m-th): per column near it (slack below MESH_REACH + REACH_DL dl_j: the tube
+        can reach the mesh within one solve), per sample its triangles, the plane row of a sample inside (or
+        closer than its requirement plus TANGENT_REACH: the tangent plane) and the switches."""
+        ob, sc, M, S, k, D = self.obstacles[q], self.scaled[q], dl.size, self.S, self.k, self.D
+        cols, near = [], []
+        for t in levels:
+            head = np.vstack([u, np.full((1, M), t), need[None, :]])
+            p = points[t].reshape(-1, 3)
+            faces, dist = nearest_triangles(ob, p, k)
+            inside = mesh_signed_distance(ob, p) < 0
+            if self._remember:
+                self.memory[m, t] = np.union1d(self.memory.get((m, t), []), faces).astype(np.int64)
+            rows = _with_memory(ob, p, faces, self.memory.get((m, t)), nearest_triangles(ob, p, 2 * k)[0]) if self.k_mem else faces
+            kr = rows.shape[1]
+            slack = (np.where(inside, -dist[:, 0], dist[:, 0]) / D).reshape(M, S).min(axis=1) - need
+            near.append(slack < MESH_REACH + REACH_DL * dl)
+            T = sc.triangles[rows].reshape(M, S, kr * 9)  # per sample: kr triangles, a b c each (units of D)
+            nrm, off = _exit_planes(sc, faces, p / D, inside, np.repeat(need, S))
+            close = ~inside & (dist[:, 0] / D < np.repeat(need, S) + TANGENT_REACH)
+            if close.any():
+                c, _, _ = ob.trimesh.nearest.on_surface(p[close])
+                n = (p[close] - c) / np.maximum(np.linalg.norm(p[close] - c, axis=1, keepdims=True), 1e-300)
+                nrm[close], off[close] = n, np.sum(n * c / D, axis=1)
+            a_tri, a_plane = (~inside).astype(float).reshape(M, S), (inside | close).astype(float).reshape(M, S)
+            plane = np.hstack([nrm, off[:, None]]).reshape(M, S * 4)
+            cols.append(np.vstack([head, T.reshape(M, S * kr * 9).T, a_tri.T, plane.T, a_plane.T]))
+        chosen = sorted(set(self.mesh_cols[m]) | set(np.flatnonzero(np.concatenate(near)).tolist()))
+        self.mesh_cols[m] = tuple(chosen)
+        return np.hstack(cols)[:, chosen]
 
     def _prim_data(self, points, levels, needs, u, dl) -> dict:
         """The primitive slots of every (shape, segment) column: the primitives within ACTIVE_REACH + REACH_DL dl_j
