@@ -135,10 +135,11 @@ def test_refine_without_keys_keeps_the_latest_round():
 
 def test_stats_sum_every_solve_and_stamp_the_totals():
     stats = drive.Stats()
-    stats.add({"iterations": 4, "ipopt_time_s": 0.25})
-    stats.add({"iterations": 6, "solve_time_s": 0.5})  # a raw solve's time where IPOPT's own is missing
+    one = _r(1.0, iterations=4, time_s=0.25)  # one solve
     inner = _r(1.0, iterations=5, time_s=1.0, solves=3)  # a whole sub-method: its own solves
-    assert stats.absorb(inner) is inner
+    assert stats.absorb(one) is one and stats.absorb(inner) is inner
+    untimed = Result("x", ROUTING, None, iterations=6, solve_time_s=0.5)  # no solver time of its own: its time
+    stats.absorb(untimed)
     out = stats.stamp(_r(2.0))
     assert (stats.solves, out.iterations) == (5, 15)
     assert out.stats["solves"] == 5 and out.stats["ipopt_iterations"] == 15

@@ -89,7 +89,7 @@ def block_derivatives(bt: BlockType):
 
 def block_functions(bt: BlockType, as_c: bool = False) -> tuple:
     """(fn, grad (v, d) -> df/dv, jac, hess, gauss_newton) of a block type: SX, or with ``as_c`` compiled on
-    their own where design.compiled allows (codegen on or auto, a compiler, within its BLOCK_BUDGET)."""
+    their own where methods.compiled allows (codegen on or auto, a compiler, within its BLOCK_BUDGET)."""
     if not as_c:
         return _sx_functions(bt)
     return _c_functions(bt, compiled.mode(), str(compiled.cache_dir()), tuple(compiled.compiler() or ()))

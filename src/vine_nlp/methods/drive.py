@@ -36,15 +36,8 @@ class Stats:
     solver_time_s: float = 0.0
     started: float = field(default_factory=time.perf_counter)
 
-    def add(self, st: dict) -> dict:
-        """Count one solver call's stats (``Solver.solve``'s third return value); returns them."""
-        self.solves += 1
-        self.iterations += int(st.get("iterations", 0))
-        self.solver_time_s += float(st.get("ipopt_time_s", st.get("solve_time_s", 0.0)))
-        return st
-
     def absorb(self, result: Result) -> Result:
-        """Count a whole sub-method's result (its solves, iterations and solver time)."""
+        """Count a solve's or a whole sub-method's result (its solves, iterations and solver time)."""
         self.solves += int(result.stats.get("solves", 1))
         self.iterations += int(result.iterations)
         self.solver_time_s += float(result.stats.get("ipopt_time_s", result.solve_time_s))
