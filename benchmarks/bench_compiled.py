@@ -26,8 +26,7 @@ from common import ROOT, table, write_report
 
 from vine_nlp import targets
 from vine_nlp.io.problem_file import load_problem
-from vine_nlp.methods import compiled
-from vine_nlp.methods import nlp as nlp_module
+from vine_nlp.methods import compiled, settings
 from vine_nlp.methods.common import geometric_guess, pair_points
 from vine_nlp.methods.nlp import design_bounds, design_nlp, nlp_parameters, nlp_spec, start_x
 from vine_nlp.methods.transcription import Solver, clear_caches
@@ -104,8 +103,8 @@ def design_calls(repeat):
     """``design_nlp`` at the problem's defaults, solvers built: the whole call (guesses, starts, evaluation);
     compiled, the default's first solve runs on Fatrop (bench_fatrop.py compares it with IPOPT).
 
-    Then, compiled, the plain NLP's Gauss-Newton IPOPT settings (design.nlp.GN_IPOPT) against
-    ipopt_options alone, the two alternating in blocks of 5 calls (a shared machine drifts)."""
+    Then, compiled, the plain NLP's Gauss-Newton IPOPT settings (methods.settings.GAUSS_NEWTON) against
+    CHAIN alone, the two alternating in blocks of 5 calls (a shared machine drifts)."""
     rows = []
     for name in ["trefoil-m4", "bezier-b"]:
         pb = load_problem(ROOT / "problems" / f"{name}.toml").problem
@@ -125,15 +124,15 @@ def design_calls(repeat):
 
     os.environ["VINE_NLP_CODEGEN"] = "on"
     pb = load_problem(ROOT / "problems" / "trefoil-m4.toml").problem
-    pb = dataclasses.replace(pb, options=dataclasses.replace(pb.options, solver="ipopt"))  # GN_IPOPT is IPOPT's
-    variants = {"ipopt_options + GN_IPOPT (default)": dict(nlp_module.GN_IPOPT), "ipopt_options alone": {}}
+    pb = dataclasses.replace(pb, options=dataclasses.replace(pb.options, solver="ipopt"))  # GAUSS_NEWTON is IPOPT's
+    variants = {"CHAIN + GAUSS_NEWTON (default)": dict(settings.GAUSS_NEWTON), "CHAIN alone": {}}
     runs = {k: ([], [], None) for k in variants}
     for _ in range(max(1, repeat // 5)):
         for k, opts in variants.items():
-            nlp_module.GN_IPOPT = opts
+            settings.GAUSS_NEWTON = opts
             times, ipopt, r = _calls(pb, 5)
             runs[k] = (runs[k][0] + times, runs[k][1] + ipopt, r)
-    nlp_module.GN_IPOPT = variants["ipopt_options + GN_IPOPT (default)"]
+    settings.GAUSS_NEWTON = variants["CHAIN + GAUSS_NEWTON (default)"]
     rows = [[k, f"{1e3 * min(t):.1f}", f"{1e3 * statistics.median(t):.1f}", f"{1e3 * min(i):.1f}", f"{1e3 * statistics.median(i):.1f}",
              r.iterations, f"{10 * r.metrics['rmse']:.5f}"] for k, (t, i, r) in runs.items()]
     return text + (f"\n\nTrefoil (m = 4), compiled, {len(runs[k][0])} calls per variant, alternating in blocks of 5; the plain NLP's "

@@ -9,7 +9,7 @@ built with the SAME deviations and measured again; round 2 uses both measurement
 built robot to the target: RMSE at the design's pairing and the tip's distance to the target's end.
 
 Calibration: the prototypes of one construction method share the systematic lambda offset; the round-1
-estimates of 5 seeds (5 prototypes) are combined by design.correct.combine_systematic (as
+estimates of 5 seeds (5 prototypes) are combined by methods.correct.combine_systematic (as
 ``vine-nlp calibrate`` does) and compared with the true offset, for every group of 5 consecutive seeds.
 
 Speed: one correction (estimate + correction, warm caches) timed in wall-clock and process CPU time, the
@@ -26,10 +26,14 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
 
 import numpy as np
 from common import ROOT, table, write_report
+
+sys.path.insert(0, str(ROOT / "tests"))  # simulated builds: the tests' helpers
+from simulate import draw_deviations, simulate_build  # noqa: E402
 
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import compiled
@@ -88,15 +92,15 @@ def run_case(name, seeds, counts, mm):
     noise = NOISE_MM / mm
     recs = []
     for seed in range(seeds):
-        dev = C.draw_deviations(nom, SIGMAS, (0.0, LAMBDA_OFFSET, 1.0), seed=seed)
+        dev = draw_deviations(nom, SIGMAS, (0.0, LAMBDA_OFFSET, 1.0), seed=seed)
         e0 = built_errors(pb, pairing, nom, dev)
         for count in counts:
-            m1 = C.Measurement(C.simulate_build(nom, dev, D, "outer", count, noise, seed=1000 + seed), "outer", 0)
+            m1 = C.Measurement(simulate_build(nom, dev, D, "outer", count, noise, seed=1000 + seed), "outer", 0)
             for adjust in ADJUST:
                 r1, w1, c1 = timed(lambda: C.correct(pb, [nom], [m1], adjust=adjust, sigmas=SIGMAS, measurement_sigma=noise))
                 n1 = r1.corrected.routing
                 e1 = built_errors(pb, pairing, n1, dev)
-                m2 = C.Measurement(C.simulate_build(n1, dev, D, "outer", count, noise, seed=2000 + seed), "outer", 1)
+                m2 = C.Measurement(simulate_build(n1, dev, D, "outer", count, noise, seed=2000 + seed), "outer", 1)
                 r2, w2, c2 = timed(lambda: C.correct(pb, [nom, n1], [m1, m2], adjust=adjust, sigmas=SIGMAS, measurement_sigma=noise))
                 e2 = built_errors(pb, pairing, r2.corrected.routing, dev)
                 est = r1.estimate
@@ -121,8 +125,8 @@ def speed_compare(name, seeds, mm):
     D = pb.diameter
     ms = []
     for seed in range(seeds):
-        dev = C.draw_deviations(nom, SIGMAS, (0.0, LAMBDA_OFFSET, 1.0), seed=seed)
-        ms.append(C.Measurement(C.simulate_build(nom, dev, D, "outer", 200, NOISE_MM / mm, seed=1000 + seed), "outer", 0))
+        dev = draw_deviations(nom, SIGMAS, (0.0, LAMBDA_OFFSET, 1.0), seed=seed)
+        ms.append(C.Measurement(simulate_build(nom, dev, D, "outer", 200, NOISE_MM / mm, seed=1000 + seed), "outer", 0))
     mode = os.environ.get("VINE_NLP_CODEGEN")
     rows = []
     for label, setting in (("interpreted", "off"), ("compiled", "on")):

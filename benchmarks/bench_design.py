@@ -216,7 +216,7 @@ def derivatives(repeat):
     import casadi as ca
 
     from vine_nlp.methods.nlp import design_bounds, nlp_parameters, start_x
-    from vine_nlp.methods.transcription import ipopt_options
+    from vine_nlp.methods.settings import Settings
 
     rows = []
     for name in ["trefoil-m4", "bezier-a", "polyline-d"]:
@@ -231,7 +231,7 @@ def derivatives(repeat):
         t0 = time.perf_counter()
         x, p = ca.MX.sym("x", ours.layout.size), ca.MX.sym("p", ours.nlpsol.size_in("p")[0])
         f, g = ca.Function("nlp", [ours.problem["x"], ours.problem["p"]], [ours.problem["f"], ours.problem["g"]])(x, p)
-        auto = ca.nlpsol("auto", "ipopt", {"x": x, "p": p, "f": f, "g": g}, ipopt_options(pb.options.max_iter, pb.options.tol))
+        auto = ca.nlpsol("auto", "ipopt", {"x": x, "p": p, "f": f, "g": g}, Settings(pb.options.max_iter, pb.options.tol).options())
         build_auto = time.perf_counter() - t0
         guess = geometric_guess(pb, pairing)
         p0 = ours.pack_params(nlp_parameters(pb, pairing, guess.initial_pose[:3, :3]))

@@ -267,8 +267,7 @@ def main():
         "geometric guess and BLOCKED_WEIGHT = 0.1, blocked target points weigh a tenth; meshes: the pushed start "
         "(one direction per run through the mesh, MESH_PUSH_EXTRA = 0.05 D) from its own geometric guess, "
         "tangent-plane rows near the mesh, MESH_BLOCKED_WEIGHT = 0.01 at the margin rising as s^2 to 1 at "
-        "MESH_WEIGHT_RAMP = 1 D beyond it; design.obstacles, \"Start\", \"Blocks\" and "
-        "\"Weights\").",
+        "MESH_WEIGHT_RAMP = 1 D beyond it; methods.obstacles: push, rows and design).",
         "Speed scenes (benchmarks/bench_obstacles.py, written to a temporary directory): scene-primitives, 20 "
         "primitives (7 spheres, 7 capsules, 6 boxes) along a 110 cm Bezier target, 4 of them across it, 10 within "
         "0.5 to 3 D of it, 6 farther; scene-primitives-beside, the same without the 4 across it (the obstacle-free "

@@ -274,7 +274,7 @@ def test_a_block_over_the_budget_stays_interpreted(codegen, monkeypatch):
 def test_obstacle_rows_run_on_one_samples_compiled_block(codegen, monkeypatch, caplog):
     # 12 samples a segment against 1 or 2 primitives, or 2 mesh triangles each: each block is over the budget,
     # so the block of one sample is compiled and mapped over the 12 (the same for every sample count)
-    from vine_nlp.methods.obstacles import ObstacleRows
+    from vine_nlp.methods.obstacles.rows import ObstacleRows
 
     spec = nlp_spec(6, 2, False, terms=(ObstacleRows(slots=(0, 2, 0, 1, 1, 0), meshes=((2, 3, 4),), S=12, k=2),))
     with caplog.at_level(logging.INFO, logger="vine_nlp"):

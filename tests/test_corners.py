@@ -10,10 +10,10 @@ import pytest
 from vine_nlp import targets
 from vine_nlp.front.cli import main
 from vine_nlp.io.problem_file import load_problem
-from vine_nlp.methods import corners
+from vine_nlp.methods import corners, settings
 from vine_nlp.methods.common import pair_points
+from vine_nlp.methods.drive import TIE_RTOL
 from vine_nlp.methods.nlp import _solve, design_nlp, guess_from_routing, solve_from
-from vine_nlp.methods.transcription import TIE_RTOL
 from vine_nlp.model.chain import chain_points
 from vine_nlp.problem import Actuator, DesignOptions, DesignProblem
 
@@ -60,7 +60,7 @@ def test_window_objective_is_the_whole_error_from_the_window_on(first, a, W):
 
 def test_the_detector_fires_on_corners_only(first, make_target):
     pb, _, r = first
-    assert r.stats["hessian"].startswith("exact") and r.metrics["rmse"] > corners.CORNER_RMSE * D
+    assert r.stats["hessian"].startswith("exact") and r.metrics["rmse"] > settings.CORNER_RMSE * D
     assert corners.corner_like(pb, r)
     # a target the model follows exactly: Gauss-Newton converges, the residuals vanish
     tgt, _ = make_target(seed=0)
@@ -137,7 +137,7 @@ def test_budget_in_problem_files_and_on_the_command_line(tmp_path, capsys):
     path.write_text(text + "[design]\nbudget = 1.5\n")
     assert load_problem(path).problem.options.budget == 1.5
     path.write_text(text)
-    assert load_problem(path).problem.options.budget == DesignOptions().budget == corners.DEFAULT_BUDGET
+    assert load_problem(path).problem.options.budget == DesignOptions().budget == settings.DEFAULT_BUDGET
     path.write_text(text + "[design]\nbudget = -1\n")
     out = tmp_path / "o.h5"
     assert main(["design", str(path), "-o", str(out)]) == 2

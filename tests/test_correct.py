@@ -9,6 +9,7 @@ import tomllib
 import h5py
 import numpy as np
 import pytest
+from simulate import draw_deviations, simulate_build
 
 from vine_nlp.front.cli import main
 from vine_nlp.io.calibration import read_calibration
@@ -16,7 +17,10 @@ from vine_nlp.io.correction import read_correction
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import correct as C
 from vine_nlp.methods.common import evaluate, pair_points
-from vine_nlp.methods.transcription import frames12
+from vine_nlp.methods.correct.estimate import measure_block
+from vine_nlp.methods.correct.laplace import line_jacobian
+from vine_nlp.methods.correct.pairing import line_points
+from vine_nlp.methods.structure import frames12
 from vine_nlp.model.calibration import Calibration, realized_of
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.routing import Routing, Sigmas
@@ -58,14 +62,14 @@ def setup(tmp_path_factory):
     from vine_nlp.io.archive import load_archive
 
     nominal = load_archive(d / "design.h5").runs["nlp"].routing
-    dev = C.draw_deviations(nominal, SIGMAS, TRUTH, seed=3)
-    pts = C.simulate_build(nominal, dev, problem.diameter, "outer", 150, NOISE, seed=4)
+    dev = draw_deviations(nominal, SIGMAS, TRUTH, seed=3)
+    pts = simulate_build(nominal, dev, problem.diameter, "outer", 150, NOISE, seed=4)
     write_csv(d / "m1.csv", pts)
     # lambda only (stoppers moved), and lambda and theta (the line redrawn) from the same measurement
     assert main(["correct", str(d / "design.h5"), str(d / "m1.csv"), "-o", str(d / "c1.h5")]) in (0, 1)
     assert main(["correct", str(d / "design.h5"), str(d / "m1.csv"), "-o", str(d / "c1t.h5"), "--adjust", "lambda,theta"]) in (0, 1)
     a1, s1 = read_correction(d / "c1t.h5")
-    pts2 = C.simulate_build(a1.runs["corrected"].routing, dev, problem.diameter, "outer", 150, NOISE, seed=5)
+    pts2 = simulate_build(a1.runs["corrected"].routing, dev, problem.diameter, "outer", 150, NOISE, seed=5)
     write_csv(d / "m2.csv", pts2)
     assert main(["correct", str(d / "c1t.h5"), str(d / "m2.csv"), "-o", str(d / "c2.h5"), "--adjust", "lambda,theta"]) in (0, 1)
     return {"dir": d, "problem": problem, "nominal": nominal, "dev": dev}
@@ -91,16 +95,16 @@ def test_line_jacobian_matches_finite_differences_of_the_chain():
     r = Routing(rng.uniform(-0.6, 0.6, M), rng.uniform(0.4, 1.0, M), rng.uniform(1.0, 3.0, M), np.eye(4))
     seg = np.array([0, 1, 2, 3, 5, 5, 4])
     frac = np.array([0.3, 0.0, 1.0, 0.5, 0.9, 0.1, 0.7])
-    P, J = C._line_jacobian(r, 2.0, seg, frac, C.LINE_SIDE["outer"])
-    np.testing.assert_allclose(P, C._line_points(r, 2.0, seg, frac, C.LINE_SIDE["outer"])[0], atol=1e-12)
+    P, J = line_jacobian(r, 2.0, seg, frac, C.LINE_SIDE["outer"])
+    np.testing.assert_allclose(P, line_points(r, 2.0, seg, frac, C.LINE_SIDE["outer"])[0], atol=1e-12)
     for q, name in enumerate(("theta", "lam", "length")):
         for k in range(M):
             h = 1e-6
             up, dn = [np.array(getattr(r, n), float) for n in ("theta", "lam", "length")], [np.array(getattr(r, n), float) for n in ("theta", "lam", "length")]
             up[q][k] += h
             dn[q][k] -= h
-            d = (C._line_points(Routing(*up, np.eye(4)), 2.0, seg, frac, -0.5)[0]
-                 - C._line_points(Routing(*dn, np.eye(4)), 2.0, seg, frac, -0.5)[0]) / (2 * h)
+            d = (line_points(Routing(*up, np.eye(4)), 2.0, seg, frac, -0.5)[0]
+                 - line_points(Routing(*dn, np.eye(4)), 2.0, seg, frac, -0.5)[0]) / (2 * h)
             np.testing.assert_allclose(J[:, :, q * M + k].T, d, atol=1e-6, err_msg=f"{name} of segment {k}")
 
 
@@ -259,8 +263,8 @@ def test_unreachable_correction_says_so_writes_the_best_exit_1(setup, tmp_path, 
     problem, nominal = setup["problem"], setup["nominal"]
     # a builder whose lambda comes out 0.25 too high: the design's lambdas (0.6 to 0.9) would need nominals
     # below lambda_min = 0.4
-    dev = C.draw_deviations(nominal, SIGMAS, (0.0, 0.25, 1.0), seed=3)
-    m = write_csv(tmp_path / "far.csv", C.simulate_build(nominal, dev, problem.diameter, "outer", 150, NOISE, seed=4))
+    dev = draw_deviations(nominal, SIGMAS, (0.0, 0.25, 1.0), seed=3)
+    m = write_csv(tmp_path / "far.csv", simulate_build(nominal, dev, problem.diameter, "outer", 150, NOISE, seed=4))
     out = tmp_path / "o.h5"
     assert main(["correct", str(setup["dir"] / "design.h5"), str(m), "-o", str(out)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
@@ -403,8 +407,8 @@ def test_spam_one_shared_lambda(tmp_path):
 
     problem = load_problem(p).problem
     nominal = load_archive(tmp_path / "d.h5").runs["nlp"].routing
-    dev = C.draw_deviations(nominal, Sigmas.from_degrees(0.5, 0.0, 0.01), (0.0, -0.03, 1.0), seed=1)
-    pts = C.simulate_build(nominal, dev, problem.diameter, "outer", 150, NOISE, seed=2)
+    dev = draw_deviations(nominal, Sigmas.from_degrees(0.5, 0.0, 0.01), (0.0, -0.03, 1.0), seed=1)
+    pts = simulate_build(nominal, dev, problem.diameter, "outer", 150, NOISE, seed=2)
     res = C.correct(problem, [nominal], [C.Measurement(pts, "outer")], sigmas=Sigmas.from_degrees(0.5, 0.01, 0.01))
     lam = res.corrected.routing.lam
     assert np.ptp(lam) == 0.0  # one pressure
@@ -435,14 +439,14 @@ def test_measure_slot_is_the_point_to_line_residual_of_the_model(free):
     rng = np.random.default_rng(4)
     M = 5
     r = Routing(rng.uniform(-0.6, 0.6, M), rng.uniform(0.4, 1.0, M), rng.uniform(1.0, 3.0, M), np.eye(4))
-    bt = C.measure_block(free)
+    bt = measure_block(free)
     shift = np.array([0.03, -0.02, 1.05])  # an earlier build: its theta and lambda shifted, its lengths scaled
     built = Routing(r.theta + shift[0], r.lam + shift[1], r.length * shift[2], np.eye(4))
     w_rot, t_move, c = np.array([0.1, -0.2, 0.05]), np.array([0.3, 0.1, -0.2]), np.array([1.0, 2.0, 0.5])
     for j, u, side in ((0, 0.0, -0.5), (2, 0.4, 0.5), (4, 1.0, 0.0)):
         m, t = rng.normal(size=3), rng.normal(size=3)
         t /= np.linalg.norm(t)
-        P, _ = C._line_points(built, 1.0, [j], [u], side)
+        P, _ = line_points(built, 1.0, [j], [u], side)
         X = frames12(chain_frames(built.theta, built.lam, built.length, 1.0))[:, j]
         v = np.r_[X, r.theta[j], r.lam[j], r.length[j]]
         d = np.r_[shift, u, m, t, 0.7, side]
@@ -470,7 +474,7 @@ def test_estimate_compiles_once_and_takes_the_interpreted_steps(setup, monkeypat
     if compiled.compiler() is None:
         pytest.skip("no C compiler on this machine")
     problem, nominal = setup["problem"], setup["nominal"]
-    pts = C.simulate_build(nominal, setup["dev"], problem.diameter, "outer", 60, NOISE, seed=9)
+    pts = simulate_build(nominal, setup["dev"], problem.diameter, "outer", 60, NOISE, seed=9)
     run = dict(nominals=[nominal], measurements=[C.Measurement(pts, "outer")], D=problem.diameter, sigmas=SIGMAS,
                measurement_sigma=NOISE)
     before = dict(compiled.stats)

@@ -15,7 +15,8 @@ from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import compiled
 from vine_nlp.methods.common import geometric_guess, pair_points
 from vine_nlp.methods.nlp import design_bounds, design_nlp, get_fatrop, nlp_parameters, nlp_spec, start_x
-from vine_nlp.methods.transcription import Smoothness, SoftTip, Solver, Spec, Structure, fatrop_safe
+from vine_nlp.methods.structure import Structure
+from vine_nlp.methods.transcription import Smoothness, SoftTip, Solver, Spec, fatrop_safe
 from vine_nlp.problem import Actuator, DesignOptions, DesignProblem
 
 PROBLEMS = Path(__file__).resolve().parents[1] / "problems"

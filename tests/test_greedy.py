@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from vine_nlp.methods.common import pair_points, path_error, variable_bounds
-from vine_nlp.methods.greedy import design_greedy, lowpass, window_error
+from vine_nlp.methods.greedy import _frame_at, _window_data, _window_solver_for, design_greedy, lowpass
 from vine_nlp.model import chain_points
 from vine_nlp.model.chain import segment_end_samples
 from vine_nlp.model.shape import total_variation
@@ -165,6 +165,26 @@ def test_lowpass_short_chain_unfiltered(spam):
     filt = lowpass(res, prob)
     assert not filt.stats["filtered"]
     np.testing.assert_array_equal(filt.routing.theta, res.routing.theta)
+
+
+def window_error(problem: DesignProblem, routing: Routing, j: int, K: int, pairing):
+    """(sum of squared distances, sum of distances) of ``routing`` on the window j..j+K-1,
+    evaluated with the window NLP's own CasADi expression (unscaled, in problem units).
+
+    The first number is what the window solves minimize; it equals
+    ``common.path_error`` of the paired points bounds[j] .. bounds[j+K].
+    """
+    D = problem.diameter
+    solver = _window_solver_for(problem, pairing.n, K, j == 0)
+    T = _frame_at(routing, D, j)
+    tgt, w, u, end = _window_data(problem, pairing, j, K)
+    lam_fixed = float(routing.lam[0]) if problem.actuator.shared_lambda else 0.0
+    p = solver.pack_params(T[:3, :3], T[:3, 3] / D, tgt, w, u, end, lam_fixed)
+    sl = slice(j, j + K)
+    x = solver.pack_x(routing.theta[sl], routing.lam[sl], routing.length[sl] / D)
+    sq, dist = solver.terms(x, p)
+    return float(sq) * D**2, float(dist) * D
+
 
 
 @pytest.mark.parametrize("j,K", [(0, 4), (3, 4), (7, 3), (9, 1)])

@@ -13,18 +13,12 @@ from vine_nlp import targets
 from vine_nlp.analysis.obstacles import after_growth_shapes, min_gap, obstacle_report, sample_chain
 from vine_nlp.front.cli import main
 from vine_nlp.io.archive import Archive, load_archive, write_archive
-from vine_nlp.methods import obstacles as obstacle_design
-from vine_nlp.methods import transcription
+from vine_nlp.methods import settings, transcription
 from vine_nlp.methods.common import pair_points
 from vine_nlp.methods.nlp import design_nlp
-from vine_nlp.methods.obstacles import (
-    ObstacleRows,
-    Plan,
-    _shortfall,
-    design_tip_with_obstacles,
-    design_with_obstacles,
-    triangle_distance_sx,
-)
+from vine_nlp.methods.obstacles import design_tip_with_obstacles, design_with_obstacles
+from vine_nlp.methods.obstacles.plan import Plan, _shortfall
+from vine_nlp.methods.obstacles.rows import ObstacleRows
 from vine_nlp.model.obstacles import Box, Capsule, Mesh, Plane, Sphere, mesh_signed_distance, point_triangle_distance
 from vine_nlp.problem import DesignOptions, DesignProblem, Routing, TipProblem
 
@@ -97,7 +91,7 @@ def test_triangle_distance_sx_matches_numpy():
     tri = rng.normal(size=(3, 3))
     pts = rng.normal(size=(50, 3)) * 2
     p, a, b, c = (ca.SX.sym(n, 3) for n in "pabc")
-    f = ca.Function("f", [p, a, b, c], [triangle_distance_sx(p, a, b, c)])
+    f = ca.Function("f", [p, a, b, c], [point_triangle_distance(p, a, b, c, 1e-9)])
     got = np.array([float(f(q, *tri)) for q in pts])
     np.testing.assert_allclose(got, point_triangle_distance(pts, *tri), atol=1e-8)
 
@@ -135,7 +129,7 @@ def test_a_mesh_design_does_not_depend_on_a_tiny_change_of_its_start(slab, free)
 
 def test_after_a_miss_every_sample_also_has_rows_to_the_faces_it_passed(slab):
     """_with_memory: the k nearest faces, then the nearest of the remembered ones (distinct), then the next nearest."""
-    from vine_nlp.methods.obstacles import _with_memory
+    from vine_nlp.methods.obstacles.plan import _with_memory
     from vine_nlp.model.obstacles import nearest_triangles
 
     p = np.array([[12.0, 3.0, 0.0], [12.0, -2.0, 2.0]])  # beside two faces of the slab
@@ -208,7 +202,7 @@ def test_tip_starts_stop_at_the_first_that_clears_and_thorough_tries_every_one(t
 
 
 def test_tip_start_that_reaches_its_iteration_cap_is_left_for_the_next(tip_and_path, monkeypatch):
-    monkeypatch.setattr(obstacle_design, "TIP_MAX_ITER", 5)
+    monkeypatch.setattr(settings, "TIP_MAX_ITER", 5)
     r = design_tip_with_obstacles(_ball_on(tip_and_path, 0.3))
     # every start's first solve stops at 5 iterations and is its last: 4 starts of one round each
     assert r.stats["start_status"] == ["max_iter"] * 4 and r.stats["obstacle_rounds"] == 1
@@ -317,11 +311,13 @@ def test_rounded_box_slot_is_the_exact_distance(ob):
     """A primitive slot (numbers as data) reproduces the primitive's own distance, inside and outside."""
     import casadi as ca
 
-    from vine_nlp.methods.obstacles import rounded_box, rounded_box_sx
+    from vine_nlp.methods.obstacles.rows import primitive_slot
+    from vine_nlp.model.obstacles import rounded_box_distance
 
     p = np.random.default_rng(3).normal(8.0, 4.0, (200, 3))
-    x = ca.SX.sym("x", 3, len(p))
-    got = np.array(ca.Function("d", [x], [rounded_box_sx(x, ca.DM(rounded_box(ob)))])(p.T)).ravel()
+    x, q = ca.SX.sym("x", 3, len(p)), ca.SX.sym("q", 17)  # the slot's numbers as data, as the rows take them
+    d = rounded_box_distance(x, q[0:3], ca.reshape(q[3:12], 3, 3), q[12:15], q[15], q[16])
+    got = np.array(ca.Function("d", [x, q], [d])(p.T, primitive_slot(ob))).ravel()
     np.testing.assert_allclose(got, np.asarray(ob.distance(p), float).ravel(), rtol=0, atol=1e-8)
 
 
@@ -338,7 +334,7 @@ def test_blocked_target_points_weigh_less():
     """Only the weights of the target points closer than the margin to an obstacle change."""
     from vine_nlp.methods.common import pair_points
     from vine_nlp.methods.nlp import nlp_parameters
-    from vine_nlp.methods.obstacles import _weigh_blocked
+    from vine_nlp.methods.obstacles.design import _weigh_blocked
 
     ob = PRIMITIVES["sphere"]
     problem = _problem([ob])
@@ -361,7 +357,7 @@ def test_a_weight_ramp_rises_from_the_blocked_weight_to_one():
     at margin + ramp; farther points keep theirs."""
     from vine_nlp.methods.common import pair_points
     from vine_nlp.methods.nlp import nlp_parameters
-    from vine_nlp.methods.obstacles import _weigh_blocked
+    from vine_nlp.methods.obstacles.design import _weigh_blocked
 
     ob, ramp = PRIMITIVES["sphere"], 1.5
     problem = _problem([ob])
@@ -410,7 +406,7 @@ def test_the_pushed_target_clears_and_goes_to_one_side():
     """pushed_target: a line through a sphere (off its center, and dead center) is moved across itself to ONE
     side until every point clears; points already clear do not move; a run along a cylinder (a circle round
     it) moves each point straight out."""
-    from vine_nlp.methods.obstacles import pushed_target
+    from vine_nlp.methods.obstacles.push import pushed_target
 
     x = np.linspace(-6.0, 6.0, 121)
     need = 1.2
@@ -527,7 +523,7 @@ def test_a_re_solve_before_the_last_round_stops_at_the_round_cap(monkeypatch, ro
         return rep | {"clear": False} if len(seen) in (1, 2, 3) else rep  # the first three designs with rows
 
     monkeypatch.setattr(Plan, "report", reported)
-    monkeypatch.setattr(obstacle_design, "ROUND_MAX_ITER", 10)
+    monkeypatch.setattr(settings, "ROUND_MAX_ITER", 10)
     ob = PRIMITIVES["sphere"]
     r = design_with_obstacles(_problem([ob]), start=free, rounds=4)
     limit = DesignOptions().max_iter

@@ -11,6 +11,7 @@ import h5py
 import numpy as np
 import pytest
 import trimesh  # the test extra has it (and rtree, for its proximity queries)
+from mesh_rows import mesh_rows, refresh_active_set, triangle_plane_distance
 
 from vine_nlp import targets
 from vine_nlp.analysis.obstacles import (
@@ -40,13 +41,10 @@ from vine_nlp.model.obstacles import (
     Mesh,
     Plane,
     Sphere,
-    mesh_rows,
     mesh_signed_distance,
     nearest_triangles,
     point_triangle_distance,
-    refresh_active_set,
     rotation_from_degrees,
-    triangle_plane_distance,
 )
 from vine_nlp.model.routing import Routing
 

@@ -6,11 +6,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from vine_nlp.methods.clearance import ClearancePairs
+from vine_nlp.methods.drive import pick_best
 from vine_nlp.methods.multishape import multishape_spec
 from vine_nlp.methods.nlp import nlp_spec
 from vine_nlp.methods.robust import RobustTerm
+from vine_nlp.methods.structure import Structure
 from vine_nlp.methods.tip import tip_spec
-from vine_nlp.methods.transcription import Smoothness, SoftTip, Solver, Spec, Structure, pick_best
+from vine_nlp.methods.transcription import Smoothness, SoftTip, Solver, Spec
 
 
 def _automatic(solver):

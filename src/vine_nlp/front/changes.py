@@ -10,9 +10,6 @@ the gap (or pinch) between stoppers takes the rest.
 
 from __future__ import annotations
 
-import csv
-import io
-
 import numpy as np
 
 MM_PER_UNIT = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4, "inch": 25.4}
@@ -69,12 +66,3 @@ def changes_text(rows, units: str) -> str:
         out.append(f"{r['segment']:>7} {r['s_start']:>7.2f}-{r['s_end']:<8.2f} {r['lambda_built']:>6.3f} -> {r['lambda_new']:<5.3f} "
                    f"{r['stopper_built_mm']:>8.1f} -> {r['stopper_new_mm']:<9.1f} {r['action']:>7} {abs(r['stopper_change_mm']):5.1f} mm")
     return "\n".join(out)
-
-
-def changes_csv(rows) -> str:
-    out = io.StringIO()
-    w = csv.DictWriter(out, fieldnames=COLUMNS, lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-    return out.getvalue()

@@ -1,27 +1,12 @@
 """One BLAS thread while designing: the OpenBLAS copies in the process run single-threaded.
 
-A process that designs holds up to three OpenBLAS libraries: CasADi's private one
-(``libcasadi-tp-openblas``, which MUMPS calls for the dense fronts of IPOPT's KKT factorization),
-NumPy's and SciPy's. Each starts a thread per core, and on this project's systems (a few hundred
-to a few ten thousand variables, fronts of a few dozen rows, small NumPy arrays) the extra threads
-mostly spin, even while another library works: they doubled the CPU time of the designs and, on a
-busy 2-core machine, the wall time of the clearance designs (results/BENCHMARKS.md, "Solver
-threads"). A sweep already runs one process per core.
-
-Unless the user's environment sets OpenBLAS's thread count (``OPENBLAS_NUM_THREADS``,
-``GOTO_NUM_THREADS`` or ``OMP_NUM_THREADS``, which OpenBLAS reads itself), so that their choice
-wins:
-
-- ``one_thread``: the first solver built sets CasADi's private copy to one thread, for good
-  (nothing else in the process uses it);
-- ``limited``: a context in which NumPy's and SciPy's copies run one thread, restored on the way
-  out (threadpoolctl); every formulation's solve runs in it (front.registry), so the Python API,
-  the command line and sweeps alike;
-- ``own_process``: for processes vine_nlp owns (the command line, its sweep workers, the
-  benchmarks): the copies loaded now get one thread, and those loaded later read it from the
-  environment, which workers inherit.
-
-A CasADi built against another BLAS has no private copy, and nothing is changed there.
+A designing process holds up to three OpenBLAS libraries: CasADi's private one (MUMPS's dense fronts),
+NumPy's and SciPy's. Each starts a thread per core; on these small systems the extra threads mostly spin
+and doubled the CPU time of the designs (results/BENCHMARKS.md, "Solver threads"). Unless the environment
+sets OpenBLAS's thread count (ENV_VARS; the user's choice wins): ``one_thread`` sets CasADi's copy to one
+thread when the first solver is built; ``limited`` is a context in which NumPy's and SciPy's copies run one
+thread (threadpoolctl), around every solve; ``own_process``, for processes vine_nlp owns (the command line,
+sweep workers, benchmarks), sets the environment so copies loaded later read it too.
 """
 
 from __future__ import annotations
@@ -79,7 +64,7 @@ def limited():
         return contextlib.nullcontext()
     import threadpoolctl  # loaded where a solve runs: the command line checks its input without it
 
-    # the cached controller: a fresh one scans the loaded libraries (~0.6 ms, a tenth of a small design)
+    # the cached controller: a fresh one scans the loaded libraries (a tenth of a small design)
     return threadpoolctl.get_cached_controller().limit(limits=1, user_api="blas")
 
 

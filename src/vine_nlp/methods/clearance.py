@@ -1,38 +1,23 @@
 """Inverse design that keeps the tube clear of itself: the plain NLP plus clearance rows.
 
-Formulation (smooth): for chosen pairs of material points (l_a, l_b) of the tube,
-
-    |r_c(l_a) - r_c(l_b)|^2 >= (D + min_gap)^2,
-
-each point evaluated inside the multiple-shooting transcription as frame X_j of its
-segment times the partial segment (model.segment.segment_function with the fraction
-as data). Which pairs: an active-set outer loop. Start from design_nlp's result;
-detect the contact regions of the current design (analysis.collision.routing_clearance
-with a detection margin); constrain, for every sampled point of a region, the pair with
-its closest partner, plus each region's refined (continuous) minimum; re-solve warm;
-repeat until the continuous minimum clearance is >= D + min_gap (to ``tol_gap`` D) or
-``rounds`` is exhausted. Pairs are never dropped, so the rounds only add rows. Rows hold
-material points apart where they are; between them, and as the optimizer slides points
-along the tube (segment lengths are variables), the clearance can dip ~1e-3 D below the
-target. From the second solve on, the rows' target is raised by 1.5x the remaining
-shortfall (stats clearance_row_margin), which ends the loop in 2-3 solves with the
-continuous clearance >= D + min_gap; but only where every region short of the clearance has
-a constrained pair near its minimum (a dip between rows that hold). A region without one is
-a new contact (the tube moved into it): it gets its pairs and the target stays. Raising every
-row for it pushed tight coils ever farther open, into new contacts: the loop ran away (a
-helix of pitch D/8 asked for 0.3 D; tests/test_collision.py). A solve that does not converge
-does not end the loop, and the design returned is the best round's: converged first, then
-meeting the clearance, then the lower objective (else the larger clearance).
-
-The pairs' segments are structure (the solver is built once per active set and cached);
-their fractions and the required distance are data.
+For chosen pairs of material points (l_a, l_b): |r_c(l_a) - r_c(l_b)|^2 >= (D + min_gap)^2, each point
+the frame X_j of its segment times the partial segment (the fraction as data). Which pairs: an active set
+on the drive (``drive.refine``, the rule :class:`_Pairs`). Start from design_nlp's result; detect the
+contact regions of the current design (analysis.collision.routing_clearance, with a detection margin);
+constrain, for every sampled point of a region, the pair with its closest partner, plus each region's
+continuous minimum; re-solve warm; until the continuous minimum clearance is >= D + min_gap (to
+``tol_gap`` D). Pairs are never dropped. Between the rows, and as material points slide along the tube,
+the clearance can dip below the target: after a solve the rows' target rises by settings.RAISE_FACTOR
+times the shortfall, but only where every short region has a constrained pair near its minimum (a dip
+between rows that hold); a region without one is a new contact and gets its pairs instead (raising for it
+pushed tight coils ever farther open: the loop ran away). The pairs' segments are structure (a solver per
+active set, cached), their fractions and the required distance data.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-import time
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import ClassVar
@@ -41,12 +26,14 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp.analysis.collision import _ModelLine, routing_clearance
-from vine_nlp.methods.common import Guess, pair_points
-from vine_nlp.methods.nlp import design_bounds, design_nlp, nlp_parameters, nlp_spec, result_of, start_x
-from vine_nlp.methods.transcription import HARD_ROWS, BlockType, Chain, get_solver, options_key, segment_point_index
-from vine_nlp.model.chain import chain_frames
+from vine_nlp.methods import drive
+from vine_nlp.methods.blocks import BlockType
+from vine_nlp.methods.common import pair_points
+from vine_nlp.methods.nlp import chain_guess, design_bounds, design_nlp, extended_solver, nlp_parameters, result_of, start_x
+from vine_nlp.methods.settings import RAISE_FACTOR, ROUNDS
+from vine_nlp.methods.transcription import Chain, segment_point_index
 from vine_nlp.model.segment import segment_function
-from vine_nlp.problem import DesignProblem, Result, Routing
+from vine_nlp.problem import DesignProblem, Result
 
 
 @lru_cache(maxsize=None)
@@ -97,24 +84,6 @@ def locate(l: float, length) -> tuple[int, float]:
     M = len(length)
     j = int(np.clip(np.searchsorted(cum, l, side="right") - 1, 0, M - 1))
     return j, float(np.clip((l - cum[j]) / length[j], 0.0, 1.0))
-
-
-def extended_solver(problem: DesignProblem, pairing, terms: tuple, hard: bool = True, extra: int = 0):
-    """The plain NLP of ``problem``'s structure plus ``terms`` (the formulations built on it) and ``extra``
-    variables per stage, exact Hessian; ``hard``: rows held tightly (HARD_ROWS)."""
-    o = problem.options
-    spec = nlp_spec(pairing.segments, pairing.n, problem.actuator.shared_lambda, o.max_iter, o.tol, terms=terms)
-    opts = dict(spec.options) | (HARD_ROWS if hard else {})
-    return get_solver(dataclasses.replace(spec, structure=dataclasses.replace(spec.structure, extra=extra), options=options_key(opts)))
-
-
-def chain_guess(problem: DesignProblem, routing: Routing) -> Guess:
-    """A start on a routing's own chain (frames where the routing puts them)."""
-    return Guess(routing.theta, routing.lam, routing.length, routing.initial_pose,
-                 chain_frames(routing.theta, routing.lam, routing.length, problem.diameter, routing.initial_pose))
-
-
-MARGIN_FACTOR = 1.5
 
 
 def _nearest_partner(model, la, lb, half_width, zooms: int = 6):
@@ -177,13 +146,6 @@ def _covered(regions, active, need, step) -> bool:
                for r in regions if r["clearance"] < need)
 
 
-def _rank(res, check, need) -> tuple:
-    """The order of the rounds' designs: converged first, then those that meet the clearance (the lower
-    objective first), then the larger clearance."""
-    met = check["clearance"] >= need
-    return (not res.converged, not met, res.stats.get("objective", 0.0) if met else -check["clearance"])
-
-
 def _add_pairs(active, new, tol):
     """Add pairs not within ``tol`` (both coordinates) of one already there."""
     for a, b in new:
@@ -191,76 +153,92 @@ def _add_pairs(active, new, tol):
             active.append((a, b))
 
 
-def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, pairs=None, rounds: int = 6,
+def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, pairs=None, rounds: int = ROUNDS,
                           detect_margin: float | None = None, exclude_arc: float | None = None, start: Result | None = None,
                           tol_gap: float = 1e-7, pair_step: float | None = None, **kw) -> Result:
     """Inverse design with |r_c(l_a) - r_c(l_b)| >= D + min_gap at the contact pairs (active-set loop).
 
-    ``start``: a design to start from (default: design_nlp(problem, **kw)); returned unchanged
-    when it is already clear and no ``pairs`` are given. ``pairs``: extra (l_a, l_b)
+    ``start``: a design to start from (default: design_nlp(problem, **kw)); returned (a copy) when it is
+    already clear and no ``pairs`` are given. ``pairs``: extra (l_a, l_b)
     material-coordinate pairs (problem units) constrained from the first solve on (at least one).
     ``detect_margin`` (default D/4): pairs closer than D + min_gap + margin are constrained.
     ``exclude_arc`` (default pi (D + min_gap) / 2): nearer points along the tube are neighbours, never paired.
     The loop stops when the continuous minimum clearance (analysis.collision.routing_clearance)
     is >= D + min_gap - tol_gap D and no region needs new rows, or after ``rounds`` solves.
-    stats: clearance_rounds, clearance_pairs, min_clearance, start_rmse, start_min_clearance.
+    stats: clearance_rounds, clearance_pairs, min_clearance, start_rmse, start_min_clearance; iterations
+    and ipopt_time_s summed over the rounds.
     """
     D = problem.diameter
-    need = D + min_gap
-    margin = 0.25 * D if detect_margin is None else float(detect_margin)
-    step = 0.5 * D if pair_step is None else float(pair_step)
-    # neighbours: half a turn of the tightest circle that keeps them ``need`` apart (analysis.collision,
+    # neighbours: half a turn of the tightest circle that keeps them D + min_gap apart (analysis.collision,
     # "Neighbours", with D + min_gap for D): nearer points of any tube bent more gently are farther apart
-    # than need, and a row between them would ask for a chord longer than their arc
-    exclude_arc = 0.5 * math.pi * need if exclude_arc is None else float(exclude_arc)
-    t_all = time.perf_counter()
+    # than that, and a row between them would ask for a chord longer than their arc
+    exclude_arc = 0.5 * math.pi * (D + min_gap) if exclude_arc is None else float(exclude_arc)
+    stats = drive.Stats()
     start = start or design_nlp(problem, **kw)
-    routing = start.routing
-    pairing = pair_points(problem.target, problem.options.points_per_segment)
-    R0g = routing.initial_pose[:3, :3].copy()
-    params = nlp_parameters(problem, pairing, R0g)
-    active = [(float(a), float(b)) for a, b in (pairs or [])]
-    x, best, solves, row_margin = None, start, 0, 0.0
-    best_check, converged = None, True
-    ipopt_time, ipopt_iterations = 0.0, 0
-    check = first = routing_clearance(routing, D, exclude_arc=exclude_arc, margin=min_gap + margin)
-    while True:
-        short = need - check["clearance"]
-        if (short <= tol_gap * D and (solves or not active) and converged) or solves >= rounds:
-            break
-        if solves and _covered(check["regions"], active, need - tol_gap * D, step):
+    rule = _Pairs(problem, start, min_gap, 0.25 * D if detect_margin is None else float(detect_margin), exclude_arc,
+                  tol_gap * D, 0.5 * D if pair_step is None else float(pair_step), pairs)
+    first = rule.check
+    if first["clearance"] >= rule.need - rule.tol and not pairs:
+        best, check, solves = dataclasses.replace(start, metrics=dict(start.metrics), stats=dict(start.stats)), first, 0
+    else:
+        found = drive.refine(rule, rounds, stats=stats)
+        best, check, solves = stats.stamp(found.best), found.verdict.report, found.rounds
+    best.stats.update({
+        "clearance_rounds": solves, "clearance_met": bool(check["clearance"] >= rule.need - rule.tol), "clearance_pairs": len(rule.active),
+        "clearance_row_margin": rule.row_margin, "min_clearance": float(check["clearance"]), "min_gap": float(min_gap),
+        "start_rmse": float(start.metrics["rmse"]), "start_min_clearance": float(first["clearance"]),
+    })
+    return best
+
+
+class _Pairs:
+    """The clearance's active set, a rule of ``drive.refine``: the pairs of the contact regions (from the start
+    and every round), the rows' target raised for dips between rows that hold."""
+
+    def __init__(self, problem, start, min_gap, margin, exclude_arc, tol, step, pairs):
+        self.problem, self.start, self.D = problem, start, problem.diameter
+        self.need, self.tol, self.step, self.exclude_arc = self.D + min_gap, tol, step, exclude_arc
+        self.detect = min_gap + margin
+        self.pairing = pair_points(problem.target, problem.options.points_per_segment)
+        self.R0g = start.routing.initial_pose[:3, :3].copy()
+        self.params = nlp_parameters(problem, self.pairing, self.R0g)
+        self.active = [(float(a), float(b)) for a, b in (pairs or [])]
+        self.row_margin = 0.0
+        self.check = routing_clearance(start.routing, self.D, exclude_arc=exclude_arc, margin=self.detect)
+
+    def _add(self, check, routing):
+        """The pairs of every region of ``check``, and each region's minimum where it is short."""
+        model = _ModelLine(routing, self.D)
+        for r in check["regions"]:
+            _add_pairs(self.active, _region_pairs(r, check["line"], model, self.exclude_arc, self.step), self.step / 4)
+            if r["clearance"] < self.need - self.tol:
+                _add_pairs(self.active, [(r["l_i"], r["l_j"])], 1e-6 * self.D)
+        self.routing = routing
+
+    def solve(self, x, round, last):
+        problem, pairing, D = self.problem, self.pairing, self.D
+        if round == 0:
+            self._add(self.check, self.start.routing)
+        # rows at material points, located on the current segment lengths
+        ends = [(locate(a, self.routing.length), locate(b, self.routing.length)) for a, b in self.active]
+        solver = extended_solver(problem, pairing, (ClearancePairs(tuple((ea[0], eb[0]) for ea, eb in ends)),))
+        p = solver.pack_params(self.params | {"pair_u": np.array([[ea[1], eb[1]] for ea, eb in ends]).T,
+                                              "pair_need": ((self.need + self.row_margin) / D) ** 2})
+        x0 = start_x(solver, chain_guess(problem, self.start.routing), D, "chain") if x is None else x
+        x, status, st = solver.solve(x0, p, *solver.bounds(*design_bounds(problem, pairing)))
+        return x, result_of(problem, pairing, solver, x, status, st, self.R0g, "nlp_clearance")
+
+    def judge(self, res):
+        check = routing_clearance(res.routing, self.D, exclude_arc=self.exclude_arc, margin=self.detect)
+        met = check["clearance"] >= self.need - self.tol
+        return drive.Verdict(met and res.converged, drive.rank(res, met, self.need - check["clearance"]), check)
+
+    def refresh(self, res, verdict, x):
+        check = verdict.report
+        if _covered(check["regions"], self.active, self.need - self.tol, self.step):
             # what is left dips between constrained pairs: raise the rows' target past it (where a region
             # has no pair near its minimum, the tube moved into a new contact: its pairs are added below,
             # and raising every row for it pushed the tube ever farther, the loop running away)
-            row_margin += MARGIN_FACTOR * short
-        model = _ModelLine(routing, D)
-        for r in check["regions"]:
-            _add_pairs(active, _region_pairs(r, check["line"], model, exclude_arc, step), step / 4)
-            if r["clearance"] < need - tol_gap * D:
-                _add_pairs(active, [(r["l_i"], r["l_j"])], 1e-6 * D)
-        # rows at material points, located on the current segment lengths
-        ends = [(locate(a, routing.length), locate(b, routing.length)) for a, b in active]
-        solver = extended_solver(problem, pairing, (ClearancePairs(tuple((ea[0], eb[0]) for ea, eb in ends)),))
-        p = solver.pack_params(params | {"pair_u": np.array([[ea[1], eb[1]] for ea, eb in ends]).T,
-                                         "pair_need": ((need + row_margin) / D) ** 2})
-        lbx, ubx = solver.bounds(*design_bounds(problem, pairing))
-        x0 = start_x(solver, chain_guess(problem, start.routing), D, "chain") if x is None else x
-        x, status, st = solver.solve(x0, p, lbx, ubx)
-        ipopt_time += st["ipopt_time_s"]
-        ipopt_iterations += st["iterations"]
-        solves += 1
-        res = result_of(problem, pairing, solver, x, status, st, R0g, "nlp_clearance")
-        routing, converged = res.routing, res.converged
-        check = routing_clearance(routing, D, exclude_arc=exclude_arc, margin=min_gap + margin)
-        if solves == 1 or _rank(res, check, need - tol_gap * D) < _rank(best, best_check, need - tol_gap * D):
-            best, best_check = res, check
-    if best_check is not None:  # the stats of the design returned
-        check = best_check
-    best.stats.update({
-        "clearance_rounds": solves, "clearance_met": bool(check["clearance"] >= need - tol_gap * D), "clearance_pairs": len(active),
-        "clearance_row_margin": row_margin, "min_clearance": float(check["clearance"]), "min_gap": float(min_gap),
-        "start_rmse": float(start.metrics["rmse"]), "start_min_clearance": float(first["clearance"]),
-        "ipopt_time_s": ipopt_time, "ipopt_iterations": ipopt_iterations,
-    })
-    best.solve_time_s = time.perf_counter() - t_all
-    return best
+            self.row_margin += RAISE_FACTOR * (self.need - check["clearance"])
+        self._add(check, res.routing)
+        return x

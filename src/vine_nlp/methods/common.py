@@ -131,7 +131,7 @@ def geometric_guess(problem: DesignProblem, pairing: Pairing, flip_sign: float =
     # The loops below work on 3-vectors one at a time: in Python floats (IEEE doubles, one rounding per
     # operation, the order numpy uses: bit-identical to np.cross and to np.linalg.norm(v, axis=-1)), and
     # np.dot for dot products (its BLAS kernel may fuse multiply-adds: only np.dot itself gives its bits).
-    # The guess must not change in its last bit: IPOPT's path from it does (79 or 1217 iterations on
+    # The guess must not change in its last bit: IPOPT's path from it does (hundreds of iterations on
     # obstacle-mesh).
     psi = np.zeros(M + 1)
     for j in range(M - 1):

@@ -1,35 +1,18 @@
 """Compiled NLP functions: CasADi's C code generation, compiled once per structure and cached on disk.
 
-IPOPT calls five functions of the NLP per iteration (objective, constraints, their
-derivatives, the Lagrangian Hessian). Interpreted, they run CasADi's MX virtual machine
-over the mapped per-stage SX blocks; compiled, the same expressions run as C. The
-answers agree to rounding (tests compare the iterates). Fatrop (``fatrop_nlpsol``) runs on
-compiled functions only, shaped as its interface imports them.
+IPOPT calls five functions of the NLP per iteration; interpreted, they run CasADi's MX virtual machine over
+the mapped per-stage SX blocks, compiled the same expressions run as C (the answers agree to rounding).
+Fatrop (``fatrop_nlpsol``) runs on compiled functions only. A structure built from an active set
+(clearance pairs, obstacle rows) seldom recurs: it runs interpreted with each block type compiled on its own
+(``block_functions``, up to BLOCK_BUDGET instructions; a map of samples runs on its one-sample block).
 
-A structure built from an active set (clearance pairs, obstacle rows) seldom recurs: it is not
-compiled as a whole but runs interpreted with each block type's functions compiled on their own
-(``block_functions``, cached per block type, up to BLOCK_BUDGET instructions; a block that is a
-map of samples runs on its one-sample block), so every later active set of the same block types
-loads them.
-
-The shared library is keyed by everything that decides the generated code: the
-solver's Spec without the solver's settings (structure, terms, Hessian), the CasADi version, the
-compiler and its flags, and the source of the model and design layers (a changed
-formula never loads a stale library). It is written atomically into the cache
-directory, so concurrent processes (sweep workers) may compile the same structure
-at once and each loads a whole file.
-
-Settings (environment):
-
-- ``VINE_NLP_CODEGEN``: ``auto`` (default: compile where a C compiler is found, else
-  run interpreted and say so once), ``on`` (a missing or failing compiler is an
-  error), ``off`` (always interpreted).
-- ``VINE_NLP_CACHE_DIR``: where libraries are kept (default
-  ``$XDG_CACHE_HOME/vine_nlp`` or ``~/.cache/vine_nlp``).
-- ``CC``, ``VINE_NLP_CFLAGS``: the compiler (default gcc, then cc) and its flags
-  (default ``-O1``).
-
-Notes go to the ``vine_nlp`` logger: compiling (INFO, shown by the command line)
+A library is keyed by everything that decides the generated code: the Spec without the solver's settings,
+the CasADi version, the compiler and its flags, and the source of model/ and methods/ (a changed formula
+never loads a stale library); it is written atomically, so concurrent processes (sweep workers) may compile
+one structure at once. Environment: ``VINE_NLP_CODEGEN`` ``auto`` (default: compile where a C compiler is
+found, else interpreted, said once), ``on`` (a missing or failing compiler is an error), ``off``;
+``VINE_NLP_CACHE_DIR`` (default ``$XDG_CACHE_HOME/vine_nlp`` or ``~/.cache/vine_nlp``); ``CC``,
+``VINE_NLP_CFLAGS`` (default gcc, then cc; ``-O1``). Notes go to the ``vine_nlp`` logger: compiling (INFO)
 and falling back to interpreted functions (WARNING, once per process).
 """
 
@@ -102,7 +85,7 @@ def _code_fingerprint() -> str:
     """The source of the layers whose formulas end up in the generated code."""
     h = hashlib.sha256()
     root = Path(__file__).resolve().parents[1]
-    for sub in ("model", "design"):
+    for sub in ("model", "methods"):
         for f in sorted((root / sub).rglob("*.py")):
             h.update(str(f.relative_to(root)).encode())
             h.update(f.read_bytes())
@@ -204,11 +187,10 @@ def _compile(target: Path, build_functions, cc: list[str], strict: bool, what: s
         shutil.rmtree(work, ignore_errors=True)
 
 
-# a block type is compiled on its own only up to this many SX instructions (its functions and derivatives):
-# gcc -O1 takes about 0.15 ms an instruction (a 2 s compile for a pair of clearance rows, 4 s for a segment
-# of 10 points, 5 s for one sample against 6 mesh triangles); larger blocks (an obstacle segment's samples
-# against its primitives or triangles) would take tens of seconds, more than the solves they speed up: such a
-# block is a map of one sample's (transcription.Samples), and that sample's block is compiled instead
+# a block type is compiled on its own only up to this many SX instructions (its functions and derivatives): gcc
+# -O1's time grows with them, and a larger block (an obstacle segment's samples against its primitives or
+# triangles) would take longer than the solves it speeds up; such a block is a map of one sample's
+# (blocks.Samples), whose block is compiled instead ("Active sets on compiled blocks")
 BLOCK_BUDGET = 30_000
 
 

@@ -1,40 +1,29 @@
 """Corner-like targets: a windowed search after the first solve of the design NLP (issue 18).
 
-A target with corners (the paper's polyline (d)) has many local minima: each corner
-can be taken on several sides and swings, and no single descent crosses between
-them. ``corner_like`` recognizes such a target from the first solve; ``search`` then
-improves that design window by window, using the NLP's structure:
+A target with corners (the paper's polyline (d)) has many local minima: each corner can be taken on several
+sides and swings, and no single descent crosses between them. ``corner_like`` recognizes such a target from
+the first solve; ``search`` then improves that design window by window:
 
-* A *window* is W = WINDOW neighbouring segments a..b-1. Everything before it is
-  held (the frame at its start is a fixed number) and everything after it is held
-  *as a rigid body* attached to the window's end frame: its routing does not change,
-  so its points move with that frame. Their error is then a quadratic form in the
-  12 numbers of the end frame (rotation R, position p; |R q| = |q| for a rotation):
+* A *window* is W = settings.WINDOW neighbouring segments a..b-1. Everything before it is held (the frame at
+  its start is a fixed number), everything after it is held *as a rigid body* attached to the window's end
+  frame, so its points' error is a quadratic form in the 12 numbers of that frame (rotation R, position p):
 
       sum_i w_i |R q_i + p - t_i|^2 = c + W |p|^2 + 2 p.(R Q) - 2 <R, C> - 2 p.T,
 
-  with q_i the points in the end frame, Q = sum w_i q_i, C = sum w_i t_i q_i^T,
-  T = sum w_i t_i, W = sum w_i. The window NLP (a few variables, single shooting)
-  thus minimizes the *whole* design's point error over the window's theta, lambda
-  and lengths, at the cost of the window's own points.
-* Each window is solved from WINDOW_STARTS starts: the current values, the same
-  with theta mirrored, and random draws inside the bounds. The starts are tasks for
-  ``workers`` threads (CasADi releases the GIL inside IPOPT; each thread has its own
-  solver), read back in start order; the best by ``transcription.pick_best``'s rule
-  replaces the window if it lowers the error by WINDOW_GAIN. A round visits the
-  WINDOW_SHARE of the windows with the largest error (the corners), largest first.
-* A round that changed a window ends with one polish: the full NLP from the new
-  design (exact Hessian, frames on its chain). The search stops after MAX_ROUNDS, when a round
-  changes nothing or its polish does not improve, or when the time budget is spent
-  (no window or polish is started that the time measured so far says would not fit;
-  a round cut short is not polished and its changes are dropped).
+  q_i the points in the end frame, Q = sum w_i q_i, C = sum w_i t_i q_i^T, T = sum w_i t_i, W = sum w_i.
+  The window NLP (single shooting, a few variables) thus minimizes the *whole* design's point error over the
+  window's theta, lambda and lengths.
+* Each window is solved from WINDOW_STARTS starts (the current values, theta mirrored, random draws inside
+  the bounds), tasks for ``workers`` threads (CasADi releases the GIL inside IPOPT; each thread has its own
+  solver) read back in start order; the best (``drive.pick_best``) replaces the window if it lowers the error
+  by WINDOW_GAIN. A round visits the WINDOW_SHARE of the windows of largest error, largest first.
+* A round that changed a window ends with one polish: the full NLP from the new design (exact Hessian,
+  frames on its chain). The search stops after SEARCH_ROUNDS, when a round changes nothing or its polish does
+  not improve, or when the budget is spent (a round cut short is not polished; its changes are dropped).
 
-On the polyline (d) one round takes the first solve's 10.06 mm RMSE to about 9 mm (the
-greedy: 9.10 mm; results/BENCHMARKS.md, "compare"); the corner shapes found depend on the seed.
-
-Deterministic for a given ``options.seed``: the work of a window does not depend on
-which thread ran it, and the budget is only a safety stop (stats ``search_budget_hit``
-says when it cut the search, the one case where the result depends on timing).
+Deterministic for a given ``options.seed``: a window's work does not depend on which thread ran it, and the
+budget is only a safety stop (stats ``search_budget_hit`` says when it cut the search). The constants are
+methods.settings'; what a round gains on the polyline (d) is in results/BENCHMARKS.md ("compare").
 """
 
 from __future__ import annotations
@@ -49,52 +38,36 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
-from vine_nlp.methods import blas
+from vine_nlp.methods import blas, drive
 from vine_nlp.methods.common import LENGTH_FACTOR
-from vine_nlp.methods.transcription import frames12, ipopt_quiet, ipopt_status, pick_best
+from vine_nlp.methods.settings import (
+    CORNER_RMSE,
+    CORNER_WINDOW,
+    DEFAULT_BUDGET,
+    MIN_WINDOWS,
+    SEARCH_ROUNDS,
+    WINDOW,
+    WINDOW_GAIN,
+    WINDOW_MAX_ITER,
+    WINDOW_SHARE,
+    WINDOW_STARTS,
+    WINDOW_TOL,
+    quiet,
+)
+from vine_nlp.methods.structure import frames12
+from vine_nlp.methods.transcription import ipopt_status
 from vine_nlp.model.chain import chain_frames, chain_points
 from vine_nlp.model.pairing import Pairing
 from vine_nlp.model.routing import Routing
 from vine_nlp.model.segment import segment_function
 from vine_nlp.problem import DesignProblem, Result
 
-__all__ = ["corner_like", "search", "DEFAULT_BUDGET", "CORNER_RMSE", "clear_caches"]
-
-# A first solve is corner-like when Gauss-Newton did not converge on it AND its RMSE exceeds this
-# fraction of the tube diameter. Measured 2026-12-01 on the bundled paper cases: the smooth ones end at
-# <= 0.001 D (bezier-a also needs the exact Hessian, at 0.0006 D), the polyline (d) at 0.41 D.
-CORNER_RMSE = 0.05
-DEFAULT_BUDGET = 20.0  # s; a safety stop, the polyline (d)'s search ends by itself well within it
-WINDOW = 3  # segments per window: a corner spans about three at n = 10 points per segment
-WINDOW_STARTS = 4
-WINDOW_MAX_ITER = 50  # a window has <= 3 W variables: a start that needs more is a bad start
-WINDOW_TOL = 1e-6  # the polish that ends the round converges the design fully
-# the share of the windows (those of largest error) a round visits
-WINDOW_SHARE = 0.5
-MIN_WINDOWS = 3  # ... but at least this many (short designs)
-# rounds by default: one; on the polyline (d) a second took seed 0 from 9.02 to 8.995 mm for about 1.6x the CPU time
-MAX_ROUNDS = 1
-# a window's new values must lower the design's error by this much (relative) to be taken
-WINDOW_GAIN = 1e-4
-
+__all__ = ["corner_like", "search", "clear_caches"]
 
 def corner_like(problem: DesignProblem, result: Result) -> bool:
-    """Whether the first solve ``result`` of ``problem`` shows a corner-like target.
-
-    Parameters
-    ----------
-    problem : DesignProblem
-        The problem solved.
-    result : Result
-        Its first NLP solve (``design.nlp.solve_from``).
-
-    Returns
-    -------
-    bool
-        True when Gauss-Newton did not converge on it (``stats["hessian"]`` is not
-        "gauss-newton") and its RMSE is above CORNER_RMSE tube diameters: large residuals
-        the smooth paper cases never show.
-    """
+    """Whether the first solve ``result`` of ``problem`` shows a corner-like target: Gauss-Newton did not
+    converge on it (``stats["hessian"]``) and its RMSE is above settings.CORNER_RMSE tube diameters, large
+    residuals the smooth paper cases never show."""
     gauss_newton = str(result.stats.get("hessian", "")) == "gauss-newton" and result.status == "optimal"
     return (not gauss_newton) and float(result.metrics["rmse"]) > CORNER_RMSE * problem.diameter
 
@@ -136,7 +109,7 @@ def _window_objective(W: int, n1: int, shared: bool) -> ca.Function:
 def _window_solver(W: int, n1: int, shared: bool, slot: int) -> ca.Function:
     """One IPOPT solver of the window NLP per thread slot: a CasADi solver keeps its workspace in
     itself, so two threads never share one."""
-    opts = ipopt_quiet(WINDOW_MAX_ITER, WINDOW_TOL) | {"ipopt.acceptable_tol": 1e-5, "ipopt.mu_strategy": "adaptive"}
+    opts = quiet(WINDOW_MAX_ITER, WINDOW_TOL) | CORNER_WINDOW
     blas.one_thread()
     return ca.nlpsol(f"vine_window{slot}", "ipopt", _window_nlp(W, n1, shared), opts)
 
@@ -253,124 +226,121 @@ def search(
     workers: int = 2,
     progress: Callable[[int, int], None] | None = None,
     note: Callable[[str], None] | None = None,
-    rounds: int = MAX_ROUNDS,
+    rounds: int = SEARCH_ROUNDS,
 ) -> Result:
     """Improve the design ``result`` of a corner-like target window by window (module docstring).
 
-    Parameters
-    ----------
-    problem : DesignProblem
-        The problem; ``options.seed`` seeds the random starts.
-    result : Result
-        The first solve's design.
-    pairing : Pairing
-        The problem's pairing.
-    polish : callable
-        ``polish(routing) -> Result``: the full NLP from a design (ends every round).
-    budget : float
-        Seconds the search may take, counted from the call; no window or polish is started that
-        the time measured so far says would not fit.
-    workers : int
-        Threads that share the starts of a window.
-    progress : callable, optional
-        ``progress(done, total)`` after every window and polish.
-    note : callable, optional
-        ``note(line)``: one line of text per round, also one that changed nothing (the command line
-        prints it on stderr).
-    rounds : int
-        Rounds at most (every round: the windows of largest error, then one polish).
-
-    Returns
-    -------
-    Result
-        The best design found (``result`` itself if nothing was better), with stats ``search_rounds``,
-        ``search_windows``, ``search_accepted``, ``search_objectives`` (after each polish),
-        ``search_time_s``, ``search_budget_hit``, ``search_workers``, ``search_window_iterations``;
-        its iterations are the first solve's and the polishes', its solve time includes the search.
+    ``polish(routing) -> Result``: the full NLP from a design (ends every round); ``budget``: seconds from
+    the call, no window or polish started that the time measured so far says would not fit; ``workers``:
+    threads sharing a window's starts; ``progress(done, total)`` after every window and polish;
+    ``note(line)``: one line per round (the command line prints it on stderr); ``rounds``: at most.
+    Returns the best design found (``result`` itself if nothing was better), with stats search_rounds,
+    search_windows, search_accepted, search_objectives (after each polish), search_time_s,
+    search_budget_hit, search_workers, search_window_iterations; its iterations are the first solve's and
+    the polishes', its solve time includes the search.
     """
-    t0 = time.perf_counter()
-    deadline = t0 + max(0.0, budget)
-    D, M = problem.diameter, pairing.segments
-    W = min(WINDOW, M)
-    rng = np.random.default_rng([problem.options.seed, 2])  # a stream apart from the starts' and hops'
-    best, routing = result, result.routing
-    objectives, windows_done, accepted, rounds_done, hit = [], 0, 0, 0, False
-    iterations = result.iterations
-    per_round = max(min(MIN_WINDOWS, M - W + 1), int(np.ceil(WINDOW_SHARE * (M - W + 1)))) + 1  # windows + the polish
-    total = max(1, rounds) * per_round
-    stop = threading.Event()
-    workers = max(1, workers)
-    pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="vine-nlp-window")
-    slots = queue.SimpleQueue()  # one window solver per thread: a CasADi solver keeps its workspace in itself
-    for k in range(workers):
-        slots.put(k)
-    window_time, polish_time, window_iterations = 0.0, 0.0, 0
+    run = _Search(problem, result, pairing, budget, workers, progress, rounds)
     try:
         for rnd in range(max(1, rounds)):
-            err = error_per_segment(problem, pairing, best)
-            window_err = np.convolve(err, np.ones(W), "valid")
-            order = np.argsort(-window_err, kind="stable")  # the corners first
-            order = order[: max(min(MIN_WINDOWS, order.size), int(np.ceil(WINDOW_SHARE * order.size)))]
-            changed = 0
-            for i, a in enumerate(order):
-                now = time.perf_counter()
-                if now >= deadline or (windows_done and now + window_time / windows_done > deadline):
-                    hit = True
-                    break
-                tw = time.perf_counter()
-                win = _Window(problem, pairing, routing, int(a), W)
-                f_cur = win.objective(win.x)
-                starts = win.starts(rng, WINDOW_STARTS)
-                # one task per start, in start order; results are read back in that order: the choice
-                # does not depend on which thread finished first
-                solved = [f.result() for f in [pool.submit(_solve_start, win, x0, slots, stop) for x0 in starts]]
-                k = pick_best(solved, objective=lambda r: r[0], converged=lambda r: r[2])
-                f_new, x_new, ok, _ = solved[k]
-                window_iterations += sum(r[3] for r in solved if r is not None)
-                if ok and f_new < f_cur * (1 - WINDOW_GAIN):
-                    routing = win.apply(routing, x_new, D)
-                    changed += 1
-                windows_done += 1
-                window_time += time.perf_counter() - tw
-                if progress:
-                    progress(rnd * per_round + i + 1, total)
-            rounds_done += 1
-            if not changed or hit:  # a round the budget cut short is not polished: its design stays as it was
+            changed = run.windows(rnd)
+            run.rounds += 1
+            if not changed or run.hit:  # a round the budget cut short is not polished: its design stays as it was
                 if note:
-                    note(f"corner search round {rnd + 1}: " + ("stopped by the budget" if hit else "no window changed")
-                         + f", objective {best.stats['objective']:.6g} ({time.perf_counter() - t0:.1f} s)")
+                    note(f"corner search round {rnd + 1}: " + ("stopped by the budget" if run.hit else "no window changed")
+                         + f", objective {run.best.stats['objective']:.6g} ({time.perf_counter() - run.t0:.1f} s)")
                 break
-            if polish_time and time.perf_counter() + polish_time > deadline:
-                hit = True
+            if run.polish_time and time.perf_counter() + run.polish_time > run.deadline:
+                run.hit = True
                 break
             tp = time.perf_counter()
-            polished = polish(routing)
-            polish_time = max(polish_time, time.perf_counter() - tp)
-            iterations += polished.iterations
-            objectives.append(polished.stats["objective"])
-            accepted += changed
-            if progress:
-                progress((rnd + 1) * per_round, total)
+            polished = polish(run.routing)
+            run.polish_time = max(run.polish_time, time.perf_counter() - tp)
+            run.iterations += polished.iterations
+            run.objectives.append(polished.stats["objective"])
+            run.accepted += changed
+            run.report((rnd + 1) * run.per_round)
             if note:
-                note(f"corner search round {rnd + 1}: {changed} windows changed, objective {best.stats['objective']:.6g} -> "
-                     f"{polished.stats['objective']:.6g} ({time.perf_counter() - t0:.1f} s)")
-            if pick_best([best, polished]) == 0:  # not better (ties keep the earlier design)
+                note(f"corner search round {rnd + 1}: {changed} windows changed, objective {run.best.stats['objective']:.6g} -> "
+                     f"{polished.stats['objective']:.6g} ({time.perf_counter() - run.t0:.1f} s)")
+            if drive.pick_best([run.best, polished]) == 0:  # not better (ties keep the earlier design)
                 break
-            best, routing = polished, polished.routing
-            if hit or time.perf_counter() > deadline:
-                hit = True
+            run.best, run.routing = polished, polished.routing
+            if time.perf_counter() > run.deadline:
+                run.hit = True
                 break
     except BaseException:
-        stop.set()  # Ctrl-C or an error: no further window solve starts
+        run.stop.set()  # Ctrl-C or an error: no further window solve starts
         raise
     finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-    if progress:
-        progress(total, total)
-    elapsed = time.perf_counter() - t0
-    best.stats |= {"search_rounds": rounds_done, "search_windows": windows_done, "search_accepted": accepted,
-                   "search_objectives": objectives, "search_time_s": elapsed, "search_budget_hit": hit,
-                   "search_workers": workers, "search_window_iterations": window_iterations}
-    best.iterations = iterations
-    best.solve_time_s = result.solve_time_s + elapsed
-    return best
+        run.pool.shutdown(wait=True, cancel_futures=True)
+    return run.finish(result)
+
+
+class _Search:
+    """The corner search's state: the best design and its routing, the budget, the window threads and
+    solver slots, and what the stats report."""
+
+    def __init__(self, problem, result, pairing, budget, workers, progress, rounds):
+        self.problem, self.pairing, self.progress, self.rounds_asked = problem, pairing, progress, rounds
+        self.t0 = time.perf_counter()
+        self.deadline = self.t0 + max(0.0, budget)
+        M = pairing.segments
+        self.W = min(WINDOW, M)
+        self.rng = np.random.default_rng([problem.options.seed, 2])  # a stream apart from the starts' and hops'
+        self.best, self.routing = result, result.routing
+        self.objectives, self.windows_done, self.accepted, self.rounds, self.hit = [], 0, 0, 0, False
+        self.iterations, self.window_time, self.polish_time, self.window_iterations = result.iterations, 0.0, 0.0, 0
+        n = M - self.W + 1
+        self.per_round = max(min(MIN_WINDOWS, n), int(np.ceil(WINDOW_SHARE * n))) + 1  # windows + the polish
+        self.workers = max(1, workers)
+        self.stop = threading.Event()
+        self.pool = ThreadPoolExecutor(max_workers=self.workers, thread_name_prefix="vine-nlp-window")
+        self.slots = queue.SimpleQueue()  # one window solver per thread: a CasADi solver keeps its workspace in itself
+        for k in range(self.workers):
+            self.slots.put(k)
+
+    def report(self, done: int) -> None:
+        if self.progress:
+            self.progress(done, self.per_round * max(1, self.rounds_asked))
+
+    def windows(self, rnd: int) -> int:
+        """One round's windows, those of largest error first; returns how many changed the routing."""
+        problem, W = self.problem, self.W
+        err = error_per_segment(problem, self.pairing, self.best)
+        order = np.argsort(-np.convolve(err, np.ones(W), "valid"), kind="stable")  # the corners first
+        order = order[: max(min(MIN_WINDOWS, order.size), int(np.ceil(WINDOW_SHARE * order.size)))]
+        changed = 0
+        for i, a in enumerate(order):
+            now = time.perf_counter()
+            if now >= self.deadline or (self.windows_done and now + self.window_time / self.windows_done > self.deadline):
+                self.hit = True
+                break
+            tw = time.perf_counter()
+            win = _Window(problem, self.pairing, self.routing, int(a), W)
+            f_cur = win.objective(win.x)
+            # one task per start, in start order; results are read back in that order: the choice does not
+            # depend on which thread finished first
+            tasks = [self.pool.submit(_solve_start, win, x0, self.slots, self.stop) for x0 in win.starts(self.rng, WINDOW_STARTS)]
+            solved = [f.result() for f in tasks]
+            f_new, x_new, ok, _ = solved[drive.pick_best(solved, key=lambda r: (not r[2], r[0]))]
+            self.window_iterations += sum(r[3] for r in solved if r is not None)
+            if ok and f_new < f_cur * (1 - WINDOW_GAIN):
+                self.routing = win.apply(self.routing, x_new, problem.diameter)
+                changed += 1
+            self.windows_done += 1
+            self.window_time += time.perf_counter() - tw
+            self.report(rnd * self.per_round + i + 1)
+        return changed
+
+    def finish(self, result: Result) -> Result:
+        total = self.per_round * max(1, self.rounds_asked)
+        if self.progress:
+            self.progress(total, total)
+        elapsed = time.perf_counter() - self.t0
+        best = self.best
+        best.stats |= {"search_rounds": self.rounds, "search_windows": self.windows_done, "search_accepted": self.accepted,
+                       "search_objectives": self.objectives, "search_time_s": elapsed, "search_budget_hit": self.hit,
+                       "search_workers": self.workers, "search_window_iterations": self.window_iterations}
+        best.iterations = self.iterations
+        best.solve_time_s = result.solve_time_s + elapsed
+        return best

@@ -36,45 +36,40 @@ class Stats:
     solver_time_s: float = 0.0
     started: float = field(default_factory=time.perf_counter)
 
-    def add(self, st: dict) -> dict:
-        """Count one solver call's stats (``Solver.solve``'s third return value); returns them."""
-        self.solves += 1
-        self.iterations += int(st.get("iterations", 0))
-        self.solver_time_s += float(st.get("ipopt_time_s", st.get("solve_time_s", 0.0)))
-        return st
-
     def absorb(self, result: Result) -> Result:
-        """Count a whole sub-method's result (its solves, iterations and solver time)."""
+        """Count a solve's or a whole sub-method's result (its solves, iterations and solver time)."""
         self.solves += int(result.stats.get("solves", 1))
         self.iterations += int(result.iterations)
         self.solver_time_s += float(result.stats.get("ipopt_time_s", result.solve_time_s))
         return result
 
     def stamp(self, result: Result) -> Result:
-        """The totals onto ``result``: iterations, solve_time_s (wall), stats solves and ipopt_time_s."""
+        """The totals onto ``result``: iterations, solve_time_s (wall), stats solves, ipopt_iterations and
+        ipopt_time_s (the solvers' own time)."""
         result.iterations = self.iterations
         result.solve_time_s = time.perf_counter() - self.started
-        result.stats.update(solves=self.solves, ipopt_time_s=self.solver_time_s)
+        result.stats.update(solves=self.solves, ipopt_iterations=self.iterations, ipopt_time_s=self.solver_time_s)
         return result
 
 
 # ---------------------------------------------------------------- ranking and multi-start
 
 
-def rank(result: Result) -> tuple:
-    """The one ranking of candidate designs: converged and clear of every hard requirement first, then
-    converged, then the rest; within a tier the lower objective."""
-    tier = 0 if result.converged and result.stats.get("clear", True) else 1 if result.converged else 2
-    return tier, float(result.stats.get("objective", float("inf")))
+def rank(result: Result, clear: bool = True, miss: float | None = None) -> tuple:
+    """The one ranking of candidate designs, (not converged, not clear, value): converged first, then clear
+    of every hard requirement (``clear``, as the formulation judges it); within a tier the lower value: the
+    objective of a clear design, else ``miss`` (how far it is from its requirements; default the objective)."""
+    value = result.stats.get("objective", float("inf")) if clear or miss is None else miss
+    return not result.converged, not clear, float(value)
 
 
 def pick_best(candidates, key: Callable = rank) -> int:
-    """Index of the best candidate by ``key`` (tier, objective): the best tier, then the FIRST whose objective
-    is within TIE_RTOL of the tier's lowest, so the choice does not depend on timing or worker order."""
-    keys = [key(c) for c in candidates]
-    tier = min(k[0] for k in keys)
-    low = min(k[1] for k in keys if k[0] == tier)
-    return next(i for i, k in enumerate(keys) if k[0] == tier and k[1] <= low + TIE_RTOL * abs(low) + 1e-15)
+    """Index of the best candidate by ``key`` (tiers, then a value last): the best tiers, then the FIRST whose
+    value is within TIE_RTOL of their lowest, so the choice does not depend on timing or worker order."""
+    keys = [tuple(key(c)) for c in candidates]
+    tier = min(k[:-1] for k in keys)
+    low = min(k[-1] for k in keys if k[:-1] == tier)
+    return next(i for i, k in enumerate(keys) if k[:-1] == tier and k[-1] <= low + TIE_RTOL * abs(low) + 1e-15)
 
 
 @dataclass
@@ -115,13 +110,13 @@ def multistart(solve: Callable, starts, *, key: Callable = rank, accept: Callabl
     return Starts(results[k], k, results)
 
 
-def record_starts(found: Starts, stats: Stats) -> Result:
-    """The multi-start's figures on its winner (stats starts, start_objectives, start_iterations, best_start)
-    and every start's solves counted in ``stats``."""
+def record_starts(found: Starts, stats: Stats, always: bool = False) -> Result:
+    """Every start's solves counted in ``stats``; the multi-start's figures on its winner (stats starts,
+    best_start, start_objectives, start_iterations) where there were several starts (``always``: also one)."""
     best = found.best
     for r in found.results:
         stats.absorb(r)
-    if len(found.results) > 1:
+    if always or len(found.results) > 1:
         best.stats.update(starts=len(found.results), best_start=found.index,
                           start_objectives=[r.stats.get("objective") for r in found.results],
                           start_iterations=[r.iterations for r in found.results])
@@ -150,11 +145,12 @@ def schedule(solve: Callable, steps) -> Result:
 
 @dataclass
 class Verdict:
-    """How one round did: ``done`` ends the loop; ``key`` ranks the rounds (lower is better, as
-    :func:`rank`'s); ``report``: what the rule measured (kept with the best round)."""
+    """How one round did: ``done`` ends the loop; ``key`` ranks the rounds (as :func:`rank`'s: the best round
+    is kept), or None: the round supersedes every earlier one (an estimate refined round by round);
+    ``report``: what the rule measured (kept with the best round)."""
 
     done: bool
-    key: tuple
+    key: tuple | None
     report: object = None
 
 
@@ -182,19 +178,17 @@ class Refined:
 
 def refine(rule: Rule, max_rounds: int, x=None, stats: Stats | None = None) -> Refined:
     """The active-set protocol: solve, judge, keep the best round (by the verdicts' keys, the earlier on a
-    tie), stop when a round is done or after ``max_rounds``; else refresh and solve again. Every round's
-    solves count in ``stats``."""
+    tie; with no key the latest), stop when a round is done or after ``max_rounds`` (>= 1); else refresh and
+    solve again. Every round's solves count in ``stats``."""
     stats = stats if stats is not None else Stats()
     best = verdict_best = None
-    k = 0
-    while k < max_rounds:
+    for k in range(max_rounds):
         x, res = rule.solve(x, k, k == max_rounds - 1)
         stats.absorb(res)
-        k += 1
         verdict = rule.judge(res)
-        if best is None or pick_best([verdict_best, verdict], key=lambda v: v.key) == 1:
+        if best is None or verdict.key is None or pick_best([verdict_best, verdict], key=lambda v: v.key) == 1:
             best, verdict_best = res, verdict
-        if verdict.done:
+        if verdict.done or k == max_rounds - 1:
             break
         x = rule.refresh(res, verdict, x)
-    return Refined(best, verdict_best, k)
+    return Refined(best, verdict_best, k + 1)

@@ -1,58 +1,29 @@
 """The paper's greedy look-ahead design (Algorithm 1), as a faithful baseline for the NLP.
 
-Algorithm (Blumenschein et al., IEEE T-RO 2021, Sec. VI-B):
+Algorithm (Blumenschein et al., IEEE T-RO 2021, Sec. VI-B): window 1 fits the initial pose (a rotation
+vector relative to the geometric guess's rotation, plus a position) and segments 1..k together; each later
+window of k segments starting at j is refit with everything before it fixed (its start frame a numeric
+parameter), the windows shrinking near the tip (M windows in all). After window j, segment j is fixed; the
+window's other values start the next window, and the segment entering it starts from its fitted
+neighbour's theta and lambda, its length scaled to its own chord. First-window values as in the paper:
+lambda 0.75, theta 0, dl the segment's target chord.
 
-* Window 1 fits the initial pose T^0_w (a rotation vector relative to the
-  geometric guess's rotation, via ``so3_exp``, plus a position) and segments
-  1..k together.
-* For each following segment j, a window of k segments starting at j is refit
-  with everything before it held fixed: the frame at segment j's start is a
-  fixed numeric parameter, computed from the already fixed segments. Near the
-  tip the windows shrink (segments j..M), so there are M windows in all.
-* After window j, segment j is fixed at its fitted values; the window's other
-  values become the initial values of the next window (paper: "subsequent
-  segments use the best fits from the look ahead"). The one segment that enters
-  a window for the first time starts from its fitted neighbour's theta and
-  lambda, with its length scaled to its own target chord.
-* First-window initial values as in the paper: lambda 0.75, theta 0,
-  dl = target chord of the segment; initial pose from ``geometric_guess``.
+Shared with the NLP so that a comparison is about the algorithm: the pairing (``common.pair_points``), the
+bounds (``common.variable_bounds``), the segment model and the error: the window error is the sum of
+SQUARED distances of the paired points from the window's start to its end (``common.path_error``, what the
+NLP minimizes; the paper's sum of distances is not differentiable at a perfect fit and is used only for the
+sPAM abandonment test, where its threshold is defined).
 
-Shared with the NLP (``design.nlp``) so that a comparison is about the algorithm:
-the point pairing (``common.pair_points``: target point k pairs with segment
-seg[k] at fraction frac[k], the tip with the end of the last segment), the
-bounds (``common.variable_bounds``), the segment model (``segment_parts`` on
-CasADi SX) and the error. The window error is the sum of SQUARED distances of
-all paired target points from the window's first segment start to its last
-segment end (inclusive): it replaces the paper's sum of distances, which is not
-differentiable at a perfect fit, and it is what the NLP minimizes
-(``common.path_error``). The paper's sum of distances is used only for the sPAM
-abandonment test, where its threshold is defined.
+Each window is a small single-shooting NLP (:class:`WindowSolver`, D = 1), built once per window size and
+variant and reused. Multi-start (for MATLAB's GlobalSearch with 2000 / 300 trial points): start 0 is the
+carried-over values, the others draw theta and lambda uniformly in a box of half-width SPREAD x (bound
+range) around them (``options.greedy_starts``, FIRST_WINDOW_FACTOR times more for the first window); the
+best is kept.
 
-Window solver: each window is a small single-shooting NLP (k segments x n
-slots, SX), built ONCE per window size (and per first-window / later-window and
-per-segment / shared lambda) as ``nlpsol("ipopt")`` with the target slots,
-fractions, weights and start frame as parameters, then reused for every window.
-Lengths are scaled by D inside, so the tolerances mean the same for every tube.
-
-Multi-start (stands in for MATLAB's GlobalSearch with 2000 / 300 trial points):
-each window is solved from ``options.greedy_starts`` starts (the first window
-from ``4 * greedy_starts``): start 0 is the carried-over initial values, the
-others draw theta and lambda uniformly inside the bounds, in a box of half-width
-``SPREAD`` x (bound range) around the carried-over values, from
-``numpy.random.default_rng(options.seed)``. The best start is kept.
-
-Cost: greedy_starts * (M + 3) small IPOPT solves for M segments (starts x windows). The
-sPAM variant multiplies this by the number of lambda candidates that are not abandoned
-early (11 + up to 4 refinement values).
-
-sPAM (one shared lambda): lambda is not a window variable. An outer loop runs
-the greedy for each candidate in linspace(lambda_min, 1, 11), then for 5 values
-within +-half a step of the best; a candidate is abandoned as soon as a window's
-sum of distances reaches n k D / 2 (the paper's early stop: on average the
-radius at each of the n k points). The best completed design is kept.
-
-``lowpass`` is the paper's optional low-pass filter of theta(s) and lambda(s)
-after the fit (zero-phase Butterworth), re-evaluated so its cost in RMSE shows.
+sPAM (one shared lambda): an outer loop runs the greedy for each of SPAM_CANDIDATES values in
+[lambda_min, 1], then SPAM_REFINE values within half a step of the best; a candidate is abandoned as soon as
+a window's sum of distances reaches n k D / 2 (the paper's early stop). ``lowpass`` is the paper's optional
+low-pass filter of theta(s) and lambda(s) (zero-phase Butterworth), re-evaluated so its cost shows.
 """
 
 from __future__ import annotations
@@ -75,12 +46,13 @@ from vine_nlp.methods.common import (
     path_error,
     variable_bounds,
 )
-from vine_nlp.methods.transcription import ipopt_quiet, ipopt_status
+from vine_nlp.methods.settings import GREEDY_WINDOW, quiet
+from vine_nlp.methods.transcription import ipopt_status
 from vine_nlp.model.chain import chain_points
 from vine_nlp.model.segment import segment_parts, segment_transform, so3_exp
 from vine_nlp.problem import DesignProblem, Result, Routing
 
-__all__ = ["design_greedy", "lowpass", "window_error", "WindowSolver", "get_window_solver"]
+__all__ = ["design_greedy", "lowpass", "WindowSolver", "get_window_solver"]
 
 LAMBDA_START = 0.75  # paper: lambda_{1:k,0} = 0.75
 SPREAD = 0.5  # random starts: half-width of the box around the carried-over values, x bound range
@@ -143,7 +115,7 @@ class WindowSolver:
         pvec = ca.vertcat(*[ca.vec(q) for q in params])
         # the n slots of a segment repeat its helix rates: merging them speeds up the build
         sq, dist = ca.vertsplit(ca.cse(ca.vertcat(sq, dist)))
-        opts = ipopt_quiet(max_iter, tol) | {"ipopt.acceptable_tol": 1e-6}
+        opts = quiet(max_iter, tol) | GREEDY_WINDOW
         blas.one_thread()
         self.solver = ca.nlpsol(f"greedy_window_{K}", "ipopt", {"x": x, "p": pvec, "f": sq}, opts)
         self.terms = ca.Function("window_terms", [x, pvec], [sq, dist])
@@ -219,26 +191,6 @@ def _window_solver_for(problem, n, K, first):
                              min(int(o.max_iter), WINDOW_MAX_ITER), float(o.tol))
 
 
-def window_error(problem: DesignProblem, routing: Routing, j: int, K: int, pairing: Pairing | None = None):
-    """(sum of squared distances, sum of distances) of ``routing`` on the window j..j+K-1,
-    evaluated with the window NLP's own CasADi expression (unscaled, in problem units).
-
-    The first number is what the window solves minimize; it equals
-    ``common.path_error`` of the paired points bounds[j] .. bounds[j+K].
-    """
-    pairing = pairing or pair_points(problem.target, problem.options.points_per_segment)
-    D = problem.diameter
-    solver = _window_solver_for(problem, pairing.n, K, j == 0)
-    T = _frame_at(routing, D, j)
-    tgt, w, u, end = _window_data(problem, pairing, j, K)
-    lam_fixed = float(routing.lam[0]) if problem.actuator.shared_lambda else 0.0
-    p = solver.pack_params(T[:3, :3], T[:3, 3] / D, tgt, w, u, end, lam_fixed)
-    sl = slice(j, j + K)
-    x = solver.pack_x(routing.theta[sl], routing.lam[sl], routing.length[sl] / D)
-    sq, dist = solver.terms(x, p)
-    return float(sq) * D**2, float(dist) * D
-
-
 def _frame_at(routing: Routing, D: float, j: int):
     """Frame T^j_w at the start of segment j of the routing (numpy)."""
     T = np.asarray(routing.initial_pose, float)
@@ -281,8 +233,7 @@ def _greedy_pass(problem: DesignProblem, pairing: Pairing, counter: _Counter, la
 
     starts_first = FIRST_WINDOW_FACTOR * max(1, int(o.greedy_starts))
     starts_later = max(1, int(o.greedy_starts))
-    solves = iterations = 0
-    statuses: dict = {}
+    tally = {"solves": 0, "iterations": 0, "statuses": {}}
     window_status, window_sq, window_dist = [], [], []
     abandoned = False
     for j in range(M):
@@ -294,31 +245,7 @@ def _greedy_pass(problem: DesignProblem, pairing: Pairing, counter: _Counter, la
         p = solver.pack_params(T[:3, :3], T[:3, 3] / D, tgt, w, u, end, lam_fixed if shared else 0.0)
         lbx, ubx = solver.bounds((tl[sl], ll[sl], dlo[sl] / D), (tu[sl], lu[sl], dhi[sl] / D))
         x_carry = np.clip(solver.pack_x(theta[sl], lam[sl], dl[sl] / D), lbx, ubx)
-        best = None
-        for s in range(starts_first if first else starts_later):
-            x0 = x_carry.copy()
-            if s > 0:
-                # theta and lambda uniformly in a box around the carried-over values, inside the bounds
-                for r in ([0] if shared else [0, 1]):
-                    idx = solver.npose + r + solver.per_seg * np.arange(K)
-                    half = SPREAD * (ubx[idx] - lbx[idx])
-                    x0[idx] = rng.uniform(np.maximum(lbx[idx], x_carry[idx] - half), np.minimum(ubx[idx], x_carry[idx] + half))
-            sol = solver.solver(x0=x0, p=p, lbx=lbx, ubx=ubx)
-            st = solver.solver.stats()
-            status = ipopt_status(st)
-            solves += 1
-            iterations += int(st.get("iter_count", 0))
-            rs = st.get("return_status", "failed")
-            statuses[rs] = statuses.get(rs, 0) + 1
-            f = float(sol["f"])
-            x = np.clip(np.array(sol["x"]).ravel(), lbx, ubx)  # IPOPT may relax bounds by ~1e-8
-            if not (np.isfinite(f) and np.all(np.isfinite(x))):
-                continue
-            if best is None or f < best[0]:
-                best = (f, x, status)
-        if best is None:  # every start failed numerically: keep the carried-over values
-            f_c, _ = solver.terms(x_carry, p)
-            best = (float(f_c), x_carry, "invalid_number")
+        best = _window_starts(solver, p, lbx, ubx, x_carry, starts_first if first else starts_later, shared, K, rng, tally)
         f, x, status = best
         window_status.append(status)
         pose, th_w, lam_w, dl_w = solver.unpack_x(x)
@@ -347,9 +274,37 @@ def _greedy_pass(problem: DesignProblem, pairing: Pairing, counter: _Counter, la
             abandoned = True
             counter.step(M - 1 - j)
             break
-    return {"routing": Routing(theta, lam, dl, T0), "solves": solves, "iterations": iterations, "statuses": statuses,
-            "window_status": window_status, "window_sq": window_sq, "window_dist": window_dist, "abandoned": abandoned,
+    return tally | {"routing": Routing(theta, lam, dl, T0), "window_status": window_status, "window_sq": window_sq, "window_dist": window_dist, "abandoned": abandoned,
             "windows_done": len(window_status), "starts": (starts_first, starts_later)}
+
+
+def _window_starts(solver, p, lbx, ubx, x_carry, starts: int, shared: bool, K: int, rng, tally: dict) -> tuple:
+    """One window from ``starts`` starts: the carried-over values, then theta and lambda uniformly in a box
+    around them inside the bounds; (objective, x, status) of the lowest (the carried-over values where every
+    start failed numerically). ``tally``: solves, iterations and IPOPT's statuses, counted."""
+    best = None
+    for s in range(starts):
+        x0 = x_carry.copy()
+        if s > 0:
+            for r in ([0] if shared else [0, 1]):
+                idx = solver.npose + r + solver.per_seg * np.arange(K)
+                half = SPREAD * (ubx[idx] - lbx[idx])
+                x0[idx] = rng.uniform(np.maximum(lbx[idx], x_carry[idx] - half), np.minimum(ubx[idx], x_carry[idx] + half))
+        sol = solver.solver(x0=x0, p=p, lbx=lbx, ubx=ubx)
+        st = solver.solver.stats()
+        status = ipopt_status(st)
+        tally["solves"] += 1
+        tally["iterations"] += int(st.get("iter_count", 0))
+        rs = st.get("return_status", "failed")
+        tally["statuses"][rs] = tally["statuses"].get(rs, 0) + 1
+        f = float(sol["f"])
+        x = np.clip(np.array(sol["x"]).ravel(), lbx, ubx)  # IPOPT may relax bounds by ~1e-8
+        if np.isfinite(f) and np.all(np.isfinite(x)) and (best is None or f < best[0]):
+            best = (f, x, status)
+    if best is None:
+        f_c, _ = solver.terms(x_carry, p)
+        best = (float(f_c), x_carry, "invalid_number")
+    return best
 
 
 def _overall_status(window_status) -> str:

@@ -43,7 +43,7 @@ def run_design(problem, method: str | None = None, **kw):
 
 def apply_calibration(problem: DesignProblem, result: Result) -> Result:
     """A design made with a calibration (``problem.calibration``): the result's routing becomes the nominal
-    to build (design.calibrate.nominal_of: the systematic parts taken out, clipped to the bounds), its shape
+    to build (model.calibration.nominal_of: the systematic parts taken out, clipped to the bounds), its shape
     and metrics what that nominal realizes on a robot with the calibration's systematic errors.
     stats: calibration_* (the values and the number of clipped entries). Without a calibration: ``result``."""
     from_cal = getattr(problem, "calibration", None)

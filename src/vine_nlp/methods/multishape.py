@@ -1,56 +1,31 @@
 """Multi-shape sPAM design: ONE routing, K shapes at K pressures (paper, Conclusion).
 
-An sPAM contracts its whole actuator line to one ratio lambda that the pressure
-sets. One routing theta_j with segment lengths dl_j is shared by K chains; chain k
-uses contraction level lambda_k (one scalar per level, bounded [lambda_min, 1],
-free or fixed by the problem) and should take the shape of target k.
+An sPAM contracts its whole actuator line to one ratio lambda that the pressure sets. One routing theta_j,
+dl_j is shared by K chains; chain k uses the level lambda_k (bounded [lambda_min, 1], free or fixed by the
+problem) and should take the shape of target k. The K shapes grow from the SAME base, so by default one
+base pose is shared (the routing then also explains how the shapes differ, what a user measuring one robot
+at several pressures wants); ``shared_pose=False`` gives each level its own (targets in different frames).
+One NLP over all K chains on the transcription, every chain's frames variables in stage order:
 
-Base pose: the K shapes grow from the SAME physical base, so by default ONE base
-pose (6 variables) is shared by all K chains: the routing must then also explain
-how the shapes differ relative to each other, which is what a user measuring one
-robot at several pressures wants. ``shared_pose=False`` gives each level its own
-pose (targets measured or drawn in different frames).
-
-One NLP over all K chains on the multiple-shooting transcription of ``design.nlp``
-(``design.transcription``): the frames at the segment ends of every chain are
-variables, in stage order, so the KKT matrix stays block-banded. Lengths are scaled by D.
-
-Objective (dimensionless):
   J = (1/K) sum_k (1/N) sum_i |r_k(i) - r_dk(i)|^2 / D^2 + w_theta (1/L) int (D dtheta/ds)^2 ds,
-the smoothness term as in ``design.nlp`` (on the mean of the targets' chord lengths).
 
-Initialization: the geometric guess (``design.common.geometric_guess``) of the
-target of the most actuated level (the fixed smallest lambda when all levels are
-fixed, else the target with the shortest chord length: the center line shortens
-as lambda drops), free lambda_k from the chord length of target k (the chord
-length of the shared routing at lambda_k equals it), frames on each level's own
-target; then a multi-start over the mirrored side and seeded perturbations
-(lambda spread between lambda_min and 1 in chord order, theta perturbed).
+the smoothness on the mean of the targets' chord lengths. Starts (``drive.multistart``): the geometric
+guess of the most actuated level's target (the smallest fixed lambda when all are fixed, else the shortest
+target), free lambda_k from the chord length of target k, frames on each level's own target; its mirrored
+side; seeded perturbations (lambdas spread in chord order, theta perturbed).
 """
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from vine_nlp.methods import drive
 from vine_nlp.methods.common import LENGTH_FACTOR, evaluate, geometric_guess, pair_points
-from vine_nlp.methods.nlp import routing_of
-from vine_nlp.methods.transcription import (
-    Smoothness,
-    SoftTip,
-    Spec,
-    Structure,
-    cell_data,
-    frames12,
-    get_solver,
-    ipopt_options,
-    multistart,
-    options_key,
-    record_starts,
-    smoothing_steps,
-)
+from vine_nlp.methods.settings import Settings
+from vine_nlp.methods.structure import Structure, frames12
+from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, cell_data, get_solver, routing_of, smoothing_steps
 from vine_nlp.model.helix import center_rates
 from vine_nlp.model.pairing import Pairing
 from vine_nlp.model.shape import routing_metrics
@@ -88,7 +63,7 @@ class MultiShapeResult(Result):
 def multishape_spec(M: int, n: int, K: int, shared_pose: bool, max_iter: int = 3000, tol: float = 1e-8) -> Spec:
     """K chains of one routing (theta_j, dl_j shared), one lambda per level, one base pose or one per level."""
     return Spec(Structure(M, n, K, "level", "shared" if shared_pose else "level"), (Smoothness(lam=False), SoftTip()),
-                "exact", options_key(ipopt_options(max_iter, tol)))
+                "exact", Settings(max_iter, tol))
 
 
 # ---------------------------------------------------------------- guesses
@@ -209,7 +184,7 @@ def solve_from(problem: MultiShapeProblem, guess: MultiGuess, pairings=None) -> 
                              (LENGTH_FACTOR[0] * seg_chord, LENGTH_FACTOR[1] * seg_chord))
     x, status, st = solver.solve(x0, p, lbx, ubx)
     v = solver.unpack(x)
-    T = [routing_of(solver, x, guess.poses[q][:3, :3], D, k).initial_pose for k, q in enumerate(solver.layout.pose_of_level)]
+    T = [routing_of(solver, x, D, guess.poses[q][:3, :3], k).initial_pose for k, q in enumerate(solver.layout.pose_of_level)]
     stats = st | {"segments": M, "points_per_segment": n, "levels": K, "shared_pose": problem.shared_pose,
                   "fixed_levels": [lv is not None for lv in problem.levels], "smooth_theta": o.smooth_theta, "tol": o.tol,
                   "max_iter": o.max_iter}
@@ -240,10 +215,9 @@ def design_multishape(problem: MultiShapeProblem, starts: int | None = None, pro
     pairings = _pairings(problem)
     n_starts = max(1, problem.options.starts if starts is None else starts)
     guesses = start_guesses(problem, pairings, n_starts)
-    t0 = time.perf_counter()
-    best, k, results = multistart(lambda g: solve_from(problem, g, pairings), guesses, progress)
-    record_starts(best, k, results, t0)
-    return best
+    stats = drive.Stats()
+    found = drive.multistart(lambda g: solve_from(problem, g, pairings), guesses, progress=progress)
+    return stats.stamp(drive.record_starts(found, stats, always=True))
 
 
 __all__ = ["MultiShapeResult", "design_multishape", "multishape_spec", "start_guesses", "solve_from", "assemble"]

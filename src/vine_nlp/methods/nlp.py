@@ -1,23 +1,17 @@
 """Inverse design as ONE nonlinear program, solved with IPOPT (the plain formulation).
 
-The chain's multiple-shooting transcription (design.transcription) with the point
-fit, the tip paired with the chain's end, and the smoothness penalties:
+The chain's multiple-shooting transcription (methods.transcription) with the point fit, the tip paired
+with the chain's end, and the smoothness penalties:
 
   J = (1/N) sum_k |r_c(k) - r_cd(k)|^2 / D^2
       + w_theta (1/L) int (D dtheta/ds)^2 ds + w_lambda (1/L) int (D dlambda/ds)^2 ds,
 
-the derivative integrals taken on the target's arc length so the penalties mean the
-same whatever the discretization (they replace the paper's low-pass filter); one
-lambda variable for an sPAM. Bounds |theta| <= theta_max, lambda_min <= lambda <= 1,
-segment lengths within LENGTH_FACTOR of the target's chord of the segment.
-
-The solver is built once per structure (M segments, n points per segment, shared or
-per-segment lambda, Hessian, warm) and cached; target, weights and guesses are
-parameters, so multi-start and sweeps reuse it. Where its functions are compiled, the first
-Gauss-Newton solve runs on Fatrop, a solver for stage-structured problems (``solve_from``).
-Targets with corners have many local minima: by default the windowed search of
-``design.corners`` takes over where the first solve shows them (within ``options.budget``
-seconds); ``basin_hops`` searches them when asked for (``options.hops``).
+the derivative integrals on the target's arc length so the penalties mean the same at any discretization
+(they replace the paper's low-pass filter); one lambda for an sPAM. Bounds |theta| <= theta_max,
+lambda_min <= lambda <= 1, segment lengths within LENGTH_FACTOR of the target's chord of the segment.
+The solver is built once per structure and cached; targets, weights and guesses are data. On the drive:
+the starts (``drive.multistart``), the Hessian schedule (``solve_from``), basin hops; where the first
+solve shows a corner-like target the windowed search of ``methods.corners`` follows.
 """
 
 from __future__ import annotations
@@ -31,55 +25,32 @@ import numpy as np
 from vine_nlp.methods import compiled, corners, drive
 from vine_nlp.methods.common import LENGTH_FACTOR, Guess, evaluate, geometric_guess, pair_points
 from vine_nlp.methods.drive import TIE_RTOL
-from vine_nlp.methods.transcription import (
-    Smoothness,
-    SoftTip,
-    Spec,
-    Structure,
-    cell_data,
-    fatrop_options,
-    fatrop_safe,
-    frames12,
-    ipopt_options,
-    options_key,
-    smoothing_steps,
-)
+from vine_nlp.methods.settings import AUTO_GN_MAX_ITER, FATROP_MAX_SEGMENTS, WINDOW, Settings
+from vine_nlp.methods.structure import Structure, frames12
+from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, cell_data, fatrop_safe, routing_of, smoothing_steps
 from vine_nlp.methods.transcription import get_solver as _get
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.pairing import Pairing
-from vine_nlp.model.segment import segment_function, so3_exp  # noqa: F401  (segment_function: its old home)
 from vine_nlp.problem import DesignProblem, Result, Routing
 
 __all__ = ["design_nlp", "solve_from", "start_guesses", "guess_from_routing", "basin_hops", "get_solver", "nlp_parameters", "TIE_RTOL"]
 
-# "auto": Gauss-Newton first, capped at this many iterations, then the exact Hessian if it did not converge
-AUTO_GN_MAX_ITER = 50
-
-
-# IPOPT settings of the plain NLP's Gauss-Newton solves from a guess (the default's first solve); their
-# effect on every paper case, the 125-knot study and the trefoil's time is in results/BENCHMARKS.md
-# ("Compiled NLP functions", "Sweep"):
-# - mu_oracle "probing" (Mehrotra's predictor rule for the adaptive barrier) in place of the quality function:
-#   Gauss-Newton converges on more targets before the exact Hessian has to take over;
-# - MUMPS's own scalings off: IPOPT scales the problem already, and on these small banded KKT systems the
-#   scaling pass is a large share of a factorization;
-# - constraint multipliers start at zero, not at a least-squares estimate: one factorization less per solve
-#   (the continuity rows hold at the start, frames on the target, so their multipliers start small anyway).
-# Exact-Hessian and warm solves keep ipopt_options: the corner search on the polyline (d) starts from the
-# exact solve, and which local minimum it ends in is sensitive to every bit of that start.
-GN_IPOPT = {"ipopt.mu_oracle": "probing", "ipopt.mumps_permuting_scaling": 0, "ipopt.mumps_scaling": 0,
-            "ipopt.constr_mult_init_max": 0.0}
-
 
 def nlp_spec(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False,
-             hessian: str = "exact", terms: tuple = ()) -> Spec:
-    """The plain NLP's structure and terms (more terms: the formulations built on it); GN_IPOPT on top of
-    ipopt_options for a Gauss-Newton solve from a guess."""
-    opts = ipopt_options(max_iter, tol, warm)
-    if hessian == "gauss-newton" and not warm and not terms:
-        opts |= GN_IPOPT
-    return Spec(Structure(M, n, 1, "shared" if shared_lambda else "segment", "free"), (Smoothness(), SoftTip()) + tuple(terms),
-                hessian, options_key(opts))
+             hessian: str = "exact", terms: tuple = (), hard: bool = False, extra: int = 0) -> Spec:
+    """The plain NLP's structure and terms; more ``terms`` (with ``extra`` stage variables and ``hard`` rows): a
+    formulation built on it. A Gauss-Newton solve of the plain chain from a guess declares itself so."""
+    guess = hessian == "gauss-newton" and not warm and not terms
+    return Spec(Structure(M, n, 1, "shared" if shared_lambda else "segment", "free", extra=extra), (Smoothness(), SoftTip()) + tuple(terms),
+                hessian, Settings(max_iter, tol, warm=warm, guess=guess, hard=hard))
+
+
+def extended_solver(problem: DesignProblem, pairing: Pairing, terms: tuple, extra: int = 0, max_iter: int | None = None):
+    """The plain NLP of ``problem`` plus ``terms`` with hard rows and ``extra`` variables per stage, exact Hessian
+    (clearance, robust, obstacles); ``max_iter``: a cap below ``options.max_iter``."""
+    o = problem.options
+    max_iter = o.max_iter if max_iter is None else min(o.max_iter, max_iter)
+    return _get(nlp_spec(pairing.segments, pairing.n, problem.actuator.shared_lambda, max_iter, o.tol, terms=terms, hard=True, extra=extra))
 
 
 def get_solver(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False, hessian: str = "exact"):
@@ -89,15 +60,10 @@ def get_solver(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: f
 
 def fatrop_spec(M: int, n: int, max_iter: int = 3000, tol: float = 1e-8, hessian: str = "gauss-newton") -> Spec:
     """The plain NLP (lambda per segment) in the transcription's stage form, for Fatrop."""
-    return Spec(Structure(M, n, stages=True), (Smoothness(), SoftTip()), hessian, options_key(fatrop_options(max_iter, tol)), "fatrop")
+    return Spec(Structure(M, n, stages=True), (Smoothness(), SoftTip()), hessian, Settings(max_iter, tol, backend="fatrop"))
 
 
 _NO_FATROP: set = set()  # specs whose Fatrop solver could not be built in this process (compiler failed)
-
-# Fatrop's set-up (in CasADi's interface, once per structure and process) grows about as M^2 where IPOPT's
-# stays at milliseconds: beyond this many segments it costs more than the solve it saves (results/BENCHMARKS.md, "Fatrop")
-FATROP_MAX_SEGMENTS = 100
-
 
 def get_fatrop(M: int, n: int, max_iter: int = 3000, tol: float = 1e-8, hessian: str = "gauss-newton"):
     """The plain NLP's Fatrop solver, cached like ``get_solver``; None where its functions are not compiled
@@ -144,38 +110,19 @@ def start_x(solver, guess: Guess, D: float, frames: str = "target") -> np.ndarra
     return solver.pack_x(guess.theta, guess.lam, guess.length / D, frames12(fr)[None], poses=pose[None])
 
 
-def routing_of(solver, x, R0g: np.ndarray, D: float, k: int = 0) -> Routing:
-    """The routing (problem units) in a solution x of a free-pose chain."""
-    v = solver.unpack(x)
-    T0 = np.eye(4)
-    q = solver.layout.pose_of_level[k]
-    T0[:3, :3] = R0g @ so3_exp(v["poses"][q, :3])
-    T0[:3, 3] = v["poses"][q, 3:] * D
-    return Routing(v["theta"], v["lam"][:, k], v["dl"] * D, T0)
-
-
 def solve_from(
     problem: DesignProblem, guess: Guess | None = None, pairing: Pairing | None = None, frames: str = "target", warm: bool = False
 ) -> Result:
-    """One IPOPT solve of the inverse-design NLP for ``problem`` from ``guess`` (default: the geometric guess).
+    """One solve of the inverse-design NLP for ``problem`` from ``guess`` (default: the geometric guess).
 
-    frames="target" starts the shooting frames on the target; frames="chain" on the chain
-    of the guessed design. ``warm`` uses the solver variant that keeps a start close to
-    the answer (IPOPT warm-start options).
-
-    ``options.hessian``: "exact", "gauss-newton", or "auto" (default): Gauss-Newton is
-    several times cheaper per iteration and converges on targets the model can follow
-    closely; its answer is a true KKT point (IPOPT tests exact gradients). Where it
-    does not converge within AUTO_GN_MAX_ITER iterations (large residuals: corners),
-    the same start is solved again with the exact Hessian; where it stops at IPOPT's
-    "acceptable" level, the exact Hessian polishes its answer (a warm start). Gauss-Newton solves
-    from a guess run with GN_IPOPT's settings on top of ``ipopt_options``.
-
-    ``options.solver`` "auto": a Gauss-Newton solve from a guess runs on Fatrop (the transcription's
-    stage form) where its functions are compiled, the chain has at most FATROP_MAX_SEGMENTS segments
-    and a lambda per segment; IPOPT solves the same start where
-    Fatrop fails (stats ``fatrop_status``, ``fatrop_iterations``, ``fatrop_time_s``; its iterations
-    and time count in the result's).
+    ``frames``: "target" starts the shooting frames on the target, "chain" on the guessed design's chain;
+    ``warm``: IPOPT's warm-start options. ``options.hessian`` "auto" (default) is the drive's Hessian
+    schedule: Gauss-Newton (several times cheaper per iteration, and a true KKT point where it converges)
+    for settings.AUTO_GN_MAX_ITER iterations, then the exact Hessian from the same start, or from
+    Gauss-Newton's "acceptable" point (a polish). ``options.solver`` "auto": a Gauss-Newton solve from a
+    guess runs on Fatrop (the stage form) where its functions are compiled, the chain has at most
+    settings.FATROP_MAX_SEGMENTS segments and a lambda per segment; IPOPT solves the same start where Fatrop
+    fails (stats fatrop_status, fatrop_iterations, fatrop_time_s; counted in the result's).
     """
     o = problem.options
     pairing = pairing or pair_points(problem.target, o.points_per_segment)
@@ -227,7 +174,7 @@ def result_of(problem, pairing, solver, x, status, st, R0g, method, **extra) -> 
     """A Result of a solution x of the plain NLP or a formulation built on it; ``extra``: more stats."""
     o = problem.options
     return evaluate(
-        problem, routing_of(solver, x, R0g, problem.diameter), pairing, method, status=status, solve_time_s=st.pop("solve_time_s"),
+        problem, routing_of(solver, x, problem.diameter, R0g), pairing, method, status=status, solve_time_s=st.pop("solve_time_s"),
         iterations=st.pop("iterations"),
         stats=st | {"segments": pairing.segments, "points_per_segment": pairing.n, "smooth_theta": o.smooth_theta,
                     "smooth_lambda": o.smooth_lambda, "tol": o.tol, "max_iter": o.max_iter} | extra,
@@ -262,6 +209,12 @@ def _solve_start(args):
     return solve_from(problem, guess, frames=frames, warm=warm)
 
 
+def chain_guess(problem: DesignProblem, routing: Routing) -> Guess:
+    """A start on a routing's own chain (frames where the routing puts them)."""
+    return Guess(routing.theta, routing.lam, routing.length, routing.initial_pose,
+                 chain_frames(routing.theta, routing.lam, routing.length, problem.diameter, routing.initial_pose))
+
+
 def guess_from_routing(problem: DesignProblem, pairing: Pairing, routing: Routing) -> Guess:
     """A warm start from an earlier design: resampled onto this problem's segments if their count differs."""
     M = pairing.segments
@@ -286,17 +239,12 @@ def design_nlp(
     problem: DesignProblem, starts: int | None = None, workers: int = 1, warm: Routing | None = None, progress=None, hops: int | None = None,
     budget: float | None = None, note=None,
 ) -> Result:
-    """Inverse design as one NLP: multi-start (``options.starts``) keeping the lowest objective,
-    then ``options.hops`` rounds of basin hopping (``basin_hops``), or, where the design shows a
-    corner-like target (``corners.corner_like``: Gauss-Newton failed and the residuals are large)
-    and no hops were asked for, the windowed corner search (``corners.search``) within ``budget``.
-
-    ``warm``: start from an earlier design instead (one start, frames on its chain).
-    ``workers`` > 1 runs the starts in parallel processes (each builds its own solver).
-    ``progress(done, total)`` is called after each start, each hop and each window of the search.
-    ``budget``: seconds the corner search may take (default ``options.budget``; 0: no search); it
-    runs in at least two threads where the machine has two cores, with the same result as in one.
-    ``note(line)``: one line per round of the corner search (the command line prints it on stderr).
+    """Inverse design as one NLP: multi-start (``options.starts``, the drive's ranking), then ``options.hops``
+    rounds of basin hopping, or, where the design shows a corner-like target and no hops were asked for,
+    the windowed corner search within ``budget`` seconds (default ``options.budget``; 0: none; two threads
+    where the machine has two cores, the same result as one). ``warm``: one start from an earlier design
+    (frames on its chain); ``workers`` > 1: the starts in a process pool; ``progress(done, total)`` after
+    each start, hop and window; ``note(line)``: one line per round of the corner search.
     """
     pairing = pair_points(problem.target, problem.options.points_per_segment)
     n_hops = max(0, problem.options.hops if hops is None else hops)
@@ -312,10 +260,7 @@ def design_nlp(
     if warm is not None:
         best.stats["warm_start"] = True
     if n_hops:
-        best = basin_hops(problem, best, n_hops, pairing, lambda k: progress and progress(len(jobs) + k, total))
-        stats.iterations += sum(best.stats["hop_iterations"])
-        stats.solves += len(best.stats["hop_iterations"])
-        return stats.stamp(best)
+        return stats.stamp(basin_hops(problem, best, n_hops, pairing, lambda k: progress and progress(len(jobs) + k, total), stats))
     budget = problem.options.budget if budget is None else budget
     if budget > 0 and corners.corner_like(problem, best):
         best = _corner_search(problem, best, pairing, budget, workers, progress, note, len(jobs))
@@ -326,8 +271,8 @@ def design_nlp(
 
 def _corner_search(problem, best, pairing, budget, workers, progress, note, done) -> Result:
     """corners.search with the full NLP as its polish: exact Hessian, frames on the design's chain, IPOPT's
-    ordinary start (measured on the polyline (d): 64 iterations where the warm-start options take 73, the
-    windows' changes leave the design away from a KKT point)."""
+    ordinary start (the windows' changes leave the design away from a KKT point: warm-start options cost
+    more iterations there)."""
     o = problem.options
 
     def polish(routing: Routing) -> Result:
@@ -340,22 +285,15 @@ def _corner_search(problem, best, pairing, budget, workers, progress, note, done
     return corners.search(problem, best, pairing, polish, budget=budget, workers=threads, progress=report, note=note)
 
 
-# basin hopping: the number of neighbouring segments re-drawn around the chosen one (a corner
-# spans about three segments at n = 10 points per segment)
-HOP_WINDOW = 3
-
-
-def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairing | None = None, progress=None) -> Result:
-    """Basin hopping for rugged targets (corners): ``hops`` rounds of re-drawing theta and lambda
-    of HOP_WINDOW neighbouring segments and solving again, keeping a lower objective.
-
-    The window's middle segment is drawn with probability proportional to its squared
-    error, so the search goes where the design misses the target (on a polyline, the
-    corners: each corner can be taken on several sides and swings, separate local
-    minima of the one NLP that no single descent crosses). The new values are drawn
-    uniformly inside the bounds; the rest of the design, its lengths and its frames
-    are kept. Deterministic for a given ``options.seed``. Stats: ``hops``,
-    ``hops_accepted``, ``hop_objectives``, ``hop_iterations``.
+def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairing | None = None, progress=None,
+               stats: drive.Stats | None = None) -> Result:
+    """Basin hopping for rugged targets (corners): ``hops`` rounds of re-drawing theta and lambda of
+    settings.WINDOW neighbouring segments (uniformly inside the bounds; the rest of the design, its lengths
+    and frames kept) and solving again, keeping the better design (``drive.pick_best``). The window's middle
+    segment is drawn with probability proportional to its squared error: the search goes where the design
+    misses the target (a polyline's corners, separate local minima no single descent crosses).
+    Deterministic for ``options.seed``; every hop's solves count in ``stats``. Stats hops, hops_accepted,
+    hop_objectives, hop_iterations.
     """
     o, a = problem.options, problem.actuator
     if o.hessian == "auto" and str(result.stats.get("hessian", "")).startswith("exact"):
@@ -368,8 +306,8 @@ def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairi
     for k in range(hops):
         per_segment = corners.error_per_segment(problem, pairing, best) + 1e-300
         j = int(rng.choice(M, p=per_segment / per_segment.sum()))
-        start = max(0, min(j - HOP_WINDOW // 2, M - HOP_WINDOW))
-        w = slice(start, start + HOP_WINDOW)
+        start = max(0, min(j - WINDOW // 2, M - WINDOW))
+        w = slice(start, start + WINDOW)
         old = best.routing
         theta, lam = old.theta.copy(), old.lam.copy()
         theta[w] = rng.uniform(-a.theta_max, a.theta_max, theta[w].shape)
@@ -378,12 +316,14 @@ def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairi
         # multiple shooting: frames inside the window follow the new values, the others stay where
         # the design put them, so the only continuity defect is at the window's end
         frames = chain_frames(old.theta, old.lam, old.length, problem.diameter, old.initial_pose)
-        frames[start + 1 : start + HOP_WINDOW] = chain_frames(theta, lam, old.length, problem.diameter, old.initial_pose)[start + 1 : start + HOP_WINDOW]
+        frames[start + 1 : start + WINDOW] = chain_frames(theta, lam, old.length, problem.diameter, old.initial_pose)[start + 1 : start + WINDOW]
         guess = Guess(theta, lam, old.length.copy(), old.initial_pose.copy(), frames)
         r = solve_from(problem, guess, pairing, frames="target")
+        if stats is not None:
+            stats.absorb(r)
         objectives.append(r.stats["objective"])
         iterations.append(r.iterations)
-        if r.converged and r.stats["objective"] < best.stats["objective"] * (1 - TIE_RTOL):
+        if drive.pick_best([best, r]) == 1:
             best, accepted = r, accepted + 1
         if progress:
             progress(k + 1)

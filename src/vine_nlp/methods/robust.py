@@ -1,6 +1,6 @@
 """Robust inverse design: minimize the expected error under construction errors.
 
-Objective (units of D, as in design.nlp):
+Objective (units of D, as in methods.nlp):
 
     J_robust = J_nlp + E[dMSE],   E[dMSE] = sum_k w_k tr(J_k Sigma J_k^T),
 
@@ -24,7 +24,7 @@ term sum_k w_k sum_i sigma_i^2 |d rho_k / d q_i|^2 (rho_k in the segment's start
 This is the linear-Gaussian propagation of the construction errors along the chain,
 run backwards: instead of carrying the 6 x 6 frame covariance forward (21 numbers per
 stage), the downstream sums (sum w p, sum w p p^T: 9 numbers) are carried back. They
-are extra stage variables S_j of the one transcription (design.transcription), tied
+are extra stage variables S_j of the one transcription (methods.transcription), tied
 by the banded recursion S_j = S_{j+1} + L_{j+1}(stage j+1), so the term and its rows
 are per-stage blocks with their own SX derivatives and the cost per iteration stays
 linear in M. Written directly in x they would couple every segment to everything
@@ -33,7 +33,6 @@ downstream (a dense Hessian). Started from design_nlp's result.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -41,10 +40,11 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp.analysis.tolerance import tolerance_report
-from vine_nlp.methods.clearance import chain_guess, extended_solver
+from vine_nlp.methods import drive
+from vine_nlp.methods.blocks import BlockType
 from vine_nlp.methods.common import pair_points
-from vine_nlp.methods.nlp import design_bounds, design_nlp, nlp_parameters, result_of, start_x
-from vine_nlp.methods.transcription import BlockType, Chain, segment_point_index
+from vine_nlp.methods.nlp import chain_guess, design_bounds, design_nlp, extended_solver, nlp_parameters, result_of, start_x
+from vine_nlp.methods.transcription import Chain, segment_point_index
 from vine_nlp.model.helix import center_rates
 from vine_nlp.model.routing import Sigmas
 from vine_nlp.model.segment import _exp_coefficients, twist_parts
@@ -243,7 +243,7 @@ def design_robust(problem: DesignProblem, sigmas: Sigmas, samples: int = 0, seed
     expected_mse_increase / _start (first order), expected_rmse / _start (sqrt(MSE_0 + increase)),
     start_rmse, and with samples mc_mean_rmse / _start, mc_rms_rmse / _start.
     """
-    t_all = time.perf_counter()
+    stats = drive.Stats()
     start = start or design_nlp(problem, **kw)
     D = problem.diameter
     pairing = pair_points(problem.target, problem.options.points_per_segment)
@@ -252,7 +252,7 @@ def design_robust(problem: DesignProblem, sigmas: Sigmas, samples: int = 0, seed
     i0 = solver.terms(x0, p)["robust"] / weight * D**2 if weight else 0.0
     lbx, ubx = solver.bounds(*design_bounds(problem, pairing))
     x, status, st = solver.solve(x0, p, lbx, ubx)
-    res = result_of(problem, pairing, solver, x, status, st, start.routing.initial_pose[:3, :3].copy(), "nlp_robust")
+    res = stats.absorb(result_of(problem, pairing, solver, x, status, st, start.routing.initial_pose[:3, :3].copy(), "nlp_robust"))
     # the increase of the design found, evaluated with weight 1 (the recursion holds at a converged x)
     i1 = expected_increase(problem, res.routing, sigmas)
     if not weight:
@@ -273,5 +273,4 @@ def design_robust(problem: DesignProblem, sigmas: Sigmas, samples: int = 0, seed
             "robust_mc_mean_rmse": b["mean_rmse"], "robust_mc_mean_rmse_start": a["mean_rmse"],
             "robust_mc_rms_rmse": b["rms_rmse"], "robust_mc_rms_rmse_start": a["rms_rmse"],
         })
-    res.solve_time_s = time.perf_counter() - t_all
-    return res
+    return stats.stamp(res)

@@ -1,84 +1,47 @@
 """Tip targets: reach a tip position (and optionally a tip direction) with the least actuation (paper, Conclusion).
 
-The robot grows from a FIXED base pose T^0_w (given, default identity) with a
-given tube length L cut into M segments (sum_j dl_j = L, dl_j >= 0.2 L/M: the
-tube length is a design input, the segment lengths are free). Among all routings
-that put the tip at ``position`` (and its tangent along ``direction`` when given)
-it picks the one with the least actuation:
+The robot grows from a FIXED base pose T^0_w with a given tube length L cut into M segments (sum_j dl_j = L,
+dl_j >= MIN_LENGTH_FACTOR L/M). Among the routings that put the tip at ``position`` (and its tangent along
+``direction``) it picks the one with the least actuation:
 
   "contraction" (default):  J = (1/L) sum_j (1 - lambda_j) dl_j
-  "turns":                  J = (1/L) sum_j sqrt(tan^2 theta_j + eps) dl_j,  eps = 1e-6
-                            (the actuator's turning around the tube is (2/D) sum |tan theta_j| dl_j)
+  "turns":                  J = (1/L) sum_j sqrt(tan^2 theta_j + eps) dl_j   (turning: (2/D) sum |tan theta_j| dl_j)
 
-Each objective leaves the other actuator parameter free (contraction does not
-price twisting, turns does not price contracting), which makes the optimum
-degenerate and IPOPT slow; a tie-break with weight 1e-2 picks the least of the
-other measure: + 1e-2 (1/L) sum tan^2 theta_j dl_j for "contraction",
-+ 1e-2 (1/L) sum (1 - lambda_j)^2 dl_j for "turns"; plus the smoothness terms of
-``design.nlp`` (weights ``options.smooth_theta``, ``options.smooth_lambda``, on
-the uniform spacing L/M). Bounds as in design: |theta| <= theta_max,
-lambda_min <= lambda <= 1 (one lambda for an sPAM).
+Each leaves the other actuator parameter free (a degenerate optimum, slow for IPOPT): a tie-break of weight
+TIE_BREAK adds the least of the other measure (tan^2 theta_j dl_j, resp. (1 - lambda_j)^2 dl_j), plus the
+smoothness terms of ``methods.nlp`` on the uniform spacing L/M. Rows: continuity, tip position, tip tangent
+(t . e1 = t . e2 = 0 with e1, e2 perpendicular to the direction, and t . direction >= 0: rank 2), sum dl = L;
+exact bounds (``Settings.exact_bounds``: no relaxation, no "acceptable" stop leaving the tip loosely met).
 
-Multiple shooting as in ``design.nlp``: frames at the segment ends are variables
-(stage order), lengths scaled by D. Constraints: continuity, tip position
-(3 equalities), tip tangent (2 equalities t . e1 = t . e2 = 0 with e1, e2
-perpendicular to the direction, and t . direction >= 0: rank 2, no redundant
-equality), sum dl = L. IPOPT runs without bound relaxation and without
-"acceptable" stops that would leave the tip loosely met.
+Starts (``drive.multistart``), tried in order until one is optimal: the geometric guess of a guide curve (a
+cubic Bezier from the base along its tangent to the tip along the direction, stretched to about the actuated
+tube length), its mirrored side, then seeded uniform helices. The landscape is rugged (many local optima of
+bends at the shortest segments) and a start costs hundreds of iterations, so later starts are fallbacks.
+IPOPT's monotone barrier (``Settings.monotone``) takes fewer iterations and finds lower optima here than the
+adaptive one; the other changes tried (barrier, scaling, inertia correction, MUMPS, guide curves, a
+coarse-to-fine start) moved designs to other local optima, more often worse.
 
-Initial guesses: the geometric guess (``design.common.geometric_guess``) of a
-guide curve (a cubic Bezier from the base along its tangent to the tip along the
-direction, stretched to about the actuated tube length), its mirrored side, then
-seeded uniform helices, tried in this order until one is solved to optimality (a
-guess equal to an earlier one is skipped). The landscape is rugged (many local
-optima of bends at the shortest segments) and every start costs 100-300 IPOPT
-iterations, so the later starts are fallbacks. IPOPT's monotone barrier (TIP_BARRIER)
-lets the guide curve's start alone reach lower objectives than the best of four starts
-with the adaptive barrier did. Among the solved starts the lowest objective among
-converged ones wins.
-
-Why a start takes many iterations: the least-contraction optimum is a few sharp
-bends (theta at its bound, lambda low, segments near their shortest) joined by
-straight runs, while the guess bends a little everywhere. On the way the reduced
-Hessian is indefinite, so IPOPT corrects the KKT matrix's inertia on nearly every
-iteration. The changes tried (a lower initial barrier, objective scaling, the inertia
-correction's factors, MUMPS settings, other guide curves, a coarse-to-fine start) saved
-some iterations on average but moved many designs to other local optima, more often
-worse than better: the path from the guess is chaotic, and the settings below stay.
-
-Reachability: the center line is never longer than the tube (lambda_c <= 1 for
-lambda <= 1 and |theta| <= 60 deg), so a tip farther than L from the base is out
-of reach. That, or no converged start, gives status "infeasible" (the CLI exits
-1); the result is then the nearest approach (the same NLP with the tip distance
-as the objective instead of a constraint), so tip_error tells how far out of
-reach the target is. A nearest approach that does reach the tip (IPOPT's
-infeasibility is local) is used to re-solve the design.
+Reachability: the center line is never longer than the tube, so a tip farther than L from the base is out of
+reach. That, or no converged start, gives status "infeasible" and the nearest approach (the tip distance as
+the objective instead of rows), so tip_error tells how far out of reach the target is; a nearest approach
+that does reach the tip (IPOPT's infeasibility is local) re-solves the design.
 """
 
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import casadi as ca
 import numpy as np
 
+from vine_nlp.methods import drive
+from vine_nlp.methods.blocks import BlockType
 from vine_nlp.methods.common import _perpendicular, _unit, geometric_guess, pair_points
-from vine_nlp.methods.transcription import (
-    BlockType,
-    Chain,
-    Smoothness,
-    Spec,
-    Structure,
-    frames12,
-    get_solver,
-    ipopt_options,
-    options_key,
-    pick_best,
-    record_starts,
-)
+from vine_nlp.methods.settings import Settings
+from vine_nlp.methods.structure import Structure, frames12
+from vine_nlp.methods.transcription import Chain, Smoothness, Spec, get_solver, routing_of
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.shape import forward_shape, routing_metrics
 from vine_nlp.problem import DesignProblem, Result, Routing, TipProblem
@@ -89,13 +52,6 @@ TURNS_EPS = 1e-6
 TIE_BREAK = 1e-2  # weight of the secondary measure (see module doc)
 CLOSEST_ACTUATION = 1e-6  # weight of the actuation in the nearest-approach variant
 CLOSE_ENOUGH = 1e-3  # nearest approach within this many D of the tip: re-solve the design from it
-# hard constraints: no bound relaxation (the returned routing needs no projection that would move the tip)
-# and no "acceptable" stop with a loosely met tip
-TIP_IPOPT = {"ipopt.bound_relax_factor": 0.0, "ipopt.acceptable_constr_viol_tol": 1e-10}
-# design_tip's own solves: IPOPT's monotone barrier (from its default mu = 0.1) takes fewer iterations per start
-# than the adaptive one on this degenerate objective and finds lower optima on the bundled and benchmark tips
-# (module docstring); the obstacle rows (design.obstacles) keep the adaptive barrier (there it is much faster)
-TIP_BARRIER = {"ipopt.mu_strategy": "monotone", "ipopt.mu_init": 0.1}
 GUESS_POINTS = 4  # points per segment of the guide curve of the geometric guess
 
 
@@ -151,12 +107,13 @@ def actuation_blocks(objective: str) -> tuple[BlockType, BlockType]:
 
 
 def tip_spec(M: int, shared: bool, direction: bool, objective: str, max_iter: int = 3000, tol: float = 1e-8, closest: bool = False,
-             monotone: bool = False) -> Spec:
-    """A fixed base, no points to fit (one empty slot per segment), the tip terms and rows, the smoothness;
-    ``monotone``: IPOPT's monotone barrier (TIP_BARRIER; design_tip's own solves)."""
-    opts = ipopt_options(max_iter, tol) | TIP_IPOPT | (TIP_BARRIER if monotone else {})
-    return Spec(Structure(M, 1, 1, "shared" if shared else "segment", "fixed"), (Smoothness(), TipTerms(direction, objective, closest)),
-                "exact", options_key(opts))
+             monotone: bool = False, hard: bool = False, extra: int = 0, terms: tuple = ()) -> Spec:
+    """A fixed base, no points to fit (one empty slot per segment), the tip terms and rows, the smoothness, exact
+    bounds; ``monotone``: IPOPT's monotone barrier (design_tip's own solves); ``terms`` (with ``extra`` stage
+    variables, ``hard`` rows): a formulation built on it."""
+    return Spec(Structure(M, 1, 1, "shared" if shared else "segment", "fixed", extra=extra),
+                (Smoothness(), TipTerms(direction, objective, closest)) + tuple(terms), "exact",
+                Settings(max_iter, tol, exact_bounds=True, monotone=monotone, hard=hard))
 
 
 def _perpendicular_pair(d):
@@ -223,30 +180,45 @@ def start_guesses(problem: TipProblem, starts: int):
     return out[:starts]
 
 
-def solve_from(problem: TipProblem, theta, lam, dl, frames, closest: bool = False, monotone: bool = True) -> Result:
-    """One IPOPT solve of the tip NLP from a guess; ``closest``: the nearest approach instead (no tip constraints);
-    ``monotone``: IPOPT's monotone barrier (TIP_BARRIER), else the adaptive one."""
-    o, a, D, M, L = problem.options, problem.actuator, problem.diameter, problem.segments, problem.length
-    has_dir = problem.direction is not None
-    solver = get_solver(tip_spec(M, a.shared_lambda, has_dir, problem.objective, o.max_iter, o.tol, closest, monotone))
-    T0 = problem.initial_pose
-    X0 = frames12(T0[None], D)[:, 0]
-    d = problem.direction if has_dir else np.array([1.0, 0.0, 0.0])
+def tip_data(problem: TipProblem, closest: bool = False) -> dict:
+    """The tip NLP's data (units of D); ``closest``: the nearest approach's (the actuation scaled down)."""
+    o, D, M, L = problem.options, problem.diameter, problem.segments, problem.length
+    d = problem.direction if problem.direction is not None else np.array([1.0, 0.0, 0.0])
     e1, e2 = _perpendicular_pair(d)
     scale = CLOSEST_ACTUATION if closest else 1.0
-    p = solver.pack_params({
-        "cells": np.zeros((5, M)), "smooth": [scale * o.smooth_theta, scale * o.smooth_lambda], "h": np.full(max(M - 1, 1), L / M / D),
-        "L": L / D, "tip_position": problem.position / D, "tip_frame": np.column_stack([d, e1, e2]), "tube_length": L / D,
-    })
-    lbx, ubx = solver.bounds((-a.theta_max, a.theta_max), (a.lambda_min, 1.0), (MIN_LENGTH_FACTOR * L / M / D, L / D), X0=X0)
-    x, status, st = solver.solve(solver.pack_x(theta, lam, dl / D, frames12(frames, D)[None]), p, lbx, ubx)
-    v = solver.unpack(x)
+    return {"cells": np.zeros((5, M)), "smooth": [scale * o.smooth_theta, scale * o.smooth_lambda], "h": np.full(max(M - 1, 1), L / M / D),
+            "L": L / D, "tip_position": problem.position / D, "tip_frame": np.column_stack([d, e1, e2]), "tube_length": L / D}
+
+
+def tip_bounds(solver, problem: TipProblem) -> tuple:
+    """Box bounds of the tip NLP: the design's theta and lambda, lengths from MIN_LENGTH_FACTOR L / M to L, the base fixed."""
+    a, D, M, L = problem.actuator, problem.diameter, problem.segments, problem.length
+    X0 = frames12(problem.initial_pose[None], D)[:, 0]
+    return solver.bounds((-a.theta_max, a.theta_max), (a.lambda_min, 1.0), (MIN_LENGTH_FACTOR * L / M / D, L / D), X0=X0)
+
+
+def tip_result(problem: TipProblem, solver, x, status: str, st: dict, closest: bool = False) -> Result:
+    """The Result of a solution x of the tip NLP (or a formulation built on it)."""
+    o = problem.options
+    scale = CLOSEST_ACTUATION if closest else 1.0
     stats = st | {"objective_actuation": st["objective_actuation"] / scale, "objective_miss": st.get("objective_miss", 0.0),
-                  "objective_kind": problem.objective, "closest_approach": closest, "segments": M, "tube_length": L,
-                  "smooth_theta": o.smooth_theta, "smooth_lambda": o.smooth_lambda, "tol": o.tol, "max_iter": o.max_iter}
+                  "objective_kind": problem.objective, "closest_approach": closest, "segments": problem.segments,
+                  "tube_length": problem.length, "smooth_theta": o.smooth_theta, "smooth_lambda": o.smooth_lambda, "tol": o.tol,
+                  "max_iter": o.max_iter}
     stats.pop("objective_fit", None)
-    return evaluate_tip(problem, Routing(v["theta"], v["lam"][:, 0], v["dl"] * D, T0), status=status,
+    return evaluate_tip(problem, routing_of(solver, x, problem.diameter, problem.initial_pose), status=status,
                         solve_time_s=stats.pop("solve_time_s"), iterations=stats.pop("iterations"), stats=stats)
+
+
+def solve_from(problem: TipProblem, theta, lam, dl, frames, closest: bool = False, monotone: bool = True) -> Result:
+    """One IPOPT solve of the tip NLP from a guess; ``closest``: the nearest approach instead (no tip constraints);
+    ``monotone``: IPOPT's monotone barrier, else the adaptive one."""
+    o, D = problem.options, problem.diameter
+    solver = get_solver(tip_spec(problem.segments, problem.actuator.shared_lambda, problem.direction is not None, problem.objective,
+                                 o.max_iter, o.tol, closest, monotone))
+    x0 = solver.pack_x(theta, lam, dl / D, frames12(frames, D)[None])
+    x, status, st = solver.solve(x0, solver.pack_params(tip_data(problem, closest)), *tip_bounds(solver, problem))
+    return tip_result(problem, solver, x, status, st, closest)
 
 
 def actuation(routing: Routing, diameter: float) -> dict:
@@ -279,8 +251,8 @@ def reachable_distance(problem: TipProblem) -> bool:
 
 def design_tip(problem: TipProblem, starts: int | None = None, progress=None, thorough: bool = False) -> Result:
     """Least-actuation routing for a tip target: up to ``options.starts`` starts, tried in order until one is
-    optimal (module docstring); the lowest objective among converged starts. ``thorough``: every start, with
-    IPOPT's adaptive barrier (the obstacle design's start: a wider search for a design that clears).
+    optimal (module docstring); the lowest objective among converged starts (:func:`rank`). ``thorough``: every
+    start, with IPOPT's adaptive barrier (the obstacle design's start: a wider search for a design that clears).
 
     Unreachable tips get status "infeasible" and the nearest approach (the routing
     that brings the tip closest, solved without the tip constraints), so tip_error
@@ -291,23 +263,16 @@ def design_tip(problem: TipProblem, starts: int | None = None, progress=None, th
     """
     n = max(1, problem.options.starts if starts is None else starts)
     guesses = start_guesses(problem, n)
-    t0 = time.perf_counter()
+    stats = drive.Stats()
     reach = reachable_distance(problem)
-    results = []
+    results, best = [], None
     if reach:
-        tried = []
-        for g in guesses:
-            if any(all(np.array_equal(a, b) for a, b in zip(g, h)) for h in tried):
-                continue  # the mirrored guide curve can be the same curve: the same solve again
-            tried.append(g)
-            results.append(solve_from(problem, *g, monotone=not thorough))
-            if progress:
-                progress(len(results), len(guesses))
-            if results[-1].status == "optimal" and not thorough:
-                break
-    # converged before not converged; then the lowest objective (converged) or tip error (not converged)
-    rank = lambda r: r.stats["objective"] if r.converged else r.metrics["tip_error"]  # noqa: E731
-    best = results[pick_best(results, objective=rank)] if results else None
+        # the mirrored guide curve can be the same curve: the same solve again
+        unique = [g for i, g in enumerate(guesses) if not any(all(np.array_equal(a, b) for a, b in zip(g, h)) for h in guesses[:i])]
+        found = drive.multistart(lambda g: solve_from(problem, *g, monotone=not thorough), unique, key=rank,
+                                 accept=None if thorough else (lambda r: r.status == "optimal"),
+                                 progress=progress and (lambda done, _: progress(done, len(guesses))))
+        results, best = found.results, found.best
     reason = "" if reach else "the tip is farther from the base than the tube is long"
     if best is None or not best.converged:
         near = solve_from(problem, *guesses[0], closest=True)
@@ -325,9 +290,14 @@ def design_tip(problem: TipProblem, starts: int | None = None, progress=None, th
             best.stats["closest_status"] = near.status
             best.status = "infeasible"
             reason = reason or f"no start reached the tip (statuses {', '.join(tried)}); nearest approach reported"
-    record_starts(best, next(k for k, r in enumerate(results) if r is best), results, t0)
+    drive.record_starts(drive.Starts(best, next(k for k, r in enumerate(results) if r is best), results), stats, always=True)
     best.stats["start_status"] = [r.status for r in results]
     if reason:
         best.stats["infeasible_reason"] = reason
     best.metrics["reachable"] = float(best.converged)
-    return best
+    return stats.stamp(best)
+
+
+def rank(result: Result) -> tuple:
+    """The drive's ranking of tip designs: converged by the objective, the others by their tip error."""
+    return drive.rank(result, result.converged, result.metrics["tip_error"])

@@ -24,22 +24,24 @@ the exact distance d by at most eps^2 / (2 d): below 1e-18 of the size at d of
 the order of the size, at most eps at d = 0; gradients stay finite (Hessians
 are large, ~1/eps, only within eps of the singular set, which is inside).
 
+Sphere, box and capsule are one formula, a rounded box (:func:`rounded_box_distance`: a box,
+possibly flat or a point, rounded by a radius), whose parameters may be symbolic: the NLP's rows
+take them as data (``Obstacle.rounded_box()``), so one block serves every primitive. A plane's own
+formula is its half-space distance; its rows take it as a box PLANE_HALF deep behind it and as
+wide (exact within ~1e-10 of the obstacle's units).
+
 Meshes. The exact signed distance of a closed triangle mesh (numpy only) is
 trimesh's (``trimesh.proximity.signed_distance``, positive *inside*: negated
 here). For the NLP, the sign of a mesh's distance is a global property (inside
 or outside) that no finite set of smooth per-triangle expressions gives, so the
 rows are the *unsigned* exact distance to each triangle of an active set
-(:func:`nearest_triangles`, refreshed between solves): a triangle is convex, so
-its distance is C^1 wherever it is positive, continuous everywhere, and the
-mesh's unsigned distance is the minimum over its triangles, so rows over the
-nearest triangles are exact rows, not an approximation (:func:`mesh_rows`). What
-they cannot see is a point deeper inside than the clearance: points that the exact
-(trimesh) sign finds inside the mesh at a refresh (:func:`refresh_active_set`
-``inside``) also get the face-plane row :func:`triangle_plane_distance` of their
-nearest face (signed, linear), which pushes them back out through that face; the
-next refresh drops it. The plane row is not used outside: at a convex edge it
-over-constrains (the plane of one face runs inside the other face's clearance
-region) and it jumps when the nearest face changes.
+(:func:`nearest_triangles`, refreshed between solves; :func:`point_triangle_distance`,
+whose vertices may be symbolic data): a triangle is convex, so its distance is C^1
+wherever it is positive, continuous everywhere, and the mesh's unsigned distance is
+the minimum over its triangles, so rows over the nearest triangles are exact rows,
+not an approximation. What they cannot see is a point deeper inside than the
+clearance: the NLP gives such points a row on the plane of a face instead
+(methods.obstacles).
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ import numpy as np
 from vine_nlp.model.ops import is_symbolic, lib
 
 EPS_REL = 1e-9  # sqrt(x + eps^2), eps = EPS_REL * size: module docstring
+PLANE_HALF = 1e6  # a plane's rows take it as a box this deep behind it and this wide (module docstring)
 SHAPES = ("sphere", "box", "capsule", "plane", "mesh")
 
 
@@ -78,18 +81,16 @@ def _xyz(p):
     return a[..., 0], a[..., 1], a[..., 2]
 
 
-def _vec(v):
-    """Numeric vector parameter (..., 3) as components (broadcast against point components)."""
-    a = np.asarray(v, float)
-    return a[..., 0], a[..., 1], a[..., 2]
-
-
 def _sub(u, v):
     return (u[0] - v[0], u[1] - v[1], u[2] - v[2])
 
 
 def _dot(u, v):
     return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+
+def _cross(u, v):
+    return (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
 
 
 def _all3(x, y, z):
@@ -105,116 +106,75 @@ def _lib(*args):
 # ------------------------------------------------------------------ primitive distances
 
 
-def sphere_distance(p, center, radius):
-    """Signed distance from ``p`` to the sphere (center, radius): |p - c| - r (exact up to eps, see module)."""
-    x = _sub(_xyz(p), _vec(center))
-    L = _lib(*x)
-    eps = EPS_REL * float(radius)
-    return L.sqrt(_dot(x, x) + eps * eps) - float(radius)
+def rounded_box_distance(p, center, rotation, half, radius=0.0, eps=0.0):
+    """Signed distance from ``p`` to a box (``center``, world-from-box ``rotation``, ``half`` edge lengths)
+    rounded by ``radius``: with q = |R^T (p - c)| - half, sqrt(|max(q, 0)|^2 + eps^2) + min(max q, 0) - radius.
+
+    The exact distance (up to eps: module docstring) of a box (radius 0), a sphere (a point: half 0, R = I)
+    and a capsule (a segment along the box's first axis). Outside it is C^1 (distance to a convex set):
+    where a local coordinate crosses 0 (|.| kink), that q is -half < 0 and clamped away; the max q kinks
+    (medial axis) and the exterior/interior switch are inside or on the surface. Any argument may be CasADi
+    (the NLP's rows take the parameters as data); numpy points (..., 3), CasADi 3 x N.
+    """
+    w = _sub(_xyz(p), _xyz(center))
+    L = _lib(*w)
+    local = [w[0] * rotation[0, i] + w[1] * rotation[1, i] + w[2] * rotation[2, i] for i in range(3)]
+    q = [L.fabs(local[i]) - half[i] for i in range(3)]
+    o = [L.fmax(qi, 0.0) for qi in q]
+    outside = L.sqrt(o[0] * o[0] + o[1] * o[1] + o[2] * o[2] + eps * eps)
+    inside = L.fmin(L.fmax(q[0], L.fmax(q[1], q[2])), 0.0)
+    return outside + inside - radius
 
 
 def plane_distance(p, point, normal):
     """Signed distance to the half-space behind the plane: n . (p - point), n normalized; positive on the free side."""
     n = np.asarray(normal, float)
     n = n / np.linalg.norm(n)
-    return _dot(_sub(_xyz(p), _vec(point)), _vec(n))
+    return _dot(_sub(_xyz(p), _xyz(point)), _xyz(n))
 
 
-def capsule_distance(p, p0, p1, radius):
-    """Signed distance to the capsule: distance to segment p0-p1 minus the radius.
-
-    The segment parameter is clamped to [0, 1]; the clamp's kinks are where the
-    distance along the segment is stationary, so the result is C^1 outside.
-    """
-    a, b = np.asarray(p0, float), np.asarray(p1, float)
-    d = b - a
-    dd = float(d @ d)
-    if dd == 0.0:
-        raise ValueError("capsule: p0 and p1 are the same point")
-    ap = _sub(_xyz(p), _vec(a))
-    L = _lib(*ap)
-    t = L.fmin(L.fmax(_dot(ap, _vec(d)) / dd, 0.0), 1.0)
-    diff = (ap[0] - t * d[0], ap[1] - t * d[1], ap[2] - t * d[2])
-    eps = EPS_REL * max(float(radius), math.sqrt(dd))
-    return L.sqrt(_dot(diff, diff) + eps * eps) - float(radius)
-
-
-def box_distance(p, center, size, rotation=None):
-    """Signed distance to the box (center, full edge lengths ``size``, world-from-box ``rotation``).
-
-    q = |R^T (p - c)| - size/2; exterior sqrt(sum max(q, 0)^2) + interior min(max q, 0):
-    the exact distance. Outside it is C^1 (distance to a convex set): where a local
-    coordinate crosses 0 (|.| kink), that q is -size/2 < 0 and clamped away; the max q
-    kinks (medial axis) and the exterior/interior switch are inside or on the surface.
-    The exterior sqrt carries + eps^2 (finite gradient from inside, where its argument is 0).
-    """
-    R = np.eye(3) if rotation is None else np.asarray(rotation, float)
-    h = 0.5 * np.asarray(size, float)
-    w = _sub(_xyz(p), _vec(center))
-    L = _lib(*w)
-    local = [w[0] * R[0, i] + w[1] * R[1, i] + w[2] * R[2, i] for i in range(3)]
-    q = [L.fabs(local[i]) - h[i] for i in range(3)]
-    o = [L.fmax(qi, 0.0) for qi in q]
-    eps = EPS_REL * float(np.linalg.norm(size))
-    outside = L.sqrt(o[0] * o[0] + o[1] * o[1] + o[2] * o[2] + eps * eps)
-    inside = L.fmin(L.fmax(q[0], L.fmax(q[1], q[2])), 0.0)
-    return outside + inside
+def _frame(axis) -> np.ndarray:
+    """A rotation whose first column is the unit vector ``axis``."""
+    e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    return np.column_stack([axis, e1, np.cross(axis, e1)])
 
 
 def _segment_d2(p, a, b):
-    ab = _sub(b, a)
-    ap = _sub(p, a)
+    ab, ap = _sub(b, a), _sub(p, a)
     L = _lib(*ap)
     t = L.fmin(L.fmax(_dot(ap, ab) / _dot(ab, ab), 0.0), 1.0)
     diff = (ap[0] - t * ab[0], ap[1] - t * ab[1], ap[2] - t * ab[2])
     return _dot(diff, diff)
 
 
-def point_triangle_distance(p, a, b, c):
+def point_triangle_distance(p, a, b, c, eps=None):
     """Unsigned exact distance from ``p`` to the triangle (a, b, c), numpy (vectorized) or CasADi.
 
     If the projection of p onto the triangle's plane falls inside the triangle
     (barycentric weights >= 0), the plane distance; otherwise the nearest of the three
     edges (segments). A triangle is convex, so the distance is C^1 wherever it is > 0;
-    both if_else branches agree (value and gradient) on the switch (the prism's side
-    walls), and the three edge distances tie only where they share a vertex region.
-    numpy: p (..., 3) with a, b, c (..., 3) broadcast against it; CasADi: p symbolic,
-    a, b, c numbers. Triangles must not be degenerate (zero area).
+    both branches agree (value and gradient) on the switch (the prism's side walls),
+    and the three edge distances tie only where they share a vertex region.
+    numpy: p (..., 3) with a, b, c (..., 3) broadcast against it; CasADi: any argument
+    (the NLP's rows take the vertices as data). sqrt(d^2 + eps^2): ``eps`` default
+    EPS_REL times the longest edge (numpy). Triangles must not be degenerate (zero area).
     """
-    pc = _xyz(p)
-    av, bv, cv = (np.asarray(v, float) for v in (a, b, c))
-    ab, ac = bv - av, cv - av
-    n = np.cross(ab, ac)
-    nn = np.sum(n * n, axis=-1)
-    if np.any(nn <= 0):
+    P, A, B, C = _xyz(p), _xyz(a), _xyz(b), _xyz(c)
+    ab, ac, ap = _sub(B, A), _sub(C, A), _sub(P, A)
+    L = _lib(*P, *A, *B, *C)
+    n = _cross(ab, ac)
+    nn = _dot(n, n)
+    if not is_symbolic(*A, *B, *C) and np.any(nn <= 0):
         raise ValueError("degenerate triangle (zero area)")
-    e_b = np.cross(ac, n) / nn[..., None]  # w_b = (p - a) . e_b
-    e_c = np.cross(n, ab) / nn[..., None]  # w_c = (p - a) . e_c
-    ap = _sub(pc, _vec(av))
-    L = _lib(*ap)
-    w_b = _dot(ap, _vec(e_b))
-    w_c = _dot(ap, _vec(e_c))
-    w_a = 1.0 - w_b - w_c
-    inside = _all3(w_a >= 0, w_b >= 0, w_c >= 0)
-    h = _dot(ap, _vec(n / np.sqrt(nn)[..., None]))
-    A, B, C = _vec(av), _vec(bv), _vec(cv)
-    edges = L.fmin(_segment_d2(pc, A, B), L.fmin(_segment_d2(pc, B, C), _segment_d2(pc, C, A)))
-    d2 = L.where(inside, h * h, edges)
-    scale = float(np.sqrt(np.max(np.sum(ab * ab, axis=-1))))
-    eps = EPS_REL * scale
-    return L.sqrt(d2 + eps * eps)
-
-
-def triangle_plane_distance(p, a, b, c):
-    """Signed distance to the plane of triangle (a, b, c), positive along its normal (b - a) x (c - a).
-
-    On a closed mesh wound counter-clockwise seen from outside (trimesh's convention),
-    the normal points out: the row for a point found inside (module docstring).
-    """
-    av, bv, cv = (np.asarray(v, float) for v in (a, b, c))
-    n = np.cross(bv - av, cv - av)
-    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
-    return _dot(_sub(_xyz(p), _vec(av)), _vec(n))
+    w_b = _dot(ap, _cross(ac, n)) / nn
+    w_c = _dot(ap, _cross(n, ab)) / nn
+    inside = _all3(w_b >= 0, w_c >= 0, 1 - w_b - w_c >= 0)
+    h2 = _dot(ap, n) ** 2 / nn
+    edges = L.fmin(_segment_d2(P, A, B), L.fmin(_segment_d2(P, B, C), _segment_d2(P, C, A)))
+    if eps is None:
+        eps = EPS_REL * float(np.sqrt(np.max(_dot(ab, ab))))
+    return L.sqrt(L.where(inside, h2, edges) + eps**2)
 
 
 # ------------------------------------------------------------------ obstacle value types
@@ -268,8 +228,12 @@ class Sphere:
             raise ValueError("radius must be > 0")
         object.__setattr__(self, "radius", float(self.radius))
 
+    def rounded_box(self) -> tuple:
+        """(center, rotation, half sizes, radius, eps) of :func:`rounded_box_distance`: a point rounded by the radius."""
+        return np.array(self.center), np.eye(3), np.zeros(3), self.radius, EPS_REL * self.radius
+
     def distance(self, p):
-        return sphere_distance(p, self.center, self.radius)
+        return rounded_box_distance(p, *self.rounded_box())
 
     def parameters(self) -> dict:
         return {"center": np.array(self.center), "radius": np.float64(self.radius)}
@@ -302,8 +266,12 @@ class Box:
         R = R if is_rotation(R, 1e-12) else nearest_rotation(R)  # exact input kept bit for bit
         object.__setattr__(self, "rotation", tuple(tuple(float(x) for x in row) for row in R))
 
+    def rounded_box(self) -> tuple:
+        """(center, rotation, half sizes, radius, eps) of :func:`rounded_box_distance`: the box itself."""
+        return np.array(self.center), np.array(self.rotation), 0.5 * np.array(self.size), 0.0, EPS_REL * float(np.linalg.norm(self.size))
+
     def distance(self, p):
-        return box_distance(p, self.center, self.size, np.array(self.rotation))
+        return rounded_box_distance(p, *self.rounded_box())
 
     def parameters(self) -> dict:
         return {"center": np.array(self.center), "size": np.array(self.size), "rotation": np.array(self.rotation)}
@@ -337,8 +305,14 @@ class Capsule:
             raise ValueError("radius must be > 0")
         object.__setattr__(self, "radius", float(self.radius))
 
+    def rounded_box(self) -> tuple:
+        """(center, rotation, half sizes, radius, eps) of :func:`rounded_box_distance`: a segment along the first axis."""
+        a, b = np.array(self.p0), np.array(self.p1)
+        length = float(np.linalg.norm(b - a))
+        return 0.5 * (a + b), _frame((b - a) / length), np.array([0.5 * length, 0.0, 0.0]), self.radius, EPS_REL * max(self.radius, length)
+
     def distance(self, p):
-        return capsule_distance(p, self.p0, self.p1, self.radius)
+        return rounded_box_distance(p, *self.rounded_box())
 
     def parameters(self) -> dict:
         return {"p0": np.array(self.p0), "p1": np.array(self.p1), "radius": np.float64(self.radius)}
@@ -365,6 +339,12 @@ class Plane:
         if norm == 0.0:
             raise ValueError("normal must not be zero")
         object.__setattr__(self, "normal", tuple(float(x) for x in n / norm))
+
+    def rounded_box(self) -> tuple:
+        """(center, rotation, half sizes, radius, eps) of :func:`rounded_box_distance`: a box PLANE_HALF deep behind
+        the plane and as wide, the NLP's rows' form of a plane (module docstring)."""
+        n = np.array(self.normal)
+        return np.array(self.point) - PLANE_HALF * n, _frame(n), np.full(3, PLANE_HALF), 0.0, EPS_REL
 
     def distance(self, p):
         return plane_distance(p, self.point, self.normal)
@@ -438,11 +418,6 @@ class Mesh:
 OBSTACLE_TYPES = {c.kind: c for c in (Sphere, Box, Capsule, Plane, Mesh)}
 
 
-def signed_distance(obstacle, p):
-    """Signed distance from ``p`` to ``obstacle`` (positive outside): numpy for every shape, CasADi for primitives."""
-    return obstacle.distance(p)
-
-
 def sharpness_radius(obstacle) -> float:
     """Smallest radius of curvature of the obstacle's surface (sampling rule): sphere and capsule
     their radius, plane inf, box and mesh 0 (edges)."""
@@ -498,26 +473,3 @@ def nearest_triangles(mesh: Mesh, points, k: int = 4) -> tuple[np.ndarray, np.nd
     take = order[(start[:, None] + np.arange(k)[None, :])]
     faces, dists = fi[take], d[take]
     return faces, dists
-
-
-def refresh_active_set(mesh: Mesh, points, k: int = 4) -> dict:
-    """Active set for the NLP's mesh rows at the current center-line points (between solves).
-
-    Returns dict(faces (P, k), distances (P, k) unsigned, signed (P,) exact signed distance,
-    inside (P,) bool: points to constrain by the plane row of faces[:, 0] (module docstring)).
-    """
-    faces, dists = nearest_triangles(mesh, points, k)
-    signed = mesh_signed_distance(mesh, np.atleast_2d(np.asarray(points, float)))
-    return {"faces": faces, "distances": dists, "signed": signed, "inside": signed < 0}
-
-
-def mesh_rows(point, mesh: Mesh, faces, inside: bool = False) -> list:
-    """Distance expressions of one center-line point to its active triangles (NLP rows, each >= D/2 + margin).
-
-    ``faces``: that point's row of :func:`refresh_active_set` ``faces`` (nearest first);
-    ``inside``: its ``inside`` flag, which adds the signed plane row of the nearest face
-    first (module docstring). numpy or CasADi ``point``.
-    """
-    tri = mesh.triangles
-    rows = [triangle_plane_distance(point, *tri[int(faces[0])])] if inside else []
-    return rows + [point_triangle_distance(point, *tri[int(f)]) for f in faces]

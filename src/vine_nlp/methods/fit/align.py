@@ -24,7 +24,6 @@ ICP_GLOBAL_ITER = 60
 POLISH_TOP = 3
 
 
-
 # ---------------------------------------------------------------- rigid transforms
 
 
@@ -32,7 +31,6 @@ def apply_transform(T, points) -> np.ndarray:
     """Points (K, 3) moved by the 4x4 transform T."""
     T = np.asarray(T, float)
     return np.asarray(points, float) @ T[:3, :3].T + T[:3, 3]
-
 
 
 def invert_transform(T) -> np.ndarray:
@@ -43,13 +41,11 @@ def invert_transform(T) -> np.ndarray:
     return out
 
 
-
 def make_transform(R, t) -> np.ndarray:
     T = np.eye(4)
     T[:3, :3] = R
     T[:3, 3] = t
     return T
-
 
 
 def _kabsch(X, Y):
@@ -60,7 +56,6 @@ def _kabsch(X, Y):
     d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
     R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
     return R, my - R @ mx
-
 
 
 def principal_axes(X):
@@ -75,7 +70,6 @@ def principal_axes(X):
     return c, V
 
 
-
 def _octahedral() -> np.ndarray:
     """The 24 proper rotations mapping the coordinate axes onto themselves; the four
     diagonal ones (identity and the sign flips of two axes) first."""
@@ -85,7 +79,6 @@ def _octahedral() -> np.ndarray:
     first = G[diag]
     first = first[np.argsort([-np.trace(g) for g in first], kind="stable")]
     return np.concatenate([first, G[~diag]])
-
 
 
 def pose_starts(source, target, starts: int = 24, seed: int = 0) -> list[np.ndarray]:
@@ -103,7 +96,6 @@ def pose_starts(source, target, starts: int = 24, seed: int = 0) -> list[np.ndar
         from scipy.spatial.transform import Rotation  # SciPy loads where it is used: the command line starts faster
         Rs += list(Rotation.random(starts - 24, random_state=seed).as_matrix())
     return [make_transform(R, cy - R @ cx) for R in Rs]
-
 
 
 # ---------------------------------------------------------------- model lines and measured point sets
@@ -172,14 +164,12 @@ class Polyline:
         return np.interp(s, self.s, self.s_tube)
 
 
-
 @dataclass
 class PointSet:
     """Measured points of one line against the model polyline of that line."""
 
     points: np.ndarray  # (K, 3), measurement frame
     line: Polyline
-
 
 
 def project_all(sets, Xt):
@@ -194,10 +184,8 @@ def project_all(sets, Xt):
     return [np.concatenate(v) for v in out]
 
 
-
 def stack_points(sets):
     return np.concatenate([st.points for st in sets])
-
 
 
 def clean_points(points, what="measured"):
@@ -206,7 +194,6 @@ def clean_points(points, what="measured"):
     if X.shape[0] < 3:
         raise ValueError(f"{what}: a fit needs at least 3 finite points, got {X.shape[0]}")
     return X
-
 
 
 def r_squared(measured, residuals, groups=None) -> float:
@@ -228,7 +215,6 @@ def r_squared(measured, residuals, groups=None) -> float:
     return 1.0 - ss_res / ss_tot if ss_tot > 0 else (1.0 if ss_res == 0 else -math.inf)
 
 
-
 # ---------------------------------------------------------------- ICP and polish
 
 
@@ -248,14 +234,12 @@ def icp_refine(sets, T, max_iter=100, tol=1e-10):
     return T, float(np.mean(d**2)), it
 
 
-
 def _skew(q):
     Q = np.zeros(q.shape[:-1] + (3, 3))
     Q[..., 0, 1], Q[..., 0, 2] = -q[..., 2], q[..., 1]
     Q[..., 1, 0], Q[..., 1, 2] = q[..., 2], -q[..., 0]
     Q[..., 2, 0], Q[..., 2, 1] = -q[..., 1], q[..., 0]
     return Q
-
 
 
 def polish_pose(sets, T, max_iter=50, tol=1e-10):
@@ -317,13 +301,11 @@ def polish_pose(sets, T, max_iter=50, tol=1e-10):
     return T, state[4] / K, it
 
 
-
 @dataclass
 class PoseFit:
     T: np.ndarray
     mse: float
     iterations: int
-
 
 
 def subsample(sets, n, seed=0):
@@ -339,7 +321,6 @@ def subsample(sets, n, seed=0):
         idx = np.sort(rng.choice(st.points.shape[0], k, replace=False))
         out.append(PointSet(st.points[idx], st.line))
     return out
-
 
 
 def fit_pose(sets, starts_T, global_iter=ICP_GLOBAL_ITER, top=POLISH_TOP, polish_iter=50) -> PoseFit:
@@ -362,7 +343,6 @@ def fit_pose(sets, starts_T, global_iter=ICP_GLOBAL_ITER, top=POLISH_TOP, polish
             best = PoseFit(T, mse, 0)
     best.iterations = iters
     return best
-
 
 
 # ---------------------------------------------------------------- ICP of general paths

@@ -31,7 +31,6 @@ class FrameFit(tuple):
         return self[1]
 
 
-
 def fit_frames(
     problem: FitProblem, measured_list, starts: int = 24, seed: int = 0, window: float = 0.1, min_points: int = 4
 ):

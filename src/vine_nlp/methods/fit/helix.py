@@ -27,14 +27,12 @@ def _frame_from_axis(a):
     return np.column_stack([u, np.cross(a, u), a])
 
 
-
 def _fibonacci_hemisphere(n):
     k = np.arange(n) + 0.5
     z = k / n  # z in (0, 1): one of each pair of opposite directions
     r = np.sqrt(1 - z**2)
     phi = math.pi * (1 + 5**0.5) * k
     return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
-
 
 
 def _circle_fit(xy):
@@ -45,7 +43,6 @@ def _circle_fit(xy):
     c = sol[:2]
     r2 = sol[2] + c @ c
     return c, math.sqrt(max(r2, 0.0))
-
 
 
 def _helix_residuals(p, X, F0, line_idx, nradii, residual="orthogonal"):
@@ -107,11 +104,9 @@ def _helix_residuals(p, X, F0, line_idx, nradii, residual="orthogonal"):
     return np.concatenate([eu, ev, ea])
 
 
-
 def _distances(res, K):
     """Per-point distances from a stacked residual vector (components stacked blockwise)."""
     return np.linalg.norm(res.reshape(-1, K), axis=0)
-
 
 
 def _curve_order(X):
@@ -144,7 +139,6 @@ def _curve_order(X):
     return np.argsort(key, kind="stable")
 
 
-
 def _unwrapped_rate(psi, z, order):
     """Slope of the phase psi, unwrapped along ``order``, against the height z."""
     ps = np.r_[0.0, np.cumsum(np.angle(np.exp(1j * np.diff(psi[order]))))]
@@ -152,7 +146,6 @@ def _unwrapped_rate(psi, z, order):
     zc = zs - zs.mean()
     den = float(zc @ zc)
     return float(zc @ (ps - ps.mean()) / den) if den > 0 else 0.0
-
 
 
 def _helix_candidates(X, n_dirs=96, max_points=400, residual="orthogonal"):
@@ -185,7 +178,6 @@ def _helix_candidates(X, n_dirs=96, max_points=400, residual="orthogonal"):
     return cands
 
 
-
 def _solve_helix(X, F0, p0, line_idx, nradii, residual, tol=1e-14, max_nfev=2000):
     from scipy.optimize import least_squares  # SciPy loads where it is used: the command line starts faster
     sol = least_squares(
@@ -193,7 +185,6 @@ def _solve_helix(X, F0, p0, line_idx, nradii, residual, tol=1e-14, max_nfev=2000
         xtol=tol, ftol=tol, gtol=tol, max_nfev=max_nfev,
     )
     return sol.x, float(np.sum(sol.fun**2)) / X.shape[0]
-
 
 
 def _rate_mismatch(p, X, F0, radius, order):
@@ -213,7 +204,6 @@ def _rate_mismatch(p, X, F0, radius, order):
     if Z <= 0 or X.shape[0] < 3:
         return 0.0
     return abs(w - _unwrapped_rate(psi, q[:, 2], order)) * Z / math.pi
-
 
 
 def _fit_helices(Xc, idx, nradii, inits, residual, check_line, keep=2, max_points=200):
@@ -246,7 +236,6 @@ def _fit_helices(Xc, idx, nradii, inits, residual, check_line, keep=2, max_point
     return best[1], best[2]
 
 
-
 def _helix_dict(p, F0, mean, nradii):
     """Axis point/direction, signed pitch b and radii in world coordinates from parameters."""
     alpha, beta, cx, cy, w, phi0 = p[:6]
@@ -259,7 +248,6 @@ def _helix_dict(p, F0, mean, nradii):
         "phase": float(phi0),
         "radii": np.asarray(p[6 : 6 + nradii], float),
     }
-
 
 
 def best_fit_helix(points, top: int = 6, residual: str = "orthogonal") -> dict:
@@ -296,7 +284,6 @@ def best_fit_helix(points, top: int = 6, residual: str = "orthogonal") -> dict:
         "rmse": float(np.sqrt(np.mean(err**2))),
         "r2": r_squared(X, err),
     }
-
 
 
 def best_fit_helix_pair(inner_points, outer_points, top: int = 3, residual: str = "orthogonal") -> dict:
@@ -351,7 +338,6 @@ def best_fit_helix_pair(inner_points, outer_points, top: int = 3, residual: str 
         "rmse_outer": float(np.sqrt(np.mean(err[idx == 1] ** 2))),
         "r2": r_squared(X, err, idx),
     }
-
 
 
 def parameter_errors(fitted: dict, nominal) -> dict:

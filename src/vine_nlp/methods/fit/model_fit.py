@@ -53,7 +53,6 @@ GRID_POINTS = 1000  # measured points used while ranking the lambda grid
 LINE_CODE = {name: k for k, name in enumerate(MEASURED_LINES)}  # center 0, inner 1, outer 2
 
 
-
 def model_lines(routing: Routing, diameter: float, spacing: float = SPACING):
     """Center, inner and outer lines of ``routing`` sampled at <= spacing * D.
 
@@ -71,12 +70,10 @@ def model_lines(routing: Routing, diameter: float, spacing: float = SPACING):
     return {"center": c, "inner": i, "outer": o}, s_tube, per_segment
 
 
-
 def _with_lambda(routing: Routing, lam) -> Routing:
     if lam is None:
         return routing
     return Routing(routing.theta, np.full(routing.segments, float(lam)), routing.length, routing.initial_pose)
-
 
 
 class LineFitter:
@@ -170,7 +167,6 @@ class LineFitter:
         return best["lam"], best["fit"]
 
 
-
 def fit_lines(
     routing: Routing,
     diameter: float,
@@ -212,7 +208,6 @@ def fit_lines(
         grid, costs = fitter.grid
         result.stats.update(lambda_bounds=list(lambda_bounds), lambda_grid=grid.tolist(), lambda_grid_rmse=costs.tolist())
     return result, extras
-
 
 
 def finish_fit(fitter: LineFitter, lam_fit, T, free, spacing):
@@ -275,7 +270,6 @@ def finish_fit(fitter: LineFitter, lam_fit, T, free, spacing):
     return result, extras
 
 
-
 def fit_problem(problem: FitProblem, starts: int = 24, seed: int = 0):
     """Fit the model of a fit problem to its measured points (``vine-nlp fit``).
 
@@ -300,7 +294,6 @@ def fit_problem(problem: FitProblem, starts: int = 24, seed: int = 0):
     return fit_lines(
         problem.routing, problem.diameter, {problem.line: problem.measured}, free=problem.free, starts=starts, seed=seed
     )
-
 
 
 def describe_fit(result: Result, units: str = "cm") -> str:

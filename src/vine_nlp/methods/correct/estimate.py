@@ -1,0 +1,386 @@
+"""The as-built estimate: the MAP estimate of what was built, from measured points of one or more builds.
+
+The chain's theta_j, lam_j, dl_j ARE the as-built values of the latest build; three global variables are
+the systematic parts g = (theta offset, lambda offset, log length scale) shared by every segment. With
+Gaussian construction errors (sigmas as in ``vine-nlp analyze``) and Gaussian measurement noise sigma_m,
+the negative log posterior times 2 / N (N measured points) is
+
+    (1/N) [ sum_i |P_i(q) - m_i|_perp^2 / sigma_m^2
+            + sum_j ((theta_j - theta_nom,j - g0) / s_theta)^2 + ((lam_j - lam_nom,j - g1) / s_lam)^2
+                    + ((dl_j - l_nom,j e^g2) / (s_len l_nom,j e^g2))^2
+            + sum_k (g_k / s_sys,k)^2 ],
+
+P_i the model point paired with measured point m_i (``pairing``, point-to-line). sPAM: the lambda
+deviation is the systematic offset only. Earlier builds are second chains of frames (extra stage
+variables) whose segments are the latest as-built values shifted by their known differences; free-frame
+measurements carry a rigid transform (6 more globals), started from a rigid ICP alignment.
+
+The ICP loop (:class:`_ICP`, a rule of ``drive.refine``): pair, solve warm, pair again until the pairs stop
+moving; coarse to fine, the fit's noise sigma shrinking by settings.STAGE_FACTOR from D/2 to sigma_m (the
+closest points of a robot built far off its nominal are wrong at first), pairs beyond TRIM sigmas left
+out. Each segment of each build has S slots (the fullest segment's count, rounded up to SLOT_STEP), each
+one instance of the one-point block :func:`measure_block` with its point, fraction, tangent and weight as
+data (unused slots weight 0): re-pairing changes data only, and one structure per (M, S, builds, free
+pose) serves every round, compiled once ("As-built correction").
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field, replace
+from functools import lru_cache
+from typing import ClassVar
+
+import casadi as ca
+import numpy as np
+
+from vine_nlp.methods import drive, settings
+from vine_nlp.methods.blocks import BlockType
+from vine_nlp.methods.correct.deviations import Deviations, deviations_of
+from vine_nlp.methods.correct.laplace import laplace
+from vine_nlp.methods.correct.pairing import LINE_SIDE, in_frame, pair_with_line, rigid_start
+from vine_nlp.methods.structure import Structure, frames12
+from vine_nlp.methods.transcription import Chain, Spec, get_solver
+from vine_nlp.model.chain import chain_frames
+from vine_nlp.model.helix import center_rates
+from vine_nlp.model.routing import Routing, Sigmas
+from vine_nlp.model.segment import segment_function, so3_exp, twist_parts
+from vine_nlp.problem import Result
+
+_log = logging.getLogger(__name__)
+
+# weak priors on the systematic parts: wide against any construction method seen
+DEFAULT_SYSTEMATIC_SIGMAS = (math.radians(10.0), 0.2, 0.2)
+DEFAULT_MEASUREMENT_SIGMA_MM = 1.0
+TRIM = 4.0  # pairs farther than this many sigmas of the stage are left out of it
+SLOT_STEP = 8  # slots per segment are rounded up to a multiple of this (cached structures)
+
+
+# data rows of one measurement slot (measure_block): shift (3), u, m (3), tangent (3), sqrt weight, side
+# [, centroid (3), free flag]
+SLOT_DATA = 12
+SLOT_DATA_FREE = 16
+
+
+@lru_cache(maxsize=2)
+def measure_block(free: bool) -> BlockType:
+    """Point-to-line residual of one measured point (one slot of one segment of one build), SX.
+
+    One block instance per slot: the generated code holds the point's function and its derivatives once,
+    whatever the number of slots (module docstring).
+    v = (X_j (12), theta, lam, dl[, w (3), t (3)]): the segment's local variables of the latest
+    as-built chain (and the rigid transform of free-frame measurements);
+    d = (shift (3): theta and lambda added, length factor (the build's nominal against the latest),
+    u, m (3), t (3) tangent, w square root of the weight, side [, c (3) centroid, flag]).
+    Residual w (I - t t^T)(P - m) (the square root as data: a zero-weight slot has finite derivatives);
+    a free-frame point (flag 1) is moved by exp(w) (m - c) + c + t first (m stored as given, c their centroid)."""
+    nv = 21 if free else 15
+    nd = SLOT_DATA_FREE if free else SLOT_DATA
+    v, d = ca.SX.sym("v", nv), ca.SX.sym("d", nd)
+    th, la, dl = v[12] + d[0], v[13] + d[1], v[14] * d[2]
+    u, mi, tg, w, side = d[3], d[4:7], d[7:10], d[10], d[11]
+    R, p = ca.reshape(v[:9], 3, 3), v[9:12]
+    kappa, tau, lc = center_rates(th, la, 1.0)
+    Rs, q = twist_parts(kappa, tau, u * dl * lc)
+    local = ca.vertcat(q[0] + side * Rs[0][1], q[1] + side * Rs[1][1], q[2] + side * Rs[2][1])
+    P = p + ca.mtimes(R, local)
+    if free:
+        c, flag = d[12:15], d[15]
+        mi = mi + flag * (ca.mtimes(so3_exp(v[15:18]), mi - c) + c + v[18:21] - mi)
+    e = P - mi
+    res = w * (e - tg * ca.dot(tg, e))
+    return BlockType(f"measure{'f' if free else ''}", ca.Function("measure_block", [v, d], [ca.sumsqr(res), ca.SX(0, 1)]),
+                     ca.Function("measure_res", [v, d], [res]))
+
+
+@lru_cache(maxsize=1)
+def shifted_segment_block() -> BlockType:
+    """Continuity of an earlier build's chain: X'_{j+1} = X'_j T(theta + d_theta, lam + d_lam, dl f).
+    v = (X'_j (12), theta, lam, dl, X'_{j+1} (12)); d = (d_theta, d_lam, f)."""
+    v, d = ca.SX.sym("v", 27), ca.SX.sym("d", 3)
+    Xn, _ = segment_function(1)(v[:12], v[12] + d[0], v[13] + d[1], v[14] * d[2], 0.0)
+    return BlockType("shifted_segment", ca.Function("shifted_block", [v, d], [ca.SX(0), Xn - v[15:]]),
+                     ca.Function("shifted_res", [v, d], [ca.SX(0, 1)]))
+
+
+@dataclass(frozen=True)
+class AsBuiltTerm:
+    """The MAP estimate's terms (module docstring) for ``builds`` builds (the last is the chain itself,
+    the others extra frames) with ``S`` slots per segment and build; ``free``: a rigid transform of the
+    free-frame measurements in globals 3..8. Parameters: meas (nd x M B S, one column per slot), shift (3 x M (B-1)),
+    prior (3 x M: nominal theta, lam, dl of the latest build), prior_sig (8: s_theta, s_lam, s_len_rel,
+    s_len_abs (D), s_sys (3), scale)."""
+
+    S: int
+    builds: int = 1
+    free: bool = False
+    # the pairing is data (slot fractions, points, weights 0 on unused slots): one structure per (M, S, builds,
+    # free) serves every ICP round and every measurement of that size, worth compiling (methods.compiled)
+    compile: ClassVar[bool] = True
+
+    def apply(self, c: Chain) -> None:
+        s, lay = c.s, c.lay
+        M, B, S = s.M, self.builds, self.S
+        bt = measure_block(self.free)
+        nd = bt.fn.size1_in(1)
+        meas = c.param("meas", (nd, M * B * S))  # slot k of segment j of build b: column (b M + j) S + k
+        shift = c.param("shift", (3, max(M * (B - 1), 1)))
+        prior, sig = c.param("prior", (3, M)), c.param("prior_sig", (8, 1))
+
+        def frame(b, j):
+            if b == B - 1 or j == 0:
+                return lay.X[j, 0]
+            return lay.extra[j - 1, 12 * b : 12 * b + 12]
+
+        glob = lay.globals[3:9] if self.free else np.zeros(0, int)
+        cols = [np.r_[frame(b, j), lay.theta[j], lay.lam[j, 0], lay.dl[j], glob] for b in range(B) for j in range(M)]
+        c.add_block(bt, np.hstack([np.repeat(col[:, None], S, axis=1) for col in cols]), meas, term="fit")
+        if B > 1:
+            idx = [np.r_[frame(b, j), lay.theta[j], lay.lam[j, 0], lay.dl[j], lay.extra[j, 12 * b : 12 * b + 12]]
+                   for b in range(B - 1) for j in range(M)]
+            c.add_block(shifted_segment_block(), np.array(idx).T, shift)
+        g = c.globals
+        L = prior[2, :] * ca.exp(g[2])
+        r_th = (c.theta - prior[0, :] - g[0]) / sig[0]
+        r_len = (c.dl - L) / (sig[2] * L + sig[3])
+        val = ca.sumsqr(r_th) + ca.sumsqr(r_len) + ca.sumsqr(g[:3] / sig[4:7])
+        if s.lam == "segment":
+            val += ca.sumsqr((c.lam_of(0) - prior[1, :] - g[1]) / sig[1])
+        else:
+            c.add_rows("spam_offset", c.lam_of(0)[0] - prior[1, 0] - g[1], 0.0, 0.0)
+        c.add_term("prior", sig[7] * val)
+
+
+@dataclass
+class Estimate:
+    """The estimated as-built robot (latest build) and how well it is known.
+
+    ``systematic``: (theta offset rad, lambda offset, length scale factor) and ``systematic_std``
+    their standard deviations (the scale's by the delta method); ``std`` (M, 3): standard
+    deviations of theta, lambda and length (problem units) per segment; ``transform``: 4x4 moving
+    free-frame measurements into the archive frame (identity without them); ``residuals``: per
+    measurement, the distances of its points to the estimated line (problem units)."""
+
+    routing: Routing
+    deviations: Deviations
+    systematic: np.ndarray
+    systematic_std: np.ndarray
+    std: np.ndarray
+    transform: np.ndarray
+    residuals: list
+    status: str
+    iterations: int
+    solve_time_s: float
+    rounds: int
+    stats: dict = field(default_factory=dict)
+
+    @property
+    def rmse(self) -> float:
+        d = np.concatenate(self.residuals) if self.residuals else np.zeros(1)
+        return float(np.sqrt(np.mean(d**2)))
+
+
+def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigmas, shared_lambda: bool = False,
+                      measurement_sigma: float | None = None, systematic_sigmas=DEFAULT_SYSTEMATIC_SIGMAS,
+                      hessian: str | None = None, rounds: int = settings.ICP_ROUNDS, units_per_mm: float = 0.1) -> Estimate:
+    """MAP estimate of the as-built robot from measurements of one or more builds (module docstring).
+
+    ``nominals``: the nominal routing of each build, oldest first (the estimate is of the last; all share
+    the segments and the base pose); ``measurements``: points of any build (``build`` indexes ``nominals``,
+    -1 the latest), any line, any order; ``D``: the tube diameter; ``sigmas``: the per-segment
+    construction errors (the prior); ``shared_lambda``: sPAM; ``measurement_sigma``: the noise (problem
+    units, default DEFAULT_MEASUREMENT_SIGMA_MM); ``systematic_sigmas``: the prior of the theta offset
+    (rad), lambda offset and log length scale; ``hessian``: default settings.ESTIMATE_HESSIAN; ``rounds``:
+    of the last stage (settings.COARSE_ROUNDS for each earlier one). Raises ValueError for sigmas <= 0.
+    """
+    stats, cpu = drive.Stats(), time.process_time()
+    sig_m = (DEFAULT_MEASUREMENT_SIGMA_MM * units_per_mm) if measurement_sigma is None else float(measurement_sigma)
+    icp = _ICP(nominals, measurements, D, sigmas, shared_lambda, sig_m, systematic_sigmas, hessian or settings.ESTIMATE_HESSIAN, rounds)
+    found = drive.refine(icp, sum(icp.caps), stats=stats)
+    g = icp.solver.unpack(icp.x)["globals"]
+    # Laplace approximation around the estimate
+    std, sys_std, residuals = laplace(icp.ab, g[:3], icp.shifts, icp.ms, icp.pts, icp.pairs, D, sig_m, sigmas, systematic_sigmas,
+                                      icp.prior, shared_lambda, icp.free, icp.centroid, icp.Tcorr)
+    latest = nominals[-1]
+    return Estimate(
+        routing=icp.ab, deviations=deviations_of(latest, icp.ab), systematic=np.array([g[0], g[1], math.exp(g[2])]),
+        systematic_std=sys_std, std=std, transform=icp.Tcorr @ icp.T_free, residuals=residuals, status=found.best.status,
+        iterations=stats.iterations, solve_time_s=time.perf_counter() - stats.started, rounds=found.rounds,
+        stats={"measurement_sigma": sig_m, "slots_per_segment": icp.S, "points": icp.N, "builds": icp.B, "hessian": icp.hessian,
+               "objective": found.best.stats.get("objective", float("nan")), "free_pose": icp.free, "cpu_time_s": time.process_time() - cpu},
+    )
+
+
+class _ICP:
+    """The estimate's ICP loop, a rule of ``drive.refine`` (module docstring): each round solves the MAP NLP
+    with the current pairs (warm from the round before, anew where the slots grew), then pairs the
+    measurements again with the new estimate; a stage ends when the pairs stop moving or after its
+    rounds, the loop after the last stage. Every round supersedes the one before (the estimate is the last)."""
+
+    def __init__(self, nominals, measurements, D, sigmas, shared, sig_m, systematic_sigmas, hessian, rounds):
+        B, latest = len(nominals), nominals[-1]
+        self.latest, self.B, self.M, self.T0, self.D = latest, B, latest.segments, latest.initial_pose, D
+        self.shared, self.hessian, self.sig_m = shared, hessian, sig_m
+        self.ms = [replace(m, build=m.build % B) for m in measurements]
+        self.N = sum(m.points.shape[0] for m in self.ms)
+        self.free = any(m.frame == "free" for m in self.ms)
+        # shifts of every build against the latest nominal (known differences of what was built)
+        self.shifts = [(n.theta - latest.theta, n.lam - latest.lam, n.length / latest.length) for n in nominals]
+        self.T_free = rigid_start(self.ms, nominals, D) if self.free else np.eye(4)
+        self.pts = [in_frame(m.points, m, self.T_free) for m in self.ms]
+        self.centroid = np.mean(np.concatenate([p for p, m in zip(self.pts, self.ms) if m.frame == "free"]), axis=0) if self.free else np.zeros(3)
+        s_rel, s_abs = (sigmas.length, 0.0) if sigmas.relative_length else (0.0, sigmas.length / D)
+        self.prior_sig = np.array([sigmas.theta, sigmas.lam, s_rel, s_abs, *systematic_sigmas, 1.0 / self.N])
+        if np.any(self.prior_sig[:2] <= 0) or (s_rel <= 0 and s_abs <= 0):
+            raise ValueError("the construction-error sigmas must be > 0")
+        self.prior = np.vstack([latest.theta, latest.lam, latest.length / D])
+        self.shift_data = (np.vstack([np.concatenate([self.shifts[b][k] for b in range(B - 1)]) for k in range(3)]) if B > 1
+                           else np.zeros((3, 1)))
+        self.ab, self.Tcorr, self.g_free = latest, np.eye(4), np.zeros(6)
+        self.pairs = self._pairs()
+        self.S = int(math.ceil(1.25 * self._slots_needed() / SLOT_STEP) * SLOT_STEP)
+        self.solver = None
+        # coarse to fine: the fit's noise sigma from D/2 down to the measurement's
+        self.stages, s_k = [], 0.5 * D
+        while s_k > settings.STAGE_MERGE * sig_m:
+            self.stages.append(s_k)
+            s_k *= settings.STAGE_FACTOR
+        self.stages.append(sig_m)
+        self.caps = [min(rounds, settings.COARSE_ROUNDS)] * (len(self.stages) - 1) + [rounds]
+        self.stage, self.k = 0, 0
+
+    def _routings(self) -> list:
+        """Every build's as-built routing: the estimate shifted by the build's known differences."""
+        return [Routing(self.ab.theta + a, self.ab.lam + b, self.ab.length * c, self.T0) for a, b, c in self.shifts]
+
+    def _pairs(self):
+        rs = self._routings()
+        return [pair_with_line(in_frame(p, m, self.Tcorr), rs[m.build], self.D, LINE_SIDE[m.line]) for p, m in zip(self.pts, self.ms)]
+
+    def _slots_needed(self) -> int:
+        cnt = np.zeros((self.B, self.M), int)
+        for pr, m in zip(self.pairs, self.ms):
+            cnt[m.build] += np.bincount(pr.seg, minlength=self.M)
+        return max(1, int(cnt.max()))
+
+    def solve(self, x, round, last):
+        M, D, need = self.M, self.D, self._slots_needed()
+        if need > self.S:
+            self.S, self.solver = int(math.ceil(need / SLOT_STEP) * SLOT_STEP), None
+        if self.solver is None:  # a new structure: its own start
+            st = Structure(M, 1, 1, "shared" if self.shared else "segment", "fixed", extra=12 * (self.B - 1), globals=9 if self.free else 3)
+            self.solver, x = get_solver(Spec(st, (AsBuiltTerm(self.S, self.B, self.free),), self.hessian, settings.ESTIMATE)), None
+        solver, lay, s_stage = self.solver, self.solver.layout, self.stages[self.stage]
+        data = self._data(s_stage, TRIM * max(s_stage, self.sig_m))
+        p = solver.pack_params({"cells": np.zeros((5, M)), "meas": data, "shift": self.shift_data, "prior": self.prior,
+                                "prior_sig": self.prior_sig})
+        if x is None:
+            x = _start_x(solver, self.ab, D, self._routings(), self.B, lay)
+            if self.free:
+                x[lay.globals[3:9]] = self.g_free
+        lbx, ubx = np.full(lay.size, -np.inf), np.full(lay.size, np.inf)
+        lbx[lay.X[0, 0]] = ubx[lay.X[0, 0]] = np.r_[self.T0[:3, :3].ravel(order="F"), self.T0[:3, 3] / D]
+        lbx[lay.dl], ubx[lay.dl] = 0.2 * self.latest.length / D, 5.0 * self.latest.length / D
+        lbx[lay.lam_global if self.shared else lay.lam[:, 0]] = 0.05
+        lbx[lay.theta], ubx[lay.theta] = -1.45, 1.45
+        self.x, status, st = solver.solve(x, p, lbx, ubx)
+        v = solver.unpack(self.x)
+        self.ab = Routing(v["theta"], v["lam"][:, 0], v["dl"] * D, self.T0)
+        if self.free:
+            self.g_free, self.Tcorr = v["globals"][3:9].copy(), _free_transform(v["globals"], self.centroid, D)
+        return self.x, Result("as_built", self.ab, None, status, iterations=st.pop("iterations"), stats=st)
+
+    def judge(self, res):
+        new = self._pairs()
+        moved = max(float(np.max(np.abs(a.l - b.l))) for a, b in zip(new, self.pairs))
+        self.pairs, self.k = new, self.k + 1
+        self.stage_done = moved < 1e-3 * self.D or self.k == self.caps[self.stage]
+        _log.debug("estimate: stage sigma %.3g, %s, pairs moved up to %.2g D", self.stages[self.stage], res.status, moved / self.D)
+        return drive.Verdict(self.stage_done and self.stage == len(self.stages) - 1, None, moved)
+
+    def refresh(self, res, verdict, x):
+        if self.stage_done:
+            self.stage, self.k = self.stage + 1, 0
+        return x
+
+    def _data(self, s_stage, trim):
+        """The slots' data: each measured point in the next free slot of its (build, segment) cell, weighted
+        by the stage's sigma where its pair is within ``trim`` (else 0); padding slots weight 0, fraction 0."""
+        B, M, S, D = self.B, self.M, self.S, self.D
+        data = np.zeros((SLOT_DATA_FREE if self.free else SLOT_DATA, B * M * S))
+        for b in range(B):
+            for k in range(3):
+                data[k, b * M * S : (b + 1) * M * S] = np.repeat(self.shifts[b][k], S)
+        if self.free:
+            data[12:15] = (self.centroid / D)[:, None]
+        fill = np.zeros(B * M, int)
+        for pr, m, p in zip(self.pairs, self.ms, self.pts):
+            keep = np.linalg.norm(pr.point - in_frame(p, m, self.Tcorr), axis=1) <= trim
+            cell = m.build * M + pr.seg
+            # each point's rank among the points of its cell, in order: the next free slots of the cell
+            order = np.argsort(cell, kind="stable")
+            sorted_cells = cell[order]
+            rank = np.empty(cell.size, int)
+            rank[order] = np.arange(cell.size) - np.searchsorted(sorted_cells, sorted_cells, side="left")
+            col = cell * S + fill[cell] + rank
+            fill += np.bincount(cell, minlength=B * M)
+            data[3, col] = pr.frac
+            data[4:7, col] = (p / D).T
+            data[7:10, col] = pr.tangent.T
+            data[10, col] = np.where(keep, math.sqrt(1.0 / self.N) * D / s_stage, 0.0)
+            data[11, col] = LINE_SIDE[m.line]
+            if self.free:
+                data[15, col] = 1.0 if m.frame == "free" else 0.0
+        return data
+
+
+def unit_scale(D):
+    s = np.ones((4, 4))
+    s[:3, 3] = 1.0 / D
+    return s
+
+
+def _free_transform(g, centroid, D):
+    """The transform x -> exp(w) (x - c) + c + t of the globals 3..8 (t in units of D)."""
+    R = so3_exp(np.asarray(g[3:6], float))
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, centroid - R @ centroid + np.asarray(g[6:9], float) * D
+    return T
+
+
+def _start_x(solver, ab, D, routings, B, lay):
+    frames = chain_frames(ab.theta, ab.lam, ab.length, D, ab.initial_pose) * unit_scale(D)
+    x = solver.pack_x(ab.theta, ab.lam, ab.length / D, frames12(frames)[None], lam_global=np.mean(ab.lam),
+                      globals_=np.zeros(lay.globals.size))
+    for b in range(B - 1):
+        r = routings[b]
+        fb = frames12(chain_frames(r.theta, r.lam, r.length, D, r.initial_pose) * unit_scale(D))
+        x[lay.extra[:, 12 * b : 12 * b + 12]] = fb[:, 1:].T
+    return x
+
+
+def combine_systematic(estimates, std) -> tuple[np.ndarray, np.ndarray, float]:
+    """Inverse-variance mean of systematic estimates (P, 3) with standard errors (P, 3); the length scale
+    is combined in log space. Where the prototypes scatter more than their standard errors say
+    (Birge ratio sqrt(chi^2 / (P - 1)) > 1, per part), the standard error is inflated by it.
+    Returns (mean (3,), standard error (3,), largest Birge ratio)."""
+    x = np.array(estimates, float).reshape(-1, 3).copy()
+    s = np.array(std, float).reshape(-1, 3).copy()
+    s[:, 2] = s[:, 2] / x[:, 2]
+    x[:, 2] = np.log(x[:, 2])
+    s = np.maximum(s, 1e-15)
+    w = 1.0 / s**2
+    mean = np.sum(w * x, axis=0) / np.sum(w, axis=0)
+    se = 1.0 / np.sqrt(np.sum(w, axis=0))
+    P = x.shape[0]
+    birge = np.ones(3)
+    if P > 1:
+        chi2 = np.sum(w * (x - mean) ** 2, axis=0)
+        birge = np.sqrt(chi2 / (P - 1))
+        se = se * np.maximum(birge, 1.0)
+    out, out_se = mean.copy(), se.copy()
+    out[2] = math.exp(mean[2])
+    out_se[2] = out[2] * se[2]
+    return out, out_se, float(birge.max())

@@ -1,0 +1,145 @@
+"""Inverse design among obstacles: the plain NLP plus the obstacle rows, an active-set loop on the drive.
+
+Start from the obstacle-free design (design_nlp) and keep it when it already clears; otherwise solve with
+the rows from the pushed start's chain (``push``), check with the report (analysis.obstacles.obstacle_report:
+20 points per segment, exact mesh distances, refined minima), refresh the plan, re-solve warm; until the
+report is clear or the rounds are done (``drive.refine`` with the rule :class:`Rounds`). A re-solve before
+the last round stops after settings.ROUND_MAX_ITER iterations and the next round goes on from where it
+stopped, with fresh active sets; the first solve is not cut (from the pushed start it may legitimately need
+more). The rows' length bounds make room for a segment the pushed start's detour lengthened past its bound
+(a start outside the bounds is moved inside by IPOPT, its chain torn apart).
+
+Weights. A target point closer than the margin to an obstacle is *blocked*: no design sits on it. Its fit
+weight is scaled, so the detour is shaped more by the points the tube can follow: BLOCKED_WEIGHT for
+primitives, MESH_BLOCKED_WEIGHT where the scene has a mesh; heavier blocked points pulled the tube's error
+into the target away from the obstacles, lighter ones (with a mesh) sent it round the far side. With a mesh
+the weight rises from the margin over MESH_WEIGHT_RAMP (quadratically): points just outside the margin that
+the tube cannot follow past its detour pulled the neighbouring segments into a zig-zag. The values were
+chosen on the bundled problems and the speed scenes (results/BENCHMARKS.md, "Obstacles").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from vine_nlp.analysis.obstacles import min_gap
+from vine_nlp.methods import drive, settings
+from vine_nlp.methods.common import pair_points
+from vine_nlp.methods.nlp import chain_guess, design_bounds, design_nlp, extended_solver, nlp_parameters, result_of, start_x
+from vine_nlp.methods.obstacles.plan import LENGTH_SLACK, SPACING, Plan, obstacle_stats
+from vine_nlp.methods.obstacles.push import pushed_start
+from vine_nlp.methods.obstacles.rows import MESH_K
+from vine_nlp.problem import DesignProblem, Result
+
+RUN = "nlp"  # the obstacle design is the problem's design (archived as run "nlp"); the obstacle-free start: FREE_RUN
+FREE_RUN = "nlp_free"
+METHOD = "nlp_obstacles"
+BLOCKED_WEIGHT = 0.1  # weight of the target points closer than the margin to an obstacle (their fit cannot be exact)
+MESH_BLOCKED_WEIGHT = 0.01  # the same where the scene has a mesh (module docstring, "Weights")
+MESH_WEIGHT_RAMP = 1.0  # units of D: with a mesh, weights rise from MESH_BLOCKED_WEIGHT at the margin to 1 at margin + this
+
+
+class Rounds:
+    """The obstacle rows' active set, a rule of ``drive.refine``: solve with the plan's rows (``solver(round,
+    last)``: the NLP for the plan's current slots; ``data``: the rows' data for ``routing``, the first round's),
+    judge by the report, refresh the plan (plan.next_round). ``params``: the formulation's data beside the
+    rows'; ``bounds``: (lbx, ubx); ``result(solver, x, status, st)``: a round's Result; ``stop_at_cap``: a
+    solve that reaches its iteration limit ends the loop (a tip start left for the next)."""
+
+    def __init__(self, plan: Plan, routing, data: dict, solver, params: dict, bounds: tuple, result, stop_at_cap: bool = False):
+        self.plan, self.routing, self.data, self.solver, self.params, self.bounds = plan, routing, data, solver, params, bounds
+        self.result, self.stop_at_cap = result, stop_at_cap
+
+    def solve(self, x, round, last):
+        if round:
+            self.data = self.plan.data(self.routing)
+        solver = self.built = self.solver(round, last)
+        x, status, st = solver.solve(x, solver.pack_params(self.params | self.data), *self.plan.trust(solver, x, *self.bounds))
+        return x, self.result(solver, x, status, st)
+
+    def judge(self, res):
+        rep = self.plan.report(res.routing)
+        done = (rep["clear"] and res.converged) or (self.stop_at_cap and res.status == "max_iter")
+        miss = self.plan.margin - min(rep["min_gap"], rep["min_gap_intermediate"])
+        return drive.Verdict(done, drive.rank(res, rep["clear"], miss), rep)
+
+    def refresh(self, res, verdict, x):
+        self.plan.next_round(res.converged, res.routing, verdict.report)
+        self.routing = res.routing
+        return self.plan.fill_extra(self.built, x, res.routing)
+
+
+def design_with_obstacles(problem: DesignProblem, start: Result | None = None, rounds: int = settings.ROUNDS, ts=None,
+                          k: int = MESH_K, spacing: float = SPACING, **kw) -> Result:
+    """Inverse design that keeps the tube ``problem.obstacle_margin`` clear of ``problem.obstacles``.
+
+    ``start``: the obstacle-free design (default design_nlp(problem, **kw)), returned (with the obstacle
+    metrics) when it already clears; ``rounds``: solves of the active-set loop at most (settings.MESH_ROUNDS
+    at least with a mesh); ``ts``: growth "after", the shapes t with rows (default the report's grid);
+    ``k``: nearest triangles per mesh sample; ``spacing``: target sample spacing, units of D.
+    Returns the best round (method "nlp_obstacles"; ``drive.rank``) with metrics min_obstacle_gap (and
+    min_obstacle_gap_after) and stats obstacle_rounds, obstacle_clear, obstacle_samples_per_segment,
+    obstacle_margin, growth, start_rmse, start_min_obstacle_gap, obstacle_raise (the rows' extra
+    requirement, units), obstacle_slots (primitive slots per segment); iterations, ipopt_iterations and
+    ipopt_time_s summed over the solves with rows (not the obstacle-free or pushed starts).
+    """
+    stats = drive.Stats()
+    start = start or design_nlp(problem, **kw)
+    D = problem.diameter
+    plan = Plan(problem.obstacles, D, problem.obstacle_margin, problem.growth, start.routing.length, problem.actuator, ts, k, spacing)
+    first = plan.report(start.routing)
+    stats0 = {"obstacle_margin": plan.margin, "growth": plan.growth, "start_rmse": float(start.metrics["rmse"]),
+              "start_min_obstacle_gap": float(first["min_gap"])}
+    if not problem.obstacles or first["clear"]:
+        best = dataclasses.replace(start, metrics=dict(start.metrics), stats=dict(start.stats))
+        best.metrics.update(obstacle_stats(first))
+        best.stats.update(stats0 | {"obstacle_rounds": 0, "obstacle_clear": bool(first["clear"])})
+        return best
+    pairing = pair_points(problem.target, problem.options.points_per_segment)
+    plan.choose_levels(first)
+    plan.data(start.routing)  # the slots near the obstacle-free design stay
+    routing = pushed_start(problem, plan)
+    R0g = routing.initial_pose[:3, :3].copy()
+    params = nlp_parameters(problem, pairing, R0g)
+    factor, ramp = (MESH_BLOCKED_WEIGHT, MESH_WEIGHT_RAMP) if plan.has_mesh else (BLOCKED_WEIGHT, 0.0)
+    params["cells"] = _weigh_blocked(problem, pairing, params["cells"], factor, ramp)
+    rounds = max(rounds, settings.MESH_ROUNDS) if plan.has_mesh else rounds
+
+    def solver(round, last):  # cached per spec: new only when the slots grew; a re-solve before the last is cut
+        return extended_solver(problem, pairing, (plan.term,), plan.extra, settings.ROUND_MAX_ITER if 0 < round and not last else None)
+
+    def result(solver, x, status, st):
+        return result_of(problem, pairing, solver, x, status, st, R0g, METHOD)
+
+    data = plan.data(routing)  # the first round's: it fixes the first solver's slots
+    first_solver = solver(0, rounds == 1)
+    theta_b, lam_b, (dl_lo, dl_hi) = design_bounds(problem, pairing)
+    # the pushed start's detour may lengthen a segment past LENGTH_FACTOR of its chord on the target: there the
+    # bound makes room for it (module docstring)
+    dl0 = routing.length / D
+    bounds = first_solver.bounds(theta_b, lam_b, (dl_lo, np.where(dl0 > dl_hi, LENGTH_SLACK * dl0, dl_hi)))
+    x = plan.fill_extra(first_solver, start_x(first_solver, chain_guess(problem, routing), D, "chain"), routing)
+    found = drive.refine(Rounds(plan, routing, data, solver, params, bounds, result), rounds, x, stats)
+    best, rep = stats.stamp(found.best), found.verdict.report
+    best.metrics.update(obstacle_stats(rep))
+    best.stats.update(stats0 | {"obstacle_rounds": found.rounds, "obstacle_clear": bool(rep["clear"]),
+                                "obstacle_samples_per_segment": plan.S, "obstacle_raise": plan.raised * D, "obstacle_slots": plan.P,
+                                "obstacle_after_t": list(plan.ts)})
+    return best
+
+
+def _weigh_blocked(problem: DesignProblem, pairing, cells: np.ndarray, factor: float, ramp: float = 0.0) -> np.ndarray:
+    """The cells with the weights of the blocked target points (where the tube cannot be: closer than
+    the margin to an obstacle) times ``factor``; with ``ramp`` > 0 (units of D) the weight then rises
+    as s^2 to 1, s = (gap - margin) / ramp in [0, 1] (module docstring, "Weights")."""
+    tg = problem.target
+    i = np.arange(tg.shape[0] - 1)
+    gap = min_gap(tg[i], problem.diameter, problem.obstacles).min(axis=1)
+    s = np.clip((gap - problem.obstacle_margin) / (ramp * problem.diameter), 0, 1) ** 2 if ramp > 0 else (gap >= problem.obstacle_margin)
+    w = factor + (1 - factor) * s
+    blocked = np.flatnonzero(w < 1)
+    cells = cells.copy()
+    cells[4 * pairing.n + blocked - pairing.bounds[pairing.seg[blocked]], pairing.seg[blocked]] *= w[blocked]
+    return cells

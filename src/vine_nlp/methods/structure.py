@@ -1,0 +1,97 @@
+"""The shape of the chain NLP: its structure (segments, slots, levels, shared variables) and where each
+quantity lives in the decision vector.
+
+Variables are created in stage order, so the constraint Jacobian and the Lagrangian Hessian are
+block-banded and an IPOPT iteration costs O(M):
+
+    head     the base pose(s) (w, p): a rotation vector relative to a guessed rotation R0g, and a
+             position; none for a fixed pose, one shared by all K levels, or one per level; the global
+             lambda variables (one for an sPAM, one per level for multi-shape); extra globals; the
+             base frames X_0(k)
+    stage j  theta_j, lam_j (per-segment lambda only), dl_j, the formulation's extra stage
+             variables, (stage form) the carried (theta_j, lam_j), the frames X_{j+1}(k) of every level k
+
+A frame X is 12 numbers: the rotation column-major, then the position. Lengths are in units of the
+tube diameter (D = 1), so one built solver serves every tube.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def frames12(frames: np.ndarray, D: float = 1.0) -> np.ndarray:
+    """(M+1, 4, 4) -> (12, M+1): rotation column-major, then position / D (the transcription's frame layout)."""
+    R = frames[:, :3, :3].transpose(0, 2, 1).reshape(-1, 9)
+    return np.hstack([R, frames[:, :3, 3] / D]).T
+
+
+POSES = ("free", "fixed", "shared", "level")
+LAMBDAS = ("segment", "shared", "level")
+
+
+@dataclass(frozen=True)
+class Structure:
+    """What fixes the NLP's shape: M segments, n point slots per segment, K levels, how lambda and
+    the base pose are shared, and extra variables per stage requested by terms."""
+
+    M: int
+    n: int = 1
+    K: int = 1
+    lam: str = "segment"  # "segment" (one per segment) | "shared" (one, sPAM) | "level" (one per level)
+    pose: str = "free"  # "free" | "fixed" | "shared" (one for all levels) | "level" (one per level)
+    extra: int = 0  # extra variables per stage
+    globals: int = 0  # extra global variables (head), e.g. systematic construction errors
+    stages: bool = False  # stage form (methods.blocks, "Stage form"): the plain chain for a stage-structured solver
+
+    def __post_init__(self):
+        if self.M < 1 or self.n < 1 or self.K < 1:
+            raise ValueError(f"a chain needs M, n, K >= 1 (got {self.M}, {self.n}, {self.K})")
+        if self.lam not in LAMBDAS or self.pose not in POSES:
+            raise ValueError(f"lam must be one of {LAMBDAS}, pose one of {POSES}")
+        if self.stages and (self.K, self.lam, self.pose, self.extra, self.globals) != (1, "segment", "free", 0, 0):
+            raise ValueError("the stage form is the plain chain: one level, lambda per segment, a free pose, no extra variables")
+
+    @property
+    def poses(self) -> int:
+        return {"free": 1, "shared": 1, "fixed": 0, "level": self.K}[self.pose]
+
+
+class Layout:
+    """Where each quantity lives in the decision vector (stage order: module docstring)."""
+
+    def __init__(self, s: Structure):
+        M, K, E = s.M, s.K, s.extra
+        i = 0
+
+        def take(count: int) -> np.ndarray:  # the next ``count`` entries of x
+            nonlocal i
+            i += count
+            return np.arange(i - count, i)
+
+        self.pose = take(6 * s.poses).reshape(s.poses, 6)
+        self.lam_global = take({"segment": 0, "shared": 1, "level": K}[s.lam])
+        self.globals = take(s.globals)
+        X = np.zeros((M + 1, K, 12), int)
+        X[0] = take(12 * K).reshape(K, 12)
+        self.theta, self.dl = np.zeros(M, int), np.zeros(M, int)
+        self.lam = np.zeros((M, K), int)
+        self.extra = np.zeros((M, E), int)
+        self.carry = np.zeros((M, 2 if s.stages else 0), int)  # stage form: (theta_j, lam_j) carried to stage j+1
+        for j in range(M):
+            self.theta[j] = take(1)[0]
+            if s.lam == "segment":
+                self.lam[j, :] = take(1)[0]
+            self.dl[j] = take(1)[0]
+            self.extra[j] = take(E)
+            self.carry[j] = take(self.carry.shape[1])
+            X[j + 1] = take(12 * K).reshape(K, 12)
+        if s.lam == "shared":
+            self.lam[:, :] = self.lam_global[0]
+        elif s.lam == "level":
+            self.lam[:, :] = self.lam_global[None, :]
+        self.X = X  # (M+1, K, 12)
+        self.pose_of_level = np.zeros(K, int) if s.poses == 1 else np.arange(K)
+        self.size = i
