@@ -14,6 +14,7 @@ from pathlib import Path
 
 from vine_nlp import __version__
 from vine_nlp.errors import InputError
+from vine_nlp.io import outputs
 from vine_nlp.methods import blas, compiled
 
 EXIT_OK, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
@@ -53,12 +54,7 @@ def _seconds(text):
 
 
 def _check_output(path: str, force: bool, arg: str = "-o") -> Path:
-    out = Path(path)
-    if out.exists() and not force:
-        raise InputError(path, arg, "exists; pass --force to overwrite it")
-    if not out.parent.exists():
-        raise InputError(path, arg, f"directory {str(out.parent)!r} does not exist")
-    return out
+    return outputs.reserve(path, force, arg)  # checked now, written when the command ends (io/outputs.py)
 
 
 def _check_figure(path, force, key="--plot"):
@@ -873,7 +869,8 @@ def main(argv=None) -> int:
     try:
         compiled.mode()  # a bad VINE_NLP_CODEGEN is one error line before any work
         args = parser.parse_args(argv)
-        return args.func(args)
+        with outputs.run():  # the outputs _check_output reserved: all written when the command ends, or none
+            return args.func(args)
     except InputError as e:
         print(f"error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT

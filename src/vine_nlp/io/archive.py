@@ -25,7 +25,6 @@ import io
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,8 +33,9 @@ import numpy as np
 
 from vine_nlp import __version__
 from vine_nlp.errors import InputError
-from vine_nlp.io import limits
+from vine_nlp.io import limits, outputs
 from vine_nlp.io.obstacles import read_obstacles, write_obstacles
+from vine_nlp.io.outputs import OutputError, output_error, temp_file
 from vine_nlp.model.shape import Shape
 from vine_nlp.problem import Result, Routing
 
@@ -48,20 +48,6 @@ POSE_TOLERANCE = 1e-6  # |R^T R - I| and |det R - 1| of an archived initial pose
 class ArchiveError(InputError, ValueError):
     """An archive that cannot be used: ``(file, dataset path, reason)``; the command line
     prints one line and exits 2. A ValueError too, for callers written before it existed."""
-
-
-class OutputError(InputError, OSError):
-    """An output file that cannot be written (disk full, no permission, read-only filesystem,
-    a directory in the way): ``(file, "write", reason)``; nothing was written. Exit 2."""
-
-    def __init__(self, file, key, reason, errno=None):
-        InputError.__init__(self, file, key, reason)
-        self.errno = errno
-        self.strerror = reason
-        self.filename = str(file)
-
-    def __str__(self):
-        return f"{self.file}: {self.key}: {self.reason}"  # not OSError's "[Errno n] ..."
 
 
 @dataclass
@@ -92,37 +78,9 @@ DEFAULT_RUNS = ("nlp", "nlp_robust", "nlp_clearance", "greedy", "forward", "fit"
 # ---------------------------------------------------------------- writing
 
 
-def atomic_path(path: Path):
-    """A temporary file beside ``path``: same directory, so the final os.replace is atomic.
-
-    Raises
-    ------
-    OutputError
-        When the directory does not exist or cannot be written.
-    """
-    path = Path(path)
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    except OSError as exc:
-        raise output_error(path, exc) from None
-    os.close(fd)
-    # mkstemp makes the file private (0600): give the result the permissions a plain open() would
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
-    return Path(tmp)
-
-
-def output_error(path, exc: OSError) -> OutputError:
-    """The one-line error for an OSError met while writing ``path``."""
-    reason = exc.strerror or str(exc) or type(exc).__name__
-    if isinstance(exc, IsADirectoryError) or (Path(path).is_dir()):
-        reason = "is a directory"
-    return OutputError(path, "write", f"cannot write ({reason}); nothing was written", errno=exc.errno)
-
-
 def write_atomic(path, write):
     """Call ``write(tmp_path)`` then rename onto ``path``; on any failure nothing is left behind.
+    An output the command line reserved (``vine_nlp.io.outputs``) is renamed when the command ends.
 
     Raises
     ------
@@ -131,10 +89,12 @@ def write_atomic(path, write):
         filesystem, a directory at ``path``). Other exceptions pass through unchanged.
     """
     path = Path(path)
-    tmp = atomic_path(path)
+    staged = outputs.staged(path, written=True)
+    tmp = staged or temp_file(path)
     try:
         write(tmp)
-        os.replace(tmp, path)
+        if staged is None:
+            os.replace(tmp, path)
     except OutputError:
         tmp.unlink(missing_ok=True)
         raise
@@ -554,7 +514,7 @@ def load_archive(path) -> Archive:
         oversized archive, naming the dataset and the reason. Nothing else.
     """
     c = _Checker(path)
-    p = Path(path)
+    p = Path(outputs.reading(path))  # an output this command wrote: its staged file
     try:
         if not p.exists():
             c.fail("file", "no such file")
