@@ -281,7 +281,7 @@ BAD = [
     ("two-points", POINTS, {"t.csv": "0,0,0\n1,0,0\n"}, "t.csv", "values: needs at least 3 points, got 2"),
     ("npy-shape", POINTS.replace("t.csv", "t.npy"), {"t.npy": np.zeros((4, 5))}, "t.npy", "values: must be an N x 3 (or N x 2) array, got shape (4, 5)"),
     ("npy-garbage", POINTS.replace("t.csv", "t.npy"), {"t.npy": "not an npy file"}, "t.npy", "values: not a readable .npy array file"),
-    ("npy-objects", POINTS.replace("t.csv", "t.npy"), {"t.npy": np.array([[1, "a", None]] * 3, dtype=object)}, "t.npy", "values: not a readable .npy array file"),
+    ("npy-objects", POINTS.replace("t.csv", "t.npy"), {"t.npy": np.array([[1, "a", None]] * 3, dtype=object)}, "t.npy", "values: must hold an array of real numbers"),
     ("fit-free", TUBE + "[measured]\nfile = 'm.csv'\nline = 'outer'\n" + FWD.replace(TUBE, "") + "theta = 0\nlambda = 1\n[fit]\nfree = ['mu']\n", {"m.csv": GOOD_CSV}, "", "fit.free: must be one of 'lambda'"),
     ("fit-line", TUBE + "[measured]\nfile = 'm.csv'\nline = 'middle'\n", {"m.csv": GOOD_CSV}, "", "measured.line: must be one of 'center', 'inner', 'outer'"),
     ("target-and-measured", TREFOIL + "[measured]\nfile = 'm.csv'\n", {}, "", "target: a problem has [target] (design) or [measured] (fit), not both"),

@@ -34,6 +34,7 @@ import numpy as np
 from vine_nlp import __version__
 from vine_nlp.errors import InputError
 from vine_nlp.io import limits, outputs
+from vine_nlp.io.h5read import ArchiveError, open_archive
 from vine_nlp.io.obstacles import read_obstacles, write_obstacles
 from vine_nlp.io.outputs import OutputError, output_error, temp_file
 from vine_nlp.model.shape import Shape
@@ -43,11 +44,6 @@ FORMAT = "vine_nlp/result"
 FORMAT_VERSION = 1
 _COMPRESS = dict(compression="gzip", compression_opts=4, shuffle=True)
 POSE_TOLERANCE = 1e-6  # |R^T R - I| and |det R - 1| of an archived initial pose
-
-
-class ArchiveError(InputError, ValueError):
-    """An archive that cannot be used: ``(file, dataset path, reason)``; the command line
-    prints one line and exits 2. A ValueError too, for callers written before it existed."""
 
 
 @dataclass
@@ -208,6 +204,7 @@ def _decode(v):
     return v
 
 
+_LINE_BREAKS = {ord(c): " " for c in "\n\r\t"}
 _CORE_GROUPS = ("problem", "tube", "target", "runs", "obstacles")
 _LINES = ("center", "inner", "outer")
 _FINITE_METRICS = ("rmse", "max_error")
@@ -224,7 +221,8 @@ class _Checker:
         raise ArchiveError(self.file, key, reason)
 
     # -- attributes
-    def text(self, node, name, required=True, default=""):
+    def text(self, node, name, required=True, default="", lines=False):
+        """A text attribute: one printable line (``lines``: newlines and tabs allowed too)."""
         key = f"{_path(node)}@{name}"
         if name not in node.attrs:
             if required:
@@ -235,6 +233,8 @@ class _Checker:
             self.fail(key, f"must be text, got {type(v).__name__}")
         if len(v) > limits.MAX_TEXT_CHARS:
             self.fail(key, f"longer than {limits.MAX_TEXT_CHARS} characters (vine_nlp.io.limits.MAX_TEXT_CHARS)")
+        if not (v.translate(_LINE_BREAKS) if lines else v).isprintable():
+            self.fail(key, "must be printable text (no control characters)")
         return v
 
     def number(self, node, name, integer=False, minimum=None, required=True, default=None, finite=True, nan_ok=False):
@@ -361,7 +361,7 @@ def _run(c: _Checker, name: str, g, a: Archive) -> Result:
         for k, v in st.attrs.items():
             v = _decode(v)
             if isinstance(v, str):
-                v = c.text(st, k)
+                v = c.text(st, k, lines=True)
             elif isinstance(v, np.ndarray):
                 if v.size > limits.MAX_DATASET_ELEMENTS or v.dtype.kind not in "fiub":
                     c.fail(f"{_path(st)}@{k}", f"unsupported attribute value (dtype {v.dtype}, {v.size} values)")
@@ -454,7 +454,7 @@ def _load(c: _Checker, h5) -> Archive:
     p = c.group(h5, "problem")
     tube = c.group(h5, "tube")
     units = c.text(h5, "units")
-    if not units or len(units) > 32:
+    if not units or len(units) > limits.MAX_UNITS_CHARS:
         c.fail("/@units", f"must be a unit name, got {units[:40]!r}")
     diameter = c.number(tube, "diameter")
     if diameter <= 0:
@@ -468,7 +468,7 @@ def _load(c: _Checker, h5) -> Archive:
     a = Archive(
         name=c.text(p, "name"),
         kind=c.text(p, "kind"),
-        source=c.text(p, "source"),
+        source=c.text(p, "source", lines=True),
         diameter=diameter,
         units=units,
         target=target,
@@ -514,17 +514,8 @@ def load_archive(path) -> Archive:
         oversized archive, naming the dataset and the reason. Nothing else.
     """
     c = _Checker(path)
-    p = Path(outputs.reading(path))  # an output this command wrote: its staged file
     try:
-        if not p.exists():
-            c.fail("file", "no such file")
-        if p.is_dir():
-            c.fail("file", "is a directory, not an archive")
-        if p.stat().st_size > limits.MAX_FILE_BYTES:
-            c.fail("file", f"larger than {limits.MAX_FILE_BYTES} bytes (vine_nlp.io.limits.MAX_FILE_BYTES)")
-        if not h5py.is_hdf5(p):
-            c.fail("file", "not an HDF5 file")
-        with h5py.File(p, "r") as h5:
+        with open_archive(path) as h5:
             return _load(c, h5)
     except ArchiveError:
         raise
@@ -532,4 +523,4 @@ def load_archive(path) -> Archive:
             OverflowError, MemoryError, json.JSONDecodeError) as exc:
         # h5py reports damaged files in many ways; the part being read is not always known here
         text = " ".join(str(exc).split())[:300] or type(exc).__name__
-        raise ArchiveError(p, "file", f"cannot read the archive ({text})") from None
+        raise ArchiveError(path, "file", f"cannot read the archive ({text})") from None

@@ -22,5 +22,25 @@ MAX_LEVELS = 1_000
 MAX_DATASET_ELEMENTS = 10_000_000
 # Characters of a text attribute (the archived problem file's source, solver options).
 MAX_TEXT_CHARS = 10_000_000
-# Bytes of an input file read whole (problem files, CSV point files, archives).
+# Bytes of an input file (archives, CSV and .npy point files); CSV is read line by line.
 MAX_FILE_BYTES = 1 << 30
+# Bytes of a TOML file (problem, sweep, calibration): parsed whole, and stored as an archive's
+# source (with a sweep item's note of at most MAX_NOTE_CHARS), so under MAX_TEXT_CHARS.
+MAX_TOML_BYTES = 8 << 20
+MAX_NOTE_CHARS = 2_000
+# Characters of one line of a CSV point file.
+MAX_LINE_CHARS = 10_000
+# Meshes (.stl, .obj, .ply) named by obstacles: bytes of the file, faces after merging.
+MAX_MESH_BYTES = 16 << 20  # a closed mesh of MAX_MESH_FACES faces takes under 2 MB in any of the formats
+# An archive as a whole: values of all datasets together (declared, before anything is read:
+# compressed data cannot expand beyond it), and groups, datasets and attributes.
+MAX_ARCHIVE_VALUES = 40_000_000
+MAX_ARCHIVE_OBJECTS = 200_000
+# Names and one-line texts (names, units, keys, obstacle names): printable characters only.
+MAX_NAME_CHARS = 255
+MAX_UNITS_CHARS = 32
+# Lengths and coordinates in the problem's units, and the size of a problem (its target's or
+# routing's extent) in tube diameters: beyond these the solvers work at the edge of float64.
+MAX_COORDINATE = 1e9
+MAX_DIAMETERS = 1e6
+MIN_DIAMETERS = 1e-6
