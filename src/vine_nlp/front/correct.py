@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import sys
-import tomllib
 from dataclasses import replace
 from pathlib import Path
 
@@ -21,13 +20,14 @@ UNITS_PER_MM = {"mm": 1.0, "cm": 0.1, "m": 0.001, "in": 1 / 25.4, "inch": 1 / 25
 def design_problem_of(archive, path):
     """The archive's design problem, parsed again from its stored source (the archived target kept)."""
     from vine_nlp.io.problem_file import parse_problem
+    from vine_nlp.io.validate import parse_toml
     from vine_nlp.problem import DesignProblem
 
     try:
-        pf = parse_problem(tomllib.loads(archive.source), str(path), archive.source)
+        pf = parse_problem(parse_toml(str(path), archive.source), str(path), archive.source)
         if pf.kind == "design":
             return replace(pf.problem, target=archive.target)
-    except (InputError, tomllib.TOMLDecodeError):
+    except InputError:
         pass
     return DesignProblem(archive.name, archive.diameter, archive.target, units=archive.units)
 
@@ -58,7 +58,8 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
         Bad archive, bad CSV, unknown run, mismatched lines.
     """
     from vine_nlp.io.archive import Archive
-    from vine_nlp.io.correction import read_correction
+    from vine_nlp.io.correction import MIN_MEASURED_POINTS, read_correction
+    from vine_nlp.io.data_files import check_spread
     from vine_nlp.methods.correct import ADJUST, Measurement, correct
     from vine_nlp.model.routing import MEASURED_LINES, Sigmas
 
@@ -90,6 +91,8 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
     if adjust not in ADJUST:
         raise InputError("command line", "--adjust", "must be lambda or lambda,theta")
     pts = [_points(p, k) for k, p in enumerate(measured)]
+    for k, (p, f) in enumerate(zip(pts, measured)):
+        check_spread(f if isinstance(f, (str, Path)) else f"measured[{k}]", p, archive.diameter, MIN_MEASURED_POINTS)
     problem = design_problem_of(archive, archive_path)
     units_per_mm = UNITS_PER_MM.get(archive.units.lower())
     if measurement_sigma is None and units_per_mm is None:

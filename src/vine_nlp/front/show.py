@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import tomllib
-
 import numpy as np
 
+from vine_nlp.errors import InputError
 from vine_nlp.io.archive import Archive, load_archive
+from vine_nlp.io.validate import parse_toml
 
 RUN_ORDER = ("nlp", "greedy", "greedy_filtered", "forward", "fit")
 METRICS = ("rmse", "max_error", "r2", "tv_theta", "tv_lambda")
@@ -21,9 +21,9 @@ def ordered_runs(archive: Archive) -> list[str]:
 
 def source_table(archive: Archive, table: str) -> dict:
     """A table of the archived problem file's text ({} when absent or unreadable)."""
-    try:
-        value = tomllib.loads(archive.source or "").get(table, {})
-    except (tomllib.TOMLDecodeError, TypeError, ValueError):
+    try:  # parse_toml refuses control characters: nothing from the text reaches the terminal raw
+        value = parse_toml("archive", archive.source or "").get(table, {})
+    except InputError:
         return {}
     return value if isinstance(value, dict) else {}
 

@@ -4,13 +4,13 @@ or ``calibration = "CAL.toml"``, relative to the problem file) and written by ``
 from __future__ import annotations
 
 import dataclasses
-import math
 from pathlib import Path
 
 from vine_nlp.io.archive import write_atomic
 from vine_nlp.io.validate import SourceFile, parse_toml, read_text
 from vine_nlp.model.calibration import Calibration
 
+MAX_VALUE = 1e6  # any value of the table (standard errors, prototypes); offsets and scale have tighter ranges below
 KEYS = ("lambda_offset", "theta_offset_deg", "length_scale", "lambda_offset_se", "theta_offset_deg_se", "length_scale_se", "prototypes")
 
 
@@ -39,8 +39,8 @@ def _table(f: SourceFile, t: dict, prefix: str) -> Calibration:
         key = f"{prefix}.{k}"
         if k not in KEYS:
             raise f.error(key, f"unknown key (known: {', '.join(KEYS)})")
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
-            raise f.error(key, f"must be a finite number, got {v!r}")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) <= MAX_VALUE:
+            raise f.error(key, f"must be a finite number of magnitude <= {MAX_VALUE:g}, got {str(v)[:40]}")
         if k.endswith("_se") and v < 0:
             raise f.error(key, f"must be >= 0, got {v!r}")
         if k == "prototypes":
@@ -48,8 +48,8 @@ def _table(f: SourceFile, t: dict, prefix: str) -> Calibration:
                 raise f.error(key, f"must be a whole number >= 0, got {v!r}")
             v = int(v)
         vals[k] = v if k == "prototypes" else float(v)
-    if "length_scale" in vals and not vals["length_scale"] > 0:
-        raise f.error(f"{prefix}.length_scale", f"must be > 0, got {vals['length_scale']!r}")
+    if "length_scale" in vals and not 0 < vals["length_scale"] <= 10:
+        raise f.error(f"{prefix}.length_scale", f"must be > 0 and <= 10, got {vals['length_scale']!r}")
     if "lambda_offset" in vals and not abs(vals["lambda_offset"]) < 0.5:
         raise f.error(f"{prefix}.lambda_offset", f"must be within +-0.5, got {vals['lambda_offset']!r}")
     if "theta_offset_deg" in vals and not abs(vals["theta_offset_deg"]) < 45:

@@ -18,14 +18,16 @@ import numpy as np
 
 from vine_nlp import targets
 from vine_nlp.errors import InputError
+from vine_nlp.io import limits
 from vine_nlp.io.calibration import calibration_of
-from vine_nlp.io.data_files import data_points
+from vine_nlp.io.data_files import check_spread, data_points
 from vine_nlp.io.expr import ExpressionError, compile_expression
 from vine_nlp.io.obstacles import DESIGN_KEYS as OBSTACLE_DESIGN_KEYS
 from vine_nlp.io.obstacles import parse_obstacle_design, parse_obstacles
 from vine_nlp.io.validate import (
     SourceFile,
     check,
+    check_scale,
     choice,
     integer,
     is_number,
@@ -156,11 +158,12 @@ def parse_problem(data: dict, path: str, source: str) -> ProblemFile:
             if key in _ALL_TOP_KEYS:
                 raise f.error(key, f"not used in a {kind} problem")
             raise f.error(key, unknown_key(key, _TOP_KEYS[kind]))
-    name = nonempty_text(f, "name", data.get("name", Path(path).stem))
-    units = nonempty_text(f, "units", data.get("units", "cm"))
+    name = nonempty_text(f, "name", data.get("name", Path(path).stem), limits.MAX_NAME_CHARS)
+    units = nonempty_text(f, "units", data.get("units", "cm"), limits.MAX_UNITS_CHARS)
     tube = sub_table(f, data, "tube", ("diameter",), required=True)
     diameter = real_number(f, "tube.diameter", required_value(f, tube, "diameter", "tube."))
     check(f, "tube.diameter", diameter > 0, "must be > 0")
+    check(f, "tube.diameter", diameter <= limits.MAX_COORDINATE, f"must be <= {limits.MAX_COORDINATE:g} (vine_nlp.io.limits.MAX_COORDINATE)")
 
     if kind == "design":
         problem = _design(f, data, name, units, diameter)
@@ -196,7 +199,7 @@ def _kind(f: SourceFile, data: dict) -> str:
 
 
 def _design(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> DesignProblem:
-    points, points_key = _target(f, data)
+    points, points_key = _target(f, data, diameter)
     actuator = _actuator(f, sub_table(f, data, "actuator", _ACTUATOR_KEYS))
     options = _options(f, sub_table(f, data, "design", (*_DESIGN_KEYS, *OBSTACLE_DESIGN_KEYS)))
     need = options.points_per_segment + 1
@@ -233,7 +236,7 @@ def _obstacles_of(f: SourceFile, data: dict) -> dict:
     return {"obstacles": obstacles, "obstacle_margin": margin, "growth": growth}
 
 
-def _target(f: SourceFile, data: dict) -> tuple[np.ndarray, str]:
+def _target(f: SourceFile, data: dict, diameter: float) -> tuple[np.ndarray, str]:
     """The sampled target curve and the key to blame when there are too few points."""
     table = sub_table(f, data, "target", None, required=True)
     for key in table:
@@ -246,6 +249,7 @@ def _target(f: SourceFile, data: dict) -> tuple[np.ndarray, str]:
 
     if curve == "points":
         points = data_points(f, "target.file", required_value(f, table, "file", "target."), ordered=True)
+        check_scale(f, "target.file", points, diameter)
         return points, "target.file"
 
     kwargs = {}
@@ -274,6 +278,7 @@ def _target(f: SourceFile, data: dict) -> tuple[np.ndarray, str]:
             points = targets.check_points(getattr(targets, curve)(**kwargs))
     except ValueError as err:
         raise f.error(f"target.{_CURVE_MAIN_KEY[curve]}", str(err)) from None
+    check_scale(f, f"target.{_CURVE_MAIN_KEY[curve]}", points, diameter)
     return points, "target.samples"
 
 
@@ -329,6 +334,8 @@ def _fit(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> F
     for item in free:
         choice(f, "fit.free", item, _FREE_CHOICES)
     check(f, "fit.free", len(set(free)) == len(free), "lists a parameter twice")
+    check_scale(f, "measured.file", points, diameter, "the measurement")
+    check_spread(str(f.dir / measured["file"]), points, diameter, 3)
     return FitProblem(
         name=name, diameter=diameter, measured=points, line=line, routing=routing, free=tuple(free), units=units
     )
@@ -394,7 +401,7 @@ def _multishape(f: SourceFile, data: dict, name: str, units: str, diameter: floa
     points, levels = [], []
     for k, item in enumerate(items):
         tf = _TargetFile(f, k)
-        pts, points_key = _target(tf, {"target": {key: v for key, v in item.items() if key != "lambda"}})
+        pts, points_key = _target(tf, {"target": {key: v for key, v in item.items() if key != "lambda"}}, diameter)
         check(tf, points_key, pts.shape[0] >= need, f"needs at least points_per_segment + 1 = {need} points, got {pts.shape[0]}")
         if k > 0 and pts.shape[0] != points[0].shape[0]:
             raise tf.error(
@@ -436,6 +443,8 @@ def _tip(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> T
         direction = direction / norm
     length = real_number(f, "tip.length", required_value(f, table, "length", "tip."))
     check(f, "tip.length", length > 0, "must be > 0")
+    check_scale(f, "tip.length", [[0.0, 0.0, 0.0], [length, 0.0, 0.0]], diameter, "the tube")
+    check_scale(f, "tip.position", [position], None)
     segments = integer(f, "tip.segments", table.get("segments", 10), 1, MAX_TIP_SEGMENTS)
     objective = choice(f, "tip.objective", table.get("objective", "contraction"), TIP_OBJECTIVES)
     pose = rigid_pose(f, "tip.initial_pose", table["initial_pose"]) if "initial_pose" in table else np.eye(4)
@@ -471,6 +480,7 @@ def _routing(f: SourceFile, table: dict, diameter: float) -> Routing:
     check(f, "routing.segment_length", step <= total, "must be <= routing.length")
     ratio = total / step
     check(f, "routing.segment_length", ratio <= MAX_SEGMENTS, f"gives more than {MAX_SEGMENTS} segments")
+    check_scale(f, "routing.length", [[0.0, 0.0, 0.0], [total, 0.0, 0.0]], diameter, "the routing")
     # The 1e-9 keeps round-off in length/segment_length from adding a sliver of a last segment.
     m = math.ceil(ratio - 1e-9)
     ends = np.minimum(step * np.arange(m + 1), total)

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from vine_nlp.errors import InputError
+from vine_nlp.io import limits
 from vine_nlp.io.problems import ProblemFile, parse_problem
 from vine_nlp.io.validate import SourceFile, check, check_keys, choice, nonempty_text, parse_toml, read_text, required_value
 from vine_nlp.problem import METHODS
@@ -111,7 +112,7 @@ def _expand(sweep: Sweep) -> list[tuple[str, dict, ProblemFile]]:
         for key, value in overrides.items():
             _set(data, key, value, sweep.path)
         data["name"] = item
-        described = ", ".join(f"{k} = {v!r}" for k, v in overrides.items()) or "the base problem"
+        described = ", ".join(f"{k} = {v!r}" for k, v in overrides.items())[: limits.MAX_NOTE_CHARS] or "the base problem"
         # The archive stores the source; the note makes the item reproducible from it.
         source = sweep.base_source.rstrip("\n") + f"\n\n# sweep '{sweep.name}' item {item}: {described}\n"
         try:
