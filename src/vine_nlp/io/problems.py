@@ -58,12 +58,6 @@ from vine_nlp.problem import (
     TipProblem,
 )
 
-# Guards against inputs that would exhaust memory long before they are useful.
-MAX_SAMPLES = 100_000
-
-MAX_SEGMENTS = 100_000
-
-
 # Sec. VI-A: an sPAM contracts to lambda = 0.5 ... 0.7 depending on its construction.
 SPAM_LAMBDA_MIN = 0.5
 
@@ -115,14 +109,11 @@ _MULTISHAPE_DESIGN_KEYS = (*_OTHER_DESIGN_KEYS, "shared_pose")
 
 _TIP_KEYS = ("position", "direction", "length", "segments", "objective", "initial_pose")
 
-MAX_LEVELS = 1000  # [[targets]] of a multishape problem
-
 MAX_TIP_SEGMENTS = 10_000
 
 # Multi-shape and tip problems are multimodal: without [design] starts, a few starts (the
 # geometric guesses and seeded perturbations) are the default.
 DEFAULT_STARTS = {"multishape": 4, "tip": 4}
-
 
 
 @dataclass
@@ -135,7 +126,6 @@ class ProblemFile:
     problem: DesignProblem | ForwardProblem | FitProblem | MultiShapeProblem | TipProblem
 
 
-
 # ---------------------------------------------------------------- entry points
 
 
@@ -144,7 +134,6 @@ def load_problem(path) -> ProblemFile:
     path = str(path)
     source = read_text(path, path, "file")
     return parse_problem(parse_toml(path, source), path, source)
-
 
 
 def parse_problem(data: dict, path: str, source: str) -> ProblemFile:
@@ -179,7 +168,6 @@ def parse_problem(data: dict, path: str, source: str) -> ProblemFile:
     return ProblemFile(path=path, source=source, kind=kind, name=name, units=units, problem=problem)
 
 
-
 # ---------------------------------------------------------------- problems
 
 
@@ -197,7 +185,6 @@ def _kind(f: SourceFile, data: dict) -> str:
     raise f.error("target", "missing: a problem needs [target] (design), [routing] (forward) or [measured] (fit)")
 
 
-
 def _design(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> DesignProblem:
     points, points_key = _target(f, data, diameter)
     actuator = _actuator(f, sub_table(f, data, "actuator", _ACTUATOR_KEYS))
@@ -211,7 +198,6 @@ def _design(f: SourceFile, data: dict, name: str, units: str, diameter: float) -
     )
     problem = DesignProblem(name=name, diameter=diameter, target=points, actuator=actuator, options=options, units=units)
     return _design_tables(f, data, problem)
-
 
 
 def _design_tables(f: SourceFile, data: dict, problem: DesignProblem) -> DesignProblem:
@@ -254,7 +240,7 @@ def _target(f: SourceFile, data: dict, diameter: float) -> tuple[np.ndarray, str
 
     kwargs = {}
     if "samples" in table:
-        kwargs["samples"] = integer(f, "target.samples", table["samples"], 3, MAX_SAMPLES)
+        kwargs["samples"] = integer(f, "target.samples", table["samples"], 3, limits.MAX_TARGET_POINTS)
     if curve == "trefoil":
         if "scale" in table:
             kwargs["scale"] = real_array(f, "target.scale", table["scale"], 3)
@@ -282,7 +268,6 @@ def _target(f: SourceFile, data: dict, diameter: float) -> tuple[np.ndarray, str
     return points, "target.samples"
 
 
-
 def _actuator(f: SourceFile, table: dict) -> Actuator:
     kind = choice(f, "actuator.kind", table.get("kind", Actuator.kind), ACTUATOR_KINDS)
     lambda_min = table.get("lambda_min", SPAM_LAMBDA_MIN if kind == "spam" else Actuator.lambda_min)
@@ -294,7 +279,6 @@ def _actuator(f: SourceFile, table: dict) -> Actuator:
         check(f, "actuator.theta_max_deg", 0 < theta_max_deg < 90, "must be in (0, 90)")
         theta_max = math.radians(theta_max_deg)
     return Actuator(kind=kind, lambda_min=lambda_min, theta_max=theta_max)
-
 
 
 def _options(f: SourceFile, table: dict) -> DesignOptions:
@@ -323,7 +307,6 @@ def _options(f: SourceFile, table: dict) -> DesignOptions:
     return dataclasses.replace(DesignOptions(), **changes)
 
 
-
 def _fit(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> FitProblem:
     measured = sub_table(f, data, "measured", _MEASURED_KEYS, required=True)
     points = data_points(f, "measured.file", required_value(f, measured, "file", "measured."), ordered=False)
@@ -334,12 +317,11 @@ def _fit(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> F
     for item in free:
         choice(f, "fit.free", item, _FREE_CHOICES)
     check(f, "fit.free", len(set(free)) == len(free), "lists a parameter twice")
-    check_scale(f, "measured.file", points, diameter, "the measurement")
     check_spread(str(f.dir / measured["file"]), points, diameter, 3)
+    check_scale(f, "measured.file", points, diameter, "the measurement")
     return FitProblem(
         name=name, diameter=diameter, measured=points, line=line, routing=routing, free=tuple(free), units=units
     )
-
 
 
 # ---------------------------------------------------------------- multi-shape and tip problems
@@ -355,7 +337,6 @@ def _further_kind(f: SourceFile, data: dict) -> str:
     return kind
 
 
-
 class _TargetFile(SourceFile):
     """Reads target ``k`` of [[targets]] with ``_target``: its "target.<key>" errors become "targets.<k>.<key>"."""
 
@@ -369,12 +350,10 @@ class _TargetFile(SourceFile):
         return super().error(key, reason)
 
 
-
 def _starts_default(table: dict, options: DesignOptions, kind: str) -> DesignOptions:
     if "starts" in table:
         return options
     return dataclasses.replace(options, starts=DEFAULT_STARTS[kind])
-
 
 
 def _multishape(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> MultiShapeProblem:
@@ -386,7 +365,7 @@ def _multishape(f: SourceFile, data: dict, name: str, units: str, diameter: floa
         isinstance(items, list) and len(items) > 0 and all(isinstance(t, dict) for t in items),
         "must be an array of tables ([[targets]]), at least one",
     )
-    check(f, "targets", len(items) <= MAX_LEVELS, f"has {len(items)} targets; at most {MAX_LEVELS}")
+    check(f, "targets", len(items) <= limits.MAX_LEVELS, f"has {len(items)} targets; at most {limits.MAX_LEVELS}")
     table = sub_table(f, data, "actuator", _ACTUATOR_KEYS)
     if "kind" in table and table["kind"] != "spam":
         raise f.error("actuator.kind", "must be 'spam' in a multishape problem (one lambda per pressure level)")
@@ -430,7 +409,6 @@ def _multishape(f: SourceFile, data: dict, name: str, units: str, diameter: floa
     )
 
 
-
 def _tip(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> TipProblem:
     """[tip]: position, optional direction, tube length, segments, objective, optional fixed base pose."""
     table = sub_table(f, data, "tip", _TIP_KEYS, required=True)
@@ -467,7 +445,6 @@ def _tip(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> T
     )
 
 
-
 # ---------------------------------------------------------------- routing
 
 
@@ -479,7 +456,7 @@ def _routing(f: SourceFile, table: dict, diameter: float) -> Routing:
     check(f, "routing.segment_length", step > 0, "must be > 0")
     check(f, "routing.segment_length", step <= total, "must be <= routing.length")
     ratio = total / step
-    check(f, "routing.segment_length", ratio <= MAX_SEGMENTS, f"gives more than {MAX_SEGMENTS} segments")
+    check(f, "routing.segment_length", ratio <= limits.MAX_SEGMENTS, f"gives more than {limits.MAX_SEGMENTS} segments")
     check_scale(f, "routing.length", [[0.0, 0.0, 0.0], [total, 0.0, 0.0]], diameter, "the routing")
     # The 1e-9 keeps round-off in length/segment_length from adding a sliver of a last segment.
     m = math.ceil(ratio - 1e-9)
@@ -516,7 +493,6 @@ def _routing(f: SourceFile, table: dict, diameter: float) -> Routing:
     return Routing(theta=theta, lam=lam, length=lengths, initial_pose=pose)
 
 
-
 def _per_point(f: SourceFile, key: str, value, s: np.ndarray, what: str) -> np.ndarray:
     """A number, an array with one value per s, or an expression of s evaluated at s."""
     if isinstance(value, str):
@@ -535,7 +511,6 @@ def _per_point(f: SourceFile, key: str, value, s: np.ndarray, what: str) -> np.n
     if not is_number(value):
         raise f.error(key, "must be a number, an array or an expression of s")
     return np.full(s.size, real_number(f, key, value))
-
 
 
 def _check_each(f: SourceFile, key: str, given, ok: np.ndarray, shown: np.ndarray, rule: str, unit: str) -> None:

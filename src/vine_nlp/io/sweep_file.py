@@ -25,7 +25,6 @@ _SWEEP_KEYS = ("name", "base", "methods", "grid")
 _SWEEP_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
 
 
-
 @dataclass
 class Sweep:
     path: str
@@ -46,7 +45,6 @@ class Sweep:
         if self._items is None:
             self._items = _expand(self)
         return list(self._items)
-
 
 
 def load_sweep(path) -> Sweep:
@@ -88,7 +86,6 @@ def load_sweep(path) -> Sweep:
     return sweep
 
 
-
 def apply_override(data: dict, dotted_key: str, value, file: str = "<sweep>") -> dict:
     """A deep copy of ``data`` with the value at ``dotted_key`` replaced ("target.scale.0" = element 0).
 
@@ -99,7 +96,6 @@ def apply_override(data: dict, dotted_key: str, value, file: str = "<sweep>") ->
     data = copy.deepcopy(data)
     _set(data, dotted_key, value, file)
     return data
-
 
 
 def _expand(sweep: Sweep) -> list[tuple[str, dict, ProblemFile]]:
@@ -123,7 +119,6 @@ def _expand(sweep: Sweep) -> list[tuple[str, dict, ProblemFile]]:
             raise InputError(sweep.path, err.key, f"{err.reason} (item {item}: {described})") from None
         items.append((item, overrides, problem))
     return items
-
 
 
 def _set(data: dict, dotted_key: str, value, file: str) -> None:
@@ -156,7 +151,6 @@ def _set(data: dict, dotted_key: str, value, file: str) -> None:
             node = node[i]
         else:
             raise fail(f"'{'.'.join(parts[:depth])}' is a value, not a table or array")
-
 
 
 def _flatten(table: dict, prefix: str = "") -> dict:

@@ -26,7 +26,6 @@ MAX_INT = 2**31 - 1  # solver options such as max_iter are C ints
 POSE_TOL = 1e-6
 
 
-
 class SourceFile:
     """The file being read: names it in errors and anchors relative paths."""
 
@@ -38,9 +37,15 @@ class SourceFile:
         return InputError(self.path, key, reason)
 
 
+MAX_DEPTH = 32  # tables and arrays inside each other, parts of a dotted key
+_DEEP_KEY = re.compile(r"(?<![A-Za-z0-9_.'\"-])(?:(?:[A-Za-z0-9_-]++|\"[^\"\n]*+\"|'[^'\n]*+')[ \t]*+\.[ \t]*+){%d,}" % MAX_DEPTH)
+
 
 def parse_toml(path: str, source: str) -> dict:
     """The TOML document ``source`` of the file ``path``, checked by :func:`check_document`."""
+    deep = _DEEP_KEY.search(source)  # tomllib takes time and memory quadratic in a key's parts
+    if deep:
+        raise InputError(path, f"line {source.count(chr(10), 0, deep.start()) + 1}", f"a key of more than {MAX_DEPTH} dotted parts")
     try:
         return check_document(path, tomllib.loads(source))
     except ValueError as err:  # TOMLDecodeError, or an integer of more than 4300 digits
@@ -59,9 +64,6 @@ def parse_toml(path: str, source: str) -> dict:
         raise InputError(path, f"line {line}", f"invalid TOML: {message}") from None
     except RecursionError:
         raise InputError(path, "file", "TOML nested too deeply") from None
-
-
-MAX_DEPTH = 32  # tables and arrays inside each other
 
 
 def check_document(path: str, doc: dict) -> dict:
@@ -87,7 +89,6 @@ def check_document(path: str, doc: dict) -> dict:
     return doc
 
 
-
 def sub_table(f: SourceFile, parent: dict, name: str, allowed, required: bool = False, prefix: str = "") -> dict:
     key = prefix + name
     if name not in parent:
@@ -101,18 +102,15 @@ def sub_table(f: SourceFile, parent: dict, name: str, allowed, required: bool = 
     return table
 
 
-
 def check_keys(f: SourceFile, table: dict, prefix: str, allowed) -> None:
     for key in table:
         if key not in allowed:
             raise f.error(f"{prefix}{key}", unknown_key(key, allowed))
 
 
-
 def unknown_key(key, allowed) -> str:
     close = difflib.get_close_matches(str(key), list(allowed), n=1)
     return f"unknown key; did you mean '{close[0]}'?" if close else "unknown key"
-
 
 
 def required_value(f: SourceFile, table: dict, name: str, prefix: str):
@@ -121,16 +119,13 @@ def required_value(f: SourceFile, table: dict, name: str, prefix: str):
     return table[name]
 
 
-
 def check(f: SourceFile, key: str, ok: bool, reason: str) -> None:
     if not ok:
         raise f.error(key, reason)
 
 
-
 def is_number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
-
 
 
 def real_number(f: SourceFile, key: str, value) -> float:
@@ -145,7 +140,6 @@ def real_number(f: SourceFile, key: str, value) -> float:
     return number
 
 
-
 def integer(f: SourceFile, key: str, value, least: int, most: int = MAX_INT) -> int:
     # 400.0 is accepted as 400: sweeps and hand-edited files mix the two.
     whole = value.is_integer() if isinstance(value, float) else is_number(value)
@@ -154,7 +148,6 @@ def integer(f: SourceFile, key: str, value, least: int, most: int = MAX_INT) -> 
     if value > most:
         raise f.error(key, f"must be an integer <= {most}")
     return int(value)
-
 
 
 def real_array(f: SourceFile, key: str, value, count: int | None = None) -> np.ndarray:
@@ -171,14 +164,12 @@ def real_array(f: SourceFile, key: str, value, count: int | None = None) -> np.n
     return out
 
 
-
 def point_list(f: SourceFile, key: str, value) -> np.ndarray:
     reason = "must be a list of at least 2 points [x, y, z] (or [x, y])"
     check(f, key, isinstance(value, list) and len(value) >= 2, reason)
     check(f, key, all(isinstance(p, list) and len(p) in (2, 3) for p in value), reason)
     check(f, key, len({len(p) for p in value}) == 1, "points must all have 3 coordinates (or all 2)")
     return np.array([real_array(f, key, p) for p in value])
-
 
 
 def nonempty_text(f: SourceFile, key: str, value, most: int | None = None) -> str:
@@ -208,7 +199,6 @@ def check_scale(f: SourceFile, key: str, points, diameter: float | None, what: s
                       "(vine_nlp.io.limits.MIN_DIAMETERS)")
 
 
-
 def choice(f: SourceFile, key: str, value, choices) -> str:
     if not isinstance(value, str) or value not in choices:
         listed = ", ".join(f"'{c}'" for c in choices)
@@ -216,7 +206,6 @@ def choice(f: SourceFile, key: str, value, choices) -> str:
         hint = f"; did you mean '{close[0]}'?" if close else ""
         raise f.error(key, f"must be one of {listed}{hint}")
     return value
-
 
 
 def rigid_pose(f: SourceFile, key: str, value) -> np.ndarray:
