@@ -323,16 +323,16 @@ def _design_problem_of(archive, path):
     """The design problem of an archive: parsed again from its stored source; the archived
     target stands in for target files that are not where the source says."""
     import dataclasses
-    import tomllib
 
     from vine_nlp.io.problem_file import parse_problem
+    from vine_nlp.io.validate import parse_toml  # the checks of a problem file's text (no tracebacks from it)
     from vine_nlp.problem import DesignProblem
 
     try:
-        pf = parse_problem(tomllib.loads(archive.source), str(path), archive.source)
+        pf = parse_problem(parse_toml(str(path), archive.source), str(path), archive.source)
         if pf.kind == "design":
             return dataclasses.replace(pf.problem, target=archive.target)
-    except (InputError, tomllib.TOMLDecodeError):
+    except InputError:
         pass
     return DesignProblem(archive.name, archive.diameter, archive.target, units=archive.units)
 
@@ -418,15 +418,14 @@ def cmd_analyze(args) -> int:
 def _analyze_obstacles(archive, r, u) -> dict:
     """Print the distance to every obstacle along the tube and the contacts, final and intermediate shapes
     (margin and growth from the archived problem's [design]); the run metrics."""
-    import tomllib
-
     from vine_nlp.analysis.obstacles import obstacle_report, report_rows
     from vine_nlp.io.obstacles import DEFAULT_GROWTH, parse_obstacle_design
+    from vine_nlp.io.validate import parse_toml
 
     try:
-        design = tomllib.loads(archive.source).get("design", {})
+        design = parse_toml("archive", archive.source).get("design", {})
         margin, growth = parse_obstacle_design(design if isinstance(design, dict) else {}, "archive")
-    except (InputError, tomllib.TOMLDecodeError):
+    except InputError:
         margin, growth = 0.0, DEFAULT_GROWTH
     rep = obstacle_report(r.routing, archive.diameter, archive.obstacles, growth, margin)
     print(f"obstacles   {len(archive.obstacles)}; margin {margin:.4g} {u}; growth {growth}; "

@@ -3,7 +3,6 @@ or ``calibration = "CAL.toml"``, relative to the problem file) and written by ``
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 from vine_nlp.io.archive import write_atomic
@@ -20,14 +19,7 @@ def calibration_of(f: SourceFile, data: dict) -> Calibration | None:
         return None
     value = data["calibration"]
     if isinstance(value, str):
-        path = f.dir / value
-        if not value or not path.is_file():
-            raise f.error("calibration", f"no such file: {path}")
-        cal_file = SourceFile(str(path))
-        doc = parse_toml(str(path), read_text(str(path), str(path), "file"))
-        if not isinstance(doc.get("calibration"), dict):
-            raise cal_file.error("calibration", "missing: the file needs a [calibration] table")
-        return _table(cal_file, doc["calibration"], "calibration")
+        return read_calibration(f.dir / value, f.path)
     if isinstance(value, dict):
         return _table(f, value, "calibration")
     raise f.error("calibration", "must be a [calibration] table or the name of a calibration file")
@@ -72,10 +64,11 @@ def write_calibration(path, cal: Calibration) -> None:
     write_atomic(path, lambda t: Path(t).write_text(text, encoding="utf-8"))
 
 
-def read_calibration(path) -> Calibration:
-    """A calibration file made by ``vine-nlp calibrate`` (InputError naming the file and key when bad)."""
+def read_calibration(path, named_by=None) -> Calibration:
+    """A calibration file (made by ``vine-nlp calibrate``; ``named_by``: the problem file naming it), InputError
+    naming the file and key when bad."""
     f = SourceFile(str(path))
-    doc = parse_toml(str(path), read_text(str(path), str(path), "file"))
+    doc = parse_toml(f.path, read_text(f.path, named_by, "calibration" if named_by else "file"))
     if not isinstance(doc.get("calibration"), dict):
         raise f.error("calibration", "missing: the file needs a [calibration] table")
-    return dataclasses.replace(_table(f, doc["calibration"], "calibration"))
+    return _table(f, doc["calibration"], "calibration")
