@@ -5,9 +5,7 @@ def printable(text) -> str:
     """``text`` with every character a terminal would act on (newlines, NUL, ANSI escapes, bidi
     controls) shown as its Python escape: a value read from a file can never forge a second line."""
     text = str(text)
-    if text.isprintable():
-        return text
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return text if text.isprintable() else "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 class InputError(Exception):

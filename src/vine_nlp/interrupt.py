@@ -4,9 +4,8 @@ CasADi catches a KeyboardInterrupt raised inside an IPOPT solve and returns with
 status "NonIpopt_Exception_Thrown" instead of propagating it. Every solver call is
 followed by :func:`check`, which turns that (or a signal recorded by
 :func:`install`) back into a KeyboardInterrupt, so interrupted work unwinds and
-atomic writers leave nothing partial. A solver that never looks at signals (Fatrop's
-C loop) runs through :func:`call`: in a thread of its own, while the main thread waits
-where a signal interrupts it.
+atomic writers leave nothing partial. A solver that never looks at signals (Fatrop's C
+loop) runs through :func:`call`, in a thread of its own the main thread waits for.
 
 Test hold points. Tests that interrupt a run must not guess how long it runs.
 With the environment variable ``VINE_NLP_TEST_HOLD=<point>=<fifo>`` (``<fifo>``
@@ -55,9 +54,9 @@ def install():
 
 
 def call(fn, *args, **kwargs):
-    """``fn(*args, **kwargs)``, interruptible by Ctrl-C and SIGTERM even where ``fn`` runs C code that
-    never returns to Python (CasADi releases the GIL while it solves): run in a daemon thread, waited
-    for by the main thread. On a signal the thread is left to end with the process."""
+    """``fn(*args, **kwargs)`` in a daemon thread the main thread waits for, where a signal's handler
+    can raise: Ctrl-C and SIGTERM end even C code that never returns to Python (CasADi releases the
+    GIL while it solves); the thread is left to end with the process."""
     if threading.current_thread() is not threading.main_thread():
         return fn(*args, **kwargs)
     out = {}
@@ -68,9 +67,9 @@ def call(fn, *args, **kwargs):
         except BaseException as exc:  # noqa: BLE001  handed to the caller
             out["error"] = exc
 
-    worker = threading.Thread(target=run, name="vine-nlp-solve", daemon=True)
+    worker = threading.Thread(target=run, daemon=True)
     worker.start()
-    worker.join()  # a signal's handler raises KeyboardInterrupt here
+    worker.join()
     if "error" in out:
         raise out["error"]
     return out["value"]

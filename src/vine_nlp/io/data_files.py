@@ -18,10 +18,7 @@ from vine_nlp.io.validate import SourceFile, check, nonempty_text
 
 
 def read_points(path, ordered: bool = False) -> np.ndarray:
-    """Points of a .csv or .npy data file given on the command line (e.g. ``fit --frames``).
-
-    Bad files raise InputError naming the data file, exactly as when a problem file names them.
-    """
+    """Points of a .csv or .npy data file given on the command line (``fit --frames``), checked as a problem file's."""
     path = Path(path)
     return data_points(SourceFile(str(path)), "--frames", path.name, ordered)
 
@@ -101,11 +98,9 @@ def read_npy(f: SourceFile, named_by=None, key="file") -> np.ndarray:
             shape, _, dtype = (fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0)(fh)
             if dtype.kind not in "iuf" or dtype.fields or dtype.subdtype:
                 raise f.error("values", "must hold an array of real numbers")
-            if len(shape) != 2 or shape[1] not in (2, 3) or shape[0] == 0:
-                raise f.error("values", f"must be an N x 3 (or N x 2) array, got shape {shape}")
-            if shape[0] > limits.MAX_TARGET_POINTS:
-                raise f.error("values", f"{shape[0]} points, more than the limit of {limits.MAX_TARGET_POINTS} "
-                              "(vine_nlp.io.limits.MAX_TARGET_POINTS)")
+            if len(shape) != 2 or shape[1] not in (2, 3) or not 0 < shape[0] <= limits.MAX_TARGET_POINTS:
+                raise f.error("values", f"must be an N x 3 (or N x 2) array, N <= {limits.MAX_TARGET_POINTS} "
+                              f"(vine_nlp.io.limits.MAX_TARGET_POINTS), got shape {shape}")
             fh.seek(0)
             array = np.load(fh, allow_pickle=False)  # never unpickle user files
         except (OSError, ValueError, EOFError):

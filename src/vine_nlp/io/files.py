@@ -30,19 +30,13 @@ def open_input(path, named_by=None, key="file", limit=limits.MAX_FILE_BYTES, lim
         return InputError(path if own else named_by, key, reason + where)
 
     try:
-        fd = os.open(outputs.reading(path), os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
-    except FileNotFoundError:
-        raise fail("no such file") from None
-    except IsADirectoryError:
-        raise fail("is a directory") from None
+        fd = os.open(outputs.reading(path), os.O_RDONLY | os.O_NONBLOCK)
     except OSError as err:
-        raise fail(f"cannot read ({err.strerror or err})") from None
+        raise fail("no such file" if isinstance(err, FileNotFoundError) else f"cannot read ({err.strerror or err})") from None
     try:
         st = os.fstat(fd)
-        if stat.S_ISDIR(st.st_mode):
-            raise fail("is a directory")
         if not stat.S_ISREG(st.st_mode):
-            raise fail("not a regular file (a pipe, device or socket)")
+            raise fail("is a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file (a pipe, device or socket)")
         if st.st_size > limit:
             raise fail(f"{st.st_size} bytes, more than the limit of {limit} (vine_nlp.io.limits.{limit_name})")
         os.set_blocking(fd, True)
@@ -52,20 +46,14 @@ def open_input(path, named_by=None, key="file", limit=limits.MAX_FILE_BYTES, lim
         raise
 
 
-def read_bytes(path, named_by=None, key="file", limit=limits.MAX_FILE_BYTES, limit_name="MAX_FILE_BYTES") -> bytes:
-    """The bytes of a regular file of at most ``limit`` bytes (a file growing while read is cut at the limit)."""
+def read_text(path, named_by=None, key="file", limit=limits.MAX_TOML_BYTES, limit_name="MAX_TOML_BYTES", binary=False):
+    """The UTF-8 text (a byte-order mark dropped), or with ``binary`` the bytes, of a regular file of at most ``limit`` bytes."""
     with open_input(path, named_by, key, limit, limit_name) as fh:
-        data = fh.read(limit + 1)
+        data = fh.read(limit + 1)  # a file that grew since it was opened stops here
     if len(data) > limit:
         raise InputError(path, key, f"more than the limit of {limit} bytes (vine_nlp.io.limits.{limit_name})")
-    return data
-
-
-def read_text(path, named_by=None, key="file", limit=limits.MAX_TOML_BYTES, limit_name="MAX_TOML_BYTES") -> str:
-    """The UTF-8 text (a byte-order mark dropped) of a regular file of at most ``limit`` bytes."""
-    data = read_bytes(path, named_by, key, limit, limit_name)
     try:
-        return data.decode("utf-8-sig")
+        return data if binary else data.decode("utf-8-sig")
     except UnicodeDecodeError:
         raise InputError(path, "file", "not a UTF-8 text file") from None
 

@@ -1,19 +1,12 @@
 """Opening an HDF5 archive to read it: the one way every reader of vine_nlp does.
 
-:func:`open_archive` opens the file through :func:`vine_nlp.io.files.open_input` (a regular
-file within MAX_FILE_BYTES; never a pipe or a device) and, before any value is read, walks every
-link and attribute of it once and refuses:
-
-* soft and external links (an archive is one file: nothing is read through a link to another
-  file or object, so a link to a pipe cannot block and another file's data cannot be copied in),
-* virtual datasets and datasets kept in external raw files,
-* a dataset or attribute whose declared size is over MAX_DATASET_ELEMENTS values, all datasets
-  together over MAX_ARCHIVE_VALUES, more than MAX_ARCHIVE_OBJECTS links and attributes, and more
-  than MAX_CHUNKS chunks in one dataset: compressed data cannot expand beyond the limits,
-* names that are not printable text of at most MAX_NAME_CHARS characters, and datasets of
-  anything but real numbers.
-
-Each refusal is one :class:`ArchiveError` ``(file, path in the archive, reason)``.
+:func:`open_archive` opens the file through :func:`vine_nlp.io.files.open_input` (a regular file
+within MAX_FILE_BYTES) and, before any value is read, walks every link and attribute once and
+refuses, as one :class:`ArchiveError` ``(file, path in the archive, reason)``: soft and external
+links (nothing is read through a link: a link to a pipe cannot block, another file's data cannot
+be copied in), virtual datasets and external raw storage, datasets of anything but numbers,
+unprintable or overlong names, and declared sizes over the limits (one dataset or attribute, all
+datasets, objects, chunks): compressed data cannot expand beyond them.
 """
 
 from __future__ import annotations
@@ -27,6 +20,7 @@ from vine_nlp.errors import InputError
 from vine_nlp.io import files, limits
 
 MAX_CHUNKS = 100_000  # chunks of one dataset (each is one lookup when read)
+_BAD_NAME = f"a name must be printable text of at most {limits.MAX_NAME_CHARS} characters"
 
 
 class ArchiveError(InputError, ValueError):
@@ -63,49 +57,41 @@ def open_archive(path):
 
 def inspect(h5: h5py.File, path: str) -> None:
     """Refuse what the module docstring lists, reading no dataset."""
-    found = []  # (key, reason) of the first refusal: h5py's visit cannot carry an exception out
-    state = {"objects": 0, "values": 0}
+    count = {"objects": 0, "values": 0}
+    found = [("/", _attributes(h5, count))]  # the first refusal: h5py's visit cannot carry an exception out
 
     def visit(name, link):
-        key = "/" + name
-        reason = _name(name.rsplit("/", 1)[-1])
-        if reason is None and not isinstance(link, h5py.HardLink):
+        if not _good_name(name.rsplit("/", 1)[-1]):
+            reason = _BAD_NAME
+        elif not isinstance(link, h5py.HardLink):
             reason = f"a {type(link).__name__} (an archive is one file: links are not followed)"
-        if reason is None:
-            reason = _object(h5[name], state)
-        if reason is None and state["objects"] > limits.MAX_ARCHIVE_OBJECTS:
-            reason = f"more than {limits.MAX_ARCHIVE_OBJECTS} objects and attributes (vine_nlp.io.limits.MAX_ARCHIVE_OBJECTS)"
-        if reason is not None:
-            found.append((key, reason))
-            return True  # stops the visit
-        return None
+        elif not isinstance(obj := h5[name], (h5py.Dataset, h5py.Group)):
+            reason = f"unsupported object ({type(obj).__name__})"
+        else:
+            reason = (_dataset(obj, count) if isinstance(obj, h5py.Dataset) else None) or _attributes(obj, count)
+            if reason is None and count["objects"] > limits.MAX_ARCHIVE_OBJECTS:
+                reason = f"more than {limits.MAX_ARCHIVE_OBJECTS} objects and attributes (vine_nlp.io.limits.MAX_ARCHIVE_OBJECTS)"
+        found.append((f"/{name}", reason))
+        return True if reason else None  # True stops the visit
 
-    reason = _attributes(h5, state)
-    if reason is not None:
-        raise ArchiveError(path, f"/@{reason[0]}", reason[1])
-    h5.visititems_links(visit)
-    if found:
-        raise ArchiveError(path, *found[0])
+    if found[0][1] is None:
+        h5.visititems_links(visit)
+    refused = [f for f in found if f[1]]
+    if refused:
+        raise ArchiveError(path, *refused[0])
 
 
-def _name(name: str) -> str | None:
-    if not name.isprintable() or len(name) > limits.MAX_NAME_CHARS:
-        return f"a name must be printable text of at most {limits.MAX_NAME_CHARS} characters"
+def _good_name(name: str) -> bool:
+    return name.isprintable() and len(name) <= limits.MAX_NAME_CHARS
+
+
+def _size(n: int) -> str | None:
+    if n > limits.MAX_DATASET_ELEMENTS:
+        return f"{n} values, more than the limit of {limits.MAX_DATASET_ELEMENTS} (vine_nlp.io.limits.MAX_DATASET_ELEMENTS)"
     return None
 
 
-def _object(obj, state) -> str | None:
-    if isinstance(obj, h5py.Dataset):
-        reason = _dataset(obj, state)
-        if reason is not None:
-            return reason
-    elif not isinstance(obj, h5py.Group):
-        return f"unsupported object ({type(obj).__name__})"
-    reason = _attributes(obj, state)
-    return None if reason is None else f"attribute {reason[0]!r}: {reason[1]}"
-
-
-def _dataset(ds: h5py.Dataset, state) -> str | None:
+def _dataset(ds: h5py.Dataset, count) -> str | None:
     if ds.is_virtual:
         return "a virtual dataset (data from other files) is not read"
     if ds.id.get_create_plist().get_external_count():
@@ -113,27 +99,20 @@ def _dataset(ds: h5py.Dataset, state) -> str | None:
     if ds.dtype.kind not in "fiub" or ds.dtype.fields or ds.dtype.subdtype:
         return f"must hold real numbers, got dtype {ds.dtype}"
     size = math.prod(ds.shape or ())
-    if size > limits.MAX_DATASET_ELEMENTS:
-        return f"{size} values, more than the limit of {limits.MAX_DATASET_ELEMENTS} (vine_nlp.io.limits.MAX_DATASET_ELEMENTS)"
-    if ds.chunks and math.prod(-(-n // c) for n, c in zip(ds.shape, ds.chunks)) > MAX_CHUNKS:
+    count["values"] += size
+    if ds.chunks and size <= limits.MAX_DATASET_ELEMENTS and math.prod(-(-n // c) for n, c in zip(ds.shape, ds.chunks)) > MAX_CHUNKS:
         return f"stored in more than {MAX_CHUNKS} chunks (vine_nlp.io.h5read.MAX_CHUNKS)"
-    state["values"] += size
-    if state["values"] > limits.MAX_ARCHIVE_VALUES:
+    if count["values"] > limits.MAX_ARCHIVE_VALUES and size <= limits.MAX_DATASET_ELEMENTS:
         return f"more than {limits.MAX_ARCHIVE_VALUES} values in all datasets (vine_nlp.io.limits.MAX_ARCHIVE_VALUES)"
-    return None
+    return _size(size)
 
 
-def _attributes(obj, state) -> tuple[str, str] | None:
-    """(name, reason) of the first attribute of ``obj`` refused, or None."""
+def _attributes(obj, count) -> str | None:
+    """Why an attribute of ``obj`` is refused, or None."""
+    count["objects"] += 1 + len(obj.attrs)
     for name in obj.attrs:
-        state["objects"] += 1
-        reason = _name(name)
-        if reason is None:
-            aid = obj.attrs.get_id(name)
-            size = math.prod(aid.shape or ()) * max(1, aid.dtype.itemsize // 8)
-            if size > limits.MAX_DATASET_ELEMENTS:
-                reason = f"{size} values, more than the limit of {limits.MAX_DATASET_ELEMENTS} (vine_nlp.io.limits.MAX_DATASET_ELEMENTS)"
-        if reason is not None:
-            return name, reason
-    state["objects"] += 1
+        aid = obj.attrs.get_id(name)
+        reason = _size(math.prod(aid.shape or ()) * max(1, aid.dtype.itemsize // 8)) if _good_name(name) else _BAD_NAME
+        if reason:
+            return f"attribute {name[:80]!r}: {reason}"
     return None

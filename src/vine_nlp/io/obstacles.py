@@ -40,13 +40,7 @@ _KEYS = {
     "plane": ("point", "normal"),
     "mesh": ("file",),
 }
-_REQUIRED = {
-    "sphere": ("center", "radius"),
-    "box": ("center", "size"),
-    "capsule": ("p0", "p1", "radius"),
-    "plane": ("point", "normal"),
-    "mesh": ("file",),
-}
+_REQUIRED = {shape: tuple(k for k in keys if not k.startswith("rotation")) for shape, keys in _KEYS.items()}
 _COMMON = ("shape", "name")
 # archive datasets per shape: name -> shape of the array (None: any number of rows)
 _DATASETS = {
@@ -213,7 +207,7 @@ def _mesh(err, base, value, name) -> Mesh:
     except ImportError:
         raise err("file", "mesh obstacles need trimesh and rtree: pip install 'vine_nlp[obstacles]'") from None
     named = err("file", "")  # the problem file and key that name the mesh, for errors opening it
-    data = files.read_bytes(path, named.file, named.key, limits.MAX_MESH_BYTES, "MAX_MESH_BYTES")
+    data = files.read_text(path, named.file, named.key, limits.MAX_MESH_BYTES, "MAX_MESH_BYTES", binary=True)
     vertices, faces = load_mesh_file(path, data)
     return Mesh(vertices, faces, source=value, name=name)
 
@@ -232,7 +226,7 @@ def load_mesh_file(path, data: bytes | None = None) -> tuple[np.ndarray, np.ndar
 
     path = Path(path)
     if data is None:
-        data = files.read_bytes(path, key="mesh", limit=limits.MAX_MESH_BYTES, limit_name="MAX_MESH_BYTES")
+        data = files.read_text(path, None, "mesh", limits.MAX_MESH_BYTES, "MAX_MESH_BYTES", binary=True)
     try:
         mesh = trimesh.load(file_obj=io.BytesIO(data), file_type=path.suffix.lower().lstrip("."), force="mesh", process=True)
     except Exception as exc:  # noqa: BLE001  third-party parser of an untrusted file: any failure is bad input
@@ -274,13 +268,7 @@ def parse_obstacle_design(design, file) -> tuple[float, str]:
     InputError
     """
     file = str(file)
-    margin = design.get("obstacle_margin", 0.0)
-    if not _is_number(margin):
-        raise InputError(file, "design.obstacle_margin", "must be a number")
-    try:
-        margin = float(margin)
-    except OverflowError:
-        margin = math.inf
+    margin = _float(lambda key, reason: InputError(file, "design.obstacle_margin", reason), "", design.get("obstacle_margin", 0.0), "a number")
     if not math.isfinite(margin):
         raise InputError(file, "design.obstacle_margin", "must be finite")
     if margin < 0:

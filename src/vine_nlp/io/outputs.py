@@ -1,19 +1,13 @@
 """The output files of one command: all written or none, new ones created exclusively.
 
-Inside ``with run():`` (the command line wraps every command in one), :func:`reserve` checks each
-output path before any work: an existing file needs ``force``; what is not a regular file
-(a directory, a device such as /dev/null, a pipe) is never replaced; and it creates the
-temporary file the output is written to, so a directory that cannot be written is found
-at once. Writers (``vine_nlp.io.archive.write_atomic``) fill that temporary file; readers
-(``vine_nlp.io.files``) read a written output from it. When the command ends normally every
-written output is moved onto its path: a new one by a hard link, which fails if another
-process created the file meanwhile (two runs to one new file: one of them exits 2), one
-allowed to replace a file by a rename. A failure there undoes the outputs moved before it
-(a replaced file comes back), and an exception or signal before it removes the temporary
-files: nothing was written. Outside a run (scripts, sweeps) writes are immediate.
-
-Temporary files are named ``.<name>.vine-nlp-<pid>-<random>.tmp``; those of a process that no
-longer exists (killed with SIGKILL) are removed by the next write into their directory.
+In ``with run():`` (the command line's ``main``), :func:`reserve` checks an output before any work (an
+existing file needs ``force``; a directory, device or pipe is never replaced) and creates its temporary
+file beside it; ``io.archive.write_atomic`` fills it, ``io.files`` reads a written output from it. When
+the block ends normally each written output is moved onto its path: a new one by a hard link (which
+fails if another process created the file meanwhile), a forced one by a rename; a failure undoes the
+moves before it (a replaced file comes back); an exception or signal just removes the temporary files.
+Outside a run (scripts, sweeps) writes are immediate. Temporary files, ``.<name>.vine-nlp-<pid>-*.tmp``,
+of a process that no longer exists (SIGKILL) go with the next write into their directory.
 """
 
 from __future__ import annotations
@@ -28,7 +22,8 @@ from pathlib import Path
 
 from vine_nlp.errors import InputError
 
-_TEMP = re.compile(r"\.vine-nlp-(\d+)-[^.]*\.tmp$")
+_TEMP = re.compile(r"^\..*\.vine-nlp-(\d+)-[^.]*\.tmp$")
+_NOT_REGULAR = "not a regular file: a device, pipe or socket is never replaced"
 _active: dict | None = None  # output path -> {"temp", "force", "written", "key"} of the current run
 _swept: set = set()  # directories this process cleaned of dead processes' temporary files
 
@@ -39,22 +34,20 @@ class OutputError(InputError, OSError):
 
     def __init__(self, file, key, reason, errno=None):
         InputError.__init__(self, file, key, reason)
-        self.errno = errno
-        self.strerror = reason
-        self.filename = str(file)
+        self.errno, self.strerror, self.filename = errno, reason, str(file)
 
 
-def output_error(path, exc: OSError, key: str = "write") -> OutputError:
+def output_error(path, exc: OSError) -> OutputError:
     """The one-line error for an OSError met while writing ``path``."""
     reason = exc.strerror or str(exc) or type(exc).__name__
     if isinstance(exc, IsADirectoryError) or Path(path).is_dir():
         reason = "is a directory"
-    return OutputError(path, key, f"cannot write ({reason}); nothing was written", errno=exc.errno)
+    return OutputError(path, "write", f"cannot write ({reason}); nothing was written", errno=exc.errno)
 
 
 def temp_file(path) -> Path:
-    """A new temporary file beside ``path`` (same directory: the final rename is atomic), with the
-    permissions a plain open() would give; OutputError when the directory cannot be written."""
+    """A new temporary file beside ``path`` (the final rename is atomic) with the permissions a plain
+    open() gives; OutputError when the directory cannot be written."""
     path = Path(path)
     sweep_stale(path.parent)
     try:
@@ -71,41 +64,29 @@ def temp_file(path) -> Path:
 def sweep_stale(directory) -> None:
     """Remove temporary files of processes that no longer exist (once per directory and process)."""
     directory = os.path.abspath(directory)
-    if directory in _swept:
-        return
-    _swept.add(directory)
-    with contextlib.suppress(OSError), os.scandir(directory) as entries:
-        for e in entries:
-            m = _TEMP.search(e.name)
-            if m and e.name.startswith(".") and not _alive(int(m.group(1))):
-                with contextlib.suppress(OSError):
+    if directory not in _swept:
+        _swept.add(directory)
+        with contextlib.suppress(OSError), os.scandir(directory) as entries:
+            for e in (e for e in entries if _TEMP.match(e.name)):
+                try:
+                    os.kill(int(_TEMP.match(e.name).group(1)), 0)  # PermissionError: another user's process
+                except ProcessLookupError:
                     os.unlink(e.path)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:  # another user's process
-        return True
-    return True
+                except OSError:
+                    pass
 
 
 def reserve(path, force: bool, key: str = "-o") -> Path:
     """Check the output ``path`` before any work (module docstring); in a run, create its temporary file."""
     out = Path(path)
     try:
-        st = os.stat(out)
-    except FileNotFoundError:
-        st = None
+        st = os.stat(out) if os.path.lexists(out) else None
     except OSError as exc:
         raise output_error(out, exc) from None
     if st is not None and not force:
         raise InputError(path, key, "exists; pass --force to overwrite it")
     if st is not None and not stat.S_ISREG(st.st_mode):
-        what = "is a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file: a device, pipe or socket is never replaced"
-        raise output_error(out, OSError(errno.EEXIST, what))
+        raise output_error(out, OSError(errno.EEXIST, "is a directory" if stat.S_ISDIR(st.st_mode) else _NOT_REGULAR))
     if not out.parent.is_dir():
         raise InputError(path, key, f"directory {str(out.parent)!r} does not exist")
     if _active is not None:
@@ -116,19 +97,17 @@ def reserve(path, force: bool, key: str = "-o") -> Path:
     return out
 
 
-def staged(path, written: bool = False):
+def staged(path, written: bool = False) -> Path | None:
     """The temporary file the current run writes ``path`` to (``written``: mark it written), or None."""
-    entry = _active.get(os.path.abspath(path)) if _active else None
-    if entry is None:
-        return None
-    entry["written"] |= written
-    return entry["temp"]
+    entry = (_active or {}).get(os.path.abspath(path), {})
+    entry["written"] = entry.get("written", False) or written
+    return entry.get("temp")
 
 
 def reading(path) -> str:
     """Where to read ``path``: its staged copy when this run has written it, else the path itself."""
-    entry = _active.get(os.path.abspath(path)) if _active else None
-    return str(entry["temp"]) if entry and entry["written"] else str(path)
+    entry = (_active or {}).get(os.path.abspath(path), {})
+    return str(entry["temp"] if entry.get("written") else path)
 
 
 @contextlib.contextmanager
@@ -148,45 +127,40 @@ def run():
 
 
 def _commit(entries: dict) -> None:
-    done = []  # (path, backup of the file it replaced or None)
+    done = []  # (path, backup of the file it replaced or None), to undo
+    path = None
     try:
-        for path, e in entries.items():
-            if not e["written"]:
-                continue
+        for path, e in ((p, e) for p, e in entries.items() if e["written"]):
             backup = None
             if not e["force"]:
                 _create(e["temp"], path, e["key"])
-                done.append((path, None))
-                continue
-            if os.path.exists(path):
+            elif os.path.exists(path):
                 if not stat.S_ISREG(os.stat(path).st_mode):  # became something else meanwhile
-                    raise OSError(errno.EEXIST, "not a regular file: a device, pipe or socket is never replaced", path)
+                    raise OSError(errno.EEXIST, _NOT_REGULAR, path)
                 backup = temp_file(path)
                 os.replace(path, backup)
-            os.replace(e["temp"], path)
+            if e["force"]:
+                os.replace(e["temp"], path)
             done.append((path, backup))
     except BaseException as exc:
-        for path, backup in reversed(done):
+        for done_path, backup in reversed(done):
             with contextlib.suppress(OSError):
-                os.replace(backup, path) if backup else os.unlink(path)
-        if isinstance(exc, OSError):
-            raise output_error(getattr(exc, "filename", None) or path, exc) from None
+                os.replace(backup, done_path) if backup else os.unlink(done_path)
+        if isinstance(exc, OSError) and not isinstance(exc, InputError):
+            raise output_error(path, exc) from None
         raise
     for _, backup in done:
         if backup:
-            with contextlib.suppress(OSError):
-                os.unlink(backup)
+            os.unlink(backup)
 
 
 def _create(temp, path, key) -> None:
     """Move ``temp`` onto ``path``, which must not exist: a hard link is atomic and exclusive."""
     try:
-        os.link(temp, path)
+        os.link(temp, path)  # the run removes temp afterwards
     except FileExistsError:
         raise InputError(path, key, "exists (written meanwhile by another process); pass --force to overwrite it; "
                          "nothing was written") from None
     except OSError:  # a filesystem without hard links: an exclusive placeholder, then the rename
         os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
         os.replace(temp, path)
-        return
-    os.unlink(temp)
