@@ -279,7 +279,7 @@ BAD = [
     ("empty-csv", POINTS, {"t.csv": "x,y,z\n\n"}, "t.csv", "values: no data rows"),
     ("repeated-points", POINTS, {"t.csv": "0,0,0\n1,0,0\n1,0,0\n2,0,0\n"}, "t.csv", "values: points 2 and 3 are identical"),
     ("two-points", POINTS, {"t.csv": "0,0,0\n1,0,0\n"}, "t.csv", "values: needs at least 3 points, got 2"),
-    ("npy-shape", POINTS.replace("t.csv", "t.npy"), {"t.npy": np.zeros((4, 5))}, "t.npy", "values: must be an N x 3 (or N x 2) array, got shape (4, 5)"),
+    ("npy-shape", POINTS.replace("t.csv", "t.npy"), {"t.npy": np.zeros((4, 5))}, "t.npy", "values: must be an N x 3 (or N x 2) array, N <= 100000 (vine_nlp.io.limits.MAX_TARGET_POINTS), got shape (4, 5)"),
     ("npy-garbage", POINTS.replace("t.csv", "t.npy"), {"t.npy": "not an npy file"}, "t.npy", "values: not a readable .npy array file"),
     ("npy-objects", POINTS.replace("t.csv", "t.npy"), {"t.npy": np.array([[1, "a", None]] * 3, dtype=object)}, "t.npy", "values: must hold an array of real numbers"),
     ("fit-free", TUBE + "[measured]\nfile = 'm.csv'\nline = 'outer'\n" + FWD.replace(TUBE, "") + "theta = 0\nlambda = 1\n[fit]\nfree = ['mu']\n", {"m.csv": GOOD_CSV}, "", "fit.free: must be one of 'lambda'"),
