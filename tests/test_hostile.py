@@ -318,6 +318,13 @@ def test_a_30000_level_dotted_key_in_a_sweep_grid(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_nul_through_a_sweep_grid_is_refused_before_any_work(tmp_path, capsys):
+    (tmp_path / "base.toml").write_text(TINY_TREFOIL)
+    (tmp_path / "s.toml").write_text('base = "base.toml"\n[grid]\nunits = ["cm", "c\\u0000m"]\n')
+    refused(capsys, ["sweep", tmp_path / "s.toml", "-o", tmp_path / "out"], tmp_path / "s.toml", "grid.units.1")
+    assert not (tmp_path / "out").exists()  # no summary.csv, no lock
+
+
 # ---------------------------------------------------------------- strings: the error line cannot be forged
 
 @pytest.mark.parametrize("key", ["tube\nerror: forged", "\x1b[2J\x1b[31mred", "nul\x00key", "\u202eevil"])

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from vine_nlp.errors import InputError
 
-_TEMP = re.compile(r"^\..*\.vine-nlp-(\d+)-[^.]*\.tmp$")
+_TEMP = re.compile(r"^\..*\.vine-nlp-(\d+)-[^.]*\.tmp(\.\w+)?$")
 _NOT_REGULAR = "not a regular file: a device, pipe or socket is never replaced"
 _active: dict | None = None  # output path -> {"temp", "force", "written", "key"} of the current run
 _swept: set = set()  # directories this process cleaned of dead processes' temporary files
