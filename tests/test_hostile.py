@@ -14,6 +14,7 @@ import signal
 import stat
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import h5py
@@ -33,7 +34,7 @@ from vine_nlp.io.problem_file import load_problem, load_sweep
 ROOT = Path(__file__).resolve().parents[1]
 MEMORY = 1 << 30
 TIME_LIMIT = 10
-FUZZ = settings(max_examples=40, deadline=None, derandomize=True, database=None,
+FUZZ = settings(max_examples=int(os.environ.get("VINE_NLP_FUZZ_EXAMPLES", "40")), deadline=None, derandomize=not os.environ.get("VINE_NLP_FUZZ_RANDOM"), database=None,
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 FORWARD = """name = "f"
 units = "cm"
@@ -490,10 +491,12 @@ def test_a_solve_in_c_code_honours_signals(tmp_path, sig):
                             stderr=subprocess.PIPE, text=True, env=env)
     try:
         assert proc.stdout.readline().strip() == "solving"
-        start = _cpu_seconds(proc.pid)
+        start, give_up = _cpu_seconds(proc.pid), time.monotonic() + 300
         while _cpu_seconds(proc.pid) < start + 2.0:  # two seconds of CPU in the solve (an event, not a guess)
-            assert proc.poll() is None, proc.stderr.read()
-            os.sched_yield()
+            if proc.poll() is not None or time.monotonic() > give_up:
+                proc.kill()
+                pytest.fail(f"no solve to interrupt: {proc.communicate()[1]}")
+            time.sleep(0.05)  # polling for the event, not assuming it
         proc.send_signal(sig)
         out, err = proc.communicate(timeout=TIME_LIMIT)
     finally:

@@ -429,7 +429,7 @@ def test_sweep_view_click_shows_the_item(browser, tmp_path):
 
 
 @pytest.mark.slow
-@settings(max_examples=3, deadline=None, derandomize=True, database=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=2, deadline=None, derandomize=True, database=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(run=HOSTILE_TEXT.filter(lambda t: "/" not in t and t not in (".", "..")), name=HOSTILE_TEXT)
 @example(run="<!--<script>window.pwned=1;%d", name="<img src=x onerror=window.pwned=3>")
 def test_no_script_from_the_data_runs_in_the_browser(browser, tmp_path_factory, run, name):
