@@ -290,11 +290,11 @@ NUMBERS = {
 
 
 @pytest.mark.parametrize("case", list(NUMBERS))
-def test_bad_values_are_one_line_where_they_enter(tmp_path, capsys, case):
+def test_bad_values_are_one_line_where_they_enter(tmp_path, case):
     text, key, reason = NUMBERS[case]
     (tmp_path / "p.toml").write_text(text)
-    line = refused(capsys, ["design", tmp_path / "p.toml", "-o", tmp_path / "o.h5"], tmp_path / "p.toml", key)
-    assert reason in line
+    r = limited("design", tmp_path / "p.toml", "-o", tmp_path / "o.h5")
+    assert r.returncode == 2 and reason in one_line(r.stderr, tmp_path / "p.toml", key)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["p.toml"]
 
 
