@@ -220,11 +220,18 @@ CHOICES = {
     "_FREE_CHOICES": "entries of `[fit] free`",
 }
 LIMITS = {
-    "MAX_SAMPLES": "target points of a curve (`samples`)",
+    "MAX_TARGET_POINTS": "target points of a curve (`samples`) or a point file",
     "MAX_SEGMENTS": "segments of a routing",
     "MAX_SWEEP_ITEMS": "items of a sweep",
     "MAX_LEVELS": "`[[targets]]` of a multishape problem",
     "MAX_TIP_SEGMENTS": "`segments` of a tip problem",
+    "MAX_TOML_BYTES": "bytes of a problem, sweep or calibration file",
+    "MAX_LINE_CHARS": "characters of a line of a CSV point file",
+    "MAX_UNITS_CHARS": "characters of `units`",
+    "MAX_NAME_CHARS": "characters of a name or key",
+    "MAX_COORDINATE": "magnitude of a coordinate, length or diameter, in `units`",
+    "MAX_DIAMETERS": "span of a target, routing or measurement, in tube diameters",
+    "MIN_DIAMETERS": "(at least) span of a target, routing or measurement, in tube diameters",
 }
 EXAMPLES = {
     "design": "trefoil-m4.toml",
@@ -397,8 +404,8 @@ def formats_page(archives: bool = True) -> str:
         out.append(f"| {where} | {_code(values)} |")
     out += ["", "### Limits", "", "Guards against inputs that would exhaust memory:", "", "| limit | at most |", "|---|---|"]
     for name, what in LIMITS.items():
-        value, _ = _lookup(name, readers)
-        out.append(f"| {what} | {value:,} |")
+        value, _ = _lookup(name, [*readers, *_modules(["vine_nlp.io.limits"])])
+        out.append(f"| {what} | {value:,} |" if isinstance(value, int) else f"| {what} | {value:g} |")
 
     out += ["", "### Expressions", ""]
     out += [

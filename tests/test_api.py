@@ -298,7 +298,7 @@ def test_forward_errors():
 
 
 def test_forward_archive_round_trip(tmp_path, capsys):
-    name = 'arc "1" \\ \u00e9\U0001f600\x7f'  # quotes, backslash, non-ASCII, astral, DEL: the source stays TOML
+    name = 'arc "1" \\ \u00e9\U0001f600'  # quotes, backslash, non-ASCII, astral: the source stays TOML (control characters are refused)
     f = vn.forward(np.linspace(-0.3, 0.3, 8), 0.7, 1.5, D, name=name)
     path = f.save(tmp_path / "f.h5")
     a = vn.load(path)

@@ -351,7 +351,7 @@ def test_size_limits_are_checked_before_reading(written, monkeypatch):
         load_archive(written)
     assert info.value.key == "/target/points"
     assert info.value.reason == (
-        f"3000000000 values, more than the limit of {3 * limits.MAX_TARGET_POINTS} (vine_nlp.io.limits.MAX_TARGET_POINTS)")
+        f"3000000000 values, more than the limit of {limits.MAX_DATASET_ELEMENTS} (vine_nlp.io.limits.MAX_DATASET_ELEMENTS)")
 
 
 @pytest.mark.parametrize("content, reason", [

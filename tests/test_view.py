@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import logging
 import math
 import os
@@ -21,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, example, given, settings
+from hypothesis import strategies as st
 
 from vine_nlp.front import view
 from vine_nlp.front.cli import main
@@ -213,14 +216,15 @@ def test_trefoil_view_size(trefoil, tmp_path):
 # ------------------------------------------------------------------ sweep directories
 
 
-def sweep_dir(root: Path) -> Path:
+def sweep_dir(root: Path, items=("wave-0", "wave-1", "wave-2"), run="nlp", name=None) -> Path:
+    """A sweep directory: summary.csv and one archive per item (run ``run``, archive name ``name``)."""
     d = root / "sweep"
     d.mkdir()
     rows = []
-    for i, phase in enumerate((0.0, 0.8, 1.6)):
-        item = f"wave-{i}"
-        r = run_forward(ForwardProblem(item, D, routing(phase=phase)))
-        write_archive(d / f"{item}.h5", Archive(item, "design", "", D, target=r.shape.center, runs={"nlp": r}))
+    for i, item in enumerate(items):
+        r = run_forward(ForwardProblem("wave", D, routing(phase=0.8 * i)))
+        write_archive(d / f"{item}.h5" if "/" not in item else root / "outside.h5",
+                      Archive(name or item, "design", "", D, target=r.shape.center, runs={run: r}))
         rows.append({"item": item, "method": "nlp", "status": "optimal", "rmse": 0.01 * (i + 1), "max_error": 0.02,
                      "solve_time_s": 0.5, "iterations": 3, "units": "cm", "error": ""})
     out = io.StringIO()
@@ -242,6 +246,35 @@ def test_sweep_view_has_every_item(tmp_path):
     out = tmp_path / "sweep.html"
     assert main(["view", str(d), "-o", str(out)]) == 0
     assert "vineShowItem" in out.read_text()
+
+
+@pytest.mark.parametrize("item", ["../outside", "</script><svg onload=alert(1)>", "a%db", "x\u2028y"])
+def test_sweep_view_refuses_what_is_no_item_name(tmp_path, capsys, item):
+    d = sweep_dir(tmp_path, items=("wave-0", item))
+    assert main(["view", str(d), "-o", str(tmp_path / "v.html")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {d / 'summary.csv'}: item: ") and err.count("\n") == 1 and "is not an item name" in err
+    assert not (tmp_path / "v.html").exists()
+
+
+HOSTILE_TEXT = st.one_of(st.text(st.characters(blacklist_categories=("Cs", "Cc", "Cf", "Zl", "Zp")), min_size=1, max_size=20),
+                         st.sampled_from(["</script><script>window.pwned=1</script>", "<!--", "%d %s", "{plot_id}", "</SCRIPT >",
+                                          "\\'\"];window.pwned=2;//", "<img src=x onerror=window.pwned=3>"])).filter(str.isprintable)
+
+
+def _shapes_of(html: str) -> dict:
+    return json.loads(re.search(r"var shapes = (.*?);\nvar nxy = ", html, re.S).group(1))
+
+
+@settings(max_examples=12, deadline=None, derandomize=True, database=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(run=HOSTILE_TEXT.filter(lambda t: "/" not in t and t not in (".", "..")), name=HOSTILE_TEXT)
+@example(run="<!--<script>window.pwned=1;%d", name="<!--")  # no "/" in an HDF5 name: the double-escape trick instead
+def test_fuzz_sweep_view_data_stays_data(tmp_path_factory, run, name):
+    root = tmp_path_factory.mktemp("fuzzview")
+    html = view.sweep_html(sweep_dir(root, items=("w-0",), run=run, name=name), include_plotlyjs=False)
+    script = html[html.index("var shapes = "):]
+    assert "<" not in script[:script.index(";\nvar nxy")]  # nothing in the data can close or comment out the script
+    assert list(_shapes_of(html)["w-0"]["runs"]) == [run]  # and it reads back as given
 
 
 # ------------------------------------------------------------------ command line: bad input
@@ -393,6 +426,21 @@ def test_sweep_view_click_shows_the_item(browser, tmp_path):
     assert not np.allclose(shown, first)
     assert browser.execute_script(f"return {PLOT}.vineItem") == "wave-2 nlp"
     assert errors(browser.get_log("browser")) == []
+
+
+@pytest.mark.slow
+@settings(max_examples=2, deadline=None, derandomize=True, database=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(run=HOSTILE_TEXT.filter(lambda t: "/" not in t and t not in (".", "..")), name=HOSTILE_TEXT)
+@example(run="<!--<script>window.pwned=1;%d", name="<img src=x onerror=window.pwned=3>")
+def test_no_script_from_the_data_runs_in_the_browser(browser, tmp_path_factory, run, name):
+    root = tmp_path_factory.mktemp("hostileview")
+    d = sweep_dir(root, items=("w-0", "w-1"), run=run, name=name)
+    out = root / "v.html"
+    assert main(["view", str(d), "-o", str(out)]) == 0
+    assert errors(load(browser, out)) == []
+    assert browser.execute_script("return window.pwned === undefined && document.querySelectorAll('img[src=x], svg[onload]').length === 0")
+    assert browser.execute_script("return window.vineShowItem('w-1', arguments[0])", run) is True  # the click handler works
+    assert browser.execute_script(f"return {PLOT}.vineItem") == f"w-1 {run}"
 
 
 def test_math_of_tube_rings():

@@ -4,7 +4,8 @@ CasADi catches a KeyboardInterrupt raised inside an IPOPT solve and returns with
 status "NonIpopt_Exception_Thrown" instead of propagating it. Every solver call is
 followed by :func:`check`, which turns that (or a signal recorded by
 :func:`install`) back into a KeyboardInterrupt, so interrupted work unwinds and
-atomic writers leave nothing partial.
+atomic writers leave nothing partial. A solver that never looks at signals (Fatrop's C
+loop) runs through :func:`call`, in a thread of its own the main thread waits for.
 
 Test hold points. Tests that interrupt a run must not guess how long it runs.
 With the environment variable ``VINE_NLP_TEST_HOLD=<point>=<fifo>`` (``<fifo>``
@@ -50,6 +51,28 @@ def install():
             signal.signal(s, h)
 
     return restore
+
+
+def call(fn, *args, **kwargs):
+    """``fn(*args, **kwargs)`` in a daemon thread the main thread waits for, where a signal's handler
+    can raise: Ctrl-C and SIGTERM end even C code that never returns to Python (CasADi releases the
+    GIL while it solves); the thread is left to end with the process."""
+    if threading.current_thread() is not threading.main_thread():
+        return fn(*args, **kwargs)
+    out = {}
+
+    def run():
+        try:
+            out["value"] = fn(*args, **kwargs)
+        except BaseException as exc:  # noqa: BLE001  handed to the caller
+            out["error"] = exc
+
+    worker = threading.Thread(target=run, daemon=True)
+    worker.start()
+    worker.join()
+    if "error" in out:
+        raise out["error"]
+    return out["value"]
 
 
 def check(return_status: str | None = None) -> None:

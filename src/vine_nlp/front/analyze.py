@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import tomllib
 
 from vine_nlp.analysis.collision import collision_metrics, growth_contacts, helix_collisions, routing_clearance
 from vine_nlp.analysis.obstacles import obstacle_report, report_rows
@@ -14,6 +13,7 @@ from vine_nlp.front.files import archive_run, check_figure, read_archive, sigmas
 from vine_nlp.io.archive import write_archive
 from vine_nlp.io.obstacles import DEFAULT_GROWTH, parse_obstacle_design
 from vine_nlp.io.problems import design_problem_of
+from vine_nlp.io.validate import parse_toml
 
 
 def cmd_analyze(args) -> int:
@@ -74,9 +74,9 @@ def _analyze_obstacles(archive, r, u) -> dict:
     """Print the distance to every obstacle along the tube and the contacts, final and intermediate shapes
     (margin and growth from the archived problem's [design]); the run metrics."""
     try:
-        design = tomllib.loads(archive.source).get("design", {})
+        design = parse_toml("archive", archive.source).get("design", {})
         margin, growth = parse_obstacle_design(design if isinstance(design, dict) else {}, "archive")
-    except (InputError, tomllib.TOMLDecodeError):
+    except InputError:
         margin, growth = 0.0, DEFAULT_GROWTH
     rep = obstacle_report(r.routing, archive.diameter, archive.obstacles, growth, margin)
     print(f"obstacles   {len(archive.obstacles)}; margin {margin:.4g} {u}; growth {growth}; "

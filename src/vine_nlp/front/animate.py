@@ -16,6 +16,7 @@ matplotlib.animation writes the movie: GIF through pillow, MP4 through ffmpeg
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 
@@ -195,7 +196,7 @@ def write_movie(archive: Archive, path, mode: str = "both", run: str | None = No
 
     # the writer needs a real file name with the right extension: a temporary one beside the target
     target = Path(path)
-    tmp_name = target.with_name(f".{target.stem}.partial{ext}")
+    tmp_name = target.with_name(f".{target.name}.vine-nlp-{os.getpid()}-partial.tmp{ext}")  # swept if killed (io/outputs.py)
     try:
         record(tmp_name)
         write_atomic(target, lambda t: Path(t).write_bytes(tmp_name.read_bytes()))

@@ -15,6 +15,7 @@ from pathlib import Path
 from vine_nlp import __version__
 from vine_nlp.errors import InputError
 from vine_nlp.front.files import add_sigma_args, archive_run, check_figure, check_output, read_archive, sigmas
+from vine_nlp.io import outputs
 from vine_nlp.methods import blas, compiled
 from vine_nlp.pipeline.runs import COMPARE
 from vine_nlp.problem import METHODS
@@ -550,7 +551,8 @@ def main(argv=None) -> int:
     try:
         compiled.mode()  # a bad VINE_NLP_CODEGEN is one error line before any work
         args = parser.parse_args(argv)
-        return args.func(args)
+        with outputs.run():  # the outputs check_output reserved: all written when the command ends, or none
+            return args.func(args)
     except InputError as e:
         print(f"error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from vine_nlp.errors import InputError
+from vine_nlp.io import outputs
 from vine_nlp.io.archive import load_archive
 from vine_nlp.model.routing import Sigmas
 
@@ -14,12 +15,7 @@ FIGURE_FORMATS = ("png", "pdf", "svg")
 
 def check_output(path: str, force: bool, arg: str = "-o") -> Path:
     """An output path: refused if it exists (without ``force``) or its directory does not."""
-    out = Path(path)
-    if out.exists() and not force:
-        raise InputError(path, arg, "exists; pass --force to overwrite it")
-    if not out.parent.exists():
-        raise InputError(path, arg, f"directory {str(out.parent)!r} does not exist")
-    return out
+    return outputs.reserve(path, force, arg)  # checked now, written when the command ends (io/outputs.py)
 
 
 def check_figure(path, force, key="--plot"):

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import math
-import tomllib
 
 import numpy as np
 
 from vine_nlp.analysis.buildability import buildability, default_min_feature
+from vine_nlp.errors import InputError
 from vine_nlp.io.archive import Archive, load_archive
+from vine_nlp.io.validate import parse_toml
 from vine_nlp.problem import ACTUATOR_KINDS, Actuator, DesignOptions
 
 RUN_ORDER = ("nlp", "greedy", "greedy_filtered", "forward", "fit")
@@ -24,9 +25,9 @@ def ordered_runs(archive: Archive) -> list[str]:
 
 def source_table(archive: Archive, table: str) -> dict:
     """A table of the archived problem file's text ({} when absent or unreadable)."""
-    try:
-        value = tomllib.loads(archive.source or "").get(table, {})
-    except (tomllib.TOMLDecodeError, TypeError, ValueError):
+    try:  # parse_toml refuses control characters: nothing from the text reaches the terminal raw
+        value = parse_toml("archive", archive.source or "").get(table, {})
+    except InputError:
         return {}
     return value if isinstance(value, dict) else {}
 

@@ -32,11 +32,14 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
 
+from vine_nlp.errors import InputError
 from vine_nlp.front.sweep.summary import SUMMARY_CSV, read_summary
+from vine_nlp.io import files, limits
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
 from vine_nlp.model import shape_lines
 from vine_nlp.model.chain import segment_end_samples
@@ -406,6 +409,13 @@ def write_html(path, html: str) -> None:
 # ------------------------------------------------------------------ sweep view
 
 
+def script_json(value) -> str:
+    """JSON to paste into a <script> element: no text from the data can end the element ("</script>"),
+    open a comment ("<!--") or be taken for plotly's "{plot_id}" placeholder."""
+    text = json.dumps(value, ensure_ascii=True)  # U+2028 and U+2029 as escapes too
+    return text.replace("<", "\\u003c").replace(">", "\\u003e").replace("&", "\\u0026").replace("{plot_id}", "\\u007bplot_id}")
+
+
 def is_sweep_dir(path) -> bool:
     return Path(path).is_dir() and (Path(path) / "summary.csv").is_file()
 
@@ -422,12 +432,16 @@ def sweep_figure(directory):
     from plotly.subplots import make_subplots
 
     d = Path(directory)
+    files.open_input(d / SUMMARY_CSV, limit=SUMMARY_BYTES, limit_name="MAX_FILE_BYTES // 16").close()  # no pipe, no giant
     rows = read_summary(d / SUMMARY_CSV)
     shapes = {}
     units = ""
     for item in dict.fromkeys(r["item"] for r in rows):
+        # an item is a plain file name in the sweep directory (sweep_file.py names them): no path from the data
+        if not isinstance(item, str) or not ITEM_NAME.fullmatch(item):
+            raise InputError(d / SUMMARY_CSV, "item", f"{str(item)[:80]!r} is not an item name (letters, digits, . _ + -)")
         path = d / f"{item}.h5"
-        if not path.is_file():
+        if not path.is_file() or path.resolve().parent != d.resolve():
             continue
         try:
             a = load_archive(path)
@@ -474,10 +488,10 @@ def sweep_figure(directory):
     return fig, shapes
 
 
+SUMMARY_BYTES = limits.MAX_FILE_BYTES // 16
+ITEM_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
 _SWEEP_JS = """
 var gd = document.getElementById('{plot_id}');
-var shapes = %s;
-var nxy = %d;
 function vineShowItem(item, run) {
   var it = shapes[item]; if (!it) { return false; }
   if (!(run in it.runs)) { run = Object.keys(it.runs)[0]; }
@@ -503,6 +517,6 @@ def sweep_html(directory, include_plotlyjs=True) -> str:
     (or calling ``vineShowItem(item, run)`` in the page) draws its shape."""
     fig, shapes = sweep_figure(directory)
     n_xy = sum(1 for tr in fig.data if tr.type == "scatter")
-    script = _SWEEP_JS.replace("%s", json.dumps(shapes), 1).replace("%d", str(n_xy), 1)
+    script = f"var shapes = {script_json(shapes)};\nvar nxy = {n_xy};" + _SWEEP_JS
     return fig.to_html(full_html=True, include_plotlyjs=include_plotlyjs, post_script=script,
                        config={"displaylogo": False, "responsive": True})

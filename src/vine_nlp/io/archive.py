@@ -7,9 +7,9 @@ filesystem or a missing permission is one :class:`OutputError` and leaves nothin
 HDF5 itself never writes to the disk, so a failed write cannot leave it with a
 half-closed file (which used to crash the interpreter at exit).
 
-Reading. :func:`load_archive` checks everything it returns against the spec before any
-command uses it: every dataset's dtype and shape and their consistency (M segments, P
-shape rows, K levels), finite values (a metric other than rmse and max_error may be NaN:
+Reading. :func:`load_archive` opens the file through :mod:`vine_nlp.io.h5read` (no links, no
+external data, sizes bounded before reading) and checks everything it returns against the spec:
+every dataset's dtype and shape and their consistency (M segments, P shape rows, K levels), finite values (a metric other than rmse and max_error may be NaN:
 "does not apply"), proper initial poses (4x4, orthonormal rotation
 with det +1, last row 0 0 0 1), attribute types and the size limits of
 :mod:`vine_nlp.io.limits`. Anything else is an :class:`ArchiveError`
@@ -25,7 +25,6 @@ import io
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,8 +33,10 @@ import numpy as np
 
 from vine_nlp import __version__
 from vine_nlp.errors import InputError
-from vine_nlp.io import limits
+from vine_nlp.io import limits, outputs
+from vine_nlp.io.h5read import ArchiveError, open_archive
 from vine_nlp.io.obstacles import read_obstacles, write_obstacles
+from vine_nlp.io.outputs import OutputError, output_error, temp_file
 from vine_nlp.model.shape import Shape
 from vine_nlp.problem import Result, Routing
 
@@ -43,25 +44,6 @@ FORMAT = "vine_nlp/result"
 FORMAT_VERSION = 1
 _COMPRESS = dict(compression="gzip", compression_opts=4, shuffle=True)
 POSE_TOLERANCE = 1e-6  # |R^T R - I| and |det R - 1| of an archived initial pose
-
-
-class ArchiveError(InputError, ValueError):
-    """An archive that cannot be used: ``(file, dataset path, reason)``; the command line
-    prints one line and exits 2. A ValueError too, for callers written before it existed."""
-
-
-class OutputError(InputError, OSError):
-    """An output file that cannot be written (disk full, no permission, read-only filesystem,
-    a directory in the way): ``(file, "write", reason)``; nothing was written. Exit 2."""
-
-    def __init__(self, file, key, reason, errno=None):
-        InputError.__init__(self, file, key, reason)
-        self.errno = errno
-        self.strerror = reason
-        self.filename = str(file)
-
-    def __str__(self):
-        return f"{self.file}: {self.key}: {self.reason}"  # not OSError's "[Errno n] ..."
 
 
 @dataclass
@@ -92,37 +74,9 @@ DEFAULT_RUNS = ("nlp", "nlp_robust", "nlp_clearance", "greedy", "forward", "fit"
 # ---------------------------------------------------------------- writing
 
 
-def atomic_path(path: Path):
-    """A temporary file beside ``path``: same directory, so the final os.replace is atomic.
-
-    Raises
-    ------
-    OutputError
-        When the directory does not exist or cannot be written.
-    """
-    path = Path(path)
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    except OSError as exc:
-        raise output_error(path, exc) from None
-    os.close(fd)
-    # mkstemp makes the file private (0600): give the result the permissions a plain open() would
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
-    return Path(tmp)
-
-
-def output_error(path, exc: OSError) -> OutputError:
-    """The one-line error for an OSError met while writing ``path``."""
-    reason = exc.strerror or str(exc) or type(exc).__name__
-    if isinstance(exc, IsADirectoryError) or (Path(path).is_dir()):
-        reason = "is a directory"
-    return OutputError(path, "write", f"cannot write ({reason}); nothing was written", errno=exc.errno)
-
-
 def write_atomic(path, write):
     """Call ``write(tmp_path)`` then rename onto ``path``; on any failure nothing is left behind.
+    An output the command line reserved (``vine_nlp.io.outputs``) is renamed when the command ends.
 
     Raises
     ------
@@ -131,10 +85,12 @@ def write_atomic(path, write):
         filesystem, a directory at ``path``). Other exceptions pass through unchanged.
     """
     path = Path(path)
-    tmp = atomic_path(path)
+    staged = outputs.staged(path, written=True)
+    tmp = staged or temp_file(path)
     try:
         write(tmp)
-        os.replace(tmp, path)
+        if staged is None:
+            os.replace(tmp, path)
     except OutputError:
         tmp.unlink(missing_ok=True)
         raise
@@ -249,6 +205,7 @@ def _decode(v):
     return v
 
 
+_LINE_BREAKS = {ord(c): " " for c in "\n\r\t"}
 _CORE_GROUPS = ("problem", "tube", "target", "runs", "obstacles")
 _LINES = ("center", "inner", "outer")
 _FINITE_METRICS = ("rmse", "max_error")
@@ -265,7 +222,8 @@ class _Checker:
         raise ArchiveError(self.file, key, reason)
 
     # -- attributes
-    def text(self, node, name, required=True, default=""):
+    def text(self, node, name, required=True, default="", lines=False):
+        """A text attribute: one printable line (``lines``: newlines and tabs allowed too)."""
         key = f"{_path(node)}@{name}"
         if name not in node.attrs:
             if required:
@@ -276,6 +234,8 @@ class _Checker:
             self.fail(key, f"must be text, got {type(v).__name__}")
         if len(v) > limits.MAX_TEXT_CHARS:
             self.fail(key, f"longer than {limits.MAX_TEXT_CHARS} characters (vine_nlp.io.limits.MAX_TEXT_CHARS)")
+        if not (v.translate(_LINE_BREAKS) if lines else v).isprintable():
+            self.fail(key, "must be printable text (no control characters)")
         return v
 
     def number(self, node, name, integer=False, minimum=None, required=True, default=None, finite=True, nan_ok=False):
@@ -307,7 +267,7 @@ class _Checker:
             self.fail(key, "must be a group")
         return g
 
-    def array(self, parent, name, shape, limit, finite=True, integer_ok=True, limit_name="MAX_DATASET_ELEMENTS"):
+    def array(self, parent, name, shape, limit, finite=True, limit_name="MAX_DATASET_ELEMENTS"):
         """Dataset ``name``: float (ints accepted), ``shape`` a tuple of int or None (any), size <= limit."""
         key = f"{_path(parent).rstrip('/')}/{name}"
         if name not in parent:
@@ -315,11 +275,10 @@ class _Checker:
         ds = parent[name]
         if not isinstance(ds, h5py.Dataset):
             self.fail(key, "must be a dataset")
-        return self.values(ds, key, shape, limit, finite, integer_ok, limit_name=limit_name)
+        return self.values(ds, key, shape, limit, finite, limit_name=limit_name)
 
-    def values(self, ds, key, shape, limit, finite=True, integer_ok=True, raw=False, limit_name="MAX_DATASET_ELEMENTS"):
-        if ds.dtype.kind not in ("fiub" if integer_ok else "f") or ds.dtype.fields or ds.dtype.subdtype:
-            self.fail(key, f"must hold real numbers, got dtype {ds.dtype}")
+    def values(self, ds, key, shape, limit, finite=True, raw=False, limit_name="MAX_DATASET_ELEMENTS"):
+        # the dtype (real numbers) was checked when the archive was opened (io/h5read.py)
         if ds.shape is None:
             self.fail(key, "empty dataset (no shape)")
         if shape is not None:
@@ -402,7 +361,7 @@ def _run(c: _Checker, name: str, g, a: Archive) -> Result:
         for k, v in st.attrs.items():
             v = _decode(v)
             if isinstance(v, str):
-                v = c.text(st, k)
+                v = c.text(st, k, lines=True)
             elif isinstance(v, np.ndarray):
                 if v.size > limits.MAX_DATASET_ELEMENTS or v.dtype.kind not in "fiub":
                     c.fail(f"{_path(st)}@{k}", f"unsupported attribute value (dtype {v.dtype}, {v.size} values)")
@@ -447,18 +406,9 @@ def _levels(c: _Checker, g, d, M, a: Archive) -> None:
 
 
 def _extras(c: _Checker, h5, a: Archive) -> None:
-    """Every dataset outside the core layout, checked and kept in ``a.extra``."""
+    """Every dataset outside the core layout, checked and kept in ``a.extra`` (their number and sizes
+    were bounded when the archive was opened: io/h5read.py)."""
     found = []
-
-    def visit(name, obj):
-        if isinstance(obj, h5py.Dataset):
-            found.append((name, obj))
-        elif not isinstance(obj, h5py.Group):  # pragma: no cover - h5py yields groups and datasets
-            c.fail(f"/{name}", "unsupported object")
-        if len(found) > limits.MAX_RUNS * 100:
-            c.fail(f"/{name}", f"more than {limits.MAX_RUNS * 100} datasets outside /runs")
-
-    total = 0
     for top in h5:
         if top in _CORE_GROUPS:
             continue
@@ -466,15 +416,12 @@ def _extras(c: _Checker, h5, a: Archive) -> None:
         if isinstance(obj, h5py.Dataset):
             found.append((top, obj))
         else:
-            obj.visititems(lambda name, o, top=top: visit(f"{top}/{name}", o))
+            obj.visititems(lambda name, o, top=top: found.append((f"{top}/{name}", o)) if isinstance(o, h5py.Dataset) else None)
     for name, ds in found:
         key = f"/{name}"
         if ds.ndim < 1:
             c.fail(key, "must be an array (at least 1-D), got a scalar")
         data = c.values(ds, key, None, limits.MAX_DATASET_ELEMENTS, finite=name.split("/")[0] not in _NAN_ALLOWED, raw=True)
-        total += data.size
-        if total > limits.MAX_DATASET_ELEMENTS:
-            c.fail(key, f"more than {limits.MAX_DATASET_ELEMENTS} values in further datasets (vine_nlp.io.limits.MAX_DATASET_ELEMENTS)")
         parts = name.split("/")
         if parts[0] in ("targets", "measured") and parts[-1] in ("points", "closest"):
             if data.ndim != 2 or data.shape[1] != 3 or data.shape[0] > limits.MAX_TARGET_POINTS:
@@ -496,7 +443,7 @@ def _load(c: _Checker, h5) -> Archive:
     p = c.group(h5, "problem")
     tube = c.group(h5, "tube")
     units = c.text(h5, "units")
-    if not units or len(units) > 32:
+    if not units or len(units) > limits.MAX_UNITS_CHARS:
         c.fail("/@units", f"must be a unit name, got {units[:40]!r}")
     diameter = c.number(tube, "diameter")
     if diameter <= 0:
@@ -510,7 +457,7 @@ def _load(c: _Checker, h5) -> Archive:
     a = Archive(
         name=c.text(p, "name"),
         kind=c.text(p, "kind"),
-        source=c.text(p, "source"),
+        source=c.text(p, "source", lines=True),
         diameter=diameter,
         units=units,
         target=target,
@@ -556,17 +503,8 @@ def load_archive(path) -> Archive:
         oversized archive, naming the dataset and the reason. Nothing else.
     """
     c = _Checker(path)
-    p = Path(path)
     try:
-        if not p.exists():
-            c.fail("file", "no such file")
-        if p.is_dir():
-            c.fail("file", "is a directory, not an archive")
-        if p.stat().st_size > limits.MAX_FILE_BYTES:
-            c.fail("file", f"larger than {limits.MAX_FILE_BYTES} bytes (vine_nlp.io.limits.MAX_FILE_BYTES)")
-        if not h5py.is_hdf5(p):
-            c.fail("file", "not an HDF5 file")
-        with h5py.File(p, "r") as h5:
+        with open_archive(path) as h5:
             return _load(c, h5)
     except ArchiveError:
         raise
@@ -574,4 +512,4 @@ def load_archive(path) -> Archive:
             OverflowError, MemoryError, json.JSONDecodeError) as exc:
         # h5py reports damaged files in many ways; the part being read is not always known here
         text = " ".join(str(exc).split())[:300] or type(exc).__name__
-        raise ArchiveError(p, "file", f"cannot read the archive ({text})") from None
+        raise ArchiveError(path, "file", f"cannot read the archive ({text})") from None

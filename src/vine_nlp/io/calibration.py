@@ -3,14 +3,13 @@ or ``calibration = "CAL.toml"``, relative to the problem file) and written by ``
 
 from __future__ import annotations
 
-import dataclasses
-import math
 from pathlib import Path
 
 from vine_nlp.io.archive import write_atomic
 from vine_nlp.io.validate import SourceFile, parse_toml, read_text
 from vine_nlp.model.calibration import Calibration
 
+MAX_VALUE = 1e6  # any value of the table (standard errors, prototypes); offsets and scale have tighter ranges below
 KEYS = ("lambda_offset", "theta_offset_deg", "length_scale", "lambda_offset_se", "theta_offset_deg_se", "length_scale_se", "prototypes")
 
 
@@ -20,14 +19,7 @@ def calibration_of(f: SourceFile, data: dict) -> Calibration | None:
         return None
     value = data["calibration"]
     if isinstance(value, str):
-        path = f.dir / value
-        if not value or not path.is_file():
-            raise f.error("calibration", f"no such file: {path}")
-        cal_file = SourceFile(str(path))
-        doc = parse_toml(str(path), read_text(str(path), str(path), "file"))
-        if not isinstance(doc.get("calibration"), dict):
-            raise cal_file.error("calibration", "missing: the file needs a [calibration] table")
-        return _table(cal_file, doc["calibration"], "calibration")
+        return read_calibration(f.dir / value, f.path)
     if isinstance(value, dict):
         return _table(f, value, "calibration")
     raise f.error("calibration", "must be a [calibration] table or the name of a calibration file")
@@ -39,8 +31,8 @@ def _table(f: SourceFile, t: dict, prefix: str) -> Calibration:
         key = f"{prefix}.{k}"
         if k not in KEYS:
             raise f.error(key, f"unknown key (known: {', '.join(KEYS)})")
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
-            raise f.error(key, f"must be a finite number, got {v!r}")
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) <= MAX_VALUE:
+            raise f.error(key, f"must be a finite number of magnitude <= {MAX_VALUE:g}, got {str(v)[:40]}")
         if k.endswith("_se") and v < 0:
             raise f.error(key, f"must be >= 0, got {v!r}")
         if k == "prototypes":
@@ -48,8 +40,8 @@ def _table(f: SourceFile, t: dict, prefix: str) -> Calibration:
                 raise f.error(key, f"must be a whole number >= 0, got {v!r}")
             v = int(v)
         vals[k] = v if k == "prototypes" else float(v)
-    if "length_scale" in vals and not vals["length_scale"] > 0:
-        raise f.error(f"{prefix}.length_scale", f"must be > 0, got {vals['length_scale']!r}")
+    if "length_scale" in vals and not 0 < vals["length_scale"] <= 10:
+        raise f.error(f"{prefix}.length_scale", f"must be > 0 and <= 10, got {vals['length_scale']!r}")
     if "lambda_offset" in vals and not abs(vals["lambda_offset"]) < 0.5:
         raise f.error(f"{prefix}.lambda_offset", f"must be within +-0.5, got {vals['lambda_offset']!r}")
     if "theta_offset_deg" in vals and not abs(vals["theta_offset_deg"]) < 45:
@@ -72,10 +64,11 @@ def write_calibration(path, cal: Calibration) -> None:
     write_atomic(path, lambda t: Path(t).write_text(text, encoding="utf-8"))
 
 
-def read_calibration(path) -> Calibration:
-    """A calibration file made by ``vine-nlp calibrate`` (InputError naming the file and key when bad)."""
+def read_calibration(path, named_by=None) -> Calibration:
+    """A calibration file (made by ``vine-nlp calibrate``; ``named_by``: the problem file naming it), InputError
+    naming the file and key when bad."""
     f = SourceFile(str(path))
-    doc = parse_toml(str(path), read_text(str(path), str(path), "file"))
+    doc = parse_toml(f.path, read_text(f.path, named_by, "calibration" if named_by else "file"))
     if not isinstance(doc.get("calibration"), dict):
         raise f.error("calibration", "missing: the file needs a [calibration] table")
-    return dataclasses.replace(_table(f, doc["calibration"], "calibration"))
+    return _table(f, doc["calibration"], "calibration")

@@ -31,6 +31,7 @@ from vine_nlp.errors import InputError
 from vine_nlp.io import limits
 from vine_nlp.io.archive import Archive, ArchiveError, load_archive, write_archive
 from vine_nlp.io.data_files import read_csv
+from vine_nlp.io.h5read import open_archive
 from vine_nlp.io.validate import SourceFile
 from vine_nlp.methods.correct import CorrectionResult, Measurement
 from vine_nlp.model.routing import MEASURED_LINES, Routing
@@ -50,18 +51,11 @@ def read_measured(path) -> np.ndarray:
         ``(file, "line N" | "values" | "file", reason)``: a missing file, a bad row, too few or too many points.
     """
     path = Path(path)
-    f = SourceFile(str(path))
-    if not path.is_file():
-        raise InputError(path, "file", "no such file")
-    if path.stat().st_size > limits.MAX_FILE_BYTES:
-        raise InputError(path, "file", f"larger than {limits.MAX_FILE_BYTES} bytes (limit MAX_FILE_BYTES)")
-    pts = read_csv(f)
+    pts = read_csv(SourceFile(str(path)))
     if pts.shape[1] != 3:
         raise InputError(path, "line 1", f"expected 3 values (x y z), got {pts.shape[1]}")
     if pts.shape[0] < MIN_MEASURED_POINTS:
         raise InputError(path, "values", f"needs at least {MIN_MEASURED_POINTS} points, got {pts.shape[0]}")
-    if pts.shape[0] > MAX_MEASURED_POINTS:
-        raise InputError(path, "values", f"{pts.shape[0]} points, more than the limit of {MAX_MEASURED_POINTS}")
     return pts
 
 
@@ -129,7 +123,7 @@ def read_correction(path) -> tuple[Archive, CorrectionState | None]:
     """
     a = load_archive(path)
     try:
-        with h5py.File(path, "r") as h5:
+        with open_archive(path) as h5:
             if "correction" not in h5:
                 return a, None
             return a, _state(str(path), h5, a)

@@ -12,21 +12,15 @@ from pathlib import Path
 import numpy as np
 
 from vine_nlp import targets
-from vine_nlp.io import limits
+from vine_nlp.errors import InputError
+from vine_nlp.io import files, limits
 from vine_nlp.io.validate import SourceFile, check, nonempty_text
 
 
 def read_points(path, ordered: bool = False) -> np.ndarray:
-    """Points of a .csv or .npy data file given on the command line (e.g. ``fit --frames``).
-
-    Bad files raise InputError naming the data file, exactly as when a problem file names them.
-    """
+    """Points of a .csv or .npy data file given on the command line (``fit --frames``), checked as a problem file's."""
     path = Path(path)
-    f = SourceFile(str(path))
-    if not path.is_file():
-        raise f.error("--frames", "no such file")
-    return data_points(SourceFile(str(path.parent / path.name)), "--frames", path.name, ordered)
-
+    return data_points(SourceFile(str(path)), "--frames", path.name, ordered)
 
 
 def data_points(f: SourceFile, key: str, value, ordered: bool) -> np.ndarray:
@@ -35,14 +29,8 @@ def data_points(f: SourceFile, key: str, value, ordered: bool) -> np.ndarray:
     path = f.dir / name
     if path.suffix.lower() not in (".csv", ".npy"):
         raise f.error(key, f"unsupported file type '{path.suffix}' (use .csv or .npy)")
-    if not path.is_file():
-        raise f.error(key, f"no such file: {path}")
     data_file = SourceFile(str(path))
-    size = path.stat().st_size
-    check(data_file, "values", size <= limits.MAX_FILE_BYTES, f"file of {size} bytes is larger than the limit MAX_FILE_BYTES = {limits.MAX_FILE_BYTES}")
-    points = read_npy(data_file) if path.suffix.lower() == ".npy" else read_csv(data_file)
-    check(data_file, "values", points.shape[0] <= limits.MAX_TARGET_POINTS,
-          f"{points.shape[0]} points is more than the limit MAX_TARGET_POINTS = {limits.MAX_TARGET_POINTS}")
+    points = read_npy(data_file, f.path, key) if path.suffix.lower() == ".npy" else read_csv(data_file, f.path, key)
     if ordered:
         try:
             return targets.check_points(points)
@@ -53,23 +41,32 @@ def data_points(f: SourceFile, key: str, value, ordered: bool) -> np.ndarray:
     return np.column_stack([points, np.zeros(points.shape[0])]) if points.shape[1] == 2 else points
 
 
+def check_spread(file, points: np.ndarray, diameter: float, least: int) -> None:
+    """Measured points must show a robot: ``least`` distinct points spread over at least
+    MIN_SPREAD tube diameters (400 copies of one point fit any routing and say nothing)."""
+    distinct = len(np.unique(points, axis=0))
+    extent = float(np.linalg.norm(np.ptp(points, axis=0)))
+    if distinct < least or not extent >= MIN_SPREAD * diameter:
+        raise InputError(file, "values", f"{distinct} distinct points spread over {extent:.4g}: a measurement needs at least "
+                         f"{least} distinct points spread over {MIN_SPREAD:g} tube diameters ({MIN_SPREAD * diameter:.4g})")
 
-def read_csv(f: SourceFile) -> np.ndarray:
-    """Rows of x y z (or x y), separated by commas or whitespace; one header line and # comments allowed."""
-    try:
-        text = Path(f.path).read_text(encoding="utf-8-sig")  # -sig: spreadsheets write a BOM
-    except UnicodeDecodeError:
-        raise f.error("values", "not a UTF-8 text file") from None
-    except OSError as err:
-        raise f.error("values", f"cannot read the file ({err.strerror})") from None
+
+MIN_SPREAD = 2.0  # tube diameters
+_NUMBER = re.compile(r"[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?|inf|infinity|nan)", re.IGNORECASE)
+_SEPARATOR = re.compile(r"\s*,\s*|\s+")
+
+
+def read_csv(f: SourceFile, named_by=None, key="file") -> np.ndarray:
+    """Rows of x y z (or x y), separated by commas or whitespace; one header line and # comments allowed.
+    Read line by line: more than MAX_TARGET_POINTS rows stop the reading there."""
     rows: list[list[float]] = []
     header_seen = False
-    for number, line in enumerate(text.splitlines(), start=1):
+    for number, line in files.text_lines(f.path, named_by, key):
         line = line.split("#", 1)[0].strip()
         if not line:
             continue
-        fields = re.split(r"\s*,\s*|\s+", line)
-        values = [_float_or_none(x) for x in fields]
+        fields = _SEPARATOR.split(line)
+        values = [float(x) if _NUMBER.fullmatch(x) else None for x in fields]
         if not rows and not header_seen and all(v is None for v in values):
             header_seen = True
             continue
@@ -84,34 +81,32 @@ def read_csv(f: SourceFile) -> np.ndarray:
             raise f.error(where, f"expected 3 values (x y z) or 2 (x y), got {len(values)}")
         if columns is not None and len(values) != columns:
             raise f.error(where, f"expected {columns} values like the first row, got {len(values)}")
+        if len(rows) == limits.MAX_TARGET_POINTS:
+            raise f.error("values", f"more than {limits.MAX_TARGET_POINTS} points (vine_nlp.io.limits.MAX_TARGET_POINTS)")
         rows.append(values)
     if not rows:
         raise f.error("values", "no data rows")
     return np.array(rows, dtype=float)
 
 
-
-def read_npy(f: SourceFile) -> np.ndarray:
-    try:
-        array = np.load(f.path, allow_pickle=False)  # never unpickle user files
-    except (OSError, ValueError, EOFError, MemoryError):
-        raise f.error("values", "not a readable .npy array file") from None
-    if not isinstance(array, np.ndarray) or not (
-        np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)
-    ):
-        raise f.error("values", "must hold an array of real numbers")
-    if array.ndim != 2 or array.shape[1] not in (2, 3) or array.shape[0] == 0:
-        raise f.error("values", f"must be an N x 3 (or N x 2) array, got shape {array.shape}")
+def read_npy(f: SourceFile, named_by=None, key="file") -> np.ndarray:
+    """An (N, 3) or (N, 2) array of real numbers, its header checked before the data is read."""
+    fmt = np.lib.format
+    with files.open_input(f.path, named_by, key) as fh:
+        try:
+            version = fmt.read_magic(fh)
+            shape, _, dtype = (fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0)(fh)
+            if dtype.kind not in "iuf" or dtype.fields or dtype.subdtype:
+                raise f.error("values", "must hold an array of real numbers")
+            if len(shape) != 2 or shape[1] not in (2, 3) or not 0 < shape[0] <= limits.MAX_TARGET_POINTS:
+                raise f.error("values", f"must be an N x 3 (or N x 2) array, N <= {limits.MAX_TARGET_POINTS} "
+                              f"(vine_nlp.io.limits.MAX_TARGET_POINTS), got shape {shape}")
+            fh.seek(0)
+            array = np.load(fh, allow_pickle=False)  # never unpickle user files
+        except (OSError, ValueError, EOFError):
+            raise f.error("values", "not a readable .npy array file") from None
     array = array.astype(float)
     finite = np.all(np.isfinite(array), axis=1)
     if not finite.all():
         raise f.error("values", f"row {int(np.argmin(finite)) + 1} is not finite")
     return array
-
-
-
-def _float_or_none(text: str) -> float | None:
-    try:
-        return float(text)
-    except ValueError:
-        return None

@@ -3,10 +3,10 @@ layout (every reader works) plus their extensions (README, "Extensions made here
 
 from __future__ import annotations
 
-import h5py
 import numpy as np
 
 from vine_nlp.io.archive import Archive, load_archive, write_archive
+from vine_nlp.io.h5read import open_archive
 from vine_nlp.methods.multishape import RUN as MULTISHAPE_RUN
 from vine_nlp.methods.multishape import MultiShapeResult
 from vine_nlp.methods.tip import RUN as TIP_RUN
@@ -61,7 +61,7 @@ def read_multishape_archive(path):
     full multi-shape result (levels, poses, shapes, per-level metrics) and the K targets."""
     a = load_archive(path)
     base = a.runs[RUN]
-    with h5py.File(path, "r") as h5:
+    with open_archive(path) as h5:
         g = h5[f"runs/{RUN}"]
         levels = g["design/levels"][()]
         K = levels.size

@@ -7,20 +7,37 @@ running out of memory or for days. The README lists them ("Limits").
 
 from __future__ import annotations
 
-# Points of one target curve (archives' /target/points, /targets/<k>/points, /measured/points);
-# the same as vine_nlp.io.problems.MAX_SAMPLES, so every archive a command writes loads again.
+# Points of one target curve (target.samples, point files, archives' /target/points, /targets/<k>/points,
+# /measured/points): the readers of problems and of archives share every limit, so what one writes the other reads.
 MAX_TARGET_POINTS = 100_000
-# Segments of one routing (archives' /runs/<run>/design/*); the same as vine_nlp.io.problems.MAX_SEGMENTS.
+# Segments of one routing (problem files, archives' /runs/<run>/design/*).
 # A forward run of that many segments takes about 8 s and stays under 1 GB of address space.
 MAX_SEGMENTS = 100_000
 # Rows of one modelled line in an archive (/runs/<run>/shape/*): forward runs sample each segment.
 MAX_SHAPE_POINTS = 2_000_000
-# Runs in one archive, levels of one multi-shape run.
+# Runs in one archive, levels of one multi-shape run ([[targets]]).
 MAX_RUNS = 1_000
 MAX_LEVELS = 1_000
 # Elements of any other dataset of an archive (measured points, frames, future groups).
 MAX_DATASET_ELEMENTS = 10_000_000
 # Characters of a text attribute (the archived problem file's source, solver options).
 MAX_TEXT_CHARS = 10_000_000
-# Bytes of an input file read whole (problem files, CSV point files, archives).
+# Bytes of an input file (archives, CSV and .npy point files); CSV is read line by line.
 MAX_FILE_BYTES = 1 << 30
+# Bytes of a TOML file (problem, sweep, calibration): with a sweep item's note, an archive's source.
+MAX_TOML_BYTES = 8 << 20
+MAX_NOTE_CHARS = 2_000
+# Characters of one line of a CSV point file.
+MAX_LINE_CHARS = 10_000
+# Bytes of a mesh file (.stl, .obj, .ply): one of MAX_MESH_FACES faces (io/obstacles.py) takes under 8 MB in any of them.
+MAX_MESH_BYTES = 16 << 20
+# An archive as a whole (declared sizes, checked before reading): values of all datasets, objects.
+MAX_ARCHIVE_VALUES = 40_000_000
+MAX_ARCHIVE_OBJECTS = 200_000
+# Names and one-line texts (names, units, keys, obstacle names): printable characters only.
+MAX_NAME_CHARS = 255
+MAX_UNITS_CHARS = 32
+# Coordinates and lengths (in units), a problem's span in tube diameters: float64's working range.
+MAX_COORDINATE = 1e9
+MAX_DIAMETERS = 1e6
+MIN_DIAMETERS = 1e-6

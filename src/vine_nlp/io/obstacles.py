@@ -15,6 +15,7 @@ the design keeps rows for the nearest triangles of every tube sample.
 from __future__ import annotations
 
 import difflib
+import io
 import math
 from pathlib import Path
 
@@ -23,11 +24,11 @@ import numpy as np
 
 from vine_nlp.analysis.obstacles import GROWTH_MODES
 from vine_nlp.errors import InputError
+from vine_nlp.io import files, limits
 from vine_nlp.model.obstacles import OBSTACLE_TYPES, SHAPES, Box, Capsule, Mesh, Plane, Sphere, is_rotation, rotation_from_degrees
 
 MAX_OBSTACLES = 1000
 MAX_MESH_FACES = 20_000
-MAX_MESH_BYTES = 64 * 2**20  # guards memory before trimesh reads a file
 MESH_SUFFIXES = (".stl", ".obj", ".ply")
 DESIGN_KEYS = ("obstacle_margin", "growth")  # [design] keys read by parse_obstacle_design
 DEFAULT_GROWTH = "while-actuated"
@@ -39,13 +40,7 @@ _KEYS = {
     "plane": ("point", "normal"),
     "mesh": ("file",),
 }
-_REQUIRED = {
-    "sphere": ("center", "radius"),
-    "box": ("center", "size"),
-    "capsule": ("p0", "p1", "radius"),
-    "plane": ("point", "normal"),
-    "mesh": ("file",),
-}
+_REQUIRED = {shape: tuple(k for k in keys if not k.startswith("rotation")) for shape, keys in _KEYS.items()}
 _COMMON = ("shape", "name")
 # archive datasets per shape: name -> shape of the array (None: any number of rows)
 _DATASETS = {
@@ -120,6 +115,8 @@ def _obstacle(file, base, k, t):
     name = t.get("name", "")
     if not isinstance(name, str):
         raise err("name", "must be a string")
+    if _bad_name(name):
+        raise err("name", f"must be printable text of at most {limits.MAX_NAME_CHARS} characters")
 
     if shape == "sphere":
         return Sphere(_vector(err, "center", t["center"]), _positive(err, "radius", t["radius"]), name)
@@ -153,6 +150,10 @@ def _obstacle(file, base, k, t):
     return _mesh(err, base, t["file"], name)
 
 
+def _bad_name(name: str) -> bool:
+    return not name.isprintable() or len(name) > limits.MAX_NAME_CHARS
+
+
 def _is_number(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
@@ -160,11 +161,11 @@ def _is_number(v) -> bool:
 def _float(err, key, v, what):
     if not _is_number(v):
         raise err(key, f"must be {what}")
-    try:
-        x = float(v)
-    except OverflowError:
-        x = math.inf
-    return x
+    if isinstance(v, float) and not math.isfinite(v):
+        return v  # the callers say "must be finite"
+    if abs(v) > limits.MAX_COORDINATE:
+        raise err(key, f"must be of magnitude <= {limits.MAX_COORDINATE:g} (vine_nlp.io.limits.MAX_COORDINATE)")
+    return float(v)
 
 
 def _vector(err, key, value) -> np.ndarray:
@@ -201,21 +202,20 @@ def _mesh(err, base, value, name) -> Mesh:
     path = base / value
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise err("file", f"unsupported file type '{path.suffix}' (use .stl, .obj or .ply)")
-    if not path.is_file():
-        raise err("file", f"no such file: {path}")
-    size = path.stat().st_size
-    if size > MAX_MESH_BYTES:
-        raise err("file", f"{path} is {size} bytes; at most {MAX_MESH_BYTES}")
     try:
         import trimesh  # noqa: F401
     except ImportError:
         raise err("file", "mesh obstacles need trimesh and rtree: pip install 'vine_nlp[obstacles]'") from None
-    vertices, faces = load_mesh_file(path)
+    named = err("file", "")  # the problem file and key that name the mesh, for errors opening it
+    data = files.read_text(path, named.file, named.key, limits.MAX_MESH_BYTES, "MAX_MESH_BYTES", binary=True)
+    vertices, faces = load_mesh_file(path, data)
     return Mesh(vertices, faces, source=value, name=name)
 
 
-def load_mesh_file(path) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices and faces of a closed triangle mesh file (.stl, .obj, .ply) read through trimesh.
+def load_mesh_file(path, data: bytes | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and faces of a closed triangle mesh file (.stl, .obj, .ply) read through trimesh, from
+    its bytes (``data``, default: read within MAX_MESH_BYTES): trimesh opens no other file (an OBJ's
+    ``mtllib`` is not followed).
 
     Raises
     ------
@@ -225,8 +225,10 @@ def load_mesh_file(path) -> tuple[np.ndarray, np.ndarray]:
     import trimesh
 
     path = Path(path)
+    if data is None:
+        data = files.read_text(path, None, "mesh", limits.MAX_MESH_BYTES, "MAX_MESH_BYTES", binary=True)
     try:
-        mesh = trimesh.load(str(path), force="mesh", process=True)
+        mesh = trimesh.load(file_obj=io.BytesIO(data), file_type=path.suffix.lower().lstrip("."), force="mesh", process=True)
     except Exception as exc:  # noqa: BLE001  third-party parser of an untrusted file: any failure is bad input
         raise InputError(str(path), "mesh", f"cannot read the mesh ({type(exc).__name__})") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
@@ -266,13 +268,7 @@ def parse_obstacle_design(design, file) -> tuple[float, str]:
     InputError
     """
     file = str(file)
-    margin = design.get("obstacle_margin", 0.0)
-    if not _is_number(margin):
-        raise InputError(file, "design.obstacle_margin", "must be a number")
-    try:
-        margin = float(margin)
-    except OverflowError:
-        margin = math.inf
+    margin = _float(lambda key, reason: InputError(file, "design.obstacle_margin", reason), "", design.get("obstacle_margin", 0.0), "a number")
     if not math.isfinite(margin):
         raise InputError(file, "design.obstacle_margin", "must be finite")
     if margin < 0:
@@ -342,6 +338,8 @@ def read_obstacles(h5group, file) -> list:
         if shape not in OBSTACLE_TYPES:
             raise InputError(file, where, f"unknown shape '{shape}'")
         name = _text_attr(g.attrs.get("name", ""))
+        if not isinstance(name, str) or _bad_name(name):
+            raise InputError(file, f"{where}@name", f"must be printable text of at most {limits.MAX_NAME_CHARS} characters")
         params = {}
         for key, want in _DATASETS[shape].items():
             path = f"{where}/{key}"
@@ -372,6 +370,8 @@ def read_obstacles(h5group, file) -> list:
                 if faces.dtype.kind == "f" and not np.array_equal(faces, np.round(faces)):
                     raise ValueError("faces must be integer vertex indices")
                 src = _text_attr(g.attrs.get("source"))
+                if src is not None and (not isinstance(src, str) or not src.isprintable()):
+                    raise ValueError("source must be printable text")
                 ob = Mesh(params["vertices"], faces.astype(np.int64), source=src, name=name)
         except ValueError as exc:
             raise InputError(file, where, str(exc)) from None

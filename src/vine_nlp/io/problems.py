@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,14 +18,16 @@ import numpy as np
 
 from vine_nlp import targets
 from vine_nlp.errors import InputError
+from vine_nlp.io import limits
 from vine_nlp.io.calibration import calibration_of
-from vine_nlp.io.data_files import data_points
+from vine_nlp.io.data_files import check_spread, data_points
 from vine_nlp.io.expr import ExpressionError, compile_expression
 from vine_nlp.io.obstacles import DESIGN_KEYS as OBSTACLE_DESIGN_KEYS
 from vine_nlp.io.obstacles import parse_obstacle_design, parse_obstacles
 from vine_nlp.io.validate import (
     SourceFile,
     check,
+    check_scale,
     choice,
     integer,
     is_number,
@@ -57,12 +58,6 @@ from vine_nlp.problem import (
     MultiShapeProblem,
     TipProblem,
 )
-
-# Guards against inputs that would exhaust memory long before they are useful.
-MAX_SAMPLES = 100_000
-
-MAX_SEGMENTS = 100_000
-
 
 # Sec. VI-A: an sPAM contracts to lambda = 0.5 ... 0.7 depending on its construction.
 SPAM_LAMBDA_MIN = 0.5
@@ -118,14 +113,11 @@ _MULTISHAPE_DESIGN_KEYS = (*_OTHER_DESIGN_KEYS, "shared_pose")
 
 _TIP_KEYS = ("position", "direction", "length", "segments", "objective", "initial_pose")
 
-MAX_LEVELS = 1000  # [[targets]] of a multishape problem
-
 MAX_TIP_SEGMENTS = 10_000
 
 # Multi-shape and tip problems are multimodal: without [design] starts, a few starts (the
 # geometric guesses and seeded perturbations) are the default.
 DEFAULT_STARTS = {"multishape": 4, "tip": 4}
-
 
 
 @dataclass
@@ -138,7 +130,6 @@ class ProblemFile:
     problem: DesignProblem | ForwardProblem | FitProblem | MultiShapeProblem | TipProblem
 
 
-
 # ---------------------------------------------------------------- entry points
 
 
@@ -147,7 +138,6 @@ def load_problem(path) -> ProblemFile:
     path = str(path)
     source = read_text(path, path, "file")
     return parse_problem(parse_toml(path, source), path, source)
-
 
 
 def parse_problem(data: dict, path: str, source: str) -> ProblemFile:
@@ -161,11 +151,12 @@ def parse_problem(data: dict, path: str, source: str) -> ProblemFile:
             if key in _ALL_TOP_KEYS:
                 raise f.error(key, f"not used in a {kind} problem")
             raise f.error(key, unknown_key(key, _TOP_KEYS[kind]))
-    name = nonempty_text(f, "name", data.get("name", Path(path).stem))
-    units = nonempty_text(f, "units", data.get("units", "cm"))
+    name = nonempty_text(f, "name", data.get("name", Path(path).stem), limits.MAX_NAME_CHARS)
+    units = nonempty_text(f, "units", data.get("units", "cm"), limits.MAX_UNITS_CHARS)
     tube = sub_table(f, data, "tube", ("diameter",), required=True)
     diameter = real_number(f, "tube.diameter", required_value(f, tube, "diameter", "tube."))
     check(f, "tube.diameter", diameter > 0, "must be > 0")
+    check(f, "tube.diameter", diameter <= limits.MAX_COORDINATE, f"must be <= {limits.MAX_COORDINATE:g} (vine_nlp.io.limits.MAX_COORDINATE)")
 
     if kind == "design":
         problem = _design(f, data, name, units, diameter)
@@ -179,7 +170,6 @@ def parse_problem(data: dict, path: str, source: str) -> ProblemFile:
     else:
         problem = _fit(f, data, name, units, diameter)
     return ProblemFile(path=path, source=source, kind=kind, name=name, units=units, problem=problem)
-
 
 
 # ---------------------------------------------------------------- problems
@@ -199,9 +189,8 @@ def _kind(f: SourceFile, data: dict) -> str:
     raise f.error("target", "missing: a problem needs [target] (design), [routing] (forward) or [measured] (fit)")
 
 
-
 def _design(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> DesignProblem:
-    points, points_key = _target(f, data)
+    points, points_key = _target(f, data, diameter)
     actuator = _actuator(f, sub_table(f, data, "actuator", _ACTUATOR_KEYS))
     design = sub_table(f, data, "design", (*_DESIGN_KEYS, *OBSTACLE_DESIGN_KEYS, *_BUILD_KEYS))
     options = _build_options(f, data, design, actuator, _options(f, {k: v for k, v in design.items() if k not in _BUILD_KEYS}))
@@ -214,7 +203,6 @@ def _design(f: SourceFile, data: dict, name: str, units: str, diameter: float) -
     )
     problem = DesignProblem(name=name, diameter=diameter, target=points, actuator=actuator, options=options, units=units)
     return _design_tables(f, data, problem)
-
 
 
 def _design_tables(f: SourceFile, data: dict, problem: DesignProblem) -> DesignProblem:
@@ -261,7 +249,7 @@ def _build_options(f: SourceFile, data: dict, table: dict, actuator: Actuator, o
     return dataclasses.replace(options, **changes)
 
 
-def _target(f: SourceFile, data: dict) -> tuple[np.ndarray, str]:
+def _target(f: SourceFile, data: dict, diameter: float) -> tuple[np.ndarray, str]:
     """The sampled target curve and the key to blame when there are too few points."""
     table = sub_table(f, data, "target", None, required=True)
     for key in table:
@@ -274,11 +262,12 @@ def _target(f: SourceFile, data: dict) -> tuple[np.ndarray, str]:
 
     if curve == "points":
         points = data_points(f, "target.file", required_value(f, table, "file", "target."), ordered=True)
+        check_scale(f, "target.file", points, diameter)
         return points, "target.file"
 
     kwargs = {}
     if "samples" in table:
-        kwargs["samples"] = integer(f, "target.samples", table["samples"], 3, MAX_SAMPLES)
+        kwargs["samples"] = integer(f, "target.samples", table["samples"], 3, limits.MAX_TARGET_POINTS)
     if curve == "trefoil":
         if "scale" in table:
             kwargs["scale"] = real_array(f, "target.scale", table["scale"], 3)
@@ -302,8 +291,8 @@ def _target(f: SourceFile, data: dict) -> tuple[np.ndarray, str]:
             points = targets.check_points(getattr(targets, curve)(**kwargs))
     except ValueError as err:
         raise f.error(f"target.{_CURVE_MAIN_KEY[curve]}", str(err)) from None
+    check_scale(f, f"target.{_CURVE_MAIN_KEY[curve]}", points, diameter)
     return points, "target.samples"
-
 
 
 def _actuator(f: SourceFile, table: dict) -> Actuator:
@@ -317,7 +306,6 @@ def _actuator(f: SourceFile, table: dict) -> Actuator:
         check(f, "actuator.theta_max_deg", 0 < theta_max_deg < 90, "must be in (0, 90)")
         theta_max = math.radians(theta_max_deg)
     return Actuator(kind=kind, lambda_min=lambda_min, theta_max=theta_max)
-
 
 
 def _options(f: SourceFile, table: dict) -> DesignOptions:
@@ -346,7 +334,6 @@ def _options(f: SourceFile, table: dict) -> DesignOptions:
     return dataclasses.replace(DesignOptions(), **changes)
 
 
-
 def _fit(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> FitProblem:
     measured = sub_table(f, data, "measured", _MEASURED_KEYS, required=True)
     points = data_points(f, "measured.file", required_value(f, measured, "file", "measured."), ordered=False)
@@ -357,10 +344,11 @@ def _fit(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> F
     for item in free:
         choice(f, "fit.free", item, _FREE_CHOICES)
     check(f, "fit.free", len(set(free)) == len(free), "lists a parameter twice")
+    check_spread(str(f.dir / measured["file"]), points, diameter, 3)
+    check_scale(f, "measured.file", points, diameter, "the measurement")
     return FitProblem(
         name=name, diameter=diameter, measured=points, line=line, routing=routing, free=tuple(free), units=units
     )
-
 
 
 # ---------------------------------------------------------------- multi-shape and tip problems
@@ -376,7 +364,6 @@ def _further_kind(f: SourceFile, data: dict) -> str:
     return kind
 
 
-
 class _TargetFile(SourceFile):
     """Reads target ``k`` of [[targets]] with ``_target``: its "target.<key>" errors become "targets.<k>.<key>"."""
 
@@ -390,12 +377,10 @@ class _TargetFile(SourceFile):
         return super().error(key, reason)
 
 
-
 def _starts_default(table: dict, options: DesignOptions, kind: str) -> DesignOptions:
     if "starts" in table:
         return options
     return dataclasses.replace(options, starts=DEFAULT_STARTS[kind])
-
 
 
 def _multishape(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> MultiShapeProblem:
@@ -407,7 +392,7 @@ def _multishape(f: SourceFile, data: dict, name: str, units: str, diameter: floa
         isinstance(items, list) and len(items) > 0 and all(isinstance(t, dict) for t in items),
         "must be an array of tables ([[targets]]), at least one",
     )
-    check(f, "targets", len(items) <= MAX_LEVELS, f"has {len(items)} targets; at most {MAX_LEVELS}")
+    check(f, "targets", len(items) <= limits.MAX_LEVELS, f"has {len(items)} targets; at most {limits.MAX_LEVELS}")
     table = sub_table(f, data, "actuator", _ACTUATOR_KEYS)
     if "kind" in table and table["kind"] != "spam":
         raise f.error("actuator.kind", "must be 'spam' in a multishape problem (one lambda per pressure level)")
@@ -422,7 +407,7 @@ def _multishape(f: SourceFile, data: dict, name: str, units: str, diameter: floa
     points, levels = [], []
     for k, item in enumerate(items):
         tf = _TargetFile(f, k)
-        pts, points_key = _target(tf, {"target": {key: v for key, v in item.items() if key != "lambda"}})
+        pts, points_key = _target(tf, {"target": {key: v for key, v in item.items() if key != "lambda"}}, diameter)
         check(tf, points_key, pts.shape[0] >= need, f"needs at least points_per_segment + 1 = {need} points, got {pts.shape[0]}")
         if k > 0 and pts.shape[0] != points[0].shape[0]:
             raise tf.error(
@@ -451,7 +436,6 @@ def _multishape(f: SourceFile, data: dict, name: str, units: str, diameter: floa
     )
 
 
-
 def _tip(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> TipProblem:
     """[tip]: position, optional direction, tube length, segments, objective, optional fixed base pose."""
     table = sub_table(f, data, "tip", _TIP_KEYS, required=True)
@@ -464,6 +448,8 @@ def _tip(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> T
         direction = direction / norm
     length = real_number(f, "tip.length", required_value(f, table, "length", "tip."))
     check(f, "tip.length", length > 0, "must be > 0")
+    check_scale(f, "tip.length", [[0.0, 0.0, 0.0], [length, 0.0, 0.0]], diameter, "the tube")
+    check_scale(f, "tip.position", [position], None)
     segments = integer(f, "tip.segments", table.get("segments", 10), 1, MAX_TIP_SEGMENTS)
     objective = choice(f, "tip.objective", table.get("objective", "contraction"), TIP_OBJECTIVES)
     pose = rigid_pose(f, "tip.initial_pose", table["initial_pose"]) if "initial_pose" in table else np.eye(4)
@@ -486,7 +472,6 @@ def _tip(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> T
     )
 
 
-
 # ---------------------------------------------------------------- routing
 
 
@@ -498,7 +483,8 @@ def _routing(f: SourceFile, table: dict, diameter: float) -> Routing:
     check(f, "routing.segment_length", step > 0, "must be > 0")
     check(f, "routing.segment_length", step <= total, "must be <= routing.length")
     ratio = total / step
-    check(f, "routing.segment_length", ratio <= MAX_SEGMENTS, f"gives more than {MAX_SEGMENTS} segments")
+    check(f, "routing.segment_length", ratio <= limits.MAX_SEGMENTS, f"gives more than {limits.MAX_SEGMENTS} segments")
+    check_scale(f, "routing.length", [[0.0, 0.0, 0.0], [total, 0.0, 0.0]], diameter, "the routing")
     # The 1e-9 keeps round-off in length/segment_length from adding a sliver of a last segment.
     m = math.ceil(ratio - 1e-9)
     ends = np.minimum(step * np.arange(m + 1), total)
@@ -534,7 +520,6 @@ def _routing(f: SourceFile, table: dict, diameter: float) -> Routing:
     return Routing(theta=theta, lam=lam, length=lengths, initial_pose=pose)
 
 
-
 def _per_point(f: SourceFile, key: str, value, s: np.ndarray, what: str) -> np.ndarray:
     """A number, an array with one value per s, or an expression of s evaluated at s."""
     if isinstance(value, str):
@@ -555,7 +540,6 @@ def _per_point(f: SourceFile, key: str, value, s: np.ndarray, what: str) -> np.n
     return np.full(s.size, real_number(f, key, value))
 
 
-
 def _check_each(f: SourceFile, key: str, given, ok: np.ndarray, shown: np.ndarray, rule: str, unit: str) -> None:
     if ok.all():
         return
@@ -570,9 +554,9 @@ def design_problem_of(archive, path) -> DesignProblem:
     the archived target standing in for target files that are not where the source says; the archive's
     name, diameter, target and units where the source is no design problem."""
     try:
-        pf = parse_problem(tomllib.loads(archive.source), str(path), archive.source)
+        pf = parse_problem(parse_toml(str(path), archive.source), str(path), archive.source)
         if pf.kind == "design":
             return dataclasses.replace(pf.problem, target=archive.target)
-    except (InputError, tomllib.TOMLDecodeError):
+    except InputError:
         pass
     return DesignProblem(archive.name, archive.diameter, archive.target, units=archive.units)

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from vine_nlp.errors import InputError
+from vine_nlp.io import limits
 from vine_nlp.io.problems import ProblemFile, parse_problem
 from vine_nlp.io.validate import SourceFile, check, check_keys, choice, nonempty_text, parse_toml, read_text, required_value
 from vine_nlp.problem import METHODS
@@ -22,7 +23,6 @@ MAX_SWEEP_ITEMS = 100_000
 _SWEEP_KEYS = ("name", "base", "methods", "grid")
 
 _SWEEP_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
-
 
 
 @dataclass
@@ -45,7 +45,6 @@ class Sweep:
         if self._items is None:
             self._items = _expand(self)
         return list(self._items)
-
 
 
 def load_sweep(path) -> Sweep:
@@ -87,7 +86,6 @@ def load_sweep(path) -> Sweep:
     return sweep
 
 
-
 def apply_override(data: dict, dotted_key: str, value, file: str = "<sweep>") -> dict:
     """A deep copy of ``data`` with the value at ``dotted_key`` replaced ("target.scale.0" = element 0).
 
@@ -100,7 +98,6 @@ def apply_override(data: dict, dotted_key: str, value, file: str = "<sweep>") ->
     return data
 
 
-
 def _expand(sweep: Sweep) -> list[tuple[str, dict, ProblemFile]]:
     keys = list(sweep.grid)
     items = []
@@ -111,7 +108,7 @@ def _expand(sweep: Sweep) -> list[tuple[str, dict, ProblemFile]]:
         for key, value in overrides.items():
             _set(data, key, value, sweep.path)
         data["name"] = item
-        described = ", ".join(f"{k} = {v!r}" for k, v in overrides.items()) or "the base problem"
+        described = ", ".join(f"{k} = {v!r}" for k, v in overrides.items())[: limits.MAX_NOTE_CHARS] or "the base problem"
         # The archive stores the source; the note makes the item reproducible from it.
         source = sweep.base_source.rstrip("\n") + f"\n\n# sweep '{sweep.name}' item {item}: {described}\n"
         try:
@@ -122,7 +119,6 @@ def _expand(sweep: Sweep) -> list[tuple[str, dict, ProblemFile]]:
             raise InputError(sweep.path, err.key, f"{err.reason} (item {item}: {described})") from None
         items.append((item, overrides, problem))
     return items
-
 
 
 def _set(data: dict, dotted_key: str, value, file: str) -> None:
@@ -155,7 +151,6 @@ def _set(data: dict, dotted_key: str, value, file: str) -> None:
             node = node[i]
         else:
             raise fail(f"'{'.'.join(parts[:depth])}' is a value, not a table or array")
-
 
 
 def _flatten(table: dict, prefix: str = "") -> dict:

@@ -18,11 +18,12 @@ from pathlib import Path
 import numpy as np
 
 from vine_nlp.errors import InputError
+from vine_nlp.io import limits
+from vine_nlp.io.files import read_text  # noqa: F401  the bounded reader, for the readers importing it from here
 
 MAX_INT = 2**31 - 1  # solver options such as max_iter are C ints
 
 POSE_TOL = 1e-6
-
 
 
 class SourceFile:
@@ -36,27 +37,22 @@ class SourceFile:
         return InputError(self.path, key, reason)
 
 
-
-def read_text(path: str, named_by: str, key: str) -> str:
-    """The text of a TOML file; errors name the file and key that referred to it."""
-    try:
-        return Path(path).read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        reason = "no such file" if named_by == path else f"no such file: {path}"
-    except IsADirectoryError:
-        reason = "is a directory" if named_by == path else f"is a directory: {path}"
-    except UnicodeDecodeError:
-        raise InputError(path, "file", "not a UTF-8 text file") from None
-    except OSError as err:
-        reason = f"cannot read {path} ({err.strerror})"
-    raise InputError(named_by, key, reason)
-
+MAX_DEPTH = 32  # tables and arrays inside each other, parts of a dotted key
+_DEEP_KEY = re.compile(r"(?<![A-Za-z0-9_.'\"-])(?:(?:[A-Za-z0-9_-]++|\"[^\"\n]*+\"|'[^'\n]*+')[ \t]*+\.[ \t]*+){%d,}" % MAX_DEPTH)
 
 
 def parse_toml(path: str, source: str) -> dict:
+    """The TOML document ``source`` of the file ``path``, checked by :func:`check_document`."""
+    deep = _DEEP_KEY.search(source)  # tomllib takes time and memory quadratic in a key's parts
+    if deep:
+        raise InputError(path, f"line {source.count(chr(10), 0, deep.start()) + 1}", f"a key of more than {MAX_DEPTH} dotted parts")
     try:
-        return tomllib.loads(source)
-    except tomllib.TOMLDecodeError as err:
+        return check_document(path, tomllib.loads(source))
+    except ValueError as err:  # TOMLDecodeError, or an integer of more than 4300 digits
+        if not isinstance(err, tomllib.TOMLDecodeError):
+            digits = re.search(r"[0-9_]{4300}", source)
+            line = f"line {source.count(chr(10), 0, digits.start()) + 1}" if digits else "file"
+            raise InputError(path, line, "integer out of range (TOML integers are 64-bit)") from None
         message = str(err)
         match = re.search(r"\s*\(at line (\d+), column \d+\)$", message)
         if match:
@@ -69,6 +65,28 @@ def parse_toml(path: str, source: str) -> dict:
     except RecursionError:
         raise InputError(path, "file", "TOML nested too deeply") from None
 
+
+def check_document(path: str, doc: dict) -> dict:
+    """Refuse, wherever they are in a parsed document, what no key can use: integers beyond 64 bits
+    (TOML's own range), keys and strings with control characters (newlines, NUL, ANSI escapes),
+    and nesting deeper than MAX_DEPTH (a 30 000-level dotted key). Iterative: no recursion."""
+    todo = [(doc, "", 0)]
+    while todo:
+        node, where, depth = todo.pop()
+        if depth > MAX_DEPTH:
+            raise InputError(path, where, f"nested more than {MAX_DEPTH} levels deep")
+        items = node.items() if isinstance(node, dict) else enumerate(node)
+        for k, v in items:
+            key = f"{where}.{k}" if where else str(k)
+            if isinstance(k, str) and not (k.isprintable() and len(k) <= limits.MAX_NAME_CHARS):
+                raise InputError(path, key, f"a key must be printable text of at most {limits.MAX_NAME_CHARS} characters")
+            if isinstance(v, (dict, list)):
+                todo.append((v, key, depth + 1))
+            elif isinstance(v, str) and not v.isprintable():
+                raise InputError(path, key, "must be printable text (no newlines or control characters)")
+            elif isinstance(v, int) and not isinstance(v, bool) and not -(2**63) <= v < 2**63:
+                raise InputError(path, key, "integer out of range (TOML integers are 64-bit)")
+    return doc
 
 
 def sub_table(f: SourceFile, parent: dict, name: str, allowed, required: bool = False, prefix: str = "") -> dict:
@@ -84,18 +102,15 @@ def sub_table(f: SourceFile, parent: dict, name: str, allowed, required: bool = 
     return table
 
 
-
 def check_keys(f: SourceFile, table: dict, prefix: str, allowed) -> None:
     for key in table:
         if key not in allowed:
             raise f.error(f"{prefix}{key}", unknown_key(key, allowed))
 
 
-
 def unknown_key(key, allowed) -> str:
     close = difflib.get_close_matches(str(key), list(allowed), n=1)
     return f"unknown key; did you mean '{close[0]}'?" if close else "unknown key"
-
 
 
 def required_value(f: SourceFile, table: dict, name: str, prefix: str):
@@ -104,16 +119,13 @@ def required_value(f: SourceFile, table: dict, name: str, prefix: str):
     return table[name]
 
 
-
 def check(f: SourceFile, key: str, ok: bool, reason: str) -> None:
     if not ok:
         raise f.error(key, reason)
 
 
-
 def is_number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
-
 
 
 def real_number(f: SourceFile, key: str, value) -> float:
@@ -128,7 +140,6 @@ def real_number(f: SourceFile, key: str, value) -> float:
     return number
 
 
-
 def integer(f: SourceFile, key: str, value, least: int, most: int = MAX_INT) -> int:
     # 400.0 is accepted as 400: sweeps and hand-edited files mix the two.
     whole = value.is_integer() if isinstance(value, float) else is_number(value)
@@ -137,7 +148,6 @@ def integer(f: SourceFile, key: str, value, least: int, most: int = MAX_INT) -> 
     if value > most:
         raise f.error(key, f"must be an integer <= {most}")
     return int(value)
-
 
 
 def real_array(f: SourceFile, key: str, value, count: int | None = None) -> np.ndarray:
@@ -154,7 +164,6 @@ def real_array(f: SourceFile, key: str, value, count: int | None = None) -> np.n
     return out
 
 
-
 def point_list(f: SourceFile, key: str, value) -> np.ndarray:
     reason = "must be a list of at least 2 points [x, y, z] (or [x, y])"
     check(f, key, isinstance(value, list) and len(value) >= 2, reason)
@@ -163,11 +172,31 @@ def point_list(f: SourceFile, key: str, value) -> np.ndarray:
     return np.array([real_array(f, key, p) for p in value])
 
 
-
-def nonempty_text(f: SourceFile, key: str, value) -> str:
+def nonempty_text(f: SourceFile, key: str, value, most: int | None = None) -> str:
+    """A non-empty string of printable characters (at most ``most`` of them)."""
     check(f, key, isinstance(value, str) and value.strip() != "", "must be a non-empty string")
+    check(f, key, value.isprintable(), "must be printable text (no newlines or control characters)")
+    check(f, key, most is None or len(value) <= most, f"longer than {most} characters")
     return value
 
+
+def check_scale(f: SourceFile, key: str, points, diameter: float | None, what: str = "the target") -> None:
+    """Coordinates within MAX_COORDINATE and a span (bounding-box diagonal) of MIN_DIAMETERS to
+    MAX_DIAMETERS tube diameters (``diameter`` None: coordinates only); beyond them the solvers work at the edge of float64 (a 1e-15 tube
+    around a 20 cm target kept Fatrop looping for good, a 1e-300 target gave NaN)."""
+    points = np.asarray(points, float)
+    big = float(np.abs(points).max())
+    if big > limits.MAX_COORDINATE:
+        raise f.error(key, f"coordinates up to {big:.4g}: at most {limits.MAX_COORDINATE:g} (vine_nlp.io.limits.MAX_COORDINATE)")
+    span = float(np.linalg.norm(np.ptp(points, axis=0)))
+    if diameter is None:
+        return
+    if span > limits.MAX_DIAMETERS * diameter:
+        raise f.error("tube.diameter", f"{diameter:.4g} is too thin for {what} spanning {span:.4g}: at most "
+                      f"{limits.MAX_DIAMETERS:g} tube diameters (vine_nlp.io.limits.MAX_DIAMETERS)")
+    if span < limits.MIN_DIAMETERS * diameter:
+        raise f.error(key, f"{what} spans {span:.4g}, less than {limits.MIN_DIAMETERS:g} tube diameters "
+                      "(vine_nlp.io.limits.MIN_DIAMETERS)")
 
 
 def choice(f: SourceFile, key: str, value, choices) -> str:
@@ -177,7 +206,6 @@ def choice(f: SourceFile, key: str, value, choices) -> str:
         hint = f"; did you mean '{close[0]}'?" if close else ""
         raise f.error(key, f"must be one of {listed}{hint}")
     return value
-
 
 
 def rigid_pose(f: SourceFile, key: str, value) -> np.ndarray:

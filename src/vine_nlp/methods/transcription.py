@@ -493,7 +493,7 @@ class Solver:
         ubg = self.ubg if ubg is None else ubg
         t0 = time.perf_counter()
         try:
-            sol = self.nlpsol(x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+            sol = interrupt.call(self.nlpsol, x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
             st = self.nlpsol.stats()
         except RuntimeError:
             if self.spec.backend != "fatrop":

@@ -13,6 +13,7 @@ from vine_nlp.errors import InputError
 from vine_nlp.io.archive import Archive
 from vine_nlp.io.calibration import Calibration
 from vine_nlp.io.correction import MAX_MEASURED_POINTS, MIN_MEASURED_POINTS, read_correction, read_measured, write_correction_archive
+from vine_nlp.io.data_files import check_spread
 from vine_nlp.io.problems import design_problem_of
 from vine_nlp.methods.correct import ADJUST, Measurement, combine_systematic, correct
 from vine_nlp.model.pairing import pair_points
@@ -73,6 +74,8 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
     if adjust not in ADJUST:
         raise InputError("command line", "--adjust", "must be lambda or lambda,theta")
     pts = [_points(p, k) for k, p in enumerate(measured)]
+    for k, (p, f) in enumerate(zip(pts, measured)):
+        check_spread(f if isinstance(f, (str, Path)) else f"measured[{k}]", p, archive.diameter, MIN_MEASURED_POINTS)
     problem = design_problem_of(archive, archive_path)
     units_per_mm = UNITS_PER_MM.get(archive.units.lower())
     if measurement_sigma is None and units_per_mm is None:

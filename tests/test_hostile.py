@@ -1,0 +1,639 @@
+"""Hostile files (issue 34): every case an attacker tried, and a fuzzer per reader.
+
+Each case is one ``error: <file>: <key>: <reason>`` line, exit 2, nothing written. Cases that
+could exhaust memory or hang run the command in a subprocess held to 1 GB of address space
+(RLIMIT_AS) and a timeout of TIME_LIMIT seconds (a broken reader fails the test instead of
+hanging it); no test waits a guessed time.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import stat
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from holdpoint import finish, hold_env, release, spawn, wait_for_marker
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from texts import TINY_TREFOIL
+
+from vine_nlp.errors import InputError, printable
+from vine_nlp.front.cli import main
+from vine_nlp.io import limits, outputs
+from vine_nlp.io.archive import ArchiveError, load_archive, write_atomic
+from vine_nlp.io.problem_file import load_problem, load_sweep
+
+ROOT = Path(__file__).resolve().parents[1]
+MEMORY = 1 << 30
+TIME_LIMIT = 10
+FUZZ = settings(max_examples=int(os.environ.get("VINE_NLP_FUZZ_EXAMPLES", "40")), deadline=None, derandomize=not os.environ.get("VINE_NLP_FUZZ_RANDOM"), database=None,
+                suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+FORWARD = """name = "f"
+units = "cm"
+[tube]
+diameter = 2.0
+[routing]
+length = 12.0
+segment_length = 1.0
+theta_deg = 5
+lambda = 0.8
+"""
+
+
+def limited(*args, timeout=TIME_LIMIT, python=False):
+    """``python -m vine_nlp ARGS`` (or ``python -c ARGS[0]``) within 1 GB of address space and ``timeout`` s."""
+    def preexec():
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_AS, (MEMORY, MEMORY))
+
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    cmd = [sys.executable, "-c", *args] if python else [sys.executable, "-m", "vine_nlp", *map(str, args)]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, preexec_fn=preexec, env=env)
+
+
+def one_line(stderr: str, file, key: str) -> str:
+    lines = stderr.splitlines()
+    assert len(lines) == 1, stderr
+    assert lines[0].startswith(f"error: {file}: {key}: "), stderr
+    return lines[0]
+
+
+def refused(capsys, args, file, key) -> str:
+    """``main(args)`` exits 2 with one error line naming ``file`` and ``key``; returns the line."""
+    assert main([str(a) for a in args]) == 2
+    return one_line(capsys.readouterr().err, file, key)
+
+
+@pytest.fixture(scope="module")
+def forward_archive(tmp_path_factory):
+    d = tmp_path_factory.mktemp("hostile")
+    (d / "f.toml").write_text(FORWARD)
+    assert main(["forward", str(d / "f.toml"), "-o", str(d / "f.h5")]) == 0
+    return d / "f.h5"
+
+
+@pytest.fixture(scope="module")
+def design_archive(tmp_path_factory):
+    d = tmp_path_factory.mktemp("hostile-design")
+    (d / "p.toml").write_text(TINY_TREFOIL)
+    assert main(["design", str(d / "p.toml"), "-o", str(d / "d.h5")]) == 0
+    return d / "d.h5"
+
+
+def hostile(src: Path, tmp_path: Path, edit, name="h.h5") -> Path:
+    path = tmp_path / name
+    path.write_bytes(src.read_bytes())
+    with h5py.File(path, "a") as h5:
+        edit(h5)
+    return path
+
+
+# ---------------------------------------------------------------- archives: links, virtual and external data, bombs
+
+def _external(h5, where):
+    other = Path(h5.filename).with_name("other.h5")
+    with h5py.File(other, "a") as o:
+        o.require_dataset("x", shape=(10, 3), dtype="f8")
+    h5[where] = h5py.ExternalLink(str(other), "/x")
+
+
+def _fifo_link(h5, where):
+    fifo = Path(h5.filename).with_name("pipe.h5")
+    if not fifo.exists():
+        os.mkfifo(fifo)
+    h5[where] = h5py.ExternalLink(str(fifo), "/x")
+
+
+def _virtual(h5, where):
+    layout = h5py.VirtualLayout(shape=(10, 3), dtype="f8")
+    layout[:] = h5py.VirtualSource("missing.h5", "data", shape=(10, 3))
+    h5.create_virtual_dataset(where, layout, fillvalue=0.0)
+
+
+def _bomb(h5, where):
+    # 80 kB on disk, 4.8 GB when read: refused by its declared size before a byte of it is read
+    h5.create_dataset(where, shape=(2 * 10**8, 3), dtype="f8", chunks=(10**5, 3), compression="gzip", fillvalue=1.0)
+
+
+# name -> (edit(h5, dataset path), the key of the error, part of its reason)
+HOSTILE_ARCHIVES = {
+    "external-link": (_external, "/measured/points", "ExternalLink"),
+    "external-link-to-a-fifo": (_fifo_link, "/measured/points", "ExternalLink"),
+    "soft-link": (lambda h5, w: h5.__setitem__(w, h5py.SoftLink("/runs/forward/shape/center")), "/measured/points", "SoftLink"),
+    "virtual-dataset": (_virtual, "/measured/points", "virtual dataset"),
+    "external-storage": (lambda h5, w: h5.create_dataset(w, shape=(10, 3), dtype="f8", external=[("raw.bin", 0, 240)]),
+                         "/measured/points", "external files"),
+    "compressed-bomb": (_bomb, "/obstacles/0/vertices", "600000000 values, more than the limit"),
+    "ansi-in-a-name": (lambda h5, w: h5.create_dataset(f"{w}\x1b[31mred", data=np.zeros(3)), "/measured/points\x1b[31mred", "printable"),
+    "ansi-in-a-text": (lambda h5, w: h5["problem"].attrs.__setitem__("name", "\x1b]0;owned\x07"), "/problem@name", "printable"),
+    "text-dataset": (lambda h5, w: h5.create_dataset(w, data=np.array([b"a", b"b"])), "/measured/points", "real numbers"),
+    "chunks": (lambda h5, w: h5.create_dataset(w, shape=(10**6,), dtype="f8", chunks=(1,)), "/measured/points", "chunks"),
+    "declared-size": (lambda h5, w: h5.create_dataset(w, shape=(4 * 10**6, 3), dtype="f4", chunks=(10**4, 3), fillvalue=1.0),
+                      "/measured/points", "12000000 values"),
+}
+
+
+@pytest.mark.parametrize("case", list(HOSTILE_ARCHIVES))
+def test_hostile_archive_is_one_line_within_limits(forward_archive, tmp_path, case):
+    edit, key, reason = HOSTILE_ARCHIVES[case]
+    path = hostile(forward_archive, tmp_path, lambda h5: edit(h5, key.strip("/").split("\x1b")[0]))
+    r = limited("show", path)
+    assert r.returncode == 2
+    line = one_line(r.stderr, path, printable(key))
+    assert reason in line and "\x1b" not in line
+
+
+def test_correct_copies_nothing_through_a_link(design_archive, tmp_path, capsys):
+    def edit(h5):
+        other = tmp_path / "secret.h5"
+        with h5py.File(other, "w") as o:
+            o["x"] = np.full((50, 3), 7.0)
+        h5["measured/points"] = h5py.ExternalLink(str(other), "/x")
+
+    path = hostile(design_archive, tmp_path, edit)
+    pts = load_archive(design_archive).runs["nlp"].shape.outer
+    np.savetxt(tmp_path / "m.csv", pts, delimiter=",")
+    refused(capsys, ["correct", path, tmp_path / "m.csv", "-o", tmp_path / "c.h5"], path, "/measured/points")
+    assert not (tmp_path / "c.h5").exists()
+
+
+def test_an_archived_source_is_read_with_the_problem_checks(design_archive, tmp_path, capsys):
+    source = load_archive(design_archive).source.replace("samples = 41", "samples = " + "9" * 5000)
+    path = hostile(design_archive, tmp_path, lambda h5: h5["problem"].attrs.__setitem__("source", source))
+    np.savetxt(tmp_path / "m.csv", load_archive(design_archive).runs["nlp"].shape.outer, delimiter=",")
+    # the source cannot be read: the archive's own data stands in, and what it lacks is one line, not a traceback
+    refused(capsys, ["correct", path, tmp_path / "m.csv", "-o", tmp_path / "c.h5"], path, "/runs/nlp/design/theta")
+
+
+def test_calibrate_refuses_a_compressed_bomb(forward_archive, tmp_path):
+    def edit(h5):
+        h5.create_dataset("runs/forward/uncertainty/theta", shape=(10**9,), dtype="f8", chunks=(10**5,), compression="gzip", fillvalue=0.5)
+        h5.create_group("correction").attrs["format"] = "vine_nlp/correction"
+
+    path = hostile(forward_archive, tmp_path, edit)
+    r = limited("calibrate", path, "-o", tmp_path / "cal.toml")
+    assert r.returncode == 2
+    assert "1000000000 values" in one_line(r.stderr, path, "/runs/forward/uncertainty/theta")
+    assert not (tmp_path / "cal.toml").exists()
+
+
+# ---------------------------------------------------------------- text files: pipes, devices, sizes
+
+def test_problem_file_that_is_no_regular_file(tmp_path):
+    fifo = tmp_path / "p.toml"
+    os.mkfifo(fifo)
+    for path in (fifo, Path("/dev/zero"), tmp_path):
+        r = limited("design", path, "-o", tmp_path / "o.h5")
+        assert r.returncode == 2
+        assert re.search("not a regular file|is a directory", one_line(r.stderr, path, "file"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.toml"]
+
+
+def test_a_4_gb_calibration_file_is_refused_by_its_size(tmp_path):
+    with open(tmp_path / "cal.toml", "wb") as fh:
+        fh.truncate(4 << 30)  # sparse: no disk used
+    (tmp_path / "p.toml").write_text(TINY_TREFOIL.replace('units = "cm"', 'units = "cm"\ncalibration = "cal.toml"'))
+    r = limited("design", tmp_path / "p.toml", "-o", tmp_path / "o.h5")
+    assert r.returncode == 2
+    assert "MAX_TOML_BYTES" in one_line(r.stderr, tmp_path / "p.toml", "calibration")
+    assert not (tmp_path / "o.h5").exists()
+
+
+def test_problem_files_up_to_the_limit_make_archives_that_load(tmp_path, capsys):
+    text = FORWARD + "# padding\n" * ((limits.MAX_TOML_BYTES - len(FORWARD)) // 10)
+    assert len(text) <= limits.MAX_TOML_BYTES
+    (tmp_path / "big.toml").write_text(text)
+    assert main(["forward", str(tmp_path / "big.toml"), "-o", str(tmp_path / "big.h5")]) == 0
+    assert load_archive(tmp_path / "big.h5").source == text
+    (tmp_path / "huge.toml").write_text(text + "#" * (11 << 20))  # the 11 MB file of the issue
+    refused(capsys, ["forward", tmp_path / "huge.toml", "-o", tmp_path / "huge.h5"], tmp_path / "huge.toml", "file")
+    assert not (tmp_path / "huge.h5").exists()
+
+
+def test_a_csv_of_1e7_rows_stops_at_the_point_limit(tmp_path):
+    (tmp_path / "big.csv").write_bytes(b"x,y,z\n" + b"1,2,3\n" * 10**7)
+    (tmp_path / "p.toml").write_text('[tube]\ndiameter = 2\n[target]\ncurve = "points"\nfile = "big.csv"\n')
+    r = limited("design", tmp_path / "p.toml", "-o", tmp_path / "o.h5")
+    assert r.returncode == 2
+    assert "MAX_TARGET_POINTS" in one_line(r.stderr, tmp_path / "big.csv", "values")
+    assert not (tmp_path / "o.h5").exists()
+
+
+@pytest.mark.parametrize("row, reason", [("1_0, 2, 3", "'1_0' is not a number"), ("1, 2, " + "3" * 20000, "longer than 10000 characters"),
+                                         ("0x10, 2, 3", "'0x10' is not a number")], ids=["underscore", "long-line", "hex"])
+def test_csv_numbers_are_plain_decimal(tmp_path, capsys, row, reason):
+    (tmp_path / "t.csv").write_text(f"0,0,0\n{row}\n2,0,0\n")
+    (tmp_path / "p.toml").write_text('[tube]\ndiameter = 2\n[target]\ncurve = "points"\nfile = "t.csv"\n')
+    line = refused(capsys, ["design", tmp_path / "p.toml", "-o", tmp_path / "o.h5"], tmp_path / "t.csv", "line 2")
+    assert reason in line
+
+
+BOX_OBJ = """v -1 -1 -1\nv 1 -1 -1\nv 1 1 -1\nv -1 1 -1\nv -1 -1 1\nv 1 -1 1\nv 1 1 1\nv -1 1 1
+f 1 3 2\nf 1 4 3\nf 5 6 7\nf 5 7 8\nf 1 2 6\nf 1 6 5\nf 2 3 7\nf 2 7 6\nf 3 4 8\nf 3 8 7\nf 4 1 5\nf 4 5 8
+"""
+MESH_PROBLEM = TINY_TREFOIL + '[[obstacles]]\nshape = "mesh"\nfile = "{file}"\n'
+READ = "import sys; from vine_nlp.io.problem_file import load_problem; print(len(load_problem(sys.argv[1]).problem.obstacles[0].faces))"
+
+
+def test_obj_mtllib_is_never_opened(tmp_path):
+    pytest.importorskip("trimesh")
+    with open(tmp_path / "huge.mtl", "wb") as fh:
+        fh.truncate(3 << 30)
+    os.mkfifo(tmp_path / "pipe.mtl")
+    (tmp_path / "box.obj").write_text("mtllib pipe.mtl\nmtllib huge.mtl\nusemtl stone\n" + BOX_OBJ)
+    (tmp_path / "p.toml").write_text(MESH_PROBLEM.format(file="box.obj"))
+    r = limited(READ, str(tmp_path / "p.toml"), python=True)
+    assert r.returncode == 0 and r.stdout.strip() == "12", r.stderr
+
+
+def test_mesh_paths_outside_the_problem_folder_are_allowed(tmp_path):
+    pytest.importorskip("trimesh")
+    (tmp_path / "box.obj").write_text(BOX_OBJ)
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub/p.toml").write_text(MESH_PROBLEM.format(file="../box.obj"))
+    assert len(load_problem(tmp_path / "sub/p.toml").problem.obstacles[0].faces) == 12  # documented: like a script's
+
+
+# ---------------------------------------------------------------- numbers where they enter
+
+def _trefoil(**changes) -> str:
+    text = TINY_TREFOIL
+    for old, new in changes.items():
+        text = text.replace(old, new)
+    return text
+
+
+NUMBERS = {
+    "diameter-1e-15": (_trefoil(**{"diameter = 2.43": "diameter = 1e-15"}), "tube.diameter", "too thin"),
+    "diameter-1e300": (_trefoil(**{"diameter = 2.43": "diameter = 1e300"}), "tube.diameter", "must be <= 1e+09"),
+    "scale-1e300": (_trefoil(**{"[4.0, 4.0, 4.0]": "[1e300, 1e300, 1e300]"}), "target.scale", "coordinates up to"),
+    "scale-1e-300": (_trefoil(**{"[4.0, 4.0, 4.0]": "[1e-300, 1e-300, 1e-300]"}), "target.scale", "less than 1e-06 tube diameters"),
+    "5000-digit-integer": (_trefoil(**{"samples = 41": "samples = " + "9" * 5000}), "line 8", "64-bit"),
+    "400-digit-calibration": (TINY_TREFOIL + "[calibration]\nlambda_offset = " + "9" * 400 + "\n", "calibration.lambda_offset", "64-bit"),
+    "nul-in-name": (_trefoil(**{'name = "tiny-trefoil"': 'name = "a\\u0000b"'}), "name", "printable"),
+    "nul-in-units": (_trefoil(**{'units = "cm"': 'units = "c\\u0000m"'}), "units", "printable"),
+    "units-of-100-characters": (_trefoil(**{'units = "cm"': f'units = "{"u" * 100}"'}), "units", "longer than 32"),
+    "nul-in-obstacle-name": (TINY_TREFOIL + '[[obstacles]]\nshape = "sphere"\nname = "o\\u0000"\ncenter = [0, 0, 50]\nradius = 1\n',
+                             "obstacles.0.name", "printable"),
+    "huge-obstacle": (TINY_TREFOIL + '[[obstacles]]\nshape = "sphere"\ncenter = [1e300, 0, 0]\nradius = 1\n',
+                      "obstacles[0].center", "magnitude"),
+}
+
+
+@pytest.mark.parametrize("case", list(NUMBERS))
+def test_bad_values_are_one_line_where_they_enter(tmp_path, case):
+    text, key, reason = NUMBERS[case]
+    (tmp_path / "p.toml").write_text(text)
+    r = limited("design", tmp_path / "p.toml", "-o", tmp_path / "o.h5")
+    assert r.returncode == 2 and reason in one_line(r.stderr, tmp_path / "p.toml", key)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.toml"]
+
+
+def test_400_digit_integer_in_a_calibration_file(tmp_path, capsys):
+    (tmp_path / "cal.toml").write_text("[calibration]\nlength_scale = " + "1" * 400 + "\n")
+    (tmp_path / "p.toml").write_text(_trefoil(**{'units = "cm"': 'units = "cm"\ncalibration = "cal.toml"'}))
+    refused(capsys, ["design", tmp_path / "p.toml", "-o", tmp_path / "o.h5"], tmp_path / "cal.toml", "calibration.length_scale")
+
+
+def test_32_character_units_make_an_archive_that_loads(tmp_path):
+    (tmp_path / "f.toml").write_text(FORWARD.replace('units = "cm"', f'units = "{"u" * limits.MAX_UNITS_CHARS}"'))
+    assert main(["forward", str(tmp_path / "f.toml"), "-o", str(tmp_path / "f.h5")]) == 0
+    assert load_archive(tmp_path / "f.h5").units == "u" * limits.MAX_UNITS_CHARS
+
+
+def test_a_30000_level_dotted_key_in_a_sweep_grid(tmp_path):
+    (tmp_path / "base.toml").write_text(TINY_TREFOIL)
+    (tmp_path / "s.toml").write_text('base = "base.toml"\n[grid]\n' + ".".join(["a"] * 30000) + " = [1]\n")
+    r = limited("sweep", tmp_path / "s.toml", "-o", tmp_path / "out")
+    assert r.returncode == 2
+    assert "more than 32 dotted parts" in one_line(r.stderr, tmp_path / "s.toml", "line 3")
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_nul_through_a_sweep_grid_is_refused_before_any_work(tmp_path, capsys):
+    (tmp_path / "base.toml").write_text(TINY_TREFOIL)
+    (tmp_path / "s.toml").write_text('base = "base.toml"\n[grid]\nunits = ["cm", "c\\u0000m"]\n')
+    refused(capsys, ["sweep", tmp_path / "s.toml", "-o", tmp_path / "out"], tmp_path / "s.toml", "grid.units.1")
+    assert not (tmp_path / "out").exists()  # no summary.csv, no lock
+
+
+# ---------------------------------------------------------------- strings: the error line cannot be forged
+
+@pytest.mark.parametrize("key", ["tube\nerror: forged", "\x1b[2J\x1b[31mred", "nul\x00key", "\u202eevil"])
+def test_keys_never_forge_or_colour_the_error_line(tmp_path, capsys, key):
+    toml_key = key.encode("unicode_escape").decode().replace("\\x", "\\u00")
+    (tmp_path / "p.toml").write_text(f'"{toml_key}" = 1\n' + TINY_TREFOIL)
+    assert main(["design", str(tmp_path / "p.toml"), "-o", str(tmp_path / "o.h5")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"error: {tmp_path / 'p.toml'}: ")
+    assert err.strip().isprintable() and printable(key) in err
+
+
+def test_input_error_escapes_what_it_shows():
+    e = InputError("a\nb.toml", "k\x1b[0m", "bad\x00")
+    assert str(e) == "a\\nb.toml: k\\x1b[0m: bad\\x00" and e.key == "k\x1b[0m"
+
+
+# ---------------------------------------------------------------- a degenerate measurement
+
+def test_400_copies_of_one_point_are_no_measurement(design_archive, tmp_path, capsys):
+    np.savetxt(tmp_path / "one.csv", np.tile([[1.0, 2.0, 3.0]], (400, 1)), delimiter=",")
+    line = refused(capsys, ["correct", design_archive, tmp_path / "one.csv", "-o", tmp_path / "c.h5"], tmp_path / "one.csv", "values")
+    assert "1 distinct points" in line and not (tmp_path / "c.h5").exists()
+    (tmp_path / "fit.toml").write_text(FORWARD.replace("[routing]", '[measured]\nfile = "one.csv"\nline = "outer"\n[routing]'))
+    refused(capsys, ["fit", tmp_path / "fit.toml", "-o", tmp_path / "f.h5"], tmp_path / "one.csv", "values")
+    # collinear but spread along the robot: a straight tube is a measurement
+    t = np.linspace(0.0, 12.0, 50)[:, None]
+    np.savetxt(tmp_path / "line.csv", np.hstack([t, 0 * t, 0 * t]), delimiter=",")
+    assert load_problem(_fit_file(tmp_path, "line.csv")).problem.measured.shape == (50, 3)
+
+
+def _fit_file(tmp_path, data):
+    (tmp_path / "fit2.toml").write_text(FORWARD.replace("[routing]", f'[measured]\nfile = "{data}"\nline = "outer"\n[routing]'))
+    return tmp_path / "fit2.toml"
+
+
+# ---------------------------------------------------------------- outputs: all or none, created exclusively
+
+def test_design_with_a_figure_in_a_read_only_directory_writes_nothing(tmp_path, capsys):
+    if os.geteuid() != 0:
+        pytest.skip("a read-only directory needs a read-only mount (root) here")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(ro)], capture_output=True).returncode:
+        pytest.skip("mount -t tmpfs not allowed here")
+    try:
+        out = tmp_path / "a.h5"
+        line = refused(capsys, ["design", ROOT / "problems/bezier-c.toml", "-o", out, "--plot", ro / "fig.png"], ro / "fig.png", "write")
+        assert "Read-only file system" in line and not out.exists()
+    finally:
+        subprocess.run(["umount", "-l", str(ro)], capture_output=True)
+
+
+def test_export_writes_both_files_or_none(forward_archive, tmp_path, capsys, monkeypatch):
+    pytest.importorskip("trimesh")
+    written = []
+    real = Path.write_bytes
+
+    def second_fails(self, data):
+        written.append(self)
+        if len(written) == 2:
+            raise OSError(28, "No space left on device")
+        return real(self, data)
+
+    monkeypatch.setattr(Path, "write_bytes", second_fails)
+    refused(capsys, ["export", forward_archive, "-o", tmp_path / "tube.stl"], tmp_path / "tube.actuator.stl", "write")
+    assert list(tmp_path.iterdir()) == []  # no tube.stl, no temporary file
+
+
+@pytest.mark.parametrize("kind", ["fifo", "device"])
+def test_force_never_replaces_what_is_not_a_regular_file(tmp_path, capsys, kind):
+    target = tmp_path / "null"
+    if kind == "fifo":
+        os.mkfifo(target)
+    elif os.geteuid() == 0:
+        os.mknod(target, stat.S_IFCHR | 0o666, os.makedev(1, 3))  # a /dev/null of our own
+    else:
+        pytest.skip("making a device node needs root")
+    line = refused(capsys, ["forward", ROOT / "problems/three-section-helix.toml", "-o", target, "--force"], target, "write")
+    assert "never replaced" in line
+    mode = os.lstat(target).st_mode
+    assert (stat.S_ISFIFO if kind == "fifo" else stat.S_ISCHR)(mode) and sorted(p.name for p in tmp_path.iterdir()) == ["null"]
+
+
+def test_two_runs_to_one_new_file_one_of_them_exits_2(tmp_path):
+    out = tmp_path / "d.h5"
+    env, fifo = hold_env(tmp_path / "hold", "solve")
+    first = spawn(["design", ROOT / "problems/bezier-c.toml", "-o", out], env)  # reserved d.h5, held in its solve
+    _, marker = wait_for_marker(first, "solve")
+    second = subprocess.run([sys.executable, "-m", "vine_nlp", "design", str(ROOT / "problems/bezier-c.toml"), "-o", str(out)],
+                            capture_output=True, text=True, env=env, timeout=120)
+    assert second.returncode == 0, second.stderr
+    written = out.read_bytes()
+    release(fifo)
+    rc, err = finish(first, marker)
+    err = "\n".join(line for line in err.splitlines() if not line.startswith("vine-nlp: test hold"))
+    assert rc == 2 and "exists (written meanwhile by another process)" in one_line(err, out, "-o")
+    assert out.read_bytes() == written and sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
+
+
+def test_temporary_files_of_a_killed_run_are_swept(tmp_path):
+    out_dir = tmp_path / "out"
+    out_dir.mkdir()
+    env, fifo = hold_env(tmp_path / "hold", "solve")
+    proc = spawn(["design", ROOT / "problems/bezier-c.toml", "-o", out_dir / "d.h5"], env)
+    pid, _ = wait_for_marker(proc, "solve")
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=60)
+    left = [p.name for p in out_dir.iterdir()]
+    assert len(left) == 1 and f".vine-nlp-{pid}-" in left[0]  # what SIGKILL leaves
+    outputs._swept.discard(os.path.abspath(out_dir))
+    write_atomic(out_dir / "other.txt", lambda t: Path(t).write_text("x"))
+    assert [p.name for p in out_dir.iterdir()] == ["other.txt"]
+
+
+def test_a_failed_commit_puts_back_the_files_it_replaced(tmp_path):
+    a = tmp_path / "a.txt"
+    a.write_text("old a")
+    with pytest.raises(InputError), outputs.run():
+        outputs.reserve(a, True)
+        outputs.reserve(tmp_path / "c.txt", False)
+        write_atomic(a, lambda t: Path(t).write_text("new a"))
+        write_atomic(tmp_path / "c.txt", lambda t: Path(t).write_text("c"))
+        (tmp_path / "c.txt").mkdir()  # after the check: the second output cannot be committed
+    assert a.read_text() == "old a" and sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "c.txt"]
+    assert (tmp_path / "c.txt").is_dir()
+
+
+# ---------------------------------------------------------------- the solver honours Ctrl-C and SIGTERM
+
+SOLVE_1E15 = """
+import dataclasses, sys
+from vine_nlp import interrupt
+from vine_nlp.io.problem_file import load_problem
+from vine_nlp.methods.nlp import design_nlp
+interrupt.install()
+pf = load_problem(sys.argv[1])
+design_nlp(pf.problem)  # builds (and compiles) the solvers of this structure
+print("solving", flush=True)
+try:
+    design_nlp(dataclasses.replace(pf.problem, diameter=1e-15))  # past the reader: Fatrop loops for good on it
+except KeyboardInterrupt:
+    print("interrupted", flush=True)
+    sys.exit(130)
+"""
+
+
+def _cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="CPU time read from /proc")
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_solve_in_c_code_honours_signals(tmp_path, sig):
+    from vine_nlp.methods import compiled
+
+    if compiled.compiler() is None:
+        pytest.skip("no C compiler: Fatrop needs compiled functions")
+    env = dict(os.environ, VINE_NLP_CODEGEN="on", VINE_NLP_CFLAGS="-O0", VINE_NLP_CACHE_DIR=str(tmp_path / "cache"))
+    proc = subprocess.Popen([sys.executable, "-c", SOLVE_1E15, str(ROOT / "problems/trefoil-m4.toml")], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        assert proc.stdout.readline().strip() == "solving"
+        start, give_up = _cpu_seconds(proc.pid), time.monotonic() + 300
+        while _cpu_seconds(proc.pid) < start + 2.0:  # two seconds of CPU in the solve (an event, not a guess)
+            if proc.poll() is not None or time.monotonic() > give_up:
+                proc.kill()
+                pytest.fail(f"no solve to interrupt: {proc.communicate()[1]}")
+            time.sleep(0.05)  # polling for the event, not assuming it
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=TIME_LIMIT)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130 and out.strip() == "interrupted", err
+
+
+# ---------------------------------------------------------------- fuzzing each reader
+
+_text = st.text(st.characters(blacklist_categories=("Cs",)), max_size=12)
+_value = st.one_of(st.integers(-(10**30), 10**30), st.floats(allow_nan=True), _text,
+                   st.sampled_from(["1e-300", "1e300", "1e-15", '"\\u0000"', '"\\u001b[31m"', "nan", "-inf", "9" * 500, "1_0"]))
+_keys = st.sampled_from(["name", "units", "tube.diameter", "target.scale", "target.samples", "target.curve", "target.file",
+                         "design.points_per_segment", "calibration", "actuator.lambda_min", "obstacles"])
+
+
+def _toml(v) -> str:
+    """A TOML value: strings quoted with every non-ASCII or control character escaped; the sampled literals as they are."""
+    if isinstance(v, str) and not v.startswith(('"', "1", "9", "n", "-")):
+        return '"' + "".join(c if " " <= c < "\x7f" and c not in '"\\' else f"\\U{ord(c):08x}" for c in v) + '"'
+    return repr(v) if isinstance(v, float) else str(v)
+
+
+PROBLEM_TEMPLATE = """name = {name}
+units = {units}
+calibration = {calibration}
+[tube]
+diameter = {diameter}
+[target]
+curve = "trefoil"
+scale = [{scale}, 4.0, 4.0]
+samples = {samples}
+[design]
+points_per_segment = {n}
+[[obstacles]]
+shape = "sphere"
+name = {obstacle}
+center = [{center}, 0.0, 40.0]
+radius = 1.0
+"""
+_FIELDS = {"name": '"p"', "units": '"cm"', "calibration": "{lambda_offset = 0.0}", "diameter": "2.43", "scale": "4.0", "samples": "41",
+           "n": "5", "obstacle": '"o"', "center": "0.0"}
+
+
+@FUZZ
+@given(changes=st.dictionaries(st.sampled_from(sorted(_FIELDS)), _value, max_size=3))
+def test_fuzz_problem_files(tmp_path, changes):
+    text = PROBLEM_TEMPLATE.format(**{**_FIELDS, **{k: _toml(v) for k, v in changes.items()}})
+    (tmp_path / "p.toml").write_text(text)
+    try:
+        pf = load_problem(tmp_path / "p.toml")
+    except InputError as e:
+        assert str(e).isprintable() and e.file == str(tmp_path / "p.toml")
+        return
+    p = pf.problem
+    assert pf.name.isprintable() and pf.units.isprintable() and len(pf.units) <= limits.MAX_UNITS_CHARS
+    assert all(o.name.isprintable() for o in p.obstacles) and np.abs(p.obstacles[0].center).max() <= limits.MAX_COORDINATE
+    span = np.linalg.norm(np.ptp(p.target, axis=0)) / p.diameter
+    assert np.abs(p.target).max() <= limits.MAX_COORDINATE and limits.MIN_DIAMETERS <= span <= limits.MAX_DIAMETERS
+
+
+@FUZZ
+@given(key=st.one_of(_keys, _text, st.just(".".join(["a"] * 40))), values=st.lists(_value, min_size=1, max_size=3))
+def test_fuzz_sweep_files(tmp_path, key, values):
+    (tmp_path / "base.toml").write_text(TINY_TREFOIL)
+    grid = ", ".join(_toml(v) for v in values)
+    (tmp_path / "s.toml").write_text(f'base = "base.toml"\n[grid]\n"{_toml(key).strip(chr(34))}" = [{grid}]\n')
+    try:
+        sweep = load_sweep(tmp_path / "s.toml")
+    except InputError as e:
+        assert all(c.isprintable() for c in str(e))
+        return
+    for _, _, pf in sweep.items():
+        assert len(pf.source) <= limits.MAX_TEXT_CHARS
+
+
+_DECIMAL = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
+_cell = st.one_of(st.floats(allow_nan=False, allow_infinity=False).map(repr),
+                  st.sampled_from(["1_0", "0x1", "1e999", "nan", "١", "１", "\x00", "1,", "#", "x"]))
+
+
+@FUZZ
+@given(rows=st.lists(st.lists(_cell, min_size=3, max_size=3), min_size=1, max_size=12), sep=st.sampled_from([",", " ", "\t", ", "]))
+def test_fuzz_csv_points(tmp_path, rows, sep):
+    from vine_nlp.io.data_files import data_points
+    from vine_nlp.io.validate import SourceFile
+
+    (tmp_path / "m.csv").write_text("\n".join(sep.join(r) for r in rows), encoding="utf-8")
+    try:
+        pts = data_points(SourceFile(str(tmp_path / "p.toml")), "measured.file", "m.csv", ordered=False)
+    except InputError as e:
+        assert str(e).isprintable()
+        return
+    # accepted: every row a plain decimal row (a first row of words is a header), read as Python reads decimals
+    cells = [r for r in rows if "#" not in "".join(r)]
+    data = cells[1:] if not all(_DECIMAL.fullmatch(c) for c in cells[0]) else cells
+    assert all(_DECIMAL.fullmatch(c) for r in data for c in r)
+    np.testing.assert_array_equal(pts, np.array([[float(c) for c in r] for r in data]))
+
+
+def _mesh_bytes(kind: str) -> bytes:
+    import trimesh
+
+    data = trimesh.creation.box().export(file_type=kind)
+    return data.encode() if isinstance(data, str) else data
+
+
+@FUZZ
+@given(kind=st.sampled_from(["stl", "obj", "ply"]), cuts=st.lists(st.tuples(st.integers(0, 2000), st.binary(max_size=12)), max_size=4),
+       head=st.sampled_from([b"", b"mtllib /dev/zero\n", b"element vertex 99999999999\n", b"solid x\n"]))
+def test_fuzz_meshes(tmp_path, kind, cuts, head):
+    pytest.importorskip("trimesh")
+    from vine_nlp.io.obstacles import load_mesh_file
+
+    data = bytearray(_mesh_bytes(kind))
+    for at, junk in cuts:
+        data[at % len(data):at % len(data) + len(junk)] = junk
+    path = tmp_path / f"m.{kind}"
+    path.write_bytes(bytes(head) + bytes(data))
+    try:
+        v, f = load_mesh_file(path)
+    except InputError as e:
+        assert e.file == str(path)
+        return
+    assert np.all(np.isfinite(v)) and len(f) <= 20_000 and f.max() < len(v)
+
+
+@FUZZ
+@given(edits=st.lists(st.tuples(st.sampled_from(sorted(HOSTILE_ARCHIVES)), st.sampled_from(["measured", "runs/forward", "x/y"])),
+                     min_size=1, max_size=3))
+def test_fuzz_archives(forward_archive, tmp_path, edits):
+    (tmp_path / "h.h5").unlink(missing_ok=True)
+
+    def edit(h5):
+        for k, (case, group) in enumerate(edits):
+            HOSTILE_ARCHIVES[case][0](h5, f"{group}/fuzz{k}")
+
+    path = hostile(forward_archive, tmp_path, edit)
+    with pytest.raises(ArchiveError):  # every edit is one the reader refuses, reading none of the data
+        load_archive(path)
