@@ -966,7 +966,7 @@ class _Loaded:
     target: np.ndarray | None = None
 
 
-def correct(archive, measured, *, run=None, lines=("outer",), adjust=("lambda",), free_pose=False, sigmas=None,
+def correct(archive, measured, *, run=None, lines=("outer",), adjust=None, free_pose=False, sigmas=None,
             measurement_sigma=None, output=None):
     """Measure-and-correct a built robot (``vine-nlp correct``): estimate what was built, then the routing to build next.
 
@@ -980,8 +980,9 @@ def correct(archive, measured, *, run=None, lines=("outer",), adjust=("lambda",)
         The run that was built (default: the archive's default run; ``corrected`` in a correction archive).
     lines : tuple of str
         The measured line ("center", "inner" or "outer"): one for all, or one per measurement.
-    adjust : tuple of str
-        What the builder changes: ("lambda",) (stoppers or pinches) or ("lambda", "theta") (the line redrawn).
+    adjust : tuple of str, optional
+        The route taken: ("lambda",) (stoppers or pinches on this robot) or ("lambda", "theta") (the line drawn anew);
+        default: the recommended one (both routes are in ``routes``).
     free_pose : bool
         Also estimate the rigid pose of the measurement.
     sigmas : Sigmas, optional
@@ -1002,7 +1003,7 @@ def correct(archive, measured, *, run=None, lines=("outer",), adjust=("lambda",)
     vine_nlp.errors.InputError
         A bad archive or measurement file, an unknown run, mismatched lines (the command line's errors).
     """
-    kw = dict(run=run, lines=tuple(lines), adjust=tuple(adjust), free_pose=free_pose, sigmas=sigmas, measurement_sigma=measurement_sigma)
+    kw = dict(run=run, lines=tuple(lines), adjust=adjust and tuple(adjust), free_pose=free_pose, sigmas=sigmas, measurement_sigma=measurement_sigma)
     if output is not None:
         return correct_to_file(archive, list(measured), output, **kw)
     return correct_files(archive, list(measured), **kw)[0]

@@ -8,11 +8,14 @@ A correction archive is a result archive (every command reads it) with:
                              estimated line), ``target_rmse``, ``target_max_error`` against the target;
                              ``uncertainty/{theta,lambda,length}`` (M,) standard deviations of the estimate;
                              ``deviation/{theta,lambda,length_ratio}`` (M,) the deviations kept build to build
-``/runs/corrected``          the nominal to build next; shape and metrics: what it is predicted to realize
+``/runs/corrected``          the nominal to build next on the chosen route (``/correction@adjust``); shape and
+                             metrics: what it is predicted to realize; ``shortfall``: why it cannot reach the target
+``/runs/corrected_lambda``, ``/runs/corrected_lambda_theta``  both routes' corrections (stats ``route``,
+                             ``recommended``; metric ``rmse_without_bounds`` where a bound is reached)
 ``/measured/points``         every measured point so far (archive frame), all files stacked
 ``/measured/<k>/points``     measurement k, attrs ``line``, ``file``, ``build``
-``/correction``              attrs ``format`` ("vine_nlp/correction"), ``builds``, ``built_run``, ``adjust``,
-                             ``free_pose``, the sigmas; ``systematic`` (3,) = (theta offset rad, lambda offset,
+``/correction``              attrs ``format`` ("vine_nlp/correction"), ``builds``, ``built_run``, ``adjust`` (the
+                             route taken), ``recommended`` (the route to take), ``free_pose``, the sigmas; ``systematic`` (3,) = (theta offset rad, lambda offset,
                              length scale) and ``systematic_std`` (3,);
                              ``builds/<b>/{theta,lambda,length,initial_pose}`` the nominal of build b (oldest first)
 
@@ -38,7 +41,7 @@ from vine_nlp.model.routing import MEASURED_LINES, Routing
 FORMAT = "vine_nlp/correction"
 MIN_MEASURED_POINTS = 10
 MAX_MEASURED_POINTS = limits.MAX_TARGET_POINTS
-RUNS = ("as_built", "corrected")
+RUNS = ("as_built", "corrected", "corrected_lambda", "corrected_lambda_theta")
 
 
 def read_measured(path) -> np.ndarray:
@@ -87,6 +90,8 @@ def write_correction_archive(path, base: Archive, result: CorrectionResult, buil
     """
     runs = {k: v for k, v in base.runs.items() if k not in RUNS}
     runs["as_built"], runs["corrected"] = result.as_built, result.corrected
+    for name, r in result.routes.items():
+        runs[f"corrected_{name.replace(',', '_')}"] = r
     extra = {k: v for k, v in base.extra.items() if not (k.startswith("measured/") or k.startswith("correction/"))}
     ms = result.measurements
     extra["measured/points"] = np.concatenate([m.points for m in ms])

@@ -52,7 +52,7 @@ def apply_calibration(problem: DesignProblem, result: Result) -> Result:
     a = problem.actuator
     nominal, clipped = nominal_of(result.routing, from_cal, a.theta_max, a.lambda_min)
     pairing = pair_points(problem.target, problem.options.points_per_segment)
-    realized = evaluate(problem, realized_of(nominal, from_cal), pairing, result.method)
+    realized = evaluate(problem, realized_of(nominal, from_cal, a.lambda_min), pairing, result.method)
     out = Result(method=result.method, routing=nominal, shape=realized.shape, status=result.status,
                  solve_time_s=result.solve_time_s, iterations=result.iterations,
                  metrics=dict(result.metrics) | realized.metrics | routing_metrics(nominal), stats=dict(result.stats),

@@ -14,7 +14,7 @@ from vine_nlp.io.archive import Archive
 from vine_nlp.io.calibration import Calibration
 from vine_nlp.io.correction import MAX_MEASURED_POINTS, MIN_MEASURED_POINTS, read_correction, read_measured, write_correction_archive
 from vine_nlp.io.problems import design_problem_of
-from vine_nlp.methods.correct import ADJUST, Measurement, combine_systematic, correct
+from vine_nlp.methods.correct import ADJUST, Deviations, Measurement, combine_systematic, correct
 from vine_nlp.model.pairing import pair_points
 from vine_nlp.model.routing import MEASURED_LINES, Sigmas
 
@@ -23,7 +23,7 @@ UNITS_PER_MM = {"mm": 1.0, "cm": 0.1, "m": 0.001, "in": 1 / 25.4, "inch": 1 / 25
 PLAUSIBLE_MEDIAN = 5.0  # median distance of the measured points to the estimated line, in noise sigmas, beyond which it is not this robot
 
 
-def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=("lambda",), free_pose=False, sigmas=None,
+def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=None, free_pose=False, sigmas=None,
                   measurement_sigma=None):
     """Read an archive and measured CSV files, estimate and correct (no file written).
 
@@ -35,6 +35,8 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
         CSV files (or arrays) of points measured on the robot built from run ``run``.
     lines : tuple of str
         One line for all files, or one per file.
+    adjust : tuple of str or None
+        The route taken: ("lambda",) or ("lambda", "theta"); None: the recommended one.
 
     Returns
     -------
@@ -69,8 +71,8 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
     for ln in lines:
         if ln not in MEASURED_LINES:
             raise InputError("command line", "--line", f"must be one of {', '.join(MEASURED_LINES)}, got {ln!r}")
-    adjust = tuple(adjust)
-    if adjust not in ADJUST:
+    adjust = None if adjust is None else tuple(adjust)
+    if adjust is not None and adjust not in ADJUST:
         raise InputError("command line", "--adjust", "must be lambda or lambda,theta")
     pts = [_points(p, k) for k, p in enumerate(measured)]
     problem = design_problem_of(archive, archive_path)
@@ -90,10 +92,13 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
            for k, (p, f) in enumerate(zip(pts, measured))]
     ms = (list(state.measurements) if state else []) + new
     sigmas = sigmas or Sigmas.from_degrees(1.0, 0.02, 0.02)
+    # round 2 and later start from the last round's estimate (its deviations and systematic parts)
+    dev = state.deviation if state is not None and len(state.deviation) == 3 else None
+    start = Deviations(dev["theta"], dev["lambda"], dev["length_ratio"]) if dev else None
     result = correct(problem, builds, ms, adjust=adjust, sigmas=sigmas, measurement_sigma=measurement_sigma,
-                     units_per_mm=units_per_mm or 0.1)
+                     units_per_mm=units_per_mm or 0.1, start=start, start_systematic=state.systematic if start else None)
     _check_plausible(result, new, problem.diameter, archive.units)
-    settings = {"built_run": run, "adjust": ",".join(adjust), "free_pose": bool(free_pose), "sigma_theta_rad": sigmas.theta,
+    settings = {"built_run": run, "adjust": ",".join(result.adjust), "recommended": result.recommended, "free_pose": bool(free_pose), "sigma_theta_rad": sigmas.theta,
                 "sigma_lambda": sigmas.lam, "sigma_length": sigmas.length, "relative_length": bool(sigmas.relative_length),
                 "sigma_measurement": result.estimate.stats["measurement_sigma"]}
     return result, archive, builds, settings
@@ -141,24 +146,13 @@ def correct_to_file(archive_path, measured, output, **kw):
     return result
 
 
-def unreachable_text(result, problem) -> str:
-    """Why the correction cannot reach the target ("" when it can): a solver that did not converge, or the
-    values to build pinned at the builder's bounds (lambda in [lambda_min, 1], theta within theta_max when
-    adjusted): the target needs values beyond them."""
+def shortfall(result) -> str:
+    """Why the chosen route does not reach the target ("" when it does: exit 0): an estimate that did not
+    converge, or the route's own shortfall (methods.correct: bounds that cost accuracy, a correction that did not
+    converge)."""
     if not result.as_built.converged:
         return f"the estimate did not converge ({result.as_built.status})"
-    if not result.corrected.converged:
-        return f"the correction did not converge ({result.corrected.status})"
-    a, r, eps = problem.actuator, result.corrected.routing, 1e-6
-    changed = np.abs(r.lam - result.built.lam) > eps
-    pinned = changed & ((r.lam <= a.lambda_min + eps) | (r.lam >= 1.0 - eps))
-    if "theta" in result.adjust:
-        pinned |= (np.abs(r.theta - result.built.theta) > eps) & (np.abs(r.theta) >= a.theta_max - eps)
-    if pinned.any():
-        seg = ", ".join(str(j) for j in np.flatnonzero(pinned)[:10]) + (" ..." if pinned.sum() > 10 else "")
-        return (f"the target cannot be reached within the bounds: {int(pinned.sum())} segment(s) at a bound "
-                f"(lambda in [{a.lambda_min:g}, 1]{', |theta| <= theta_max' if 'theta' in result.adjust else ''}; segments {seg})")
-    return ""
+    return "; ".join(result.corrected.shortfall)
 
 
 def calibrate(paths) -> tuple[Calibration, float]:

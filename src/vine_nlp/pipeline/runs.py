@@ -270,7 +270,7 @@ def calibrated(problem: DesignProblem, result: Result) -> Result:
     calibrated robot. stats calibration_* (the values and the number of clipped entries)."""
     cal, a = problem.calibration, problem.actuator
     nominal, clipped = nominal_of(result.routing, cal, a.theta_max, a.lambda_min)
-    realized = evaluate(problem, realized_of(nominal, cal), pair_points(problem.target, problem.options.points_per_segment), result.method)
+    realized = evaluate(problem, realized_of(nominal, cal, a.lambda_min), pair_points(problem.target, problem.options.points_per_segment), result.method)
     stats = dict(result.stats) | {
         "calibration_lambda_offset": cal.lambda_offset, "calibration_theta_offset_deg": cal.theta_offset_deg,
         "calibration_length_scale": cal.length_scale, "calibration_clipped": clipped,
@@ -293,7 +293,7 @@ def judge(problem, result: Result) -> None:
     obstacles = getattr(problem, "obstacles", ())
     if obstacles:
         cal = getattr(problem, "calibration", None)
-        realized = realized_of(r, cal) if cal is not None else r
+        realized = realized_of(r, cal, a.lambda_min if a else 0.0) if cal is not None else r
         rep = obstacle_report(realized, problem.diameter, obstacles, problem.growth, problem.obstacle_margin)
         result.metrics["min_obstacle_gap"] = float(rep["min_gap"])
         if problem.growth == "after":

@@ -6,14 +6,17 @@ Gaussian construction errors (sigmas as in ``vine-nlp analyze``) and Gaussian me
 the negative log posterior times 2 / N (N measured points) is
 
     (1/N) [ sum_i |P_i(q) - m_i|_perp^2 / sigma_m^2
-            + sum_j ((theta_j - theta_nom,j - g0) / s_theta)^2 + ((lam_j - lam_nom,j - g1) / s_lam)^2
+            + sum_j ((theta_j - theta_nom,j - g0) / s_theta)^2 + a_j ((lam_j - lam_nom,j - g1) / s_lam)^2
                     + ((dl_j - l_nom,j e^g2) / (s_len l_nom,j e^g2))^2
             + sum_k (g_k / s_sys,k)^2 ],
 
-P_i the model point paired with measured point m_i (``pairing``, point-to-line). sPAM: the lambda
-deviation is the systematic offset only. Earlier builds are second chains of frames (extra stage
-variables) whose segments are the latest as-built values shifted by their known differences; free-frame
-measurements carry a rigid transform (6 more globals), started from a rigid ICP alignment.
+P_i the model point paired with measured point m_i (``pairing``, point-to-line). The physical rule (spec
+"Physical builds"): a_j = 1 where the latest nominal has an actuator, lam_j in [lambda_min, 1] there; elsewhere
+lam_j = 1, no lambda prior (a_j = 0). sPAM: the lambda deviation is the systematic offset only. Earlier builds
+are second chains of frames (extra stage variables) whose segments are the latest as-built values shifted by
+their known differences, lambda min(1, lam_j + shift) (shift 1 where that build had no actuator: exactly 1);
+free-frame measurements carry a rigid transform (6 more globals), started from a rigid ICP alignment. A warm
+start (round 2 from round 1's deviations and systematic parts) skips the coarsest stage of the ICP loop.
 
 The ICP loop (:class:`_ICP`, a rule of ``drive.refine``): pair, solve warm, pair again until the pairs stop
 moving; coarse to fine, the fit's noise sigma shrinking by settings.STAGE_FACTOR from D/2 to sigma_m (the
@@ -38,14 +41,14 @@ import numpy as np
 
 from vine_nlp.methods import drive, settings
 from vine_nlp.methods.blocks import BlockType
-from vine_nlp.methods.correct.deviations import Deviations, deviations_of
+from vine_nlp.methods.correct.deviations import Deviations, apply_deviations, deviations_of
 from vine_nlp.methods.correct.laplace import laplace
 from vine_nlp.methods.correct.pairing import LINE_SIDE, in_frame, pair_with_line, rigid_start
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Chain, Spec, get_solver
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.helix import center_rates
-from vine_nlp.model.routing import Routing, Sigmas
+from vine_nlp.model.routing import Routing, Sigmas, actuated
 from vine_nlp.model.segment import segment_function, so3_exp, twist_parts
 from vine_nlp.problem import Result
 
@@ -59,9 +62,10 @@ SLOT_STEP = 8  # slots per segment are rounded up to a multiple of this (cached 
 
 
 # data rows of one measurement slot (measure_block): shift (3), u, m (3), tangent (3), sqrt weight, side
-# [, centroid (3), free flag]
-SLOT_DATA = 12
-SLOT_DATA_FREE = 16
+# [, centroid (3), free flag], lambda cap
+SLOT_DATA = 13
+SLOT_DATA_FREE = 17
+NO_CAP = 10.0  # the latest build's lambda cap: its bound lam <= 1 holds it (no kink of min(1, lam) at the bound)
 
 
 @lru_cache(maxsize=2)
@@ -73,13 +77,14 @@ def measure_block(free: bool) -> BlockType:
     v = (X_j (12), theta, lam, dl[, w (3), t (3)]): the segment's local variables of the latest
     as-built chain (and the rigid transform of free-frame measurements);
     d = (shift (3): theta and lambda added, length factor (the build's nominal against the latest),
-    u, m (3), t (3) tangent, w square root of the weight, side [, c (3) centroid, flag]).
+    u, m (3), t (3) tangent, w square root of the weight, side [, c (3) centroid, flag], cap: lambda is
+    min(cap, lam + shift), 1 on an earlier build (the physical rule), NO_CAP on the latest).
     Residual w (I - t t^T)(P - m) (the square root as data: a zero-weight slot has finite derivatives);
     a free-frame point (flag 1) is moved by exp(w) (m - c) + c + t first (m stored as given, c their centroid)."""
     nv = 21 if free else 15
     nd = SLOT_DATA_FREE if free else SLOT_DATA
     v, d = ca.SX.sym("v", nv), ca.SX.sym("d", nd)
-    th, la, dl = v[12] + d[0], v[13] + d[1], v[14] * d[2]
+    th, la, dl = v[12] + d[0], ca.fmin(d[nd - 1], v[13] + d[1]), v[14] * d[2]
     u, mi, tg, w, side = d[3], d[4:7], d[7:10], d[10], d[11]
     R, p = ca.reshape(v[:9], 3, 3), v[9:12]
     kappa, tau, lc = center_rates(th, la, 1.0)
@@ -97,10 +102,10 @@ def measure_block(free: bool) -> BlockType:
 
 @lru_cache(maxsize=1)
 def shifted_segment_block() -> BlockType:
-    """Continuity of an earlier build's chain: X'_{j+1} = X'_j T(theta + d_theta, lam + d_lam, dl f).
+    """Continuity of an earlier build's chain: X'_{j+1} = X'_j T(theta + d_theta, min(1, lam + d_lam), dl f).
     v = (X'_j (12), theta, lam, dl, X'_{j+1} (12)); d = (d_theta, d_lam, f)."""
     v, d = ca.SX.sym("v", 27), ca.SX.sym("d", 3)
-    Xn, _ = segment_function(1)(v[:12], v[12] + d[0], v[13] + d[1], v[14] * d[2], 0.0)
+    Xn, _ = segment_function(1)(v[:12], v[12] + d[0], ca.fmin(1.0, v[13] + d[1]), v[14] * d[2], 0.0)
     return BlockType("shifted_segment", ca.Function("shifted_block", [v, d], [ca.SX(0), Xn - v[15:]]),
                      ca.Function("shifted_res", [v, d], [ca.SX(0, 1)]))
 
@@ -110,7 +115,7 @@ class AsBuiltTerm:
     """The MAP estimate's terms (module docstring) for ``builds`` builds (the last is the chain itself,
     the others extra frames) with ``S`` slots per segment and build; ``free``: a rigid transform of the
     free-frame measurements in globals 3..8. Parameters: meas (nd x M B S, one column per slot), shift (3 x M (B-1)),
-    prior (3 x M: nominal theta, lam, dl of the latest build), prior_sig (8: s_theta, s_lam, s_len_rel,
+    prior (4 x M: nominal theta, lam, dl of the latest build, a_j), prior_sig (8: s_theta, s_lam, s_len_rel,
     s_len_abs (D), s_sys (3), scale)."""
 
     S: int
@@ -127,7 +132,7 @@ class AsBuiltTerm:
         nd = bt.fn.size1_in(1)
         meas = c.param("meas", (nd, M * B * S))  # slot k of segment j of build b: column (b M + j) S + k
         shift = c.param("shift", (3, max(M * (B - 1), 1)))
-        prior, sig = c.param("prior", (3, M)), c.param("prior_sig", (8, 1))
+        prior, sig = c.param("prior", (4, M)), c.param("prior_sig", (8, 1))
 
         def frame(b, j):
             if b == B - 1 or j == 0:
@@ -147,7 +152,7 @@ class AsBuiltTerm:
         r_len = (c.dl - L) / (sig[2] * L + sig[3])
         val = ca.sumsqr(r_th) + ca.sumsqr(r_len) + ca.sumsqr(g[:3] / sig[4:7])
         if s.lam == "segment":
-            val += ca.sumsqr((c.lam_of(0) - prior[1, :] - g[1]) / sig[1])
+            val += ca.sumsqr(prior[3, :] * (c.lam_of(0) - prior[1, :] - g[1]) / sig[1])
         else:
             c.add_rows("spam_offset", c.lam_of(0)[0] - prior[1, 0] - g[1], 0.0, 0.0)
         c.add_term("prior", sig[7] * val)
@@ -184,7 +189,8 @@ class Estimate:
 
 def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigmas, shared_lambda: bool = False,
                       measurement_sigma: float | None = None, systematic_sigmas=DEFAULT_SYSTEMATIC_SIGMAS,
-                      hessian: str | None = None, rounds: int = settings.ICP_ROUNDS, units_per_mm: float = 0.1) -> Estimate:
+                      hessian: str | None = None, rounds: int = settings.ICP_ROUNDS, units_per_mm: float = 0.1,
+                      lambda_min: float = 0.0, start: Deviations | None = None, start_systematic=None) -> Estimate:
     """MAP estimate of the as-built robot from measurements of one or more builds (module docstring).
 
     ``nominals``: the nominal routing of each build, oldest first (the estimate is of the last; all share
@@ -193,11 +199,14 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
     construction errors (the prior); ``shared_lambda``: sPAM; ``measurement_sigma``: the noise (problem
     units, default DEFAULT_MEASUREMENT_SIGMA_MM); ``systematic_sigmas``: the prior of the theta offset
     (rad), lambda offset and log length scale; ``hessian``: default settings.ESTIMATE_HESSIAN; ``rounds``:
-    of the last stage (settings.COARSE_ROUNDS for each earlier one). Raises ValueError for sigmas <= 0.
+    of the last stage (settings.COARSE_ROUNDS for each earlier one); ``lambda_min``: the actuator's; ``start``,
+    ``start_systematic``: a warm start (an earlier round's deviations and systematic parts). Raises ValueError
+    for sigmas <= 0.
     """
     stats, cpu = drive.Stats(), time.process_time()
     sig_m = (DEFAULT_MEASUREMENT_SIGMA_MM * units_per_mm) if measurement_sigma is None else float(measurement_sigma)
-    icp = _ICP(nominals, measurements, D, sigmas, shared_lambda, sig_m, systematic_sigmas, hessian or settings.ESTIMATE_HESSIAN, rounds)
+    icp = _ICP(nominals, measurements, D, sigmas, shared_lambda, sig_m, systematic_sigmas, hessian or settings.ESTIMATE_HESSIAN, rounds,
+               lambda_min, start, start_systematic)
     found = drive.refine(icp, sum(icp.caps), stats=stats)
     g = icp.solver.unpack(icp.x)["globals"]
     # Laplace approximation around the estimate
@@ -205,11 +214,11 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
                                       icp.prior, shared_lambda, icp.free, icp.centroid, icp.Tcorr)
     latest = nominals[-1]
     return Estimate(
-        routing=icp.ab, deviations=deviations_of(latest, icp.ab), systematic=np.array([g[0], g[1], math.exp(g[2])]),
+        routing=icp.ab, deviations=deviations_of(latest, icp.ab, lambda_min), systematic=np.array([g[0], g[1], math.exp(g[2])]),
         systematic_std=sys_std, std=std, transform=icp.Tcorr @ icp.T_free, residuals=residuals, status=found.best.status,
         iterations=stats.iterations, solve_time_s=time.perf_counter() - stats.started, rounds=found.rounds,
         stats={"measurement_sigma": sig_m, "slots_per_segment": icp.S, "points": icp.N, "builds": icp.B, "hessian": icp.hessian,
-               "objective": found.best.stats.get("objective", float("nan")), "free_pose": icp.free, "cpu_time_s": time.process_time() - cpu},
+               "objective": found.best.stats.get("objective", float("nan")), "free_pose": icp.free, "cpu_time_s": time.process_time() - cpu, "warm_start": start is not None},
     )
 
 
@@ -219,15 +228,18 @@ class _ICP:
     measurements again with the new estimate; a stage ends when the pairs stop moving or after its
     rounds, the loop after the last stage. Every round supersedes the one before (the estimate is the last)."""
 
-    def __init__(self, nominals, measurements, D, sigmas, shared, sig_m, systematic_sigmas, hessian, rounds):
+    def __init__(self, nominals, measurements, D, sigmas, shared, sig_m, systematic_sigmas, hessian, rounds, lambda_min, start, start_sys):
         B, latest = len(nominals), nominals[-1]
         self.latest, self.B, self.M, self.T0, self.D = latest, B, latest.segments, latest.initial_pose, D
         self.shared, self.hessian, self.sig_m = shared, hessian, sig_m
         self.ms = [replace(m, build=m.build % B) for m in measurements]
         self.N = sum(m.points.shape[0] for m in self.ms)
         self.free = any(m.frame == "free" for m in self.ms)
-        # shifts of every build against the latest nominal (known differences of what was built)
-        self.shifts = [(n.theta - latest.theta, n.lam - latest.lam, n.length / latest.length) for n in nominals]
+        # shifts of every build against the latest nominal (known differences of what was built; lambda: 1 where that
+        # build has no actuator, so that min(1, lam + shift) is exactly 1)
+        self.act, self.lambda_min = actuated(latest.lam), max(lambda_min, 0.05)
+        self.shifts = [(n.theta - latest.theta, np.where(actuated(n.lam), n.lam - latest.lam, 1.0), n.length / latest.length)
+                       for n in nominals]
         self.T_free = rigid_start(self.ms, nominals, D) if self.free else np.eye(4)
         self.pts = [in_frame(m.points, m, self.T_free) for m in self.ms]
         self.centroid = np.mean(np.concatenate([p for p, m in zip(self.pts, self.ms) if m.frame == "free"]), axis=0) if self.free else np.zeros(3)
@@ -235,10 +247,12 @@ class _ICP:
         self.prior_sig = np.array([sigmas.theta, sigmas.lam, s_rel, s_abs, *systematic_sigmas, 1.0 / self.N])
         if np.any(self.prior_sig[:2] <= 0) or (s_rel <= 0 and s_abs <= 0):
             raise ValueError("the construction-error sigmas must be > 0")
-        self.prior = np.vstack([latest.theta, latest.lam, latest.length / D])
+        self.prior = np.vstack([latest.theta, latest.lam, latest.length / D, self.act])
         self.shift_data = (np.vstack([np.concatenate([self.shifts[b][k] for b in range(B - 1)]) for k in range(3)]) if B > 1
                            else np.zeros((3, 1)))
-        self.ab, self.Tcorr, self.g_free = latest, np.eye(4), np.zeros(6)
+        self.ab = latest if start is None else apply_deviations(latest, replace(start, lambda_min=self.lambda_min))
+        self.g0 = np.zeros(3) if start_sys is None else np.r_[start_sys[:2], math.log(start_sys[2])]
+        self.Tcorr, self.g_free = np.eye(4), np.zeros(6)
         self.pairs = self._pairs()
         self.S = int(math.ceil(1.25 * self._slots_needed() / SLOT_STEP) * SLOT_STEP)
         self.solver = None
@@ -247,13 +261,13 @@ class _ICP:
         while s_k > settings.STAGE_MERGE * sig_m:
             self.stages.append(s_k)
             s_k *= settings.STAGE_FACTOR
-        self.stages.append(sig_m)
+        self.stages = self.stages[1 if start is not None and len(self.stages) > 1 else 0 :] + [sig_m]
         self.caps = [min(rounds, settings.COARSE_ROUNDS)] * (len(self.stages) - 1) + [rounds]
         self.stage, self.k = 0, 0
 
     def _routings(self) -> list:
         """Every build's as-built routing: the estimate shifted by the build's known differences."""
-        return [Routing(self.ab.theta + a, self.ab.lam + b, self.ab.length * c, self.T0) for a, b, c in self.shifts]
+        return [Routing(self.ab.theta + a, np.minimum(1.0, self.ab.lam + b), self.ab.length * c, self.T0) for a, b, c in self.shifts]
 
     def _pairs(self):
         rs = self._routings()
@@ -278,12 +292,14 @@ class _ICP:
                                 "prior_sig": self.prior_sig})
         if x is None:
             x = _start_x(solver, self.ab, D, self._routings(), self.B, lay)
+            x[lay.globals[:3]] = self.g0
             if self.free:
                 x[lay.globals[3:9]] = self.g_free
         lbx, ubx = np.full(lay.size, -np.inf), np.full(lay.size, np.inf)
         lbx[lay.X[0, 0]] = ubx[lay.X[0, 0]] = np.r_[self.T0[:3, :3].ravel(order="F"), self.T0[:3, 3] / D]
         lbx[lay.dl], ubx[lay.dl] = 0.2 * self.latest.length / D, 5.0 * self.latest.length / D
-        lbx[lay.lam_global if self.shared else lay.lam[:, 0]] = 0.05
+        lam = lay.lam_global if self.shared else lay.lam[:, 0]
+        lbx[lam], ubx[lam] = np.where(self.act, self.lambda_min, 1.0)[: np.size(lam)], 1.0
         lbx[lay.theta], ubx[lay.theta] = -1.45, 1.45
         self.x, status, st = solver.solve(x, p, lbx, ubx)
         v = solver.unpack(self.x)
@@ -310,6 +326,7 @@ class _ICP:
         by the stage's sigma where its pair is within ``trim`` (else 0); padding slots weight 0, fraction 0."""
         B, M, S, D = self.B, self.M, self.S, self.D
         data = np.zeros((SLOT_DATA_FREE if self.free else SLOT_DATA, B * M * S))
+        data[-1] = np.repeat(np.r_[np.ones(B - 1), NO_CAP], M * S)
         for b in range(B):
             for k in range(3):
                 data[k, b * M * S : (b + 1) * M * S] = np.repeat(self.shifts[b][k], S)
