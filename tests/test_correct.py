@@ -19,7 +19,7 @@ from vine_nlp.methods import correct as C
 from vine_nlp.methods.common import evaluate, pair_points
 from vine_nlp.methods.correct.estimate import measure_block
 from vine_nlp.methods.correct.laplace import line_jacobian
-from vine_nlp.methods.correct.pairing import line_points
+from vine_nlp.methods.correct.pairing import SLIDE, line_points
 from vine_nlp.methods.structure import frames12
 from vine_nlp.model.calibration import Calibration, realized_of
 from vine_nlp.model.chain import chain_frames
@@ -328,8 +328,11 @@ def test_estimate_and_correction_know_where_there_is_no_actuator(setup):
     assert np.all(e.routing.lam[lam == 1.0] == 1.0) and np.all(e.deviations.lam[lam == 1.0] == 0.0)
     assert np.all(e.routing.lam <= 1.0)
     assert abs(e.systematic[1] - TRUTH[1]) < 3 * e.systematic_std[1]
+    # the actuator built against 1 may have any error beyond it: held (its lambda kept) by both routes
+    assert C.apply_deviations(nom, dev).lam[6] == 1.0 and e.deviations.held[6] and not np.any(e.deviations.held[lam == 1.0])
     for r in res.routes.values():  # no route adds an actuator; what they predict obeys the rule
         assert np.all(r.routing.lam[lam == 1.0] == 1.0) and np.all(r.routing.lam[lam < 1.0] < 1.0)
+        assert r.routing.lam[6] == pytest.approx(0.99, abs=1e-12)
         assert built_error(problem, r.routing, dev) < 0.5 * built_error(problem, nom, dev)
 
 
@@ -515,7 +518,7 @@ def test_measure_slot_is_the_point_to_line_residual_of_the_model(free):
             mm = so3_exp(w_rot) @ (m - c) + c + t_move
         d = np.r_[d, 1.0]
         e = P[0] - mm
-        want = 0.7 * (e - t * np.dot(t, e))
+        want = 0.7 * (e - (1 - SLIDE) * t * np.dot(t, e))
         np.testing.assert_allclose(np.array(bt.residual(v, d)).ravel(), want, atol=1e-12)
         assert float(bt.fn(v, d)[0]) == pytest.approx(np.sum(want**2), rel=1e-12)
 

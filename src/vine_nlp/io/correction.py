@@ -98,10 +98,8 @@ def write_correction_archive(path, base: Archive, result: CorrectionResult, buil
     for k, m in enumerate(ms):
         extra[f"measured/{k}/points"] = m.points
     for b, r in enumerate(builds):
-        extra[f"correction/builds/{b}/theta"] = r.theta
-        extra[f"correction/builds/{b}/lambda"] = r.lam
-        extra[f"correction/builds/{b}/length"] = r.length
-        extra[f"correction/builds/{b}/initial_pose"] = r.initial_pose
+        for name, v in (("theta", r.theta), ("lambda", r.lam), ("length", r.length), ("initial_pose", r.initial_pose)):
+            extra[f"correction/builds/{b}/{name}"] = v
     est = result.estimate
     extra["correction/systematic"] = est.systematic
     extra["correction/systematic_std"] = est.systematic_std

@@ -25,28 +25,11 @@ PLAUSIBLE_MEDIAN = 5.0  # median distance of the measured points to the estimate
 
 def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=None, free_pose=False, sigmas=None,
                   measurement_sigma=None):
-    """Read an archive and measured CSV files, estimate and correct (no file written).
-
-    Parameters
-    ----------
-    archive_path : path-like or Archive
-        A design archive or the path of a correction archive (then its earlier measurements are used too).
-    measured : list of path-like or (K, 3) arrays
-        CSV files (or arrays) of points measured on the robot built from run ``run``.
-    lines : tuple of str
-        One line for all files, or one per file.
-    adjust : tuple of str or None
-        The route taken: ("lambda",) or ("lambda", "theta"); None: the recommended one.
-
-    Returns
-    -------
-    (CorrectionResult, base Archive, builds (list of Routing), settings dict)
-
-    Raises
-    ------
-    InputError
-        Bad archive, bad CSV, unknown run, mismatched lines.
-    """
+    """Read an archive (a design archive, or the path of a correction archive: its earlier measurements are used
+    too, its estimate is the warm start) and the points measured on the robot built from run ``run`` (CSV files or
+    (K, 3) arrays; ``lines``: one for all or one per file), estimate and correct (``adjust``: the route taken, None:
+    the recommended one); no file written. Returns (CorrectionResult, base Archive, builds (Routing, oldest first),
+    the /correction attributes). Raises InputError: a bad archive or CSV, an unknown run, mismatched lines."""
     if isinstance(archive_path, Archive):
         archive, state = archive_path, None
         if any(k.startswith("correction/") for k in archive.extra):
@@ -85,8 +68,9 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
     builds = (list(state.builds) if state else []) + [built]
     if any(b.segments != built.segments for b in builds):
         raise InputError(archive_path, f"/runs/{run}/design/theta", "the builds of one robot need the same segments")
-    if built.segments != _segments(problem):
-        raise InputError(archive_path, f"/runs/{run}/design/theta", f"{built.segments} segments, the problem's pairing has {_segments(problem)}")
+    M = pair_points(problem.target, problem.options.points_per_segment).segments
+    if built.segments != M:
+        raise InputError(archive_path, f"/runs/{run}/design/theta", f"{built.segments} segments, the problem's pairing has {M}")
     new = [Measurement(p, lines[0] if len(lines) == 1 else lines[k], len(builds) - 1, "free" if free_pose else "archive",
                        Path(f).name if isinstance(f, (str, Path)) else f"measured[{k}]")
            for k, (p, f) in enumerate(zip(pts, measured))]
@@ -133,10 +117,6 @@ def _points(p, k):
     if not MIN_MEASURED_POINTS <= a.shape[0] <= MAX_MEASURED_POINTS:
         raise InputError(f"measured[{k}]", "values", f"needs {MIN_MEASURED_POINTS} to {MAX_MEASURED_POINTS} points, got {a.shape[0]}")
     return a
-
-
-def _segments(problem):
-    return pair_points(problem.target, problem.options.points_per_segment).segments
 
 
 def correct_to_file(archive_path, measured, output, **kw):

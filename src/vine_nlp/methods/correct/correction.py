@@ -12,7 +12,7 @@ schedule (settings.CORRECTION_SCHEDULE).
 
 Two routes, both predicted every time: ``lambda`` (stoppers or pouches adjusted on this robot) and
 ``lambda,theta`` (the line drawn anew on a new tube). A route reaches the target unless its bounds cost
-accuracy: where the solution sits at a bound, the same NLP without the bounds (a warm solve) predicts
+accuracy: where the solution sits at a bound, the same NLP without the bounds predicts
 materially less error (REACH_TOL); ``Result.shortfall`` then names the segments and the bound. Recommended: the
 route that reaches the target where only one does, else lambda,theta where it predicts ROUTE_GAIN times less
 error than lambda alone by more than the measurement noise, else lambda (the robot is kept).
@@ -31,14 +31,14 @@ import numpy as np
 from vine_nlp.methods import drive, settings
 from vine_nlp.methods.common import evaluate, pair_points
 from vine_nlp.methods.correct.deviations import TOP, Deviations, apply_deviations, remove_deviations
-from vine_nlp.methods.correct.estimate import DEFAULT_SYSTEMATIC_SIGMAS, Estimate, estimate_as_built, unit_scale
+from vine_nlp.methods.correct.estimate import DEFAULT_SYSTEMATIC_SIGMAS, Estimate, estimate_as_built
 from vine_nlp.methods.correct.pairing import in_frame
 from vine_nlp.methods.nlp import nlp_parameters
 from vine_nlp.methods.settings import Settings
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, get_solver, routing_of
 from vine_nlp.model.chain import chain_frames
-from vine_nlp.model.routing import Routing, Sigmas, actuated
+from vine_nlp.model.routing import Routing, Sigmas, actuated, built_lambda
 from vine_nlp.model.shape import routing_metrics
 from vine_nlp.problem import DesignProblem, Result
 
@@ -58,11 +58,16 @@ def correction_spec(M: int, n: int, shared: bool, max_iter: int, tol: float, hes
 
 def lambda_bounds(problem: DesignProblem, built: Routing, dev: Deviations) -> tuple[np.ndarray, np.ndarray]:
     """(lo, hi) of the lambda the robot realizes from the next nominal: [lambda_min, min(1, TOP + d_lam)] where
-    ``built`` has an actuator (its nominal at most TOP keeps it), exactly 1 where it has none. sPAM: one lambda."""
+    ``built`` has an actuator (its nominal at most TOP keeps it), exactly 1 where it has none, what it realizes now
+    where ``dev.held``. sPAM: one lambda."""
     a, act = problem.actuator, actuated(built.lam)
     d = np.full(built.segments, float(np.mean(dev.lam))) if a.shared_lambda else dev.lam
     lo = np.where(act, a.lambda_min, 1.0)
-    return lo, np.maximum(lo, np.where(act, np.minimum(1.0, TOP + d), 1.0))
+    hi = np.maximum(lo, np.where(act, np.minimum(1.0, TOP + d), 1.0))
+    if dev.held is not None:
+        now = built_lambda(built.lam, d, a.lambda_min)
+        lo, hi = np.where(dev.held, now, lo), np.where(dev.held, now, hi)
+    return lo, hi
 
 
 def correct_routing(problem: DesignProblem, as_built: Routing, dev: Deviations, adjust=("lambda",), built: Routing | None = None,
@@ -90,9 +95,11 @@ def correct_routing(problem: DesignProblem, as_built: Routing, dev: Deviations, 
         th = (-a.theta_max + dev.theta, a.theta_max + dev.theta) if not unbounded else (-1.45, 1.45)
         if theta_trust is not None:
             th = (np.maximum(th[0], as_built.theta - theta_trust), np.minimum(th[1], as_built.theta + theta_trust))
-    lam_b = lambda_bounds(problem, built, dev) if not unbounded else (0.05, 2.0)
+    lam_b = lambda_bounds(problem, built, dev)
+    if unbounded:
+        lam_b = tuple(np.where(lam_b[0] < lam_b[1], v, lam_b[0]) for v in (0.05, 2.0))
     dl = as_built.length / D
-    f12 = frames12(chain_frames(as_built.theta, as_built.lam, as_built.length, D, as_built.initial_pose) * unit_scale(D))
+    f12 = frames12(chain_frames(as_built.theta, as_built.lam, as_built.length, D, as_built.initial_pose), D)
 
     def step(hessian, cap, previous):
         solver = get_solver(correction_spec(M, pairing.n, a.shared_lambda, min(cap or o.max_iter, o.max_iter), o.tol, hessian))
@@ -116,7 +123,7 @@ def at_bounds(problem: DesignProblem, realized: Routing, built: Routing, dev: De
     """The segments whose predicted values sit at a bound of what the robot can realize, and the bound ("" if none)."""
     a, eps = problem.actuator, 1e-6
     lo, hi = lambda_bounds(problem, built, replace(dev, lambda_min=a.lambda_min))
-    act, lam = actuated(built.lam), realized.lam
+    act, lam = actuated(built.lam) & (lo < hi), realized.lam  # a held lambda is no bound of the builder's
     parts = []
     for mask, what in ((act & (lam <= lo + eps), f"lambda at lambda_min {a.lambda_min:g}"),
                        (act & (lam >= hi - eps) & (hi >= 1.0 - eps), "lambda at 1 (an actuator cannot lengthen the tube)"),

@@ -21,12 +21,15 @@ from vine_nlp.model.routing import TOP, Routing, actuated, built_lambda
 @dataclass(frozen=True)
 class Deviations:
     """What stays with the robot from build to build: theta and lambda differences, length ratios (M,), and the
-    actuator's range floor ``lambda_min`` (no built lambda below it)."""
+    actuator's range floor ``lambda_min`` (no built lambda below it). ``held`` (M,) bool or None: actuators built
+    at lambda 1 or indistinguishably near it, whose error beyond the clip is unknown (a lower nominal would
+    realize nominal + an error no measurement has shown): a correction keeps their lambda."""
 
     theta: np.ndarray
     lam: np.ndarray
     length_ratio: np.ndarray
     lambda_min: float = 0.0
+    held: np.ndarray | None = None
 
 
 def deviations_of(nominal: Routing, as_built: Routing, lambda_min: float = 0.0) -> Deviations:

@@ -43,7 +43,7 @@ from vine_nlp.methods import drive, settings
 from vine_nlp.methods.blocks import BlockType
 from vine_nlp.methods.correct.deviations import Deviations, apply_deviations, deviations_of
 from vine_nlp.methods.correct.laplace import laplace
-from vine_nlp.methods.correct.pairing import LINE_SIDE, in_frame, pair_with_line, rigid_start
+from vine_nlp.methods.correct.pairing import LINE_SIDE, SLIDE, in_frame, pair_with_line, rigid_start
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Chain, Spec, get_solver
 from vine_nlp.model.chain import chain_frames
@@ -59,6 +59,7 @@ DEFAULT_SYSTEMATIC_SIGMAS = (math.radians(10.0), 0.2, 0.2)
 DEFAULT_MEASUREMENT_SIGMA_MM = 1.0
 TRIM = 4.0  # pairs farther than this many sigmas of the stage are left out of it
 SLOT_STEP = 8  # slots per segment are rounded up to a multiple of this (cached structures)
+HELD_SIGMAS = 2.0  # an actuator estimated within this many standard deviations of lambda 1 may be clipped: held
 
 
 # data rows of one measurement slot (measure_block): shift (3), u, m (3), tangent (3), sqrt weight, side
@@ -79,7 +80,7 @@ def measure_block(free: bool) -> BlockType:
     d = (shift (3): theta and lambda added, length factor (the build's nominal against the latest),
     u, m (3), t (3) tangent, w square root of the weight, side [, c (3) centroid, flag], cap: lambda is
     min(cap, lam + shift), 1 on an earlier build (the physical rule), NO_CAP on the latest).
-    Residual w (I - t t^T)(P - m) (the square root as data: a zero-weight slot has finite derivatives);
+    Residual w (I - (1 - SLIDE) t t^T)(P - m) (the square root as data: a zero-weight slot has finite derivatives);
     a free-frame point (flag 1) is moved by exp(w) (m - c) + c + t first (m stored as given, c their centroid)."""
     nv = 21 if free else 15
     nd = SLOT_DATA_FREE if free else SLOT_DATA
@@ -95,7 +96,7 @@ def measure_block(free: bool) -> BlockType:
         c, flag = d[12:15], d[15]
         mi = mi + flag * (ca.mtimes(so3_exp(v[15:18]), mi - c) + c + v[18:21] - mi)
     e = P - mi
-    res = w * (e - tg * ca.dot(tg, e))
+    res = w * (e - (1.0 - SLIDE) * tg * ca.dot(tg, e))
     return BlockType(f"measure{'f' if free else ''}", ca.Function("measure_block", [v, d], [ca.sumsqr(res), ca.SX(0, 1)]),
                      ca.Function("measure_res", [v, d], [res]))
 
@@ -181,11 +182,6 @@ class Estimate:
     rounds: int
     stats: dict = field(default_factory=dict)
 
-    @property
-    def rmse(self) -> float:
-        d = np.concatenate(self.residuals) if self.residuals else np.zeros(1)
-        return float(np.sqrt(np.mean(d**2)))
-
 
 def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigmas, shared_lambda: bool = False,
                       measurement_sigma: float | None = None, systematic_sigmas=DEFAULT_SYSTEMATIC_SIGMAS,
@@ -213,8 +209,11 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
     std, sys_std, residuals = laplace(icp.ab, g[:3], icp.shifts, icp.ms, icp.pts, icp.pairs, D, sig_m, sigmas, systematic_sigmas,
                                       icp.prior, shared_lambda, icp.free, icp.centroid, icp.Tcorr)
     latest = nominals[-1]
+    # the clip at 1 hides how far beyond it an actuator's error goes: hold what may be clipped
+    held = actuated(latest.lam) & (icp.ab.lam >= 1.0 - HELD_SIGMAS * std[:, 1]) if not shared_lambda else None
+    dev = replace(deviations_of(latest, icp.ab, lambda_min), held=held)
     return Estimate(
-        routing=icp.ab, deviations=deviations_of(latest, icp.ab, lambda_min), systematic=np.array([g[0], g[1], math.exp(g[2])]),
+        routing=icp.ab, deviations=dev, systematic=np.array([g[0], g[1], math.exp(g[2])]),
         systematic_std=sys_std, std=std, transform=icp.Tcorr @ icp.T_free, residuals=residuals, status=found.best.status,
         iterations=stats.iterations, solve_time_s=time.perf_counter() - stats.started, rounds=found.rounds,
         stats={"measurement_sigma": sig_m, "slots_per_segment": icp.S, "points": icp.N, "builds": icp.B, "hessian": icp.hessian,
@@ -353,12 +352,6 @@ class _ICP:
         return data
 
 
-def unit_scale(D):
-    s = np.ones((4, 4))
-    s[:3, 3] = 1.0 / D
-    return s
-
-
 def _free_transform(g, centroid, D):
     """The transform x -> exp(w) (x - c) + c + t of the globals 3..8 (t in units of D)."""
     R = so3_exp(np.asarray(g[3:6], float))
@@ -368,12 +361,12 @@ def _free_transform(g, centroid, D):
 
 
 def _start_x(solver, ab, D, routings, B, lay):
-    frames = chain_frames(ab.theta, ab.lam, ab.length, D, ab.initial_pose) * unit_scale(D)
-    x = solver.pack_x(ab.theta, ab.lam, ab.length / D, frames12(frames)[None], lam_global=np.mean(ab.lam),
+    frames = chain_frames(ab.theta, ab.lam, ab.length, D, ab.initial_pose)
+    x = solver.pack_x(ab.theta, ab.lam, ab.length / D, frames12(frames, D)[None], lam_global=np.mean(ab.lam),
                       globals_=np.zeros(lay.globals.size))
     for b in range(B - 1):
         r = routings[b]
-        fb = frames12(chain_frames(r.theta, r.lam, r.length, D, r.initial_pose) * unit_scale(D))
+        fb = frames12(chain_frames(r.theta, r.lam, r.length, D, r.initial_pose), D)
         x[lay.extra[:, 12 * b : 12 * b + 12]] = fb[:, 1:].T
     return x
 

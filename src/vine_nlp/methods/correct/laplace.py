@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from vine_nlp.methods.correct.pairing import LINE_SIDE, in_frame
+from vine_nlp.methods.correct.pairing import LINE_SIDE, SLIDE, in_frame
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.routing import Routing
 from vine_nlp.model.segment import segment_transform, so3_exp
@@ -97,8 +97,8 @@ def laplace(ab, g, shifts, ms, pts, pairs, D, sig_m, sigmas, sys_sig, prior, sha
         JP[:, :, M : 2 * M] *= ab.lam + b < 1.0  # the physical rule: no lambda change beyond 1
         t = pr.tangent
         dists.append(np.linalg.norm(P - moved(p, m, np.zeros(6)), axis=1))
-        # point-to-line: the tangent at the pair projected out, as in the estimate
-        JP = JP - t.T[:, :, None] * np.einsum("in,ink->nk", t.T, JP)[None]
+        # point-to-line: the tangent at the pair projected out (but SLIDE), as in the estimate
+        JP = JP - (1.0 - SLIDE) * t.T[:, :, None] * np.einsum("in,ink->nk", t.T, JP)[None]
         Jm = np.zeros((3, P.shape[0], nq))
         Jm[:, :, :M] = JP[:, :, :M]
         if shared:
