@@ -56,6 +56,7 @@ from vine_nlp.problem import DesignProblem, Result, Routing
 # that cancels a bend the margin forces (10-20 % less) for at most 4 % RMSE
 EFFORT = 1e-3
 EFFORT_ACTUATED = 1e-4
+EFFORT_INNER = 1e-6  # only keeps the inner runs' thetas from a flat direction of the NLP
 # the accuracy the reclassification may give up for fewer actuators: the issue's budget over the free design
 ACCURACY_SLACK, ACCURACY_FLOOR_MM = 0.10, 0.05
 # solves at most: classes, reclassification trials, repairs of features below min_feature
@@ -195,10 +196,17 @@ class BuildEffort:
         c.add_term("effort", ca.dot(e, ca.tan(c.theta.T) ** 2 * c.dl.T))
 
 
-def effort_data(act, L: float) -> dict:
-    """The build effort's data: EFFORT where there is no actuator, EFFORT_ACTUATED where there is (L: the
-    target's arc length, units of D, as ``nlp_parameters``' "L")."""
-    return {"effort": np.where(np.asarray(act, bool), EFFORT_ACTUATED, EFFORT) / L}
+def effort_data(act, L: float, base_free: bool = True) -> dict:
+    """The build effort's data (L: the target's arc length, units of D, as ``nlp_parameters``' "L"): EFFORT_ACTUATED
+    where there is an actuator; EFFORT on an unactuated run the shape does not see (the first with a free base: its
+    turning is the base roll's; the last); EFFORT_INNER on the others, whose net turning the shape needs (a larger
+    weight would pull it from the fit; the turning is taken the shortest way round after the solve, ``unwind``)."""
+    act = np.asarray(act, bool)
+    w = np.where(act, EFFORT_ACTUATED, EFFORT_INNER)
+    for p in pieces(act, np.ones(act.size), np.ones(act.size)):
+        if not p.actuated and ((p.start == 0 and base_free) or p.stop == act.size):
+            w[p.start:p.stop] = EFFORT
+    return {"effort": w / L}
 
 
 def accuracy_budget(problem: DesignProblem, rmse: float) -> float:
@@ -250,8 +258,8 @@ class Reclassify:
         asking for less (multiplier > 0), and over the budget also unactuated ones asking for contraction (< 0)."""
         r, act, mult = self.best.routing, self.act, self.mult
         self.over = self.best.metrics["rmse"] > self.limit
-        at_top = act & (r.lam >= upper(r.length, act, self.build) - 1e-6) & (mult > 1e-12)
-        asks = ~act & (mult < -1e-12) & self.over
+        at_top = act & (r.lam >= upper(r.length, act, self.build) - 1e-6) & (mult > 1e-9)
+        asks = ~act & (mult < -1e-9) & self.over
         self.cand = np.zeros(0, int) if self.build.shared or self.repairs else np.flatnonzero(at_top | asks)
         self.cand = self.cand[np.argsort(-np.abs(mult[self.cand]), kind="stable")]
         self.k = self.cand.size
@@ -289,7 +297,7 @@ def solve_classes(problem: DesignProblem, pairing, build: Build, act, start: Rou
     T0 = start.initial_pose if build.pose is None else build.pose
     guess = Guess(start.theta, np.clip(start.lam, lo, hi), start.length, T0, None)
     data = nlp_parameters(problem, pairing, T0[:3, :3])
-    data |= effort_data(act, data["L"])
+    data |= effort_data(act, data["L"], build.pose is None)
     lbx, ubx = solver.bounds(th, (lo, hi), dl, X0=None if build.pose is None else frames12(T0[None], D).T)
     x, status, st, lam_x = solver.solve(start_x(solver, guess, D, "chain"), solver.pack_params(data), lbx, ubx, multipliers=True)
     res = result_of(problem, pairing, solver, x, status, st, T0[:3, :3] if build.pose is None else T0, "nlp")
@@ -312,9 +320,14 @@ def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Res
     act = classify(target_bends(problem, pairing), start.routing.length, build)
     rule = Reclassify(lambda a, r: solve_classes(problem, pairing, build, a, r), act, build, accuracy_budget(problem, start.metrics["rmse"]))
     found = drive.refine(rule, ROUNDS, start.routing, stats)
-    best = found.best
+    best, act = found.best, rule.act
+    # a solve may leave an unactuated run's turning beyond half a turn: the same shape the shortest way round
+    r = unwind(best.routing, act, build)
+    short = evaluate(problem, Routing(r.theta, best.routing.lam, r.length, r.initial_pose), pairing, "nlp", status=best.status,
+                     iterations=best.iterations, stats=best.stats)
+    best = short if short.metrics["rmse"] <= best.metrics["rmse"] * (1 + 1e-9) else best
     best.stats |= {k: v for k, v in start.stats.items() if k.startswith(("start", "best_start", "hops", "corner"))}
-    best.stats |= {"buildable": True, "buildable_actuated": int(rule.act.sum()), "buildable_free_rmse": float(start.metrics["rmse"]),
+    best.stats |= {"buildable": True, "buildable_actuated": int(act.sum()), "buildable_free_rmse": float(start.metrics["rmse"]),
                    "buildable_budget": float(rule.limit), "buildable_rounds": found.rounds, "correction_margin": build.margin,
                    "min_feature": build.min_feature}
     return stats.stamp(best)
