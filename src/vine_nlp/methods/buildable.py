@@ -1,33 +1,22 @@
 """Buildable designs (issue 31): an actuator only where the tube bends, no winding for nothing, room to correct.
 
-Where lambda is 1 the segment is straight and theta only moves the actuator line around it, so a lab
-builds no actuator there and the line may go any way that brings it where the next actuated piece needs it.
-The formulation, on the plain NLP (methods.nlp) and the drive (``drive.refine``), from a free design:
+Where lambda is 1 the segment is straight and theta only turns the actuator line around it: no actuator is
+built there, and the line may take any way to where the next actuated piece needs it. From a free design:
 
-- **Classes.** Segment j keeps an actuator or has lambda exactly 1. An actuated one is bounded to
-  [lo, 1 - m_j]: lo = lambda_min (an ideal pouch: 2/pi) + margin, m_j = max(margin, min_feature / (dl_j +
-  dl_partner)) (its stopper gap, alone or joined with its partner's, analysis.buildability, at least
-  min_feature), so an as-built error can be corrected both ways. :func:`classify` sets the classes from the
-  target's bend per segment against the smallest bend an actuated segment makes (at 1 - m_j): a segment
-  that needs at least half of it keeps its actuator; along a gently bent run the bends are summed and a
-  segment is actuated each time the sum reaches half of it (error diffusion: fewer, stronger actuated
-  segments with straight ones between make the bend); a piece shorter than min_feature merges with its
-  neighbours (:func:`merge_short`).
-- **Unwinding** (:func:`unwind`, before each solve). On an unactuated run the shape depends on theta only
-  through the line's net turning modulo 2 pi: the run gets it the shortest way round at constant slope; a
-  first run's turning goes into the base roll (base "free": theta 0 there, no arbitrary roll), or from the
-  fixed base pose; a last run's is dropped. :class:`BuildEffort` then holds the line.
-- **Build effort** (:class:`BuildEffort`): (1/L) sum_j w_j tan(theta_j)^2 dl_j, the mean squared slope of
-  the line on the unrolled tube: EFFORT where there is no actuator, EFFORT_ACTUATED where theta shapes the tube.
-- **Reclassification** (:class:`Reclassify`, a ``drive.refine`` rule) from the multipliers of the lambda
-  bounds: while the RMSE exceeds the budget (ACCURACY_SLACK or ACCURACY_FLOOR_MM over the free design),
-  unactuated segments whose multiplier asks for contraction get an actuator; within it, actuated segments
-  at their upper bound that ask for less lose theirs (the most eager first: all, then half, ..., a trial kept
-  where it helps). Last, solves with bounds from the new lengths while a gap is below min_feature.
+- **Classes** (:func:`classify`): a segment has lambda exactly 1, or an actuator bounded to [lo, 1 - m_j]
+  (:func:`lambda_bounds`; lo = lambda_min (pouches: 2/pi) + margin; m_j = max(margin, min_feature over its
+  gap's length, alone or joined with its partner's)): room to correct an as-built error both ways. A segment
+  whose target bends at least the least an actuated one bends keeps its actuator; along a gentler run the
+  bends are summed and a segment actuated each time the sum reaches half its least bend (error diffusion:
+  fewer, stronger actuated segments with straight ones between); short pieces merge (:func:`merge_short`).
+- **Unwinding** (:func:`unwind`): on an unactuated run the shape sees only the line's net turning modulo
+  2 pi: it is taken the shortest way round at one slope, before each solve and after the last (the same
+  shape); a first run's goes into the base roll (free base: no arbitrary roll) or comes from the fixed pose.
+- **Build effort** (:class:`BuildEffort`, :func:`effort_data`): weighted (1/L) sum_j tan(theta_j)^2 dl_j.
+- **Reclassification** (:class:`Reclassify`, a ``drive.refine`` rule) from the lambda bounds' multipliers.
 
-sPAM (one lambda for the whole actuator, pouches everywhere): no classes; the one lambda within
-[max(lambda_min, 2/pi) + margin, 1 - margin] and the build effort. Obstacle designs use the building blocks
-with their own solve (:class:`Reclassify` takes any ``solve(act, start)``).
+sPAM (one lambda, pouches along the whole tube): no classes; the lambda in [max(lambda_min, 2/pi) + margin,
+1 - margin], the build effort. Other formulations (obstacles) use the blocks with their own solve.
 """
 
 from __future__ import annotations
@@ -51,25 +40,18 @@ from vine_nlp.model.helix import center_rates
 from vine_nlp.problem import DesignProblem, Result, Routing
 
 # build-effort weights against the fit's mean squared error / D^2 (results/BENCHMARKS.md, "Buildable designs"):
-# where there is no actuator the term only holds the unwound line (0 lets it drift: polyline-d 442 deg of
-# turning against 248 needed) at no cost in RMSE; where theta shapes the tube a tenth of it curbs the winding
-# that cancels a bend the margin forces (10-20 % less) for at most 4 % RMSE
-EFFORT = 1e-3
-EFFORT_ACTUATED = 1e-4
-EFFORT_INNER = 1e-6  # only keeps the inner runs' thetas from a flat direction of the NLP
-# the accuracy the reclassification may give up for fewer actuators: the issue's budget over the free design
-ACCURACY_SLACK, ACCURACY_FLOOR_MM = 0.10, 0.05
-# solves at most: classes, reclassification trials, repairs of features below min_feature
-ROUNDS = 8
-REPAIRS = 2
+# where the shape does not see the line (a first or last unactuated run) it holds it at theta 0 at no cost; where
+# theta shapes the tube a tenth curbs the winding that cancels a bend the margin forces (bezier-b 807 -> 161 deg)
+# at a few % RMSE (1e-3 cost polyline-d its budget); inner unactuated runs' turning the shape needs: nearly free
+EFFORT, EFFORT_ACTUATED, EFFORT_INNER = 1e-3, 1e-4, 1e-6
+ACCURACY_SLACK, ACCURACY_FLOOR_MM = 0.10, 0.05  # what the reclassification may give up: the issue's budget
+ROUNDS, REPAIRS = 8, 2  # solves at most; of them, re-solves while a gap is below min_feature (the lengths moved)
 BEND_TOL = 1e-6  # rad: a segment of the target bending less is straight
 
 
 @dataclass(frozen=True)
 class Build:
-    """A problem's build settings, resolved: tube and actuator, ``margin`` (lambda units), ``min_feature``
-    (length units), ``lo`` the lowest lambda an actuated segment is given, ``pose`` the fixed base pose (4 x 4)
-    or None (free)."""
+    """A problem's build settings: ``margin``, ``min_feature`` (length units), ``pose`` the fixed base (4 x 4) or None."""
 
     D: float
     theta_max: float
@@ -86,18 +68,12 @@ class Build:
         pose = None if o.base != "fixed" else np.array(o.base_pose, float)
         return cls(problem.diameter, a.theta_max, a.kind, a.lambda_min, o.correction_margin, mf, pose)
 
-    @property
-    def shared(self) -> bool:
-        return self.kind == "spam"
-
-    @property
-    def lo(self) -> float:
-        return (max(self.lambda_min, POUCH_LAMBDA_MIN) if self.shared else self.lambda_min) + self.margin
+    shared = property(lambda self: self.kind == "spam")  # one lambda: pouches along the whole tube
+    lo = property(lambda self: (max(self.lambda_min, POUCH_LAMBDA_MIN) if self.shared else self.lambda_min) + self.margin)
 
 
 def upper(length, act, build: Build) -> np.ndarray:
-    """1 - m_j: the largest lambda of an actuated segment whose gap (alone, or joined with its partner's, of the
-    classes ``act``) is at least min_feature and whose contraction is at least the margin (dl: conservative)."""
+    """1 - m_j: an actuated segment's largest lambda, its gap (alone or with its partner's in ``act``) >= min_feature."""
     length = np.asarray(length, float)
     mate = partners(act)
     together = length + np.where(mate >= 0, length[np.maximum(mate, 0)], 0.0)
@@ -105,8 +81,7 @@ def upper(length, act, build: Build) -> np.ndarray:
 
 
 def lambda_bounds(act, length, build: Build) -> tuple[np.ndarray, np.ndarray]:
-    """Per-segment lambda bounds (lo, hi): exactly 1 without an actuator, [build.lo, 1 - m_j] with one (a segment
-    too short for both keeps its lower bound: the report will show the feature)."""
+    """Per-segment lambda bounds (lo, hi): exactly 1 without an actuator, [build.lo, 1 - m_j] (>= lo) with one."""
     act = np.asarray(act, bool)
     if build.shared:
         return np.full(act.size, build.lo), np.full(act.size, max(build.lo, 1 - build.margin))
@@ -158,9 +133,7 @@ def merge_short(act, length, min_feature: float) -> np.ndarray:
 def roll(angle: float) -> np.ndarray:
     """A rotation by ``angle`` about the frame's own x axis (the tube's tangent), 4 x 4."""
     c, s = math.cos(angle), math.sin(angle)
-    T = np.eye(4)
-    T[1:3, 1:3] = [[c, -s], [s, c]]
-    return T
+    return np.array([[1.0, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1]])
 
 
 def unwind(routing: Routing, act, build: Build) -> Routing:
@@ -188,8 +161,7 @@ def unwind(routing: Routing, act, build: Build) -> Routing:
 
 @dataclass(frozen=True)
 class BuildEffort:
-    """sum_j e_j tan(theta_j)^2 dl_j (units of D): the line's mean squared slope on the unrolled tube, weighted.
-    Parameter ``effort`` (M,): e_j = w_j / L (:func:`effort_data`)."""
+    """sum_j e_j tan(theta_j)^2 dl_j: the line's weighted mean squared slope on the unrolled tube; parameter ``effort`` (M,)."""
 
     def apply(self, c: Chain) -> None:
         e = c.param("effort", (c.s.M, 1))
@@ -197,10 +169,8 @@ class BuildEffort:
 
 
 def effort_data(act, L: float, base_free: bool = True) -> dict:
-    """The build effort's data (L: the target's arc length, units of D, as ``nlp_parameters``' "L"): EFFORT_ACTUATED
-    where there is an actuator; EFFORT on an unactuated run the shape does not see (the first with a free base: its
-    turning is the base roll's; the last); EFFORT_INNER on the others, whose net turning the shape needs (a larger
-    weight would pull it from the fit; the turning is taken the shortest way round after the solve, ``unwind``)."""
+    """The build effort's data, e_j = w_j / L (L as ``nlp_parameters``' "L"): EFFORT_ACTUATED with an actuator; EFFORT on
+    an unactuated run the shape does not see (the first with a free base, the last); EFFORT_INNER on the others."""
     act = np.asarray(act, bool)
     w = np.where(act, EFFORT_ACTUATED, EFFORT_INNER)
     for p in pieces(act, np.ones(act.size), np.ones(act.size)):
@@ -217,11 +187,9 @@ def accuracy_budget(problem: DesignProblem, rmse: float) -> float:
 
 
 class Reclassify:
-    """The reclassification as a ``drive.refine`` rule, for any formulation: ``solve(act, start)`` solves with the
-    classes ``act`` (lambda bounds by :func:`lambda_bounds`) from the routing ``start`` (unwound here) and returns
-    (Result, the multipliers of the lambda bounds, (M,)); ``limit``: the RMSE budget; ``trials``: solves before
-    the repairs (run ``drive.refine`` with ``trials + REPAIRS`` rounds). The rule's x is the routing to start
-    from. After ``refine``: ``act`` the classes of the best round, ``taken`` the rounds kept."""
+    """The reclassification, a ``drive.refine`` rule (x: the routing to start from; ``trials + REPAIRS`` rounds) for
+    any formulation: ``solve(act, start)`` solves with the classes ``act`` from ``start`` (unwound here): (Result,
+    the lambda bounds' multipliers (M,)). ``limit``: the RMSE budget. After refine: ``act``, the best round's."""
 
     def __init__(self, solve: Callable, act, build: Build, limit: float, trials: int = ROUNDS - REPAIRS):
         self._solve, self.build, self.limit, self.trials = solve, build, limit, trials
@@ -254,8 +222,7 @@ class Reclassify:
         return self.best.routing
 
     def _candidates(self) -> None:
-        """Segments to flip, the most eager first (the largest multiplier): actuated ones at their upper bound
-        asking for less (multiplier > 0), and over the budget also unactuated ones asking for contraction (< 0)."""
+        """To flip, the most eager first: actuated at the top asking for less (> 0); over the budget, unactuated asking for more."""
         r, act, mult = self.best.routing, self.act, self.mult
         self.over = self.best.metrics["rmse"] > self.limit
         at_top = act & (r.lam >= upper(r.length, act, self.build) - 1e-6) & (mult > 1e-9)
@@ -309,9 +276,8 @@ def solve_classes(problem: DesignProblem, pairing, build: Build, act, start: Rou
 
 
 def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Result:
-    """The buildable design of ``problem`` from its free design ``start`` (methods.nlp.design_nlp): classes,
-    unwinding, build effort, reclassification (module docstring). stats buildable (True), buildable_actuated,
-    buildable_free_rmse, buildable_budget, buildable_rounds; solves and times counted with the start's."""
+    """The buildable design from the free design ``start`` (design_nlp's; its solves counted). stats buildable (True),
+    buildable_actuated, buildable_free_rmse, buildable_budget, buildable_rounds, correction_margin, min_feature."""
     stats = drive.Stats()
     stats.started -= start.solve_time_s  # the wall time from the free design's start
     stats.absorb(start)
