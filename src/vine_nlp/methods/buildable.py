@@ -130,12 +130,6 @@ def merge_short(act, length, min_feature: float) -> np.ndarray:
     return act
 
 
-def roll(angle: float) -> np.ndarray:
-    """A rotation by ``angle`` about the frame's own x axis (the tube's tangent), 4 x 4."""
-    c, s = math.cos(angle), math.sin(angle)
-    return np.array([[1.0, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1]])
-
-
 def unwind(routing: Routing, act, build: Build) -> Routing:
     """The same shape with every unactuated run's turning the shortest way round at constant slope: a first run's
     into the base roll (free base; theta 0 there) or from the fixed pose, a last run's dropped (module docstring)."""
@@ -148,8 +142,9 @@ def unwind(routing: Routing, act, build: Build) -> Routing:
         if p.stop == routing.segments:
             theta[run] = 0.0  # nothing downstream
             continue
-        if p.start == 0 and build.pose is None:
-            T0, theta[run] = T0 @ roll(net), 0.0
+        if p.start == 0 and build.pose is None:  # a roll about the base's own tangent
+            c, s = math.cos(net), math.sin(net)
+            T0, theta[run] = T0 @ np.array([[1.0, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1]]), 0.0
             continue
         if p.start == 0:  # the fixed pose differs from this one by a roll rho: the run turns rho further
             R = np.linalg.solve(build.pose[:3, :3], T0[:3, :3])
@@ -267,12 +262,8 @@ def solve_classes(problem: DesignProblem, pairing, build: Build, act, start: Rou
     data |= effort_data(act, data["L"], build.pose is None)
     lbx, ubx = solver.bounds(th, (lo, hi), dl, X0=None if build.pose is None else frames12(T0[None], D).T)
     x, status, st, lam_x = solver.solve(start_x(solver, guess, D, "chain"), solver.pack_params(data), lbx, ubx, multipliers=True)
-    res = result_of(problem, pairing, solver, x, status, st, T0[:3, :3] if build.pose is None else T0, "nlp")
-    r = res.routing
-    if np.any(r.lam[~act] != 1.0):  # exactly 1 where there is no actuator (IPOPT holds a fixed variable; this says so)
-        res = evaluate(problem, Routing(r.theta, np.where(act, r.lam, 1.0), r.length, r.initial_pose), pairing, "nlp",
-                       status=res.status, solve_time_s=res.solve_time_s, iterations=res.iterations, stats=res.stats)
-    return res, lam_x[solver.layout.lam[:, 0]]
+    # lambda exactly 1 without an actuator: IPOPT holds a variable whose bounds are equal at its value
+    return result_of(problem, pairing, solver, x, status, st, T0[:3, :3] if build.pose is None else T0, "nlp"), lam_x[solver.layout.lam[:, 0]]
 
 
 def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Result:
