@@ -43,8 +43,9 @@ import numpy as np
 from vine_nlp.analysis.tolerance import tolerance_report
 from vine_nlp.methods import drive
 from vine_nlp.methods.blocks import BlockType
+from vine_nlp.methods.buildable import inherited_bounds
 from vine_nlp.methods.common import pair_points
-from vine_nlp.methods.nlp import chain_guess, design_bounds, design_nlp, extended_solver, nlp_parameters, result_of, start_x
+from vine_nlp.methods.nlp import chain_guess, design_nlp, extended_solver, nlp_parameters, result_of, start_x
 from vine_nlp.methods.transcription import Chain, segment_point_index
 from vine_nlp.model.helix import center_rates
 from vine_nlp.model.routing import Sigmas, actuated
@@ -252,7 +253,7 @@ def design_robust(problem: DesignProblem, sigmas: Sigmas, samples: int = 0, seed
     solver = robust_solver(problem, pairing)
     x0, p = _robust_start(problem, pairing, solver, start.routing, sigmas, weight)
     i0 = solver.terms(x0, p)["robust"] / weight * D**2 if weight else 0.0
-    lbx, ubx = solver.bounds(*design_bounds(problem, pairing))
+    lbx, ubx = solver.bounds(*inherited_bounds(problem, pairing, start))  # a buildable start's classes kept
     x, status, st = solver.solve(x0, p, lbx, ubx)
     res = stats.absorb(result_of(problem, pairing, solver, x, status, st, start.routing.initial_pose[:3, :3].copy(), "nlp_robust"))
     # the increase of the design found, evaluated with weight 1 (the recursion holds at a converged x)

@@ -2,12 +2,14 @@
 
 The one place that decides which runs a problem makes, in which order, from which start:
 
-- design problems: the design method(s) (``nlp``; ``greedy``; ``compare``: nlp, greedy and the
-  paper's low-pass-filtered greedy); among ``[[obstacles]]`` the obstacle design as run ``nlp``
+- design problems: the design method(s) (``nlp``, a buildable design made from the free one:
+  methods.buildable; ``greedy``, as the paper has it; ``compare``: nlp, greedy and the paper's
+  low-pass-filtered greedy); among ``[[obstacles]]`` the obstacle design as run ``nlp``
   with the obstacle-free design it started from as ``nlp_free``; then, if asked, the robust
-  (``nlp_robust``) and self-clearing (``nlp_clearance``) designs, started from ``nlp``. Every run
-  is designed for what the robot should realize; with a ``[calibration]`` every run then becomes
-  the nominal to build (the systematic errors taken out, :func:`calibrated`);
+  (``nlp_robust``) and self-clearing (``nlp_clearance``) designs, started from ``nlp`` (keeping its
+  actuated segments and margins). Every run is designed for what the robot should realize; with a
+  ``[calibration]`` every run then becomes the nominal to build (the systematic errors taken out,
+  :func:`calibrated`);
 - tip, multi-shape, forward and fit problems: their one run.
 
 Every run is then judged against the hard requirements of its problem (:func:`judge`: the
@@ -30,6 +32,7 @@ from vine_nlp.io.archive import Archive, write_archive
 from vine_nlp.io.formulations import write_multishape_archive, write_tip_archive
 from vine_nlp.io.problems import ProblemFile
 from vine_nlp.methods import blas
+from vine_nlp.methods.buildable import design_buildable
 from vine_nlp.methods.clearance import design_with_clearance
 from vine_nlp.methods.common import evaluate, pair_points, run_forward
 from vine_nlp.methods.fit import fit_frames, fit_problem
@@ -165,6 +168,8 @@ def _design(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, dict, dic
         if m == "nlp":
             runs[m] = design_nlp(problem, starts=rq.starts, workers=rq.workers, warm=rq.warm, progress=rq.progress, hops=rq.hops,
                                  budget=rq.budget, note=rq.note)
+            if not problem.obstacles:  # buildable design (issue 31) from the free one; robust and clearance keep its classes
+                runs[m] = design_buildable(problem, runs[m])
         elif m == "greedy":
             runs[m] = design_greedy(problem, progress=rq.progress)
         else:
