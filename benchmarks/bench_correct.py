@@ -1,9 +1,8 @@
 """As-built correction on physical builds (issue 32): the trefoil (m = 4), Bezier (a) and the hook, each designed
 without and with the correction margin of issue 31.
 
-Designs: design_nlp ("free"), and the buildable formulation with correction_margin 0.05 ("margin"; the prototype of
-benchmarks/study_buildable.py, run on design_nlp's result: `vine_nlp.methods.buildable` had not landed when this was
-written). Each seed draws per-segment construction errors at sigma 1 deg / 0.02 / 2 % plus a systematic lambda
+Designs: design_nlp ("free", no margin), and the buildable design with the default correction_margin 0.05 ("margin":
+methods.buildable.design_buildable from design_nlp's result, what `vine-nlp design` makes). Each seed draws per-segment construction errors at sigma 1 deg / 0.02 / 2 % plus a systematic lambda
 offset; every robot is built by the physical rule (methods.correct.apply_deviations: lambda exactly 1 where the
 nominal has no actuator, min(1, nominal + error) and at least lambda_min elsewhere; the deviations persist from build
 to build). A build is measured along the outer line at 200 points (or 15 markers), Gaussian noise 1.4 mm per
@@ -44,6 +43,7 @@ from simulate import draw_deviations, simulate_build  # noqa: E402
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import compiled
 from vine_nlp.methods import correct as C
+from vine_nlp.methods.buildable import design_buildable
 from vine_nlp.methods.common import evaluate, pair_points
 from vine_nlp.methods.nlp import design_nlp
 from vine_nlp.methods.transcription import get_solver
@@ -53,24 +53,12 @@ from vine_nlp.model.routing import Routing, Sigmas, actuated
 SIGMAS = Sigmas.from_degrees(1.0, 0.02, 0.02)
 LAMBDA_OFFSET = 0.02  # the systematic lambda offset of every simulated build
 NOISE_MM = 1.4  # the paper's magnetic tracker, per coordinate
-MARGIN = 0.05  # issue 31's default correction margin
 CASES = ("trefoil-m4", "bezier-a", "hook")
 DESIGNS = ("free", "margin")
 COUNTS = (200, 15)
 ROUTES = ("lambda", "lambda,theta")
 PROTOTYPES = 5
 MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
-
-
-def buildable(pb, free):
-    """The margin design: benchmarks/study_buildable.py's prototype (its imports predate the drive's module split)."""
-    import vine_nlp.methods.transcription as T
-    from vine_nlp.methods.structure import frames12
-
-    T.frames12 = frames12
-    import study_buildable
-
-    return study_buildable.buildable_design(pb, free, margin=MARGIN)[0]
 
 
 def design(name, kind, cache):
@@ -82,7 +70,7 @@ def design(name, kind, cache):
         return pb, Routing(d["theta"], d["lam"], d["length"], d["initial_pose"]), d["rmse"]
     res = design_nlp(pb)
     if kind == "margin":
-        res = buildable(pb, res)
+        res = design_buildable(pb, res)
     r = res.routing
     d = {"theta": r.theta.tolist(), "lam": r.lam.tolist(), "length": r.length.tolist(), "initial_pose": r.initial_pose.tolist(),
          "rmse": res.metrics["rmse"]}

@@ -1,6 +1,6 @@
 """Make problems/data/trefoil-built.csv: points measured on a simulated build of the trefoil.
 
-The trefoil of problems/trefoil-m4.toml is designed (design_nlp, as ``vine-nlp design`` does) and
+The trefoil of problems/trefoil-m4.toml is designed (vine_nlp.solve: what ``vine-nlp design`` makes) and
 built physically (tests/simulate.py: no lambda error without an actuator, built lambda within
 [lambda_min, 1]) with known construction errors: per segment theta, lambda and length errors at sigma
 1 deg / 0.02 / 2 % (seed 14) plus systematic parts, a theta offset of +0.5 deg, a lambda offset of
@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+import vine_nlp as vn
 from vine_nlp.io.problem_file import load_problem
-from vine_nlp.methods.nlp import design_nlp
 from vine_nlp.model.routing import Sigmas
 
 HERE = Path(__file__).resolve().parent
@@ -31,7 +31,7 @@ NOISE = 0.05  # cm (0.5 mm)
 
 def main():
     pb = load_problem(HERE.parent / "trefoil-m4.toml").problem
-    nominal = design_nlp(pb).routing
+    nominal = vn.solve(HERE.parent / "trefoil-m4.toml").routing
     dev = draw_deviations(nominal, SIGMAS, SYSTEMATIC, seed=14, lambda_min=pb.actuator.lambda_min)
     pts = simulate_build(nominal, dev, pb.diameter, "outer", 400, NOISE, seed=15)
     out = HERE / "trefoil-built.csv"
