@@ -41,8 +41,10 @@ def report(result, units: str) -> list[str]:
         out.append(f"{'' if k else 'routes':12}{name:13} {ROUTES[name]}: predicted RMSE {r.metrics['rmse']:.4g} {units}, max "
                    f"{r.metrics['max_error']:.4g} {units}" + (f" ({free:.4g} {units} without the bounds)" if free is not None else ""))
     why = "recommended" if route == result.recommended else f"as asked; recommended {result.recommended}"
+    held = e.deviations.held if e.deviations.held is not None else np.zeros(M, bool)
     out.append(f"corrected   {route} ({why}), {c.status}{', short of the target' if c.shortfall else ''}: lambda changed in "
-               f"{int(np.sum(np.abs(dl) > 1e-6))} of {M} segments (largest {float(np.max(np.abs(dl), initial=0)):.4f})"
+               f"{int(np.sum(np.abs(dl) > 1e-6))} of {M} segments (largest {float(np.max(np.abs(dl), initial=0)):.4f}; "
+               f"{int(held.sum())} held: built against 1, their error beyond it unknown)"
                + (f", theta in {int(np.sum(np.abs(dt) > 1e-6))} (largest {float(np.max(np.abs(dt), initial=0)):.2f} deg)" if "theta" in route else ""))
     return out
 

@@ -15,8 +15,8 @@ A correction archive is a result archive (every command reads it) with:
 ``/measured/points``         every measured point so far (archive frame), all files stacked
 ``/measured/<k>/points``     measurement k, attrs ``line``, ``file``, ``build``
 ``/correction``              attrs ``format`` ("vine_nlp/correction"), ``builds``, ``built_run``, ``adjust`` (the
-                             route taken), ``recommended`` (the route to take), ``free_pose``, the sigmas; ``systematic`` (3,) = (theta offset rad, lambda offset,
-                             length scale) and ``systematic_std`` (3,);
+                             route taken), ``recommended``, ``free_pose``, the sigmas; ``systematic`` (3,) = (theta
+                             offset rad, lambda offset, length scale) and ``systematic_std`` (3,);
                              ``builds/<b>/{theta,lambda,length,initial_pose}`` the nominal of build b (oldest first)
 
 Bad files raise :class:`vine_nlp.errors.InputError` (archives: ``ArchiveError``) naming the file and the key.
@@ -45,13 +45,8 @@ RUNS = ("as_built", "corrected", "corrected_lambda", "corrected_lambda_theta")
 
 
 def read_measured(path) -> np.ndarray:
-    """Measured points of a CSV file: rows x y z (a header line and # comments allowed), any order.
-
-    Raises
-    ------
-    InputError
-        ``(file, "line N" | "values" | "file", reason)``: a missing file, a bad row, too few or too many points.
-    """
+    """Measured points of a CSV file: rows x y z (a header line and # comments allowed), any order. InputError
+    ``(file, "line N" | "values" | "file", reason)``: a missing file, a bad row, too few or too many points."""
     path = Path(path)
     f = SourceFile(str(path))
     if not path.is_file():
@@ -124,12 +119,7 @@ def write_correction_archive(path, base: Archive, result: CorrectionResult, buil
 
 def read_correction(path) -> tuple[Archive, CorrectionState | None]:
     """The archive (validated by ``load_archive``) and its correction state (None for a plain design archive).
-
-    Raises
-    ------
-    ArchiveError
-        A malformed correction part, naming the dataset or attribute.
-    """
+    ArchiveError: a malformed correction part, naming the dataset or attribute."""
     a = load_archive(path)
     try:
         with h5py.File(path, "r") as h5:

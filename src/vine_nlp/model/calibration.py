@@ -19,21 +19,8 @@ from vine_nlp.model.routing import TOP, Routing, actuated, built_lambda
 @dataclass(frozen=True)
 class Calibration:
     """Built = nominal + offsets, lengths times the scale (the contract's deviation rule, shared by all segments;
-    lambda by the physical rule).
-
-    Parameters
-    ----------
-    lambda_offset : float
-        Systematic lambda error (built minus nominal).
-    theta_offset_deg : float
-        Systematic theta error, degrees.
-    length_scale : float
-        Built segment length over nominal (> 0).
-    lambda_offset_se, theta_offset_deg_se, length_scale_se : float
-        Their standard errors.
-    prototypes : int
-        Prototypes the calibration was estimated from.
-    """
+    lambda by the physical rule): ``lambda_offset`` (built minus nominal), ``theta_offset_deg``, ``length_scale``
+    (built over nominal, > 0), their standard errors ``*_se``, and the ``prototypes`` they come from."""
 
     lambda_offset: float = 0.0
     theta_offset_deg: float = 0.0

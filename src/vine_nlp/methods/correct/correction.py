@@ -1,21 +1,16 @@
 """The correction: nominal values to build next so that the robot, its deviations kept, matches the target.
 
-The plain NLP on the target with the deviations kept (``deviations``). The variables are what is built (the
-as-built values), bounded by what the robot can realize (spec "Physical builds", :func:`lambda_bounds`): where
-the built robot has an actuator, lambda in its range [lambda_min, 1] with the nominal below 1; where it has none,
-exactly 1 (no actuator is added: a new stopper or pouch carries an error of its own, and a design without one
-there did not need it). Theta stays at the as-built values unless theta is adjusted, then within
-[-theta_max, theta_max] + d_theta and THETA_TRUST sigma_theta of the as-built theta (the estimate holds near the
-measured shape); lengths at the as-built lengths, the pose at the archive's. The nominal to build is the solution
-minus the deviations; its prediction is what the physical rule makes of it. Solved on the drive's Hessian
-schedule (settings.CORRECTION_SCHEDULE).
+The plain NLP on the target; its variables are what is built, bounded by what the robot can realize (spec "Physical
+builds", :func:`lambda_bounds`; no actuator is added: a new stopper or pouch has an error of its own, and the design
+needed none there). Theta stays as built unless adjusted, then within theta_max and THETA_TRUST sigma_theta of the
+as-built theta (the estimate holds near the measured shape); lengths and pose stay. The nominal is the solution
+minus the deviations; its prediction what the physical rule makes of it. On the drive's Hessian schedule.
 
-Two routes, both predicted every time: ``lambda`` (stoppers or pouches adjusted on this robot) and
-``lambda,theta`` (the line drawn anew on a new tube). A route reaches the target unless its bounds cost
-accuracy: where the solution sits at a bound, the same NLP without the bounds predicts
-materially less error (REACH_TOL); ``Result.shortfall`` then names the segments and the bound. Recommended: the
-route that reaches the target where only one does, else lambda,theta where it predicts ROUTE_GAIN times less
-error than lambda alone by more than the measurement noise, else lambda (the robot is kept).
+Two routes, both predicted: ``lambda`` (stoppers or pouches on this robot) and ``lambda,theta`` (the line drawn
+anew on a new tube). A route cannot reach the target where its solution sits at a bound and the same NLP without
+the bounds predicts materially less error (REACH_TOL): ``Result.shortfall`` names the segments and the bound.
+Recommended: the route that reaches the target where only one does, else lambda,theta where it predicts ROUTE_GAIN
+times less error than lambda alone by more than the measurement noise, else lambda (the robot is kept).
 """
 
 from __future__ import annotations
@@ -62,24 +57,16 @@ def lambda_bounds(problem: DesignProblem, built: Routing, dev: Deviations) -> tu
     where ``dev.held``. sPAM: one lambda."""
     a, act = problem.actuator, actuated(built.lam)
     d = np.full(built.segments, float(np.mean(dev.lam))) if a.shared_lambda else dev.lam
-    lo = np.where(act, a.lambda_min, 1.0)
-    hi = np.maximum(lo, np.where(act, np.minimum(1.0, TOP + d), 1.0))
-    if dev.held is not None:
-        now = built_lambda(built.lam, d, a.lambda_min)
-        lo, hi = np.where(dev.held, now, lo), np.where(dev.held, now, hi)
-    return lo, hi
+    lo, now = np.where(act, a.lambda_min, 1.0), built_lambda(built.lam, d, a.lambda_min)
+    held = dev.held if dev.held is not None else False
+    return np.where(held, now, lo), np.where(held, now, np.maximum(lo, np.where(act, np.minimum(1.0, TOP + d), 1.0)))
 
 
 def correct_routing(problem: DesignProblem, as_built: Routing, dev: Deviations, adjust=("lambda",), built: Routing | None = None,
                     theta_trust: float | None = None, unbounded: bool = False) -> tuple[Routing, Routing, str, dict]:
-    """Nominal values to build next so that the robot, its deviations kept, matches the target.
-
-    ``built``: the nominal that was built (default: as_built minus the deviations, an actuator where its
-    lambda is below 1); its lengths (and, unless theta is adjusted, its theta) are copied to the result exactly.
-    ``theta_trust``: with theta adjusted, the bound (rad) on |theta - theta as built| (None: only the design's
-    bounds). ``unbounded``: the same NLP without the builder's bounds (lambda, theta_max; what they cost).
-    Returns (nominal to build, what it realizes (the physical rule), status, solver stats).
-    """
+    """(nominal to build next, what it realizes, status, solver stats) (module docstring). ``built``: the nominal
+    that was built (default: as_built minus the deviations), its lengths (and theta, unless adjusted) kept exactly;
+    ``theta_trust``: the bound (rad) on |theta - theta as built|; ``unbounded``: without the builder's bounds."""
     adjust = tuple(adjust)
     if adjust not in ADJUST:
         raise ValueError(f"adjust must be one of {', '.join(','.join(a) for a in ADJUST)}")
@@ -138,12 +125,10 @@ def at_bounds(problem: DesignProblem, realized: Routing, built: Routing, dev: De
 
 @dataclass
 class CorrectionResult:
-    """``as_built``: the estimated effective routing (shape at the target's pairing; metrics rmse/max_error
-    against the measurements, target_rmse/target_max_error against the target); ``corrected``: the nominal
-    to build next on the chosen route ``adjust`` (shape: what it will realize; metrics: the predicted error to
-    the target; ``shortfall``: why it cannot reach the target); ``routes``: both routes' corrections, by name
-    ("lambda", "lambda,theta"); ``recommended``: the route to take; ``built``: the nominal of the build
-    measured last; ``estimate``: the full estimate."""
+    """``as_built``: the estimate (metrics rmse/max_error against the measurements, target_* against the target);
+    ``corrected``: the nominal to build next on the route ``adjust`` (shape and metrics: what it will realize;
+    ``shortfall``: why it cannot reach the target), one of ``routes`` ("lambda", "lambda,theta");
+    ``recommended``: the route to take; ``built``: the nominal measured last."""
 
     built: Routing
     as_built: Result
@@ -158,16 +143,11 @@ class CorrectionResult:
 def correct(problem: DesignProblem, nominals: list, measurements: list, *, adjust=None, sigmas: Sigmas | None = None,
             measurement_sigma: float | None = None, systematic_sigmas=DEFAULT_SYSTEMATIC_SIGMAS, units_per_mm: float = 0.1,
             theta_trust: float | None = None, start: Deviations | None = None, start_systematic=None) -> CorrectionResult:
-    """Estimate the built robot and correct it on both routes (module docstring): the methods layer, no file I/O.
-
-    ``problem``: the target the robot should match (the archive's design problem); ``nominals``: the nominal
-    of each build measured so far, oldest first (the last just built); ``measurements``: their points
-    (``build`` indexes ``nominals``); ``adjust``: the route taken, ("lambda",) or ("lambda", "theta"), None:
-    the recommended one; ``sigmas``: the construction errors, the estimate's prior (default 1 deg, 0.02, 2 %);
-    ``theta_trust``: with theta adjusted, how far (rad) the corrected theta may move from the as-built one
-    (default THETA_TRUST sigma_theta); ``start``, ``start_systematic``: a warm start of the estimate (the
-    previous round's deviations and systematic parts).
-    """
+    """Estimate the built robot and correct it on both routes (module docstring), no file I/O. ``nominals``: of
+    each build measured so far, oldest first; ``measurements``: their points (``build`` indexes ``nominals``);
+    ``adjust``: the route taken (None: the recommended one); ``sigmas``: the estimate's prior (default 1 deg,
+    0.02, 2 %); ``theta_trust`` default THETA_TRUST sigma_theta; ``start``, ``start_systematic``: a warm start
+    (the previous round's deviations and systematic parts)."""
     t0 = time.perf_counter()
     sigmas = sigmas or Sigmas.from_degrees(1.0, 0.02, 0.02)
     D = problem.diameter

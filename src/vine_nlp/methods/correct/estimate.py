@@ -10,21 +10,18 @@ the negative log posterior times 2 / N (N measured points) is
                     + ((dl_j - l_nom,j e^g2) / (s_len l_nom,j e^g2))^2
             + sum_k (g_k / s_sys,k)^2 ],
 
-P_i the model point paired with measured point m_i (``pairing``, point-to-line). The physical rule (spec
-"Physical builds"): a_j = 1 where the latest nominal has an actuator, lam_j in [lambda_min, 1] there; elsewhere
-lam_j = 1, no lambda prior (a_j = 0). sPAM: the lambda deviation is the systematic offset only. Earlier builds
-are second chains of frames (extra stage variables) whose segments are the latest as-built values shifted by
-their known differences, lambda min(1, lam_j + shift) (shift 1 where that build had no actuator: exactly 1);
-free-frame measurements carry a rigid transform (6 more globals), started from a rigid ICP alignment. A warm
-start (round 2 from round 1's deviations and systematic parts) skips the coarsest stage of the ICP loop.
+P_i the model point paired with measured point m_i (``pairing``, point-to-line). The physical rule: a_j = 1
+and lam_j in [lambda_min, 1] where the latest nominal has an actuator, else lam_j = 1 and a_j = 0. sPAM: the
+lambda deviation is the systematic offset only. Earlier builds are second chains of frames (extra stage
+variables) of the latest as-built values shifted by their known differences, lambda min(1, lam_j + shift)
+(shift 1 where that build had no actuator); free-frame measurements carry a rigid transform (6 more globals),
+started from a rigid ICP alignment. A warm start (the previous round's estimate) skips the coarsest stage.
 
 The ICP loop (:class:`_ICP`, a rule of ``drive.refine``): pair, solve warm, pair again until the pairs stop
-moving; coarse to fine, the fit's noise sigma shrinking by settings.STAGE_FACTOR from D/2 to sigma_m (the
-closest points of a robot built far off its nominal are wrong at first), pairs beyond TRIM sigmas left
-out. Each segment of each build has S slots (the fullest segment's count, rounded up to SLOT_STEP), each
-one instance of the one-point block :func:`measure_block` with its point, fraction, tangent and weight as
-data (unused slots weight 0): re-pairing changes data only, and one structure per (M, S, builds, free
-pose) serves every round, compiled once ("As-built correction").
+moving; coarse to fine, the fit's noise sigma shrinking by settings.STAGE_FACTOR from D/2 to sigma_m, pairs
+beyond TRIM sigmas left out. Each segment of each build has S slots (rounded up to SLOT_STEP), each an instance
+of the one-point block :func:`measure_block` with its point, fraction, tangent and weight as data: re-pairing
+changes data only, and one structure per (M, S, builds, free pose) serves every round, compiled once.
 """
 
 from __future__ import annotations
@@ -161,13 +158,10 @@ class AsBuiltTerm:
 
 @dataclass
 class Estimate:
-    """The estimated as-built robot (latest build) and how well it is known.
-
-    ``systematic``: (theta offset rad, lambda offset, length scale factor) and ``systematic_std``
-    their standard deviations (the scale's by the delta method); ``std`` (M, 3): standard
-    deviations of theta, lambda and length (problem units) per segment; ``transform``: 4x4 moving
-    free-frame measurements into the archive frame (identity without them); ``residuals``: per
-    measurement, the distances of its points to the estimated line (problem units)."""
+    """The estimated as-built robot (latest build) and how well it is known: ``systematic`` (theta offset rad,
+    lambda offset, length scale) and ``systematic_std``; ``std`` (M, 3): of theta, lambda, length per segment;
+    ``transform``: 4x4 moving free-frame measurements into the archive frame; ``residuals``: per measurement,
+    its points' distances to the estimated line."""
 
     routing: Routing
     deviations: Deviations
@@ -187,18 +181,11 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
                       measurement_sigma: float | None = None, systematic_sigmas=DEFAULT_SYSTEMATIC_SIGMAS,
                       hessian: str | None = None, rounds: int = settings.ICP_ROUNDS, units_per_mm: float = 0.1,
                       lambda_min: float = 0.0, start: Deviations | None = None, start_systematic=None) -> Estimate:
-    """MAP estimate of the as-built robot from measurements of one or more builds (module docstring).
-
-    ``nominals``: the nominal routing of each build, oldest first (the estimate is of the last; all share
-    the segments and the base pose); ``measurements``: points of any build (``build`` indexes ``nominals``,
-    -1 the latest), any line, any order; ``D``: the tube diameter; ``sigmas``: the per-segment
-    construction errors (the prior); ``shared_lambda``: sPAM; ``measurement_sigma``: the noise (problem
-    units, default DEFAULT_MEASUREMENT_SIGMA_MM); ``systematic_sigmas``: the prior of the theta offset
-    (rad), lambda offset and log length scale; ``hessian``: default settings.ESTIMATE_HESSIAN; ``rounds``:
-    of the last stage (settings.COARSE_ROUNDS for each earlier one); ``lambda_min``: the actuator's; ``start``,
-    ``start_systematic``: a warm start (an earlier round's deviations and systematic parts). Raises ValueError
-    for sigmas <= 0.
-    """
+    """MAP estimate of the as-built robot (module docstring). ``nominals``: of each build, oldest first (the
+    estimate is of the last); ``measurements``: of any build (``build`` indexes ``nominals``); ``sigmas``: the
+    prior; ``measurement_sigma``: default DEFAULT_MEASUREMENT_SIGMA_MM; ``systematic_sigmas``: the prior of
+    (theta offset rad, lambda offset, log length scale); ``rounds``: of the last stage; ``start``,
+    ``start_systematic``: a warm start (an earlier round's deviations and systematic parts). ValueError: sigmas <= 0."""
     stats, cpu = drive.Stats(), time.process_time()
     sig_m = (DEFAULT_MEASUREMENT_SIGMA_MM * units_per_mm) if measurement_sigma is None else float(measurement_sigma)
     icp = _ICP(nominals, measurements, D, sigmas, shared_lambda, sig_m, systematic_sigmas, hessian or settings.ESTIMATE_HESSIAN, rounds,
