@@ -17,7 +17,7 @@ from vine_nlp.io.correction import read_correction
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import correct as C
 from vine_nlp.methods.common import evaluate, pair_points
-from vine_nlp.methods.correct.estimate import measure_block
+from vine_nlp.methods.correct.estimate import CAP_ROUND, measure_block
 from vine_nlp.methods.correct.laplace import line_jacobian
 from vine_nlp.methods.correct.pairing import SLIDE, line_points
 from vine_nlp.methods.structure import frames12
@@ -501,8 +501,10 @@ def test_measure_slot_is_the_point_to_line_residual_of_the_model(free):
     r = Routing(rng.uniform(-0.6, 0.6, M), np.r_[rng.uniform(0.4, 0.9, M - 1), 0.99], rng.uniform(1.0, 3.0, M), np.eye(4))
     bt = measure_block(free)
     shift = np.array([0.03, 0.05, 1.05])  # an earlier build: its theta and lambda shifted, its lengths scaled
-    # the physical rule: its lambda at most 1 (the cap of an earlier build)
-    built = Routing(r.theta + shift[0], np.minimum(1.0, r.lam + shift[1]), r.length * shift[2], np.eye(4))
+    # the physical rule: its lambda at most 1 (the cap of an earlier build, rounded over CAP_ROUND)
+    x = r.lam + shift[1]
+    built = Routing(r.theta + shift[0], 0.5 * (1 + x - np.sqrt((1 - x) ** 2 + CAP_ROUND**2)), r.length * shift[2], np.eye(4))
+    assert abs(built.lam[-1] - 1.0) < CAP_ROUND and np.all(np.abs(built.lam[:-1] - x[:-1]) < 1e-5)
     w_rot, t_move, c = np.array([0.1, -0.2, 0.05]), np.array([0.3, 0.1, -0.2]), np.array([1.0, 2.0, 0.5])
     for j, u, side in ((0, 0.0, -0.5), (2, 0.4, 0.5), (4, 1.0, 0.0), (4, 0.6, -0.5)):
         m, t = rng.normal(size=3), rng.normal(size=3)

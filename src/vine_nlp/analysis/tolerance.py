@@ -121,16 +121,11 @@ def tolerance_report(problem, result, sigmas: Sigmas, samples: int = 2000, seed:
     points_per_segment, the tip last), as the design methods do; the result's routing
     must have that pairing's segment count. Lengths in problem units.
 
-    Returns dict with
-      sigmas, units, segments, points;
-      nominal: rmse, mse, tip (3,);
-      first_order: mse_increase, rmse (= sqrt(MSE_0 + increase)), rmse_increase, tip_cov (3, 3),
-                   tip_std (= sqrt(trace)), point_std (N,);
-      per_segment: l_start, l_end, l_mid (material coordinate), tip_var (M,), tip_var_by_param (M, 3),
-                   mse (M,), mse_by_param (M, 3) (columns theta, lambda, length; they add up to
-                   the totals above);
-      monte_carlo: samples, seed, rmse (S,), mean_rmse, rms_rmse (= sqrt(mean MSE)), mse_increase,
-                   tip_cov (3, 3), tip_std, tip_mean_shift (3,).
+    Returns dict with sigmas, units, segments, points; nominal: rmse, mse, tip (3,); first_order: mse_increase,
+      rmse (= sqrt(MSE_0 + increase)), rmse_increase, tip_cov (3, 3), tip_std (= sqrt(trace)), point_std (N,);
+      per_segment: l_start, l_end, l_mid (material coordinate), tip_var (M,), tip_var_by_param (M, 3), mse (M,),
+      mse_by_param (M, 3) (columns theta, lambda, length; they add up to the totals above); monte_carlo: samples,
+      seed, rmse (S,), mean_rmse, rms_rmse (= sqrt(mean MSE)), mse_increase, tip_cov (3, 3), tip_std, tip_mean_shift.
     """
     D = problem.diameter
     r = result.routing

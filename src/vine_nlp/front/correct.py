@@ -60,9 +60,7 @@ def correction_figure(result, problem, units: str = "cm"):
     ax.plot(*result.corrected.shape.center.T, "C2-", lw=1.2, label="corrected (predicted)")
     for k, m in enumerate(result.measurements):
         ax.scatter(*m.points.T, s=2, color="C0", label="measured" if k == 0 else None)
-    ax.set_xlabel(f"x [{units}]")
-    ax.set_ylabel(f"y [{units}]")
-    ax.set_zlabel(f"z [{units}]")
+    ax.set(xlabel=f"x [{units}]", ylabel=f"y [{units}]", zlabel=f"z [{units}]")
     ax.legend(loc="upper left", fontsize=8)
     e = result.estimate
     j = np.arange(e.routing.segments)
@@ -72,9 +70,7 @@ def correction_figure(result, problem, units: str = "cm"):
         (100 * (e.deviations.length_ratio - 1), 100 * e.std[:, 2] / result.built.length, "length deviation [%]"),
     )):
         a = fig.add_subplot(3, 2, 2 * row + 2)
-        a.errorbar(j, vals, yerr=sd, fmt="o", ms=2, lw=0.8)
-        a.axhline(0, color="k", lw=0.5)
-        a.set_ylabel(label, fontsize=8)
+        a.errorbar(j, vals, yerr=sd, fmt="o", ms=2, lw=0.8), a.axhline(0, color="k", lw=0.5), a.set_ylabel(label, fontsize=8)
     a.set_xlabel("segment")
     fig.subplots_adjust(left=0.02, right=0.97, wspace=0.25, hspace=0.35)
     fig.suptitle(f"as built: RMSE to target {result.as_built.metrics['target_rmse']:.3g} {units}; "

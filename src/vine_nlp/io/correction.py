@@ -190,9 +190,7 @@ def _state(file, h5, a: Archive) -> CorrectionState:
         k += 1
     if not ms:
         raise ArchiveError(file, "/measured/0/points", "missing: a correction archive holds its measurements")
-    attrs = {}
-    for name in g.attrs:
-        attrs[name] = _attr(file, g, name, (str, int, float, bool))
+    attrs = {name: _attr(file, g, name, (str, int, float, bool)) for name in g.attrs}
     sysv, sys_sd = a.extra.get("correction/systematic"), a.extra.get("correction/systematic_std")
     for key, v in (("systematic", sysv), ("systematic_std", sys_sd)):
         if v is None or np.shape(v) != (3,):

@@ -89,11 +89,9 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
 
 
 def _check_plausible(result, new, D, units):
-    """A measurement that cannot be this robot (another shape, another frame, the wrong archive): the
-    estimated robot passes far from most of its points, farther than noise explains. InputError naming it.
-
-    Under Gaussian noise sigma per coordinate the median point-to-line distance is about 1.2 sigma; more
-    than PLAUSIBLE_MEDIAN sigma (and a quarter of the diameter) is not noise."""
+    """InputError for a measurement that cannot be this robot: the estimate passes farther from most of its points
+    than noise explains (the median distance is about 1.2 sigma under Gaussian noise; more than PLAUSIBLE_MEDIAN
+    sigma and a quarter of the diameter is not noise): another shape, another frame, the wrong archive."""
     sig = float(result.estimate.stats["measurement_sigma"])
     limit = max(PLAUSIBLE_MEDIAN * sig, 0.25 * D)
     dists = result.estimate.residuals[len(result.estimate.residuals) - len(new):]

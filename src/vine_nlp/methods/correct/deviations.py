@@ -3,10 +3,9 @@ robot from build to build.
 
 A robot built from the nominal (theta, lam, length) realizes (theta_ab, lam_ab, length_ab). The deviations
 d_theta = theta_ab - theta, d_lam = lam_ab - lam and the length ratio r = length_ab / length stay with the
-robot: built from nominal (theta', lam', length') it realizes theta' + d_theta, length' r and, by the physical
-rule (model.routing.built_lambda), lambda exactly 1 where lam' = 1 (no actuator, so no lambda deviation) and
-min(1, lam' + d_lam) elsewhere, at least the actuator's lambda_min. The estimate, the correction and the
-simulated builds use them only through these functions.
+robot: built from nominal (theta', lam', length') it realizes theta' + d_theta, length' r and the physical rule's
+lambda (model.routing.built_lambda: 1 where lam' = 1, no actuator; min(1, lam' + d_lam), at least lambda_min,
+elsewhere). The estimate, the correction and the simulated builds use them only through these functions.
 """
 
 from __future__ import annotations

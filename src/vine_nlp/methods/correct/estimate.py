@@ -7,11 +7,13 @@ the negative log posterior times 2 / N (N measured points) is
 
     (1/N) [ sum_i |P_i(q) - m_i|_perp^2 / sigma_m^2
             + sum_j ((theta_j - theta_nom,j - g0) / s_theta)^2 + a_j ((lam_j - lam_nom,j - g1) / s_lam)^2
-                    + ((dl_j - l_nom,j e^g2) / (s_len l_nom,j e^g2))^2
+                    - 2 c_j log(1 - Phi((1 - lam_nom,j - g1) / s_lam)) + ((dl_j - l_nom,j e^g2) / (s_len l_nom,j e^g2))^2
             + sum_k (g_k / s_sys,k)^2 ],
 
 P_i the model point paired with measured point m_i (``pairing``, point-to-line). The physical rule: a_j = 1
-and lam_j in [lambda_min, 1] where the latest nominal has an actuator, else lam_j = 1 and a_j = 0. sPAM: the
+and lam_j in [lambda_min, 1] where the latest nominal has an actuator, else lam_j = 1 and a_j = 0; an actuator
+at lambda 1 is clipped (c_j = 1, a_j = 0, from the round before): only its error's probability to reach 1 is
+known (else the clipped ones would pull the lambda offset down, the others' selection push it down). sPAM: the
 lambda deviation is the systematic offset only. Earlier builds are second chains of frames (extra stage
 variables) of the latest as-built values shifted by their known differences, lambda min(1, lam_j + shift)
 (shift 1 where that build had no actuator); free-frame measurements carry a rigid transform (6 more globals),
@@ -63,7 +65,12 @@ HELD_SIGMAS = 2.0  # an actuator estimated within this many standard deviations 
 # [, centroid (3), free flag], lambda cap
 SLOT_DATA = 13
 SLOT_DATA_FREE = 17
-NO_CAP = 10.0  # the latest build's lambda cap: its bound lam <= 1 holds it (no kink of min(1, lam) at the bound)
+NO_CAP = 10.0  # no lambda cap (min(NO_CAP, lam + shift) = lam + shift)
+CAP_ROUND = 1e-3  # lambda units: the cap's rounding (at most CAP_ROUND / 2 off min, at the kink)
+
+
+def _cap(cap, lam):  # min(cap, lam) rounded over CAP_ROUND: a kink at the solution stalls IPOPT (a build clipped near 1)
+    return 0.5 * (cap + lam - ca.sqrt((cap - lam) ** 2 + CAP_ROUND**2))
 
 
 @lru_cache(maxsize=2)
@@ -76,13 +83,13 @@ def measure_block(free: bool) -> BlockType:
     as-built chain (and the rigid transform of free-frame measurements);
     d = (shift (3): theta and lambda added, length factor (the build's nominal against the latest),
     u, m (3), t (3) tangent, w square root of the weight, side [, c (3) centroid, flag], cap: lambda is
-    min(cap, lam + shift), 1 on an earlier build (the physical rule), NO_CAP on the latest).
+    min(cap, lam + shift): 1 where the shift may pass 1 (the physical rule), NO_CAP elsewhere).
     Residual w (I - (1 - SLIDE) t t^T)(P - m) (the square root as data: a zero-weight slot has finite derivatives);
     a free-frame point (flag 1) is moved by exp(w) (m - c) + c + t first (m stored as given, c their centroid)."""
     nv = 21 if free else 15
     nd = SLOT_DATA_FREE if free else SLOT_DATA
     v, d = ca.SX.sym("v", nv), ca.SX.sym("d", nd)
-    th, la, dl = v[12] + d[0], ca.fmin(d[nd - 1], v[13] + d[1]), v[14] * d[2]
+    th, la, dl = v[12] + d[0], _cap(d[nd - 1], v[13] + d[1]), v[14] * d[2]
     u, mi, tg, w, side = d[3], d[4:7], d[7:10], d[10], d[11]
     R, p = ca.reshape(v[:9], 3, 3), v[9:12]
     kappa, tau, lc = center_rates(th, la, 1.0)
@@ -100,10 +107,10 @@ def measure_block(free: bool) -> BlockType:
 
 @lru_cache(maxsize=1)
 def shifted_segment_block() -> BlockType:
-    """Continuity of an earlier build's chain: X'_{j+1} = X'_j T(theta + d_theta, min(1, lam + d_lam), dl f).
-    v = (X'_j (12), theta, lam, dl, X'_{j+1} (12)); d = (d_theta, d_lam, f)."""
-    v, d = ca.SX.sym("v", 27), ca.SX.sym("d", 3)
-    Xn, _ = segment_function(1)(v[:12], v[12] + d[0], ca.fmin(1.0, v[13] + d[1]), v[14] * d[2], 0.0)
+    """Continuity of an earlier build's chain: X'_{j+1} = X'_j T(theta + d_theta, min(cap, lam + d_lam), dl f).
+    v = (X'_j (12), theta, lam, dl, X'_{j+1} (12)); d = (d_theta, d_lam, f, cap)."""
+    v, d = ca.SX.sym("v", 27), ca.SX.sym("d", 4)
+    Xn, _ = segment_function(1)(v[:12], v[12] + d[0], _cap(d[3], v[13] + d[1]), v[14] * d[2], 0.0)
     return BlockType("shifted_segment", ca.Function("shifted_block", [v, d], [ca.SX(0), Xn - v[15:]]),
                      ca.Function("shifted_res", [v, d], [ca.SX(0, 1)]))
 
@@ -113,7 +120,7 @@ class AsBuiltTerm:
     """The MAP estimate's terms (module docstring) for ``builds`` builds (the last is the chain itself,
     the others extra frames) with ``S`` slots per segment and build; ``free``: a rigid transform of the
     free-frame measurements in globals 3..8. Parameters: meas (nd x M B S, one column per slot), shift (3 x M (B-1)),
-    prior (4 x M: nominal theta, lam, dl of the latest build, a_j), prior_sig (8: s_theta, s_lam, s_len_rel,
+    prior (5 x M: nominal theta, lam, dl of the latest build, a_j, c_j), prior_sig (8: s_theta, s_lam, s_len_rel,
     s_len_abs (D), s_sys (3), scale)."""
 
     S: int
@@ -129,8 +136,8 @@ class AsBuiltTerm:
         bt = measure_block(self.free)
         nd = bt.fn.size1_in(1)
         meas = c.param("meas", (nd, M * B * S))  # slot k of segment j of build b: column (b M + j) S + k
-        shift = c.param("shift", (3, max(M * (B - 1), 1)))
-        prior, sig = c.param("prior", (4, M)), c.param("prior_sig", (8, 1))
+        shift = c.param("shift", (4, max(M * (B - 1), 1)))
+        prior, sig = c.param("prior", (5, M)), c.param("prior_sig", (8, 1))
 
         def frame(b, j):
             if b == B - 1 or j == 0:
@@ -151,6 +158,8 @@ class AsBuiltTerm:
         val = ca.sumsqr(r_th) + ca.sumsqr(r_len) + ca.sumsqr(g[:3] / sig[4:7])
         if s.lam == "segment":
             val += ca.sumsqr(prior[3, :] * (c.lam_of(0) - prior[1, :] - g[1]) / sig[1])
+            z = ca.fmin((1.0 - prior[1, :] - g[1]) / (sig[1] * math.sqrt(2.0)), 5.0)
+            val -= 2.0 * ca.dot(prior[4, :], ca.log(0.5 * (1.0 - ca.erf(z)) + 1e-300))
         else:
             c.add_rows("spam_offset", c.lam_of(0)[0] - prior[1, 0] - g[1], 0.0, 0.0)
         c.add_term("prior", sig[7] * val)
@@ -209,10 +218,8 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
 
 
 class _ICP:
-    """The estimate's ICP loop, a rule of ``drive.refine`` (module docstring): each round solves the MAP NLP
-    with the current pairs (warm from the round before, anew where the slots grew), then pairs the
-    measurements again with the new estimate; a stage ends when the pairs stop moving or after its
-    rounds, the loop after the last stage. Every round supersedes the one before (the estimate is the last)."""
+    """The estimate's ICP loop, a rule of ``drive.refine`` (module docstring): solve with the pairs (warm), pair
+    again; a stage ends when the pairs stop moving or after its rounds. Every round supersedes the one before."""
 
     def __init__(self, nominals, measurements, D, sigmas, shared, sig_m, systematic_sigmas, hessian, rounds, lambda_min, start, start_sys):
         B, latest = len(nominals), nominals[-1]
@@ -224,8 +231,8 @@ class _ICP:
         # shifts of every build against the latest nominal (known differences of what was built; lambda: 1 where that
         # build has no actuator, so that min(1, lam + shift) is exactly 1)
         self.act, self.lambda_min = actuated(latest.lam), max(lambda_min, 0.05)
-        self.shifts = [(n.theta - latest.theta, np.where(actuated(n.lam), n.lam - latest.lam, 1.0), n.length / latest.length)
-                       for n in nominals]
+        self.shifts = [(n.theta - latest.theta, np.where(actuated(n.lam) | (b == B - 1), n.lam - latest.lam, 1.0), n.length / latest.length)
+                       for b, n in enumerate(nominals)]
         self.T_free = rigid_start(self.ms, nominals, D) if self.free else np.eye(4)
         self.pts = [in_frame(m.points, m, self.T_free) for m in self.ms]
         self.centroid = np.mean(np.concatenate([p for p, m in zip(self.pts, self.ms) if m.frame == "free"]), axis=0) if self.free else np.zeros(3)
@@ -233,9 +240,11 @@ class _ICP:
         self.prior_sig = np.array([sigmas.theta, sigmas.lam, s_rel, s_abs, *systematic_sigmas, 1.0 / self.N])
         if np.any(self.prior_sig[:2] <= 0) or (s_rel <= 0 and s_abs <= 0):
             raise ValueError("the construction-error sigmas must be > 0")
-        self.prior = np.vstack([latest.theta, latest.lam, latest.length / D, self.act])
-        self.shift_data = (np.vstack([np.concatenate([self.shifts[b][k] for b in range(B - 1)]) for k in range(3)]) if B > 1
-                           else np.zeros((3, 1)))
+        self.prior = np.vstack([latest.theta, latest.lam, latest.length / D, self.act, np.zeros(self.M)])
+        # min(1, lam + shift) only where the shift may pass 1 (elsewhere lam <= 1 holds it: no kink at the bound)
+        self.cap = [np.where(sh[1] > 0, 1.0, NO_CAP) for sh in self.shifts]
+        self.shift_data = (np.vstack([np.concatenate([(*self.shifts[b], self.cap[b])[k] for b in range(B - 1)]) for k in range(4)])
+                           if B > 1 else np.zeros((4, 1)))
         self.ab = latest if start is None else apply_deviations(latest, replace(start, lambda_min=self.lambda_min))
         self.g0 = np.zeros(3) if start_sys is None else np.r_[start_sys[:2], math.log(start_sys[2])]
         self.Tcorr, self.g_free = np.eye(4), np.zeros(6)
@@ -274,6 +283,8 @@ class _ICP:
             self.solver, x = get_solver(Spec(st, (AsBuiltTerm(self.S, self.B, self.free),), self.hessian, settings.ESTIMATE)), None
         solver, lay, s_stage = self.solver, self.solver.layout, self.stages[self.stage]
         data = self._data(s_stage, TRIM * max(s_stage, self.sig_m))
+        self.prior[4] = self.act & (self.ab.lam >= 1.0 - 1e-6)  # clipped in the round before (module docstring)
+        self.prior[3] = self.act & ~(self.prior[4] > 0)
         p = solver.pack_params({"cells": np.zeros((5, M)), "meas": data, "shift": self.shift_data, "prior": self.prior,
                                 "prior_sig": self.prior_sig})
         if x is None:
@@ -312,7 +323,7 @@ class _ICP:
         by the stage's sigma where its pair is within ``trim`` (else 0); padding slots weight 0, fraction 0."""
         B, M, S, D = self.B, self.M, self.S, self.D
         data = np.zeros((SLOT_DATA_FREE if self.free else SLOT_DATA, B * M * S))
-        data[-1] = np.repeat(np.r_[np.ones(B - 1), NO_CAP], M * S)
+        data[-1] = np.repeat(np.concatenate(self.cap), S)
         for b in range(B):
             for k in range(3):
                 data[k, b * M * S : (b + 1) * M * S] = np.repeat(self.shifts[b][k], S)
