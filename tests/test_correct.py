@@ -320,11 +320,14 @@ def test_estimate_and_correction_know_where_there_is_no_actuator(setup):
     lam = nominal.lam.copy()
     lam[[3, 4, 8, 9]] = 1.0
     lam[6] = 0.99  # an actuator that the offset pushes against 1
-    nom = Routing(nominal.theta, lam, nominal.length, nominal.initial_pose)
+    theta = nominal.theta.copy()
+    theta[[3, 8]] = 0.8  # there the line winds around the straight tube (the shape does not see it, the outer line does)
+    nom = Routing(theta, lam, nominal.length, nominal.initial_pose)
     dev = draw_deviations(nom, SIGMAS, TRUTH, seed=3)
     pts = simulate_build(nom, dev, problem.diameter, "outer", 150, NOISE, seed=4)
     res = C.correct(problem, [nom], [C.Measurement(pts, "outer")], sigmas=SIGMAS, measurement_sigma=NOISE)
     e = res.estimate
+    assert res.as_built.metrics["rmse"] < 1.5 * math.sqrt(2) * NOISE  # the measured line fitted to its noise
     assert np.all(e.routing.lam[lam == 1.0] == 1.0) and np.all(e.deviations.lam[lam == 1.0] == 0.0)
     assert np.all(e.routing.lam <= 1.0)
     assert abs(e.systematic[1] - TRUTH[1]) < 3 * e.systematic_std[1]
@@ -333,7 +336,7 @@ def test_estimate_and_correction_know_where_there_is_no_actuator(setup):
     for r in res.routes.values():  # no route adds an actuator; what they predict obeys the rule
         assert np.all(r.routing.lam[lam == 1.0] == 1.0) and np.all(r.routing.lam[lam < 1.0] < 1.0)
         assert r.routing.lam[6] == pytest.approx(0.99, abs=1e-12)
-        assert built_error(problem, r.routing, dev) < 0.5 * built_error(problem, nom, dev)
+        assert built_error(problem, r.routing, dev) < (0.5 if r.stats["route"] == "lambda,theta" else 1.0) * built_error(problem, nom, dev)
 
 
 def test_combine_systematic_known_answer():
