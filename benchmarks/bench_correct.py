@@ -1,30 +1,35 @@
-"""As-built correction, the goals' protocol of the issue: simulated builds of the trefoil (m = 4) and Bezier (a).
+"""As-built correction on physical builds (issue 32): the trefoil (m = 4), Bezier (a) and the hook, each designed
+without and with the correction margin of issue 31.
 
-Each problem is designed with design_nlp. Each seed draws per-segment construction errors at sigma
-1 deg / 0.02 / 2 % plus a systematic lambda offset; the robot built from a nominal realizes nominal +
-deviations (the contract's rule: deviations persist from build to build, new values are built exactly).
-A build is measured along the outer line at 200 points (or 15 markers), Gaussian noise 1.4 mm per
-coordinate, in random order. Round 1 estimates from that measurement and corrects; the corrected nominal is
-built with the SAME deviations and measured again; round 2 uses both measurements. Errors are those of the
-built robot to the target: RMSE at the design's pairing and the tip's distance to the target's end.
+Designs: design_nlp ("free", no margin), and the buildable design with the default correction_margin 0.05 ("margin":
+methods.buildable.design_buildable from design_nlp's result, what `vine-nlp design` makes). Each seed draws per-segment construction errors at sigma 1 deg / 0.02 / 2 % plus a systematic lambda
+offset; every robot is built by the physical rule (methods.correct.apply_deviations: lambda exactly 1 where the
+nominal has no actuator, min(1, nominal + error) and at least lambda_min elsewhere; the deviations persist from build
+to build). A build is measured along the outer line at 200 points (or 15 markers), Gaussian noise 1.4 mm per
+coordinate, random order. Round 1: one `correct` (the estimate, then both routes: lambda alone and lambda and theta).
+Round 2, per route: that route's nominal is built with the SAME deviations and measured again, and corrected on the
+same route from both measurements, the estimate warm from round 1's (as `vine-nlp correct` does on a correction
+archive). Errors of the built robot to the target: RMSE at the design's pairing, RMSE of the nearest distances (each
+target point to the modelled center line: what a user measures) and the tip's distance to the target's end.
 
-Calibration: the prototypes of one construction method share the systematic lambda offset; the round-1
-estimates of 5 seeds (5 prototypes) are combined by methods.correct.combine_systematic (as
-``vine-nlp calibrate`` does) and compared with the true offset, for every group of 5 consecutive seeds.
+Ceiling: the same corrections with the TRUE deviations known (one round: the prediction is then exact).
+Calibration: the round-1 systematic estimates of groups of 5 seeds (prototypes) combined as `vine-nlp calibrate` does.
+Speed: one correction (estimate and both routes) in wall-clock and CPU time, warm caches (a call that built a solver is
+run again and the second timed), NLP functions compiled (VINE_NLP_CODEGEN=on unless set otherwise).
 
-Speed: one correction (estimate + correction, warm caches) timed in wall-clock and process CPU time, the
-NLP functions compiled (VINE_NLP_CODEGEN=on unless set otherwise): a correction that built a solver (a new
-structure, compiled on its first use on this machine) is run again and the second run timed. A few round-1
-corrections are also timed with the NLP functions interpreted and compiled, in the same run.
+Resumable and parallel-friendly: every (problem, design, seed) is one JSON file under --cache (default
+benchmarks/.cache/correct, not committed); a run skips what is there. `--shard k/n` runs the seeds with seed % n == k
+(start one process per shard), `--report` only writes the report from the cache. The report
+(results/benchmarks/correct.md) is written by any run that is not a shard.
 
-Writes results/benchmarks/correct.md. Run: python benchmarks/bench_correct.py [--seeds 50] [--quick]
-(--quick: 2 seeds, about 3 min on a quiet 2-core machine; the full protocol: 50 seeds, see the report's
-closing line for how long it took)
+Run: python benchmarks/bench_correct.py [--seeds 50] [--cases trefoil-m4,bezier-a,hook] [--designs free,margin]
+[--shard k/n | --report] [--quick]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import time
@@ -38,32 +43,75 @@ from simulate import draw_deviations, simulate_build  # noqa: E402
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import compiled
 from vine_nlp.methods import correct as C
+from vine_nlp.methods.buildable import design_buildable
 from vine_nlp.methods.common import evaluate, pair_points
 from vine_nlp.methods.nlp import design_nlp
-from vine_nlp.methods.transcription import clear_caches, get_solver
-from vine_nlp.model.chain import chain_frames
-from vine_nlp.model.routing import Sigmas
+from vine_nlp.methods.transcription import get_solver
+from vine_nlp.model.chain import chain_frames, chain_points, segment_end_samples
+from vine_nlp.model.routing import Routing, Sigmas, actuated
 
 SIGMAS = Sigmas.from_degrees(1.0, 0.02, 0.02)
 LAMBDA_OFFSET = 0.02  # the systematic lambda offset of every simulated build
 NOISE_MM = 1.4  # the paper's magnetic tracker, per coordinate
-CASES = ("trefoil-m4", "bezier-a")
-ADJUST = (("lambda",), ("lambda", "theta"))
+CASES = ("trefoil-m4", "bezier-a", "hook")
+DESIGNS = ("free", "margin")
+COUNTS = (200, 15)
+ROUTES = ("lambda", "lambda,theta")
 PROTOTYPES = 5
-def built_errors(pb, pairing, nominal, dev):
-    """(RMSE to the target, tip error) of the robot with deviations ``dev`` built from ``nominal``."""
+MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0}
+
+
+def design(name, kind, cache):
+    """(problem, nominal routing, designed RMSE) of ``name`` designed the ``kind`` way; cached so that shards share it."""
+    pb = load_problem(ROOT / "problems" / f"{name}.toml").problem
+    path = cache / f"design-{name}-{kind}.json"
+    if path.exists():
+        d = json.loads(path.read_text())
+        return pb, Routing(d["theta"], d["lam"], d["length"], d["initial_pose"]), d["rmse"]
+    res = design_nlp(pb)
+    if kind == "margin":
+        res = design_buildable(pb, res)
+    r = res.routing
+    d = {"theta": r.theta.tolist(), "lam": r.lam.tolist(), "length": r.length.tolist(), "initial_pose": r.initial_pose.tolist(),
+         "rmse": res.metrics["rmse"]}
+    write_json(path, d)
+    return pb, r, d["rmse"]
+
+
+def write_json(path, obj):
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(obj))
+    os.replace(tmp, path)
+
+
+def nearest_rmse(target, r: Routing, D) -> float:
+    """RMSE of each target point's distance to the modelled center line (a polyline of 40 pieces per segment)."""
+    from scipy.spatial import cKDTree
+
+    seg, frac = segment_end_samples(r.length, 40)
+    P, _ = chain_points(r.theta, r.lam, r.length, D, seg, frac, r.initial_pose)
+    _, i = cKDTree(P).query(target)
+    best = np.full(len(target), np.inf)
+    for k in (i - 1, i):  # the pieces on both sides of the nearest sample
+        k = np.clip(k, 0, len(P) - 2)
+        a, d = P[k], P[k + 1] - P[k]
+        u = np.clip(np.sum((target - a) * d, axis=1) / np.maximum(np.sum(d * d, axis=1), 1e-300), 0, 1)
+        best = np.minimum(best, np.linalg.norm(a + u[:, None] * d - target, axis=1))
+    return float(np.sqrt(np.mean(best**2)))
+
+
+def errors(pb, pairing, nominal, dev):
+    """(RMSE at the design's pairing, nearest-distance RMSE, tip error) of the robot with ``dev`` built from ``nominal``."""
     r = C.apply_deviations(nominal, dev)
-    rmse = evaluate(pb, r, pairing, "x").metrics["rmse"]
     tip = chain_frames(r.theta, r.lam, r.length, pb.diameter, r.initial_pose)[-1, :3, 3]
-    return rmse, float(np.linalg.norm(tip - pb.target[-1]))
+    return [evaluate(pb, r, pairing, "x").metrics["rmse"], nearest_rmse(pb.target, r, pb.diameter), float(np.linalg.norm(tip - pb.target[-1]))]
 
 
 BUILDS = {"count": 0, "wall_s": 0.0}  # corrections that built a solver (timed again), and how long those first runs took
 
 
 def timed(fn):
-    """(result, wall s, CPU s) of ``fn()`` with warm caches: a call that built a solver (a structure seen for the
-    first time in this process; compiled if it is new on this machine) is run again and the second run timed."""
+    """(result, wall s, CPU s) of ``fn()`` with warm caches: a call that built a solver is run again and the second timed."""
     for _ in range(3):
         misses = get_solver.cache_info().misses
         w, c = time.perf_counter(), time.process_time()
@@ -76,179 +124,149 @@ def timed(fn):
     return out, w, c
 
 
-def per_iteration(est):
-    """Milliseconds per estimate iteration, wall and CPU: the whole estimate (pairing, solves, Laplace step) over its
-    IPOPT iterations."""
-    n = max(est.iterations, 1)
-    return 1000 * est.solve_time_s / n, 1000 * est.stats["cpu_time_s"] / n
-
-
-def run_case(name, seeds, counts, mm):
-    pb = load_problem(ROOT / "problems" / f"{name}.toml").problem
-    design = design_nlp(pb)
-    nom = design.routing
+def run_seed(pb, nom, seed, mm):
+    """Every figure of one seed (module docstring), JSON-ready."""
     pairing = pair_points(pb.target, pb.options.points_per_segment)
-    D = pb.diameter
-    noise = NOISE_MM / mm
-    recs = []
-    for seed in range(seeds):
-        dev = draw_deviations(nom, SIGMAS, (0.0, LAMBDA_OFFSET, 1.0), seed=seed)
-        e0 = built_errors(pb, pairing, nom, dev)
-        for count in counts:
-            m1 = C.Measurement(simulate_build(nom, dev, D, "outer", count, noise, seed=1000 + seed), "outer", 0)
-            for adjust in ADJUST:
-                r1, w1, c1 = timed(lambda: C.correct(pb, [nom], [m1], adjust=adjust, sigmas=SIGMAS, measurement_sigma=noise))
-                n1 = r1.corrected.routing
-                e1 = built_errors(pb, pairing, n1, dev)
-                m2 = C.Measurement(simulate_build(n1, dev, D, "outer", count, noise, seed=2000 + seed), "outer", 1)
-                r2, w2, c2 = timed(lambda: C.correct(pb, [nom, n1], [m1, m2], adjust=adjust, sigmas=SIGMAS, measurement_sigma=noise))
-                e2 = built_errors(pb, pairing, r2.corrected.routing, dev)
-                est = r1.estimate
-                recs.append(dict(
-                    seed=seed, count=count, adjust=",".join(adjust), e0=e0, e1=e1, e2=e2, wall=(w1, w2), cpu=(c1, c2),
-                    rounds=(est.rounds, r2.estimate.rounds), iterations=(est.iterations, r2.estimate.iterations),
-                    corr_iterations=(r1.corrected.iterations, r2.corrected.iterations),
-                    lam_off=float(est.systematic[1]), lam_off_sd=float(est.systematic_std[1]), sys=est.systematic,
-                    sys_sd=est.systematic_std, fit=r1.as_built.metrics["rmse"],
-                    per_it=(per_iteration(est), per_iteration(r2.estimate)),
-                ))
-                print(name, seed, count, ",".join(adjust), f"{mm * e0[0]:.2f} -> {mm * e1[0]:.2f} -> {mm * e2[0]:.2f} mm, "
-                      f"tip {mm * e0[1]:.1f} -> {mm * e1[1]:.1f}; {w1:.2f} s ({c1:.2f} cpu), {w2:.2f} s ({c2:.2f} cpu)", flush=True)
-    return pb, design, recs
-
-
-def speed_compare(name, seeds, mm):
-    """Round-1 corrections (200 points, adjust lambda) with the NLP functions interpreted, then compiled: same
-    measurements, same run. Every structure is built (and compiled) before the timed runs."""
-    pb = load_problem(ROOT / "problems" / f"{name}.toml").problem
-    nom = design_nlp(pb).routing
-    D = pb.diameter
-    ms = []
-    for seed in range(seeds):
-        dev = draw_deviations(nom, SIGMAS, (0.0, LAMBDA_OFFSET, 1.0), seed=seed)
-        ms.append(C.Measurement(simulate_build(nom, dev, D, "outer", 200, NOISE_MM / mm, seed=1000 + seed), "outer", 0))
-    mode = os.environ.get("VINE_NLP_CODEGEN")
-    rows = []
-    for label, setting in (("interpreted", "off"), ("compiled", "on")):
-        os.environ["VINE_NLP_CODEGEN"] = setting
-        clear_caches()  # the solvers are built again in this mode
-        acc = []
-        for m in ms:
-            r, w, c = timed(lambda: C.correct(pb, [nom], [m], sigmas=SIGMAS, measurement_sigma=NOISE_MM / mm))
-            e = r.estimate
-            acc.append((e.rounds, e.iterations, r.corrected.iterations, *per_iteration(e), e.solve_time_s, e.stats["cpu_time_s"], w, c))
-        a = np.array(acc, float)
-        rows.append([name, label, seeds, f"{np.median(a[:, 0]):.0f}", f"{np.median(a[:, 1]):.0f}", f"{np.median(a[:, 2]):.0f}",
-                     f"{np.median(a[:, 3]):.1f} / {np.median(a[:, 4]):.1f}", f"{np.median(a[:, 5]):.2f} / {np.median(a[:, 6]):.2f}",
-                     f"{np.median(a[:, 7]):.2f} / {np.median(a[:, 8]):.2f}", f"{a[:, 7].max():.2f} / {a[:, 8].max():.2f}"])
-        print(rows[-1], flush=True)
-    if mode is None:
-        os.environ.pop("VINE_NLP_CODEGEN")
-    else:
-        os.environ["VINE_NLP_CODEGEN"] = mode
-    clear_caches()
-    return rows
+    D, noise = pb.diameter, NOISE_MM / mm
+    dev = draw_deviations(nom, SIGMAS, (0.0, LAMBDA_OFFSET, 1.0), seed=seed, lambda_min=pb.actuator.lambda_min)
+    out = {"seed": seed, "e0": errors(pb, pairing, nom, dev), "oracle": {}, "counts": {}}
+    truth = C.apply_deviations(nom, dev)
+    for route in ROUTES:
+        n, _, _, _ = C.correct_routing(pb, truth, dev, route.split(","), nom)
+        out["oracle"][route] = errors(pb, pairing, n, dev)
+    for count in COUNTS:
+        m1 = C.Measurement(simulate_build(nom, dev, D, "outer", count, noise, seed=1000 + seed), "outer", 0)
+        r1, w1, c1 = timed(lambda: C.correct(pb, [nom], [m1], sigmas=SIGMAS, measurement_sigma=noise))
+        est = r1.estimate
+        rec = {"recommended": r1.recommended, "wall": [w1], "cpu": [c1], "sys": est.systematic.tolist(), "sys_sd": est.systematic_std.tolist(),
+               "rounds": [est.rounds], "iterations": [est.iterations], "lam_above_1": int(np.sum(est.routing.lam > 1.0)),
+               "lam_unactuated": float(np.max(np.abs(est.routing.lam[~actuated(nom.lam)] - 1.0), initial=0.0)), "routes": {}}
+        for route in ROUTES:
+            c = r1.routes[route]
+            n1 = c.routing
+            m2 = C.Measurement(simulate_build(n1, dev, D, "outer", count, noise, seed=2000 + seed), "outer", 1)
+            r2, w2, c2 = timed(lambda: C.correct(pb, [nom, n1], [m1, m2], adjust=route.split(","), sigmas=SIGMAS, measurement_sigma=noise,
+                                                 start=est.deviations, start_systematic=est.systematic))
+            rec["wall"].append(w2)
+            rec["cpu"].append(c2)
+            rec["routes"][route] = {"e1": errors(pb, pairing, n1, dev), "e2": errors(pb, pairing, r2.corrected.routing, dev),
+                                    "predicted": c.metrics["rmse"], "clear": [c.clear, r2.corrected.clear],
+                                    "rounds2": r2.estimate.rounds, "iterations2": r2.estimate.iterations}
+        out["counts"][str(count)] = rec
+    return out
 
 
 def med(v):
-    return float(np.median(v))
+    return float(np.median(v)) if len(v) else float("nan")
+
+
+def report(recs_by, designs, args, load0, t_start):
+    goal, ceiling, cal, times, routes = [], [], [], [], []
+    for (name, kind), recs in recs_by.items():
+        if not recs:
+            continue
+        mm, rmse0 = designs[(name, kind)]
+        e0 = np.array([r["e0"] for r in recs])
+        m0 = np.median(e0, axis=0)
+        ceil = [f"{m0[0] / med([r['oracle'][k][0] for r in recs]):.1f}x / {m0[1] / med([r['oracle'][k][1] for r in recs]):.1f}x" for k in ROUTES]
+        ceiling.append([name, kind, f"{mm * rmse0:.3f}", len(recs), f"{mm * m0[0]:.2f} / {mm * m0[1]:.2f}", *ceil])
+        for count in COUNTS:
+            cr = [r["counts"][str(count)] for r in recs]
+            for route in ROUTES:
+                e1 = np.median([c["routes"][route]["e1"] for c in cr], axis=0)
+                e2 = np.median([c["routes"][route]["e2"] for c in cr], axis=0)
+                goal.append([name, kind, f"{count} {'points' if count > 15 else 'markers'}", route, len(cr),
+                             f"{mm * m0[0]:.2f} / {mm * m0[1]:.2f} / {mm * m0[2]:.1f}", f"{mm * e1[0]:.2f} / {mm * e1[1]:.2f} / {mm * e1[2]:.1f}",
+                             f"{mm * e2[0]:.2f} / {mm * e2[1]:.2f} / {mm * e2[2]:.1f}", f"{m0[0] / e1[0]:.1f}x / **{m0[1] / e1[1]:.1f}x**",
+                             f"{m0[0] / e2[0]:.1f}x / **{m0[1] / e2[1]:.1f}x**"])
+            routes.append([name, kind, count, f"{sum(c['recommended'] == 'lambda,theta' for c in cr)} of {len(cr)}",
+                           *[f"{sum(not c['routes'][k]['clear'][0] for c in cr)} / {sum(not c['routes'][k]['clear'][1] for c in cr)}" for k in ROUTES],
+                           f"{mm * med([c['routes']['lambda']['predicted'] for c in cr]):.2f} / {mm * med([c['routes']['lambda']['e1'][0] for c in cr]):.2f}",
+                           sum(c["lam_above_1"] for c in cr), f"{max(c['lam_unactuated'] for c in cr):.1g}"])
+            walls = [w for c in cr for w in c["wall"]]
+            cpus = [w for c in cr for w in c["cpu"]]
+            times.append([name, kind, count, len(walls), f"{med(walls):.2f}", f"{max(walls):.2f}", f"{med(cpus):.2f}", f"{max(cpus):.2f}",
+                          f"{med([c['rounds'][0] for c in cr]):.0f} / {med([c['routes']['lambda']['rounds2'] for c in cr]):.0f}",
+                          f"{med([c['iterations'][0] for c in cr]):.0f} / {med([c['routes']['lambda']['iterations2'] for c in cr]):.0f}"])
+            errs, ses = [], []
+            for g in range(len(cr) // PROTOTYPES):
+                grp = cr[g * PROTOTYPES : (g + 1) * PROTOTYPES]
+                mean, se, _ = C.combine_systematic([c["sys"] for c in grp], [c["sys_sd"] for c in grp])
+                errs.append(abs(mean[1] - LAMBDA_OFFSET))
+                ses.append(se[1])
+            if errs:
+                cal.append([name, kind, count, len(errs), f"{med(errs):.4f}", f"{max(errs):.4f}", f"{med(ses):.4f}",
+                            f"{sum(e <= 0.005 for e in errs)} of {len(errs)}"])
+    functions = "compiled" if compiled.mode() != "off" and compiled.compiler() else "interpreted"
+    desc = (f"Problems and designs: {', '.join(f'{n} {k} (designed RMSE {designs[(n, k)][0] * designs[(n, k)][1]:.3f} mm)' for n, k in designs)}. "
+            f"Seeds per problem and design: up to {args.seeds} (the count column). Construction errors per segment at sigma 1 deg / "
+            f"0.02 / 2 % plus a systematic lambda offset of {LAMBDA_OFFSET}; every build physical (no lambda error without an "
+            f"actuator, built lambda within [lambda_min, 1]); outer line measured at 200 points or 15 markers, noise {NOISE_MM} mm "
+            "per coordinate, random order. Errors in mm, medians over the seeds: RMSE at the design's pairing / RMSE of the nearest "
+            f"distances (target to the modelled center line) / tip. Load average {load0:.1f} at the start, {os.getloadavg()[0]:.1f} at "
+            f"the end (2 cores, shared); this process ran {(time.perf_counter() - t_start) / 60:.0f} min (seeds from the cache not counted).")
+    blocks = [
+        "Built errors before and after correction (goals, nearest distances: lambda and theta >= 20x after one round on the trefoil "
+        "and Bezier (a); lambda only, designs with the margin: >= 4x after one round and >= 6x after two on the trefoil):",
+        table(["problem", "design", "measured", "route", "seeds", "as built: pairing / nearest / tip", "round 1", "round 2",
+               "gain round 1: pairing / nearest", "gain round 2: pairing / nearest"], goal),
+        "Ceiling: the same corrections with the true deviations known (physical bounds), gain after one round, pairing / nearest:",
+        table(["problem", "design", "designed RMSE mm", "seeds", "as built: pairing / nearest", "lambda alone", "lambda and theta"], ceiling),
+        "Routes: how often lambda and theta is recommended; corrections short of the target (bounds that cost accuracy: exit 1 on "
+        "that route) in round 1 / round 2; lambda alone: predicted RMSE / the built one after round 1 (medians, mm); estimates "
+        "with a lambda above 1 (all seeds); the largest |lambda - 1| the estimate reports where there is no actuator:",
+        table(["problem", "design", "measured", "lambda,theta recommended", "lambda short r1 / r2", "lambda,theta short r1 / r2",
+               "lambda: predicted / built", "estimates with lambda > 1", "max abs(lambda - 1) unactuated"], routes),
+        f"Calibration: the systematic lambda offset ({LAMBDA_OFFSET}) from {PROTOTYPES} prototypes (round-1 estimates combined "
+        "as `vine-nlp calibrate` does; goal within 0.005):",
+        table(["problem", "design", "measured", "groups", "median abs. error", "max abs. error", "median std. error", "within 0.005"], cal),
+        f"Time per correction (the estimate and both routes; goal <= 2 s), round 1 and round 2 each count; NLP functions {functions} "
+        f"(VINE_NLP_CODEGEN={compiled.mode()}); {BUILDS['count']} corrections of this process built a solver and were timed on a "
+        "second run:",
+        table(["problem", "design", "measured", "corrections", "median wall s", "max wall s", "median CPU s", "max CPU s",
+               "ICP rounds r1 / r2", "estimate iterations r1 / r2"], times),
+    ]
+    write_report("correct", "As-built correction on physical builds (trefoil m = 4, Bezier (a), hook)", desc, *blocks)
 
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--seeds", type=int, default=50, help="seeds per problem (the protocol: 50)")
-    ap.add_argument("--speed-seeds", type=int, default=3, help="seeds of the before/after speed comparison")
-    ap.add_argument("--quick", action="store_true", help="2 seeds, no speed comparison (a smoke run)")
+    ap.add_argument("--seeds", type=int, default=50, help="seeds per problem and design (the protocol: 50)")
+    ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--designs", default=",".join(DESIGNS))
+    ap.add_argument("--shard", default=None, metavar="K/N", help="run only the seeds with seed %% N == K (no report)")
+    ap.add_argument("--report", action="store_true", help="write the report from the cache, run nothing")
+    ap.add_argument("--cache", default=str(ROOT / "benchmarks" / ".cache" / "correct"))
+    ap.add_argument("--quick", action="store_true", help="2 seeds (a smoke run)")
     args = ap.parse_args()
     if args.quick:
-        args.seeds, args.speed_seeds = 2, 0
-    # the goal's timing is of the compiled NLP functions (the default where a compiler is found); =off times them interpreted
+        args.seeds = 2
     os.environ.setdefault("VINE_NLP_CODEGEN", "on")
-    mm = 10.0  # cm -> mm (both problems are in cm)
-    load0 = os.getloadavg()[0]
-    t_start = time.perf_counter()
-    speed = []
-    for name in CASES if args.speed_seeds else ():
-        speed += speed_compare(name, args.speed_seeds, mm)
-    BUILDS.update(count=0, wall_s=0.0)  # the time table's count
-    interpreted0 = compiled.stats["interpreted"]  # VINE_NLP_CODEGEN=auto may fall back (one note)
-    goal_rows, cal_rows, time_rows, designs = [], [], [], []
-    all_recs = {}
-    functions = "compiled" if compiled.mode() != "off" and compiled.compiler() else "interpreted"
-    for name in CASES:
-        pb, design, recs = run_case(name, args.seeds, (200, 15), mm)
-        all_recs[name] = recs
-        designs.append(f"{name}: {design.routing.segments} segments, designed RMSE {mm * design.metrics['rmse']:.3f} mm")
-        for count in (200, 15):
-            for adjust in ADJUST:
-                rs = [r for r in recs if r["count"] == count and r["adjust"] == ",".join(adjust)]
-                r0, t0 = med([r["e0"][0] for r in rs]), med([r["e0"][1] for r in rs])
-                r1, t1 = med([r["e1"][0] for r in rs]), med([r["e1"][1] for r in rs])
-                r2, t2 = med([r["e2"][0] for r in rs]), med([r["e2"][1] for r in rs])
-                ok1 = "yes" if r0 / r1 >= 3 and t0 / t1 >= 3 else "NO"
-                ok2 = "yes" if r0 / r2 >= 6 else "NO"
-                goal_rows.append([name, f"{count} {'points' if count > 15 else 'markers'}", ",".join(adjust), len(rs),
-                                  f"{mm * r0:.2f} / {mm * t0:.1f}", f"{mm * r1:.2f} / {mm * t1:.1f}", f"{mm * r2:.2f} / {mm * t2:.1f}",
-                                  f"{r0 / r1:.1f}x / {t0 / t1:.1f}x ({ok1})", f"{r0 / r2:.1f}x / {t0 / t2:.1f}x ({ok2})"])
-            rs = [r for r in recs if r["count"] == count]
-            walls = [w for r in rs for w in r["wall"]]
-            cpus = [c for r in rs for c in r["cpu"]]
-            its = [p for r in rs for p in r["per_it"]]
-            time_rows.append([name, count, functions, len(walls), f"{med(walls):.2f}", f"{max(walls):.2f}", f"{med(cpus):.2f}",
-                              f"{max(cpus):.2f}", f"{med([p[0] for p in its]):.1f} / {med([p[1] for p in its]):.1f}",
-                              f"{med([r['rounds'][0] for r in rs]):.0f} / {med([r['rounds'][1] for r in rs]):.0f}",
-                              f"{med([r['iterations'][0] for r in rs]):.0f} / {med([r['iterations'][1] for r in rs]):.0f}",
-                              f"{med([r['corr_iterations'][0] for r in rs]):.0f}"])
-            # calibration: groups of PROTOTYPES consecutive seeds, their round-1 estimates (adjust lambda)
-            one = [r for r in rs if r["adjust"] == "lambda"]
-            errs, ses = [], []
-            for g in range(len(one) // PROTOTYPES):
-                grp = one[g * PROTOTYPES : (g + 1) * PROTOTYPES]
-                mean, se, _ = C.combine_systematic([r["sys"] for r in grp], [r["sys_sd"] for r in grp])
-                errs.append(abs(mean[1] - LAMBDA_OFFSET))
-                ses.append(se[1])
-            if errs:
-                within = sum(e <= 0.005 for e in errs)
-                cal_rows.append([name, count, len(errs), f"{med(errs):.4f}", f"{max(errs):.4f}", f"{med(ses):.4f}",
-                                 f"{within} of {len(errs)}", f"{med([abs(r['lam_off'] - LAMBDA_OFFSET) for r in one]):.4f}"])
-    load1 = os.getloadavg()[0]
-    if functions == "compiled" and compiled.stats["interpreted"] > interpreted0:
-        functions = f"compiled, {compiled.stats['interpreted'] - interpreted0} structures interpreted (no working compiler)"
-    desc = (
-        f"Problems: {'; '.join(designs)} (design_nlp). Seeds per problem: {args.seeds} (the issue's protocol asks for 50"
-        f"{'' if args.seeds >= 50 else '; fewer ran here, see the count column'}). Construction errors per segment at sigma "
-        f"1 deg / 0.02 / 2 % plus a systematic lambda offset of {LAMBDA_OFFSET}; deviations persist from build to build and the new "
-        f"values are built exactly. Each build measured on the outer line at 200 points (or 15 markers), noise {NOISE_MM} mm per "
-        "coordinate, random order. Round 1: the first measurement; round 2: the corrected nominal built and measured again, "
-        "both measurements used. Errors of the built robot to the target in mm (RMSE at the design's pairing / tip distance), "
-        f"medians over the seeds. Load average {load0:.1f} at the start, {load1:.1f} at the end (2 cores, shared); "
-        f"the whole run took {(time.perf_counter() - t_start) / 60:.0f} min."
-    )
-    t_goal = table(["problem", "measured", "adjust", "seeds", "before: RMSE / tip", "after round 1", "after round 2",
-                    "gain round 1: RMSE / tip (goal >= 3x both)", "gain round 2 (goal RMSE >= 6x)"], goal_rows)
-    t_cal = table(["problem", "measured", "groups of 5 prototypes", "median abs. error", "max abs. error", "median std. error",
-                   "within 0.005", "one prototype: median abs. error"], cal_rows)
-    t_time = table(["problem", "measured", "NLP functions", "corrections", "median wall [s]", "max wall [s]", "median CPU [s]",
-                    "max CPU [s]", "ms per estimate iteration (wall / CPU)", "ICP rounds (round 1 / 2)", "estimate iterations (1 / 2)",
-                    "correction iterations"], time_rows)
-    blocks = ["Medians of the built errors (goals: round 1 at least 3x lower RMSE and tip error; round 2 at least 6x lower RMSE):",
-              t_goal,
-              f"Calibration: the systematic lambda offset ({LAMBDA_OFFSET}) recovered from {PROTOTYPES} prototypes "
-              "(round-1 estimates combined as `vine-nlp calibrate` does; goal within 0.005):", t_cal,
-              "Time per correction (estimate + correction, warm caches; goal <= 2 s). Wall-clock on the shared machine "
-              f"and the process's CPU time, per correction (round 1 and round 2 each count); NLP functions {functions} "
-              f"(VINE_NLP_CODEGEN={compiled.mode()}). {BUILDS['count']} corrections built a solver on their first run "
-              f"({BUILDS['wall_s']:.1f} s wall in all, compiling included) and were timed on a second run. "
-              "ms per estimate iteration: the whole estimate (pairing, solves, Laplace step) over its IPOPT iterations:", t_time]
-    if speed:
-        blocks += ["Speed: the NLP functions interpreted against compiled, same run, round 1 with 200 points, adjust lambda "
-                   "(medians; every structure built before the timed runs). The estimate's pairing is data (slot fractions, "
-                   "points, weights 0 on unused slots, one block instance per slot), so one structure per (segments, slots, "
-                   "builds) serves every ICP round and is compiled once.",
-                   table(["problem", "NLP functions", "seeds", "ICP rounds", "estimate iterations", "correction iterations",
-                          "ms per estimate iteration (wall / CPU)", "estimate [s] (wall / CPU)", "correction median [s] (wall / CPU)",
-                          "correction max [s] (wall / CPU)"], speed)]
-    write_report("correct", "As-built correction: the goals' protocol (trefoil m = 4, Bezier (a))", desc, *blocks)
+    from pathlib import Path
+
+    cache = Path(args.cache)
+    cache.mkdir(parents=True, exist_ok=True)
+    k, n = (int(v) for v in args.shard.split("/")) if args.shard else (0, 1)
+    load0, t_start = os.getloadavg()[0], time.perf_counter()
+    recs_by, designs = {}, {}
+    for name in args.cases.split(","):
+        for kind in args.designs.split(","):
+            pb, nom, rmse0 = design(name, kind, cache)
+            mm = MM[pb.units]
+            designs[(name, kind)] = (mm, rmse0)
+            recs_by[(name, kind)] = recs = []
+            for seed in range(args.seeds):
+                path = cache / f"{name}-{kind}-{seed}.json"
+                if path.exists():
+                    recs.append(json.loads(path.read_text()))
+                elif not args.report and seed % n == k:
+                    recs.append(run_seed(pb, nom, seed, mm))
+                    write_json(path, recs[-1])
+                    c = recs[-1]["counts"]["200"]["routes"]
+                    print(name, kind, seed, f"{mm * recs[-1]['e0'][1]:.2f} mm ->",
+                          ", ".join(f"{r}: {mm * c[r]['e1'][1]:.2f} / {mm * c[r]['e2'][1]:.2f}" for r in ROUTES), flush=True)
+    if not args.shard:
+        report(recs_by, designs, args, load0, t_start)
 
 
 if __name__ == "__main__":

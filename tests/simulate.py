@@ -1,4 +1,7 @@
-"""Simulated builds for tests and benchmarks: random deviations, and the points a robot built with them shows."""
+"""Simulated builds for tests and benchmarks: random deviations, and the points a robot built with them shows.
+
+Builds obey the physical rule (spec "Physical builds", methods.correct.apply_deviations): no lambda error where the
+nominal has no actuator (lambda 1), elsewhere the built lambda within [lambda_min, 1]."""
 
 from __future__ import annotations
 
@@ -11,7 +14,7 @@ from vine_nlp.model.routing import Routing, Sigmas
 
 def simulate_build(nominal: Routing, dev: Deviations, D: float, line: str = "outer", count: int = 300, noise: float = 0.0,
                    seed: int = 0) -> np.ndarray:
-    """Measured points of the robot ``nominal`` with deviations ``dev``: ``count`` points equally spaced in
+    """Measured points of the robot ``nominal`` with deviations ``dev`` (the physical rule): ``count`` points equally spaced in
     material coordinate along ``line``, Gaussian noise of standard deviation ``noise`` (problem units) per
     coordinate, shuffled (measurements come in any order)."""
     built = apply_deviations(nominal, dev)
@@ -25,12 +28,14 @@ def simulate_build(nominal: Routing, dev: Deviations, D: float, line: str = "out
     return P[rng.permutation(count)]
 
 
-def draw_deviations(nominal: Routing, sigmas: Sigmas, systematic=(0.0, 0.0, 0.0), seed: int = 0, D: float = 1.0) -> Deviations:
+def draw_deviations(nominal: Routing, sigmas: Sigmas, systematic=(0.0, 0.0, 0.0), seed: int = 0, D: float = 1.0,
+                    lambda_min: float = 0.4) -> Deviations:
     """Random deviations: independent per-segment errors at ``sigmas`` plus the ``systematic`` parts
-    (theta offset rad, lambda offset, length scale factor); relative length errors multiply."""
+    (theta offset rad, lambda offset, length scale factor); relative length errors multiply. ``lambda_min``: the
+    actuator's (the built lambda's floor; the default of a tendon)."""
     rng = np.random.default_rng(seed)
     M = nominal.segments
     e = rng.standard_normal((M, 3))
     sl = sigmas.length if sigmas.relative_length else sigmas.length / nominal.length
     return Deviations(systematic[0] + sigmas.theta * e[:, 0], systematic[1] + sigmas.lam * e[:, 1],
-                      systematic[2] * (1.0 + sl * e[:, 2]))
+                      systematic[2] * (1.0 + sl * e[:, 2]), lambda_min)

@@ -17,9 +17,9 @@ from vine_nlp.io.correction import read_correction
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import correct as C
 from vine_nlp.methods.common import evaluate, pair_points
-from vine_nlp.methods.correct.estimate import measure_block
+from vine_nlp.methods.correct.estimate import CAP_ROUND, measure_block
 from vine_nlp.methods.correct.laplace import line_jacobian
-from vine_nlp.methods.correct.pairing import line_points
+from vine_nlp.methods.correct.pairing import SLIDE, line_points
 from vine_nlp.methods.structure import frames12
 from vine_nlp.model.calibration import Calibration, realized_of
 from vine_nlp.model.chain import chain_frames
@@ -66,7 +66,7 @@ def setup(tmp_path_factory):
     pts = simulate_build(nominal, dev, problem.diameter, "outer", 150, NOISE, seed=4)
     write_csv(d / "m1.csv", pts)
     # lambda only (stoppers moved), and lambda and theta (the line redrawn) from the same measurement
-    assert main(["correct", str(d / "design.h5"), str(d / "m1.csv"), "-o", str(d / "c1.h5")]) in (0, 1)
+    assert main(["correct", str(d / "design.h5"), str(d / "m1.csv"), "-o", str(d / "c1.h5"), "--adjust", "lambda"]) in (0, 1)
     assert main(["correct", str(d / "design.h5"), str(d / "m1.csv"), "-o", str(d / "c1t.h5"), "--adjust", "lambda,theta"]) in (0, 1)
     a1, s1 = read_correction(d / "c1t.h5")
     pts2 = simulate_build(a1.runs["corrected"].routing, dev, problem.diameter, "outer", 150, NOISE, seed=5)
@@ -75,17 +75,25 @@ def setup(tmp_path_factory):
     return {"dir": d, "problem": problem, "nominal": nominal, "dev": dev}
 
 
-def test_deviation_rule_round_trip():
+def test_physical_rule_and_round_trip():
     rng = np.random.default_rng(0)
-    nom = Routing(rng.uniform(-0.5, 0.5, 5), rng.uniform(0.5, 1, 5), rng.uniform(1, 2, 5))
-    ab = Routing(nom.theta + 0.01, nom.lam - 0.02, nom.length * 1.03)
-    dev = C.deviations_of(nom, ab)
-    other = Routing(rng.uniform(-0.5, 0.5, 5), rng.uniform(0.5, 1, 5), nom.length)
-    back = C.remove_deviations(C.apply_deviations(other, dev), dev)
+    nom = Routing(rng.uniform(-0.5, 0.5, 6), [0.5, 0.7, 1.0, 0.98, 0.45, 0.9], rng.uniform(1, 2, 6))
+    dev = C.Deviations(np.full(6, 0.01), np.array([0.02, -0.03, 0.05, 0.05, -0.1, -0.02]), np.full(6, 1.03), lambda_min=0.4)
+    built = C.apply_deviations(nom, dev)
+    # no actuator (lambda 1): exactly 1 whatever the error; elsewhere min(1, nominal + error), at least lambda_min
+    np.testing.assert_allclose(built.lam, [0.52, 0.67, 1.0, 1.0, 0.4, 0.88], atol=1e-15)
+    assert built.lam[2] == 1.0 and np.all(built.lam <= 1.0)
+    np.testing.assert_allclose(built.theta, nom.theta + 0.01, atol=1e-15)  # theta and length: every segment
+    np.testing.assert_allclose(built.length, nom.length * 1.03, rtol=1e-15)
+    d = C.deviations_of(nom, built, 0.4)
+    assert d.lam[2] == 0.0  # no lambda deviation without an actuator
+    # a nominal inside the range comes back from what it realizes; no actuator stays none
+    other = Routing(rng.uniform(-0.5, 0.5, 6), [0.6, 0.8, 1.0, 0.9, 0.7, 0.95], nom.length)
+    back = C.remove_deviations(C.apply_deviations(other, d), d, other.lam < 1)
     np.testing.assert_allclose(back.theta, other.theta, atol=1e-15)
     np.testing.assert_allclose(back.lam, other.lam, atol=1e-15)
     np.testing.assert_allclose(back.length, other.length, rtol=1e-15)
-    np.testing.assert_allclose(C.apply_deviations(nom, dev).length, ab.length, rtol=1e-15)
+    assert back.lam[2] == 1.0
 
 
 def test_line_jacobian_matches_finite_differences_of_the_chain():
@@ -135,7 +143,7 @@ def test_correction_lowers_the_built_error(setup):
     # deviations would let it (oracle)
     al, _ = read_correction(setup["dir"] / "c1.h5")
     el = built_error(problem, al.runs["corrected"].routing, dev)
-    _, realized, _, _ = C.correct_routing(problem, C.apply_deviations(nominal, dev), dev, ("lambda",))
+    _, realized, _, _ = C.correct_routing(problem, C.apply_deviations(nominal, dev), dev, ("lambda",), nominal)
     oracle = evaluate(problem, realized, pair_points(problem.target, 10), "x").metrics["rmse"]
     assert el < 0.7 * e0 and el < 1.2 * oracle, (e0, el, oracle)
 
@@ -149,18 +157,25 @@ def test_contract_rule_holds_exactly(setup):
     np.testing.assert_allclose(s.deviation["theta"], ab.theta - built.theta, atol=1e-14)
     np.testing.assert_allclose(s.deviation["lambda"], ab.lam - built.lam, atol=1e-14)
     np.testing.assert_allclose(s.deviation["length_ratio"], ab.length / built.length, rtol=1e-14)
-    # the corrected run's shape is what its nominal realizes with the deviations kept
-    dev = C.Deviations(s.deviation["theta"], s.deviation["lambda"], s.deviation["length_ratio"])
+    # the corrected run's shape is what its nominal realizes with the deviations kept (the physical rule)
+    dev = C.Deviations(s.deviation["theta"], s.deviation["lambda"], s.deviation["length_ratio"], 0.4)
     realized = C.apply_deviations(corr, dev)
     shape = evaluate(setup["problem"], realized, pair_points(setup["problem"].target, 10), "x").shape
     np.testing.assert_allclose(a.runs["corrected"].shape.center, shape.center, atol=1e-9)
-    # the realized lambdas stay inside the builder's bounds after removing the deviations
-    assert np.all(corr.lam >= 0.4 - 1e-9) and np.all(corr.lam <= 1 + 1e-9)
+    # the bounds act on what is built: the actuator's range, an actuator's nominal below 1
+    assert np.all(realized.lam >= 0.4 - 1e-8) and np.all(realized.lam <= 1 + 1e-8) and np.all(corr.lam < 1)
+    assert np.all(ab.lam <= 1.0)
 
 
 def test_archive_round_trip(setup):
     a, s = read_correction(setup["dir"] / "c2.h5")
-    assert set(a.runs) == {"nlp", "as_built", "corrected"}
+    assert set(a.runs) == {"nlp", "as_built", "corrected", "corrected_lambda", "corrected_lambda_theta"}
+    # the chosen route is /runs/corrected, both predictions beside it; round 2 started from round 1's estimate
+    np.testing.assert_array_equal(a.runs["corrected"].routing.theta, a.runs["corrected_lambda_theta"].routing.theta)
+    assert s.attrs["adjust"] == "lambda,theta" and s.attrs["recommended"] in ("lambda", "lambda,theta")
+    assert a.runs["corrected_lambda"].stats["route"] == "lambda"
+    assert a.runs["as_built"].stats["warm_start"] is True
+    assert read_correction(setup["dir"] / "c1.h5")[0].runs["as_built"].stats["warm_start"] is False
     assert len(s.builds) == 2 and [m.build for m in s.measurements] == [0, 1]
     a1, _ = read_correction(setup["dir"] / "c1t.h5")
     np.testing.assert_array_equal(s.builds[1].lam, a1.runs["corrected"].routing.lam)
@@ -259,21 +274,69 @@ def test_measurement_that_cannot_be_this_robot(setup, tmp_path, capsys):
     _fails(capsys, ["correct", str(d / "design.h5"), str(line), "-o", str(out)], out, "line.csv: points: cannot be this robot")
 
 
-def test_unreachable_correction_says_so_writes_the_best_exit_1(setup, tmp_path, capsys):
+def test_unreachable_correction_says_so_once_writes_the_best_exit_1(setup, tmp_path, capsys):
     problem, nominal = setup["problem"], setup["nominal"]
-    # a builder whose lambda comes out 0.25 too high: the design's lambdas (0.6 to 0.9) would need nominals
-    # below lambda_min = 0.4
-    dev = draw_deviations(nominal, SIGMAS, (0.0, 0.25, 1.0), seed=3)
+    # a builder whose lambda comes out 0.2 too low: the design's lambdas (0.6 to 0.9) above 0.8 cannot be built
+    # (their stoppers would need no gap at all)
+    dev = draw_deviations(nominal, SIGMAS, (0.0, -0.2, 1.0), seed=3)
     m = write_csv(tmp_path / "far.csv", simulate_build(nominal, dev, problem.diameter, "outer", 150, NOISE, seed=4))
     out = tmp_path / "o.h5"
-    assert main(["correct", str(setup["dir"] / "design.h5"), str(m), "-o", str(out)]) == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("correct: the target cannot be reached within the bounds"), err
-    a, _ = read_correction(out)
-    lam = a.runs["corrected"].routing.lam
-    assert np.any(lam <= 0.4 + 1e-6) and np.all(lam >= 0.4 - 1e-9)
+    assert main(["correct", str(setup["dir"] / "design.h5"), str(m), "-o", str(out), "--adjust", "lambda"]) == 1
+    cap = capsys.readouterr()
+    err = cap.err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("correct: corrected (lambda): cannot reach the target within the bounds"), err
+    assert "lambda at the actuator's least contraction (its nominal at 1): segments" in err[0]
+    (line,) = [x for x in cap.out.splitlines() if x.startswith("corrected ")]
+    assert line.startswith("corrected   lambda (") and ", short of the target: " in line and "optimal" in line
+    a, s = read_correction(out)
+    assert a.runs["corrected"].shortfall and s.attrs["adjust"] == "lambda"
     # the best it found: still closer to the target than the robot as built
     assert built_error(problem, a.runs["corrected"].routing, dev) < built_error(problem, nominal, dev)
+
+
+def test_one_summary_both_routes_exit_follows_the_chosen(setup, tmp_path, capsys):
+    d = setup["dir"]
+    out = tmp_path / "o.h5"
+    code = main(["correct", str(d / "design.h5"), str(d / "m1.csv"), "-o", str(out)])
+    cap = capsys.readouterr()
+    a, s = read_correction(out)
+    lines = cap.out.splitlines()
+    assert [x[:12] for x in lines] == ["estimate    ", "  fit       ", "  built     ", "  systematic", "  per segmen", "routes      ",
+                                       "            ", "corrected   ", "archive -> " + str(out)[:1]]
+    assert lines[5].startswith("routes      lambda        stoppers or pouches on this robot: predicted RMSE ")
+    assert lines[6].startswith("            lambda,theta  the line drawn anew on a new tube: predicted RMSE ")
+    # without --adjust the recommended route is taken, and said so; the exit and stderr follow that route alone
+    route = s.attrs["recommended"]
+    assert s.attrs["adjust"] == route and lines[7].startswith(f"corrected   {route} (recommended), ")
+    chosen = a.runs[f"corrected_{route.replace(',', '_')}"]
+    np.testing.assert_array_equal(a.runs["corrected"].routing.lam, chosen.routing.lam)
+    assert code == (1 if chosen.shortfall else 0) and bool(cap.err) == bool(chosen.shortfall)
+    assert ("short of the target" in lines[7]) == bool(chosen.shortfall)
+
+
+def test_estimate_and_correction_know_where_there_is_no_actuator(setup):
+    problem, nominal = setup["problem"], setup["nominal"]
+    # a design without an actuator on four segments (lambda 1), built with a lambda offset
+    lam = nominal.lam.copy()
+    lam[[3, 4, 8, 9]] = 1.0
+    lam[6] = 0.99  # an actuator that the offset pushes against 1
+    theta = nominal.theta.copy()
+    theta[[3, 8]] = 0.8  # there the line winds around the straight tube (the shape does not see it, the outer line does)
+    nom = Routing(theta, lam, nominal.length, nominal.initial_pose)
+    dev = draw_deviations(nom, SIGMAS, TRUTH, seed=3)
+    pts = simulate_build(nom, dev, problem.diameter, "outer", 150, NOISE, seed=4)
+    res = C.correct(problem, [nom], [C.Measurement(pts, "outer")], sigmas=SIGMAS, measurement_sigma=NOISE)
+    e = res.estimate
+    assert res.as_built.metrics["rmse"] < 1.5 * math.sqrt(2) * NOISE  # the measured line fitted to its noise
+    assert np.all(e.routing.lam[lam == 1.0] == 1.0) and np.all(e.deviations.lam[lam == 1.0] == 0.0)
+    assert np.all(e.routing.lam <= 1.0)
+    assert abs(e.systematic[1] - TRUTH[1]) < 3 * e.systematic_std[1]
+    # the actuator built against 1 may have any error beyond it: held (its lambda kept) by both routes
+    assert C.apply_deviations(nom, dev).lam[6] == 1.0 and e.deviations.held[6] and not np.any(e.deviations.held[lam == 1.0])
+    for r in res.routes.values():  # no route adds an actuator; what they predict obeys the rule
+        assert np.all(r.routing.lam[lam == 1.0] == 1.0) and np.all(r.routing.lam[lam < 1.0] < 1.0)
+        assert r.routing.lam[6] == pytest.approx(0.99, abs=1e-12)
+        assert built_error(problem, r.routing, dev) < (0.5 if r.stats["route"] == "lambda,theta" else 1.0) * built_error(problem, nom, dev)
 
 
 def test_combine_systematic_known_answer():
@@ -438,12 +501,15 @@ def test_measure_slot_is_the_point_to_line_residual_of_the_model(free):
     # point (moved by the rigid transform when free), with the tangent projected out, times the weight
     rng = np.random.default_rng(4)
     M = 5
-    r = Routing(rng.uniform(-0.6, 0.6, M), rng.uniform(0.4, 1.0, M), rng.uniform(1.0, 3.0, M), np.eye(4))
+    r = Routing(rng.uniform(-0.6, 0.6, M), np.r_[rng.uniform(0.4, 0.9, M - 1), 0.99], rng.uniform(1.0, 3.0, M), np.eye(4))
     bt = measure_block(free)
-    shift = np.array([0.03, -0.02, 1.05])  # an earlier build: its theta and lambda shifted, its lengths scaled
-    built = Routing(r.theta + shift[0], r.lam + shift[1], r.length * shift[2], np.eye(4))
+    shift = np.array([0.03, 0.05, 1.05])  # an earlier build: its theta and lambda shifted, its lengths scaled
+    # the physical rule: its lambda at most 1 (the cap of an earlier build, rounded over CAP_ROUND)
+    x = r.lam + shift[1]
+    built = Routing(r.theta + shift[0], 0.5 * (1 + x - np.sqrt((1 - x) ** 2 + CAP_ROUND**2)), r.length * shift[2], np.eye(4))
+    assert abs(built.lam[-1] - 1.0) < CAP_ROUND and np.all(np.abs(built.lam[:-1] - x[:-1]) < 1e-5)
     w_rot, t_move, c = np.array([0.1, -0.2, 0.05]), np.array([0.3, 0.1, -0.2]), np.array([1.0, 2.0, 0.5])
-    for j, u, side in ((0, 0.0, -0.5), (2, 0.4, 0.5), (4, 1.0, 0.0)):
+    for j, u, side in ((0, 0.0, -0.5), (2, 0.4, 0.5), (4, 1.0, 0.0), (4, 0.6, -0.5)):
         m, t = rng.normal(size=3), rng.normal(size=3)
         t /= np.linalg.norm(t)
         P, _ = line_points(built, 1.0, [j], [u], side)
@@ -455,8 +521,9 @@ def test_measure_slot_is_the_point_to_line_residual_of_the_model(free):
             v = np.r_[v, w_rot, t_move]
             d = np.r_[d, c, 1.0]
             mm = so3_exp(w_rot) @ (m - c) + c + t_move
+        d = np.r_[d, 1.0]
         e = P[0] - mm
-        want = 0.7 * (e - t * np.dot(t, e))
+        want = 0.7 * (e - (1 - SLIDE) * t * np.dot(t, e))
         np.testing.assert_allclose(np.array(bt.residual(v, d)).ravel(), want, atol=1e-12)
         assert float(bt.fn(v, d)[0]) == pytest.approx(np.sum(want**2), rel=1e-12)
 

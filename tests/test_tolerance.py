@@ -88,6 +88,33 @@ def test_robust_term_is_the_first_order_expected_increase(designed, sigmas):
     assert np.abs(g).max() < 1e-10
 
 
+def test_no_lambda_error_without_an_actuator(designed):
+    """The physical rule in analyze's tolerance and the robust term: a segment with lambda 1 has no actuator and no
+    lambda error (first order and Monte Carlo); an actuated one never builds above 1."""
+    import dataclasses
+
+    from vine_nlp.methods.robust import expected_increase
+    from vine_nlp.model.routing import Routing
+
+    pb, res = designed
+    r, lam_only = res.routing, Sigmas(0.0, 0.02, 0.0)
+    part = Routing(r.theta, np.where(np.arange(r.segments) % 3 == 0, 1.0, r.lam), r.length, r.initial_pose)
+    rep = tolerance_report(pb, dataclasses.replace(res, routing=part), lam_only, samples=200, seed=1)
+    by = rep["per_segment"]["mse_by_param"]
+    assert np.all(by[::3, 1] == 0.0) and np.all(by[1::3, 1] > 0.0)
+    assert expected_increase(pb, part, lam_only) == pytest.approx(rep["first_order"]["mse_increase"], rel=1e-9)
+    flat = dataclasses.replace(res, routing=Routing(r.theta, np.ones(r.segments), r.length, r.initial_pose))
+    rep = tolerance_report(pb, flat, lam_only, samples=50, seed=1)
+    assert rep["first_order"]["mse_increase"] == 0.0 and np.all(rep["monte_carlo"]["rmse"] == rep["nominal"]["rmse"])
+    # lambda 0.999 everywhere: an error above 0.001 builds 1, so the errors are one-sided: about min(0, e), whose
+    # standard deviation is 0.58 sigma (against lambdas drawn without the rule)
+    near = Routing(r.theta, np.full(r.segments, 0.999), r.length, r.initial_pose)
+    mc = tolerance_report(pb, dataclasses.replace(res, routing=near), lam_only, samples=400, seed=1)["monte_carlo"]
+    drawn = batch_points(r.theta, 0.999 + 0.02 * np.random.default_rng(0).standard_normal((400, r.segments)), r.length, D,
+                         [r.segments - 1], [1.0], r.initial_pose)
+    assert 0.5 < mc["tip_std"] / float(np.sqrt(np.trace(np.cov(drawn[:, 0].T)))) < 0.7
+
+
 @pytest.mark.slow
 def test_robust_design_lowers_the_monte_carlo_error(designed):
     from vine_nlp.methods.robust import design_robust

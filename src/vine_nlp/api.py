@@ -98,6 +98,10 @@ _DESIGN_ARGUMENTS = {
     "design.smoothness": "smoothing",
     "design.smoothness.theta": "smoothing",
     "design.smoothness.lambda": "smoothing",
+    "design.correction_margin": "correction_margin",
+    "design.min_feature": "min_feature",
+    "design.base": "base",
+    "routing.initial_pose": "base",
 }
 
 
@@ -174,7 +178,8 @@ def _smoothness(value) -> dict:
 
 
 def _design_problem(points, diameter, *, actuator, theta_max_deg, lambda_min, points_per_segment, smoothing, starts, hops,
-                    method, seed, units, name, budget=DesignOptions.budget, solver=DesignOptions.solver) -> DesignProblem:
+                    method, seed, units, name, budget=DesignOptions.budget, solver=DesignOptions.solver, correction_margin=None,
+                    min_feature=None, base="free") -> DesignProblem:
     args = _Arguments(_DESIGN_ARGUMENTS)
     name = _text(args, "name", name)
     units = _units(args, units)
@@ -192,6 +197,12 @@ def _design_problem(points, diameter, *, actuator, theta_max_deg, lambda_min, po
     if smooth:
         options["smoothness"] = smooth
     opts = problems._options(args, options)
+    # buildable designs: the problem file's [design] keys and rules; a fixed base is given as its pose
+    build = {k: _plain(v) for k, v in (("correction_margin", correction_margin), ("min_feature", min_feature)) if v is not None}
+    if isinstance(base, str) and base == "fixed":
+        raise ArgumentError("base", '"fixed" needs a base pose: pass the pose (4 x 4) as base')
+    pose = {} if isinstance(base, str) else {"routing": {"initial_pose": np.asarray(base, dtype=object).tolist()}}
+    opts = problems._build_options(args, pose, build | {"base": base if isinstance(base, str) else "fixed"}, act, opts)
     target = _points(points)
     n, N = opts.points_per_segment, target.shape[0]
     if N < n + 1:
@@ -589,6 +600,9 @@ def design(
     units: str = "cm",
     name: str = "design",
     calibration=None,
+    correction_margin: float | None = None,
+    min_feature: float | None = None,
+    base="free",
 ) -> Design:
     """Inverse design: the actuator routing whose tube follows ``points`` (``vine-nlp design``).
 
@@ -640,6 +654,14 @@ def design(
         ``vine_nlp.model.calibration.Calibration``): the nlp or greedy run is then the nominal to build,
         its shape what that nominal realizes on the calibrated robot (as ``vine-nlp design`` with a
         ``[calibration]`` table).
+    correction_margin : float, optional
+        nlp: every lambda is exactly 1 (no actuator) or inside [lambda_min + margin, 1 - margin] (>= 0, leaving
+        room); default 0.05, at most (1 - lambda_min) / 2 (``[design] correction_margin``).
+    min_feature : float, optional
+        nlp: no stopper gap, pinch or piece shorter (>= 0, ``units``); default 2 mm (``[design] min_feature``).
+    base : "free" or array_like (4, 4)
+        nlp: "free", the design chooses the base pose with no arbitrary roll; a pose: the base is fixed there
+        (``[design] base = "fixed"`` with ``[routing] initial_pose``).
 
     Returns
     -------
@@ -654,7 +676,8 @@ def design(
     """
     problem = _design_problem(points, diameter, actuator=actuator, theta_max_deg=theta_max_deg, lambda_min=lambda_min,
                               points_per_segment=points_per_segment, smoothing=smoothing, starts=starts, hops=hops,
-                              method=method, seed=seed, units=units, name=name, budget=budget, solver=solver)
+                              method=method, seed=seed, units=units, name=name, budget=budget, solver=solver,
+                              correction_margin=correction_margin, min_feature=min_feature, base=base)
     args = _Arguments()
     workers = _integer(args, "workers", workers, 1)
     min_gap = None if clearance is None else _number(args, "clearance", clearance, low=0.0, low_open=False)
@@ -897,7 +920,9 @@ def solve(problem, method: str | None = None, *, starts: int | None = None, hops
         _design_problem(problem.target, problem.diameter, actuator=a.kind, theta_max_deg=math.degrees(a.theta_max),
                         lambda_min=a.lambda_min, points_per_segment=o.points_per_segment,
                         smoothing=(o.smooth_theta, o.smooth_lambda), starts=o.starts, hops=o.hops, method=o.method,
-                        seed=o.seed, units=problem.units, name=problem.name, budget=o.budget, solver=o.solver)
+                        seed=o.seed, units=problem.units, name=problem.name, budget=o.budget, solver=o.solver,
+                        correction_margin=o.correction_margin, min_feature=o.min_feature,
+                        base=o.base if o.base_pose is None else o.base_pose)
     if isinstance(problem, (ForwardProblem, FitProblem)):
         r = problem.routing
         _routing(r.theta, r.lam, r.length, initial_pose=r.initial_pose, argument_prefix="routing: ")
@@ -966,7 +991,7 @@ class _Loaded:
     target: np.ndarray | None = None
 
 
-def correct(archive, measured, *, run=None, lines=("outer",), adjust=("lambda",), free_pose=False, sigmas=None,
+def correct(archive, measured, *, run=None, lines=("outer",), adjust=None, free_pose=False, sigmas=None,
             measurement_sigma=None, output=None):
     """Measure-and-correct a built robot (``vine-nlp correct``): estimate what was built, then the routing to build next.
 
@@ -980,8 +1005,9 @@ def correct(archive, measured, *, run=None, lines=("outer",), adjust=("lambda",)
         The run that was built (default: the archive's default run; ``corrected`` in a correction archive).
     lines : tuple of str
         The measured line ("center", "inner" or "outer"): one for all, or one per measurement.
-    adjust : tuple of str
-        What the builder changes: ("lambda",) (stoppers or pinches) or ("lambda", "theta") (the line redrawn).
+    adjust : tuple of str, optional
+        The route taken: ("lambda",) (stoppers or pinches on this robot) or ("lambda", "theta") (the line drawn anew);
+        default: the recommended one (both routes are in ``routes``).
     free_pose : bool
         Also estimate the rigid pose of the measurement.
     sigmas : Sigmas, optional
@@ -1002,7 +1028,7 @@ def correct(archive, measured, *, run=None, lines=("outer",), adjust=("lambda",)
     vine_nlp.errors.InputError
         A bad archive or measurement file, an unknown run, mismatched lines (the command line's errors).
     """
-    kw = dict(run=run, lines=tuple(lines), adjust=tuple(adjust), free_pose=free_pose, sigmas=sigmas, measurement_sigma=measurement_sigma)
+    kw = dict(run=run, lines=tuple(lines), adjust=adjust and tuple(adjust), free_pose=free_pose, sigmas=sigmas, measurement_sigma=measurement_sigma)
     if output is not None:
         return correct_to_file(archive, list(measured), output, **kw)
     return correct_files(archive, list(measured), **kw)[0]

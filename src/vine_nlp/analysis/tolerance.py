@@ -1,7 +1,9 @@
 """Manufacturing tolerance: how construction errors in theta, lambda and segment length move the shape.
 
 Error model: every segment's (theta_j, lambda_j, dl_j) is built with independent,
-zero-mean Gaussian errors of standard deviations (see :class:`Sigmas`)
+zero-mean Gaussian errors of standard deviations (see :class:`Sigmas`), by the physical
+rule (spec "Physical builds", model.routing.built_lambda): no lambda error where lambda_j = 1
+(no actuator), elsewhere the built lambda min(1, lambda_j + error), at least lambda_min
 
 * sigma_theta  [rad]  drawn angle of the actuator,
 * sigma_lambda [-]    contraction ratio (absolute: lambda 0.70 +- 0.02),
@@ -20,9 +22,9 @@ so the "first-order RMSE" is sqrt(E[MSE]) (Jensen: E[RMSE] <= sqrt(E[MSE])). The
 covariance is J_tip Sigma J_tip^T, and the contribution of segment m to the tip
 variance is sum over its three parameters of |J_tip[:, (m, p)]|^2 sigma_(m, p)^2.
 
-Monte Carlo checks it: the numpy chain evaluated for all samples at once (model
-functions broadcast over a (samples, segments) array), seeded RNG. Perturbed
-values are used as drawn (a lambda above 1 is a small bend the other way).
+First order ignores the clips (a derivative of 1; of 0 without an actuator). Monte Carlo
+builds by the rule itself: the numpy chain evaluated for all samples at once (model
+functions broadcast over a (samples, segments) array), seeded RNG.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp.model.pairing import pair_points
-from vine_nlp.model.routing import Sigmas  # noqa: F401  (re-exported: its old home)
+from vine_nlp.model.routing import Sigmas, actuated, built_lambda  # Sigmas re-exported: its old home
 from vine_nlp.model.segment import segment_function, segment_point, segment_transform
 
 
@@ -119,16 +121,11 @@ def tolerance_report(problem, result, sigmas: Sigmas, samples: int = 2000, seed:
     points_per_segment, the tip last), as the design methods do; the result's routing
     must have that pairing's segment count. Lengths in problem units.
 
-    Returns dict with
-      sigmas, units, segments, points;
-      nominal: rmse, mse, tip (3,);
-      first_order: mse_increase, rmse (= sqrt(MSE_0 + increase)), rmse_increase, tip_cov (3, 3),
-                   tip_std (= sqrt(trace)), point_std (N,);
-      per_segment: l_start, l_end, l_mid (material coordinate), tip_var (M,), tip_var_by_param (M, 3),
-                   mse (M,), mse_by_param (M, 3) (columns theta, lambda, length; they add up to
-                   the totals above);
-      monte_carlo: samples, seed, rmse (S,), mean_rmse, rms_rmse (= sqrt(mean MSE)), mse_increase,
-                   tip_cov (3, 3), tip_std, tip_mean_shift (3,).
+    Returns dict with sigmas, units, segments, points; nominal: rmse, mse, tip (3,); first_order: mse_increase,
+      rmse (= sqrt(MSE_0 + increase)), rmse_increase, tip_cov (3, 3), tip_std (= sqrt(trace)), point_std (N,);
+      per_segment: l_start, l_end, l_mid (material coordinate), tip_var (M,), tip_var_by_param (M, 3), mse (M,),
+      mse_by_param (M, 3) (columns theta, lambda, length; they add up to the totals above); monte_carlo: samples,
+      seed, rmse (S,), mean_rmse, rms_rmse (= sqrt(mean MSE)), mse_increase, tip_cov (3, 3), tip_std, tip_mean_shift.
     """
     D = problem.diameter
     r = result.routing
@@ -138,7 +135,7 @@ def tolerance_report(problem, result, sigmas: Sigmas, samples: int = 2000, seed:
     target = np.asarray(problem.target, float)
     N, M = target.shape[0], r.segments
     pts, J = point_jacobian(r, D, pairing.seg, pairing.frac)
-    sig = sigmas.per_segment(r.length)  # (M, 3)
+    sig = sigmas.per_segment(r.length) * np.c_[np.ones(M), actuated(r.lam), np.ones(M)]  # (M, 3): no lambda error without an actuator
     Js = J * sig.reshape(-1)  # columns scaled by the standard deviations
     err0 = np.sum((pts - target) ** 2, axis=1)
     mse0 = float(err0.mean())
@@ -151,7 +148,8 @@ def tolerance_report(problem, result, sigmas: Sigmas, samples: int = 2000, seed:
 
     rng = np.random.default_rng(seed)
     dq = rng.standard_normal((samples, M, 3)) * sig
-    P = batch_points(r.theta + dq[..., 0], r.lam + dq[..., 1], r.length + dq[..., 2], D, pairing.seg, pairing.frac, r.initial_pose)
+    lam = built_lambda(r.lam, dq[..., 1], problem.actuator.lambda_min)
+    P = batch_points(r.theta + dq[..., 0], lam, r.length + dq[..., 2], D, pairing.seg, pairing.frac, r.initial_pose)
     mse = np.mean(np.sum((P - target) ** 2, axis=2), axis=1)
     tips = P[:, -1]
     mc_cov = np.cov(tips.T)

@@ -390,7 +390,7 @@ def _add_correct_arguments(p) -> None:
     p.add_argument("-o", "--output", required=True, metavar="OUT.h5")
     p.add_argument("--run", help="the nominal that was built (default: corrected in a correction archive, else the design run)")
     p.add_argument("--line", default="outer", metavar="LINE[,LINE...]", help="measured line: center, inner or outer; one per file or one for all (default outer)")
-    p.add_argument("--adjust", default="lambda", choices=("lambda", "lambda,theta"), metavar="lambda|lambda,theta", help="what the builder changes (default lambda: stopper or pinch lengths)")
+    p.add_argument("--adjust", choices=("lambda", "lambda,theta"), metavar="lambda|lambda,theta", help="the route taken as /runs/corrected: lambda (stoppers or pouches on this robot) or lambda,theta (the line drawn anew on a new tube); default: the recommended one (both are predicted)")
     p.add_argument("--free-pose", action="store_true", help="the measurement is in an unknown frame: estimate its rigid pose")
     add_sigma_args(p)
     p.add_argument("--sigma-measurement", type=float, metavar="S", help="measurement noise, in units (default 1 mm)")

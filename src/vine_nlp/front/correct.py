@@ -14,7 +14,9 @@ from vine_nlp.front.plot import save_figure
 from vine_nlp.io.calibration import write_calibration
 from vine_nlp.io.correction import write_correction_archive
 from vine_nlp.io.problems import design_problem_of
-from vine_nlp.pipeline.correct import calibrate, correct_files, unreachable_text
+from vine_nlp.pipeline.correct import calibrate, correct_files, shortfall
+
+ROUTES = {"lambda": "stoppers or pouches on this robot", "lambda,theta": "the line drawn anew on a new tube"}
 
 
 def report(result, units: str) -> list[str]:
@@ -22,7 +24,8 @@ def report(result, units: str) -> list[str]:
     e, ab, c = result.estimate, result.as_built, result.corrected
     s, sd = e.systematic, e.systematic_std
     M = e.routing.segments
-    dl = result.corrected.routing.lam - result.built.lam
+    dl, dt = c.routing.lam - result.built.lam, np.degrees(c.routing.theta - result.built.theta)
+    route = ",".join(result.adjust)
     out = [
         f"estimate    {e.status}, {e.rounds} pair-and-solve rounds, {e.iterations} iterations, {e.solve_time_s:.2f} s; "
         f"{sum(m.points.shape[0] for m in result.measurements)} points of {len({m.build for m in result.measurements})} build(s)",
@@ -32,10 +35,17 @@ def report(result, units: str) -> list[str]:
         f"length scale {s[2]:.4f} +- {sd[2]:.4f}",
         f"  per segment (median std): theta {math.degrees(float(np.median(e.std[:, 0]))):.3f} deg, lambda {float(np.median(e.std[:, 1])):.4f}, "
         f"length {float(np.median(e.std[:, 2])):.4g} {units}",
-        f"corrected   {c.status}, adjust {result.adjust and ','.join(result.adjust)}: predicted RMSE {c.metrics['rmse']:.4g} {units}, "
-        f"max {c.metrics['max_error']:.4g} {units}; lambda changed in {int(np.sum(np.abs(dl) > 1e-6))} of {M} segments "
-        f"(largest {float(np.max(np.abs(dl))) if M else 0:.4f})",
     ]
+    for k, (name, r) in enumerate(result.routes.items()):
+        free = r.metrics.get("rmse_without_bounds")
+        out.append(f"{'' if k else 'routes':12}{name:13} {ROUTES[name]}: predicted RMSE {r.metrics['rmse']:.4g} {units}, max "
+                   f"{r.metrics['max_error']:.4g} {units}" + (f" ({free:.4g} {units} without the bounds)" if free is not None else ""))
+    why = "recommended" if route == result.recommended else f"as asked; recommended {result.recommended}"
+    held = e.deviations.held if e.deviations.held is not None else np.zeros(M, bool)
+    out.append(f"corrected   {route} ({why}), {c.status}{', short of the target' if c.shortfall else ''}: lambda changed in "
+               f"{int(np.sum(np.abs(dl) > 1e-6))} of {M} segments (largest {float(np.max(np.abs(dl), initial=0)):.4f}; "
+               f"{int(held.sum())} held: built against 1, their error beyond it unknown)"
+               + (f", theta in {int(np.sum(np.abs(dt) > 1e-6))} (largest {float(np.max(np.abs(dt), initial=0)):.2f} deg)" if "theta" in route else ""))
     return out
 
 
@@ -50,9 +60,7 @@ def correction_figure(result, problem, units: str = "cm"):
     ax.plot(*result.corrected.shape.center.T, "C2-", lw=1.2, label="corrected (predicted)")
     for k, m in enumerate(result.measurements):
         ax.scatter(*m.points.T, s=2, color="C0", label="measured" if k == 0 else None)
-    ax.set_xlabel(f"x [{units}]")
-    ax.set_ylabel(f"y [{units}]")
-    ax.set_zlabel(f"z [{units}]")
+    ax.set(xlabel=f"x [{units}]", ylabel=f"y [{units}]", zlabel=f"z [{units}]")
     ax.legend(loc="upper left", fontsize=8)
     e = result.estimate
     j = np.arange(e.routing.segments)
@@ -62,9 +70,7 @@ def correction_figure(result, problem, units: str = "cm"):
         (100 * (e.deviations.length_ratio - 1), 100 * e.std[:, 2] / result.built.length, "length deviation [%]"),
     )):
         a = fig.add_subplot(3, 2, 2 * row + 2)
-        a.errorbar(j, vals, yerr=sd, fmt="o", ms=2, lw=0.8)
-        a.axhline(0, color="k", lw=0.5)
-        a.set_ylabel(label, fontsize=8)
+        a.errorbar(j, vals, yerr=sd, fmt="o", ms=2, lw=0.8), a.axhline(0, color="k", lw=0.5), a.set_ylabel(label, fontsize=8)
     a.set_xlabel("segment")
     fig.subplots_adjust(left=0.02, right=0.97, wspace=0.25, hspace=0.35)
     fig.suptitle(f"as built: RMSE to target {result.as_built.metrics['target_rmse']:.3g} {units}; "
@@ -80,21 +86,20 @@ def cmd_correct(args) -> int:
     if not (sig.theta > 0 and sig.lam > 0 and sig.length > 0):
         raise InputError("command line", "--sigma-*", "the construction-error sigmas must be > 0")
     lines = tuple(x.strip() for x in args.line.split(","))
-    adjust = tuple(x.strip() for x in args.adjust.split(","))
+    adjust = tuple(x.strip() for x in args.adjust.split(",")) if args.adjust else None
     result, archive, builds, settings = correct_files(args.archive, args.measured, run=args.run, lines=lines, adjust=adjust,
                                                       free_pose=args.free_pose, sigmas=sig, measurement_sigma=args.sigma_measurement)
     write_correction_archive(out, archive, result, builds, settings)
     for line in report(result, archive.units):
         print(line)
     print(f"archive -> {out}")
-    problem = design_problem_of(archive, args.archive)
-    unreachable = unreachable_text(result, problem)
-    if unreachable:
-        print(f"correct: {unreachable}; the best correction found is written", file=sys.stderr)
+    short = shortfall(result)
+    if short:
+        print(f"correct: corrected ({','.join(result.adjust)}): {short}; the best correction found is written", file=sys.stderr)
     if fig:
-        save_figure(correction_figure(result, problem, archive.units), fig)
+        save_figure(correction_figure(result, design_problem_of(archive, args.archive), archive.units), fig)
         print(f"figure -> {fig}")
-    return 0 if result.corrected.converged and result.as_built.converged and not unreachable else 1
+    return 1 if short else 0
 
 
 def cmd_calibrate(args) -> int:

@@ -8,12 +8,15 @@ A correction archive is a result archive (every command reads it) with:
                              estimated line), ``target_rmse``, ``target_max_error`` against the target;
                              ``uncertainty/{theta,lambda,length}`` (M,) standard deviations of the estimate;
                              ``deviation/{theta,lambda,length_ratio}`` (M,) the deviations kept build to build
-``/runs/corrected``          the nominal to build next; shape and metrics: what it is predicted to realize
+``/runs/corrected``          the nominal to build next on the chosen route (``/correction@adjust``); shape and
+                             metrics: what it is predicted to realize; ``shortfall``: why it cannot reach the target
+``/runs/corrected_lambda``, ``/runs/corrected_lambda_theta``  both routes' corrections (stats ``route``,
+                             ``recommended``; metric ``rmse_without_bounds`` where a bound is reached)
 ``/measured/points``         every measured point so far (archive frame), all files stacked
 ``/measured/<k>/points``     measurement k, attrs ``line``, ``file``, ``build``
-``/correction``              attrs ``format`` ("vine_nlp/correction"), ``builds``, ``built_run``, ``adjust``,
-                             ``free_pose``, the sigmas; ``systematic`` (3,) = (theta offset rad, lambda offset,
-                             length scale) and ``systematic_std`` (3,);
+``/correction``              attrs ``format`` ("vine_nlp/correction"), ``builds``, ``built_run``, ``adjust`` (the
+                             route taken), ``recommended``, ``free_pose``, the sigmas; ``systematic`` (3,) = (theta
+                             offset rad, lambda offset, length scale) and ``systematic_std`` (3,);
                              ``builds/<b>/{theta,lambda,length,initial_pose}`` the nominal of build b (oldest first)
 
 Bad files raise :class:`vine_nlp.errors.InputError` (archives: ``ArchiveError``) naming the file and the key.
@@ -39,17 +42,12 @@ from vine_nlp.model.routing import MEASURED_LINES, Routing
 FORMAT = "vine_nlp/correction"
 MIN_MEASURED_POINTS = 10
 MAX_MEASURED_POINTS = limits.MAX_TARGET_POINTS
-RUNS = ("as_built", "corrected")
+RUNS = ("as_built", "corrected", "corrected_lambda", "corrected_lambda_theta")
 
 
 def read_measured(path) -> np.ndarray:
-    """Measured points of a CSV file: rows x y z (a header line and # comments allowed), any order.
-
-    Raises
-    ------
-    InputError
-        ``(file, "line N" | "values" | "file", reason)``: a missing file, a bad row, too few or too many points.
-    """
+    """Measured points of a CSV file: rows x y z (a header line and # comments allowed), any order. InputError
+    ``(file, "line N" | "values" | "file", reason)``: a missing file, a bad row, too few or too many points."""
     path = Path(path)
     pts = read_csv(SourceFile(str(path)))
     if pts.shape[1] != 3:
@@ -81,16 +79,16 @@ def write_correction_archive(path, base: Archive, result: CorrectionResult, buil
     """
     runs = {k: v for k, v in base.runs.items() if k not in RUNS}
     runs["as_built"], runs["corrected"] = result.as_built, result.corrected
+    for name, r in result.routes.items():
+        runs[f"corrected_{name.replace(',', '_')}"] = r
     extra = {k: v for k, v in base.extra.items() if not (k.startswith("measured/") or k.startswith("correction/"))}
     ms = result.measurements
     extra["measured/points"] = np.concatenate([m.points for m in ms])
     for k, m in enumerate(ms):
         extra[f"measured/{k}/points"] = m.points
     for b, r in enumerate(builds):
-        extra[f"correction/builds/{b}/theta"] = r.theta
-        extra[f"correction/builds/{b}/lambda"] = r.lam
-        extra[f"correction/builds/{b}/length"] = r.length
-        extra[f"correction/builds/{b}/initial_pose"] = r.initial_pose
+        for name, v in (("theta", r.theta), ("lambda", r.lam), ("length", r.length), ("initial_pose", r.initial_pose)):
+            extra[f"correction/builds/{b}/{name}"] = v
     est = result.estimate
     extra["correction/systematic"] = est.systematic
     extra["correction/systematic_std"] = est.systematic_std
@@ -115,12 +113,7 @@ def write_correction_archive(path, base: Archive, result: CorrectionResult, buil
 
 def read_correction(path) -> tuple[Archive, CorrectionState | None]:
     """The archive (validated by ``load_archive``) and its correction state (None for a plain design archive).
-
-    Raises
-    ------
-    ArchiveError
-        A malformed correction part, naming the dataset or attribute.
-    """
+    ArchiveError: a malformed correction part, naming the dataset or attribute."""
     a = load_archive(path)
     try:
         with open_archive(path) as h5:
@@ -191,9 +184,7 @@ def _state(file, h5, a: Archive) -> CorrectionState:
         k += 1
     if not ms:
         raise ArchiveError(file, "/measured/0/points", "missing: a correction archive holds its measurements")
-    attrs = {}
-    for name in g.attrs:
-        attrs[name] = _attr(file, g, name, (str, int, float, bool))
+    attrs = {name: _attr(file, g, name, (str, int, float, bool)) for name in g.attrs}
     sysv, sys_sd = a.extra.get("correction/systematic"), a.extra.get("correction/systematic_std")
     for key, v in (("systematic", sysv), ("systematic_std", sys_sd)):
         if v is None or np.shape(v) != (3,):

@@ -53,6 +53,7 @@ def _options_table(o: DesignOptions, kind: str = "design") -> dict:
         table["budget"] = o.budget
         if o.solver != DesignOptions.solver:
             table["solver"] = o.solver
+        table |= {"correction_margin": o.correction_margin, "min_feature": o.min_feature, "base": o.base}
     table["seed"] = o.seed
     return table
 
@@ -100,6 +101,8 @@ def problem_source(problem, call: str, notes=()) -> str:
         tables["design"] = _options_table(problem.options, "design" if isinstance(problem, DesignProblem) else "other")
     if isinstance(problem, DesignProblem):
         tables["design.smoothness"] = {"theta": problem.options.smooth_theta, "lambda": problem.options.smooth_lambda}
+        if problem.options.base_pose is not None:
+            tables["routing"] = {"initial_pose": problem.options.base_pose}
         if problem.calibration is not None:
             tables["calibration"] = {k: getattr(problem.calibration, k) for k in CALIBRATION_KEYS}
     return toml_text("\n".join(notes), {"name": problem.name, "units": problem.units}, tables)

@@ -28,8 +28,9 @@ import numpy as np
 from vine_nlp.analysis.collision import _ModelLine, routing_clearance
 from vine_nlp.methods import drive
 from vine_nlp.methods.blocks import BlockType
+from vine_nlp.methods.buildable import inherited_bounds
 from vine_nlp.methods.common import pair_points
-from vine_nlp.methods.nlp import chain_guess, design_bounds, design_nlp, extended_solver, nlp_parameters, result_of, start_x
+from vine_nlp.methods.nlp import chain_guess, design_nlp, extended_solver, nlp_parameters, result_of, start_x
 from vine_nlp.methods.settings import RAISE_FACTOR, ROUNDS
 from vine_nlp.methods.transcription import Chain, segment_point_index
 from vine_nlp.model.segment import segment_function
@@ -225,7 +226,7 @@ class _Pairs:
         p = solver.pack_params(self.params | {"pair_u": np.array([[ea[1], eb[1]] for ea, eb in ends]).T,
                                               "pair_need": ((self.need + self.row_margin) / D) ** 2})
         x0 = start_x(solver, chain_guess(problem, self.start.routing), D, "chain") if x is None else x
-        x, status, st = solver.solve(x0, p, *solver.bounds(*design_bounds(problem, pairing)))
+        x, status, st = solver.solve(x0, p, *solver.bounds(*inherited_bounds(problem, pairing, self.start)))  # a buildable start's classes kept
         return x, result_of(problem, pairing, solver, x, status, st, self.R0g, "nlp_clearance")
 
     def judge(self, res):

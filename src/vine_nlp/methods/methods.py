@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from vine_nlp.methods.buildable import design_buildable
 from vine_nlp.methods.common import evaluate, pair_points
 from vine_nlp.methods.greedy import design_greedy
 from vine_nlp.methods.nlp import design_nlp
@@ -9,7 +10,8 @@ from vine_nlp.model.calibration import nominal_of, realized_of
 from vine_nlp.model.shape import routing_metrics
 from vine_nlp.problem import DesignProblem, Result
 
-METHODS = {"nlp": design_nlp, "greedy": design_greedy}
+# nlp: the buildable design from the free one (methods.buildable), as the pipeline's nlp run; greedy as the paper has it
+METHODS = {"nlp": lambda problem, **kw: design_buildable(problem, design_nlp(problem, **kw)), "greedy": design_greedy}
 
 
 def run_design(problem, method: str | None = None, **kw):
@@ -52,7 +54,7 @@ def apply_calibration(problem: DesignProblem, result: Result) -> Result:
     a = problem.actuator
     nominal, clipped = nominal_of(result.routing, from_cal, a.theta_max, a.lambda_min)
     pairing = pair_points(problem.target, problem.options.points_per_segment)
-    realized = evaluate(problem, realized_of(nominal, from_cal), pairing, result.method)
+    realized = evaluate(problem, realized_of(nominal, from_cal, a.lambda_min), pairing, result.method)
     out = Result(method=result.method, routing=nominal, shape=realized.shape, status=result.status,
                  solve_time_s=result.solve_time_s, iterations=result.iterations,
                  metrics=dict(result.metrics) | realized.metrics | routing_metrics(nominal), stats=dict(result.stats),

@@ -6,7 +6,8 @@ Objective (units of D, as in methods.nlp):
 
 J_k the Jacobian of paired point k (and the tip) with respect to every segment's
 (theta, lambda, dl), Sigma = diag(sigma^2) of analysis.tolerance.Sigmas (sigma_dl
-relative: sigma times the segment's length variable). E[dMSE] is the exact
+relative: sigma times the segment's length variable; sigma_lambda 0 where the start design has
+no actuator, lambda 1: the physical rule, spec "Physical builds"). E[dMSE] is the exact
 expected increase of the mean squared error of the linearized chain (the cross
 term has zero mean), smooth, and computed in O(M) without forming J:
 
@@ -42,11 +43,12 @@ import numpy as np
 from vine_nlp.analysis.tolerance import tolerance_report
 from vine_nlp.methods import drive
 from vine_nlp.methods.blocks import BlockType
+from vine_nlp.methods.buildable import inherited_bounds
 from vine_nlp.methods.common import pair_points
-from vine_nlp.methods.nlp import chain_guess, design_bounds, design_nlp, extended_solver, nlp_parameters, result_of, start_x
+from vine_nlp.methods.nlp import chain_guess, design_nlp, extended_solver, nlp_parameters, result_of, start_x
 from vine_nlp.methods.transcription import Chain, segment_point_index
 from vine_nlp.model.helix import center_rates
-from vine_nlp.model.routing import Sigmas
+from vine_nlp.model.routing import Sigmas, actuated
 from vine_nlp.model.segment import _exp_coefficients, twist_parts
 from vine_nlp.problem import DesignProblem, Result
 
@@ -166,7 +168,8 @@ class RobustTerm:
         Wd = c.param("robust_W", (1, M))  # sum of weights after each segment, tip included
         u, w = c.cells[:n, :], c.cells[4 * n :, :]
         down, own, rec = robust_blocks(n)
-        sig = ca.repmat(P, 1, M)
+        act = c.param("robust_act", (1, M))  # 0 where there is no actuator: no lambda error
+        sig = ca.vertcat(ca.repmat(P[0], 1, M), P[1] * act, ca.repmat(P[2:], 1, M))
         idx = np.array([np.r_[segment_point_index(c, j), lay.X[j + 1, 0, 9:], lay.extra[j]] for j in range(M)]).T
         c.add_block(down, idx, ca.vertcat(Wd, sig), term="robust")
         c.add_block(own, np.vstack([lay.theta, lay.lam[:, 0], lay.dl]), ca.vertcat(u, w, sig), term="robust")
@@ -178,14 +181,14 @@ class RobustTerm:
         c.add_rows("robust_tail", c.extra[:, M - 1] - wtip * ca.vertcat(tip, _sym6(tip)), 0.0, 0.0)
 
 
-def robust_parameters(params: dict, sigmas: Sigmas, weight: float, D: float, n: int) -> dict:
-    """The robust term's data beside the plain NLP's ``params`` (scaled by D)."""
+def robust_parameters(params: dict, sigmas: Sigmas, weight: float, D: float, n: int, act) -> dict:
+    """The robust term's data beside the plain NLP's ``params`` (scaled by D); ``act``: where there is an actuator."""
     w = np.asarray(params["cells"])[4 * n :, :]
     wtip = float(params["wtip"])
     Wd = np.cumsum(w.sum(axis=0)[::-1])[::-1]
     Wd = np.concatenate([Wd[1:], [0.0]]) + wtip
     rel, ab = (sigmas.length, 0.0) if sigmas.relative_length else (0.0, sigmas.length / D)
-    return {"robust": [sigmas.theta, sigmas.lam, rel, ab, weight], "robust_W": Wd, "robust_wtip": wtip}
+    return {"robust": [sigmas.theta, sigmas.lam, rel, ab, weight], "robust_W": Wd, "robust_wtip": wtip, "robust_act": np.asarray(act, float)}
 
 
 @lru_cache(maxsize=8)
@@ -227,7 +230,7 @@ def expected_increase(problem: DesignProblem, routing, sigmas: Sigmas) -> float:
 def _robust_start(problem, pairing, solver, routing, sigmas, weight):
     D = problem.diameter
     params = nlp_parameters(problem, pairing, routing.initial_pose[:3, :3].copy())
-    p = solver.pack_params(params | robust_parameters(params, sigmas, weight, D, pairing.n))
+    p = solver.pack_params(params | robust_parameters(params, sigmas, weight, D, pairing.n, actuated(routing.lam)))
     x = start_x(solver, chain_guess(problem, routing), D, "chain")
     x[solver.layout.extra.T] = downstream_sums(solver, x, p)
     return x, p
@@ -250,7 +253,7 @@ def design_robust(problem: DesignProblem, sigmas: Sigmas, samples: int = 0, seed
     solver = robust_solver(problem, pairing)
     x0, p = _robust_start(problem, pairing, solver, start.routing, sigmas, weight)
     i0 = solver.terms(x0, p)["robust"] / weight * D**2 if weight else 0.0
-    lbx, ubx = solver.bounds(*design_bounds(problem, pairing))
+    lbx, ubx = solver.bounds(*inherited_bounds(problem, pairing, start))  # a buildable start's classes kept
     x, status, st = solver.solve(x0, p, lbx, ubx)
     res = stats.absorb(result_of(problem, pairing, solver, x, status, st, start.routing.initial_pose[:3, :3].copy(), "nlp_robust"))
     # the increase of the design found, evaluated with weight 1 (the recursion holds at a converged x)

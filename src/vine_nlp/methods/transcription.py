@@ -483,9 +483,11 @@ class Solver:
     def terms(self, x, p) -> dict:
         return {k: float(v) for k, v in zip(self.term_names, self._terms(x, p))}
 
-    def solve(self, x0, p, lbx, ubx, lbg=None, ubg=None) -> tuple[np.ndarray, str, dict]:
-        """One solve, IPOPT's or Fatrop's (``spec.backend``), from x0 clipped into the bounds: (x, status, stats).
-        Fatrop loops without end on non-finite data: callers check ``fatrop_safe`` first."""
+    def solve(self, x0, p, lbx, ubx, lbg=None, ubg=None, multipliers: bool = False) -> tuple:
+        """One solve, IPOPT's or Fatrop's (``spec.backend``), from x0 clipped into the bounds: (x, status, stats);
+        ``multipliers``: also the bound multipliers lam_x (> 0 at an active upper bound, < 0 at a lower one: minus
+        the objective's gradient where a variable is fixed). Fatrop loops without end on non-finite data: callers
+        check ``fatrop_safe`` first."""
         build = 0.0 if self._built else self.build_time_s
         self._built = True
         x0 = np.clip(np.asarray(x0, float), lbx, ubx)
@@ -521,7 +523,7 @@ class Solver:
             "max_constraint_violation": viol,
             "hessian": self.spec.hessian,
         } | {f"objective_{k}": v for k, v in self.terms(x, p).items()}
-        return x, status, stats
+        return (x, status, stats, np.array(sol.get("lam_x", np.zeros(x.size))).ravel()) if multipliers else (x, status, stats)
 
 
 def routing_of(solver: Solver, x, D: float, base: np.ndarray, k: int = 0) -> Routing:

@@ -13,26 +13,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vine_nlp.model.routing import Routing
+from vine_nlp.model.routing import TOP, Routing, actuated, built_lambda
 
 
 @dataclass(frozen=True)
 class Calibration:
-    """Built = nominal + offsets, lengths times the scale (the contract's deviation rule, shared by all segments).
-
-    Parameters
-    ----------
-    lambda_offset : float
-        Systematic lambda error (built minus nominal).
-    theta_offset_deg : float
-        Systematic theta error, degrees.
-    length_scale : float
-        Built segment length over nominal (> 0).
-    lambda_offset_se, theta_offset_deg_se, length_scale_se : float
-        Their standard errors.
-    prototypes : int
-        Prototypes the calibration was estimated from.
-    """
+    """Built = nominal + offsets, lengths times the scale (the contract's deviation rule, shared by all segments;
+    lambda by the physical rule): ``lambda_offset`` (built minus nominal), ``theta_offset_deg``, ``length_scale``
+    (built over nominal, > 0), their standard errors ``*_se``, and the ``prototypes`` they come from."""
 
     lambda_offset: float = 0.0
     theta_offset_deg: float = 0.0
@@ -56,16 +44,17 @@ class Calibration:
 
 
 def nominal_of(realized: Routing, cal: Calibration, theta_max: float, lambda_min: float) -> tuple[Routing, int]:
-    """The nominal that realizes ``realized`` under ``cal``, clipped to the builder's bounds; (nominal, clipped count)."""
+    """The nominal that realizes ``realized`` under ``cal`` (the physical rule: no actuator where lambda is 1, an
+    actuator's nominal below 1), theta clipped to the builder's bounds; (nominal, clipped count)."""
     theta = realized.theta - cal.theta_offset
-    lam = realized.lam - cal.lambda_offset
     t2 = np.clip(theta, -theta_max, theta_max)
-    l2 = np.clip(lam, lambda_min, 1.0)
-    clipped = int(np.sum(t2 != theta) + np.sum(l2 != lam))
+    act, lam = actuated(realized.lam), realized.lam - cal.lambda_offset
+    l2 = np.where(act, np.minimum(lam, TOP), 1.0)
+    clipped = int(np.sum(t2 != theta) + np.sum(act & (l2 != lam)))
     return Routing(t2, l2, realized.length / cal.length_scale, realized.initial_pose), clipped
 
 
-def realized_of(nominal: Routing, cal: Calibration) -> Routing:
-    """What a nominal realizes under ``cal``."""
-    return Routing(nominal.theta + cal.theta_offset, nominal.lam + cal.lambda_offset, nominal.length * cal.length_scale,
-                   nominal.initial_pose)
+def realized_of(nominal: Routing, cal: Calibration, lambda_min: float = 0.0) -> Routing:
+    """What a nominal realizes under ``cal`` (the physical rule, model.routing.built_lambda)."""
+    return Routing(nominal.theta + cal.theta_offset, built_lambda(nominal.lam, cal.lambda_offset, lambda_min),
+                   nominal.length * cal.length_scale, nominal.initial_pose)

@@ -49,6 +49,24 @@ class Routing:
         return self.theta.size
 
 
+# A nominal lambda this close to 1 has no actuator (a stopper gap of a millionth of the segment: none is built);
+# TOP: the largest nominal lambda that keeps one
+NO_ACTUATOR_TOL = 1e-6
+TOP = 1.0 - 2 * NO_ACTUATOR_TOL
+
+
+def actuated(lam) -> np.ndarray:
+    """Where a nominal routing has an actuator: lambda below 1 (spec "Physical builds")."""
+    return np.asarray(lam, float) < 1.0 - NO_ACTUATOR_TOL
+
+
+def built_lambda(lam, d_lam, lambda_min: float):
+    """The physical rule (spec "Physical builds"): the lambda a robot realizes when built from the nominal ``lam``
+    with lambda errors ``d_lam``. Without an actuator exactly 1; with one, nominal + error within the actuator's
+    range [lambda_min, 1] (it cannot lengthen the tube, nor contract beyond its range)."""
+    lam = np.asarray(lam, float)
+    return np.where(actuated(lam), np.clip(lam + d_lam, lambda_min, 1.0), 1.0)
+
 
 @dataclass(frozen=True)
 class Sigmas:

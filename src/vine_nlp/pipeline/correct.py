@@ -15,7 +15,7 @@ from vine_nlp.io.calibration import Calibration
 from vine_nlp.io.correction import MAX_MEASURED_POINTS, MIN_MEASURED_POINTS, read_correction, read_measured, write_correction_archive
 from vine_nlp.io.data_files import check_spread
 from vine_nlp.io.problems import design_problem_of
-from vine_nlp.methods.correct import ADJUST, Measurement, combine_systematic, correct
+from vine_nlp.methods.correct import ADJUST, Deviations, Measurement, combine_systematic, correct
 from vine_nlp.model.pairing import pair_points
 from vine_nlp.model.routing import MEASURED_LINES, Sigmas
 
@@ -24,28 +24,13 @@ UNITS_PER_MM = {"mm": 1.0, "cm": 0.1, "m": 0.001, "in": 1 / 25.4, "inch": 1 / 25
 PLAUSIBLE_MEDIAN = 5.0  # median distance of the measured points to the estimated line, in noise sigmas, beyond which it is not this robot
 
 
-def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=("lambda",), free_pose=False, sigmas=None,
+def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=None, free_pose=False, sigmas=None,
                   measurement_sigma=None):
-    """Read an archive and measured CSV files, estimate and correct (no file written).
-
-    Parameters
-    ----------
-    archive_path : path-like or Archive
-        A design archive or the path of a correction archive (then its earlier measurements are used too).
-    measured : list of path-like or (K, 3) arrays
-        CSV files (or arrays) of points measured on the robot built from run ``run``.
-    lines : tuple of str
-        One line for all files, or one per file.
-
-    Returns
-    -------
-    (CorrectionResult, base Archive, builds (list of Routing), settings dict)
-
-    Raises
-    ------
-    InputError
-        Bad archive, bad CSV, unknown run, mismatched lines.
-    """
+    """Read an archive (a design archive, or the path of a correction archive: its earlier measurements are used
+    too, its estimate is the warm start) and the points measured on the robot built from run ``run`` (CSV files or
+    (K, 3) arrays; ``lines``: one for all or one per file), estimate and correct (``adjust``: the route taken, None:
+    the recommended one); no file written. Returns (CorrectionResult, base Archive, builds (Routing, oldest first),
+    the /correction attributes). Raises InputError: a bad archive or CSV, an unknown run, mismatched lines."""
     if isinstance(archive_path, Archive):
         archive, state = archive_path, None
         if any(k.startswith("correction/") for k in archive.extra):
@@ -70,8 +55,8 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
     for ln in lines:
         if ln not in MEASURED_LINES:
             raise InputError("command line", "--line", f"must be one of {', '.join(MEASURED_LINES)}, got {ln!r}")
-    adjust = tuple(adjust)
-    if adjust not in ADJUST:
+    adjust = None if adjust is None else tuple(adjust)
+    if adjust is not None and adjust not in ADJUST:
         raise InputError("command line", "--adjust", "must be lambda or lambda,theta")
     pts = [_points(p, k) for k, p in enumerate(measured)]
     for k, (p, f) in enumerate(zip(pts, measured)):
@@ -86,28 +71,30 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
     builds = (list(state.builds) if state else []) + [built]
     if any(b.segments != built.segments for b in builds):
         raise InputError(archive_path, f"/runs/{run}/design/theta", "the builds of one robot need the same segments")
-    if built.segments != _segments(problem):
-        raise InputError(archive_path, f"/runs/{run}/design/theta", f"{built.segments} segments, the problem's pairing has {_segments(problem)}")
+    M = pair_points(problem.target, problem.options.points_per_segment).segments
+    if built.segments != M:
+        raise InputError(archive_path, f"/runs/{run}/design/theta", f"{built.segments} segments, the problem's pairing has {M}")
     new = [Measurement(p, lines[0] if len(lines) == 1 else lines[k], len(builds) - 1, "free" if free_pose else "archive",
                        Path(f).name if isinstance(f, (str, Path)) else f"measured[{k}]")
            for k, (p, f) in enumerate(zip(pts, measured))]
     ms = (list(state.measurements) if state else []) + new
     sigmas = sigmas or Sigmas.from_degrees(1.0, 0.02, 0.02)
+    # round 2 and later start from the last round's estimate (its deviations and systematic parts)
+    dev = state.deviation if state is not None and len(state.deviation) == 3 else None
+    start = Deviations(dev["theta"], dev["lambda"], dev["length_ratio"]) if dev else None
     result = correct(problem, builds, ms, adjust=adjust, sigmas=sigmas, measurement_sigma=measurement_sigma,
-                     units_per_mm=units_per_mm or 0.1)
+                     units_per_mm=units_per_mm or 0.1, start=start, start_systematic=state.systematic if start else None)
     _check_plausible(result, new, problem.diameter, archive.units)
-    settings = {"built_run": run, "adjust": ",".join(adjust), "free_pose": bool(free_pose), "sigma_theta_rad": sigmas.theta,
+    settings = {"built_run": run, "adjust": ",".join(result.adjust), "recommended": result.recommended, "free_pose": bool(free_pose), "sigma_theta_rad": sigmas.theta,
                 "sigma_lambda": sigmas.lam, "sigma_length": sigmas.length, "relative_length": bool(sigmas.relative_length),
                 "sigma_measurement": result.estimate.stats["measurement_sigma"]}
     return result, archive, builds, settings
 
 
 def _check_plausible(result, new, D, units):
-    """A measurement that cannot be this robot (another shape, another frame, the wrong archive): the
-    estimated robot passes far from most of its points, farther than noise explains. InputError naming it.
-
-    Under Gaussian noise sigma per coordinate the median point-to-line distance is about 1.2 sigma; more
-    than PLAUSIBLE_MEDIAN sigma (and a quarter of the diameter) is not noise."""
+    """InputError for a measurement that cannot be this robot: the estimate passes farther from most of its points
+    than noise explains (the median distance is about 1.2 sigma under Gaussian noise; more than PLAUSIBLE_MEDIAN
+    sigma and a quarter of the diameter is not noise): another shape, another frame, the wrong archive."""
     sig = float(result.estimate.stats["measurement_sigma"])
     limit = max(PLAUSIBLE_MEDIAN * sig, 0.25 * D)
     dists = result.estimate.residuals[len(result.estimate.residuals) - len(new):]
@@ -133,10 +120,6 @@ def _points(p, k):
     return a
 
 
-def _segments(problem):
-    return pair_points(problem.target, problem.options.points_per_segment).segments
-
-
 def correct_to_file(archive_path, measured, output, **kw):
     """``correct_files`` and write the correction archive to ``output`` (the API's file-level entry)."""
     result, archive, builds, settings = correct_files(archive_path, measured, **kw)
@@ -144,24 +127,13 @@ def correct_to_file(archive_path, measured, output, **kw):
     return result
 
 
-def unreachable_text(result, problem) -> str:
-    """Why the correction cannot reach the target ("" when it can): a solver that did not converge, or the
-    values to build pinned at the builder's bounds (lambda in [lambda_min, 1], theta within theta_max when
-    adjusted): the target needs values beyond them."""
+def shortfall(result) -> str:
+    """Why the chosen route does not reach the target ("" when it does: exit 0): an estimate that did not
+    converge, or the route's own shortfall (methods.correct: bounds that cost accuracy, a correction that did not
+    converge)."""
     if not result.as_built.converged:
         return f"the estimate did not converge ({result.as_built.status})"
-    if not result.corrected.converged:
-        return f"the correction did not converge ({result.corrected.status})"
-    a, r, eps = problem.actuator, result.corrected.routing, 1e-6
-    changed = np.abs(r.lam - result.built.lam) > eps
-    pinned = changed & ((r.lam <= a.lambda_min + eps) | (r.lam >= 1.0 - eps))
-    if "theta" in result.adjust:
-        pinned |= (np.abs(r.theta - result.built.theta) > eps) & (np.abs(r.theta) >= a.theta_max - eps)
-    if pinned.any():
-        seg = ", ".join(str(j) for j in np.flatnonzero(pinned)[:10]) + (" ..." if pinned.sum() > 10 else "")
-        return (f"the target cannot be reached within the bounds: {int(pinned.sum())} segment(s) at a bound "
-                f"(lambda in [{a.lambda_min:g}, 1]{', |theta| <= theta_max' if 'theta' in result.adjust else ''}; segments {seg})")
-    return ""
+    return "; ".join(result.corrected.shortfall)
 
 
 def calibrate(paths) -> tuple[Calibration, float]:

@@ -2,12 +2,14 @@
 
 The one place that decides which runs a problem makes, in which order, from which start:
 
-- design problems: the design method(s) (``nlp``; ``greedy``; ``compare``: nlp, greedy and the
-  paper's low-pass-filtered greedy); among ``[[obstacles]]`` the obstacle design as run ``nlp``
+- design problems: the design method(s) (``nlp``, a buildable design made from the free one:
+  methods.buildable; ``greedy``, as the paper has it; ``compare``: nlp, greedy and the paper's
+  low-pass-filtered greedy); among ``[[obstacles]]`` the obstacle design as run ``nlp``
   with the obstacle-free design it started from as ``nlp_free``; then, if asked, the robust
-  (``nlp_robust``) and self-clearing (``nlp_clearance``) designs, started from ``nlp``. Every run
-  is designed for what the robot should realize; with a ``[calibration]`` every run then becomes
-  the nominal to build (the systematic errors taken out, :func:`calibrated`);
+  (``nlp_robust``) and self-clearing (``nlp_clearance``) designs, started from ``nlp`` (keeping its
+  actuated segments and margins). Every run is designed for what the robot should realize; with a
+  ``[calibration]`` every run then becomes the nominal to build (the systematic errors taken out,
+  :func:`calibrated`);
 - tip, multi-shape, forward and fit problems: their one run.
 
 Every run is then judged against the hard requirements of its problem (:func:`judge`: the
@@ -30,6 +32,7 @@ from vine_nlp.io.archive import Archive, write_archive
 from vine_nlp.io.formulations import write_multishape_archive, write_tip_archive
 from vine_nlp.io.problems import ProblemFile
 from vine_nlp.methods import blas
+from vine_nlp.methods.buildable import design_buildable
 from vine_nlp.methods.clearance import design_with_clearance
 from vine_nlp.methods.common import evaluate, pair_points, run_forward
 from vine_nlp.methods.fit import fit_frames, fit_problem
@@ -165,6 +168,8 @@ def _design(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, dict, dic
         if m == "nlp":
             runs[m] = design_nlp(problem, starts=rq.starts, workers=rq.workers, warm=rq.warm, progress=rq.progress, hops=rq.hops,
                                  budget=rq.budget, note=rq.note)
+            if not problem.obstacles:  # buildable design (issue 31) from the free one; robust and clearance keep its classes
+                runs[m] = design_buildable(problem, runs[m])
         elif m == "greedy":
             runs[m] = design_greedy(problem, progress=rq.progress)
         else:
@@ -270,7 +275,7 @@ def calibrated(problem: DesignProblem, result: Result) -> Result:
     calibrated robot. stats calibration_* (the values and the number of clipped entries)."""
     cal, a = problem.calibration, problem.actuator
     nominal, clipped = nominal_of(result.routing, cal, a.theta_max, a.lambda_min)
-    realized = evaluate(problem, realized_of(nominal, cal), pair_points(problem.target, problem.options.points_per_segment), result.method)
+    realized = evaluate(problem, realized_of(nominal, cal, a.lambda_min), pair_points(problem.target, problem.options.points_per_segment), result.method)
     stats = dict(result.stats) | {
         "calibration_lambda_offset": cal.lambda_offset, "calibration_theta_offset_deg": cal.theta_offset_deg,
         "calibration_length_scale": cal.length_scale, "calibration_clipped": clipped,
@@ -293,7 +298,7 @@ def judge(problem, result: Result) -> None:
     obstacles = getattr(problem, "obstacles", ())
     if obstacles:
         cal = getattr(problem, "calibration", None)
-        realized = realized_of(r, cal) if cal is not None else r
+        realized = realized_of(r, cal, a.lambda_min if a else 0.0) if cal is not None else r
         rep = obstacle_report(realized, problem.diameter, obstacles, problem.growth, problem.obstacle_margin)
         result.metrics["min_obstacle_gap"] = float(rep["min_gap"])
         if problem.growth == "after":

@@ -8,10 +8,10 @@
 - ``correction``: the nominal to build next, and :func:`correct`, estimate and correction together.
 """
 
-from vine_nlp.methods.correct.correction import ADJUST, THETA_TRUST, CorrectionResult, correct, correct_routing
+from vine_nlp.methods.correct.correction import ADJUST, THETA_TRUST, CorrectionResult, correct, correct_routing, lambda_bounds
 from vine_nlp.methods.correct.deviations import Deviations, apply_deviations, deviations_of, remove_deviations
 from vine_nlp.methods.correct.estimate import Estimate, combine_systematic, estimate_as_built
 from vine_nlp.methods.correct.pairing import LINE_SIDE, Measurement
 
-__all__ = ["ADJUST", "THETA_TRUST", "CorrectionResult", "correct", "correct_routing", "Deviations", "apply_deviations", "deviations_of",
+__all__ = ["ADJUST", "THETA_TRUST", "CorrectionResult", "correct", "correct_routing", "lambda_bounds", "Deviations", "apply_deviations", "deviations_of",
            "remove_deviations", "Estimate", "combine_systematic", "estimate_as_built", "LINE_SIDE", "Measurement"]

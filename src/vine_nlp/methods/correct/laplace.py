@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from vine_nlp.methods.correct.pairing import LINE_SIDE, in_frame
+from vine_nlp.methods.correct.pairing import LINE_SIDE, SLIDE, in_frame
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.routing import Routing
 from vine_nlp.model.segment import segment_transform, so3_exp
@@ -82,8 +82,8 @@ def laplace(ab, g, shifts, ms, pts, pairs, D, sig_m, sigmas, sys_sig, prior, sha
         L = prior[2] * D * math.exp(gg[2])
         sl = sigmas.length * L if sigmas.relative_length else np.full(M, sigmas.length)
         out = [(th - prior[0] - gg[0]) / sigmas.theta]
-        if not shared:
-            out.append((la - prior[1] - gg[1]) / sigmas.lam)
+        if not shared:  # where the latest build has no actuator lambda is 1, known (prior[3] = 0)
+            out.append(np.where(prior[3] > 0, (la - prior[1] - gg[1]) / sigmas.lam, (la - prior[1]) / (1e-6 * sigmas.lam)))
         out += [(ln - L) / sl, np.asarray(gg) / np.asarray(sys_sig)]
         return np.concatenate(out)
 
@@ -92,12 +92,13 @@ def laplace(ab, g, shifts, ms, pts, pairs, D, sig_m, sigmas, sys_sig, prior, sha
     rows, dists = [], []
     for p, m, pr in zip(pts, ms, pairs):
         a, b, c = shifts[m.build]
-        r = Routing(ab.theta + a, ab.lam + b, ab.length * c, T0)
+        r = Routing(ab.theta + a, np.minimum(1.0, ab.lam + b), ab.length * c, T0)
         P, JP = line_jacobian(r, D, pr.seg, pr.frac, LINE_SIDE[m.line])
+        JP[:, :, M : 2 * M] *= ab.lam + b < 1.0  # the physical rule: no lambda change beyond 1
         t = pr.tangent
         dists.append(np.linalg.norm(P - moved(p, m, np.zeros(6)), axis=1))
-        # point-to-line: the tangent at the pair projected out, as in the estimate
-        JP = JP - t.T[:, :, None] * np.einsum("in,ink->nk", t.T, JP)[None]
+        # point-to-line: the tangent at the pair projected out (but SLIDE), as in the estimate
+        JP = JP - (1.0 - SLIDE) * t.T[:, :, None] * np.einsum("in,ink->nk", t.T, JP)[None]
         Jm = np.zeros((3, P.shape[0], nq))
         Jm[:, :, :M] = JP[:, :, :M]
         if shared:

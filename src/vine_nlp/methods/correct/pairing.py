@@ -1,7 +1,8 @@
 """Measurements and their pairing with the model lines: closest points, ICP-style (numpy model).
 
-A measured point pairs with the closest point of its line (center, or the inner/outer line at D/2 along
-the normal) on the current estimate, at a (segment, fraction); the estimate's residual is the part of the
+A measured point pairs with the point of its line (center, or the inner/outer line at D/2 along the normal)
+at its cross-section of the current estimate (the closest center-line point), at a (segment, fraction); the
+estimate's residual is the part of the
 difference across the line (the tangent at the pair projected out: point-to-line, so the pairing itself
 does not pin material points along the tube), except for points beyond an end of the line, which keep the
 full residual (their tangent is zero). Free-frame measurements start from a rigid ICP alignment onto their
@@ -21,6 +22,9 @@ from vine_nlp.model.routing import MEASURED_LINES, Routing
 # offset of each line from the center line along the frame's normal, in units of D
 LINE_SIDE = {"center": 0.0, "inner": 0.5, "outer": -0.5}
 SAMPLES_PER_SEGMENT = 24  # pieces per segment of the model lines the pairing projects onto
+# the share of a pair's along-line difference kept in its residual: zero at a closest point, it damps sliding along the
+# line between pairings (pure point-to-line let a hook's straight part slide: a shorter tube, a later bend)
+SLIDE = 0.1
 
 
 @dataclass(frozen=True)
@@ -66,10 +70,13 @@ class Pairs:
 
 
 def pair_with_line(points: np.ndarray, routing: Routing, D: float, side: float, per_segment: int = SAMPLES_PER_SEGMENT) -> Pairs:
-    """Closest points of the model line (``side``: offset along the normal in D) for measured points."""
+    """Pairs of measured points with the model line (``side``: offset along the normal in D): each point's place
+    along the tube is the closest point of the center line (its cross-section: the line on the surface may wind
+    around the tube where theta is large, and a wrong roll would pair it with the wrong turn), its pair the line's
+    point there."""
     seg, frac = segment_end_samples(routing.length, per_segment)
     F = chain_frames(routing.theta, routing.lam, routing.length, D, routing.initial_pose)
-    P, _ = line_points(routing, D, seg, frac, side, F)
+    P, _ = line_points(routing, D, seg, frac, 0.0, F)
     cum = np.concatenate([[0.0], np.cumsum(routing.length)])
     lmat = cum[seg] + frac * routing.length[seg]
     d = np.diff(P, axis=0)

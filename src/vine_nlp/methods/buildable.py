@@ -1,0 +1,300 @@
+"""Buildable designs (issue 31): an actuator only where the tube bends, no winding for nothing, room to correct.
+
+Where lambda is 1 the segment is straight and theta only turns the actuator line around it: no actuator is
+built there, and the line may take any way to where the next actuated piece needs it. From a free design:
+
+- **Classes** (:func:`classify`): a segment has lambda exactly 1, or an actuator bounded to [lo, 1 - m_j]
+  (:func:`lambda_bounds`; lo = lambda_min (pouches: 2/pi) + margin; m_j = max(margin, min_feature over its
+  gap's length, alone or joined with its partner's)): room to correct an as-built error both ways. A segment
+  whose target bends at least the least an actuated one bends keeps its actuator; along a gentler run the
+  bends are summed and a segment actuated each time the sum reaches half its least bend (error diffusion:
+  fewer, stronger actuated segments with straight ones between); short pieces merge (:func:`merge_short`).
+- **Unwinding** (:func:`unwind`): on an unactuated run the shape sees only the line's net turning modulo
+  2 pi: it is taken the shortest way round at one slope, before each solve and after the last (the same
+  shape); a first run's goes into the base roll (free base: no arbitrary roll) or comes from the fixed pose.
+- **Build effort** (:class:`BuildEffort`, :func:`effort_data`): weighted (1/L) sum_j tan(theta_j)^2 dl_j.
+- **Reclassification** (:class:`Reclassify`, a ``drive.refine`` rule) from the lambda bounds' multipliers.
+
+sPAM (one lambda, pouches along the whole tube): no classes; the lambda in [max(lambda_min, 2/pi) + margin,
+1 - margin], the build effort. Other formulations (obstacles) use the blocks with their own solve.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import casadi as ca
+import numpy as np
+
+from vine_nlp.analysis.buildability import MM_PER_UNIT, POUCH_LAMBDA_MIN, buildability, default_min_feature, partners, pieces, wrap_angle
+from vine_nlp.methods import drive
+from vine_nlp.methods.common import Guess, evaluate, pair_points
+from vine_nlp.methods.nlp import design_bounds, nlp_parameters, result_of, start_x
+from vine_nlp.methods.settings import Settings
+from vine_nlp.methods.structure import Structure, frames12
+from vine_nlp.methods.transcription import Chain, Smoothness, SoftTip, Spec, get_solver
+from vine_nlp.model.chain import phi_from_theta
+from vine_nlp.model.helix import center_rates
+from vine_nlp.problem import DesignProblem, Result, Routing
+
+# build-effort weights against the fit's mean squared error / D^2 (results/BENCHMARKS.md, "Buildable designs"):
+# where the shape does not see the line (a first or last unactuated run) it holds it at theta 0 at no cost; where
+# theta shapes the tube a tenth curbs the winding that cancels a bend the margin forces (bezier-b 807 -> 161 deg)
+# at a few % RMSE (1e-3 cost polyline-d its budget); inner unactuated runs' turning the shape needs: nearly free
+EFFORT, EFFORT_ACTUATED, EFFORT_INNER = 1e-3, 1e-4, 1e-6
+ACCURACY_SLACK, ACCURACY_FLOOR_MM = 0.10, 0.05  # what the reclassification may give up: the issue's budget
+ROUNDS, REPAIRS = 8, 2  # solves at most; of them, re-solves while a gap is below min_feature (the lengths moved)
+BEND_TOL = 1e-6  # rad: a segment of the target bending less is straight
+
+
+@dataclass(frozen=True)
+class Build:
+    """A problem's build settings: ``margin``, ``min_feature`` (length units), ``pose`` the fixed base (4 x 4) or None."""
+
+    D: float
+    theta_max: float
+    kind: str
+    lambda_min: float
+    margin: float
+    min_feature: float
+    pose: np.ndarray | None = field(default=None, compare=False)
+
+    @classmethod
+    def of(cls, problem: DesignProblem) -> Build:
+        o, a = problem.options, problem.actuator
+        mf = default_min_feature(problem.units) if o.min_feature is None else o.min_feature
+        pose = None if o.base != "fixed" else np.array(o.base_pose, float)
+        return cls(problem.diameter, a.theta_max, a.kind, a.lambda_min, o.correction_margin, mf, pose)
+
+    shared = property(lambda self: self.kind == "spam")  # one lambda: pouches along the whole tube
+    lo = property(lambda self: (max(self.lambda_min, POUCH_LAMBDA_MIN) if self.shared else self.lambda_min) + self.margin)
+
+
+def upper(length, act, build: Build) -> np.ndarray:
+    """1 - m_j: an actuated segment's largest lambda, its gap (alone or with its partner's in ``act``) >= min_feature."""
+    length = np.asarray(length, float)
+    mate = partners(act)
+    together = length + np.where(mate >= 0, length[np.maximum(mate, 0)], 0.0)
+    return 1.0 - np.maximum(build.margin, build.min_feature / together)
+
+
+def lambda_bounds(act, length, build: Build) -> tuple[np.ndarray, np.ndarray]:
+    """Per-segment lambda bounds (lo, hi): exactly 1 without an actuator, [build.lo, 1 - m_j] (>= lo) with one."""
+    act = np.asarray(act, bool)
+    if build.shared:
+        return np.full(act.size, build.lo), np.full(act.size, max(build.lo, 1 - build.margin))
+    hi = np.maximum(upper(length, act, build), build.lo)
+    return np.where(act, build.lo, 1.0), np.where(act, hi, 1.0)
+
+
+def target_bends(problem: DesignProblem, pairing) -> np.ndarray:
+    """The target's turning angle over each segment (rad): the angle between its tangents at the segment's ends."""
+    t = np.gradient(problem.target, pairing.chord, axis=0)
+    t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-300)
+    b = pairing.bounds
+    return np.arccos(np.clip(np.sum(t[b[:-1]] * t[b[1:]], axis=1), -1.0, 1.0))
+
+
+def classify(bends, length, build: Build) -> np.ndarray:
+    """Where an actuator goes (module docstring): ``bends`` the target's turning per segment, ``length`` the
+    segment lengths. An actuated segment bends at least its bend at 1 - m_j (theta 0): in a piece with a partner
+    (``pair``), or alone (``alone``, the error diffusion's step: a gently bent run gets isolated actuators)."""
+    bends, length = np.asarray(bends, float), np.asarray(length, float)
+    if build.shared:
+        return np.ones(bends.size, bool)
+
+    def least_bend(act):
+        kappa, _, lc = center_rates(0.0, upper(length, act, build), build.D)
+        return kappa * lc * length
+
+    pair, alone = least_bend(np.ones(bends.size, bool)), least_bend(np.zeros(bends.size, bool))
+    act, acc = bends >= np.maximum(pair, BEND_TOL), 0.0
+    for j in range(bends.size):  # error diffusion along the gently bent runs
+        if act[j]:
+            acc = 0.0
+            continue
+        acc += bends[j]
+        if acc >= max(0.5 * alone[j], BEND_TOL):
+            act[j], acc = True, acc - max(acc, alone[j])
+    return merge_short(act, length, build.min_feature)
+
+
+def merge_short(act, length, min_feature: float) -> np.ndarray:
+    """An inner piece shorter than min_feature takes its neighbours' class (the shortest first)."""
+    act = np.array(act, bool)
+    for p in sorted(pieces(act, length, length), key=lambda p: p.s1 - p.s0):
+        if p.s1 - p.s0 < min_feature and 0 < p.start and p.stop < act.size:
+            act[p.start:p.stop] = not p.actuated
+    return act
+
+
+def unwind(routing: Routing, act, build: Build) -> Routing:
+    """The same shape with every unactuated run's turning the shortest way round at constant slope: a first run's
+    into the base roll (free base; theta 0 there) or from the fixed pose, a last run's dropped (module docstring)."""
+    theta, T0, D = routing.theta.copy(), routing.initial_pose.copy(), build.D
+    phi = phi_from_theta(routing.theta, routing.length, D)
+    for p in pieces(act, routing.length, routing.length):
+        if p.actuated:
+            continue
+        run, net = slice(p.start, p.stop), phi[p.stop] - phi[p.start]
+        if p.stop == routing.segments:
+            theta[run] = 0.0  # nothing downstream
+            continue
+        if p.start == 0 and build.pose is None:  # a roll about the base's own tangent
+            c, s = math.cos(net), math.sin(net)
+            T0, theta[run] = T0 @ np.array([[1.0, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1]]), 0.0
+            continue
+        if p.start == 0:  # the fixed pose differs from this one by a roll rho: the run turns rho further
+            R = np.linalg.solve(build.pose[:3, :3], T0[:3, :3])
+            net += math.atan2(R[2, 1], R[1, 1])
+        theta[run] = np.arctan(0.5 * D * float(wrap_angle(net)) / (p.s1 - p.s0))
+    T0 = T0 if build.pose is None else build.pose.copy()
+    return Routing(np.clip(theta, -build.theta_max, build.theta_max), routing.lam, routing.length, T0)
+
+
+@dataclass(frozen=True)
+class BuildEffort:
+    """sum_j e_j tan(theta_j)^2 dl_j: the line's weighted mean squared slope on the unrolled tube; parameter ``effort`` (M,)."""
+
+    def apply(self, c: Chain) -> None:
+        e = c.param("effort", (c.s.M, 1))
+        c.add_term("effort", ca.dot(e, ca.tan(c.theta.T) ** 2 * c.dl.T))
+
+
+def effort_data(act, L: float, base_free: bool = True) -> dict:
+    """The build effort's data, e_j = w_j / L (L as ``nlp_parameters``' "L"): EFFORT_ACTUATED with an actuator; EFFORT on
+    an unactuated run the shape does not see (the first with a free base, the last); EFFORT_INNER on the others."""
+    act = np.asarray(act, bool)
+    w = np.where(act, EFFORT_ACTUATED, EFFORT_INNER)
+    for p in pieces(act, np.ones(act.size), np.ones(act.size)):
+        if not p.actuated and ((p.start == 0 and base_free) or p.stop == act.size):
+            w[p.start:p.stop] = EFFORT
+    return {"effort": w / L}
+
+
+def accuracy_budget(problem: DesignProblem, rmse: float) -> float:
+    """The RMSE the reclassification may reach from a free design's ``rmse``: ACCURACY_SLACK or ACCURACY_FLOOR_MM
+    more, whichever is larger (units without a millimetre equivalent: the floor is 0.002 D)."""
+    floor = ACCURACY_FLOOR_MM / MM_PER_UNIT[problem.units] if problem.units in MM_PER_UNIT else 0.002 * problem.diameter
+    return max((1 + ACCURACY_SLACK) * rmse, rmse + floor)
+
+
+class Reclassify:
+    """The reclassification, a ``drive.refine`` rule (x: the routing to start from; ``trials + REPAIRS`` rounds) for
+    any formulation: ``solve(act, start)`` solves with the classes ``act`` from ``start`` (unwound here): (Result,
+    the lambda bounds' multipliers (M,)). ``limit``: the RMSE budget. After refine: ``act``, the best round's."""
+
+    def __init__(self, solve: Callable, act, build: Build, limit: float, trials: int = ROUNDS - REPAIRS):
+        self._solve, self.build, self.limit, self.trials = solve, build, limit, trials
+        self.act = self.trial = np.asarray(act, bool)
+        self.best, self.mult, self.cand, self.k, self.over = None, None, np.zeros(0, int), 0, False
+        self.taken, self.repairs, self.solves = 0, 0, 0
+
+    def solve(self, x: Routing, round: int, last: bool):
+        res, self._trial_mult = self._solve(self.trial, unwind(x, self.trial, self.build))
+        self.solves += 1
+        return x, res
+
+    def judge(self, res: Result) -> drive.Verdict:
+        rmse = res.metrics["rmse"]
+        if self.best is None or self.repairs:
+            taken = True
+        elif self.over:
+            taken = rmse < self.best.metrics["rmse"] * (1 - 1e-3) and (res.converged or not self.best.converged)
+        else:
+            taken = rmse <= self.limit and res.converged
+        if taken:
+            self.best, self.act, self.mult, self.taken = res, self.trial, self._trial_mult, self.taken + 1
+            self._candidates()
+        else:
+            self.k //= 2
+        self.trial = self._next()
+        return drive.Verdict(self.trial is None, (not taken, -float(self.taken)), {"actuated": int(self.act.sum())})
+
+    def refresh(self, res: Result, verdict: drive.Verdict, x) -> Routing:
+        return self.best.routing
+
+    def _candidates(self) -> None:
+        """To flip, the most eager first: actuated at the top asking for less (> 0); over the budget, unactuated asking for more."""
+        r, act, mult = self.best.routing, self.act, self.mult
+        self.over = self.best.metrics["rmse"] > self.limit
+        at_top = act & (r.lam >= upper(r.length, act, self.build) - 1e-6) & (mult > 1e-9)
+        asks = ~act & (mult < -1e-9) & self.over
+        self.cand = np.zeros(0, int) if self.build.shared or self.repairs else np.flatnonzero(at_top | asks)
+        self.cand = self.cand[np.argsort(-np.abs(mult[self.cand]), kind="stable")]
+        self.k = self.cand.size
+
+    def _next(self):
+        """The next trial's classes, or None: done."""
+        while self.k >= 1 and self.solves < self.trials:
+            trial = self.act.copy()
+            trial[self.cand[: self.k]] = ~trial[self.cand[: self.k]]
+            trial = merge_short(trial, self.best.routing.length, self.build.min_feature)
+            if not np.array_equal(trial, self.act):
+                return trial
+            self.k //= 2
+        b, r = self.build, self.best.routing
+        if self.repairs < REPAIRS and buildability(r, b.D, b.kind, b.lambda_min, b.margin, b.min_feature).below:
+            self.repairs += 1  # the lengths moved: bounds from the new ones
+            return self.act.copy()
+        return None
+
+
+def buildable_spec(problem: DesignProblem, pairing, build: Build) -> Spec:
+    """The plain NLP plus the build effort; the base pose free, or fixed (``build.pose``); exact Hessian."""
+    o = problem.options
+    s = Structure(pairing.segments, pairing.n, 1, "shared" if build.shared else "segment", "free" if build.pose is None else "fixed")
+    return Spec(s, (Smoothness(), SoftTip(), BuildEffort()), "exact", Settings(o.max_iter, o.tol))
+
+
+def solve_classes(problem: DesignProblem, pairing, build: Build, act, start: Routing) -> tuple[Result, np.ndarray]:
+    """One solve of the plain NLP with the build effort and the classes' lambda bounds, from ``start`` (frames on
+    its chain; its base pose, or the fixed one); (Result "nlp", the lambda bounds' multipliers)."""
+    D, act = problem.diameter, np.asarray(act, bool)
+    solver = get_solver(buildable_spec(problem, pairing, build))
+    lo, hi = lambda_bounds(act, start.length, build)
+    th, _, dl = design_bounds(problem, pairing)
+    T0 = start.initial_pose if build.pose is None else build.pose
+    guess = Guess(start.theta, np.clip(start.lam, lo, hi), start.length, T0, None)
+    data = nlp_parameters(problem, pairing, T0[:3, :3])
+    data |= effort_data(act, data["L"], build.pose is None)
+    lbx, ubx = solver.bounds(th, (lo, hi), dl, X0=None if build.pose is None else frames12(T0[None], D).T)
+    x, status, st, lam_x = solver.solve(start_x(solver, guess, D, "chain"), solver.pack_params(data), lbx, ubx, multipliers=True)
+    # lambda exactly 1 without an actuator: IPOPT holds a variable whose bounds are equal at its value
+    return result_of(problem, pairing, solver, x, status, st, T0[:3, :3] if build.pose is None else T0, "nlp"), lam_x[solver.layout.lam[:, 0]]
+
+
+def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Result:
+    """The buildable design from the free design ``start`` (design_nlp's; its solves counted). stats buildable (True),
+    buildable_actuated, buildable_free_rmse, buildable_budget, buildable_rounds, correction_margin, min_feature."""
+    stats = drive.Stats()
+    stats.started -= start.solve_time_s  # the wall time from the free design's start
+    stats.absorb(start)
+    pairing = pairing or pair_points(problem.target, problem.options.points_per_segment)
+    build = Build.of(problem)
+    act = classify(target_bends(problem, pairing), start.routing.length, build)
+    rule = Reclassify(lambda a, r: solve_classes(problem, pairing, build, a, r), act, build, accuracy_budget(problem, start.metrics["rmse"]))
+    found = drive.refine(rule, ROUNDS, start.routing, stats)
+    best, act = found.best, rule.act
+    # a solve may leave an unactuated run's turning beyond half a turn: the same shape the shortest way round
+    r = unwind(best.routing, act, build)
+    short = evaluate(problem, Routing(r.theta, best.routing.lam, r.length, r.initial_pose), pairing, "nlp", status=best.status,
+                     iterations=best.iterations, stats=best.stats)
+    best = short if short.metrics["rmse"] <= best.metrics["rmse"] * (1 + 1e-9) else best
+    best.stats |= {k: v for k, v in start.stats.items() if k.startswith(("start", "best_start", "hops", "corner"))}
+    best.stats |= {"buildable": True, "buildable_actuated": int(act.sum()), "buildable_free_rmse": float(start.metrics["rmse"]),
+                   "buildable_budget": float(rule.limit), "buildable_rounds": found.rounds, "correction_margin": build.margin,
+                   "min_feature": build.min_feature}
+    return stats.stamp(best)
+
+
+def inherited_bounds(problem: DesignProblem, pairing, start: Result | None):
+    """``design_bounds``, with a buildable start's classes kept (lambda exactly 1 where it has no actuator, the
+    margins elsewhere): robust and clearance designs started from a buildable design stay buildable."""
+    th, lam, dl = design_bounds(problem, pairing)
+    if start is None or not start.stats.get("buildable"):
+        return th, lam, dl
+    build, r = Build.of(problem), start.routing
+    return th, lambda_bounds(np.ones(r.segments, bool) if build.shared else r.lam != 1.0, r.length, build), dl

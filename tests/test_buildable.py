@@ -1,0 +1,206 @@
+"""Buildable designs (issue 31): the formulation (methods.buildable) and what the doors make of it."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import vine_nlp as vn
+from vine_nlp.analysis.buildability import buildability, pieces, turning
+from vine_nlp.api import ArgumentError
+from vine_nlp.front.cli import main
+from vine_nlp.io.problem_file import load_problem
+from vine_nlp.methods import buildable as B
+from vine_nlp.methods import drive
+from vine_nlp.model import shape_lines
+from vine_nlp.model.chain import segment_end_samples
+from vine_nlp.model.helix import center_rates
+from vine_nlp.model.routing import Routing
+from vine_nlp.problem import Actuator, DesignOptions, DesignProblem, Result
+
+HOOK = "problems/hook.toml"
+STRAIGHT = 26  # the hook's segments on its first 60 cm (2.28 cm a segment)
+
+
+def build(**kw) -> B.Build:
+    return B.Build(**({"D": 2.0, "theta_max": math.radians(60), "kind": "tendon", "lambda_min": 0.4, "margin": 0.05,
+                       "min_feature": 0.2} | kw))
+
+
+def within_margins(lam, lo, hi):
+    return np.all((lam == 1.0) | ((lam >= lo - 1e-9) & (lam <= hi + 1e-9)))
+
+
+@pytest.fixture(scope="module")
+def hook():
+    return vn.solve(HOOK)
+
+
+def test_hook_from_the_defaults_has_no_actuator_on_its_straight_part(hook):
+    r, pb = hook.result.routing, load_problem(HOOK).problem
+    assert hook.result.ok and hook.result.stats["buildable"]
+    assert np.all(r.lam[:STRAIGHT] == 1.0)  # exactly: no pouch, stopper or pinch
+    assert np.all(r.lam[STRAIGHT + 1:] < 1.0)  # the half circle bends everywhere
+    assert np.all(r.theta[:STRAIGHT] == 0.0)  # the line held: its side set by the base roll
+    rotation = math.degrees(math.acos(np.clip((np.trace(r.initial_pose[:3, :3]) - 1) / 2, -1, 1)))
+    assert rotation < 0.5  # the target starts along +x at the origin: no roll
+    b = B.Build.of(pb)
+    rep = buildability(r, pb.diameter, "tendon", 0.4, b.margin, b.min_feature)
+    assert rep.violations == [] and rep.below == [] and rep.turning_unactuated == 0.0
+    assert hook.result.metrics["rmse"] <= B.accuracy_budget(pb, hook.result.stats["buildable_free_rmse"])
+
+
+def test_every_segment_is_exactly_one_or_inside_the_margins(hook):
+    pb, r = load_problem(HOOK).problem, hook.result.routing
+    lo, hi = B.lambda_bounds(r.lam != 1.0, r.length, B.Build.of(pb))
+    assert within_margins(r.lam, lo, hi) and np.all(r.lam[r.lam != 1.0] <= 0.95 + 1e-9)
+
+
+def test_a_fixed_base_is_kept_exactly():
+    pb = load_problem(HOOK).problem
+    pose = np.eye(4)
+    pose[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]  # rolled a quarter turn: the line must come round on the straight part
+    d = vn.design(pb.target, pb.diameter, base=pose)
+    r = d.result.routing
+    np.testing.assert_array_equal(r.initial_pose, pose)
+    assert np.all(r.lam[:STRAIGHT] == 1.0) and d.rmse < 0.01
+    _, free, need = turning(r.theta, r.length, pb.diameter, r.lam != 1.0, base_free=False)
+    assert need == pytest.approx(math.pi / 2, abs=0.05) and free == pytest.approx(need, rel=1e-6)  # the shortest way round
+
+
+def test_a_buildable_routing_is_recovered():
+    """Known answer: a target the forward model makes from a buildable routing (straight runs, the line turned the
+    shortest way, actuated segments inside the margins) gets that routing's classes and shape back."""
+    M, n, D = 14, 6, 2.0
+    lam = np.array([1, 1, 0.6, 0.7, 0.8, 1, 1, 1, 0.65, 0.7, 0.75, 0.7, 1, 1], float)
+    theta = np.where(lam < 1, np.radians([0, 0, 10, 15, 5, 0, 0, 0, -10, -5, 0, 5, 0, 0]), 0.0)
+    theta[5:8] = np.arctan(0.5 * D * 1.2 / 6.0)  # 1.2 rad of turning over the 6 cm run
+    length = np.full(M, 2.0)
+    seg, frac = segment_end_samples(length, n)
+    center = shape_lines(theta, lam, length, D, seg, frac, np.eye(4))[0]
+    pb = DesignProblem("known", D, center, Actuator(), DesignOptions(points_per_segment=n, min_feature=0.1))
+    res = vn.solve(pb).result
+    np.testing.assert_array_equal(res.routing.lam == 1.0, lam == 1.0)
+    assert res.metrics["rmse"] < 5e-4 * D  # the build effort's pull on the actuated thetas: 0.003 mm here
+    assert np.allclose(res.routing.lam, lam, atol=0.01) and np.allclose(res.routing.theta[5:8], theta[5:8], atol=math.radians(0.2))
+
+
+def test_unwinding_keeps_the_shape_and_takes_the_shortest_way():
+    rng = np.random.default_rng(3)
+    M, D = 12, 2.0
+    act = np.array([0, 0, 1, 1, 0, 0, 0, 1, 1, 1, 0, 0], bool)
+    theta = rng.uniform(-1.0, 1.0, M)
+    lam = np.where(act, rng.uniform(0.5, 0.9, M), 1.0)
+    r = Routing(theta, lam, np.full(M, 2.0), np.eye(4))
+    u = B.unwind(r, act, build(D=D))
+    seg, frac = segment_end_samples(r.length, 5)
+    a, b = (shape_lines(x.theta, x.lam, x.length, D, seg, frac, x.initial_pose)[0] for x in (r, u))
+    np.testing.assert_allclose(a, b, atol=1e-9)
+    assert np.all(u.theta[:2] == 0.0) and np.all(u.theta[10:] == 0.0)  # into the base roll; nothing downstream
+    assert np.ptp(u.theta[4:7]) < 1e-12  # the inner run at one slope
+    _, free, need = turning(u.theta, u.length, D, act)
+    assert free == pytest.approx(need) and need <= math.pi
+
+
+def test_classes_known_answers():
+    b = build()
+    length = np.full(30, 2.0)
+    kappa, _, lc = (np.asarray(v) for v in center_rates(0.0, B.upper(length, np.zeros(30, bool), b), b.D))
+    alone = kappa * lc * length
+    assert not B.classify(np.zeros(30), length, b).any()  # straight: no actuator
+    assert B.classify(np.full(30, 0.3), length, b).all()  # bent beyond the least bend: everywhere
+    act = B.classify(np.full(30, 0.25 * alone[0]), length, b)  # a quarter of the least bend: about every fourth
+    assert 6 <= act.sum() <= 8 and np.all(np.diff(np.flatnonzero(act)) >= 3)
+    assert B.classify(np.zeros(5), np.full(5, 2.0), build(kind="spam")).all()  # an sPAM's pouches run the whole tube
+
+
+def test_lambda_bounds_mask_partners_and_spam():
+    b = build(min_feature=0.3)
+    act = np.array([0, 1, 1, 1, 0], bool)
+    lo, hi = B.lambda_bounds(act, np.full(5, 2.0), b)
+    np.testing.assert_array_equal(lo, [1, 0.45, 0.45, 0.45, 1])
+    # segments 1, 2 are partners (their joined gap 0.3 of 4 cm); segment 3 alone needs 0.3 of 2 cm
+    np.testing.assert_allclose(hi, [1, 0.925, 0.925, 0.85, 1])
+    lo, hi = B.lambda_bounds(np.ones(3, bool), np.full(3, 2.0), build(kind="spam", lambda_min=0.5))
+    np.testing.assert_allclose([lo[0], hi[0]], [2 / math.pi + 0.05, 0.95])
+
+
+def test_spam_keeps_one_lambda_inside_the_pouch_range():
+    d = vn.solve("problems/spam-helix.toml").result
+    lam = d.routing.lam
+    assert np.ptp(lam) == 0.0 and 2 / math.pi + 0.05 - 1e-9 <= lam[0] <= 0.95 + 1e-9
+
+
+class _Fake:
+    """A solve whose RMSE is 1 + how many classes differ from ``want``; its multipliers ask for ``want`` (and, lying,
+    for no actuator at ``lie``)."""
+
+    def __init__(self, want, lie=()):
+        self.want, self.lie = np.asarray(want, bool), list(lie)
+
+    def __call__(self, act, start):
+        miss = int(np.sum(act != self.want))
+        res = Result("nlp", Routing(start.theta, np.where(act, 0.95, 1.0), start.length, start.initial_pose), None, status="optimal",
+                     metrics={"rmse": 1.0 + miss})
+        mult = np.where(self.want & ~act, -1.0, np.where(~self.want & act, 1.0, 0.0))
+        mult[self.lie] = 1.0
+        return res, mult
+
+
+WANT = np.array([1, 1, 0, 1, 0, 0, 1, 0], bool)
+START = Routing(np.zeros(8), np.full(8, 0.9), np.full(8, 2.0), np.eye(4))
+
+
+@pytest.mark.parametrize("act, limit, lie", [
+    (np.zeros(8, bool), 0.5, ()),  # over the budget: actuators where the multipliers ask for contraction, all at once
+    (WANT | (np.arange(8) == 2), 2.5, ()),  # within it: an actuator at its top that asks for less goes
+    (WANT, 1.5, (0,)),  # within it: a removal that leaves the budget is not kept
+])
+def test_reclassify_rule_flips_what_the_multipliers_ask_for(act, limit, lie):
+    rule = B.Reclassify(_Fake(WANT, lie), act, build(min_feature=0.0), limit=limit)
+    found = drive.refine(rule, B.ROUNDS, START)
+    np.testing.assert_array_equal(rule.act, WANT)
+    np.testing.assert_array_equal(found.best.routing.lam == 1.0, ~WANT)
+    assert found.best.metrics["rmse"] == 1.0
+
+
+BAD_API = [
+    ({"correction_margin": 0.4}, "correction_margin: leaves no room: actuator.lambda_min + margin = 0.8 > 1 - margin = 0.6"),
+    ({"correction_margin": -0.1}, "correction_margin: must be >= 0"),
+    ({"min_feature": -1}, "min_feature: must be >= 0"),
+    ({"base": "fixed"}, 'base: "fixed" needs a base pose: pass the pose (4 x 4) as base'),
+    ({"base": "loose"}, "base: must be one of 'free', 'fixed'"),
+    ({"base": np.ones((4, 4))}, "base: last row must be [0, 0, 0, 1]"),
+    ({"base": 3}, "base: must be a 4 x 4 array (4 rows of 4 numbers)"),
+]
+
+
+@pytest.mark.parametrize("kw, expected", BAD_API)
+def test_bad_build_arguments_name_the_argument(kw, expected):
+    with pytest.raises(ArgumentError) as info:
+        vn.design(np.c_[np.linspace(0, 10, 21), np.zeros(21), np.zeros(21)], 1.0, **kw)
+    assert str(info.value) == expected
+
+
+def test_bad_margin_on_the_command_line(tmp_path, capsys):
+    path, out = tmp_path / "p.toml", tmp_path / "o.h5"
+    path.write_text("[tube]\ndiameter = 2.0\n[target]\ncurve = 'trefoil'\n[design]\ncorrection_margin = 0.35\n")
+    assert main(["design", str(path), "-o", str(out)]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"error: {path}: design.correction_margin: leaves no room: actuator.lambda_min + margin = 0.75 > 1 - margin = 0.65"]
+    assert not out.exists()
+
+
+@pytest.mark.slow
+def test_robust_and_clearance_keep_the_classes(hook):
+    pb = load_problem(HOOK).problem
+    d = vn.design(pb.target, pb.diameter, robust={"theta_deg": 1.0, "lambda": 0.02, "length": 0.02}, clearance=0.0)
+    act = d.runs["nlp"].result.routing.lam != 1.0
+    lo, hi = B.lambda_bounds(act, d.runs["nlp"].result.routing.length, B.Build.of(pb))
+    for run in ("nlp_robust", "nlp_clearance"):
+        lam = d.runs[run].result.routing.lam
+        np.testing.assert_array_equal(lam == 1.0, ~act)
+        assert within_margins(lam, lo, hi)
+    assert [p.actuated for p in pieces(act, np.ones(act.size), np.ones(act.size))] == [False, True]
