@@ -9,7 +9,7 @@ import pytest
 from conftest import mutate
 
 from vine_nlp.errors import InputError
-from vine_nlp.front.reports import tip_report as report_lines
+from vine_nlp.front.reports import run_lines
 from vine_nlp.io.archive import load_archive
 from vine_nlp.io.formulations import write_tip_archive
 from vine_nlp.io.problem_file import load_problem, parse_problem
@@ -117,7 +117,7 @@ def test_archive_and_report(tmp_path):
         assert m["tip_error"] == m["rmse"] == m["max_error"]
     a = load_archive(path)
     assert a.runs["tip"].status == r.status and a.target is None
-    lines = report_lines(r, pb, "cm")
+    lines = run_lines("tip", r, pb, "cm")
     assert lines[0].startswith("tip: optimal, tip reachable") and "direction error" in lines[1]
 
 

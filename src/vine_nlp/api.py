@@ -15,7 +15,8 @@ files (``vine_nlp.io.problem_file``); bad input raises :class:`ArgumentError`, a
 ValueError whose message starts with the argument's name (``"diameter: must be >
 0"``). Solvers report trouble through ``status``, not exceptions.
 
-Formulations are looked up in ``vine_nlp.front.registry``, as the command line does.
+Every entry point is a thin adapter: its arguments checked into a problem, ``vine_nlp.pipeline.run``,
+the outcome wrapped as a :class:`Design` (the command line runs the same pipeline).
 """
 
 from __future__ import annotations
@@ -25,7 +26,6 @@ import functools
 import html
 import importlib.util
 import io
-import json
 import math
 import os
 import shutil
@@ -35,33 +35,25 @@ from pathlib import Path
 import numpy as np
 
 from vine_nlp import __all__ as _API_NAMES
-from vine_nlp import targets
+from vine_nlp import pipeline, targets
 from vine_nlp.errors import InputError
-from vine_nlp.front import registry
-from vine_nlp.front.correct import correct_files, correct_to_file
 from vine_nlp.io import limits, problems
 from vine_nlp.io import validate as check
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
-from vine_nlp.io.calibration import KEYS as CALIBRATION_KEYS
 from vine_nlp.io.calibration import read_calibration
-from vine_nlp.io.problem_file import ProblemFile
+from vine_nlp.io.formulations import read_multishape_archive
+from vine_nlp.io.problem_text import call_text, problem_source
+from vine_nlp.io.problems import ProblemFile, design_problem_of, load_problem
 from vine_nlp.model.calibration import Calibration
 from vine_nlp.model.routing import MEASURED_LINES, Routing, Sigmas
+from vine_nlp.pipeline import Outcome, Request
+from vine_nlp.pipeline.correct import correct_files, correct_to_file
 from vine_nlp.problem import Actuator, DesignOptions, DesignProblem, FitProblem, ForwardProblem, MultiShapeProblem, Result, TipProblem
-
-# figures, templates and views load matplotlib (and plotly): imported on first use, so that a
-# design does not wait for them
-_figure_format = registry.lazy("vine_nlp.front.plot:figure_format")
-_save_figure = registry.lazy("vine_nlp.front.plot:save_figure")
-_papers = registry.lazy("vine_nlp.front.template:PAPERS_MM")
-_write_template = registry.lazy("vine_nlp.front.template:write_template")
-_view_html = registry.lazy("vine_nlp.front.view:view_html")
 
 # the API's names, listed once: the package exports them lazily (vine_nlp.__init__)
 __all__ = [n for n in _API_NAMES if n != "__version__"]
 
 _API_FILE = "<vine_nlp API>"  # ProblemFile.path of problems made by this API (no file behind them)
-_SOURCE_ARRAY_MAX = 200  # per-segment arrays longer than this stay out of the source text (HDF5 attributes are small)
 _THETA_MAX_DEG = round(math.degrees(Actuator.theta_max), 9)
 
 
@@ -236,144 +228,32 @@ def _sigmas(robust) -> Sigmas:
     return Sigmas.from_degrees(checked.get("theta_deg", 0.0), checked.get("lambda", 0.0), length, relative_length=relative)
 
 
-# ---------------------------------------------------------------- source text of an archive
-
-
-def _toml_value(v) -> str:
-    if isinstance(v, str):
-        # a JSON string is a TOML basic string, once DEL is escaped (raw non-ASCII: TOML has no surrogate escapes)
-        return json.dumps(v, ensure_ascii=False).replace("\x7f", "\\u007f")
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(_toml_value(x) for x in np.asarray(v).tolist()) + "]"
-    if isinstance(v, int):
-        return str(v)
-    return repr(float(v))
-
-
-def _toml(comment: str, top: dict, tables: dict) -> str:
-    """TOML text: comment lines, top-level keys, then [tables] (a value None is left out)."""
-    lines = [f"# {line}" if line else "#" for line in comment.splitlines()]
-    lines += [f"{k} = {_toml_value(v)}" for k, v in top.items() if v is not None]
-    for name, table in tables.items():
-        lines += ["", f"[{name}]"]
-        for k, v in table.items():
-            if isinstance(v, str) and v.startswith("#"):
-                lines.append(v)
-            elif v is not None:
-                lines.append(f"{k} = {_toml_value(v)}")
-    return "\n".join(lines) + "\n"
-
-
-def _actuator_table(a: Actuator) -> dict:
-    return {"kind": a.kind, "lambda_min": float(a.lambda_min), "theta_max_deg": round(math.degrees(a.theta_max), 9)}
-
-
-def _options_table(o: DesignOptions, kind: str = "design") -> dict:
-    table = {"method": o.method, "points_per_segment": o.points_per_segment, "starts": o.starts}
-    if kind == "design":
-        table["hops"] = o.hops
-        table["budget"] = o.budget
-        if o.solver != DesignOptions.solver:
-            table["solver"] = o.solver
-    table["seed"] = o.seed
-    return table
-
-
-def _design_source(problem: DesignProblem, call: str, runs: dict) -> str:
-    more = {}
-    if "nlp_clearance" in runs:
-        more["#clearance"] = f"# clearance: min_gap = {runs['nlp_clearance'].stats.get('min_gap', 0.0)!r} (run nlp_clearance)"
-    if "nlp_robust" in runs:
-        st = runs["nlp_robust"].stats
-        more["#robust"] = (f"# robust: weight = {st.get('robust_weight')!r}, sigma theta {st.get('robust_sigma_theta_deg')!r} deg, "
-                           f"lambda {st.get('robust_sigma_lambda')!r}, length {st.get('robust_sigma_length')!r}"
-                           f"{' (relative)' if st.get('robust_relative_length') else ''} (run nlp_robust)")
-    design_table = _options_table(problem.options) | more
-    tables = {"tube": {"diameter": float(problem.diameter)}, "actuator": _actuator_table(problem.actuator), "design": design_table,
-              "design.smoothness": {"theta": problem.options.smooth_theta, "lambda": problem.options.smooth_lambda}}
-    cal = getattr(problem, "calibration", None)
-    if cal is not None:
-        tables["calibration"] = {k: getattr(cal, k) for k in CALIBRATION_KEYS}
-    return _toml(
-        f"written by the vine_nlp Python API: {call}\n"
-        f"the target: the archive's /target/points ({problem.target.shape[0]} points), not a [target] table",
-        {"name": problem.name, "units": problem.units}, tables,
-    )
-
-
-def _routing_table(r: Routing) -> dict:
-    """[routing] of a problem file where it can say the routing exactly, else a pointer to the archive."""
-    table = {"length": float(r.length.sum())}
-    equal = r.segments > 0 and np.all(r.length == r.length[0])
-    if equal:
-        table["segment_length"] = float(r.length[0])
-    for key, v in (("theta", r.theta), ("lambda", r.lam)):
-        if v.size and np.all(v == v[0]):
-            table[key] = float(v[0])
-        elif v.size <= _SOURCE_ARRAY_MAX and equal:
-            table[key] = v
-        else:
-            table[f"#{key}"] = f"# {key}: per segment, see /runs/<run>/design/{key}"
-    if not equal:
-        table["#length"] = "# unequal segment lengths: see /runs/<run>/design/length"
-    if not np.array_equal(r.initial_pose, np.eye(4)):
-        table["initial_pose"] = r.initial_pose
-    return table
-
-
-def _problem_source(problem, call: str) -> str:
-    """The source text of any problem object solved through ``solve``, ``forward`` or ``fit``."""
-    if isinstance(problem, DesignProblem):
-        return _design_source(problem, call, {})
-    tables = {"tube": {"diameter": float(problem.diameter)}}
-    notes = [f"written by the vine_nlp Python API: {call}"]
-    if isinstance(problem, (ForwardProblem, FitProblem)):
-        tables["routing"] = _routing_table(problem.routing)
-    if isinstance(problem, FitProblem):
-        tables["measured"] = {"line": problem.line, "#file": "# points: the archive's /measured/points"}
-        tables["fit"] = {"free": list(problem.free)}
-    if isinstance(problem, TipProblem):
-        tables["tip"] = {"position": problem.position, "direction": problem.direction, "length": float(problem.length),
-                         "segments": int(problem.segments), "objective": problem.objective, "initial_pose": problem.initial_pose}
-    if isinstance(problem, MultiShapeProblem):
-        notes.append(f"[[targets]]: {problem.count} targets, the archive's /targets/<k>/points, lambda levels {list(problem.levels)}")
-    if hasattr(problem, "actuator"):
-        tables["actuator"] = _actuator_table(problem.actuator)
-    if hasattr(problem, "options"):
-        tables["design"] = _options_table(problem.options, "other")
-    return _toml("\n".join(notes), {"name": problem.name, "units": problem.units}, tables)
-
-
-def _call(func: str, **shown) -> str:
-    return f"vine_nlp.{func}(" + ", ".join(f"{k}={v!r}" for k, v in shown.items()) + ")"
-
-
 # ---------------------------------------------------------------- results
 
 
 @dataclasses.dataclass(eq=False)
 class _Context:
-    """What the runs of one design share: the problem, the archive's text and the other runs."""
+    """What the runs of one design share: the pipeline's outcome (problem, runs, archive extras); for a
+    loaded archive also the archive as read and its file (saving copies it)."""
 
-    problem_file: ProblemFile
-    runs: dict  # run name -> Result
-    formulation: str  # registry key of the archive writer
-    extra: dict = dataclasses.field(default_factory=dict)
-    archive: Archive | None = None  # loaded archives: as read
-    path: str | None = None  # loaded archives: the file (saving copies it)
+    outcome: Outcome
+    archive: Archive | None = None
+    path: str | None = None
+
+    @property
+    def problem_file(self) -> ProblemFile:
+        return self.outcome.problem_file
+
+    @property
+    def runs(self) -> dict:
+        return self.outcome.runs
 
     @property
     def name(self) -> str:
         return self.problem_file.name
 
     def as_archive(self) -> Archive:
-        if self.archive is not None:
-            return self.archive
-        p = self.problem_file
-        return Archive(name=p.name, kind=p.kind, source=p.source, diameter=p.problem.diameter, units=p.units,
-                       target=getattr(p.problem, "target", None), runs=dict(self.runs), extra=dict(self.extra))
+        return self.archive if self.archive is not None else self.outcome.archive()
 
 
 class Design:
@@ -414,6 +294,21 @@ class Design:
     def converged(self) -> bool:
         """Whether the solver reached its tolerance (status optimal or acceptable)."""
         return self.result.converged
+
+    @property
+    def clear(self) -> bool:
+        """Whether the design meets every hard requirement of its problem (bounds, obstacle margin, clearance)."""
+        return self.result.clear
+
+    @property
+    def ok(self) -> bool:
+        """Converged and clear: what the command line's exit status 0 means."""
+        return self.result.ok
+
+    @property
+    def shortfall(self) -> tuple:
+        """What the design misses of its problem's hard requirements, one line each (empty when clear)."""
+        return self.result.shortfall
 
     @property
     def rmse(self) -> float:
@@ -546,7 +441,7 @@ class Design:
         if ctx.path is not None:  # a loaded archive: the file as it was (extra groups and attributes included)
             write_atomic(out, lambda tmp: shutil.copyfile(ctx.path, tmp))
         else:
-            registry.formulation(ctx.formulation).write_archive(out, ctx.problem_file, ctx.runs, ctx.extra)
+            ctx.outcome.write(out)
         return out
 
     def plot(self, path=None, overwrite: bool = False):
@@ -564,22 +459,22 @@ class Design:
         matplotlib.figure.Figure
             Not registered with pyplot: a notebook shows it once, and no backend is changed.
         """
+        from vine_nlp.front import figures, plot  # matplotlib loads when a figure is asked for
+
         if path is not None:
             try:
-                _figure_format(path)
+                plot.figure_format(path)
             except ValueError as e:
                 raise ArgumentError("path", str(e)) from None
             out = _output(path, overwrite)
-        f = registry.formulation(self._context.formulation)
-        if f.figure_needs_path:
-            fig = self._with_file(f.figure)
-        else:
-            fig = f.figure(self._context.as_archive())
+        archive = self._context.as_archive()
+        # a multi-shape archive is drawn from its file (its levels are groups of their own)
+        fig = self._with_file(lambda p: figures.figure(archive, p)) if archive.kind == "multishape" else figures.figure(archive)
         # a notebook shows the Figure as the cell's value even where pyplot (and with it the
         # inline backend's formatter) was never imported; with that formatter, it takes precedence
         fig._repr_png_ = functools.partial(_figure_png, fig)
         if path is not None:
-            _save_figure(fig, out)
+            plot.save_figure(fig, out)
         return fig
 
     def template(self, path, paper: str = "A4", csv=None, overwrite: bool = False) -> dict:
@@ -598,13 +493,15 @@ class Design:
         dict
             pages, strips, paper, orientation, run, segments, tube_length, ...
         """
-        if paper not in _papers.resolve():
-            raise ArgumentError("paper", f"must be one of {', '.join(_papers.resolve())}, got {paper!r}")
+        from vine_nlp.front import template  # matplotlib loads when a template is asked for
+
+        if paper not in template.PAPERS_MM:
+            raise ArgumentError("paper", f"must be one of {', '.join(template.PAPERS_MM)}, got {paper!r}")
         out = _output(path, overwrite)
         csv_out = _output(csv, overwrite, "csv") if csv is not None else None
         if self.units not in ("cm", "mm"):
             raise ArgumentError("units", f"a 1:1 template needs lengths in cm or mm, not {self.units!r}")
-        return _write_template(self._context.as_archive(), out, csv_path=csv_out, paper=paper, run=self.run)
+        return template.write_template(self._context.as_archive(), out, csv_path=csv_out, paper=paper, run=self.run)
 
     def _with_file(self, func):
         """``func(path)`` on this design's archive: the loaded file, or a temporary one."""
@@ -642,7 +539,9 @@ class Design:
         table = f"<table>{rows}</table>"
         if self.html_plotlyjs is None or importlib.util.find_spec("plotly") is None:
             return table
-        return table + _view_html(self._context.as_archive(), run=self.run, full_html=False, include_plotlyjs=self.html_plotlyjs)
+        from vine_nlp.front.view import view_html  # plotly loads when a view is shown
+
+        return table + view_html(self._context.as_archive(), run=self.run, full_html=False, include_plotlyjs=self.html_plotlyjs)
 
 
 class Project:
@@ -753,20 +652,19 @@ def _calibration(value):
     raise ArgumentError("calibration", f"must be a Calibration or the path of a calibration TOML file, got {type(value).__name__}")
 
 
-def _calibrated(problem, method: str, result: Result) -> Result:
-    """The nlp and greedy designs of a calibrated problem: the nominal to build, as ``vine-nlp design``
-    makes it (design.methods.apply_calibration, the one place the calibration is applied)."""
-    if method in ("nlp", "greedy") and isinstance(problem, DesignProblem) and getattr(problem, "calibration", None) is not None:
-        from vine_nlp.methods.methods import apply_calibration
+def _run(problem, call: str, request: Request | None = None, notes=()) -> Design:
+    """The pipeline on a problem object made by this API: its outcome as a Design of the last run asked for.
+    A request the problem cannot take is an ArgumentError naming the option (the command line's error)."""
+    pf = ProblemFile(path=_API_FILE, source=problem_source(problem, call, notes), kind=_KIND[type(problem)], name=problem.name,
+                     units=problem.units, problem=problem)
+    try:
+        outcome = pipeline.run(pf, request)
+    except InputError as e:
+        raise ArgumentError(e.key, e.reason) from None
+    return Design(_Context(outcome), outcome.last)
 
-        return apply_calibration(problem, result)
-    return result
 
-
-def _made(problem, kind: str, formulation: str, source: str, runs: dict, extra=None) -> Design:
-    pf = ProblemFile(path=_API_FILE, source=source, kind=kind, name=problem.name, units=problem.units, problem=problem)
-    ctx = _Context(problem_file=pf, runs=runs, formulation=formulation, extra=dict(extra or {}))
-    return Design(ctx, list(runs)[-1])
+_KIND = {DesignProblem: "design", ForwardProblem: "forward", FitProblem: "fit", MultiShapeProblem: "multishape", TipProblem: "tip"}
 
 
 # ---------------------------------------------------------------- entry points
@@ -868,21 +766,13 @@ def design(
     if calibration is not None:
         problem = dataclasses.replace(problem, calibration=_calibration(calibration))
 
-    main = registry.formulation(problem.options.method)
-    options = {"workers": workers} if problem.options.method == "nlp" else {}
-    result, _ = main.solve(problem, **options)
-    design_start = result
-    result = _calibrated(problem, main.name, result)
-    runs = {main.run: result}
-    if sigmas is not None:
-        f = registry.formulation("robust")
-        runs[f.run], _ = f.solve(problem, sigmas=sigmas, weight=weight, start=design_start)
+    notes = []
     if min_gap is not None:
-        f = registry.formulation("clearance")
-        runs[f.run], _ = f.solve(problem, min_gap=min_gap, start=design_start)
-    call = _call("design", diameter=problem.diameter, actuator=problem.actuator.kind, method=problem.options.method,
-                 clearance=min_gap, robust=None if sigmas is None else sigmas.as_dict())
-    return _made(problem, "design", "nlp", _design_source(problem, call, runs), runs)
+        notes.append(f"clearance: min_gap = {min_gap!r} (run nlp_clearance)")
+    if sigmas is not None:
+        notes.append(f"robust: weight = {weight!r}, sigmas {sigmas.as_dict()} (run nlp_robust)")
+    call = call_text("design", diameter=problem.diameter, actuator=problem.actuator.kind, method=problem.options.method)
+    return _run(problem, call, Request(robust=sigmas, robust_weight=weight, clearance=min_gap, workers=workers), notes)
 
 
 def _per_segment(args, key, value, m):
@@ -982,10 +872,7 @@ def forward(theta, lam, length, diameter, *, segments: int | None = None, initia
         raise ArgumentError("length", f"a tube {float(routing.length.sum()) / D:.4g} diameters long has a shape of {rows} "
                                       f"points (pieces of D/4); at most {limits.MAX_SHAPE_POINTS}")
     problem = ForwardProblem(name=name, diameter=D, routing=routing, units=units)
-    f = registry.formulation("forward")
-    result, extra = f.solve(problem)
-    source = _problem_source(problem, _call("forward", diameter=D, segments=routing.segments))
-    return _made(problem, f.kind, f.name, source, {f.run: result}, extra)
+    return _run(problem, call_text("forward", diameter=D, segments=routing.segments))
 
 
 def fit(points, routing, diameter, *, line: str = "outer", free=("lambda",), starts: int = 24, seed: int = 0,
@@ -1047,46 +934,65 @@ def fit(points, routing, diameter, *, line: str = "outer", free=("lambda",), sta
     starts = _integer(args, "starts", starts, 1)
     seed = _integer(args, "seed", seed, 0)
     problem = FitProblem(name=name, diameter=D, measured=measured, line=line, routing=routing, free=free, units=units)
-    f = registry.formulation("fit")
     try:
-        result, extra = f.solve(problem, starts=starts, seed=seed)
+        return _run(problem, call_text("fit", diameter=D, line=line, free=free), Request(fit_starts=starts, seed=seed))
     except ValueError as e:  # too few usable points for the model (the command line's measured.file error)
+        if isinstance(e, ArgumentError):
+            raise
         raise ArgumentError("points", str(e)) from None
-    source = _problem_source(problem, _call("fit", diameter=D, line=line, free=free))
-    return _made(problem, f.kind, f.name, source, {f.run: result}, extra)
 
 
-def solve(problem, method: str | None = None, **options) -> Design:
-    """Solve any problem object through the registry of formulations (``vine_nlp.front.registry``).
+def solve(problem, method: str | None = None, *, starts: int | None = None, hops: int | None = None, budget: float | None = None,
+          workers: int = 1, robust=None, robust_weight: float = 1.0, clearance: float | None = None) -> Design:
+    """What ``vine-nlp design PROBLEM`` runs (``forward``, ``fit`` for those problems), from a problem file or object.
+
+    Every run the problem asks for (obstacles, calibration; robust and clearance when asked), judged
+    against its hard requirements; ``save`` writes the archive the command line writes.
 
     Parameters
     ----------
-    problem : DesignProblem, ForwardProblem, FitProblem, MultiShapeProblem or TipProblem
-    method : str, optional
-        A formulation of the registry that solves this problem type ("nlp", "greedy", "clearance",
-        "robust", "multishape", "tip", "fit", "forward"); default: the problem's own
-        (``options.method`` for design problems).
-    **options
-        Keyword options of that formulation (``Formulation.options``), e.g. starts, min_gap, sigmas.
+    problem : str or Path or DesignProblem or ForwardProblem or FitProblem or MultiShapeProblem or TipProblem
+        A problem file (TOML, as the command line reads it) or a problem object.
+    method : {"nlp", "greedy"}, optional
+        Design problems: the design method (default: the problem's).
+    starts, hops, budget, workers
+        The nlp design's multi-start, basin hopping, corner-search budget and processes (default: the problem's).
+    robust : Sigmas or dict, optional
+        Also a robust design (run ``nlp_robust``), as :func:`design`.
+    robust_weight : float
+        Weight of the robust design's expected error increase.
+    clearance : float, optional
+        Also a design clear of itself by this gap beyond D (run ``nlp_clearance``).
 
     Returns
     -------
     Design
+        The last run asked for (``runs`` holds every run).
 
     Raises
     ------
     ArgumentError
-        Unknown method, a method that does not solve this problem type, or an option it does not take.
+        A bad problem file (the argument ``problem``, with the file's key and reason) or object, or an
+        option the problem cannot take (named).
     """
-    try:
-        f = registry.formulation(method) if method is not None else registry.for_problem(problem)
-    except ValueError as e:
-        raise ArgumentError("method" if method is not None else "problem", str(e)) from None
-    if not isinstance(problem, f.problem_type):
-        raise ArgumentError("problem", f"formulation {f.name!r} solves a {f.problem_type.__name__}, not a {type(problem).__name__}")
-    unknown = [k for k in options if k not in f.options]
-    if unknown:
-        raise ArgumentError(unknown[0], f"not an option of {f.name!r} (options: {', '.join(f.options) or 'none'})")
+    args = _Arguments()
+    rq = Request(methods=(method,) if method is not None else (), robust=None if robust is None else _sigmas(robust),
+                 robust_weight=_number(args, "robust_weight", robust_weight, low=0.0, low_open=False),
+                 clearance=None if clearance is None else _number(args, "clearance", clearance, low=0.0, low_open=False),
+                 starts=None if starts is None else _integer(args, "starts", starts, 1),
+                 hops=None if hops is None else _integer(args, "hops", hops, 0),
+                 budget=None if budget is None else _number(args, "budget", budget, low=0.0, low_open=False),
+                 workers=_integer(args, "workers", workers, 1))
+    if isinstance(problem, (str, os.PathLike)):
+        try:
+            pf = load_problem(problem)
+            outcome = pipeline.run(pf, rq)
+        except InputError as e:
+            raise ArgumentError("problem", str(e)) from None
+        return Design(_Context(outcome), outcome.last)
+    if type(problem) not in _KIND:
+        raise ArgumentError("problem", f"must be a problem file or a problem object ({', '.join(k.__name__ for k in _KIND)}), "
+                                       f"got {type(problem).__name__}")
     _diameter(problem.diameter)
     if isinstance(problem, DesignProblem):
         # the rules of vine_nlp.design(...) and of problem files; the problem is solved as given
@@ -1098,10 +1004,7 @@ def solve(problem, method: str | None = None, **options) -> Design:
     if isinstance(problem, (ForwardProblem, FitProblem)):
         r = problem.routing
         _routing(r.theta, r.lam, r.length, initial_pose=r.initial_pose, argument_prefix="routing: ")
-    result, extra = f.solve(problem, **options)
-    result = _calibrated(problem, f.name, result)
-    source = _problem_source(problem, _call("solve", problem=type(problem).__name__, method=f.name))
-    return _made(problem, f.kind, f.name, source, {f.run: result}, extra)
+    return _run(problem, call_text("solve", problem=type(problem).__name__, method=method), rq)
 
 
 def load(path) -> Project:
@@ -1130,22 +1033,22 @@ def load(path) -> Project:
         raise FileNotFoundError(f"{path}: no such file")
     try:
         archive = load_archive(path)
-        f = registry.for_kind(archive.kind)
-        runs = f.read_archive(path)[1] if f.read_archive is not None else dict(archive.runs)
+        runs = dict(archive.runs)
+        if archive.kind == "multishape":  # its levels are groups the generic reader leaves out
+            runs["multishape"] = read_multishape_archive(path)[1]
     except (OSError, KeyError, ValueError) as e:
         raise ArgumentError("path", f"cannot read the archive {str(path)!r} ({e})") from None
-    problem = _problem_of(archive, runs)
     pf = ProblemFile(path=str(path), source=archive.source, kind=archive.kind, name=archive.name, units=archive.units,
-                           problem=problem)
-    return Project(_Context(problem_file=pf, runs=runs, formulation=f.name, extra=dict(archive.extra), archive=archive,
-                            path=str(path)))
+                     problem=_problem_of(archive, runs, path))
+    outcome = Outcome(pf, runs, tuple(runs), dict(archive.extra))
+    return Project(_Context(outcome, archive=archive, path=str(path)))
 
 
-def _problem_of(archive: Archive, runs: dict):
+def _problem_of(archive: Archive, runs: dict, path):
     """A problem object for a loaded archive: what the archive holds of it (solver settings stay in ``source``)."""
     first = next(iter(runs.values()), None)
     if archive.kind == "design" and archive.target is not None:
-        return DesignProblem(archive.name, archive.diameter, archive.target, units=archive.units)
+        return design_problem_of(archive, path)
     if archive.kind == "forward" and first is not None:
         return ForwardProblem(archive.name, archive.diameter, first.routing, units=archive.units)
     if archive.kind == "fit" and first is not None and "measured/points" in archive.extra:

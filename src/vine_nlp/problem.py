@@ -353,6 +353,9 @@ class Result:
         Solver statistics and options, archived as attributes of ``/runs/<run>/solver``.
     diameter : float
         Tube diameter D.
+    shortfall : tuple of str
+        Every hard requirement of the problem the design misses, one line each (the pipeline's judge:
+        bounds, obstacle margin, clearance); empty when it meets them all.
     """
 
     method: str
@@ -364,6 +367,7 @@ class Result:
     metrics: dict = field(default_factory=dict)
     stats: dict = field(default_factory=dict)  # solver statistics and options, archived as attributes
     diameter: float = 1.0
+    shortfall: tuple = ()
 
     @property
     def phi(self) -> np.ndarray:
@@ -372,3 +376,13 @@ class Result:
     @property
     def converged(self) -> bool:
         return self.status in ("optimal", "acceptable")
+
+    @property
+    def clear(self) -> bool:
+        """Meets every hard requirement of its problem (no shortfall)."""
+        return not self.shortfall
+
+    @property
+    def ok(self) -> bool:
+        """Converged and clear: what exit status 0 means."""
+        return self.converged and self.clear

@@ -1,47 +1,75 @@
-"""Command-line reports of the formulations with results of their own (multi-shape levels, tip targets)."""
+"""What the command line prints of an outcome: one line per run (more for multi-shape levels and tip
+targets), the comparison table, and the shortfall of every run that is not ok."""
 
 from __future__ import annotations
 
 import math
 
-from vine_nlp.methods.multishape import RUN as MULTISHAPE_RUN
-from vine_nlp.methods.multishape import MultiShapeResult
-from vine_nlp.methods.tip import RUN as TIP_RUN
-from vine_nlp.problem import Result, TipProblem
+from vine_nlp.methods.fit import describe_fit
+from vine_nlp.pipeline import Outcome
 
 
-def multishape_report(result: MultiShapeResult, units: str) -> list[str]:
-    """The CLI's lines: one overall, one per level."""
-    m = result.metrics
-    lines = [
-        f"{MULTISHAPE_RUN}: {result.status}, {result.count} levels, RMSE {m['rmse']:.4g} {units}, max error {m['max_error']:.4g} {units}, "
-        f"solve time {result.solve_time_s:.3f} s, {result.iterations} iterations"
-    ]
-    for k in range(result.count):
-        lm = result.level_metrics[k]
-        tag = "fixed" if result.fixed and result.fixed[k] else "free"
-        lines.append(f"  level {k}: lambda {result.levels[k]:.6g} ({tag}), RMSE {lm['rmse']:.4g} {units}, max error {lm['max_error']:.4g} {units}")
+def _len(v: float, units: str) -> str:
+    return f"{v:.4g} {units}"
+
+
+def _solved(r) -> str:
+    return f"solve time {r.solve_time_s:.3f} s, {r.iterations} iterations"
+
+
+def run_lines(name: str, r, problem, units: str) -> list[str]:
+    """The lines of one run, by its method."""
+    m = r.metrics
+    if r.method == "forward":
+        rt, tip = r.routing, ", ".join(f"{v:.4g}" for v in r.shape.center[-1])
+        return [f"{name}: {rt.segments} segments, tube length {_len(float(rt.length.sum()), units)}, tip at ({tip}) {units}"]
+    if r.method == "fit":
+        return [f"{name}: " + describe_fit(r, units)]
+    if r.method == "multishape":
+        lines = [f"{name}: {r.status}, {r.count} levels, RMSE {_len(m['rmse'], units)}, max error {_len(m['max_error'], units)}, {_solved(r)}"]
+        for k in range(r.count):
+            lm, tag = r.level_metrics[k], "fixed" if r.fixed and r.fixed[k] else "free"
+            lines.append(f"  level {k}: lambda {r.levels[k]:.6g} ({tag}), RMSE {_len(lm['rmse'], units)}, max error {_len(lm['max_error'], units)}")
+        return lines
+    if r.method == "tip":
+        lines = _tip_lines(name, r, problem, units)
+    else:
+        lines = [f"{name}: {r.status}, RMSE {_len(m['rmse'], units)}, max error {_len(m['max_error'], units)}, {_solved(r)}"]
+    if "min_obstacle_gap" in m:
+        lines.append(f"  min obstacle gap {_len(m['min_obstacle_gap'], units)} (margin {problem.obstacle_margin:g})"
+                     + (f", {_len(m['min_obstacle_gap_after'], units)} actuated after growth" if "min_obstacle_gap_after" in m else ""))
     return lines
 
 
-def tip_report(result: Result, problem: TipProblem, units: str) -> list[str]:
-    """The CLI's lines: status and tip error, direction error, actuation."""
-    m = result.metrics
-    reach = "reachable" if result.converged else ("NOT reachable" if result.status == "infeasible" else "not solved")
-    lines = [
-        f"{TIP_RUN}: {result.status}, tip {reach}, tip error {m['tip_error']:.4g} {units}, "
-        f"solve time {result.solve_time_s:.3f} s, {result.iterations} iterations"
-    ]
-    if result.stats.get("closest_approach"):
-        lines[0] += " (nearest approach: " + result.stats.get("infeasible_reason", "") + ")"
+def _tip_lines(name, r, problem, units) -> list[str]:
+    m = r.metrics
+    reach = "reachable" if r.converged else ("NOT reachable" if r.status == "infeasible" else "not solved")
+    lines = [f"{name}: {r.status}, tip {reach}, tip error {_len(m['tip_error'], units)}, {_solved(r)}"]
+    if r.stats.get("closest_approach"):
+        lines[0] += " (nearest approach: " + r.stats.get("infeasible_reason", "") + ")"
     if "direction_error" in m:
         lines.append(f"  direction error {math.degrees(m['direction_error']):.4g} deg")
-    lines.append(
-        f"  objective ({problem.objective}) {result.stats['objective_actuation']:.6g}; "
-        f"contraction sum (1-lambda) dl = {m['actuation_contraction']:.4g} {units}, "
-        f"actuator turning = {m['actuation_turning']:.4g} rad, tube length {m['tube_length']:.4g} {units}"
-    )
-    if "min_obstacle_gap" in m:
-        lines.append(f"  min obstacle gap {m['min_obstacle_gap']:.4g} {units} (margin {problem.obstacle_margin:g})"
-                     + (f", {m['min_obstacle_gap_after']:.4g} {units} actuated after growth" if "min_obstacle_gap_after" in m else ""))
+    lines.append(f"  objective ({problem.objective}) {r.stats['objective_actuation']:.6g}; contraction sum (1-lambda) dl = "
+                 f"{_len(m['actuation_contraction'], units)}, actuator turning = {m['actuation_turning']:.4g} rad, "
+                 f"tube length {_len(m['tube_length'], units)}")
     return lines
+
+
+def outcome_lines(outcome: Outcome) -> list[str]:
+    """Every run's lines, in the archive's order."""
+    pf = outcome.problem_file
+    return [line for name, r in outcome.runs.items() for line in run_lines(name, r, pf.problem, pf.units)]
+
+
+def comparison_table(runs: dict, units: str) -> str:
+    """``vine-nlp compare``'s table: status, errors, time, iterations (greedy: window solves), total variations."""
+    head = (f"{'run':<16}{'status':<12}{'RMSE [' + units + ']':>14}{'max [' + units + ']':>14}{'time [s]':>10}{'iter/solves':>13}"
+            f"{'TV theta':>10}{'TV lambda':>11}")
+    lines = [head, "-" * len(head)]
+    for name, r in runs.items():
+        m = r.metrics
+        lines.append(f"{name:<16}{r.status:<12}{m['rmse']:>14.5g}{m['max_error']:>14.5g}{r.solve_time_s:>10.3f}"
+                     f"{r.stats.get('window_solves', r.iterations):>13}{m['tv_theta']:>10.4g}{m['tv_lambda']:>11.4g}")
+    if "nlp" in runs and "greedy" in runs and runs["nlp"].solve_time_s > 0:
+        lines.append(f"nlp is {runs['greedy'].solve_time_s / runs['nlp'].solve_time_s:.1f}x faster than greedy")
+    return "\n".join(lines)

@@ -194,7 +194,8 @@ def _write(h5: h5py.File, a: Archive):
     runs = h5.create_group("runs")
     for name, r in a.runs.items():
         g = runs.create_group(name)
-        g.attrs.update(method=r.method, status=r.status, solve_time_s=float(r.solve_time_s), iterations=int(r.iterations))
+        g.attrs.update(method=r.method, status=r.status, solve_time_s=float(r.solve_time_s), iterations=int(r.iterations),
+                       clear=bool(r.clear), shortfall="\n".join(r.shortfall))
         d = g.create_group("design")
         d.create_dataset("theta", data=r.routing.theta, **_COMPRESS)
         d.create_dataset("lambda", data=r.routing.lam, **_COMPRESS)
@@ -420,6 +421,7 @@ def _run(c: _Checker, name: str, g, a: Archive) -> Result:
         metrics=c.metrics(g),
         stats=stats,
         diameter=a.diameter,
+        shortfall=tuple(s for s in c.text(g, "shortfall", required=False).split("\n") if s),
     )
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -535,3 +536,16 @@ def _check_each(f: SourceFile, key: str, given, ok: np.ndarray, shown: np.ndarra
         raise f.error(key, rule)
     j = int(np.argmin(ok))
     raise f.error(key, f"{rule} (segment {j + 1}: {shown[j]:.6g}{unit})")
+
+
+def design_problem_of(archive, path) -> DesignProblem:
+    """The design problem of an archive (``vine-nlp analyze``, ``correct``): its stored source parsed again,
+    the archived target standing in for target files that are not where the source says; the archive's
+    name, diameter, target and units where the source is no design problem."""
+    try:
+        pf = parse_problem(tomllib.loads(archive.source), str(path), archive.source)
+        if pf.kind == "design":
+            return dataclasses.replace(pf.problem, target=archive.target)
+    except (InputError, tomllib.TOMLDecodeError):
+        pass
+    return DesignProblem(archive.name, archive.diameter, archive.target, units=archive.units)

@@ -1,0 +1,114 @@
+"""``vine-nlp analyze``: self-collision, growth order, manufacturing tolerance and obstacle gaps of an archived design."""
+
+from __future__ import annotations
+
+import math
+import tomllib
+
+from vine_nlp.analysis.collision import collision_metrics, growth_contacts, helix_collisions, routing_clearance
+from vine_nlp.analysis.obstacles import obstacle_report, report_rows
+from vine_nlp.analysis.tolerance import Sigmas, tolerance_metrics, tolerance_report
+from vine_nlp.errors import InputError
+from vine_nlp.front.analysis_plots import clearance_figure, tolerance_figure
+from vine_nlp.front.files import archive_run, check_figure, read_archive
+from vine_nlp.io.archive import write_archive
+from vine_nlp.io.obstacles import DEFAULT_GROWTH, parse_obstacle_design
+from vine_nlp.io.problems import design_problem_of
+
+
+def sigmas(args) -> Sigmas:
+    """The construction-error sigmas of the command line's --sigma-* options."""
+    if args.sigma_length_abs is not None:
+        return Sigmas.from_degrees(args.sigma_theta_deg, args.sigma_lambda, args.sigma_length_abs, relative_length=False)
+    return Sigmas.from_degrees(args.sigma_theta_deg, args.sigma_lambda, args.sigma_length, relative_length=True)
+
+
+def add_sigma_args(p) -> None:
+    """The --sigma-* options (analyze, design --robust, correct)."""
+    p.add_argument("--sigma-theta-deg", type=float, default=1.0, metavar="DEG", help="construction error of theta (default 1)")
+    p.add_argument("--sigma-lambda", type=float, default=0.02, metavar="S", help="construction error of lambda (default 0.02)")
+    p.add_argument("--sigma-length", type=float, default=0.02, metavar="F", help="relative error of segment lengths (default 0.02)")
+    p.add_argument("--sigma-length-abs", type=float, metavar="L", help="absolute error of segment lengths instead, in units")
+
+
+def cmd_analyze(args) -> int:
+    """Self-collision, growth order and manufacturing tolerance of an archived design."""
+    archive = read_archive(args.archive)
+    run = archive_run(archive, args.archive, args.run)
+    for flag in ("tolerance_figure", "clearance_figure"):
+        check_figure(getattr(args, flag), True)
+    r = archive.runs[run]
+    D, u = archive.diameter, archive.units
+    cl = routing_clearance(r.routing, D, margin=args.margin)
+    where = f" at {cl['l_i']:.4g} / {cl['l_j']:.4g} {u} of tube" if "l_i" in cl and cl.get("clearance", float("inf")) < float("inf") else ""
+    print(f"clearance   min {cl['clearance']:.4g} {u} ({cl['clearance'] / D:.2f} D){where}; {len(cl['regions'])} contact region(s)")
+    growth = growth_contacts(r.routing, D, margin=args.margin)
+    final = [g for g in growth if not g.get("transient")]
+    on_way = [g for g in growth if g.get("transient")]
+    print(f"growth      grown while actuated: {len(final)} contact(s)"
+          + "".join(f"; first at {g['growth_length']:.4g} {u} grown" for g in final[:1])
+          + f"; actuated after growth: {len(final) + len(on_way)} contact(s) on the way"
+          + ("" if not growth else f" (from t = {min(g['actuation_fraction'] for g in growth):.2f})"))
+    print(f"helices     uniform sections of >= 1 turn self-colliding (paper condition): {len(helix_collisions(r.routing, D))}")
+    metrics = collision_metrics(r, D, margin=args.margin)
+    if archive.obstacles:
+        metrics |= _analyze_obstacles(archive, r, u)
+    figures = []
+    if archive.kind == "design" and archive.target is not None:
+        problem = design_problem_of(archive, args.archive)
+        sig = sigmas(args)
+        rep = tolerance_report(problem, r, sig, samples=args.samples, seed=args.seed)
+        fo, mc, nom = rep["first_order"], rep["monte_carlo"], rep["nominal"]
+        length = f"{100 * args.sigma_length:g} %" if args.sigma_length_abs is None else f"{args.sigma_length_abs:g} {u}"
+        print(f"tolerance   sigma theta {args.sigma_theta_deg:g} deg, lambda {args.sigma_lambda:g}, length {length} (per segment, independent)")
+        print(f"  rmse      nominal {nom['rmse']:.4g} {u}; first order {fo['rmse']:.4g} {u}; Monte Carlo mean {mc['mean_rmse']:.4g} / rms {mc['rms_rmse']:.4g} {u} ({mc['samples']} samples, seed {mc['seed']})")
+        print(f"  tip       std {fo['tip_std']:.4g} {u} (first order) / {mc['tip_std']:.4g} {u} (Monte Carlo)")
+        ps = rep["per_segment"]
+        share = ps["tip_var"] / max(float(ps["tip_var"].sum()), 1e-300)
+        j = int(share.argmax())
+        print(f"  worst     segment {j} at {ps['l_mid'][j]:.4g} {u} of tube: {100 * share[j]:.0f} % of the tip variance")
+        metrics |= tolerance_metrics(rep)
+        if args.tolerance_figure:
+            tolerance_figure(rep, args.tolerance_figure, title=f"{archive.name}: {run}")
+            figures.append(args.tolerance_figure)
+    if args.clearance_figure:
+        clearance_figure(r.routing, D, args.clearance_figure, units=u, growth=growth, title=f"{archive.name}: {run}")
+        figures.append(args.clearance_figure)
+    for f in figures:
+        print(f"figure -> {f}")
+    if args.write_metrics:
+        # archived metrics are finite (archives are validated on read): one that does not apply is left
+        # out (first_contact_growth_length of a tube that never touches itself)
+        r.metrics.update({k: float(v) for k, v in metrics.items() if math.isfinite(float(v))})
+        write_archive(args.archive, archive)
+        print(f"metrics -> {args.archive} (/runs/{run}/metrics)")
+    return 0
+
+
+def _analyze_obstacles(archive, r, u) -> dict:
+    """Print the distance to every obstacle along the tube and the contacts, final and intermediate shapes
+    (margin and growth from the archived problem's [design]); the run metrics."""
+    try:
+        design = tomllib.loads(archive.source).get("design", {})
+        margin, growth = parse_obstacle_design(design if isinstance(design, dict) else {}, "archive")
+    except (InputError, tomllib.TOMLDecodeError):
+        margin, growth = 0.0, DEFAULT_GROWTH
+    rep = obstacle_report(r.routing, archive.diameter, archive.obstacles, growth, margin)
+    print(f"obstacles   {len(archive.obstacles)}; margin {margin:.4g} {u}; growth {growth}; "
+          f"min gap {rep['min_gap']:.4g} {u} (final), {rep['min_gap_intermediate']:.4g} {u} (intermediate shapes); "
+          + ("clear" if rep["clear"] else "NOT clear"))
+    for row in report_rows(rep):
+        name = f" '{row['name']}'" if row["name"] else ""
+        line = (f"  obstacle {row['index']} {row['kind']}{name}: min gap {row['min_gap']:.4g} {u} at s = {row['s']:.4g} {u}; "
+                f"{row['contacts']} contact(s)")
+        if growth == "after":
+            line += f"; actuated after growth: min gap {row['min_gap_after']:.4g} {u} at t = {row['t_worst']:.2f}"
+        elif row["first_contact_length"] is not None:
+            line += f"; first contact at {row['first_contact_length']:.4g} {u} grown"
+        print(line)
+    out = {"min_obstacle_gap": float(rep["min_gap"])}
+    if growth == "after":
+        out["min_obstacle_gap_after"] = float(rep["min_gap_intermediate"])
+    return out
+
+

@@ -1,0 +1,307 @@
+"""A problem -> every run it asks for -> an :class:`Outcome` (runs, status, shortfall, archive).
+
+The one place that decides which runs a problem makes, in which order, from which start:
+
+- design problems: the design method(s) (``nlp``; ``greedy``; ``compare``: nlp, greedy and the
+  paper's low-pass-filtered greedy); among ``[[obstacles]]`` the obstacle design as run ``nlp``
+  with the obstacle-free design it started from as ``nlp_free``; then, if asked, the robust
+  (``nlp_robust``) and self-clearing (``nlp_clearance``) designs, started from ``nlp``. Every run
+  is designed for what the robot should realize; with a ``[calibration]`` every run then becomes
+  the nominal to build (the systematic errors taken out, :func:`calibrated`);
+- tip, multi-shape, forward and fit problems: their one run.
+
+Every run is then judged against the hard requirements of its problem (:func:`judge`: the
+actuator's bounds, the obstacle margin checked densely against the exact shapes, the clearance
+asked for): ``Result.shortfall`` says what it misses. The exit status is 0 only where every run
+the request asked for converged and misses nothing (:attr:`Outcome.ok`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from vine_nlp.analysis.obstacles import obstacle_report
+from vine_nlp.errors import InputError
+from vine_nlp.io.archive import Archive, write_archive
+from vine_nlp.io.formulations import write_multishape_archive, write_tip_archive
+from vine_nlp.io.problems import ProblemFile
+from vine_nlp.methods import blas
+from vine_nlp.methods.clearance import design_with_clearance
+from vine_nlp.methods.common import evaluate, pair_points, run_forward
+from vine_nlp.methods.fit import fit_frames, fit_problem
+from vine_nlp.methods.greedy import design_greedy, lowpass
+from vine_nlp.methods.multishape import design_multishape
+from vine_nlp.methods.nlp import design_nlp
+from vine_nlp.methods.obstacles import FREE_RUN, design_with_obstacles, tip_design
+from vine_nlp.methods.robust import design_robust
+from vine_nlp.model.calibration import nominal_of, realized_of
+from vine_nlp.model.routing import Routing, Sigmas
+from vine_nlp.model.shape import routing_metrics
+from vine_nlp.problem import DesignProblem, Result
+
+DESIGN_METHODS = ("nlp", "greedy", "greedy_filtered")
+COMPARE = ("nlp", "greedy", "greedy_filtered")
+# the archived bounds hold to rounding: a design at a bound may sit this far (relative) beyond it
+BOUND_TOL = 1e-9
+
+
+@dataclass(frozen=True)
+class Request:
+    """What a door asks for beyond the problem itself.
+
+    Parameters
+    ----------
+    methods : tuple of str
+        Design problems: the design runs, of ``DESIGN_METHODS`` (default: the problem's method).
+    robust : Sigmas, optional
+        Also a robust design under these construction errors (run ``nlp_robust``).
+    robust_weight : float
+        Weight of the robust design's expected error increase.
+    clearance : float, optional
+        Also a design clear of itself by this gap beyond D (run ``nlp_clearance``).
+    starts, hops, budget, workers, warm
+        The nlp design's multi-start, basin hopping, corner-search budget, processes and warm start
+        (None: the problem's own settings).
+    fit_starts, seed : int
+        The fit's starting orientations and seed.
+    frames : tuple of arrays
+        The fit: further frames of the same actuator, fitted in order.
+    progress, note : callable, optional
+        ``progress(done, total)`` of long work; ``note(line)`` a line of progress.
+    """
+
+    methods: tuple = ()
+    robust: Sigmas | None = None
+    robust_weight: float = 1.0
+    clearance: float | None = None
+    starts: int | None = None
+    hops: int | None = None
+    budget: float | None = None
+    workers: int = 1
+    warm: Routing | None = None
+    fit_starts: int = 24
+    seed: int = 0
+    frames: tuple = ()
+    progress: Callable | None = field(default=None, compare=False)
+    note: Callable | None = field(default=None, compare=False)
+
+
+@dataclass(eq=False)
+class Outcome:
+    """Every run a problem asked for, with what the archive keeps beside them.
+
+    Attributes
+    ----------
+    problem_file : ProblemFile
+        The problem as read (name, kind, units, source text, problem object).
+    runs : dict
+        Run name -> Result, in the archive's order.
+    decisive : tuple of str
+        The runs the request asked for: their status and requirements decide :attr:`ok`.
+    extra : dict
+        Further datasets of the archive (the fit's ``measured/...``, ``frames/...``).
+    details : dict
+        What the doors may show but the archive does not keep (the fit's per-frame results).
+    """
+
+    problem_file: ProblemFile
+    runs: dict
+    decisive: tuple
+    extra: dict = field(default_factory=dict)
+    details: dict = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        """Every decisive run converged and meets every hard requirement of its problem."""
+        return all(self.runs[r].ok for r in self.decisive)
+
+    @property
+    def exit_code(self) -> int:
+        """0 ok, 1 otherwise (the archive is written either way)."""
+        return 0 if self.ok else 1
+
+    @property
+    def last(self) -> str:
+        """The last decisive run (the API's returned design)."""
+        return self.decisive[-1]
+
+    def shortfalls(self) -> list[str]:
+        """One line per decisive run that is not ok: its status and what it misses."""
+        out = []
+        for name in self.decisive:
+            r = self.runs[name]
+            if not r.ok:
+                out.append(f"{name}: {r.status}" + ("; " + "; ".join(r.shortfall) if r.shortfall else ", did not converge"))
+        return out
+
+    def archive(self) -> Archive:
+        """The archive every door writes (its standard part: kinds with their own layout extend it on writing)."""
+        pf, problem = self.problem_file, self.problem_file.problem
+        return Archive(name=pf.name, kind=pf.kind, source=pf.source, diameter=problem.diameter, units=pf.units,
+                       target=getattr(problem, "target", None), runs=dict(self.runs), extra=dict(self.extra),
+                       obstacles=list(getattr(problem, "obstacles", ())))
+
+    def write(self, path) -> None:
+        """Write the archive atomically (the layout of the problem's kind)."""
+        if self.problem_file.kind == "multishape":
+            write_multishape_archive(path, self.problem_file, self.runs["multishape"])
+        elif self.problem_file.kind == "tip":
+            write_tip_archive(path, self.problem_file, self.runs["tip"])
+        else:
+            write_archive(path, self.archive())
+
+
+# ---------------------------------------------------------------- the runs of each kind
+
+
+def _design(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, dict, dict]:
+    methods = rq.methods or (problem.options.method,)
+    runs = {}
+    for m in methods:
+        if m == "nlp":
+            runs[m] = design_nlp(problem, starts=rq.starts, workers=rq.workers, warm=rq.warm, progress=rq.progress, hops=rq.hops,
+                                 budget=rq.budget, note=rq.note)
+        elif m == "greedy":
+            runs[m] = design_greedy(problem, progress=rq.progress)
+        else:
+            runs[m] = lowpass(runs["greedy"], problem)
+    decisive = tuple(runs)
+    if problem.obstacles:  # the obstacle design is run nlp; the obstacle-free design it started from is kept beside it
+        free = runs.pop("nlp")
+        runs = {"nlp": design_with_obstacles(problem, start=free), FREE_RUN: free} | runs
+    if rq.robust is not None:
+        runs["nlp_robust"] = design_robust(problem, rq.robust, start=runs["nlp"], weight=rq.robust_weight)
+    if rq.clearance is not None:
+        runs["nlp_clearance"] = design_with_clearance(problem, min_gap=rq.clearance, start=runs["nlp"])
+    decisive += tuple(r for r in ("nlp_robust", "nlp_clearance") if r in runs)
+    if problem.calibration is not None:
+        runs = {name: calibrated(problem, r) for name, r in runs.items()}
+    return runs, decisive, {}, {}
+
+
+def _fit(problem, rq: Request):
+    result, extra = fit_problem(problem, starts=rq.fit_starts, seed=rq.seed)
+    details = {}
+    if rq.frames:
+        fits = fit_frames(problem, list(rq.frames), starts=rq.fit_starts, seed=rq.seed)
+        frames = {"lambda": np.array([f.lam for f in fits]), "rmse": np.array([f.rmse for f in fits]),
+                  "r2": np.array([getattr(f, "r2", np.nan) for f in fits])}
+        extra = extra | {f"frames/{k}": v for k, v in frames.items()}
+        details["frames"] = fits
+    return {"fit": result}, ("fit",), extra, details
+
+
+KINDS = {
+    "design": _design,
+    "forward": lambda problem, rq: ({"forward": run_forward(problem)}, ("forward",), {}, {}),
+    "fit": _fit,
+    "tip": lambda problem, rq: ({"tip": tip_design(problem, starts=rq.starts, progress=rq.progress)}, ("tip",), {}, {}),
+    "multishape": lambda problem, rq: (
+        {"multishape": design_multishape(problem, starts=rq.starts, progress=rq.progress)}, ("multishape",), {}, {}),
+}
+
+
+# what each kind can be asked beyond its problem (design problems: everything)
+KIND_OPTIONS = {"tip": {"starts"}, "multishape": {"starts"}, "forward": set(), "fit": set()}
+
+
+def check_request(pf: ProblemFile, rq: Request) -> None:
+    """What a problem of this kind cannot be asked for: one InputError ``(file, option, reason)`` before any solve."""
+    problem, kind = pf.problem, pf.kind
+    methods = rq.methods or ((problem.options.method,) if kind == "design" else ())
+    unknown = [m for m in methods if m not in DESIGN_METHODS]
+    if unknown:
+        raise InputError(pf.path, "method", f"unknown design method {unknown[0]!r}; one of {', '.join(DESIGN_METHODS)}")
+    asked = [k for k, on in (("method", methods not in ((), ("nlp",))), ("warm", rq.warm is not None), ("hops", bool(rq.hops)),
+                             ("budget", rq.budget is not None), ("robust", rq.robust is not None),
+                             ("clearance", rq.clearance is not None), ("starts", rq.starts is not None)) if on]
+    if kind != "design":
+        for key in asked:
+            if key not in KIND_OPTIONS[kind]:
+                raise InputError(pf.path, key, f"not available for {kind} problems")
+        return
+    if "greedy_filtered" in methods and "greedy" not in methods:
+        raise InputError(pf.path, "method", "greedy_filtered needs greedy")
+    if problem.obstacles and "greedy" in methods:
+        raise InputError(pf.path, "method", "obstacles are designed by the nlp formulation only")
+    needs_nlp = [k for k in ("robust", "clearance", "warm", "hops") if k in asked]
+    if needs_nlp and "nlp" not in methods:
+        raise InputError(pf.path, needs_nlp[0], "needs the nlp design to start from")
+
+
+def run(pf: ProblemFile, request: Request | None = None) -> Outcome:
+    """Every run ``pf``'s problem asks for (module docstring), judged against its hard requirements.
+
+    Parameters
+    ----------
+    pf : ProblemFile
+        A problem as read from a file (``io.problems.load_problem``) or made by the API.
+    request : Request, optional
+        What the door asks beyond the problem (default: nothing more).
+
+    Returns
+    -------
+    Outcome
+
+    Raises
+    ------
+    InputError
+        The request asks for something this problem cannot do.
+    """
+    rq = request or Request()
+    check_request(pf, rq)
+    with blas.limited():  # one BLAS thread while solving (methods.blas); the caller's restored after
+        runs, decisive, extra, details = KINDS[pf.kind](pf.problem, rq)
+    for r in runs.values():
+        judge(pf.problem, r)
+    return Outcome(pf, runs, decisive, extra, details)
+
+
+# ---------------------------------------------------------------- calibration and requirements
+
+
+def calibrated(problem: DesignProblem, result: Result) -> Result:
+    """A design of a calibrated problem as the nominal to build: the systematic parts taken out, clipped to
+    the bounds (model.calibration.nominal_of); its shape and metrics what that nominal realizes on the
+    calibrated robot. stats calibration_* (the values and the number of clipped entries)."""
+    cal, a = problem.calibration, problem.actuator
+    nominal, clipped = nominal_of(result.routing, cal, a.theta_max, a.lambda_min)
+    realized = evaluate(problem, realized_of(nominal, cal), pair_points(problem.target, problem.options.points_per_segment), result.method)
+    stats = dict(result.stats) | {
+        "calibration_lambda_offset": cal.lambda_offset, "calibration_theta_offset_deg": cal.theta_offset_deg,
+        "calibration_length_scale": cal.length_scale, "calibration_clipped": clipped,
+        "calibration_shape": "realized by the nominal on the calibrated robot"}
+    return dataclasses.replace(result, routing=nominal, shape=realized.shape, stats=stats,
+                               metrics=dict(result.metrics) | realized.metrics | routing_metrics(nominal))
+
+
+def judge(problem, result: Result) -> None:
+    """Set ``result.shortfall``: every hard requirement of ``problem`` the result misses, one line each
+    (the actuator's bounds; the obstacle margin, checked densely on the shape the robot realizes; the
+    clearance a clearance run was asked for). Adds the obstacle metrics of problems with obstacles."""
+    short = []
+    a, r = getattr(problem, "actuator", None), result.routing
+    if a is not None and result.method not in ("forward", "fit"):
+        if np.any(np.abs(r.theta) > a.theta_max * (1 + BOUND_TOL)):
+            short.append(f"|theta| above its bound {np.degrees(a.theta_max):g} deg")
+        if np.any(r.lam < a.lambda_min * (1 - BOUND_TOL)) or np.any(r.lam > 1 + BOUND_TOL):
+            short.append(f"lambda outside [{a.lambda_min:g}, 1]")
+    obstacles = getattr(problem, "obstacles", ())
+    if obstacles:
+        cal = getattr(problem, "calibration", None)
+        realized = realized_of(r, cal) if cal is not None else r
+        rep = obstacle_report(realized, problem.diameter, obstacles, problem.growth, problem.obstacle_margin)
+        result.metrics["min_obstacle_gap"] = float(rep["min_gap"])
+        if problem.growth == "after":
+            result.metrics["min_obstacle_gap_after"] = float(rep["min_gap_intermediate"])
+        if not rep["clear"]:
+            worst = min(rep["min_gap"], rep["min_gap_intermediate"])
+            short.append(f"obstacle margin not kept: min gap {worst:.4g} {problem.units} < margin {problem.obstacle_margin:g}")
+    if "clearance_met" in result.stats and not result.stats["clearance_met"]:
+        need = problem.diameter + result.stats.get("min_gap", 0.0)
+        short.append(f"clearance not kept: min {result.stats['min_clearance']:.4g} {problem.units} < D + min_gap = {need:.4g}")
+    result.shortfall = tuple(short)
