@@ -209,7 +209,7 @@ def _mesh(err, base, value, name) -> Mesh:
     try:
         import trimesh  # noqa: F401
     except ImportError:
-        raise err("file", "mesh obstacles need trimesh and rtree: pip install 'vine_nlp[obstacles]'") from None
+        raise err("file", "mesh obstacles need trimesh and rtree (dependencies of vine_nlp: python3 -m pip install trimesh rtree)") from None
     vertices, faces = load_mesh_file(path)
     return Mesh(vertices, faces, source=value, name=name)
 
