@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from vine_nlp.analysis.collision import growth_contacts, routing_clearance
-from vine_nlp.front.plot import draw_obstacles, label_3d_axes, set_equal_3d
+from vine_nlp.front.plot import equal_view_3d, label_3d_axes
 from vine_nlp.front.view import tube_rings
 from vine_nlp.io.archive import Archive, write_atomic
 from vine_nlp.model import shape_lines
@@ -113,13 +113,10 @@ def _draw(ax, center, inner, contacts, D, title):
 
 
 def _panel(ax, final, obstacles, D, units):
-    """The fixed part of a panel: obstacles (boxes and planes cut to the final shape's box), equal axes on one cube
-    around the final shape and the obstacles drawn whole, ticks and units: every panel gets the same ranges (the
-    straight tube early in actuation after growth may reach beyond them: it is cut at the box)."""
-    pts = np.asarray(final)
-    lo, hi = pts.min(0) - 0.6 * D, pts.max(0) + 0.6 * D
-    drawn = draw_obstacles(ax, obstacles or [], view=(lo - 0.1 * (hi - lo), hi + 0.1 * (hi - lo)))
-    set_equal_3d(ax, [lo, hi, *drawn], zoom=0.9)
+    """The fixed part of a panel: equal axes on one cube around the final shape and the obstacles, the obstacles,
+    ticks and units: every panel gets the same ranges (the straight tube early in actuation after growth may reach
+    beyond them: it is cut at the box)."""
+    equal_view_3d(ax, [final], obstacles, pad=0.6 * D, zoom=0.9)
     label_3d_axes(ax, units)
     ax.tick_params(labelsize=7)
 

@@ -155,6 +155,16 @@ def set_equal_3d(ax, points, zoom: float = 1.0):
     ax.set_box_aspect((1, 1, 1), zoom=zoom)
 
 
+def equal_view_3d(ax, points, obstacles=(), pad: float = 0.0, zoom: float = 1.0):
+    """Obstacles and equal axes around ``points`` (padded by ``pad``) and the obstacles: boxes and planes cut to the
+    points' box (padded 10 % more: a wall or floor must not swamp the tube), spheres, capsules and meshes whole."""
+    pts = np.concatenate([np.asarray(p, float).reshape(-1, 3) for p in points if np.size(p)])
+    lo, hi = pts.min(axis=0) - pad, pts.max(axis=0) + pad
+    margin = 0.1 * float((hi - lo).max())
+    drawn = draw_obstacles(ax, obstacles, view=(lo - margin, hi + margin)) if obstacles else []
+    set_equal_3d(ax, [lo, hi, *drawn], zoom)
+
+
 def fmt_len(value: float, units: str) -> str:
     return f"{value:.3g} {units}"
 
@@ -280,14 +290,7 @@ def plot_shape_3d(ax, archive: Archive, name: str, norm=None, cmap=ERROR_CMAP, l
     handles.append(ax.scatter(*ends.T, s=3, color="k", depthshade=False, label="segment ends"))
     ax.scatter(*center[0], s=14, color="k", marker="s", depthshade=False)
     label_3d_axes(ax, u)
-    if obstacles:
-        # boxes and planes are cut to the tube and target's box (padded 10 %): a wall or floor
-        # must not swamp the tube; spheres, capsules and meshes are drawn whole and in view
-        pts = np.concatenate([np.asarray(p, float).reshape(-1, 3) for p in everything if np.size(p)])
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        pad = 0.1 * max(float((hi - lo).max()), D)
-        everything += draw_obstacles(ax, obstacles, view=(lo - pad, hi + pad))
-    set_equal_3d(ax, everything, zoom)
+    equal_view_3d(ax, everything, obstacles, zoom=zoom)
     for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
         axis.pane.set_alpha(0.0)
         axis._axinfo["grid"]["linewidth"] = 0.3
