@@ -87,7 +87,7 @@ try:
         run = subprocess.run(cc + ["-shared", "-fPIC", os.path.join(work, "nlp.c"), "-o", tmp, "-lm"], capture_output=True, text=True)
         if run.returncode == 0:
             os.replace(tmp, target)
-        else:
+        elif run.returncode > 0:  # the compiler refused the code (a killed one leaves no note: tried again later)
             with open(os.path.join(work, "failed"), "w") as f:
                 f.write((run.stderr.strip().splitlines() or ["no message"])[0])
             os.replace(os.path.join(work, "failed"), os.path.splitext(target)[0] + ".failed")
