@@ -4,7 +4,8 @@ Used two ways:
 
 * as a MkDocs hook (``hooks:`` in mkdocs.yml): at every build it adds the pages
   ``reference/formats.md`` and ``reference/cli.md`` to the site;
-* as a script: ``python3 docs/gen_reference.py formats|cli`` prints a page.
+* as a script: ``python3 docs/gen_reference.py formats|cli`` prints a page (``contract``: what
+  docs/reference/contract.md, the lab's contract, names that the code no longer has).
 
 The format page is made from the validators themselves:
 
@@ -313,8 +314,8 @@ def formats_page(archives: bool = True) -> str:
         "    checks every file against, every example is a bundled problem loaded by that reader, and",
         "    the archive layout is checked against archives written and read back during the build.",
         "",
-        "The contract is version 1 of `spec/formats.md` (shared with the lab); this page is the",
-        "version you have installed. Lengths are in the file's `units` (default `cm`); angles are",
+        "The contract is version 1 of [the lab's file and command contract](contract.md); this page is",
+        "the version you have installed. Lengths are in the file's `units` (default `cm`); angles are",
         "radians unless the key ends in `_deg`. Paths inside a file are relative to that file.",
         "A bad file gives one line `error: <file>: <key>: <reason>` and exit status 2.",
         "",
@@ -697,14 +698,46 @@ POSITIONALS = {
 }
 
 
+def contract_drift() -> list[str]:
+    """What the contract (docs/reference/contract.md) names that this version no longer has: a command of its
+    tables that ``vine-nlp`` does not accept, a path of its archive layout missing from CORE_LAYOUT."""
+    import argparse
+
+    from vine_nlp.front.cli import build_parser
+    from vine_nlp.io.layout import CORE_LAYOUT
+
+    text = (ROOT / "docs" / "reference" / "contract.md").read_text()
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    problems = [f"contract.md names `vine-nlp {c}`, which vine-nlp does not accept"
+                for c in sorted(set(re.findall(r"^\| `vine-nlp ([a-z]+)", text, re.M))) if c not in sub.choices]
+    layout = text.split("## Result archives (HDF5)", 1)[1].split("```")[1]
+    paths = {node.path.rstrip("/") or "/" for node in CORE_LAYOUT}
+    for line in layout.splitlines():
+        path = line.split()[0].rstrip("/") or "/" if line.startswith("/") else None
+        if path and path not in paths:
+            problems.append(f"contract.md's archive layout names {path}, which vine_nlp.io.layout.CORE_LAYOUT does not hold")
+    return problems
+
+
+def contract_check(files, config):
+    """MkDocs hook part: the build stops where the contract names what this version no longer has."""
+    problems = contract_drift()
+    if problems:
+        from mkdocs.exceptions import PluginError
+
+        raise PluginError("the contract and the code disagree:\n  " + "\n  ".join(problems))
+
+
 PAGES = {"reference/formats.md": formats_page, "reference/cli.md": cli_page}
 
 
 # ------------------------------------------------------------------ MkDocs hook
 def on_files(files, config):
-    """MkDocs hook: add the generated reference pages to the site."""
+    """MkDocs hook: add the generated reference pages to the site (and check the contract page)."""
     from mkdocs.exceptions import PluginError
     from mkdocs.structure.files import File
+
+    contract_check(files, config)
 
     for uri, make in PAGES.items():
         try:
@@ -720,4 +753,7 @@ def on_files(files, config):
 
 if __name__ == "__main__":
     which = sys.argv[1] if len(sys.argv) > 1 else "formats"
-    print({"formats": formats_page, "cli": cli_page}[which]())
+    if which == "contract":
+        print("\n".join(contract_drift()) or "the contract and the code agree")
+    else:
+        print({"formats": formats_page, "cli": cli_page}[which]())

@@ -7,6 +7,7 @@ problems travel with the tasks, the archives come back to this machine). Without
 tests do; give the address of a real scheduler (``dask scheduler`` on one machine,
 ``dask worker ADDRESS`` on the others) to use that instead.
 
+Needs: python3 -m pip install '.[cluster]' (dask.distributed, not in the base install).
 Run:  python3 examples/07_dask_sweep.py [--out DIR] [--scheduler tcp://host:8786] [--workers N]
 Makes: sweep/ (one archive per item, summary.csv, summary.png), summary.json.
 """

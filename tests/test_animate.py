@@ -79,6 +79,37 @@ def test_gif_grows_and_marks_the_contact(loop_file, tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["loop.gif"]  # no temporary file left
 
 
+def brown(frame) -> int:
+    """Pixels of the obstacles' colour (#8c6d46, shaded, after GIF quantization)."""
+    a = np.asarray(frame.convert("RGB")).astype(int)
+    return int(((a[..., 0] - a[..., 2] > 30) & (a[..., 0] - a[..., 1] > 10) & (a[..., 0] < 200)).sum())
+
+
+def test_both_panels_share_one_cube_of_equal_axes_and_draw_the_obstacles(tmp_path):
+    from vine_nlp.model.obstacles import Sphere
+
+    r, R, _ = loop_routing()
+    ball = Sphere((3 * D, 3 * R, 0.0), D)  # beside the loop, in its plane
+    archive = Archive("loop", "forward", "", D, runs={"forward": run_forward(ForwardProblem("loop", D, r))}, obstacles=[ball])
+    fig, axes = animate.movie_figure(archive, "forward", 2)
+    ranges = [np.array([ax.get_xlim(), ax.get_ylim(), ax.get_zlim()]) for ax in axes]
+    np.testing.assert_array_equal(ranges[0], ranges[1])  # the same ranges in both panels
+    np.testing.assert_allclose(np.ptp(ranges[0], axis=1), np.ptp(ranges[0][0]), rtol=1e-12)  # equal axes
+    for ax in axes:
+        np.testing.assert_allclose(ax.get_box_aspect(), ax.get_box_aspect()[0], rtol=1e-12)
+        assert len(ax.collections) == 1  # the sphere, before any frame
+        lo, hi = ranges[0][:, 0], ranges[0][:, 1]
+        shape = archive.runs["forward"].shape.center
+        assert (shape.min(0) >= lo).all() and (shape.max(0) <= hi).all() and (np.r_[3 * D, 3 * R, 0] + D <= hi).all()
+    out = tmp_path / "ball.gif"
+    write_archive(tmp_path / "ball.h5", archive)
+    assert main(["animate", str(tmp_path / "ball.h5"), "-o", str(out), "--frames", "3"]) == 0
+    im = Image.open(out)
+    for k in range(im.n_frames):  # the obstacle in every frame, not only in the first
+        im.seek(k)
+        assert brown(im) > 200, k
+
+
 @pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="ffmpeg is not installed (apt-get install ffmpeg)")
 def test_mp4_through_ffmpeg(loop_file, tmp_path):
     out = tmp_path / "loop.mp4"

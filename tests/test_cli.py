@@ -228,6 +228,17 @@ def test_analyze_reports_clearance_and_tolerance(tmp_path, capsys):
     assert fig.stat().st_size > 0
 
 
+def test_analyze_of_a_tube_that_never_turns_back_says_so(tmp_path, capsys):
+    arc = tmp_path / "arc.toml"  # theta 0: a plane arc turning by less than half a turn
+    arc.write_text('name = "arc"\n[tube]\ndiameter = 2.0\n[routing]\nlength = 20.0\nsegment_length = 1.0\ntheta = 0.0\nlambda = 0.97\n')
+    out = tmp_path / "arc.h5"
+    assert main(["forward", str(arc), "-o", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["analyze", str(out)]) == 0
+    (line,) = [t for t in capsys.readouterr().out.splitlines() if t.startswith("clearance")]
+    assert line == "clearance   none to report: the tube never comes back toward itself; 0 contact region(s)"
+
+
 def test_design_robust_run_is_archived_beside_nlp(tmp_path, capsys):
     out = tmp_path / "d.h5"
     assert main(["design", str(_small_trefoil(tmp_path)), "-o", str(out), "--robust"]) == 0

@@ -1,7 +1,10 @@
-"""Compiled NLP functions (design.compiled): the same iterates as the interpreted ones, cached on disk,
-and a clear fallback where no compiler works."""
+"""Compiled NLP functions (methods.compiled): the same iterates as the interpreted ones, cached on disk,
+compiled in the background where a run would wait (once per machine: the lock), and a clear fallback where
+no compiler works."""
 
 import logging
+import os
+import time
 from pathlib import Path
 
 import casadi as ca
@@ -121,6 +124,8 @@ def test_without_a_working_compiler_it_runs_interpreted_and_says_so_once(codegen
     monkeypatch.setenv("VINE_NLP_CODEGEN", "auto")
     with caplog.at_level(logging.WARNING, logger="vine_nlp"):
         solver = Solver(SPEC)
+        assert compiled.wait(60)  # a compiler that fails in the background leaves its complaint for the next build
+        Solver(SPEC)
         Solver(SPEC)
     notes = [r.getMessage() for r in caplog.records]
     assert len(notes) == 1 and notes[0].startswith(reason) and notes[0].endswith("the NLP functions run interpreted (slower)")
@@ -129,6 +134,71 @@ def test_without_a_working_compiler_it_runs_interpreted_and_says_so_once(codegen
     monkeypatch.setenv("VINE_NLP_CODEGEN", "on")
     with pytest.raises(compiled.CompileError, match=reason):
         Solver(SPEC)
+
+
+def _wait_for(path: Path, deadline_s: float = 120.0) -> bool:
+    """True once ``path`` exists (the background compiler renames the library into place), False at the deadline."""
+    end = time.monotonic() + deadline_s
+    while not path.exists():
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.02)
+    return True
+
+
+def test_a_first_build_solves_at_once_and_a_later_solve_runs_compiled(codegen, monkeypatch, make_target):
+    monkeypatch.setenv("VINE_NLP_CODEGEN", "auto")
+    before = dict(compiled.stats)
+    solver = Solver(SPEC)  # nothing compiled yet: interpreted now, the library compiled in the background
+    assert compiled.stats["background"] == before["background"] + 1 and compiled.stats["compiled"] == before["compiled"]
+    assert isinstance(solver.nlpsol, compiled.Upgrading)
+    first = _solve(solver, make_target)
+    assert compiled.wait(120)
+    (lib,) = _libraries(codegen)
+    loaded = compiled.stats["loaded"]
+    again = _solve(solver, make_target)  # the same solver object now runs on the library
+    assert compiled.stats["loaded"] == loaded + 1
+    assert first[1] == again[1] == "optimal" and first[2]["iterations"] == again[2]["iterations"]
+    np.testing.assert_allclose(first[0], again[0], rtol=0, atol=1e-9)
+    Solver(SPEC)  # a new build loads it and starts no compiler
+    assert compiled.stats["loaded"] == loaded + 2 and compiled.stats["background"] == before["background"] + 1
+    assert not [p for p in lib.parent.iterdir() if p.name.startswith(".build-")]
+
+
+def test_two_processes_start_one_background_compile_that_outlives_them(codegen):
+    import subprocess
+    import sys
+
+    # each process builds the structure and exits at once, printing how many compilers it started
+    code = ("from vine_nlp.methods import compiled; from vine_nlp.methods.transcription import Solver; "
+            "from vine_nlp.methods.nlp import nlp_spec; Solver(nlp_spec(5, 2, False, hessian='gauss-newton')); "
+            "print(compiled.stats['background'], compiled.stats['loaded'])")
+    env = os.environ | {"VINE_NLP_CODEGEN": "auto"}
+    procs = [subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=env) for _ in range(2)]
+    counts = [tuple(map(int, p.communicate()[0].split())) for p in procs]
+    assert all(p.returncode == 0 for p in procs)
+    # one started the compiler; the other found its lock held (interpreted) or, later, the library (loaded)
+    assert sorted(counts) in ([(0, 0), (1, 0)], [(0, 1), (1, 0)])
+    lock = next(codegen.rglob("nlp-*.lock"))
+    assert _wait_for(lock.with_suffix(".so"))
+    assert _libraries(codegen) == [lock.with_suffix(".so")]
+
+
+def test_a_held_lock_means_another_process_compiles(codegen, monkeypatch):
+    import fcntl
+
+    monkeypatch.setenv("VINE_NLP_CODEGEN", "auto")
+    Solver(SPEC)
+    lock = next(codegen.rglob("nlp-*.lock"))
+    assert compiled.wait(120) and lock.with_suffix(".so").is_file()
+    lock.with_suffix(".so").unlink()
+    with open(lock, "a") as held:  # as a compiler in another process holds it
+        fcntl.flock(held, fcntl.LOCK_EX)
+        before = dict(compiled.stats)
+        solver = Solver(SPEC)
+        assert compiled.stats["background"] == before["background"] and compiled.stats["interpreted"] == before["interpreted"] + 1
+        assert isinstance(solver.nlpsol, compiled.Upgrading)  # it loads the other's library once it is there
+    assert _libraries(codegen) == []
 
 
 def test_an_unwritable_cache_falls_back(codegen, monkeypatch, caplog, tmp_path):
@@ -161,6 +231,7 @@ def test_the_command_line_notes_the_compile_once(codegen, tmp_path, capsys, monk
     second = capsys.readouterr().err
     assert first.count("note: compiling the NLP functions") >= 1
     assert "note:" not in second
+    assert compiled.wait(300)  # no compiler left running after the test
     monkeypatch.setenv("VINE_NLP_CODEGEN", "fast")
     assert main(["design", str(problem), "-o", str(tmp_path / "c.h5")]) == 2
     assert capsys.readouterr().err == "error: environment: VINE_NLP_CODEGEN: expected one of auto, on, off, got 'fast'\n"

@@ -3,6 +3,7 @@ with known construction errors, measured through the forward model with noise.""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import tomllib
 
@@ -236,6 +237,25 @@ def test_template_draws_the_changes(setup, tmp_path, capsys):
     assert not ET.parse(plain).getroot().find("s:g[@id='layer-changes']", ns).findall("s:text", ns)
     info = write_template(d / "c1.h5", tmp_path / "t.pdf", run="corrected", changes=rows)
     assert info["changes"] == len(rows) and info["run"] == "corrected"
+
+
+def test_correction_figure_has_equal_axes_and_the_obstacles(setup):
+    """An out-of-plane error must look as large as it is: one scale on x, y and z (issue 35); obstacles drawn."""
+    from vine_nlp.front.correct import correction_figure
+    from vine_nlp.io.problems import design_problem_of
+    from vine_nlp.model.obstacles import Sphere
+    from vine_nlp.pipeline.correct import correct_files
+
+    result, archive, _, _ = correct_files(setup["dir"] / "design.h5", [setup["dir"] / "m1.csv"], sigmas=SIGMAS)
+    problem = design_problem_of(archive, setup["dir"] / "design.h5")
+    figures = [correction_figure(result, problem)]
+    figures.append(correction_figure(result, dataclasses.replace(problem, obstacles=(Sphere(tuple(problem.target[0]), 1.0),))))
+    (ax, ax_ob) = [[a for a in fig.axes if a.name == "3d"][0] for fig in figures]
+    for a in (ax, ax_ob):
+        spans = np.ptp([a.get_xlim(), a.get_ylim(), a.get_zlim()], axis=1)
+        np.testing.assert_allclose(spans, spans[0], rtol=1e-12)
+        np.testing.assert_allclose(a.get_box_aspect(), a.get_box_aspect()[0], rtol=1e-12)
+    assert len(ax_ob.collections) == len(ax.collections) + 1
 
 
 def _fails(capsys, argv, out, key):

@@ -4,7 +4,8 @@ Each example writes its files and ``summary.json`` into ``<out>/<name>/``. The e
 file names the files that must exist (and be what their suffix says) and bounds on the
 summary's numbers: ``equal`` (exact), ``close`` ([value, absolute tolerance]), ``at_most``,
 ``at_least``, and ``same`` ([key, other key, tolerance]: two numbers the example computed
-two ways). Scripts run in a subprocess; notebooks are executed by nbclient.
+two ways). Scripts run in a subprocess; notebooks are executed by nbclient. Its tutorial's blocks
+marked ``<!-- printed by: python3 examples/<script> -->`` must show what it printed (tests/printed.py).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import printed
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,7 +49,8 @@ def test_every_example_has_expectations():
         assert Path(script).stem == name and (EXAMPLES / script).is_file()
 
 
-def _run_script(script: Path, out: Path) -> None:
+def _run_script(script: Path, out: Path) -> tuple[str, str]:
+    """(stdout, stderr) of the example."""
     env = dict(os.environ, MPLBACKEND="Agg", PYTHONHASHSEED="0")
     proc = subprocess.run(
         [sys.executable, str(script), "--out", str(out)],
@@ -59,9 +62,11 @@ def _run_script(script: Path, out: Path) -> None:
     )
     assert proc.returncode == 0, f"{script.name} exited {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
     assert "Traceback" not in proc.stderr
+    return proc.stdout, proc.stderr
 
 
-def _run_notebook(notebook: Path, out: Path, monkeypatch) -> None:
+def _run_notebook(notebook: Path, out: Path, monkeypatch) -> tuple[str, str]:
+    """(stdout, stderr) of the executed notebook's cells."""
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")
     monkeypatch.setenv("VINE_NLP_EXAMPLES_OUT", str(out))  # the kernel inherits the environment
@@ -69,6 +74,8 @@ def _run_notebook(notebook: Path, out: Path, monkeypatch) -> None:
     nb = nbformat.read(notebook, as_version=4)
     client = nbclient.NotebookClient(nb, timeout=TIMEOUT_S, kernel_name="python3", resources={"metadata": {"path": str(EXAMPLES)}})
     client.execute()  # raises CellExecutionError, with the cell and its traceback, if a cell fails
+    streams = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs if o.output_type == "stream"]
+    return tuple("".join(o.text for o in streams if o.name == name) for name in ("stdout", "stderr"))
 
 
 def _check(summary: dict, spec: dict) -> None:
@@ -91,9 +98,11 @@ def _check(summary: dict, spec: dict) -> None:
 @pytest.mark.parametrize(("name", "spec"), _expectations())
 def test_example(name, spec, tmp_path, monkeypatch):
     if "notebook" in spec:
-        _run_notebook(EXAMPLES / spec["notebook"], tmp_path, monkeypatch)
+        stdout, stderr = _run_notebook(EXAMPLES / spec["notebook"], tmp_path, monkeypatch)
+        command = f"examples/{spec['notebook']}"
     else:
-        _run_script(EXAMPLES / spec["script"], tmp_path)
+        stdout, stderr = _run_script(EXAMPLES / spec["script"], tmp_path)
+        command = f"python3 examples/{spec['script']}"
     out = tmp_path / name
     summary = json.loads((out / "summary.json").read_text())
     for rel in spec["files"]:
@@ -104,3 +113,9 @@ def test_example(name, spec, tmp_path, monkeypatch):
             assert path.read_bytes()[: len(signature)] == signature, f"{rel} is not a {path.suffix} file"
     assert sorted(summary["files"]) == sorted(spec["files"])
     _check(summary, spec)
+    # its tutorial shows what it printed (tests/printed.py): numbers within the stated tolerance, its warnings
+    shown = [b for b in printed.blocks() if b.command == command]
+    assert shown, f"no documentation block is marked <!-- printed by: {command} -->"
+    problems = [p for b in shown for p in printed.check(b, stdout, stderr)]
+    problems += [f"printed on stderr, not shown in the tutorial: {line!r}" for line in printed.unshown(stderr, shown)]
+    assert not problems, "\n".join(problems)

@@ -111,6 +111,27 @@ def test_figure_is_readable_and_labelled(archives):
     assert "nlp (RMSE" in legends and "greedy (RMSE" in legends
 
 
+def test_the_design_figure_shows_what_it_says(archives):
+    """Angles in one unit, every line in the legend, the target over the tube, obstacles in every 3-D view."""
+    from vine_nlp.model.obstacles import Sphere
+
+    a = load_archive(archives["design"])
+    a.obstacles = [Sphere(tuple(a.target[len(a.target) // 2] + [0.0, 0.0, 3 * D]), D)]
+    fig, bare = plot_archive(a, obstacles=a.obstacles), plot_archive(a)
+    fig.canvas.draw()  # mplot3d gives the collections their depth-sorted zorders when drawn
+    phi = [ax for ax in fig.axes if ax.get_ylabel().startswith(r"$\phi$")][0]
+    assert phi.get_ylabel() == r"$\phi$ [deg]"
+    np.testing.assert_allclose(phi.get_lines()[0].get_ydata(), np.degrees(a.runs["nlp"].phi))
+    views = [ax for ax in fig.axes if ax.name == "3d"]
+    assert len(views) == 2
+    for ax, without in zip(views, [ax for ax in bare.axes if ax.name == "3d"]):
+        (target,) = [line for line in ax.get_lines() if line.get_label() == "target"]
+        assert target.get_zorder() > max(c.get_zorder() for c in ax.collections)  # drawn last: never under the wall
+        assert len(ax.collections) == len(without.collections) + 1  # the sphere, in every view
+    legend = [t.get_text() for t in views[0].get_legend().get_texts()]
+    assert legend == ["target", "actuator line", "opposite line", "segment ends"]
+
+
 def test_forward_figure_has_no_error_panel(archives):
     fig = plot_archive(archives["forward"])
     labels = [ax.get_ylabel() for ax in fig.axes if ax.name == "rectilinear"]

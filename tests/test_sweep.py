@@ -281,6 +281,17 @@ def test_bad_arguments_are_input_errors_and_create_nothing(tmp_path):
     assert not (tmp_path / "a").exists()
 
 
+def test_a_scheduler_without_dask_names_the_extra_and_creates_nothing(tmp_path, monkeypatch):
+    import sys
+
+    path = _write_sweep(tmp_path / "in")
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)  # as where the [cluster] extra is not installed
+    with pytest.raises(InputError) as e:
+        sw.run_sweep(load_sweep(path), tmp_path / "a", scheduler="tcp://127.0.0.1:8786", progress=False)
+    assert str(e.value) == "command line: --scheduler: needs dask.distributed: python3 -m pip install 'vine_nlp[cluster]'"
+    assert not (tmp_path / "a").exists()
+
+
 def test_plot_summary_draws_both_methods_and_skips_failures(tmp_path):
     rows = []
     for k in range(6):

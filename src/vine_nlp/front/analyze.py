@@ -25,8 +25,11 @@ def cmd_analyze(args) -> int:
     r = archive.runs[run]
     D, u = archive.diameter, archive.units
     cl = routing_clearance(r.routing, D, margin=args.margin)
-    where = f" at {cl['l_i']:.4g} / {cl['l_j']:.4g} {u} of tube" if "l_i" in cl and cl.get("clearance", float("inf")) < float("inf") else ""
-    print(f"clearance   min {cl['clearance']:.4g} {u} ({cl['clearance'] / D:.2f} D){where}; {len(cl['regions'])} contact region(s)")
+    if math.isfinite(cl["clearance"]):
+        print(f"clearance   min {cl['clearance']:.4g} {u} ({cl['clearance'] / D:.2f} D) at {cl['l_i']:.4g} / {cl['l_j']:.4g} {u} of tube; "
+              f"{len(cl['regions'])} contact region(s)")
+    else:  # no two distant parts of the tube come closer than their ends: no closest approach to report
+        print("clearance   none to report: the tube never comes back toward itself; 0 contact region(s)")
     growth = growth_contacts(r.routing, D, margin=args.margin)
     final = [g for g in growth if not g.get("transient")]
     on_way = [g for g in growth if g.get("transient")]

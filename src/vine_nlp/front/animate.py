@@ -9,6 +9,9 @@ actuated beside actuation after growth, self-contacts marked.
   the contacts of each intermediate shape are found again
   (:func:`vine_nlp.analysis.collision.routing_clearance`) and marked.
 
+Both panels share one cube of equal axes (every shape of either panel inside) and draw the
+archive's obstacles in every frame.
+
 matplotlib.animation writes the movie: GIF through pillow, MP4 through ffmpeg
 (where it is installed; an error otherwise). No pyplot: the figure is a plain
 ``matplotlib.figure.Figure``, the backend is never changed.
@@ -18,11 +21,13 @@ from __future__ import annotations
 
 import os
 import shutil
+from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
 
 from vine_nlp.analysis.collision import growth_contacts, routing_clearance
+from vine_nlp.front.plot import equal_view_3d, label_3d_axes
 from vine_nlp.front.view import tube_rings
 from vine_nlp.io.archive import Archive, write_atomic
 from vine_nlp.model import shape_lines
@@ -34,6 +39,8 @@ MOVIE_FORMATS = (".gif", ".mp4")
 TUBE_COLOR = "#5b8fc7"
 ACTUATOR_COLOR = "#d62728"
 CONTACT_COLOR = "#ff7f0e"
+# matplotlib >= 3.10 cuts 3-D artists at the axes' box (earlier ones draw the part beyond it over the margins)
+CLIP = {"axlim_clip": True} if tuple(int(v) for v in version("matplotlib").split(".")[:2]) >= (3, 10) else {}
 
 
 def movie_format(path) -> str:
@@ -89,23 +96,46 @@ def frame_contacts(routing: Routing, D: float, mode: str, value: float, growth=N
     return np.array([p for r in res["regions"] for p in (r["point_i"], r["point_j"])])
 
 
-def _draw(ax, center, inner, contacts, D, limits, title):
-    ax.cla()
+def _draw(ax, center, inner, contacts, D, title):
+    """One frame's tube, actuator line and contacts (the artists of the frame before are removed first)."""
+    for artist in getattr(ax, "_vine_frame", []):
+        artist.remove()
+    frame = []
     if len(center) >= 2:
         rings = tube_rings(center, inner, D, ring=12)
-        ax.plot_surface(rings[..., 0], rings[..., 1], rings[..., 2], color=TUBE_COLOR, alpha=0.35, linewidth=0,
-                        shade=True, antialiased=False)
-        ax.plot(*inner.T, color=ACTUATOR_COLOR, lw=1.5)
+        frame.append(ax.plot_surface(rings[..., 0], rings[..., 1], rings[..., 2], color=TUBE_COLOR, alpha=0.35, linewidth=0,
+                                     shade=True, antialiased=False, **CLIP))
+        frame += ax.plot(*inner.T, color=ACTUATOR_COLOR, lw=1.5, **CLIP)
     if len(contacts):
-        ax.scatter(*np.asarray(contacts).T, color=CONTACT_COLOR, s=40, marker="X", depthshade=False, label="self-contact")
-        ax.legend(loc="upper right", fontsize=7)
-    lo, hi = limits
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
-    ax.set_zlim(lo[2], hi[2])
-    ax.set_box_aspect(tuple(hi - lo))
+        frame.append(ax.scatter(*np.asarray(contacts).T, color=CONTACT_COLOR, s=40, marker="X", depthshade=False, label="self-contact"))
+        frame.append(ax.legend(loc="upper right", fontsize=7))
+    ax._vine_frame = frame
     ax.set_title(title, fontsize=9)
-    ax.tick_params(labelsize=6)
+
+
+def _panel(ax, final, obstacles, D, units):
+    """The fixed part of a panel: equal axes on one cube around the final shape and the obstacles, the obstacles,
+    ticks and units: every panel gets the same ranges (the straight tube early in actuation after growth may reach
+    beyond them: it is cut at the box)."""
+    equal_view_3d(ax, [final], obstacles, pad=0.6 * D, zoom=0.9)
+    label_3d_axes(ax, units)
+    ax.tick_params(labelsize=7)
+
+
+def movie_figure(archive: Archive, run: str, panels: int = 2, dpi: int = 80):
+    """(Figure, 3-D axes) of a movie before its first frame: one cube of equal axes around the final shape for
+    every panel (growing stays inside it), the obstacles drawn in each."""
+    from matplotlib.figure import Figure
+
+    D, u = archive.diameter, archive.units
+    final = _lines(archive.runs[run].routing, D)[0]
+    fig = Figure(figsize=(4.2 * panels, 4.4), dpi=dpi)
+    fig.subplots_adjust(left=0.02, right=0.96, bottom=0.03, top=0.88, wspace=0.12)
+    axes = [fig.add_subplot(1, panels, i + 1, projection="3d") for i in range(panels)]
+    for ax in axes:
+        _panel(ax, final, archive.obstacles, D, u)
+    fig.suptitle(f"{archive.name}, run {run}: D = {D:.4g} {u}", fontsize=10)
+    return fig, axes
 
 
 def write_movie(archive: Archive, path, mode: str = "both", run: str | None = None, frames: int = 40, fps: int = 10,
@@ -140,7 +170,6 @@ def write_movie(archive: Archive, path, mode: str = "both", run: str | None = No
         An MP4 without ffmpeg installed (nothing is written).
     """
     from matplotlib import animation
-    from matplotlib.figure import Figure
 
     ext = movie_format(path)
     if mode not in MODES:
@@ -160,17 +189,7 @@ def write_movie(archive: Archive, path, mode: str = "both", run: str | None = No
     total = float(np.sum(routing.length))
     panels = ["grow", "after"] if mode == "both" else [mode]
     growth = growth_contacts(routing, D, actuation_steps=0) if "grow" in panels else []
-    # one box per panel for all its frames: growing stays inside the final shape's box,
-    # actuating after growth passes through the straight tube (t = 0) and the shapes between
-    def box(lines):
-        pts = np.concatenate(lines)
-        return pts.min(0) - 0.6 * D, pts.max(0) + 0.6 * D
-
-    limits = {"grow": box([_lines(routing, D)[0]]),
-              "after": box([_lines(routing, D, lam=1.0 - t * (1.0 - routing.lam))[0] for t in np.linspace(0, 1, 9)])}
-    fig = Figure(figsize=(4.2 * len(panels), 4.4), dpi=dpi)
-    axes = [fig.add_subplot(1, len(panels), i + 1, projection="3d") for i in range(len(panels))]
-    fig.suptitle(f"{archive.name}, run {run}: D = {D:.4g} {u}", fontsize=10)
+    fig, axes = movie_figure(archive, run, len(panels), dpi)
     writer = animation.PillowWriter(fps=fps) if ext == ".gif" else animation.FFMpegWriter(fps=fps, codec="libx264",
                                                                                           extra_args=["-pix_fmt", "yuv420p"])
     after_max = 0
@@ -191,7 +210,7 @@ def write_movie(archive: Archive, path, mode: str = "both", run: str | None = No
                         contacts = frame_contacts(routing, D, "after", x)
                         after_max = max(after_max, len(contacts) // 2)
                         title = f"actuated after growth: t = {x:.2f}"
-                    _draw(ax, center, inner, contacts, D, limits[panel], title)
+                    _draw(ax, center, inner, contacts, D, title)
                 writer.grab_frame()
 
     # the writer needs a real file name with the right extension: a temporary one beside the target

@@ -246,8 +246,6 @@ def cmd_template(args) -> int:
 
     out = check_output(args.output, args.force)
     fmt = _output_format(out, "template", "template_format")
-    if fmt == ".dxf":
-        _need_extra("template", "ezdxf")
     archive = read_archive(args.archive)
     csv = check_output(args.csv, args.force, "--csv") if args.csv else None
     rows = None
@@ -285,7 +283,6 @@ def cmd_template(args) -> int:
 def cmd_view(args) -> int:
     """One self-contained HTML view of an archive or of a sweep directory."""
     view = _front("view")
-    _need_extra("view", "plotly")
     out = check_output(args.output, args.force)
     if out.suffix.lower() not in (".html", ".htm"):
         raise InputError(out, "-o", f"unknown view format {out.suffix or '(none)'!r}: use .html")
@@ -318,8 +315,6 @@ def cmd_animate(args) -> int:
     animate = _front("animate")
     out = check_output(args.output, args.force)
     fmt = _output_format(out, "animate", "movie_format")
-    if fmt == ".gif":
-        _need_extra("animate", "PIL")
     if fmt == ".mp4" and not animate.ffmpeg_available():
         raise InputError(out, "-o", "MP4 needs ffmpeg, which is not installed (apt-get install ffmpeg); write a .gif instead")
     archive = read_archive(args.archive)
@@ -334,7 +329,6 @@ def cmd_export(args) -> int:
     """The tube as a closed triangle mesh (STL, OBJ, PLY, glTF binary)."""
     export = _front("export")
     out = check_output(args.output, args.force)
-    _need_extra("export", "trimesh")
     fmt = _output_format(out, "export", "mesh_format")
     if fmt in (".stl", ".ply"):
         check_output(out.with_name(f"{out.stem}.actuator{out.suffix}"), args.force)
@@ -373,15 +367,6 @@ def _output_format(out, module, function):
         return getattr(_front(module), function)(out)
     except ValueError as e:
         raise InputError(out, "-o", str(e)) from None
-
-
-def _need_extra(command, *modules):
-    """The optional packages a command needs (the ``view`` extra): a one-line error when one is missing."""
-    import importlib.util
-
-    missing = [m for m in modules if importlib.util.find_spec(m) is None]
-    if missing:
-        raise InputError("command line", command, f"needs {', '.join(missing)}: python3 -m pip install 'vine_nlp[view]'")
 
 
 def _add_correct_arguments(p) -> None:

@@ -10,7 +10,7 @@ import numpy as np
 
 from vine_nlp.errors import InputError
 from vine_nlp.front.files import check_figure, check_output, sigmas
-from vine_nlp.front.plot import save_figure
+from vine_nlp.front.plot import equal_view_3d, label_3d_axes, save_figure
 from vine_nlp.io.calibration import write_calibration
 from vine_nlp.io.correction import write_correction_archive
 from vine_nlp.io.problems import design_problem_of
@@ -50,17 +50,20 @@ def report(result, units: str) -> list[str]:
 
 
 def correction_figure(result, problem, units: str = "cm"):
-    """Target, measured points, estimated as-built line and predicted corrected shape; deviations per segment."""
+    """Target, measured points, estimated as-built line and predicted corrected shape (equal axes: an out-of-plane
+    error looks as large as it is), the problem's obstacles; deviations per segment."""
     from matplotlib.figure import Figure  # matplotlib loads when a figure is asked for
 
     fig = Figure(figsize=(12, 5.5))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
-    ax.plot(*problem.target.T, "k-", lw=1, label="target")
-    ax.plot(*result.as_built.shape.center.T, "C1-", lw=1.2, label="as built (estimate)")
-    ax.plot(*result.corrected.shape.center.T, "C2-", lw=1.2, label="corrected (predicted)")
+    lines = [problem.target, result.as_built.shape.center, result.corrected.shape.center]
+    for line, style, label in zip(lines, ("k-", "C1-", "C2-"), ("target", "as built (estimate)", "corrected (predicted)")):
+        ax.plot(*line.T, style, lw=1.2, label=label)
     for k, m in enumerate(result.measurements):
         ax.scatter(*m.points.T, s=2, color="C0", label="measured" if k == 0 else None)
-    ax.set(xlabel=f"x [{units}]", ylabel=f"y [{units}]", zlabel=f"z [{units}]")
+        lines.append(m.points)
+    label_3d_axes(ax, units)
+    equal_view_3d(ax, lines, problem.obstacles)
     ax.legend(loc="upper left", fontsize=8)
     e = result.estimate
     j = np.arange(e.routing.segments)

@@ -2,13 +2,13 @@
 
 One figure per archive, laid out like the paper's Figs. 9 and 11:
 
-(a) 3-D view, one panel per run: the target (dashed black), the tube drawn at its
-    true diameter D (a translucent surface of circles around the center line,
+(a) 3-D view, one panel per run: the target (dashed black, drawn over the tube), the tube
+    drawn at its true diameter D (a translucent surface of circles around the center line,
     built from the archived inner/outer lines), the actuator line (blue), the
     opposite line (red, thin), the segment ends (dots) and, for design runs, the
-    center line colored by its distance to the paired target point;
+    center line colored by its distance to the paired target point; obstacles;
 (b) design archives: error against length along the unactuated tube, one line per run;
-(c)-(e) theta(s) [deg] and lambda(s) (per segment, steps) and phi(s) [rad]
+(c)-(e) theta(s) [deg] and lambda(s) (per segment, steps) and phi(s) [deg]
     against length along the unactuated tube, every run overlaid, legend with
     each run's RMSE.
 
@@ -155,6 +155,16 @@ def set_equal_3d(ax, points, zoom: float = 1.0):
     ax.set_box_aspect((1, 1, 1), zoom=zoom)
 
 
+def equal_view_3d(ax, points, obstacles=(), pad: float = 0.0, zoom: float = 1.0):
+    """Obstacles and equal axes around ``points`` (padded by ``pad``) and the obstacles: boxes and planes cut to the
+    points' box (padded 10 % more: a wall or floor must not swamp the tube), spheres, capsules and meshes whole."""
+    pts = np.concatenate([np.asarray(p, float).reshape(-1, 3) for p in points if np.size(p)])
+    lo, hi = pts.min(axis=0) - pad, pts.max(axis=0) + pad
+    margin = 0.1 * float((hi - lo).max())
+    drawn = draw_obstacles(ax, obstacles, view=(lo - margin, hi + margin)) if obstacles else []
+    set_equal_3d(ax, [lo, hi, *drawn], zoom)
+
+
 def fmt_len(value: float, units: str) -> str:
     return f"{value:.3g} {units}"
 
@@ -253,7 +263,9 @@ def plot_shape_3d(ax, archive: Archive, name: str, norm=None, cmap=ERROR_CMAP, l
     everything = [r.shape.inner, r.shape.outer]
     handles = []
     if archive.target is not None:
-        handles += ax.plot(*archive.target.T, "k--", lw=0.9, label="target", zorder=4)
+        # mplot3d sorts collections (the wall, obstacles) by depth and gives them zorders from about 2 up, one each;
+        # lines keep their own: above every collection, the target is never hidden under the wall
+        handles += ax.plot(*archive.target.T, "k--", lw=0.9, label="target", zorder=100)
         everything.append(archive.target)
     measured = archive.extra.get("measured/points")
     if measured is not None:
@@ -264,7 +276,7 @@ def plot_shape_3d(ax, archive: Archive, name: str, norm=None, cmap=ERROR_CMAP, l
                            shade=True, rstride=1, cstride=1)
     wall.set_rasterized(True)  # thousands of facets: an image inside vector (pdf) output
     handles += ax.plot(*r.shape.inner.T, color=ACTUATOR_COLOR, lw=1.1, label="actuator line")
-    ax.plot(*r.shape.outer.T, color=OPPOSITE_COLOR, lw=0.5, alpha=0.7)
+    handles += ax.plot(*r.shape.outer.T, color=OPPOSITE_COLOR, lw=0.5, alpha=0.7, label="opposite line")
     center = r.shape.center
     if norm is not None and is_paired(archive, r):
         err = error_along(archive, r)
@@ -278,14 +290,7 @@ def plot_shape_3d(ax, archive: Archive, name: str, norm=None, cmap=ERROR_CMAP, l
     handles.append(ax.scatter(*ends.T, s=3, color="k", depthshade=False, label="segment ends"))
     ax.scatter(*center[0], s=14, color="k", marker="s", depthshade=False)
     label_3d_axes(ax, u)
-    if obstacles:
-        # boxes and planes are cut to the tube and target's box (padded 10 %): a wall or floor
-        # must not swamp the tube; spheres, capsules and meshes are drawn whole and in view
-        pts = np.concatenate([np.asarray(p, float).reshape(-1, 3) for p in everything if np.size(p)])
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-        pad = 0.1 * max(float((hi - lo).max()), D)
-        everything += draw_obstacles(ax, obstacles, view=(lo - pad, hi + pad))
-    set_equal_3d(ax, everything, zoom)
+    equal_view_3d(ax, everything, obstacles, zoom=zoom)
     for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
         axis.pane.set_alpha(0.0)
         axis._axinfo["grid"]["linewidth"] = 0.3
@@ -326,7 +331,7 @@ def plot_parameters(axes, archive: Archive, names, colors, styles=None, legend: 
         kw = dict(color=colors[name], ls=styles.get(name, "-"), lw=1.0)
         ax_t.stairs(np.degrees(r.routing.theta), S, baseline=None, label=run_label(archive, name), **kw)
         ax_l.stairs(r.routing.lam, S, baseline=None, label=run_label(archive, name), **kw)
-        ax_p.plot(S, r.phi, label=run_label(archive, name), **kw)
+        ax_p.plot(S, np.degrees(r.phi), label=run_label(archive, name), **kw)
         thetas.append(np.degrees(r.routing.theta))
         lams.append(r.routing.lam)
     act = source_table(archive, "actuator")
@@ -339,7 +344,7 @@ def plot_parameters(axes, archive: Archive, names, colors, styles=None, legend: 
     ax_l.axhline(1.0, color="0.6", lw=0.4)
     ax_t.set_ylabel(r"$\theta$ [deg]")
     ax_l.set_ylabel(r"$\lambda$ [-]")
-    ax_p.set_ylabel(r"$\phi$ [rad]")
+    ax_p.set_ylabel(r"$\phi$ [deg]")
     for ax in axes:
         ax.set_xlabel(f"s along unactuated tube [{u}]")
         ax.set_xlim(left=0.0)

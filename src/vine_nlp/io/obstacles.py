@@ -205,7 +205,7 @@ def _mesh(err, base, value, name) -> Mesh:
     try:
         import trimesh  # noqa: F401
     except ImportError:
-        raise err("file", "mesh obstacles need trimesh and rtree: pip install 'vine_nlp[obstacles]'") from None
+        raise err("file", "mesh obstacles need trimesh and rtree (dependencies of vine_nlp: python3 -m pip install trimesh rtree)") from None
     named = err("file", "")  # the problem file and key that name the mesh, for errors opening it
     data = files.read_text(path, named.file, named.key, limits.MAX_MESH_BYTES, "MAX_MESH_BYTES", binary=True)
     vertices, faces = load_mesh_file(path, data)

@@ -6,14 +6,18 @@ Fatrop (``fatrop_nlpsol``) runs on compiled functions only. A structure built fr
 (clearance pairs, obstacle rows) seldom recurs: it runs interpreted with each block type compiled on its own
 (``block_functions``, up to BLOCK_BUDGET instructions; a map of samples runs on its one-sample block).
 
-A library is keyed by everything that decides the generated code: the Spec without the solver's settings,
-the CasADi version, the compiler and its flags, and the source of model/ and methods/ (a changed formula
-never loads a stale library); it is written atomically, so concurrent processes (sweep workers) may compile
-one structure at once. Environment: ``VINE_NLP_CODEGEN`` ``auto`` (default: compile where a C compiler is
-found, else interpreted, said once), ``on`` (a missing or failing compiler is an error), ``off``;
-``VINE_NLP_CACHE_DIR`` (default ``$XDG_CACHE_HOME/vine_nlp`` or ``~/.cache/vine_nlp``); ``CC``,
-``VINE_NLP_CFLAGS`` (default gcc, then cc; ``-O1``). Notes go to the ``vine_nlp`` logger: compiling (INFO)
-and falling back to interpreted functions (WARNING, once per process).
+A library is keyed by everything that decides the generated code: the Spec without the solver's settings, the
+CasADi version, the compiler and its flags, and the source of model/ and methods/ (a changed formula never
+loads a stale library); a run never waits for the compiler: where the library is missing it solves on the
+interpreted functions and leaves the C code to a detached, niced compiler process (one per library on the
+machine: ``<library>.lock``; one at a time per cache: ``.compiler.lock``) that writes the library atomically;
+later builds, in this process too (``Upgrading``), load it. A failed compile leaves ``<library>.failed``
+(delete it to try again). Environment: ``VINE_NLP_CODEGEN`` ``auto`` (default: compile in the background where
+a C compiler is found, else interpreted, said once), ``on`` (compile before the solve; a missing or failing
+compiler is an error), ``off``; ``VINE_NLP_CACHE_DIR`` (default ``$XDG_CACHE_HOME/vine_nlp`` or
+``~/.cache/vine_nlp``); ``CC``, ``VINE_NLP_CFLAGS`` (default gcc, then cc; ``-O1``). Notes go to the
+``vine_nlp`` logger: compiling (INFO) and falling back to interpreted functions (WARNING, once per process).
+``wait(timeout)`` waits for this process's background compilers (tests, benchmarks).
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import os
 import shlex
 import shutil
 import subprocess
+import sys
 import tempfile
 import time
 from functools import lru_cache
@@ -33,7 +38,7 @@ from pathlib import Path
 from vine_nlp.errors import InputError
 from vine_nlp.methods import blas
 
-__all__ = ["mode", "cache_dir", "compiler", "nlpsol", "fatrop_nlpsol", "block_functions", "stored", "CompileError", "NotCompiled", "stats"]
+__all__ = ["mode", "cache_dir", "compiler", "wait", "nlpsol", "fatrop_nlpsol", "block_functions", "stored", "CompileError", "NotCompiled", "Compiling", "stats"]
 
 _log = logging.getLogger("vine_nlp.methods.compiled")
 
@@ -43,8 +48,34 @@ MODES = ("auto", "on", "off")
 DEFAULT_MODE = "auto"
 
 # what happened in this process: loads from the cache, compilations, interpreted builds
-stats = {"loaded": 0, "compiled": 0, "interpreted": 0, "compile_time_s": 0.0}
+stats = {"loaded": 0, "compiled": 0, "background": 0, "interpreted": 0, "compile_time_s": 0.0}
 _warned: set[str] = set()
+_running: list = []  # this process's background compilers (subprocess.Popen)
+
+# the detached compiler (niced): one at a time per cache (.compiler.lock), the library's own lock inherited (its fd),
+# the library renamed into place whole, or a .failed note with the compiler's first line; the build dir removed
+_BACKGROUND = """import fcntl, os, shutil, subprocess, sys
+work, target, queue, *cc = sys.argv[1:]
+os.nice(10)  # the runs that need the CPU now come first (its own session: Linux weighs sessions by their autogroup's nice)
+try:
+    with open("/proc/self/autogroup", "w") as f:
+        f.write("10")
+except OSError:
+    pass
+try:
+    with open(queue, "a") as q:
+        fcntl.flock(q, fcntl.LOCK_EX)
+        tmp = os.path.join(work, "lib.so")
+        run = subprocess.run(cc + ["-shared", "-fPIC", os.path.join(work, "nlp.c"), "-o", tmp, "-lm"], capture_output=True, text=True)
+        if run.returncode == 0:
+            os.replace(tmp, target)
+        elif run.returncode > 0:  # the compiler refused the code (a killed one leaves no note: tried again later)
+            with open(os.path.join(work, "failed"), "w") as f:
+                f.write((run.stderr.strip().splitlines() or ["no message"])[0])
+            os.replace(os.path.join(work, "failed"), os.path.splitext(target)[0] + ".failed")
+finally:
+    shutil.rmtree(work, ignore_errors=True)
+"""
 
 
 class CompileError(RuntimeError):
@@ -53,6 +84,32 @@ class CompileError(RuntimeError):
 
 class NotCompiled(RuntimeError):
     """A solver that runs on compiled functions only (Fatrop) where there are none: use another."""
+
+
+class Compiling(NotCompiled):
+    """Its functions are being compiled (in the background): ask again later."""
+
+
+class Upgrading:
+    """An interpreted IPOPT solver that loads the compiled one once its background compile has written it
+    (every call asks; the rest is the current solver's)."""
+
+    def __init__(self, solver, path: Path, name: str, opts: dict):
+        self._solver, self._path, self._name, self._opts = solver, path, name, opts
+
+    def __call__(self, **kwargs):
+        if self._path is not None and self._path.is_file():
+            import casadi as ca
+            try:
+                self._solver = ca.nlpsol(self._name, "ipopt", str(self._path), self._opts)
+                stats["loaded"] += 1
+            except RuntimeError:
+                _warn_once(f"cannot load {self._path}: the NLP functions run interpreted (slower)")
+            self._path = None
+        return self._solver(**kwargs)
+
+    def __getattr__(self, name):
+        return getattr(self._solver, name)
 
 
 def mode() -> str:
@@ -118,15 +175,17 @@ def _fallback(text: str, strict: bool):
     return None
 
 
-def library(spec_text: str, build_functions, prefix: str = "nlp", what: str = "the NLP functions for this structure") -> str | None:
-    """Path of the compiled library for a solver (or one block type: ``prefix``, ``what``), compiling
-    it first where needed.
+def library(spec_text: str, build_functions, prefix: str = "nlp", what: str = "the NLP functions for this structure",
+            later: list | None = None) -> str | None:
+    """Path of the compiled library for a solver (or one block type: ``prefix``, ``what``) where it is
+    in the cache; else None (run interpreted) after starting its compile in the background (codegen
+    ``auto``; ``on``: compiled first, its path returned). ``later`` gets the library's path where it
+    is being compiled (here or by another process).
 
-    ``build_functions()`` returns the CasADi functions to compile (called only on a
-    cache miss). None: run interpreted (codegen off, no compiler, or it failed).
-    """
+    ``build_functions()`` returns the CasADi functions to compile (called only on a cache miss)."""
     import casadi as ca
 
+    _running[:] = [proc for proc in _running if proc.poll() is None]  # reap the compilers that ended
     m = mode()
     if m == "off":
         stats["interpreted"] += 1
@@ -143,37 +202,58 @@ def library(spec_text: str, build_functions, prefix: str = "nlp", what: str = "t
     if target.is_file():
         stats["loaded"] += 1
         return str(target)
+    failed = target.with_suffix(".failed")
+    if not strict and failed.is_file():
+        return _fallback(f"the C compiler failed ({failed.read_text(errors='replace').strip()}; delete {failed} to try again)", strict)
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         lock = open(target.with_suffix(".lock"), "a")
     except OSError as e:
         return _fallback(f"cannot write the code cache {target.parent} ({e.strerror or e})", strict)
     with lock:
-        # one compile per structure: a second process (a sweep's other worker) waits, then loads
-        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:  # one compile per library: "on" waits for another process's, "auto" runs interpreted meanwhile
+            fcntl.flock(lock, fcntl.LOCK_EX if strict else fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            stats["interpreted"] += 1
+            later is not None and later.append(target)
+            return None
         if target.is_file():
             stats["loaded"] += 1
             return str(target)
-        return _compile(target, build_functions, cc, strict, what)
+        started = len(_running)
+        path = _compile(target, build_functions, cc, strict, what, lock)
+        if len(_running) > started and later is not None:
+            later.append(target)
+        return path
 
 
-def _compile(target: Path, build_functions, cc: list[str], strict: bool, what: str) -> str | None:
+def _compile(target: Path, build_functions, cc: list[str], strict: bool, what: str, lock) -> str | None:
+    """Generate the C code (milliseconds), then compile it: now (``strict``) or in a detached process
+    that inherits the held ``lock``."""
     import casadi as ca
 
     try:
         work = tempfile.mkdtemp(prefix=".build-", dir=target.parent)
     except OSError as e:
         return _fallback(f"cannot write the code cache {target.parent} ({e.strerror or e})", strict)
+    background = False
     try:
         t0 = time.perf_counter()
-        _log.info("compiling %s (once; cached in %s)", what, target.parent)
+        _log.info("compiling %s %s (%s; cached in %s)", what, "now" if strict else "in the background", target.stem, target.parent)
         cg = ca.CodeGenerator("nlp.c", {"with_header": False})
         for f in build_functions():
             cg.add(f)
         cg.generate(work + os.sep)
+        if not strict:
+            queue = str(target.parent / ".compiler.lock")
+            _running.append(subprocess.Popen([sys.executable, "-c", _BACKGROUND, work, str(target), queue, *cc], pass_fds=(lock.fileno(),),
+                                             start_new_session=True, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+            background = True
+            stats["background"] += 1
+            stats["interpreted"] += 1
+            return None
         tmp = os.path.join(work, target.name)
-        run = subprocess.run([*cc, "-shared", "-fPIC", os.path.join(work, "nlp.c"), "-o", tmp, "-lm"],
-                             capture_output=True, text=True)
+        run = subprocess.run([*cc, "-shared", "-fPIC", os.path.join(work, "nlp.c"), "-o", tmp, "-lm"], capture_output=True, text=True)
         if run.returncode != 0:
             first = (run.stderr.strip().splitlines() or ["no message"])[0]
             return _fallback(f"the C compiler failed ({first})", strict)
@@ -184,7 +264,20 @@ def _compile(target: Path, build_functions, cc: list[str], strict: bool, what: s
     except OSError as e:
         return _fallback(f"cannot compile into {target.parent} ({e.strerror or e})", strict)
     finally:
-        shutil.rmtree(work, ignore_errors=True)
+        if not background:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+def wait(timeout: float | None = None) -> bool:
+    """Wait for this process's background compilers (at most ``timeout`` seconds in all); True when all ended."""
+    end = None if timeout is None else time.monotonic() + timeout
+    for proc in list(_running):
+        try:
+            proc.wait(None if end is None else max(0.0, end - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            return False
+        _running.remove(proc)
+    return True
 
 
 # a block type is compiled on its own only up to this many SX instructions (its functions and derivatives): gcc
@@ -283,9 +376,10 @@ def nlpsol(name: str, spec_text: str, nlp, opts: dict, enabled: bool = True):
     if not enabled:
         stats["interpreted"] += 1
         return interpreted()
-    path = library(spec_text, functions)
+    later = []
+    path = library(spec_text, functions, later=later)
     if path is None:
-        return interpreted()
+        return Upgrading(interpreted(), later[0], name, dict(opts)) if later else interpreted()
     try:
         return ca.nlpsol(name, "ipopt", path, dict(opts))
     except RuntimeError as e:
@@ -304,9 +398,10 @@ def fatrop_nlpsol(name: str, spec_text: str, functions, opts: dict, equality):
     import casadi as ca
 
     blas.one_thread()
-    path = library(spec_text, functions) if mode() != "off" and compiler() else None
+    later = []
+    path = library(spec_text, functions, later=later) if mode() != "off" and compiler() else None
     if path is None:
-        raise NotCompiled("no compiled functions for Fatrop")
+        raise (Compiling if later else NotCompiled)("no compiled functions for Fatrop")
     inner = {k.split(".", 1)[1]: v for k, v in opts.items() if k.startswith("fatrop.")}
     outer = {k: v for k, v in opts.items() if not k.startswith("fatrop.")}
     return ca.nlpsol(name, "fatrop", path, outer | {"fatrop": inner, "structure_detection": "auto", "equality": [bool(e) for e in equality]})

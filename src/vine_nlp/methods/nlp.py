@@ -73,8 +73,9 @@ def get_fatrop(M: int, n: int, max_iter: int = 3000, tol: float = 1e-8, hessian:
         return None
     try:
         return _get(spec)
-    except compiled.NotCompiled:
-        _NO_FATROP.add(spec)
+    except compiled.NotCompiled as e:
+        if not isinstance(e, compiled.Compiling):  # being compiled in the background: asked again next time
+            _NO_FATROP.add(spec)
         return None
 
 

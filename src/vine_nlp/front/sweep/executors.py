@@ -249,8 +249,8 @@ class DaskPool:
     def __init__(self, address: str):
         try:
             from dask.distributed import Client, as_completed
-        except ImportError as exc:  # pragma: no cover - dask is a dependency
-            raise InputError("command line", "--scheduler", f"needs dask.distributed ({exc})") from None
+        except ImportError:  # the [cluster] extra
+            raise InputError("command line", "--scheduler", "needs dask.distributed: python3 -m pip install 'vine_nlp[cluster]'") from None
         try:
             from distributed.comm import resolve_address
 

@@ -1,0 +1,67 @@
+"""The documentation prints what the code prints (issue 35): every block marked
+``<!-- printed by: vine-nlp ... -->`` in the README and docs/ is checked against a run of its
+commands (tests/printed.py says how); the tutorials' blocks are checked by tests/test_examples.py
+against their examples' runs. And the README's and getting-started's commands write into
+results/ (or a temporary folder), never into the repository's root."""
+
+from __future__ import annotations
+
+import re
+import shlex
+
+import printed
+import pytest
+
+from vine_nlp.front.cli import main
+
+ROOT = printed.ROOT
+BLOCKS = printed.blocks()
+COMMAND_BLOCKS = [b for b in BLOCKS if b.command.startswith("vine-nlp ")]
+OUTPUT_OPTIONS = ("-o", "--output", "--plot", "--csv", "--tolerance-figure", "--clearance-figure", "--frames-plot")
+
+
+@pytest.mark.parametrize("block", COMMAND_BLOCKS, ids=lambda b: f"{b.file.name}:{b.line}")
+def test_a_documented_output_is_what_the_commands_print(block, tmp_path, monkeypatch, capsys):
+    for name in ("problems", "examples"):
+        (tmp_path / name).symlink_to(ROOT / name)
+    (tmp_path / "results").mkdir()
+    monkeypatch.chdir(tmp_path)  # the documented paths, relative to a copy of the repository's root
+    stdout = stderr = ""
+    for command in block.command.split(" && "):
+        main(shlex.split(command)[1:])
+        out = capsys.readouterr()
+        stdout, stderr = stdout + out.out, stderr + out.err
+    problems = printed.check(block, stdout, stderr)
+    problems += [f"printed on stderr, not shown: {line!r}" for line in printed.unshown(stderr, [block])]
+    assert not problems, "\n".join(problems)
+
+
+def test_every_marked_block_names_something_that_runs():
+    for b in BLOCKS:
+        if b.command.startswith("vine-nlp "):
+            continue
+        script = b.command.removeprefix("python3 ")
+        assert re.fullmatch(r"examples/\d\d_\w+\.(py|ipynb)", script) and (ROOT / script).is_file(), f"{b.file}:{b.line}: {b.command}"
+    # every tutorial shows at least one output of its example, so that test_examples checks it
+    for page in sorted((ROOT / "docs" / "tutorials").glob("[0-9][0-9]-*.md")):
+        assert any(b.file == page for b in BLOCKS), f"{page.name}: no <!-- printed by: ... --> block"
+
+
+def _written(path) -> list[str]:
+    """The files that the commands and the Python lines of a page's code blocks write."""
+    out = []
+    for lang, code in re.findall(r"```(bash|python)\n(.*?)```", path.read_text(), re.S):
+        for line in code.splitlines():
+            if lang == "bash" and line.lstrip().startswith("vine-nlp "):
+                words = shlex.split(line, comments=True)
+                out += [words[i + 1] for i, w in enumerate(words[:-1]) if w in OUTPUT_OPTIONS]
+            elif lang == "python":
+                out += re.findall(r"\.(?:save|template|plot)\(\"([^\"]+)\"", line)
+    return out
+
+
+@pytest.mark.parametrize("page", ["README.md", "docs/getting-started.md"])
+def test_the_first_pages_write_into_results_not_the_repository_root(page):
+    written = _written(ROOT / page)
+    assert written  # the page has commands that write
+    assert [w for w in written if not w.startswith(("results/", "/tmp/"))] == []
