@@ -6,6 +6,7 @@ import csv
 import dataclasses
 import os
 
+import numpy as np
 import pytest
 from texts import TINY_TREFOIL
 
@@ -80,6 +81,30 @@ def test_local_run_writes_one_archive_per_item_and_the_summary(local_run):
     assert (out / "summary.png").stat().st_size > 0
     text = sw.format_report(report)
     assert "4 solved, 0 skipped" in text and "(created)" in text and "nlp: RMSE mean" in text
+
+
+_TIMES = ("solve_time_s", "build_time_s", "ipopt_time_s", "search_time_s")  # what differs between two solves of one problem
+
+
+def test_a_workers_archive_is_what_vine_nlp_design_writes_for_the_item(local_run, tmp_path):
+    from vine_nlp.front.cli import main
+
+    _, out, _ = local_run
+    item = "tiny-0003"  # target.scale.0 = 4, target.scale.1 = 5
+    problem = tmp_path / "item.toml"
+    problem.write_text(BASE.replace('name = "tiny-trefoil"', f'name = "{item}"').replace("[4.0, 4.0, 4.0]", "[4, 5, 4.0]"))
+    assert main(["design", str(problem), "-o", str(tmp_path / "one.h5")]) == 0
+    swept, one = load_archive(out / f"{item}.h5"), load_archive(tmp_path / "one.h5")
+    assert (swept.name, swept.kind, swept.units, swept.diameter) == (one.name, one.kind, one.units, one.diameter)
+    assert swept.source == BASE + f"\n# sweep 'tiny' item {item}: target.scale.0 = 4, target.scale.1 = 5\n"
+    assert list(swept.runs) == list(one.runs) == ["nlp"]
+    a, b = swept.runs["nlp"], one.runs["nlp"]
+    assert (a.status, a.iterations, a.metrics) == (b.status, b.iterations, b.metrics)
+    assert {k: v for k, v in a.stats.items() if k not in _TIMES} == {k: v for k, v in b.stats.items() if k not in _TIMES}
+    for x, y in ((swept.target, one.target), (a.routing.theta, b.routing.theta), (a.routing.lam, b.routing.lam),
+                 (a.routing.length, b.routing.length), (a.routing.initial_pose, b.routing.initial_pose),
+                 (a.phi, b.phi), (a.shape.center, b.shape.center), (a.shape.outer, b.shape.outer)):
+        assert np.array_equal(x, y)
 
 
 def test_long_lived_workers_build_each_solver_once(local_run):
@@ -309,7 +334,7 @@ def test_the_package_imports_dask_only_for_a_scheduler():
     assert r.stdout.strip() == "[]"
 
 
-def test_a_chunk_returns_each_item_in_order_and_keeps_failures_apart(tmp_path, monkeypatch):
+def test_a_chunk_archives_each_item_in_order_and_keeps_failures_apart(tmp_path, monkeypatch):
     path = _write_sweep(tmp_path / "in")
     items = load_sweep(path).items()[:2]
     real = vine_nlp.methods.methods.run_design
@@ -320,9 +345,25 @@ def test_a_chunk_returns_each_item_in_order_and_keeps_failures_apart(tmp_path, m
         return real(problem, method, **kw)
 
     monkeypatch.setattr(vine_nlp.methods.methods, "run_design", second_fails)
-    (runs0, t0), (runs1, t1) = sw.solve_chunk([(pf, ["nlp"]) for _, _, pf in items], remote=True)
-    assert runs0["nlp"].status == "optimal" and t0["errors"] == {}
-    assert runs1 == {} and t1["errors"] == {"nlp": "RuntimeError: second item"}
+    chunk = [(item, pf, ["nlp"], {}) for item, _, pf in items]
+    out = tmp_path / "out"
+    out.mkdir()
+    first, second = sw.solve_chunk(chunk, out, remote=True)
+    # the worker wrote the archive; only the summary's numbers come back
+    assert "runs" not in first and first["errors"] == {}
+    assert first["cells"] == {"nlp": sw.cells(load_archive(out / f"{items[0][0]}.h5").runs["nlp"])}
+    assert second["cells"] == {} and second["errors"] == {"nlp": "RuntimeError: second item"}
+    assert _h5_files(out) == [f"{items[0][0]}.h5"]
+    # a worker that does not see the sweep's directory (another machine: not the lock's token) sends the runs back
+    lock = sw.DirectoryLock(out)
+    lock.acquire()
+    try:
+        (here,) = sw.solve_chunk(chunk[:1], out, token=lock.token, remote=True)
+        (away,) = sw.solve_chunk(chunk[:1], out, token="another-sweep", remote=True)
+    finally:
+        lock.release()
+    assert "cells" in here and "runs" not in here
+    assert "cells" not in away and away["runs"]["nlp"].status == "optimal"
 
 
 def test_local_chunks_are_small_and_end_as_single_items():
