@@ -120,3 +120,34 @@ def test_signal_during_sweep_keeps_finished_items_and_resumes(tmp_path, sig):
     assert "2 solved, 1 skipped" in done.stdout
     assert len(list(out.glob("*.h5"))) == 3
     assert all((out / name).stat().st_mtime_ns == t for name, t in mtimes.items())
+
+
+DEEP = ".".join(["a"] * 30_000)
+HOSTILE_SWEEPS = {  # issue 34: each hung, ran out of memory or ended in a traceback (leaving summary.csv and the lock)
+    "fifo base": ('base = "fifo.toml"\n', "base", "not a regular file (a pipe, device or socket): "),
+    "/dev/zero base": ('base = "/dev/zero"\n', "base", "not a regular file (a pipe, device or socket): /dev/zero"),
+    "NUL in a grid value": ('base = "base.toml"\n[grid]\nunits = ["c\\u0000m"]\n', "file",
+                            "keys and texts must be printable (no control characters), got 'c\\x00m'"),
+    "NUL in a grid key": ('base = "base.toml"\n[grid]\n"target.sc\\u0000ale.0" = [2, 3]\n', "file",
+                          "keys and texts must be printable (no control characters), got 'target.sc\\x00ale.0'"),
+    "30 000-level dotted key": (f'base = "base.toml"\n[grid]\n{DEEP} = [1]\n', "line 4", "a dotted key of more than 32 parts"),
+    "30 000-part quoted key": (f'base = "base.toml"\n[grid]\n"{DEEP}" = [1]\n', "grid", "a key of more than 32 parts: 'a.a."),
+}
+
+
+@pytest.mark.parametrize("case", list(HOSTILE_SWEEPS))
+def test_hostile_sweep_files_are_one_error_line_and_leave_nothing(tmp_path, case):
+    import os
+
+    text, key, reason = HOSTILE_SWEEPS[case]
+    _small_sweep(tmp_path)
+    os.mkfifo(tmp_path / "fifo.toml")
+    sweep = tmp_path / "hostile.toml"
+    sweep.write_text('name = "h"\n' + text)
+    out = tmp_path / "out"
+    # the timeout only keeps a hang from hanging the suite
+    r = subprocess.run([sys.executable, "-m", "vine_nlp", "sweep", str(sweep), "-o", str(out)], capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.startswith(f"error: {sweep}: {key}: {reason}") and r.stderr.count("\n") == 1, r.stderr[:500]
+    assert "\0" not in r.stderr and not out.exists()  # no summary.csv, no lock

@@ -178,6 +178,25 @@ def test_a_failing_item_is_reported_and_the_others_finish(tmp_path, monkeypatch)
     assert [r["status"] for r in rows] == ["optimal"] * 4
 
 
+def test_an_archive_hdf5_refuses_fails_its_item_alone(tmp_path, monkeypatch):
+    from vine_nlp.front.sweep import executors
+
+    path = _write_sweep(tmp_path / "in")
+    real = executors.write_archive
+
+    def refuses(where, archive):
+        if archive.name == "tiny-0001":  # as h5py refuses a text with NUL
+            raise ValueError("VLEN strings do not support embedded NULLs")
+        real(where, archive)
+
+    monkeypatch.setattr(executors, "write_archive", refuses)
+    report = sw.run_sweep(load_sweep(path), tmp_path / "out", workers=1, progress=False)
+    assert (report.done, report.failed) == (3, 1)
+    assert report.failures == [("tiny-0001", "nlp", "cannot archive the result (ValueError: VLEN strings do not support "
+                                                    "embedded NULLs)")]
+    assert _h5_files(tmp_path / "out") == ["tiny-0000.h5", "tiny-0002.h5", "tiny-0003.h5"]
+
+
 def test_a_failing_method_keeps_the_other_methods_of_its_item(tmp_path, monkeypatch):
     path = _write_sweep(tmp_path / "in", methods=("nlp", "greedy"))
     out = tmp_path / "out"

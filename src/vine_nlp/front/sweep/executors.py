@@ -104,7 +104,7 @@ def archive_outcome(out_dir, item: str, problem_file, outcome: dict) -> dict:
     """:func:`write_item` for an item's ``outcome`` (its ``runs`` replaced by their ``cells``). A failed
     write stops the sweep (``stop``: the OutputError's arguments, which pickle); a value HDF5
     refuses fails this item's runs alone."""
-    runs = outcome.pop("runs")
+    runs, outcome["cells"] = outcome.pop("runs"), {}
     try:
         outcome["cells"] = write_item(out_dir, item, problem_file, runs)
     except OutputError as exc:
