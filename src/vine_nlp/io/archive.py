@@ -21,6 +21,7 @@ validated too (numeric, at least 1-D, within the limits, finite except ``/frames
 from __future__ import annotations
 
 import datetime as _dt
+import functools
 import io
 import json
 import math
@@ -183,11 +184,7 @@ _DCPL = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
 _DCPL.set_obj_track_times(False)
 _LCPL = h5py.h5p.create(h5py.h5p.LINK_CREATE)
 _LCPL.set_create_intermediate_group(True)
-_TYPES = {}  # numpy dtype -> HDF5 type
-
-
-def _type(dtype):
-    return _TYPES.get(dtype) or _TYPES.setdefault(dtype, h5py.h5t.py_create(dtype, logical=True))
+_type = functools.lru_cache(maxsize=None)(lambda dtype: h5py.h5t.py_create(dtype, logical=True))  # numpy -> HDF5
 
 
 def _attrs(node, values: dict) -> None:
@@ -244,22 +241,9 @@ def _write(h5: h5py.File, a: Archive):
 
 
 def write_archive(path, archive: Archive, extend=None) -> None:
-    """Write ``archive`` to ``path`` atomically (built in memory, temporary file, rename).
-
-    Parameters
-    ----------
-    path : path-like
-        The archive to write.
-    archive : Archive
-        What to write (the spec's layout; ``archive.extra`` as further datasets).
-    extend : callable, optional
-        ``extend(h5)`` adds further groups (multi-shape levels, ...) to the open
-        in-memory file after the standard layout.
-
-    Raises
-    ------
-    OutputError
-        When the file cannot be written; nothing is left behind.
+    """Write ``archive`` (the spec's layout, ``extra`` as further datasets) to ``path`` atomically:
+    built in memory, temporary file, fsync, rename. ``extend(h5)`` adds further groups (multi-shape
+    levels, ...) to the in-memory file. OutputError when it cannot be written: nothing is left.
     """
 
     def fill(h5):

@@ -172,18 +172,14 @@ def _set(data: dict, dotted_key: str, value, file: str) -> None:
 
 
 
-def _flatten(table: dict) -> dict:
-    # [grid] target.scale.0 = [...] (bare dotted key) arrives as nested tables; in file order, iteratively
-    flat, stack = {}, [("", iter(table.items()))]
-    while stack:
-        prefix, items = stack[-1]
-        for key, value in items:
-            if isinstance(value, dict):
-                stack.append((f"{prefix}{key}.", iter(value.items())))
-                break
-            flat[f"{prefix}{key}"] = value
+def _flatten(table: dict, prefix: str = "") -> dict:
+    # [grid] target.scale.0 = [...] (bare dotted key) arrives as nested tables.
+    flat = {}
+    for key, value in table.items():
+        if isinstance(value, dict):
+            flat.update(_flatten(value, f"{prefix}{key}."))
         else:
-            stack.pop()
+            flat[f"{prefix}{key}"] = value
     return flat
 
 
@@ -192,7 +188,7 @@ def _regular(path: str, named_by: str, key: str) -> str:
     try:
         mode = os.stat(path).st_mode
     except (OSError, ValueError):
-        return path  # read_text says what is wrong
+        mode = stat.S_IFREG  # read_text says what is wrong
     if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
         raise InputError(named_by, key, f"not a regular file (a pipe, device or socket): {path}")
     return path

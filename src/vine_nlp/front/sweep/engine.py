@@ -1,18 +1,12 @@
 """The sweep itself: resume, the directory lock, the run (see :mod:`vine_nlp.front.sweep`).
 
-The parent plans (what is finished already), keeps the workers busy, keeps each finished
-item's summary rows, and writes summary.csv and summary.png at the end; the workers write
-the archives. Safeguards:
-
-* a lock: ``DIR/.sweep.lock`` is held (``fcntl.flock``) for the whole run, so a second sweep
-  into the same directory stops at once with an InputError instead of both writing the same
-  files; the lock goes with the process, however it ends;
-* write errors (a full disk, a read-only filesystem, no permission): the sweep stops, every
-  archive already written stays, and the error says to run the same command again.
+The parent plans (what is finished), keeps the workers busy, keeps the summary rows and
+writes summary.csv and summary.png; the workers write the archives.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -67,11 +61,10 @@ def _existing_runs(path: Path, pf) -> dict | None:
 
 
 def _identity(path: Path):
-    try:
+    with contextlib.suppress(OSError):
         st = path.stat()
-    except OSError:
-        return None
-    return (st.st_ino, st.st_mtime_ns)  # a new archive is a new file (renamed onto the path)
+        return (st.st_ino, st.st_mtime_ns)  # a new archive is a new file (renamed onto the path)
+    return None
 
 
 def _remove_temporaries(out: Path, items) -> None:
@@ -109,11 +102,9 @@ class DirectoryLock:
                 str(self.path.parent), "-o",
                 f"another sweep (pid {holder}) is writing into this directory; wait for it to end or choose another -o",
             ) from None
-        try:
+        with contextlib.suppress(OSError):  # a full disk must not stop the lock (the workers then send their results)
             os.ftruncate(fd, 0)
             os.pwrite(fd, f"{os.getpid()} {self.token}\n".encode(), 0)
-        except OSError:
-            pass  # a full disk must not stop the lock (the workers then send their results here)
         self.fd = fd
 
     def release(self) -> None:
@@ -133,15 +124,12 @@ def run_sweep(
 ) -> SweepReport:
     """Solve every item of ``sweep`` (from ``load_sweep``) into ``out_dir`` (see :mod:`vine_nlp.front.sweep`).
 
-    ``workers``: local processes (default ``os.cpu_count()``; 0 or 1: in this process),
-    ignored with ``scheduler`` (a dask scheduler's address); ``progress``: a tqdm bar on a
-    terminal; ``force``: redo finished items; ``callback(item, rows)`` after each item this
-    run finished (its archive is on disk).
-
-    Raises InputError (bad arguments, an unusable or locked output directory, a scheduler
-    that cannot be reached, a base problem with obstacles), OutputError (a file could not be
-    written: the sweep stopped, what finished is kept, the same command resumes) and
-    KeyboardInterrupt (Ctrl-C or SIGTERM; its ``sweep_report`` is the partial report).
+    ``workers``: local processes (default ``os.cpu_count()``; 0 or 1: this one), ignored with
+    ``scheduler`` (a dask scheduler's address); ``progress``: a tqdm bar on a terminal; ``force``:
+    redo finished items; ``callback(item, rows)`` after each item this run finished. Raises
+    InputError (bad arguments or output directory, a locked one, no scheduler, obstacles),
+    OutputError (a file could not be written: the sweep stopped, the same command resumes) and
+    KeyboardInterrupt (Ctrl-C, SIGTERM; its ``sweep_report`` is the partial report).
     """
     t_start = time.perf_counter()
     out = Path(out_dir)
@@ -240,7 +228,7 @@ class _Run:
         try:
             while self.pending or self.inflight:
                 self._fill(pool, where, token)
-                lost, finished = [], 0
+                lost, finished = [], False
                 for fut in pool.wait_first(list(self.inflight)):
                     chunk = self.inflight.pop(fut)
                     try:
@@ -252,7 +240,8 @@ class _Run:
                         text = error_text(exc)
                         records = [{"errors": dict.fromkeys(self.methods, text), "cells": {}} for _ in chunk]
                     for job, record in zip(chunk, records):
-                        finished += self._record(job, record)
+                        self._record(job, record)
+                        finished = True
                 if lost:
                     self._retry(pool, lost)
                 if finished:
@@ -304,8 +293,8 @@ class _Run:
         if pool.shared_fate:
             pool.restart()
 
-    def _record(self, job: _Job, record: dict) -> int:
-        """The rows of an item that came back; 1 when it finished (0: its archive could not be written)."""
+    def _record(self, job: _Job, record: dict) -> None:
+        """The rows of an item that came back (its archive written here if the worker could not)."""
         if "runs" in record:  # the worker does not see the sweep's directory: the archive is written here
             archive_outcome(self.out, job.item, job.pf, record)
             self.report.archived_here += "stop" not in record
@@ -333,7 +322,6 @@ class _Run:
             self.bar.update(1)
         if self.callback is not None:
             self.callback(job.item, rows)
-        return 1
 
     def stopped(self, pool, exc: BaseException) -> BaseException:
         """Ctrl-C, a write error, anything: the workers stopped, what finished kept and summarized;
@@ -352,13 +340,9 @@ class _Run:
         report = self.report
         report.interrupted = isinstance(exc, KeyboardInterrupt)
         try:
-            self._write_summary()
+            self._summarize()
         except OutputError:
             pass  # the disk is full: what finished is in the archives, the next run summarizes it
-        report.archives = self._archives()
-        report.wall_time_s = time.perf_counter() - self.t_start
-        if self.bar is not None:
-            self.bar.close()
         if report.interrupted:
             exc.sweep_report = report
         if not isinstance(exc, OutputError):
@@ -367,20 +351,19 @@ class _Run:
         return OutputError(exc.file, exc.key, f"{exc.reason.replace('; nothing was written', '')}; the sweep stopped, "
                            f"finished items kept: {kept}; run the same command again to resume", errno=exc.errno)
 
-    def _write_summary(self) -> None:
-        self.report.rows = [row for item in sorted(self.rows_of, key=self.order.__getitem__) for row in self.rows_of[item]]
-        write_summary(self.out / SUMMARY_CSV, self.report.rows, list(self.sweep.grid))
-        self.report.summary_csv = self.out / SUMMARY_CSV
-
-    def _archives(self) -> list:
-        return [self.out / f"{item}.h5" for item in self.order if (self.out / f"{item}.h5").exists()]
+    def _summarize(self) -> None:
+        r = self.report
+        r.wall_time_s = time.perf_counter() - self.t_start
+        if self.bar is not None:
+            self.bar.close()
+        r.archives = [self.out / f"{item}.h5" for item in self.order if (self.out / f"{item}.h5").exists()]
+        r.rows = [row for item in sorted(self.rows_of, key=self.order.__getitem__) for row in self.rows_of[item]]
+        write_summary(self.out / SUMMARY_CSV, r.rows, list(self.sweep.grid))
+        r.summary_csv = self.out / SUMMARY_CSV
 
     def finish(self) -> SweepReport:
         """summary.csv and summary.png, once."""
-        if self.bar is not None:
-            self.bar.close()
-        self._write_summary()
-        self.report.archives = self._archives()
+        self._summarize()
         if self.preload is not None:
             self.preload.join()  # imports are done or nearly so; no import races the drawing
         png = self.out / SUMMARY_PNG

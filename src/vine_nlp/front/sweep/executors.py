@@ -1,33 +1,20 @@
-"""Where sweep items run: the worker task, and three executors with one small interface.
+"""Where sweep items run: the worker task and three executors with one small interface.
 
-The worker task is :func:`solve_chunk`: it solves a few items (:func:`solve_item`, the one
-seam with the design methods), writes each item's archive itself (:func:`write_item`) and
-sends back only a small record per item: the summary's numbers, the errors, the times. Where
-the sweep directory is not the one this worker sees (a dask worker on another machine, found
-by the lock file's token), the Results come back instead and the parent writes them.
-
-An executor has ``window`` (tasks in flight), ``synchronous`` (``submit`` runs the task),
-``shared_fate`` (a dying worker loses every task in flight), ``description``,
-``chunk_size(pending)``, ``submit(fn, args, name)``, ``wait_first(futures)``,
-``lost(exc)`` (the task died with its worker), ``cancel(futures)`` and ``close(interrupted)``:
-
-* :class:`InlinePool` (workers 0 or 1): each item runs in this process;
-* :class:`LocalPool`: a ProcessPoolExecutor whose workers live for the whole sweep (each
-  builds a solver once per problem structure and reuses it); ``restart()`` after a worker
-  died. The first pool forks this process when that is safe (one thread, no solver used
-  here), so its workers start with every module imported; otherwise, and on a restart,
-  they come from a forkserver that imported the solver modules once. Workers die with the
-  sweep, even one killed with SIGKILL (:func:`_die_with_parent`);
-* :class:`DaskPool`: a dask.distributed scheduler (dask is imported only then).
-
-Items travel in chunks of up to MAX_CHUNK (a task costs more than a short item), shrinking
-to single items towards the end of a sweep so that no worker waits for another's long chunk.
+The worker task :func:`solve_chunk` solves a few items (:func:`solve_item`, the seam with the
+design methods), writes each item's archive (:func:`write_item`) and sends back a small record
+per item; where the sweep directory is not the one it sees (a dask worker on another machine:
+the lock file's token differs), it sends the Results and the parent writes them. Executors:
+:class:`InlinePool` (this process), :class:`LocalPool` (long-lived worker processes: each
+builds a solver once per problem structure; forked when this process is safe to fork, else
+from a forkserver) and :class:`DaskPool`. Items travel in chunks of up to MAX_CHUNK (a task
+costs more than a short item), single items at the end so that no worker waits for another.
 """
 
 from __future__ import annotations
 
+import contextlib
+import math
 import os
-import socket
 import sys
 import threading
 import time
@@ -47,22 +34,18 @@ _PR_SET_PDEATHSIG = 1
 
 
 def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]:
-    """Solve one sweep item with each of ``methods`` (runs in a worker process).
+    """Solve one sweep item with each of ``methods`` (in a worker process): ``(runs, timings)``.
 
-    Returns ``(runs, timings)``: ``runs`` maps each method that finished to its Result;
-    ``timings`` holds ``{"methods": {method: wall seconds}, "total_s", "cpu_s" (this
-    process's CPU time for the item), "errors": {method: "Type: message"}, "pid", "host"}``.
-    A method that raises is reported in ``timings["errors"]`` and does not stop the item's
-    other methods. KeyboardInterrupt propagates, except with ``remote=True`` (a worker
-    process, which ignores Ctrl-C): there it can only come from a solver (vine_nlp.interrupt
-    maps an exception thrown inside IPOPT to KeyboardInterrupt) and fails that run.
+    ``runs``: method -> Result for each method that finished; ``timings``: ``total_s``, ``cpu_s``
+    and ``errors`` (method -> "Type: message": a method that raises fails alone). KeyboardInterrupt
+    propagates unless ``remote`` (a worker ignores Ctrl-C: there it comes from inside IPOPT and
+    fails that run).
     """
     from vine_nlp.methods import methods as design
 
-    runs, errors, wall = {}, {}, {}
+    runs, errors = {}, {}
     t_item, c_item = time.perf_counter(), time.process_time()
     for method in methods:
-        t0 = time.perf_counter()
         try:
             # looked up on the module at call time: one place to replace it (tests)
             runs[method] = design.run_design(problem_file.problem, method)
@@ -75,12 +58,7 @@ def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]
                 "KeyboardInterrupt from the solver in a worker process, which ignores Ctrl-C "
                 "(IPOPT status NonIpopt_Exception_Thrown: an exception inside the solve)"
             )
-        wall[method] = time.perf_counter() - t0
-    timings = {
-        "methods": wall, "total_s": time.perf_counter() - t_item, "cpu_s": time.process_time() - c_item,
-        "errors": errors, "pid": os.getpid(), "host": socket.gethostname(),
-    }
-    return runs, timings
+    return runs, {"total_s": time.perf_counter() - t_item, "cpu_s": time.process_time() - c_item, "errors": errors}
 
 
 def write_item(out_dir, item: str, problem_file, runs: dict) -> dict:
@@ -115,12 +93,9 @@ def archive_outcome(out_dir, item: str, problem_file, outcome: dict) -> dict:
 
 
 def solve_chunk(chunk, out_dir=None, token=None, remote: bool = False) -> list[dict]:
-    """Solve and archive each ``(item, problem_file, methods, previous)`` of ``chunk`` in order.
-
-    ``previous``: runs kept from the item's archive (not solved again). One record per item:
-    ``{"cells", "errors", "total_s", "cpu_s"}``, or ``"runs"`` instead of ``"cells"`` when
-    ``out_dir`` is None or is not the sweep's directory here (``token``: see :func:`_reaches`).
-    A record with ``"stop"`` (a failed write) ends the chunk.
+    """Solve and archive each ``(item, problem_file, methods, previous)`` of ``chunk`` (``previous``: runs
+    kept from its archive). One record per item: ``cells``, ``errors``, ``total_s``, ``cpu_s``; ``runs``
+    instead of ``cells`` where ``out_dir`` is not the sweep's here (:func:`_reaches`); ``stop`` ends it.
     """
     here = out_dir is not None and (token is None or _reaches(out_dir, token))
     records = []
@@ -157,10 +132,8 @@ def _worker_init(close_fds=(), watch_fd=None, parent=None):
     # KeyboardInterrupt): the parent ends its workers with SIGTERM, and they are to go quietly.
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     for fd in close_fds:  # inherited by fork: the directory lock, the watch pipe's write end
-        try:
+        with contextlib.suppress(OSError):
             os.close(fd)
-        except OSError:
-            pass
     _die_with_parent(watch_fd, parent)
 
 
@@ -171,10 +144,8 @@ def _die_with_parent(watch_fd, parent) -> None:
     import ctypes
     import signal
 
-    try:
+    with contextlib.suppress(OSError, AttributeError):  # not Linux
         ctypes.CDLL(None).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-    except (OSError, AttributeError):  # not Linux
-        pass
     if parent is not None and os.getppid() != parent:  # gone before prctl
         os._exit(1)
     if watch_fd is not None:
@@ -216,7 +187,6 @@ class InlinePool:
     """workers 0 or 1: each item runs in this process when submitted."""
 
     window = 1
-    synchronous = True  # submit() runs the item: the engine records it before it submits more
     shared_fate = False
 
     def __init__(self):
@@ -251,12 +221,10 @@ class InlinePool:
 class LocalPool:
     """A ProcessPoolExecutor whose worker processes live for the whole sweep."""
 
-    synchronous = False
     shared_fate = True  # a worker that dies breaks the pool: every task in flight is lost
 
     def __init__(self, workers: int, inherited_fd: int | None = None):
-        """``workers`` processes, started now (they import and warm up while the parent goes on);
-        ``inherited_fd`` is closed in forked workers (the directory lock)."""
+        """``workers`` processes, started now; forked ones close ``inherited_fd`` (the directory lock)."""
         self.window = self.workers = workers
         self.description = f"{workers} local worker processes"
         self.watch = os.pipe()  # forked workers read it; it ends with this process (_die_with_parent)
@@ -337,41 +305,35 @@ class LocalPool:
 class DaskPool:
     """A dask.distributed scheduler; the workers need vine_nlp installed, no shared files."""
 
-    synchronous = False
     shared_fate = False  # dask reruns a task whose worker died; KilledWorker after a few deaths
 
     def __init__(self, address: str):
-        try:
-            from dask.distributed import Client, as_completed
-        except ImportError as exc:  # pragma: no cover - dask is a dependency
-            raise InputError("command line", "--scheduler", f"needs dask.distributed ({exc})") from None
-        try:
-            from distributed.comm import resolve_address
+        from dask.distributed import Client, as_completed
+        from distributed.comm import resolve_address
 
+        try:
             # a malformed address fails here, before a Client exists (a half-made one hangs at exit)
             resolve_address(address)
             self.client = Client(address, set_as_default=False)
         except (OSError, TimeoutError, ValueError, TypeError) as exc:
             raise InputError(address, "--scheduler", f"cannot connect to the dask scheduler ({exc})") from None
         self._completed = as_completed(loop=self.client.loop)
-        self._slots = (0.0, 1)
-        threads = sum(self.client.nthreads().values())
-        self.description = f"dask scheduler {address} ({len(self.client.nthreads())} workers, {threads} threads)"
+        self._threads = (-math.inf, 1)
+        self.description = f"dask scheduler {address} ({len(self.client.nthreads())} workers, {self.threads} threads)"
 
     @property
-    def slots(self) -> int:
+    def threads(self) -> int:
         """Worker threads of the cluster, looked up every few seconds (it may scale)."""
-        checked, n = self._slots
-        if time.monotonic() - checked > 5.0:
-            self._slots = (time.monotonic(), max(1, sum(self.client.nthreads().values())))
-        return self._slots[1]
+        if time.monotonic() - self._threads[0] > 5.0:
+            self._threads = (time.monotonic(), max(1, sum(self.client.nthreads().values())))
+        return self._threads[1]
 
     @property
     def window(self) -> int:
-        return max(16, 4 * self.slots)  # the cluster busy without shipping the whole sweep at once
+        return max(16, 4 * self.threads)  # the cluster busy without shipping the whole sweep at once
 
     def chunk_size(self, pending: int) -> int:
-        return _chunk(pending, self.slots)
+        return _chunk(pending, self.threads)
 
     def submit(self, fn, args, name):
         import uuid

@@ -127,11 +127,6 @@ def _mm(units: str):
     return (factor, "mm") if factor else (1.0, units)
 
 
-def summary_columns(grid_keys) -> list[str]:
-    extra = [c for c in EXTRA_COLUMNS if c not in grid_keys]
-    return ["item", *grid_keys, *SPEC_COLUMNS, *extra]
-
-
 def _cell(value) -> str:
     if value is None:
         return ""
@@ -148,7 +143,7 @@ def write_summary(path, rows, grid_keys) -> None:
     """summary.csv (atomically): spec columns, then iterations, units, error."""
     from vine_nlp.io.archive import write_atomic
 
-    columns = summary_columns(grid_keys)
+    columns = ["item", *grid_keys, *SPEC_COLUMNS, *(c for c in EXTRA_COLUMNS if c not in grid_keys)]
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(columns)
