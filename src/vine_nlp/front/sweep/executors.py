@@ -225,7 +225,8 @@ class LocalPool:
 
     def __init__(self, workers: int, inherited_fd: int | None = None):
         """``workers`` processes, started now; forked ones close ``inherited_fd`` (the directory lock)."""
-        self.window = self.workers = workers
+        self.workers = workers
+        self.window = workers + 1  # one task waits in the pool's queue: a worker that finishes starts the next at once
         self.description = f"{workers} local worker processes"
         self.watch = os.pipe()  # forked workers read it; it ends with this process (_die_with_parent)
         self.start_method = "fork" if fork_is_safe() else None
