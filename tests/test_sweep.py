@@ -136,6 +136,7 @@ def test_dask_cluster_gives_the_same_summary(local_run, tmp_path):
         report = sw.run_sweep(load_sweep(path), out, scheduler=cluster.scheduler_address, progress=False)
     assert (report.done, report.failed) == (4, 0)
     assert report.executor.startswith("dask scheduler")
+    assert report.archived_here == 0  # the workers see the directory (the lock's token): they wrote the archives
     _, local = _read_csv(out_local / "summary.csv")
     _, remote = _read_csv(out / "summary.csv")
     drop = ("solve_time_s",)  # timing differs, everything else is the same solve
@@ -143,6 +144,21 @@ def test_dask_cluster_gives_the_same_summary(local_run, tmp_path):
         {k: v for k, v in r.items() if k not in drop} for r in local
     ]
     assert _h5_files(out) == _h5_files(out_local)
+
+
+@pytest.mark.slow
+def test_dask_workers_that_do_not_see_the_directory_send_results_back(local_run, tmp_path, monkeypatch):
+    from vine_nlp.front.sweep import executors
+
+    distributed = pytest.importorskip("dask.distributed")
+    path, out_local, _ = local_run
+    monkeypatch.setattr(executors, "_reaches", lambda out_dir, token: False)  # as on another machine
+    # two threads in one worker process: its items run one at a time all the same (two at once crashed in CasADi)
+    with distributed.LocalCluster(n_workers=1, processes=False, threads_per_worker=2, dashboard_address=None) as cluster:
+        report = sw.run_sweep(load_sweep(path), tmp_path / "out", scheduler=cluster.scheduler_address, progress=False)
+    assert (report.done, report.failed, report.archived_here) == (4, 0, 4)
+    assert "4 archives were written by this process: the workers could not reach" in sw.format_report(report)
+    assert _h5_files(tmp_path / "out") == _h5_files(out_local)
 
 
 def test_a_failing_item_is_reported_and_the_others_finish(tmp_path, monkeypatch):

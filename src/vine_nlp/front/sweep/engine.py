@@ -246,12 +246,12 @@ class _Run:
                     self._retry(pool, lost)
                 if finished:
                     interrupt.hold("sweep-item")  # tests: a finished item is on disk, more are to come
+            pool.close()
         except BaseException as exc:
             stop = self.stopped(pool, exc)
             if stop is exc:
                 raise
             raise stop from None
-        pool.close()
 
     def _fill(self, pool, where, token) -> None:
         """Keep every worker busy. An item whose task was lost with a dying worker runs alone, and

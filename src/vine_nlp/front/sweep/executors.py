@@ -31,6 +31,7 @@ _MAX_ERROR_TEXT = 500
 # imported once by the forkserver, so its workers start with them (and the main module, the default)
 _WORKER_MODULES = ("vine_nlp.front.sweep.executors", "vine_nlp.methods.methods")
 _PR_SET_PDEATHSIG = 1
+_ONE_SOLVE = threading.Lock()
 
 
 def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]:
@@ -100,7 +101,8 @@ def solve_chunk(chunk, out_dir=None, token=None, remote: bool = False) -> list[d
     here = out_dir is not None and (token is None or _reaches(out_dir, token))
     records = []
     for item, problem_file, methods, previous in chunk:
-        solved, timings = solve_item(problem_file, [m for m in methods if m not in previous], remote=remote)
+        with _ONE_SOLVE:  # a dask worker's threads share its solvers, which are not thread-safe (two crashed)
+            solved, timings = solve_item(problem_file, [m for m in methods if m not in previous], remote=remote)
         runs = {m: solved.get(m) or previous[m] for m in methods if m in solved or m in previous}
         record = {"runs": runs, "errors": timings["errors"], "total_s": timings["total_s"], "cpu_s": timings["cpu_s"]}
         records.append(archive_outcome(out_dir, item, problem_file, record) if here else record)
@@ -138,9 +140,8 @@ def _worker_init(close_fds=(), watch_fd=None, parent=None):
 
 
 def _die_with_parent(watch_fd, parent) -> None:
-    """End this worker when the sweep ends, however it ends (kill -9 too): on Linux the kernel
-    sends SIGKILL when the parent process (a forkserver's: when the forkserver, which ends with
-    the sweep, ends) is gone; a forked worker also reads the parent's pipe, which ends then."""
+    """End this worker with the sweep, kill -9 too: Linux sends SIGKILL when the parent (or the forkserver,
+    which ends with the sweep) is gone; a forked worker also reads the parent's pipe, which ends then."""
     import ctypes
     import signal
 
@@ -161,8 +162,6 @@ def _exit_at_eof(fd: int) -> None:
 def _warm_up():
     """The first task of every local worker: the solver modules imported before the first item arrives."""
     import vine_nlp.methods.methods  # noqa: F401
-
-    return os.getpid()
 
 
 def fork_is_safe() -> bool:
@@ -301,6 +300,7 @@ class LocalPool:
                 p.join(timeout=5)
         for fd in self.watch:
             os.close(fd)
+        self.watch = ()
 
 
 class DaskPool:
