@@ -236,7 +236,7 @@ def breakdown(after: dict, workers: int, baseline: Path | None) -> list[list[str
                              f"write_archive{' at --baseline: in the parent' if name == 'before' else ': in the workers now'})"])
         grid = list(load_sweep(SWEEP).grid)
         _, c, w = _cpu(write_summary, Path(tmp) / "summary.csv", after["rows"], grid)
-        rows.append(["summary.csv", f"{w:.3f}", f"{c:.3f}", "one write; rewritten while items finish, at most 5 % of the time"])
+        rows.append(["summary.csv", f"{w:.3f}", f"{c:.3f}", "one write (written once, at the end)"])
         code = ("import time, sys; t = time.perf_counter(); c = time.process_time(); "
                 "import matplotlib.figure, matplotlib.backends.backend_agg, matplotlib.ticker; "
                 "print(time.perf_counter() - t, time.process_time() - c)")
