@@ -286,6 +286,14 @@ def test_workers_die_with_a_killed_sweep(tmp_path):
     proc.kill()
     proc.wait()
     assert _wait_gone(pidfds) == []
+    # nothing finished is lost: the same command skips every archive the killed sweep left and does the rest
+    out = tmp_path / "out"
+    kept = {p.name: p.stat().st_mtime_ns for p in out.glob("*.h5")}
+    again = _run("sweep", path, "-o", out, "--workers", "2")
+    assert again.returncode == 0, again.stderr
+    assert f"{4 - len(kept)} solved, {len(kept)} skipped" in again.stdout
+    assert {n: (out / n).stat().st_mtime_ns for n in kept} == kept and len(list(out.glob("*.h5"))) == 4
+    assert not list(out.glob(".*.tmp"))
 
 
 def test_a_worker_ends_when_the_parents_pipe_closes():
