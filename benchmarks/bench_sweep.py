@@ -1,6 +1,18 @@
-"""Sweep benchmark: the paper's 125-knot trefoil study as one NLP per knot, from the command line.
+"""Sweep benchmark: the paper's 125-knot trefoil study, and a 1000-knot study at 1 against 2 workers.
 
-    python benchmarks/bench_sweep.py [--workers 2] [--repeat 2] [--baseline REF] [--no-executors] [--keep DIR]
+    python benchmarks/bench_sweep.py [--study 125|1000|all] [--workers 2] [--repeat 3] [--baseline REF]
+                                     [--no-executors] [--keep DIR]
+
+``--study 1000`` (issue 36): the trefoil grid of problems/sweeps/trefoil125.toml refined to
+10 x 10 x 10 scales (m_x, m_y, m_z each in 2..6 cm), compiled functions cached; a fresh process
+runs ``load_sweep`` + ``run_sweep`` as ``vine-nlp sweep`` does, at 1 worker (in the process) and
+at 2 worker processes, alternating, ``--repeat`` times each (with ``--baseline``: the same for
+the sweep code at REF too). Recorded: the wall time of each run, the speed-up, and the parent
+process's own CPU time per item (all its threads: between its first and last finished item,
+and over the whole run_sweep including the summary and the figure). Each study rewrites its own
+part of results/benchmarks/sweep.md; the other part is kept.
+
+The 125-knot study (the default, ``--study 125``):
 
 1. The real command, ``vine-nlp sweep problems/sweeps/trefoil125.toml --workers 2 -o FRESH``,
    from command start to summary.csv written (its last write, from its mtime) and to the
@@ -41,15 +53,16 @@ import tempfile
 import time
 from pathlib import Path
 
-from common import FIGURES, ROOT, machine, table, write_section
+from common import FIGURES, ROOT, SECTIONS, machine, table, write_section
 
 from vine_nlp.front.sweep import format_report, method_stats, read_summary, run_sweep
 from vine_nlp.io.problem_file import load_sweep
 
 SWEEP = ROOT / "problems" / "sweeps" / "trefoil125.toml"
 SWEEP_PKG = Path("src") / "vine_nlp" / "front" / "sweep"
-# what "before" takes from --baseline: the sweep package and the plain NLP (its IPOPT settings, its guess)
-BASELINE_PATHS = (SWEEP_PKG, Path("src/vine_nlp/methods/nlp.py"), Path("src/vine_nlp/methods/common.py"))
+# what "before" takes from --baseline: the sweep package, the archive writer and sweep files, the plain NLP
+BASELINE_PATHS = (SWEEP_PKG, Path("src/vine_nlp/io/archive.py"), Path("src/vine_nlp/io/sweep_file.py"),
+                  Path("src/vine_nlp/methods/nlp.py"), Path("src/vine_nlp/methods/common.py"))
 GOAL_WALL_S = 5.0
 BEFORE_MEAN_MM, BEFORE_WORST_MM = 0.046, 0.162  # issue 18: "no worse than today"
 PAPER = "mean 0.65 mm, worst 1.57 mm, 157 s per knot (greedy Algorithm 1, MATLAB)"
@@ -171,10 +184,22 @@ def _figure_cpu(src: Path, csv: Path, tmp: Path) -> tuple[float, float]:
     return float(out[0]), float(out[1])
 
 
+def _write_cost(src: Path, folder: Path, tmp: Path) -> tuple[float, float]:
+    """Wall and CPU seconds per archive of ``write_archive`` (``src`` first on the path) rewriting the archives of
+    ``folder`` into ``tmp`` (loaded first; temporary file, fsync, rename included)."""
+    code = ("import sys, time; from pathlib import Path; from vine_nlp.io.archive import load_archive, write_archive; "
+            f"a = [load_archive(p) for p in sorted(Path({str(folder)!r}).glob('*.h5'))]; t = Path({str(tmp)!r}); t.mkdir(); "
+            "w, c = time.perf_counter(), time.process_time(); [write_archive(t / f'{k}.h5', x) for k, x in enumerate(a)]; "
+            "print((time.perf_counter() - w) / len(a), (time.process_time() - c) / len(a))")
+    out = subprocess.run([sys.executable, "-c", code], env=dict(os.environ, PYTHONPATH=str(src)),
+                         capture_output=True, text=True, check=True).stdout.split()
+    return float(out[0]), float(out[1])
+
+
 def breakdown(after: dict, workers: int, baseline: Path | None) -> list[list[str]]:
     """Where the time of the working tree's command goes, each part measured on its own (see the module)."""
     from vine_nlp.front.sweep import write_summary
-    from vine_nlp.io.archive import load_archive, write_archive
+    from vine_nlp.io.archive import load_archive
 
     src = ROOT / "src"
     rows = []
@@ -197,15 +222,21 @@ def breakdown(after: dict, workers: int, baseline: Path | None) -> list[list[str
                  f"sum over items; IPOPT's own wall time {ipopt:.1f} s, solve_time_s {sum(r.solve_time_s for r in runs):.1f} s; "
                  f"CPU / {workers} workers = {after['items_cpu_s'] / workers:.1f} s"])
     with tempfile.TemporaryDirectory(prefix="bench-sweep-parts-") as tmp:
-        def write_all():
-            for k, a in enumerate(archives):
-                write_archive(Path(tmp) / f"{k}.h5", a)
-
-        _, c, w = _cpu(write_all)
-        rows.append(["writing the archives (parent)", f"{w:.2f}", f"{c:.2f}", f"{len(archives)} archives, {1000 * w / len(archives):.0f} ms each, overlapped with the solves"])
+        folder = after["archives"][0].parent
+        writes = {"after": [], "before": []}
+        for k in range(3):  # alternating, fresh processes, best of 3
+            for name in (["after", "before"] if k % 2 == 0 else ["before", "after"]):
+                if name == "after" or baseline is not None:
+                    writes[name].append(_write_cost(src if name == "after" else baseline, folder, Path(tmp) / f"{name}{k}"))
+        for name, label in (("after", "writing the archives (workers)"), ("before", "writing the archives, before")):
+            if writes[name]:
+                w, c = min(writes[name])
+                rows.append([label, f"{w * len(archives):.2f}", f"{c * len(archives):.2f}",
+                             f"{len(archives)} archives, {1000 * w:.2f} ms wall, {1000 * c:.2f} ms CPU each (best of 3; "
+                             f"write_archive{' at --baseline: in the parent' if name == 'before' else ': in the workers now'})"])
         grid = list(load_sweep(SWEEP).grid)
         _, c, w = _cpu(write_summary, Path(tmp) / "summary.csv", after["rows"], grid)
-        rows.append(["summary.csv", f"{w:.3f}", f"{c:.3f}", "one write; rewritten while items finish, at most 5 % of the time"])
+        rows.append(["summary.csv", f"{w:.3f}", f"{c:.3f}", "one write (written once, at the end)"])
         code = ("import time, sys; t = time.perf_counter(); c = time.process_time(); "
                 "import matplotlib.figure, matplotlib.backends.backend_agg, matplotlib.ticker; "
                 "print(time.perf_counter() - t, time.process_time() - c)")
@@ -253,50 +284,29 @@ def _executors(args, root: Path):
     return part, list(best.items())
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--repeat", type=int, default=3, help="command runs per variant; the best wall time counts")
-    ap.add_argument("--baseline", default="HEAD", help="git ref of front/sweep for the 'before' runs")
-    ap.add_argument("--no-baseline", action="store_true", help="only the working tree")
-    ap.add_argument("--no-executors", action="store_true", help="skip the executor comparison on a subset")
-    ap.add_argument("--subset", type=int, default=25)
-    ap.add_argument("--keep", metavar="DIR", help="also copy the working tree's sweep output here")
-    args = ap.parse_args(argv)
-
-    reaper = _subreaper()
+def study_125(args, root: Path, variants: dict, reaper: bool) -> str:
+    """The 125-knot study from the command line (module docstring, 1-3); the section's text."""
     load_before = _load()
-    with tempfile.TemporaryDirectory(prefix="bench-sweep-") as tmp:
-        root = Path(tmp)
-        variants = {"after": ROOT / "src"}
-        if not args.no_baseline:
-            variants = {"before": _baseline_tree(args.baseline, root / "baseline"), **variants}
-        runs = {name: [] for name in variants}
-        # caches both variants share (compiled NLP functions on disk) are made before the first timed run
-        from vine_nlp.front.sweep import solve_item
-
-        solve_item(load_sweep(SWEEP).items()[0][2], ["nlp"])
-        for k in range(args.repeat):
-            order = list(variants) if k % 2 == 0 else list(reversed(variants))
-            for name in order:
-                r = run_cli(variants[name], root / f"{name}-{k}", args.workers)
-                runs[name].append(r)
-                print(f"{name} #{k}: {r['wall_s']:.1f} s wall (summary at {r['summary_s']:.1f} s), "
-                      f"{r['cpu_s']:.1f} s CPU, load {r['load']:.1f}", flush=True)
-        best = {name: min(rs, key=lambda r: r["wall_s"]) for name, rs in runs.items()}
-        after = best["after"]
-        for name, rs in runs.items():  # a variant's designs do not depend on timing
-            assert all([x["rmse"] for x in r["rows"]] == [x["rmse"] for x in best[name]["rows"]] for r in rs), name
-        if args.keep:
-            shutil.copytree(after["archives"][0].parent, args.keep, dirs_exist_ok=True)
-        FIGURES.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(after["archives"][0].parent / "summary.png", FIGURES / "sweep-trefoil125.png")
-        parts = breakdown(after, args.workers, variants.get("before"))
-        executors = None if args.no_executors else _executors(args, root)
+    runs = {name: [] for name in variants}
+    for k in range(args.repeat):
+        order = list(variants) if k % 2 == 0 else list(reversed(variants))
+        for name in order:
+            r = run_cli(variants[name], root / f"{name}-{k}", args.workers)
+            runs[name].append(r)
+            print(f"{name} #{k}: {r['wall_s']:.1f} s wall (summary at {r['summary_s']:.1f} s), "
+                  f"{r['cpu_s']:.1f} s CPU, load {r['load']:.1f}", flush=True)
+    best = {name: min(rs, key=lambda r: r["wall_s"]) for name, rs in runs.items()}
+    after = best["after"]
+    for name, rs in runs.items():  # a variant's designs do not depend on timing
+        assert all([x["rmse"] for x in r["rows"]] == [x["rmse"] for x in best[name]["rows"]] for r in rs), name
+    if args.keep:
+        shutil.copytree(after["archives"][0].parent, args.keep, dirs_exist_ok=True)
+    FIGURES.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(after["archives"][0].parent / "summary.png", FIGURES / "sweep-trefoil125.png")
+    parts = breakdown(after, args.workers, variants.get("before"))
+    executors = None if args.no_executors else _executors(args, root)
     load_after = _load()
-
-    def ok(flag):
-        return "yes" if flag else "**no**"
+    ok = _ok
 
     def walls(rs, key):
         return ", ".join(f"{r[key]:.1f}" for r in rs)
@@ -305,7 +315,7 @@ def main(argv=None) -> int:
     rows = []
     for name, rs in runs.items():
         b = best[name]
-        label = f"before (front/sweep, design/nlp.py, design/common.py at {args.baseline})" if name == "before" else "after (working tree)"
+        label = f"before (BASELINE_PATHS at {args.baseline})" if name == "before" else "after (working tree)"
         rows.append([label, f"{b['summary_s']:.1f} ({walls(rs, 'summary_s')})", f"{b['wall_s']:.1f} ({walls(rs, 'wall_s')})",
                      f"{statistics.median(r['cpu_s'] for r in rs):.1f}", f"{statistics.median(r['items_cpu_s'] for r in rs):.1f}",
                      f"{statistics.median(r['cpu_s'] - r['items_cpu_s'] for r in rs):.1f}",
@@ -345,10 +355,10 @@ def main(argv=None) -> int:
             ],
         ),
         "",
-        "\"before\" and \"after\" differ in BASELINE_PATHS only (front/sweep/, design/nlp.py, design/common.py at "
-        f"{args.baseline} against the working tree). The items' CPU is most of the command's: on 2 cores the command "
-        "takes about (CPU in items + the parent's archive writing and imports) / 2 plus the serial start and the "
-        "last items; see the CPU columns.",
+        "\"before\" and \"after\" differ in BASELINE_PATHS only (front/sweep/, io/archive.py, io/sweep_file.py, "
+        f"methods/nlp.py, methods/common.py at {args.baseline} against the working tree). The items' CPU (now with their archives, written by "
+        "the workers) is most of the command's: on 2 cores the command takes about (CPU in items + the parent's "
+        "imports and figure) / 2 plus the serial start and the last items; see the CPU columns.",
         "",
         "Where the time goes (working tree; each part measured on its own, wall and CPU seconds):",
         "",
@@ -375,8 +385,165 @@ def main(argv=None) -> int:
         f"itself, the command takes about max(CPU in items / {args.workers}, ...) plus the serial parts above "
         "(interpreter, imports, reading the sweep, the last items, the figure).",
     ]
-    path = write_section("sweep", "\n".join(text))
-    print("\n".join(text))
+    return "\n".join(text)
+
+
+# ---------------------------------------------------------------- the 1000-knot study (issue 36)
+
+SCALES_1000 = [2 + 4 * k / 9 for k in range(10)]  # m_x, m_y, m_z each in 2..6 cm, 10 values
+GOAL_SPEEDUP, GOAL_PARENT_MS = 1.7, 1.0
+# a fresh process: load_sweep + run_sweep as `vine-nlp sweep` runs them; the parent's own CPU (all its threads)
+# is read at each finished item (the callback) and around run_sweep
+DRIVER = """
+import json, sys, time
+from vine_nlp.methods import blas
+blas.own_process()
+from vine_nlp.front.sweep import run_sweep
+from vine_nlp.io.problem_file import load_sweep
+marks = []
+t0, c0 = time.perf_counter(), time.process_time()
+r = run_sweep(load_sweep(sys.argv[1]), sys.argv[2], workers=int(sys.argv[3]), progress=False,
+              callback=lambda item, rows: marks.append(time.process_time()))
+print(json.dumps({"sweep_s": time.perf_counter() - t0, "sweep_cpu_s": time.process_time() - c0,
+                  "steady_cpu_s": marks[-1] - marks[0], "n": len(marks), "failed": r.failed,
+                  "rmse": [row["rmse"] for row in r.rows], "items_cpu_s": r.item_cpu_s}))
+"""
+
+
+def _sweep_1000(folder: Path) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    scales = ", ".join(repr(v) for v in SCALES_1000)
+    base = (ROOT / "problems" / "trefoil-m4.toml").as_posix()
+    path = folder / "trefoil1000.toml"
+    path.write_text(f'name = "trefoil1000"\nbase = "{base}"\nmethods = ["nlp"]\n[grid]\n'
+                    + "".join(f'"target.scale.{k}" = [{scales}]\n' for k in range(3)))
+    return path
+
+
+def _run_1000(src: Path, sweep: Path, out: Path, workers: int) -> dict:
+    load = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-c", DRIVER, str(sweep), str(out), str(workers)],
+                          env=dict(os.environ, PYTHONPATH=str(src)), capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    _reap()
+    if proc.returncode != 0:
+        raise SystemExit(f"the 1000-knot sweep failed ({proc.returncode}):\n{proc.stderr}")
+    r = __import__("json").loads(proc.stdout.splitlines()[-1])
+    assert r["failed"] == 0 and r["n"] == 1000, r
+    shutil.rmtree(out)
+    return {**r, "wall_s": wall, "load": load}
+
+
+def _uptime() -> str:
+    try:
+        return subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    except OSError:
+        return f"load average {_load()}"
+
+
+def study_1000(args, root: Path, variants: dict) -> str:
+    """1 against 2 workers on the 1000-knot study, alternating (module docstring); the section's text."""
+    sweep = _sweep_1000(root / "in1000")
+    uptime_before = _uptime()
+    configs = [(name, w) for name in variants for w in (1, args.workers)]
+    runs = {c: [] for c in configs}
+    for k in range(args.repeat):
+        for name, w in configs if k % 2 == 0 else list(reversed(configs)):
+            r = _run_1000(variants[name], sweep, root / f"o1000-{name}-{w}-{k}", w)
+            runs[(name, w)].append(r)
+            print(f"1000 knots, {name}, {w} worker(s) #{k}: {r['wall_s']:.1f} s, parent "
+                  f"{1000 * r['steady_cpu_s'] / (r['n'] - 1):.2f} ms CPU per item, load {r['load']:.1f}", flush=True)
+    uptime_after = _uptime()
+    rmse = {c: rs[0]["rmse"] for c, rs in runs.items()}
+    same = all(v == rmse[configs[0]] for v in rmse.values())  # the designs do not depend on the executor
+    rows, summary = [], []
+    for name in variants:
+        one, two = runs[(name, 1)], runs[(name, args.workers)]
+        best1, best2 = min(r["wall_s"] for r in one), min(r["wall_s"] for r in two)
+        med1, med2 = statistics.median(r["wall_s"] for r in one), statistics.median(r["wall_s"] for r in two)
+        for w, rs in ((1, one), (args.workers, two)):
+            steady = statistics.median(1000 * r["steady_cpu_s"] / (r["n"] - 1) for r in rs)
+            total = statistics.median(1000 * r["sweep_cpu_s"] / r["n"] for r in rs)
+            every = ", ".join(f"{r['wall_s']:.1f}" for r in rs)
+            rows.append([name, str(w), f"{min(r['wall_s'] for r in rs):.1f} ({every})",
+                         f"{steady:.2f}", f"{total:.2f}", f"{statistics.median(r['items_cpu_s'] for r in rs):.1f}",
+                         f"{statistics.median(r['load'] for r in rs):.1f}"])
+        summary.append((name, best1 / best2, med1 / med2, statistics.median(1000 * r["steady_cpu_s"] / (r["n"] - 1) for r in two)))
+    after = next(x for x in summary if x[0] == "after")
+    label = "before = BASELINE_PATHS at " + str(args.baseline) + "; " if "before" in variants else ""
+    text = [
+        f"## Sweep: 1000 trefoil knots, 1 against {args.workers} workers",
+        "",
+        f"Machine: {machine()}. `uptime` before: `{uptime_before}`; after: `{uptime_after}` (the machine is shared: "
+        "other jobs ran at the same time; a quiet machine gives the figures that count).",
+        "",
+        "`python benchmarks/bench_sweep.py --study 1000`: the trefoil grid of problems/sweeps/trefoil125.toml refined "
+        "to 10 x 10 x 10 scales (m_x, m_y, m_z each 2..6 cm; 400 points, n = 10, method nlp), compiled functions "
+        f"cached; a fresh process runs load_sweep + run_sweep as `vine-nlp sweep` does, at 1 worker (in the process) "
+        f"and {args.workers} worker processes, alternating, {args.repeat} runs each ({label}after = the working tree). "
+        "Parent CPU per item: the sweep process's own CPU time (all its threads), between its first and last finished "
+        "item (steady), and over the whole run_sweep with the summary and the figure (total); at 1 worker it is the "
+        "items themselves.",
+        "",
+        table(["variant", "workers", "wall [s] (every run)", "parent CPU per item, steady [ms]",
+               "parent CPU per item, total [ms]", "CPU in items [s]", "load (1 min)"], rows),
+        "",
+        table(["variant", f"speed-up {args.workers} : 1 (best walls)", "(median walls)", "parent CPU per item [ms]"],
+              [[n, f"{b:.2f}x", f"{m:.2f}x", f"{c:.2f}"] for n, b, m, c in summary]),
+        "",
+        table(["quantity", "measured", "goal", "met"], [
+            [f"{args.workers} workers against 1 (after, best walls)", f"{after[1]:.2f}x", f">= {GOAL_SPEEDUP}x", _ok(after[1] >= GOAL_SPEEDUP)],
+            ["parent CPU per item (after, steady)", f"{after[3]:.2f} ms", f"<= {GOAL_PARENT_MS} ms", _ok(after[3] <= GOAL_PARENT_MS)],
+            ["same designs at every worker count and variant", "yes" if same else "**no**", "yes", _ok(same)],
+        ]),
+    ]
+    return "\n".join(text)
+
+
+def _ok(flag) -> str:
+    return "yes" if flag else "**no**"
+
+
+def _write_parts(parts: dict) -> Path:
+    """results/benchmarks/sweep.md: the studies run now replace their part, the others are kept."""
+    old = (SECTIONS / "sweep.md").read_text() if (SECTIONS / "sweep.md").exists() else ""
+    kept = {}
+    for chunk in filter(str.strip, old.split("\n## ")):
+        chunk = chunk if chunk.startswith("## ") else "## " + chunk
+        kept["1000" if "1000 trefoil knots" in chunk.splitlines()[0] else "125"] = chunk.rstrip()
+    kept.update(parts)
+    return write_section("sweep", "\n\n".join(kept[k] for k in ("125", "1000") if k in kept))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--study", choices=("125", "1000", "all"), default="125")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--repeat", type=int, default=3, help="runs per variant; the best wall time counts")
+    ap.add_argument("--baseline", metavar="REF", help="git ref of BASELINE_PATHS for 'before' runs (default: none)")
+    ap.add_argument("--no-executors", action="store_true", help="skip the executor comparison on a subset")
+    ap.add_argument("--subset", type=int, default=25)
+    ap.add_argument("--keep", metavar="DIR", help="also copy the working tree's sweep output here")
+    args = ap.parse_args(argv)
+
+    reaper = _subreaper()
+    parts = {}
+    with tempfile.TemporaryDirectory(prefix="bench-sweep-") as tmp:
+        root = Path(tmp)
+        variants = {"after": ROOT / "src"}
+        if args.baseline:
+            variants = {"before": _baseline_tree(args.baseline, root / "baseline"), **variants}
+        # caches every variant shares (compiled NLP functions on disk) are made before the first timed run
+        from vine_nlp.front.sweep import solve_item
+
+        solve_item(load_sweep(SWEEP).items()[0][2], ["nlp"])
+        if args.study in ("125", "all"):
+            parts["125"] = study_125(args, root, variants, reaper)
+        if args.study in ("1000", "all"):
+            parts["1000"] = study_1000(args, root, variants)
+    path = _write_parts(parts)
+    print("\n\n".join(parts.values()))
     print(f"-> {path}")
     return 0
 

@@ -404,3 +404,36 @@ def test_every_command_refuses_an_invalid_archive_in_one_line(tmp_path, capsys, 
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"error: {path}: /runs/forward/design/theta: non-finite value nan at [2]"]
     assert list(out.iterdir()) == []
+
+
+def _stored(obj):
+    """How HDF5 holds an attribute or dataset: type class, size, string kind and charset, shape, value."""
+    oid = obj if isinstance(obj, h5py.h5a.AttrID) else obj.id
+    t = oid.get_type()
+    string = (t.is_variable_str(), t.get_cset()) if isinstance(t, h5py.h5t.TypeStringID) else None
+    value = obj[()] if isinstance(obj, h5py.Dataset) else None
+    return t.get_class(), t.get_size(), string, oid.shape, None if value is None else value.tobytes()
+
+
+def test_the_writer_stores_what_h5pys_own_calls_store(tmp_path):
+    # write_archive makes attributes and small datasets with h5py's low-level calls (issue 36: half the
+    # cost); readers must find exactly what h5py's high-level calls make (the format did not change)
+    values = {"text": "ipopt", "unicode": "θ λ", "int": 7, "big": 2**40, "float": 0.1, "nan": math.nan,
+              "numpy": np.float64(2.5), "flag": True, "list": [1, 2], "non-ascii ä": 1.0}
+    arrays = {"a": np.arange(5.0), "b": np.arange(12).reshape(4, 3), "c/d": np.ones((3, 3)), "big": np.zeros((9000, 3))}
+    with h5py.File(tmp_path / "a.h5", "w") as h5:
+        fast, ref = h5.create_group("fast"), h5.create_group("ref")
+        archive_module._attrs(fast, values)
+        ref.attrs.update(values)
+        for name, data in arrays.items():
+            archive_module._dataset(fast, name, data)
+            ref.create_dataset(name, data=data)
+    with h5py.File(tmp_path / "a.h5", "r") as h5:
+        fast, ref = h5["fast"], h5["ref"]
+        assert sorted(fast.attrs) == sorted(ref.attrs)
+        for name in ref.attrs:
+            assert _stored(fast.attrs.get_id(name)) == _stored(ref.attrs.get_id(name)), name
+            assert repr(fast.attrs[name]) == repr(ref.attrs[name]), name
+        for name in arrays:
+            assert _stored(fast[name]) == _stored(ref[name]), name
+        assert fast["big"].compression == "gzip" and fast["a"].chunks is None  # gzip only where it pays

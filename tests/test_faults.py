@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -92,7 +93,7 @@ def _fill(where: Path, leave: int) -> Path:
 
 
 def test_design_on_a_full_disk_is_one_line_and_leaves_nothing(tmpfs):
-    fs = tmpfs("64k")
+    fs = tmpfs("32k")  # smaller than the archive (58 kB)
     out = fs / "d.h5"
     r = _run("design", PROBLEM, "-o", out)
     assert r.returncode == 2
@@ -242,6 +243,77 @@ def test_dask_worker_killed_mid_item_is_run_again(tmp_path, monkeypatch):
     # the scheduler gives the lost task to a fresh worker: nothing lost, nothing failed
     assert (report.done, report.failed) == (2, 0), report.failures
     assert len(list(out.glob("*.h5"))) == 2
+
+
+def _children(pid: int) -> list[int]:
+    """Pids of the live child processes of ``pid`` (from /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue  # ended meanwhile
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def _wait_gone(pidfds: dict, deadline_s: float = 60.0) -> list[int]:
+    """Wait (on the event, bounded) until each process of ``pidfds`` ended; the pids still alive."""
+    import select
+
+    end = time.monotonic() + deadline_s
+    alive = dict(pidfds)
+    while alive and time.monotonic() < end:
+        ready, _, _ = select.select(list(alive.values()), [], [], max(0.0, end - time.monotonic()))
+        for pid in [p for p, fd in alive.items() if fd in ready]:
+            os.close(alive.pop(pid))
+    return list(alive)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not hasattr(os, "pidfd_open"), reason="waits on pidfds (Linux)")
+def test_workers_die_with_a_killed_sweep(tmp_path):
+    # issue 34: after kill -9 of the sweep its pool workers lived on for good, blocked on a pipe
+    path = _sweep_file(tmp_path / "in", count=4)
+    env, fifo = hold_env(tmp_path / "hold", "solve")
+    proc = spawn(["sweep", path, "-o", tmp_path / "out", "--workers", "2"], env)
+    held = wait_for_claim(fifo)  # a worker is inside an item, the other one alive too
+    workers = _children(proc.pid)
+    assert held in workers and len(workers) == 2
+    pidfds = {pid: os.pidfd_open(pid) for pid in workers}
+    proc.kill()
+    proc.wait()
+    assert _wait_gone(pidfds) == []
+    # nothing finished is lost: the same command skips every archive the killed sweep left and does the rest
+    out = tmp_path / "out"
+    kept = {p.name: p.stat().st_mtime_ns for p in out.glob("*.h5")}
+    again = _run("sweep", path, "-o", out, "--workers", "2")
+    assert again.returncode == 0, again.stderr
+    assert f"{4 - len(kept)} solved, {len(kept)} skipped" in again.stdout
+    assert {n: (out / n).stat().st_mtime_ns for n in kept} == kept and len(list(out.glob("*.h5"))) == 4
+    assert not list(out.glob(".*.tmp"))
+
+
+def test_a_worker_ends_when_the_parents_pipe_closes():
+    # the second way a worker notices its parent is gone (where there is no parent-death signal)
+    import multiprocessing as mp
+
+    from vine_nlp.front.sweep import executors
+
+    r, w = os.pipe()
+
+    def worker():
+        executors._worker_init(close_fds=(w,), watch_fd=r)  # as a forked pool worker starts
+        threading.Event().wait()
+
+    child = mp.get_context("fork").Process(target=worker)
+    child.start()
+    os.close(r)
+    assert child.is_alive()
+    os.close(w)  # as when the parent dies: the last write end is gone
+    child.join(timeout=60)
+    assert child.exitcode == 1
 
 
 # ---------------------------------------------------------------- one sweep per directory

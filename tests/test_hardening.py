@@ -120,3 +120,35 @@ def test_signal_during_sweep_keeps_finished_items_and_resumes(tmp_path, sig):
     assert "2 solved, 1 skipped" in done.stdout
     assert len(list(out.glob("*.h5"))) == 3
     assert all((out / name).stat().st_mtime_ns == t for name, t in mtimes.items())
+
+
+DEEP = ".".join(["a"] * 30_000)
+HOSTILE_SWEEPS = {  # issue 34: each hung, ran out of memory or ended in a traceback (leaving summary.csv and the lock)
+    "fifo base": ('base = "fifo.toml"\n', "not a regular file"),
+    "/dev/zero base": ('base = "/dev/zero"\n', "not a regular file"),
+    "NUL in a grid value": ('base = "base.toml"\n[grid]\nunits = ["c\\u0000m"]\n', "printable"),
+    "NUL in a grid key": ('base = "base.toml"\n[grid]\n"target.sc\\u0000ale.0" = [2, 3]\n', "printable"),
+    "30 000-level dotted key": (f'base = "base.toml"\n[grid]\n{DEEP} = [1]\n', "more than 32"),
+    "30 000-part quoted key": (f'base = "base.toml"\n[grid]\n"{DEEP}" = [1]\n', "more than 32|at most 255 characters"),
+}
+
+
+@pytest.mark.parametrize("case", list(HOSTILE_SWEEPS))
+def test_hostile_sweep_files_are_one_error_line_and_leave_nothing(tmp_path, case):
+    import os
+    import re
+
+    text, reason = HOSTILE_SWEEPS[case]
+    _small_sweep(tmp_path)
+    os.mkfifo(tmp_path / "fifo.toml")
+    sweep = tmp_path / "hostile.toml"
+    sweep.write_text('name = "h"\n' + text)
+    out = tmp_path / "out"
+    # the timeout only keeps a hang from hanging the suite
+    r = subprocess.run([sys.executable, "-m", "vine_nlp", "sweep", str(sweep), "-o", str(out)], capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.startswith(f"error: {sweep}: ") and r.stderr.count("\n") == 1, r.stderr[:500]
+    assert re.search(reason, r.stderr)
+    assert r.stderr[:-1].isprintable()  # no NUL or other control character reaches the terminal
+    assert not out.exists()  # no summary.csv, no lock

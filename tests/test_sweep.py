@@ -6,6 +6,7 @@ import csv
 import dataclasses
 import os
 
+import numpy as np
 import pytest
 from texts import TINY_TREFOIL
 
@@ -82,6 +83,30 @@ def test_local_run_writes_one_archive_per_item_and_the_summary(local_run):
     assert "4 solved, 0 skipped" in text and "(created)" in text and "nlp: RMSE mean" in text
 
 
+_TIMES = ("solve_time_s", "build_time_s", "ipopt_time_s", "search_time_s")  # what differs between two solves of one problem
+
+
+def test_a_workers_archive_is_what_vine_nlp_design_writes_for_the_item(local_run, tmp_path):
+    from vine_nlp.front.cli import main
+
+    _, out, _ = local_run
+    item = "tiny-0003"  # target.scale.0 = 4, target.scale.1 = 5
+    problem = tmp_path / "item.toml"
+    problem.write_text(BASE.replace('name = "tiny-trefoil"', f'name = "{item}"').replace("[4.0, 4.0, 4.0]", "[4, 5, 4.0]"))
+    assert main(["design", str(problem), "-o", str(tmp_path / "one.h5")]) == 0
+    swept, one = load_archive(out / f"{item}.h5"), load_archive(tmp_path / "one.h5")
+    assert (swept.name, swept.kind, swept.units, swept.diameter) == (one.name, one.kind, one.units, one.diameter)
+    assert swept.source == BASE + f"\n# sweep 'tiny' item {item}: target.scale.0 = 4, target.scale.1 = 5\n"
+    assert list(swept.runs) == list(one.runs) == ["nlp"]
+    a, b = swept.runs["nlp"], one.runs["nlp"]
+    assert (a.status, a.iterations, a.metrics) == (b.status, b.iterations, b.metrics)
+    assert {k: v for k, v in a.stats.items() if k not in _TIMES} == {k: v for k, v in b.stats.items() if k not in _TIMES}
+    for x, y in ((swept.target, one.target), (a.routing.theta, b.routing.theta), (a.routing.lam, b.routing.lam),
+                 (a.routing.length, b.routing.length), (a.routing.initial_pose, b.routing.initial_pose),
+                 (a.phi, b.phi), (a.shape.center, b.shape.center), (a.shape.outer, b.shape.outer)):
+        assert np.array_equal(x, y)
+
+
 def test_long_lived_workers_build_each_solver_once(local_run):
     _, out, _ = local_run
     builds = [load_archive(p).runs["nlp"].stats["build_time_s"] for p in out.glob("*.h5")]
@@ -111,6 +136,7 @@ def test_dask_cluster_gives_the_same_summary(local_run, tmp_path):
         report = sw.run_sweep(load_sweep(path), out, scheduler=cluster.scheduler_address, progress=False)
     assert (report.done, report.failed) == (4, 0)
     assert report.executor.startswith("dask scheduler")
+    assert report.archived_here == 0  # the workers see the directory (the lock's token): they wrote the archives
     _, local = _read_csv(out_local / "summary.csv")
     _, remote = _read_csv(out / "summary.csv")
     drop = ("solve_time_s",)  # timing differs, everything else is the same solve
@@ -118,6 +144,21 @@ def test_dask_cluster_gives_the_same_summary(local_run, tmp_path):
         {k: v for k, v in r.items() if k not in drop} for r in local
     ]
     assert _h5_files(out) == _h5_files(out_local)
+
+
+@pytest.mark.slow
+def test_dask_workers_that_do_not_see_the_directory_send_results_back(local_run, tmp_path, monkeypatch):
+    from vine_nlp.front.sweep import executors
+
+    distributed = pytest.importorskip("dask.distributed")
+    path, out_local, _ = local_run
+    monkeypatch.setattr(executors, "_reaches", lambda out_dir, token: False)  # as on another machine
+    # two threads in one worker process: its items run one at a time all the same (two at once crashed in CasADi)
+    with distributed.LocalCluster(n_workers=1, processes=False, threads_per_worker=2, dashboard_address=None) as cluster:
+        report = sw.run_sweep(load_sweep(path), tmp_path / "out", scheduler=cluster.scheduler_address, progress=False)
+    assert (report.done, report.failed, report.archived_here) == (4, 0, 4)
+    assert "4 archives were written by this process: the workers could not reach" in sw.format_report(report)
+    assert _h5_files(tmp_path / "out") == _h5_files(out_local)
 
 
 def test_a_failing_item_is_reported_and_the_others_finish(tmp_path, monkeypatch):
@@ -151,6 +192,25 @@ def test_a_failing_item_is_reported_and_the_others_finish(tmp_path, monkeypatch)
     assert {k: v for k, v in _mtimes(out).items() if k in before} == before
     _, rows = _read_csv(out / "summary.csv")
     assert [r["status"] for r in rows] == ["optimal"] * 4
+
+
+def test_an_archive_hdf5_refuses_fails_its_item_alone(tmp_path, monkeypatch):
+    from vine_nlp.front.sweep import executors
+
+    path = _write_sweep(tmp_path / "in")
+    real = executors.write_archive
+
+    def refuses(where, archive):
+        if archive.name == "tiny-0001":  # as h5py refuses a text with NUL
+            raise ValueError("VLEN strings do not support embedded NULLs")
+        real(where, archive)
+
+    monkeypatch.setattr(executors, "write_archive", refuses)
+    report = sw.run_sweep(load_sweep(path), tmp_path / "out", workers=1, progress=False)
+    assert (report.done, report.failed) == (3, 1)
+    assert report.failures == [("tiny-0001", "nlp", "cannot archive the result (ValueError: VLEN strings do not support "
+                                                    "embedded NULLs)")]
+    assert _h5_files(tmp_path / "out") == ["tiny-0000.h5", "tiny-0002.h5", "tiny-0003.h5"]
 
 
 def test_a_failing_method_keeps_the_other_methods_of_its_item(tmp_path, monkeypatch):
@@ -320,7 +380,7 @@ def test_the_package_imports_dask_only_for_a_scheduler():
     assert r.stdout.strip() == "[]"
 
 
-def test_a_chunk_returns_each_item_in_order_and_keeps_failures_apart(tmp_path, monkeypatch):
+def test_a_chunk_archives_each_item_in_order_and_keeps_failures_apart(tmp_path, monkeypatch):
     path = _write_sweep(tmp_path / "in")
     items = load_sweep(path).items()[:2]
     real = vine_nlp.methods.methods.run_design
@@ -331,9 +391,25 @@ def test_a_chunk_returns_each_item_in_order_and_keeps_failures_apart(tmp_path, m
         return real(problem, method, **kw)
 
     monkeypatch.setattr(vine_nlp.methods.methods, "run_design", second_fails)
-    (runs0, t0), (runs1, t1) = sw.solve_chunk([(pf, ["nlp"]) for _, _, pf in items], remote=True)
-    assert runs0["nlp"].status == "optimal" and t0["errors"] == {}
-    assert runs1 == {} and t1["errors"] == {"nlp": "RuntimeError: second item"}
+    chunk = [(item, pf, ["nlp"], {}) for item, _, pf in items]
+    out = tmp_path / "out"
+    out.mkdir()
+    first, second = sw.solve_chunk(chunk, out, remote=True)
+    # the worker wrote the archive; only the summary's numbers come back
+    assert "runs" not in first and first["errors"] == {}
+    assert first["cells"] == {"nlp": sw.cells(load_archive(out / f"{items[0][0]}.h5").runs["nlp"])}
+    assert second["cells"] == {} and second["errors"] == {"nlp": "RuntimeError: second item"}
+    assert _h5_files(out) == [f"{items[0][0]}.h5"]
+    # a worker that does not see the sweep's directory (another machine: not the lock's token) sends the runs back
+    lock = sw.DirectoryLock(out)
+    lock.acquire()
+    try:
+        (here,) = sw.solve_chunk(chunk[:1], out, token=lock.token, remote=True)
+        (away,) = sw.solve_chunk(chunk[:1], out, token="another-sweep", remote=True)
+    finally:
+        lock.release()
+    assert "cells" in here and "runs" not in here
+    assert "cells" not in away and away["runs"]["nlp"].status == "optimal"
 
 
 def test_local_chunks_are_small_and_end_as_single_items():

@@ -21,6 +21,7 @@ validated too (numeric, at least 1-D, within the limits, finite except ``/frames
 from __future__ import annotations
 
 import datetime as _dt
+import functools
 import io
 import json
 import math
@@ -43,6 +44,7 @@ from vine_nlp.problem import Result, Routing
 FORMAT = "vine_nlp/result"
 FORMAT_VERSION = 1
 _COMPRESS = dict(compression="gzip", compression_opts=4, shuffle=True)
+_COMPRESS_BYTES = 1 << 16  # datasets smaller than this are stored as they are
 POSE_TOLERANCE = 1e-6  # |R^T R - I| and |det R - 1| of an archived initial pose
 
 
@@ -130,60 +132,76 @@ def _attr(value):
     return value
 
 
+# What h5py's high-level calls would make, made with its low-level ones at half the cost: scalar
+# attributes, uncompressed datasets without modification times (h5py's default), parent groups on the way.
+_SCALAR = h5py.h5s.create(h5py.h5s.SCALAR)
+_TEXT = h5py.string_dtype()  # a str attribute: variable-length UTF-8
+_DCPL = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+_DCPL.set_obj_track_times(False)
+_LCPL = h5py.h5p.create(h5py.h5p.LINK_CREATE)
+_LCPL.set_create_intermediate_group(True)
+_type = functools.lru_cache(maxsize=None)(lambda dtype: h5py.h5t.py_create(dtype, logical=True))  # numpy -> HDF5
+
+
+def _attrs(node, values: dict) -> None:
+    """``node.attrs.update(values)``: text and numbers through the low-level calls, the rest through h5py."""
+    for name, v in values.items():
+        plain = isinstance(v, (str, int, float)) and not isinstance(v, bool) and name.isascii()
+        if not plain:
+            node.attrs[name] = v
+            continue
+        v = np.array(v, dtype=_TEXT) if isinstance(v, str) else np.asarray(v)
+        h5py.h5a.create(node.id, name.encode(), _type(v.dtype), _SCALAR).write(v)
+
+
+def _dataset(parent, name: str, data) -> None:
+    # gzip only where it pays: on a shape of a few hundred points it saves ~10 % of the bytes and its
+    # chunk index costs more than that; a reader cannot tell the storage apart (the spec is the layout)
+    data = np.ascontiguousarray(data)
+    if data.nbytes >= _COMPRESS_BYTES or not (data.ndim and data.size and data.dtype.kind in "fiu" and name.isascii()):
+        parent.create_dataset(name, data=data, **(_COMPRESS if data.nbytes >= _COMPRESS_BYTES else {}))
+        return
+    space = h5py.h5s.create_simple(data.shape)
+    h5py.h5d.create(parent.id, name.encode(), _type(data.dtype), space, dcpl=_DCPL, lcpl=_LCPL).write(h5py.h5s.ALL, h5py.h5s.ALL, data)
+
+
 def _write(h5: h5py.File, a: Archive):
-    h5.attrs.update(
+    _attrs(h5, dict(
         format=FORMAT,
         format_version=FORMAT_VERSION,
         software_version=__version__,
         created=a.created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         units=a.units,
-    )
-    g = h5.create_group("problem")
-    g.attrs.update(name=a.name, kind=a.kind, source=a.source)
-    h5.create_group("tube").attrs["diameter"] = float(a.diameter)
+    ))
+    _attrs(h5.create_group("problem"), dict(name=a.name, kind=a.kind, source=a.source))
+    _attrs(h5.create_group("tube"), {"diameter": float(a.diameter)})
     if a.target is not None:
-        h5.create_dataset("target/points", data=np.asarray(a.target, float), **_COMPRESS)
+        _dataset(h5, "target/points", np.asarray(a.target, float))
     for key, arr in a.extra.items():
-        h5.create_dataset(key.strip("/"), data=np.asarray(arr), **_COMPRESS)
+        _dataset(h5, key.strip("/"), arr)
     if a.obstacles:
         write_obstacles(h5.create_group("obstacles"), a.obstacles)
     runs = h5.create_group("runs")
     for name, r in a.runs.items():
         g = runs.create_group(name)
-        g.attrs.update(method=r.method, status=r.status, solve_time_s=float(r.solve_time_s), iterations=int(r.iterations),
-                       clear=bool(r.clear), shortfall="\n".join(r.shortfall))
+        _attrs(g, dict(method=r.method, status=r.status, solve_time_s=float(r.solve_time_s), iterations=int(r.iterations),
+                       shortfall="\n".join(r.shortfall)))
+        g.attrs["clear"] = bool(r.clear)
         d = g.create_group("design")
-        d.create_dataset("theta", data=r.routing.theta, **_COMPRESS)
-        d.create_dataset("lambda", data=r.routing.lam, **_COMPRESS)
-        d.create_dataset("length", data=r.routing.length, **_COMPRESS)
-        d.create_dataset("phi", data=r.phi, **_COMPRESS)
-        d.create_dataset("initial_pose", data=r.routing.initial_pose)
+        for key, data in (("theta", r.routing.theta), ("lambda", r.routing.lam), ("length", r.routing.length),
+                          ("phi", r.phi), ("initial_pose", r.routing.initial_pose)):
+            _dataset(d, key, data)
         s = g.create_group("shape")
         for line in ("center", "inner", "outer"):
-            s.create_dataset(line, data=getattr(r.shape, line), **_COMPRESS)
-        m = g.create_group("metrics")
-        m.attrs.update({k: float(v) for k, v in r.metrics.items()})
-        st = g.create_group("solver")
-        st.attrs.update({k: _attr(v) for k, v in r.stats.items()})
+            _dataset(s, line, getattr(r.shape, line))
+        _attrs(g.create_group("metrics"), {k: float(v) for k, v in r.metrics.items()})
+        _attrs(g.create_group("solver"), {k: _attr(v) for k, v in r.stats.items()})
 
 
 def write_archive(path, archive: Archive, extend=None) -> None:
-    """Write ``archive`` to ``path`` atomically (built in memory, temporary file, rename).
-
-    Parameters
-    ----------
-    path : path-like
-        The archive to write.
-    archive : Archive
-        What to write (the spec's layout; ``archive.extra`` as further datasets).
-    extend : callable, optional
-        ``extend(h5)`` adds further groups (multi-shape levels, ...) to the open
-        in-memory file after the standard layout.
-
-    Raises
-    ------
-    OutputError
-        When the file cannot be written; nothing is left behind.
+    """Write ``archive`` (the spec's layout, ``extra`` as further datasets) to ``path`` atomically:
+    built in memory, temporary file, fsync, rename. ``extend(h5)`` adds further groups (multi-shape
+    levels, ...) to the in-memory file. OutputError when it cannot be written: nothing is left.
     """
 
     def fill(h5):

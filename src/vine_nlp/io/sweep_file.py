@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import copy
 import itertools
+import os
 import re
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -23,6 +25,11 @@ MAX_SWEEP_ITEMS = 100_000
 _SWEEP_KEYS = ("name", "base", "methods", "grid")
 
 _SWEEP_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]*")
+MAX_KEY_PARTS = 32  # of a dotted grid key ("target.scale.0": 3); problem files nest far less deep
+# A dotted key of more parts anywhere in the text: tomllib takes quadratic time on one (30 000 parts: 16 s).
+# Each part is matched possessively and only from its start, so the search is linear in the text.
+_PART = r"""(?:[\w-]++|"[^"\n]*+"|'[^'\n]*+')"""
+_LONG_KEY = re.compile(r"""(?<![\w."'-])%s(?:[ \t]*+\.[ \t]*+%s){%d}""" % (_PART, _PART, MAX_KEY_PARTS), re.ASCII)
 
 
 @dataclass
@@ -51,8 +58,14 @@ def load_sweep(path) -> Sweep:
     """Read a sweep file and validate its base problem and every item."""
     path = str(path)
     f = SourceFile(path)
-    source = read_text(path, path, "file")
+    source = read_text(_regular(path, path, "file"), path, "file")
+    long_key = _LONG_KEY.search(source)
+    if long_key:
+        raise f.error(f"line {source.count(chr(10), 0, long_key.start()) + 1}", f"a dotted key of more than {MAX_KEY_PARTS} parts")
     data = parse_toml(path, source)
+    bad = _unprintable(data)
+    if bad is not None:
+        raise f.error("file", f"keys and texts must be printable (no control characters), got {bad[:60]!r}")
     check_keys(f, data, "", _SWEEP_KEYS)
     name = data.get("name", re.sub(r"[^A-Za-z0-9._+-]", "_", Path(path).stem).lstrip(".") or "sweep")
     name = nonempty_text(f, "name", name)
@@ -60,7 +73,7 @@ def load_sweep(path) -> Sweep:
 
     base = nonempty_text(f, "base", required_value(f, data, "base", ""))
     base_path = str(f.dir / base)
-    base_source = read_text(base_path, path, "base")
+    base_source = read_text(_regular(base_path, path, "base"), path, "base")
     base_data = parse_toml(base_path, base_source)
     if parse_problem(base_data, base_path, base_source).kind != "design":
         raise f.error("base", "must be a design problem file (one with [target])")
@@ -76,6 +89,7 @@ def load_sweep(path) -> Sweep:
     grid = _flatten(grid_table)
     size = 1
     for key, values in grid.items():
+        check(f, "grid", key.count(".") < MAX_KEY_PARTS, f"a key of more than {MAX_KEY_PARTS} parts: {key[:60]!r}...")
         if not (isinstance(values, list) and values):
             raise f.error(f"grid.{key}", "must be a non-empty list of values")
         size *= len(values)
@@ -162,3 +176,28 @@ def _flatten(table: dict, prefix: str = "") -> dict:
         else:
             flat[f"{prefix}{key}"] = value
     return flat
+
+
+def _regular(path: str, named_by: str, key: str) -> str:
+    """``path``, unless it is something that is no file to read (a FIFO blocks in open(), /dev/zero never ends)."""
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        mode = stat.S_IFREG  # read_text says what is wrong
+    if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        raise InputError(named_by, key, f"not a regular file (a pipe, device or socket): {path}")
+    return path
+
+
+def _unprintable(data):
+    """The first key or text in ``data`` (tables, arrays) that is not printable, or None."""
+    todo = [data]
+    while todo:
+        value = todo.pop()
+        if isinstance(value, dict):
+            todo += [*value, *value.values()]
+        elif isinstance(value, list):
+            todo += value
+        elif isinstance(value, str) and not value.isprintable():
+            return value
+    return None

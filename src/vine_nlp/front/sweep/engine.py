@@ -1,21 +1,16 @@
-"""The sweep itself: items, resume, the directory lock, archives streamed to disk as items finish.
+"""The sweep itself: resume, the directory lock, the run (see :mod:`vine_nlp.front.sweep`).
 
-See the package docstring (:mod:`vine_nlp.front.sweep`) for what a sweep writes and how it
-resumes. This module adds two safeguards:
-
-* a lock: ``DIR/.sweep.lock`` is held (``fcntl.flock``) for the whole run, so a second
-  sweep started into the same directory stops at once with an InputError (exit 2) instead
-  of both writing the same files; the lock goes with the process, however it ends;
-* write errors (a full disk, a read-only filesystem, no permission): the sweep stops,
-  every archive already written stays, and the error says to run the same command again
-  once the cause is fixed (it then resumes).
+The parent plans (what is finished), keeps the workers busy, keeps the summary rows and
+writes summary.csv and summary.png; the workers write the archives.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
+import secrets
 import sys
 import threading
 import time
@@ -26,12 +21,11 @@ from typing import Callable
 
 from vine_nlp import interrupt
 from vine_nlp.errors import InputError
-from vine_nlp.front.sweep.executors import InlinePool, error_text, is_broken_pool, make_pool, solve_chunk
+from vine_nlp.front.sweep.executors import LOCK_FILE, InlinePool, archive_outcome, error_text, make_pool, solve_chunk
 from vine_nlp.front.sweep.figure import plot_summary, preload_matplotlib
-from vine_nlp.front.sweep.summary import FAILED, SUMMARY_CSV, SUMMARY_PNG, SweepReport, make_row, write_summary
-from vine_nlp.io.archive import Archive, OutputError, load_archive, write_archive
+from vine_nlp.front.sweep.summary import FAILED, SUMMARY_CSV, SUMMARY_PNG, SweepReport, cells, make_row, write_summary
+from vine_nlp.io.archive import OutputError, load_archive
 
-LOCK_FILE = ".sweep.lock"
 _PARAMETER_OPTIONS = ("smooth_theta", "smooth_lambda", "seed", "method")
 
 
@@ -40,9 +34,9 @@ class _Job:
     item: str
     overrides: dict
     pf: object  # ProblemFile
-    methods: list  # to solve now
     previous: dict  # runs kept from an existing archive of the same source
-    strikes: int = 0  # times a worker process died while this item was running
+    seen: tuple | None  # (inode, mtime) of the archive there was at the start, if any
+    strikes: int = 0  # times the item's task was lost with a dying worker
 
 
 def _structure(pf, methods) -> tuple:
@@ -66,12 +60,28 @@ def _existing_runs(path: Path, pf) -> dict | None:
     return archive.runs
 
 
+def _identity(path: Path):
+    with contextlib.suppress(OSError):
+        st = path.stat()
+        return (st.st_ino, st.st_mtime_ns)  # a new archive is a new file (renamed onto the path)
+    return None
+
+
+def _remove_temporaries(out: Path, items) -> None:
+    """Temporary files of this sweep's archives (``.<item>.h5.*.tmp``), left by a worker killed mid-write."""
+    for p in out.glob(".*.h5.*.tmp"):
+        if p.name[1 : p.name.rindex(".h5.")] in items:
+            p.unlink(missing_ok=True)
+
+
 class DirectoryLock:
-    """An exclusive ``fcntl.flock`` on ``DIR/.sweep.lock`` (advisory; released when the process ends)."""
+    """An exclusive ``fcntl.flock`` on ``DIR/.sweep.lock`` (advisory; released when the process ends).
+    The file says ``<pid> <token>``: a worker that reads this sweep's token there writes in place."""
 
     def __init__(self, out: Path):
         self.path = out / LOCK_FILE
         self.fd = None
+        self.token = secrets.token_hex(8)
 
     def acquire(self) -> None:
         """Take the lock or raise InputError naming the sweep that holds it."""
@@ -86,17 +96,15 @@ class DirectoryLock:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
-            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
+            holder = (os.pread(fd, 64, 0).decode(errors="replace").split() or ["?"])[0]
             os.close(fd)
             raise InputError(
                 str(self.path.parent), "-o",
                 f"another sweep (pid {holder}) is writing into this directory; wait for it to end or choose another -o",
             ) from None
-        try:
+        with contextlib.suppress(OSError):  # a full disk must not stop the lock (the workers then send their results)
             os.ftruncate(fd, 0)
-            os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-        except OSError:
-            pass  # the pid is only informative; a full disk must not stop the lock
+            os.pwrite(fd, f"{os.getpid()} {self.token}\n".encode(), 0)
         self.fd = fd
 
     def release(self) -> None:
@@ -116,97 +124,33 @@ def run_sweep(
 ) -> SweepReport:
     """Solve every item of ``sweep`` (from ``load_sweep``) into ``out_dir`` (see :mod:`vine_nlp.front.sweep`).
 
-    Parameters
-    ----------
-    sweep : Sweep
-        From ``vine_nlp.io.problem_file.load_sweep``.
-    out_dir : path-like
-        The directory of the archives and the summary (created when missing).
-    workers : int, optional
-        Local processes (default ``os.cpu_count()``; 0 or 1: in this process); ignored
-        with ``scheduler``.
-    scheduler : str, optional
-        The address of a dask scheduler.
-    progress : bool
-        A tqdm bar on stderr (on a terminal).
-    force : bool
-        Redo items that have an archive already.
-    callback : callable, optional
-        ``callback(item, rows)`` after each item finished in this run, once its archive
-        and the summary are on disk (on sweeps so large that rewriting the summary takes
-        a while, the summary may lag a few items behind).
-
-    Returns
-    -------
-    SweepReport
-
-    Raises
-    ------
-    InputError
-        Bad arguments, an unusable output directory, a directory locked by another
-        sweep, a scheduler that cannot be reached, a base problem with obstacles.
-    OutputError
-        A file could not be written (disk full, ...): the sweep stopped, what finished
-        is kept, the same command resumes.
-    KeyboardInterrupt
-        Ctrl-C or SIGTERM; its ``sweep_report`` attribute is the partial report.
+    ``workers``: local processes (default ``os.cpu_count()``; 0 or 1: this one), ignored with
+    ``scheduler`` (a dask scheduler's address); ``progress``: a tqdm bar on a terminal; ``force``:
+    redo finished items; ``callback(item, rows)`` after each item this run finished. Raises
+    InputError (bad arguments or output directory, a locked one, no scheduler, obstacles),
+    OutputError (a file could not be written: the sweep stopped, the same command resumes) and
+    KeyboardInterrupt (Ctrl-C, SIGTERM; its ``sweep_report`` is the partial report).
     """
     t_start = time.perf_counter()
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InputError(str(out), "-o", "exists and is not a directory")
-    if workers is None:
-        workers = os.cpu_count() or 1
+    workers = (os.cpu_count() or 1) if workers is None else workers
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
         raise InputError("command line", "--workers", f"must be an integer >= 0, got {workers!r}")
-    created = not out.exists()
-
-    items = sweep.items()
-    if any(getattr(pf.problem, "obstacles", ()) for _, _, pf in items):
+    run = _Run(sweep, out, callback, t_start)
+    if any(getattr(pf.problem, "obstacles", ()) for _, _, pf in run.items):
         # `vine-nlp design` adds a step after run_design for obstacles (front.cli); a sweep that
         # solved around it would archive designs that ignore them
         raise InputError(sweep.path, "base", "[[obstacles]] are not supported in sweeps yet; design such problems "
                          "with vine-nlp design")
-    grid_keys = list(sweep.grid)
-    methods = list(sweep.methods)
-    report = SweepReport(sweep.name, out, len(items), created_dir=created)
-    order = {item: k for k, (item, _, _) in enumerate(items)}
-    rows_of: dict[str, list] = {}  # item -> rows, for the items finished (or skipped) so far
-    phases = report.phases
-
-    lock = DirectoryLock(out)
-    if out.is_dir():
-        lock.acquire()  # before reading what is there: another sweep may be writing it
-    pool = None
+    lock, pool = DirectoryLock(out), None
     try:
-        # ---- what is finished already
-        jobs = []
-        for item, overrides, pf in items:
-            path = out / f"{item}.h5"
-            previous = {}
-            if path.exists() and not force:
-                runs = _existing_runs(path, pf)
-                if runs is None:
-                    report.replaced += 1
-                else:
-                    previous = {m: runs[m] for m in methods if m in runs}
-            todo = [m for m in methods if m not in previous]
-            if not todo:
-                rows_of[item] = [make_row(item, overrides, m, pf.units, previous[m]) for m in methods]
-                report.skipped += 1
-                continue
-            jobs.append(_Job(item, overrides, pf, todo, previous))
-
-        # grouped by structure, groups in order of first appearance, grid order inside a group
-        groups: dict[tuple, list] = {}
-        for job in jobs:
-            groups.setdefault(_structure(job.pf, job.methods), []).append(job)
-        pending = deque(job for group in groups.values() for job in group)
-
+        if out.is_dir():
+            lock.acquire()  # before reading what is there: another sweep may be writing it
+        run.plan(force)
         # Connect (a bad scheduler address is bad input) before anything is created.
-        pool = make_pool(workers, scheduler, len(pending), inherited_fd=lock.fd) if pending else None
-        phases["setup_s"] = time.perf_counter() - t_start
-        report.executor = pool.description if pool is not None else ""
+        pool = make_pool(workers, scheduler, len(run.pending), inherited_fd=lock.fd) if run.pending else None
         try:
             out.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -218,198 +162,217 @@ def run_sweep(
             pool.close(interrupted=True)
         lock.release()
         raise
-
     try:  # the lock is held from here on, however the run ends
-        summary_path = out / SUMMARY_CSV
-
-        def all_rows():
-            return [row for item in sorted(rows_of, key=order.__getitem__) for row in rows_of[item]]
-
-        clock = {"end": -math.inf, "cost": 0.0}
-
-        def write_summary_now(throttle=False):
-            # Rewritten after every batch of finished items; on huge sweeps at most 5% of the time goes to it.
-            start = time.perf_counter()
-            if throttle and start - clock["end"] < 20 * clock["cost"]:
-                return
-            write_summary(summary_path, all_rows(), grid_keys)
-            report.summary_csv = summary_path
-            clock["end"] = time.perf_counter()
-            clock["cost"] = clock["end"] - start
-
-        bar = None
-        if progress and jobs and getattr(sys.stderr, "isatty", lambda: False)():  # no bar in logs and pipes: tqdm is not even imported
-            from tqdm import tqdm
-
-            bar = tqdm(
-                total=len(items), initial=report.skipped, desc=sweep.name, unit="item",
-                file=sys.stderr, dynamic_ncols=True, smoothing=0.1,
-            )
-            bar.set_postfix(failed=0)
-
-        # While the workers solve, this process mostly waits: it imports the figure's modules meanwhile
-        # (a thread started after the workers were forked), so the figure does not wait for them at the end.
-        preload = None
-        if jobs and not isinstance(pool, InlinePool):
-            preload = threading.Thread(target=preload_matplotlib, name="vine-nlp-preload", daemon=True)
-            preload.start()
-
-        def finish(job: _Job, runs: dict, errors: dict):
-            """Archive and rows of one item that came back (``runs`` new Results, ``errors`` method -> text)."""
-            path = out / f"{job.item}.h5"
-            merged = dict(job.previous)
-            merged.update(runs)
-            ordered = {m: merged[m] for m in methods if m in merged}
-            if runs:
-                pf = job.pf
-                archive = Archive(
-                    name=pf.name, kind=pf.kind, source=pf.source, diameter=pf.problem.diameter,
-                    units=pf.units, target=pf.problem.target, runs=ordered,
-                )
-                write_archive(path, archive)  # OutputError (disk full, ...) stops the sweep: see below
-            elif not job.previous:
-                path.unlink(missing_ok=True)  # a failed item has no archive; an old one is stale
-            rows = []
-            for m in methods:
-                if m in ordered:
-                    rows.append(make_row(job.item, job.overrides, m, job.pf.units, ordered[m]))
-                else:
-                    error = errors.get(m) or "not run"
-                    rows.append(make_row(job.item, job.overrides, m, job.pf.units, error=error))
-                    report.failures.append((job.item, m, error))
-                    if bar is not None:
-                        bar.write(f"{job.item} {m} failed: {error}")
-            rows_of[job.item] = rows
-            if any(r["status"] == FAILED for r in rows):
-                report.failed += 1
-            else:
-                report.done += 1
-            if bar is not None:
-                bar.set_postfix(failed=report.failed, refresh=False)
-                bar.update(1)
-            return job.item, rows
-
-        inflight: dict = {}  # future -> the jobs of its chunk
-
-        def fill():
-            # Keep every worker busy; an item suspected of killing its worker runs alone (a chunk of one).
-            while pending and len(inflight) < pool.window and not any(j.strikes for c in inflight.values() for j in c):
-                if pending[0].strikes:
-                    if inflight:
-                        break
-                    chunk = [pending.popleft()]
-                else:
-                    chunk = []
-                    size = pool.chunk_size(len(pending))
-                    while pending and len(chunk) < size and not pending[0].strikes:
-                        chunk.append(pending.popleft())
-                task = [(job.pf, job.methods) for job in chunk]
-                inflight[pool.submit(solve_chunk, (task,), chunk[0].item)] = chunk
-
-        try:
-            while pending or inflight:
-                fill()
-                t_wait = time.perf_counter()
-                done = pool.wait_first(list(inflight))
-                phases["waiting_s"] += time.perf_counter() - t_wait
-                if phases["first_result_s"] is None:
-                    phases["first_result_s"] = time.perf_counter() - t_start
-                results, crashed = [], []
-                for fut in done:
-                    chunk = inflight.pop(fut)
-                    try:
-                        outs = fut.result()
-                    except Exception as exc:  # noqa: BLE001 - the whole task failed (or its worker died)
-                        if is_broken_pool(exc):
-                            crashed += [(job, fut) for job in chunk]
-                        else:
-                            text = error_text(exc)
-                            results += [(job, {}, {m: text for m in job.methods}) for job in chunk]
-                        continue
-                    for job, (runs, timings) in zip(chunk, outs):
-                        results.append((job, runs, timings["errors"]))
-                        report.item_wall_s += timings.get("total_s", 0.0)
-                        report.item_cpu_s += timings.get("cpu_s", 0.0)
-                if crashed:
-                    # The pool is broken: every item in flight comes back here. Retry them one at a time
-                    # in a fresh pool; one that kills its worker while running alone has failed.
-                    crashed += [(job, f) for f in list(inflight) for job in inflight.pop(f)]
-                    suspects = [job for job, f in crashed if not getattr(f, "never_started", False)]
-                    for job, f in sorted(crashed, key=lambda c: order[c[0].item], reverse=True):
-                        if getattr(f, "never_started", False):
-                            pending.appendleft(job)
-                        elif job.strikes and len(suspects) == 1:
-                            text = "the worker process died while solving this item (crash or out of memory)"
-                            results.append((job, {}, {m: text for m in job.methods}))
-                        else:
-                            job.strikes += 1
-                            pending.appendleft(job)
-                    pool.restart()
-                elif not pool.synchronous:
-                    fill()  # the next chunks go out before the archives are written: no worker waits for the disk
-                t_finish = time.perf_counter()
-                finished = [finish(job, runs, errors) for job, runs, errors in results]
-                phases["archives_s"] += time.perf_counter() - t_finish
-                if finished:
-                    write_summary_now(throttle=True)
-                if callback is not None:
-                    for item, rows in finished:
-                        callback(item, rows)
-                if finished:
-                    interrupt.hold("sweep-item")  # tests: a finished item is on disk, more are to come
-        except BaseException as exc:
-            if pool is not None:
-                pool.cancel(list(inflight))
-                pool.close(interrupted=True)
-                pool = None
-            report.interrupted = isinstance(exc, KeyboardInterrupt)
-            try:
-                write_summary_now()  # what finished, so far as the disk allows
-            except OutputError:
-                pass
-            report.rows = all_rows()
-            report.archives = _archives(out, items)
-            report.wall_time_s = time.perf_counter() - t_start
-            if bar is not None:
-                bar.close()
-            if report.interrupted:
-                exc.sweep_report = report
-            if isinstance(exc, OutputError):
-                kept = report.done + report.failed + report.skipped
-                raise OutputError(
-                    exc.file, exc.key,
-                    f"{exc.reason.replace('; nothing was written', '')}; the sweep stopped, finished items kept: {kept}; "
-                    "run the same command again to resume",
-                    errno=exc.errno,
-                ) from None
-            raise
-        finally:
-            if pool is not None:
-                pool.close()
-
-        if bar is not None:
-            bar.close()
-        write_summary_now()
-        report.rows = all_rows()
-        report.archives = _archives(out, items)
-        phases["summary_csv_s"] = time.perf_counter() - t_start
-        png = out / SUMMARY_PNG
-        t_figure = time.perf_counter()
-        if preload is not None:
-            preload.join()  # imports are done or nearly so; no import races the drawing
-        try:
-            plot_summary(report.rows, png, title=f"sweep {sweep.name}")
-            report.summary_png = png
-        except OutputError:
-            raise
-        except Exception as exc:  # noqa: BLE001 - the results are on disk already; say what went wrong
-            report.figure_error = error_text(exc)
-        phases["figure_s"] = time.perf_counter() - t_figure
-        report.wall_time_s = time.perf_counter() - t_start
-        return report
+        _remove_temporaries(out, run.order)
+        run.solve(pool, progress, lock.token if scheduler else None)
+        return run.finish()
     finally:
         lock.release()
 
 
-def _archives(out: Path, items) -> list:
-    return [out / f"{item}.h5" for item, _, _ in items if (out / f"{item}.h5").exists()]
+class _Run:
+    """One run of a sweep: what is left to solve, the tasks in flight, the rows of finished items."""
+
+    def __init__(self, sweep, out: Path, callback, t_start: float):
+        self.sweep, self.out, self.callback, self.t_start = sweep, out, callback, t_start
+        self.items = sweep.items()
+        self.methods = list(sweep.methods)
+        self.order = {item: k for k, (item, _, _) in enumerate(self.items)}
+        self.report = SweepReport(sweep.name, out, len(self.items), created_dir=not out.exists())
+        self.rows_of: dict[str, list] = {}  # item -> rows, for the items finished (or skipped) so far
+        self.jobs: list[_Job] = []  # the items to solve
+        self.pending: deque = deque()
+        self.inflight: dict = {}  # future -> the jobs of its task
+        self.bar = self.preload = None
+
+    def plan(self, force: bool) -> None:
+        """Resume: an item whose archive holds every method is skipped (rows from the archive); one
+        missing some keeps its runs; one of another source (or unreadable) is redone."""
+        for item, overrides, pf in self.items:
+            path = self.out / f"{item}.h5"
+            previous, seen = {}, _identity(path)
+            if seen is not None and not force:
+                runs = _existing_runs(path, pf)
+                if runs is None:
+                    self.report.replaced += 1
+                else:
+                    previous = {m: runs[m] for m in self.methods if m in runs}
+            if len(previous) == len(self.methods):
+                self.rows_of[item] = [make_row(item, overrides, m, pf.units, cells(previous[m])) for m in self.methods]
+                self.report.skipped += 1
+                continue
+            self.jobs.append(_Job(item, overrides, pf, previous, seen))
+        # grouped by structure (a worker reuses its built solver), groups in order of first appearance
+        groups: dict[tuple, list] = {}
+        for job in self.jobs:
+            groups.setdefault(_structure(job.pf, [m for m in self.methods if m not in job.previous]), []).append(job)
+        self.pending = deque(job for group in groups.values() for job in group)
+
+    def solve(self, pool, progress: bool, token) -> None:
+        """Every pending item, ``pool`` keeping the workers busy; on any exception: :meth:`stopped`."""
+        if pool is None:
+            return
+        self.report.executor = pool.description
+        if progress and getattr(sys.stderr, "isatty", lambda: False)():  # no bar in logs and pipes: tqdm not even imported
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=len(self.items), initial=self.report.skipped, desc=self.sweep.name, unit="item",
+                            file=sys.stderr, dynamic_ncols=True, smoothing=0.1)
+            self.bar.set_postfix(failed=0)
+        # This process mostly waits: it imports the figure's modules meanwhile (a thread started after
+        # the workers were forked), so the figure does not wait for them at the end.
+        if not isinstance(pool, InlinePool):
+            self.preload = threading.Thread(target=preload_matplotlib, name="vine-nlp-preload", daemon=True)
+            self.preload.start()
+        where = str(self.out.resolve()) if token else self.out
+        try:
+            while self.pending or self.inflight:
+                self._fill(pool, where, token)
+                lost, finished = [], False
+                for fut in pool.wait_first(list(self.inflight)):
+                    chunk = self.inflight.pop(fut)
+                    try:
+                        records = fut.result()
+                    except Exception as exc:  # noqa: BLE001 - the whole task failed, or its worker died
+                        if pool.lost(exc):
+                            lost.append((fut, chunk))
+                            continue
+                        text = error_text(exc)
+                        records = [{"errors": dict.fromkeys(self.methods, text), "cells": {}} for _ in chunk]
+                    for job, record in zip(chunk, records):
+                        self._record(job, record)
+                        finished = True
+                if lost:
+                    self._retry(pool, lost)
+                if finished:
+                    interrupt.hold("sweep-item")  # tests: a finished item is on disk, more are to come
+            pool.close()
+        except BaseException as exc:
+            stop = self.stopped(pool, exc)
+            if stop is exc:
+                raise
+            raise stop from None
+
+    def _fill(self, pool, where, token) -> None:
+        """Keep every worker busy. An item whose task was lost with a dying worker runs alone, and
+        where workers share their fate (a local pool) with nothing else in flight: then it is to blame."""
+        while self.pending and len(self.inflight) < pool.window:
+            if pool.shared_fate and any(j.strikes for c in self.inflight.values() for j in c):
+                return
+            if self.pending[0].strikes:
+                if pool.shared_fate and self.inflight:
+                    return
+                chunk = [self.pending.popleft()]
+            else:
+                chunk, size = [], pool.chunk_size(len(self.pending))
+                while self.pending and len(chunk) < size and not self.pending[0].strikes:
+                    chunk.append(self.pending.popleft())
+            task = [(job.item, job.pf, self.methods, job.previous) for job in chunk]
+            self.inflight[pool.submit(solve_chunk, (task, where, token), chunk[0].item)] = chunk
+
+    def _retry(self, pool, lost) -> None:
+        """Items whose worker died: run them again, one per task; an item that kills its worker while it
+        runs alone has failed (a crash in a native library, the OOM killer)."""
+        if pool.shared_fate:  # the pool is broken: every task in flight comes back here
+            lost += list(self.inflight.items())
+            self.inflight.clear()
+        suspects = sum(len(chunk) for fut, chunk in lost if not getattr(fut, "never_started", False))
+        again = []
+        for fut, chunk in lost:
+            alone = suspects == 1 if pool.shared_fate else len(chunk) == 1  # dask ran it alone a few times already
+            for job in chunk:
+                if getattr(fut, "never_started", False):
+                    again.append(job)
+                elif alone and (job.strikes or not pool.shared_fate):
+                    text = "the worker process died while solving this item (crash or out of memory)"
+                    self._record(job, {"errors": dict.fromkeys(self.methods, text), "cells": {}})
+                else:
+                    job.strikes += 1
+                    again.append(job)
+        self.pending.extendleft(sorted(again, key=lambda j: self.order[j.item], reverse=True))
+        if pool.shared_fate:
+            pool.restart()
+
+    def _record(self, job: _Job, record: dict) -> None:
+        """The rows of an item that came back (its archive written here if the worker could not)."""
+        if "runs" in record:  # the worker does not see the sweep's directory: the archive is written here
+            archive_outcome(self.out, job.item, job.pf, record)
+            self.report.archived_here += "stop" not in record
+        if "stop" in record:
+            raise OutputError(*record["stop"])
+        report, rows, numbers = self.report, [], record["cells"]
+        for m in self.methods:
+            if m in numbers:
+                rows.append(make_row(job.item, job.overrides, m, job.pf.units, numbers[m]))
+                continue
+            error = record["errors"].get(m) or "not run"
+            rows.append(make_row(job.item, job.overrides, m, job.pf.units, error=error))
+            report.failures.append((job.item, m, error))
+            if self.bar is not None:
+                self.bar.write(f"{job.item} {m} failed: {error}")
+        self.rows_of[job.item] = rows
+        if any(r["status"] == FAILED for r in rows):
+            report.failed += 1
+        else:
+            report.done += 1
+        report.item_wall_s += record.get("total_s", 0.0)
+        report.item_cpu_s += record.get("cpu_s", 0.0)
+        if self.bar is not None:
+            self.bar.set_postfix(failed=report.failed, refresh=False)
+            self.bar.update(1)
+        if self.callback is not None:
+            self.callback(job.item, rows)
+
+    def stopped(self, pool, exc: BaseException) -> BaseException:
+        """Ctrl-C, a write error, anything: the workers stopped, what finished kept and summarized;
+        the exception to raise."""
+        pool.cancel(list(self.inflight))
+        pool.close(interrupted=True)
+        _remove_temporaries(self.out, self.order)
+        self.callback = None
+        # an archive a worker wrote and did not report (stopped in between) is finished all the same
+        for job in self.jobs:
+            path = self.out / f"{job.item}.h5"
+            if job.item not in self.rows_of and _identity(path) not in (None, job.seen):
+                runs = _existing_runs(path, job.pf) or {}
+                if all(m in runs for m in self.methods):
+                    self._record(job, {"cells": {m: cells(runs[m]) for m in self.methods}, "errors": {}})
+        report = self.report
+        report.interrupted = isinstance(exc, KeyboardInterrupt)
+        try:
+            self._summarize()
+        except OutputError:
+            pass  # the disk is full: what finished is in the archives, the next run summarizes it
+        if report.interrupted:
+            exc.sweep_report = report
+        if not isinstance(exc, OutputError):
+            return exc
+        kept = report.done + report.failed + report.skipped
+        return OutputError(exc.file, exc.key, f"{exc.reason.replace('; nothing was written', '')}; the sweep stopped, "
+                           f"finished items kept: {kept}; run the same command again to resume", errno=exc.errno)
+
+    def _summarize(self) -> None:
+        r = self.report
+        r.wall_time_s = time.perf_counter() - self.t_start
+        if self.bar is not None:
+            self.bar.close()
+        r.archives = [self.out / f"{item}.h5" for item in self.order if (self.out / f"{item}.h5").exists()]
+        r.rows = [row for item in sorted(self.rows_of, key=self.order.__getitem__) for row in self.rows_of[item]]
+        write_summary(self.out / SUMMARY_CSV, r.rows, list(self.sweep.grid))
+        r.summary_csv = self.out / SUMMARY_CSV
+
+    def finish(self) -> SweepReport:
+        """summary.csv and summary.png, once."""
+        self._summarize()
+        if self.preload is not None:
+            self.preload.join()  # imports are done or nearly so; no import races the drawing
+        png = self.out / SUMMARY_PNG
+        try:
+            plot_summary(self.report.rows, png, title=f"sweep {self.sweep.name}")
+            self.report.summary_png = png
+        except OutputError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - the results are on disk already; say what went wrong
+            self.report.figure_error = error_text(exc)
+        self.report.wall_time_s = time.perf_counter() - self.t_start
+        return self.report

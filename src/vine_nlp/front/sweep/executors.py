@@ -1,65 +1,52 @@
 """Where sweep items run: the worker task and three executors with one small interface.
 
-The worker task is the top-level function :func:`solve_item`; it returns Results and
-the parent writes every file, so a cluster needs no shared filesystem. An executor has
-``window`` (tasks to keep in flight), ``synchronous`` (``submit`` runs the task before it
-returns), ``description``, ``chunk_size(pending)``, ``submit(fn, args, name)``,
-``wait_first(futures)``, ``cancel(futures)`` and ``close(interrupted=False)``:
-
-* :class:`InlinePool` (workers 0 or 1): each item runs in this process;
-* :class:`LocalPool`: a ProcessPoolExecutor whose worker processes live for the whole
-  sweep; ``restart()`` after a worker process died. The first pool forks this process
-  when that is safe (no thread but the main one, no solver built here yet: a fork of a
-  process that runs casadi or IPOPT threads can hang), so the workers start at once with
-  every module already imported; otherwise, and for every restart, the workers come from
-  a forkserver that imported the solver modules once (spawn where there is none);
-* :class:`DaskPool`: a dask.distributed scheduler. dask is imported only here, when a
-  scheduler address is given.
-
-Items travel in chunks (:func:`solve_chunk`, ``chunk_size``): a local worker gets a few
-items per task, so the round trip to the parent (which writes every archive) is paid per
-chunk, not per item. Chunks shrink towards the end of a sweep (the last tasks are single
-items, so no worker idles while another finishes a long chunk) and stay small enough that
-results reach the disk within about a second. The in-process and dask executors take one
-item per task (dask's own KilledWorker must fail one item, not a chunk).
+The worker task :func:`solve_chunk` solves a few items (:func:`solve_item`, the seam with the
+design methods), writes each item's archive (:func:`write_item`) and sends back a small record
+per item; where the sweep directory is not the one it sees (a dask worker on another machine:
+the lock file's token differs), it sends the Results and the parent writes them. Executors:
+:class:`InlinePool` (this process), :class:`LocalPool` (long-lived worker processes: each
+builds a solver once per problem structure; forked when this process is safe to fork, else
+from a forkserver) and :class:`DaskPool`. Items travel in chunks of up to MAX_CHUNK (a task
+costs more than a short item), single items at the end so that no worker waits for another.
 """
 
 from __future__ import annotations
 
+import contextlib
+import math
 import os
-import socket
 import sys
 import threading
 import time
 import traceback
+from pathlib import Path
 
 from vine_nlp.errors import InputError
+from vine_nlp.front.sweep.summary import cells
+from vine_nlp.io.archive import Archive, OutputError, write_archive
 
+LOCK_FILE = ".sweep.lock"  # DIR's lock; its second word is the sweep's token (see _reaches)
+MAX_CHUNK = 8  # items per task at most
 _MAX_ERROR_TEXT = 500
-MAX_CHUNK = 8  # items per local task at most: results still stream to disk every second or so
 # imported once by the forkserver, so its workers start with them (and the main module, the default)
 _WORKER_MODULES = ("vine_nlp.front.sweep.executors", "vine_nlp.methods.methods")
+_PR_SET_PDEATHSIG = 1
+_ONE_SOLVE = threading.Lock()
 
 
 def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]:
-    """Solve one sweep item with each of ``methods`` (runs in a worker process).
+    """Solve one sweep item with each of ``methods`` (in a worker process): ``(runs, timings)``.
 
-    Returns ``(runs, timings)``: ``runs`` maps each method that finished to its
-    Result (a picklable dataclass); ``timings`` holds ``{"methods": {method:
-    wall seconds}, "total_s", "cpu_s" (this process's CPU time for the item), "errors":
-    {method: "Type: message"}, "pid", "host"}``.
-    A method that raises is reported in ``timings["errors"]`` and does not stop the
-    item's other methods. KeyboardInterrupt propagates, except with ``remote=True``
-    (a worker process, which ignores Ctrl-C): there it can only come from a solver
-    (vine_nlp.interrupt maps an exception thrown inside IPOPT to KeyboardInterrupt)
-    and fails that run instead of stopping the whole sweep.
+    ``runs``: method -> Result for each method that finished; ``timings``: ``total_s``, ``cpu_s``
+    and ``errors`` (method -> "Type: message": a method that raises fails alone). KeyboardInterrupt
+    propagates unless ``remote`` (a worker ignores Ctrl-C: there it comes from inside IPOPT and
+    fails that run).
     """
     from vine_nlp.methods import methods as design
 
-    runs, errors, wall = {}, {}, {}
+    runs, errors = {}, {}
     t_item, c_item = time.perf_counter(), time.process_time()
     for method in methods:
-        t0 = time.perf_counter()
         try:
             # looked up on the module at call time: one place to replace it (tests)
             runs[method] = design.run_design(problem_file.problem, method)
@@ -72,16 +59,64 @@ def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]
                 "KeyboardInterrupt from the solver in a worker process, which ignores Ctrl-C "
                 "(IPOPT status NonIpopt_Exception_Thrown: an exception inside the solve)"
             )
-        wall[method] = time.perf_counter() - t0
-    timings = {
-        "methods": wall,
-        "total_s": time.perf_counter() - t_item,
-        "cpu_s": time.process_time() - c_item,
-        "errors": errors,
-        "pid": os.getpid(),
-        "host": socket.gethostname(),
-    }
-    return runs, timings
+    return runs, {"total_s": time.perf_counter() - t_item, "cpu_s": time.process_time() - c_item, "errors": errors}
+
+
+def write_item(out_dir, item: str, problem_file, runs: dict) -> dict:
+    """Write ``DIR/<item>.h5`` atomically with ``runs`` (method -> Result, in the sweep's order)
+    and return the summary's numbers of each run, ``{method: cells}`` (:func:`summary.cells`).
+
+    No runs: the item has no archive (a stale one is removed). Raises OutputError (disk full,
+    ...) and whatever HDF5 refuses to store. The pipeline's outcome of an item feeds this.
+    """
+    path = Path(out_dir) / f"{item}.h5"
+    if not runs:
+        path.unlink(missing_ok=True)
+        return {}
+    pf = problem_file
+    write_archive(path, Archive(name=pf.name, kind=pf.kind, source=pf.source, diameter=pf.problem.diameter,
+                                units=pf.units, target=pf.problem.target, runs=runs))
+    return {m: cells(r) for m, r in runs.items()}
+
+
+def archive_outcome(out_dir, item: str, problem_file, outcome: dict) -> dict:
+    """:func:`write_item` for an item's ``outcome`` (its ``runs`` replaced by their ``cells``). A failed
+    write stops the sweep (``stop``: the OutputError's arguments, which pickle); a value HDF5
+    refuses fails this item's runs alone."""
+    runs, outcome["cells"] = outcome.pop("runs"), {}
+    try:
+        outcome["cells"] = write_item(out_dir, item, problem_file, runs)
+    except OutputError as exc:
+        outcome["stop"] = (exc.file, exc.key, exc.reason, exc.errno)
+    except Exception as exc:  # noqa: BLE001 - e.g. a text with NUL: this item's failure, not the sweep's
+        outcome["errors"].update({m: f"cannot archive the result ({error_text(exc)})" for m in runs})
+    return outcome
+
+
+def solve_chunk(chunk, out_dir=None, token=None, remote: bool = False) -> list[dict]:
+    """Solve and archive each ``(item, problem_file, methods, previous)`` of ``chunk`` (``previous``: runs
+    kept from its archive). One record per item: ``cells``, ``errors``, ``total_s``, ``cpu_s``; ``runs``
+    instead of ``cells`` where ``out_dir`` is not the sweep's here (:func:`_reaches`); ``stop`` ends it.
+    """
+    here = out_dir is not None and (token is None or _reaches(out_dir, token))
+    records = []
+    for item, problem_file, methods, previous in chunk:
+        with _ONE_SOLVE:  # a dask worker's threads share its solvers, which are not thread-safe (two crashed)
+            solved, timings = solve_item(problem_file, [m for m in methods if m not in previous], remote=remote)
+        runs = {m: solved.get(m) or previous[m] for m in methods if m in solved or m in previous}
+        record = {"runs": runs, "errors": timings["errors"], "total_s": timings["total_s"], "cpu_s": timings["cpu_s"]}
+        records.append(archive_outcome(out_dir, item, problem_file, record) if here else record)
+        if "stop" in record:
+            break
+    return records
+
+
+def _reaches(out_dir, token: str) -> bool:
+    """True when ``out_dir`` here is the sweep's directory: its lock file holds the sweep's token."""
+    try:
+        return (Path(out_dir) / LOCK_FILE).read_text().split()[1:2] == [token]
+    except (OSError, UnicodeError):
+        return False
 
 
 def error_text(exc: BaseException) -> str:
@@ -90,12 +125,7 @@ def error_text(exc: BaseException) -> str:
     return text if len(text) <= _MAX_ERROR_TEXT else text[: _MAX_ERROR_TEXT - 3] + "..."
 
 
-def solve_chunk(chunk, remote: bool = False) -> list:
-    """:func:`solve_item` for each ``(problem_file, methods)`` of ``chunk``, in order; a list of its returns."""
-    return [solve_item(problem_file, methods, remote=remote) for problem_file, methods in chunk]
-
-
-def _worker_init(inherited_fd=None):
+def _worker_init(close_fds=(), watch_fd=None, parent=None):
     # Ctrl-C reaches the whole process group; only the parent handles it (it stops the workers).
     import signal
 
@@ -103,19 +133,35 @@ def _worker_init(inherited_fd=None):
     # A forked worker inherits the parent's handlers (vine_nlp.interrupt turns SIGTERM into
     # KeyboardInterrupt): the parent ends its workers with SIGTERM, and they are to go quietly.
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    if inherited_fd is not None:
-        # the parent's directory lock, inherited by fork: the lock must end with the parent, not with a worker
-        try:
-            os.close(inherited_fd)
-        except OSError:
-            pass
+    for fd in close_fds:  # inherited by fork: the directory lock, the watch pipe's write end
+        with contextlib.suppress(OSError):
+            os.close(fd)
+    _die_with_parent(watch_fd, parent)
+
+
+def _die_with_parent(watch_fd, parent) -> None:
+    """End this worker with the sweep, kill -9 too: Linux sends SIGKILL when the parent (or the forkserver,
+    which ends with the sweep) is gone; a forked worker also reads the parent's pipe, which ends then."""
+    import ctypes
+    import signal
+
+    with contextlib.suppress(OSError, AttributeError):  # not Linux
+        ctypes.CDLL(None).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    if parent is not None and os.getppid() != parent:  # gone before prctl
+        os._exit(1)
+    if watch_fd is not None:
+        threading.Thread(target=_exit_at_eof, args=(watch_fd,), name="vine-nlp-parent", daemon=True).start()
+
+
+def _exit_at_eof(fd: int) -> None:
+    while os.read(fd, 1):
+        pass
+    os._exit(1)  # the parent's end of the pipe closed: the sweep is gone
 
 
 def _warm_up():
     """The first task of every local worker: the solver modules imported before the first item arrives."""
     import vine_nlp.methods.methods  # noqa: F401
-
-    return os.getpid()
 
 
 def fork_is_safe() -> bool:
@@ -131,17 +177,22 @@ def fork_is_safe() -> bool:
     )
 
 
+def _chunk(pending: int, slots: int) -> int:
+    """Items for the next task: a quarter of a fair share, at most MAX_CHUNK, single items at the end."""
+    return max(1, min(MAX_CHUNK, pending // (4 * slots)))
+
+
 class InlinePool:
     """workers 0 or 1: each item runs in this process when submitted."""
 
     window = 1
-    synchronous = True  # submit() runs the item: the engine writes what finished before it submits more
+    shared_fate = False
 
     def __init__(self):
         self.description = "in this process"
 
     def chunk_size(self, pending: int) -> int:
-        return 1  # nothing to save in this process; an interrupt keeps every finished item
+        return 1  # an interrupt keeps every finished item
 
     def submit(self, fn, args, name):
         from concurrent.futures import Future
@@ -156,6 +207,9 @@ class InlinePool:
     def wait_first(self, futures):
         return [f for f in futures if f.done()]
 
+    def lost(self, exc) -> bool:
+        return False
+
     def cancel(self, futures):
         pass
 
@@ -166,14 +220,14 @@ class InlinePool:
 class LocalPool:
     """A ProcessPoolExecutor whose worker processes live for the whole sweep."""
 
-    synchronous = False
+    shared_fate = True  # a worker that dies breaks the pool: every task in flight is lost
 
     def __init__(self, workers: int, inherited_fd: int | None = None):
-        """``workers`` processes, started now (they import and warm up while the parent goes on);
-        ``inherited_fd`` is closed in forked workers (the directory lock)."""
-        self.window = workers
+        """``workers`` processes, started now; forked ones close ``inherited_fd`` (the directory lock)."""
         self.workers = workers
+        self.window = workers + 1  # one task waits in the pool's queue: a worker that finishes starts the next at once
         self.description = f"{workers} local worker processes"
+        self.watch = os.pipe()  # forked workers read it; it ends with this process (_die_with_parent)
         self.start_method = "fork" if fork_is_safe() else None
         self.executor = self._make(self.start_method, inherited_fd)
 
@@ -188,16 +242,17 @@ class LocalPool:
         if method == "forkserver":
             # no effect once this process's forkserver runs (it then has its own list)
             ctx.set_forkserver_preload(["__main__", *_WORKER_MODULES])
-        fd = inherited_fd if method == "fork" else None
-        executor = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_worker_init, initargs=(fd,))
+        # file descriptors mean something only in a fork of this process
+        fork = ((inherited_fd, self.watch[1]) if inherited_fd is not None else (self.watch[1],), self.watch[0], os.getpid())
+        executor = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_worker_init,
+                                       initargs=fork if method == "fork" else ())
         # Start every worker now (a fork happens here, while this process has one thread): they
         # import the solver modules while the parent sets up; the futures are not looked at.
         self._warm = [executor.submit(_warm_up) for _ in range(self.workers)]
         return executor
 
     def chunk_size(self, pending: int) -> int:
-        """Items for the next task: a quarter of a fair share, at most MAX_CHUNK, single items at the end."""
-        return max(1, min(MAX_CHUNK, pending // (4 * self.workers)))
+        return _chunk(pending, self.workers)
 
     def submit(self, fn, args, name):
         from concurrent.futures import Future
@@ -217,6 +272,11 @@ class LocalPool:
 
         return wait(futures, return_when=FIRST_COMPLETED).done
 
+    def lost(self, exc) -> bool:
+        from concurrent.futures.process import BrokenProcessPool
+
+        return isinstance(exc, BrokenProcessPool)
+
     def restart(self):
         """A fresh pool after a worker process died (the old one is broken for good)."""
         self.executor.shutdown(wait=False, cancel_futures=True)
@@ -230,48 +290,54 @@ class LocalPool:
     def close(self, interrupted=False):
         if not interrupted:
             self.executor.shutdown(wait=True)
-            return
-        # Ctrl-C: do not wait for the running items (an item may take minutes).
-        processes = list((getattr(self.executor, "_processes", None) or {}).values())
-        self.executor.shutdown(wait=False, cancel_futures=True)
-        for p in processes:
-            if p.is_alive():
-                p.terminate()
-        for p in processes:
-            p.join(timeout=5)
+        else:  # Ctrl-C: do not wait for the running items (an item may take minutes)
+            processes = list((getattr(self.executor, "_processes", None) or {}).values())
+            self.executor.shutdown(wait=False, cancel_futures=True)
+            for p in processes:
+                if p.is_alive():
+                    p.terminate()
+            for p in processes:
+                p.join(timeout=5)
+        for fd in self.watch:
+            os.close(fd)
+        self.watch = ()
 
 
 class DaskPool:
     """A dask.distributed scheduler; the workers need vine_nlp installed, no shared files."""
 
-    synchronous = False
+    shared_fate = False  # dask reruns a task whose worker died; KilledWorker after a few deaths
 
     def __init__(self, address: str):
         try:
             from dask.distributed import Client, as_completed
+            from distributed.comm import resolve_address
         except ImportError:  # the [cluster] extra
             raise InputError("command line", "--scheduler", "needs dask.distributed: python3 -m pip install 'vine_nlp[cluster]'") from None
-        try:
-            from distributed.comm import resolve_address
 
+        try:
             # a malformed address fails here, before a Client exists (a half-made one hangs at exit)
             resolve_address(address)
             self.client = Client(address, set_as_default=False)
         except (OSError, TimeoutError, ValueError, TypeError) as exc:
             raise InputError(address, "--scheduler", f"cannot connect to the dask scheduler ({exc})") from None
         self._completed = as_completed(loop=self.client.loop)
-        self._window = (0.0, 0)
-        threads = sum(self.client.nthreads().values())
-        self.description = f"dask scheduler {address} ({len(self.client.nthreads())} workers, {threads} threads)"
+        self._threads = (-math.inf, 1)
+        self.description = f"dask scheduler {address} ({len(self.client.nthreads())} workers, {self.threads} threads)"
+
+    @property
+    def threads(self) -> int:
+        """Worker threads of the cluster, looked up every few seconds (it may scale)."""
+        if time.monotonic() - self._threads[0] > 5.0:
+            self._threads = (time.monotonic(), max(1, sum(self.client.nthreads().values())))
+        return self._threads[1]
 
     @property
     def window(self) -> int:
-        # Keep the cluster busy without shipping the whole sweep at once; follows scaling.
-        checked, size = self._window
-        if time.monotonic() - checked > 5.0:
-            size = max(16, 4 * sum(self.client.nthreads().values()))
-            self._window = (time.monotonic(), size)
-        return size
+        return max(16, 4 * self.threads)  # the cluster busy without shipping the whole sweep at once
+
+    def chunk_size(self, pending: int) -> int:
+        return _chunk(pending, self.threads)
 
     def submit(self, fn, args, name):
         import uuid
@@ -280,11 +346,11 @@ class DaskPool:
         self._completed.add(fut)
         return fut
 
-    def chunk_size(self, pending: int) -> int:
-        return 1  # an item that keeps killing workers ends as KilledWorker: that item's failure alone
-
     def wait_first(self, futures):
         return self._completed.next_batch(block=True)
+
+    def lost(self, exc) -> bool:
+        return type(exc).__name__ == "KilledWorker"
 
     def cancel(self, futures):
         if futures:
@@ -303,10 +369,3 @@ def make_pool(workers: int, scheduler: str | None, jobs: int, inherited_fd: int 
     if workers <= 1:
         return InlinePool()
     return LocalPool(min(workers, jobs), inherited_fd)
-
-
-def is_broken_pool(exc) -> bool:
-    """True when a local worker process died (the pool is broken, every item in flight is lost)."""
-    from concurrent.futures.process import BrokenProcessPool
-
-    return isinstance(exc, BrokenProcessPool)

@@ -40,12 +40,7 @@ class SweepReport:
     rows: list = field(default_factory=list)  # summary rows (dicts), grid order
     failures: list = field(default_factory=list)  # (item, method, error)
     figure_error: str = ""
-    # where this process's time went (seconds): setup_s (start to workers started), first_result_s (start to
-    # the first finished task), waiting_s (waiting for workers), archives_s (writing archives and rows),
-    # summary_csv_s (start to the final summary.csv), figure_s (summary.png)
-    phases: dict = field(default_factory=lambda: {
-        "setup_s": 0.0, "first_result_s": None, "waiting_s": 0.0, "archives_s": 0.0, "summary_csv_s": None, "figure_s": None,
-    })
+    archived_here: int = 0  # archives this process wrote: the workers could not reach out_dir
 
     @property
     def solved(self) -> int:
@@ -74,6 +69,8 @@ def format_report(report: SweepReport) -> str:
         )
     elif r.wall_time_s:
         lines.append(f"{r.wall_time_s:.1f} s wall, nothing to solve")
+    if r.archived_here:
+        lines.append(f"{r.archived_here} archives were written by this process: the workers could not reach {r.out_dir}")
     if r.replaced:
         lines.append(f"{r.replaced} existing archives were from another version of the sweep and were replaced")
     for method, s in method_stats(r.rows).items():
@@ -130,11 +127,6 @@ def _mm(units: str):
     return (factor, "mm") if factor else (1.0, units)
 
 
-def summary_columns(grid_keys) -> list[str]:
-    extra = [c for c in EXTRA_COLUMNS if c not in grid_keys]
-    return ["item", *grid_keys, *SPEC_COLUMNS, *extra]
-
-
 def _cell(value) -> str:
     if value is None:
         return ""
@@ -151,7 +143,7 @@ def write_summary(path, rows, grid_keys) -> None:
     """summary.csv (atomically): spec columns, then iterations, units, error."""
     from vine_nlp.io.archive import write_atomic
 
-    columns = summary_columns(grid_keys)
+    columns = ["item", *grid_keys, *SPEC_COLUMNS, *(c for c in EXTRA_COLUMNS if c not in grid_keys)]
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
     writer.writerow(columns)
@@ -160,20 +152,25 @@ def write_summary(path, rows, grid_keys) -> None:
     write_atomic(path, lambda tmp: Path(tmp).write_text(buf.getvalue(), encoding="utf-8"))
 
 
-def make_row(item, overrides, method, units, result=None, error=None) -> dict:
+def cells(result) -> dict:
+    """The summary's numbers of one Result (what a worker sends back for each run it archived)."""
+    m = result.metrics
+    return {
+        "status": result.status,
+        "rmse": float(m["rmse"]) if "rmse" in m else None,
+        "max_error": float(m["max_error"]) if "max_error" in m else None,
+        "solve_time_s": float(result.solve_time_s),
+        "iterations": int(result.iterations),
+    }
+
+
+def make_row(item, overrides, method, units, numbers=None, error=None) -> dict:
+    """A summary row: ``numbers`` from :func:`cells`, or None for a failed run (``error``: why)."""
     row = {"item": item, **overrides, "method": method, "units": units}
-    if result is None:
+    if numbers is None:
         row.update(status=FAILED, rmse=None, max_error=None, solve_time_s=None, iterations=None, error=error or "")
     else:
-        m = result.metrics
-        row.update(
-            status=result.status,
-            rmse=float(m["rmse"]) if "rmse" in m else None,
-            max_error=float(m["max_error"]) if "max_error" in m else None,
-            solve_time_s=float(result.solve_time_s),
-            iterations=int(result.iterations),
-            error="",
-        )
+        row.update(numbers, error="")
     return row
 
 
