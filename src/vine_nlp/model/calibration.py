@@ -19,8 +19,19 @@ from vine_nlp.model.routing import TOP, Routing, actuated, built_lambda
 @dataclass(frozen=True)
 class Calibration:
     """Built = nominal + offsets, lengths times the scale (the contract's deviation rule, shared by all segments;
-    lambda by the physical rule): ``lambda_offset`` (built minus nominal), ``theta_offset_deg``, ``length_scale``
-    (built over nominal, > 0), their standard errors ``*_se``, and the ``prototypes`` they come from."""
+    lambda by the physical rule).
+
+    Attributes
+    ----------
+    lambda_offset, theta_offset_deg
+        Built minus nominal (theta in degrees).
+    length_scale
+        Built over nominal length (> 0).
+    lambda_offset_se, theta_offset_deg_se, length_scale_se
+        Their standard errors.
+    prototypes
+        How many builds they come from.
+    """
 
     lambda_offset: float = 0.0
     theta_offset_deg: float = 0.0
