@@ -25,7 +25,7 @@ from vine_nlp.analysis.obstacles import sample_chain
 from vine_nlp.methods.common import pair_points
 from vine_nlp.methods.nlp import solve_from
 from vine_nlp.methods.obstacles.plan import Plan
-from vine_nlp.model.obstacles import Mesh, mesh_signed_distance
+from vine_nlp.model.obstacles import Mesh
 from vine_nlp.problem import DesignOptions, DesignProblem, Routing, TipProblem
 
 # units of D: the pushed target clears by this much more than the rows ask; less with a mesh (its exact pushes
@@ -44,7 +44,7 @@ def push_need(plan: Plan) -> float:
     return plan.D * (0.5 + (MESH_PUSH_EXTRA if plan.has_mesh else PUSH_EXTRA)) + plan.margin
 
 
-def _march(mesh: Mesh, p, w, need: float, tmax: float) -> np.ndarray:
+def _march(obstacle, p, w, need: float, tmax: float) -> np.ndarray:
     """Per row of p, the first t >= 0 with signed distance(p + t w) >= need (a hair beyond: a second pass
     finds the point clear), sphere tracing along w: the signed distance is 1-Lipschitz, so a step of
     need - distance never passes that point; at most tmax."""
@@ -55,7 +55,7 @@ def _march(mesh: Mesh, p, w, need: float, tmax: float) -> np.ndarray:
         idx = np.flatnonzero(act)
         if not idx.size:
             break
-        step = need + tol - mesh_signed_distance(mesh, p[idx] + t[idx, None] * w[idx])
+        step = need + tol - np.asarray(obstacle.distance(p[idx] + t[idx, None] * w[idx]), float).reshape(-1)
         go = step > 0
         t[idx[go]] += step[go] + tol
         act[idx[~go]] = False
@@ -97,6 +97,13 @@ def pushed_target(target: np.ndarray, obstacles, need: float, passes: int = PUSH
     the one direction across its chord that pushes least (:func:`_push_mesh`); repeated ``passes`` times
     (a point pushed out of one obstacle may land in another)."""
     p = np.array(target, float)
+    span = float(np.ptp(p, axis=0).max())
+
+    def tmax(ob):  # no push goes farther than across the target and the obstacle's box (a plane's is unbounded)
+        box = ob.bounds()
+        size = float(np.linalg.norm(np.subtract(box[1], box[0]))) if box is not None else np.inf
+        return span + (size if np.isfinite(size) else span) + 2 * need
+
     tan = np.gradient(p, axis=0)
     tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-300)
     h = 1e-6 * max(1.0, float(np.ptp(p)))
@@ -130,8 +137,10 @@ def pushed_target(target: np.ndarray, obstacles, need: float, passes: int = PUSH
                 else:  # dead center: any side across the tangent
                     w = np.cross(tan[i0], [0.0, 0.0, 1.0] if abs(tan[i0, 2]) < 0.9 else [1.0, 0.0, 0.0])
                     dirs = np.broadcast_to(w / np.linalg.norm(w), g[run].shape)
-                rate = np.maximum(np.sum(dirs * g[run], axis=1), 0.2)  # the distance's rate along the push: a Newton step
-                p[run] += ((need - d[run]) / rate)[:, None] * dirs
+                # each point the least along its direction that clears this obstacle (sphere tracing on the
+                # exact signed distance): a Newton step overshot where the push runs along the surface
+                # (beside a slot's wall: through the slot and the far wall)
+                p[run] += _march(ob, p[run], np.ascontiguousarray(dirs), need, tmax(ob))[:, None] * dirs
         if not moved:
             break
     return p
