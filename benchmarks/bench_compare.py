@@ -12,7 +12,8 @@ import time
 from common import ROOT, machine, table, write_section
 
 from vine_nlp.io.problem_file import load_problem
-from vine_nlp.methods import corners, run_design, transcription
+from vine_nlp import pipeline
+from vine_nlp.methods import corners, transcription
 from vine_nlp.methods import greedy as greedy_mod
 from vine_nlp.methods.greedy import lowpass
 
@@ -30,6 +31,11 @@ def clear_caches():
     greedy_mod.get_window_solver.cache_clear()
 
 
+def run_design(pf, method):
+    """The run ``method`` of problem file ``pf`` as `vine-nlp design --method` makes it (the pipeline)."""
+    return pipeline.run(pf, pipeline.Request(methods=(method,))).runs[method]
+
+
 def timed(fn, cpu: dict | None = None):
     """(result, wall seconds); ``cpu["s"]``: the process's CPU seconds (all threads), less noisy under load."""
     t0, c0 = time.perf_counter(), time.process_time()
@@ -43,14 +49,15 @@ def main():
     rows, verdict, searched = [], [], []
     load_start = os.getloadavg()
     for name in CASES:
-        pb = load_problem(ROOT / "problems" / f"{name}.toml").problem
+        pf = load_problem(ROOT / "problems" / f"{name}.toml")
+        pb = pf.problem
         cpu_nlp, cpu_greedy = {}, {}
         clear_caches()
-        nlp, t_nlp_cold = timed(lambda: run_design(pb, "nlp"), cpu_nlp)
-        _, t_nlp = timed(lambda: run_design(pb, "nlp"))
+        nlp, t_nlp_cold = timed(lambda: run_design(pf, "nlp"), cpu_nlp)
+        _, t_nlp = timed(lambda: run_design(pf, "nlp"))
         clear_caches()
-        greedy, t_greedy_cold = timed(lambda: run_design(pb, "greedy"), cpu_greedy)
-        _, t_greedy = timed(lambda: run_design(pb, "greedy"))
+        greedy, t_greedy_cold = timed(lambda: run_design(pf, "greedy"), cpu_greedy)
+        _, t_greedy = timed(lambda: run_design(pf, "greedy"))
         filt = lowpass(greedy, pb)
         if "search_rounds" in nlp.stats:
             st = nlp.stats
@@ -64,7 +71,7 @@ def main():
                             f"{t_nlp_cold:.2f} s and {t_greedy_cold:.2f} s ({t_greedy_cold / t_nlp_cold:.1f}x).")
         runs = [("nlp", nlp, t_nlp_cold, t_nlp)]
         if name in HOPS:
-            hopped = dataclasses.replace(pb, options=dataclasses.replace(pb.options, hops=HOPS[name]))
+            hopped = dataclasses.replace(pf, problem=dataclasses.replace(pb, options=dataclasses.replace(pb.options, hops=HOPS[name])))
             hop, t_hop = timed(lambda: run_design(hopped, "nlp"))
             runs.append((f"nlp + {HOPS[name]} hops", hop, None, t_hop))
         runs += [("greedy", greedy, t_greedy_cold, t_greedy), ("greedy + low-pass", filt, t_greedy_cold, t_greedy)]

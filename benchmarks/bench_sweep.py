@@ -209,7 +209,7 @@ def breakdown(after: dict, workers: int, baseline: Path | None) -> list[list[str
     rows.append(["command-line imports", f"{cli[0] - bare[0]:.2f}", f"{cli[1] - bare[1]:.2f}", "what `vine-nlp sweep` imports (cli, problem files, the sweep package; numpy, casadi, h5py) beyond that"])
     _, c, w = _cpu(load_sweep, SWEEP)
     rows.append(["reading the sweep (125 problems)", f"{w:.2f}", f"{c:.2f}", "`load_sweep`, in this process (imports done)"])
-    worker = _fresh_python("import vine_nlp.front.sweep.executors, vine_nlp.methods.methods, vine_nlp.io.problems", src)
+    worker = _fresh_python("import vine_nlp.front.sweep.executors, vine_nlp.pipeline.runs, vine_nlp.io.problems", src)
     rows.append(["a worker's imports (forkserver/spawn)", f"{worker[0] - bare[0]:.2f}", f"{worker[1] - bare[1]:.2f}",
                  "per spawned worker; a forked worker (the default now) has them already; a forkserver imports them once"])
     archives = [load_archive(p) for p in after["archives"]]

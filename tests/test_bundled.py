@@ -1,4 +1,4 @@
-"""Every bundled problem, through every door: the command line and ``vn.solve`` give the same runs (routing to
+"""Every bundled problem, through every door: the command line, ``vn.solve`` and a one-item sweep give the same runs (routing to
 1e-9, the same metrics and status, the same exit status), and the figure renders without warnings (do-mpc style)."""
 
 import warnings
@@ -51,6 +51,10 @@ def test_bundled_problem_through_every_door(path, tmp_path):
     assert_same_runs(cli, api)
     assert status == (0 if design.ok else 1)
     assert status == 0  # every bundled problem is designed, converged and clear
+    if load_problem(path).kind == "design":  # the third door: a one-item sweep (empty grid) of the same problem
+        (tmp_path / "sweep.toml").write_text(f"name = \"one\"\nbase = {str(path)!r}\n")
+        assert main(["sweep", str(tmp_path / "sweep.toml"), "-o", str(tmp_path / "sweep"), "--workers", "0"]) == status
+        assert_same_runs(cli, load_archive(tmp_path / "sweep" / "one-0000.h5"))
 
 
 @pytest.mark.slow

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from texts import TINY_TREFOIL
 
-import vine_nlp.methods.methods
 from vine_nlp.errors import InputError
 from vine_nlp.front import sweep as sw
+from vine_nlp.front.sweep import executors
 from vine_nlp.io.archive import load_archive
 from vine_nlp.io.problem_file import ProblemFile, load_sweep
 
@@ -164,14 +164,14 @@ def test_dask_workers_that_do_not_see_the_directory_send_results_back(local_run,
 def test_a_failing_item_is_reported_and_the_others_finish(tmp_path, monkeypatch):
     path = _write_sweep(tmp_path / "in")
     out = tmp_path / "out"
-    real = vine_nlp.methods.methods.run_design
+    real = executors.design_item
 
-    def flaky(problem, method=None, **kw):
-        if problem.name == "tiny-0002":
+    def flaky(pf, method):
+        if pf.name == "tiny-0002":
             raise RuntimeError("boom\nsecond line")
-        return real(problem, method, **kw)
+        return real(pf, method)
 
-    monkeypatch.setattr(vine_nlp.methods.methods, "run_design", flaky)
+    monkeypatch.setattr(executors, "design_item", flaky)
     report = sw.run_sweep(load_sweep(path), out, workers=1, progress=False)
     assert (report.done, report.failed) == (3, 1)
     assert report.executor == "in this process"
@@ -185,7 +185,7 @@ def test_a_failing_item_is_reported_and_the_others_finish(tmp_path, monkeypatch)
     assert "failed: tiny-0002 nlp: RuntimeError: boom" in sw.format_report(report)
 
     # the next run retries only the failed item
-    monkeypatch.setattr(vine_nlp.methods.methods, "run_design", real)
+    monkeypatch.setattr(executors, "design_item", real)
     before = _mtimes(out)
     again = sw.run_sweep(load_sweep(path), out, workers=0, progress=False)
     assert (again.done, again.skipped, again.failed) == (1, 3, 0)
@@ -216,20 +216,21 @@ def test_an_archive_hdf5_refuses_fails_its_item_alone(tmp_path, monkeypatch):
 def test_a_failing_method_keeps_the_other_methods_of_its_item(tmp_path, monkeypatch):
     path = _write_sweep(tmp_path / "in", methods=("nlp", "greedy"))
     out = tmp_path / "out"
-    real = vine_nlp.methods.methods.run_design
+    real = executors.design_item
     calls = []
     broken = {"tiny-0001"}
 
-    def fake_greedy(problem, method=None, **kw):
-        calls.append((problem.name, method))
+    def fake_greedy(pf, method):
+        calls.append((pf.name, method))
         if method == "greedy":  # stands in for the (slow) greedy method: the nlp design, relabelled
-            if problem.name in broken:
+            if pf.name in broken:
                 raise ValueError("greedy went wrong")
-            r = real(problem, "nlp")
-            return dataclasses.replace(r, method="greedy", solve_time_s=2 * r.solve_time_s, metrics={**r.metrics, "rmse": 1.5 * r.metrics["rmse"]})
-        return real(problem, method, **kw)
+            r = real(pf, "nlp")["nlp"]
+            return {"greedy": dataclasses.replace(r, method="greedy", solve_time_s=2 * r.solve_time_s,
+                                                  metrics={**r.metrics, "rmse": 1.5 * r.metrics["rmse"]})}
+        return real(pf, method)
 
-    monkeypatch.setattr(vine_nlp.methods.methods, "run_design", fake_greedy)
+    monkeypatch.setattr(executors, "design_item", fake_greedy)
     report = sw.run_sweep(load_sweep(path), out, workers=1, progress=False)
     assert (report.done, report.failed) == (3, 1)
     assert list(load_archive(out / "tiny-0001.h5").runs) == ["nlp"]  # the finished run is kept
@@ -253,10 +254,10 @@ def test_an_interrupt_inside_a_worker_fails_the_run_not_the_sweep(tmp_path, monk
     path = _write_sweep(tmp_path / "in")
     _, _, pf = load_sweep(path).items()[0]
 
-    def interrupted(problem, method=None, **kw):
+    def interrupted(pf, method):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(vine_nlp.methods.methods, "run_design", interrupted)
+    monkeypatch.setattr(executors, "design_item", interrupted)
     runs, timings = sw.solve_item(pf, ["nlp"], remote=True)
     assert runs == {} and "KeyboardInterrupt" in timings["errors"]["nlp"]
     with pytest.raises(KeyboardInterrupt):  # in this process it is the user's Ctrl-C
@@ -383,14 +384,14 @@ def test_the_package_imports_dask_only_for_a_scheduler():
 def test_a_chunk_archives_each_item_in_order_and_keeps_failures_apart(tmp_path, monkeypatch):
     path = _write_sweep(tmp_path / "in")
     items = load_sweep(path).items()[:2]
-    real = vine_nlp.methods.methods.run_design
+    real = executors.design_item
 
-    def second_fails(problem, method=None, **kw):
-        if problem.name == items[1][0]:
+    def second_fails(pf, method):
+        if pf.name == items[1][0]:
             raise RuntimeError("second item")
-        return real(problem, method, **kw)
+        return real(pf, method)
 
-    monkeypatch.setattr(vine_nlp.methods.methods, "run_design", second_fails)
+    monkeypatch.setattr(executors, "design_item", second_fails)
     chunk = [(item, pf, ["nlp"], {}) for item, _, pf in items]
     out = tmp_path / "out"
     out.mkdir()
@@ -461,11 +462,12 @@ def test_a_fresh_process_forks_its_workers_and_never_loads_the_solver(tmp_path):
     assert _h5_files(tmp_path / "out") == [f"tiny-000{k}.h5" for k in range(4)]
 
 
-def test_a_base_with_obstacles_is_refused_before_anything_is_written(tmp_path):
-    # vine-nlp design runs an obstacle step after the plain design; a sweep must not archive designs without it
+def test_what_design_refuses_a_sweep_refuses_before_anything_is_written(tmp_path):
+    # one pipeline (issue 30): obstacle problems are swept as `vine-nlp design` designs them, and what it
+    # refuses for them (the greedy method) a sweep refuses with the same reason, before any work
     base = BASE + '\n[[obstacles]]\nshape = "sphere"\ncenter = [50.0, 0.0, 0.0]\nradius = 1.0\n'
-    path = _write_sweep(tmp_path / "in", base=base)
-    with pytest.raises(InputError, match=r"\[\[obstacles\]\] are not supported in sweeps") as info:
+    path = _write_sweep(tmp_path / "in", base=base, methods=("nlp", "greedy"))
+    with pytest.raises(InputError, match="obstacles are designed by the nlp formulation only") as info:
         sw.run_sweep(load_sweep(path), tmp_path / "out", workers=2, progress=False)
-    assert info.value.file == str(path) and info.value.key == "base"
+    assert info.value.key == "method"
     assert not (tmp_path / "out").exists()

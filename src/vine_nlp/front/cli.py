@@ -17,7 +17,7 @@ from vine_nlp.errors import InputError
 from vine_nlp.front.files import add_sigma_args, archive_run, check_figure, check_output, read_archive, sigmas
 from vine_nlp.io import outputs
 from vine_nlp.methods import blas, compiled
-from vine_nlp.pipeline.runs import COMPARE
+from vine_nlp.pipeline.request import COMPARE
 from vine_nlp.problem import METHODS
 
 EXIT_OK, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
@@ -210,7 +210,7 @@ def cmd_sweep(args) -> int:
             return 130
         raise
     print(format_report(report))
-    return EXIT_OK if not (report.failed or report.not_converged) else EXIT_NOT_CONVERGED
+    return EXIT_OK if not (report.failed or report.not_converged or report.short) else EXIT_NOT_CONVERGED
 
 
 def cmd_analyze(args) -> int:

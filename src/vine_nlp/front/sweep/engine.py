@@ -25,6 +25,7 @@ from vine_nlp.front.sweep.executors import LOCK_FILE, InlinePool, archive_outcom
 from vine_nlp.front.sweep.figure import plot_summary, preload_matplotlib
 from vine_nlp.front.sweep.summary import FAILED, SUMMARY_CSV, SUMMARY_PNG, SweepReport, cells, make_row, write_summary
 from vine_nlp.io.archive import OutputError, load_archive
+from vine_nlp.pipeline.request import Request, check_request
 
 _PARAMETER_OPTIONS = ("smooth_theta", "smooth_lambda", "seed", "method")
 
@@ -139,11 +140,8 @@ def run_sweep(
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
         raise InputError("command line", "--workers", f"must be an integer >= 0, got {workers!r}")
     run = _Run(sweep, out, callback, t_start)
-    if any(getattr(pf.problem, "obstacles", ()) for _, _, pf in run.items):
-        # `vine-nlp design` adds a step after run_design for obstacles (front.cli); a sweep that
-        # solved around it would archive designs that ignore them
-        raise InputError(sweep.path, "base", "[[obstacles]] are not supported in sweeps yet; design such problems "
-                         "with vine-nlp design")
+    for _, _, pf in run.items:  # what a problem cannot be asked for is bad input, before any work
+        check_request(pf, Request(methods=tuple(sweep.methods)))
     lock, pool = DirectoryLock(out), None
     try:
         if out.is_dir():

@@ -29,7 +29,7 @@ LOCK_FILE = ".sweep.lock"  # DIR's lock; its second word is the sweep's token (s
 MAX_CHUNK = 8  # items per task at most
 _MAX_ERROR_TEXT = 500
 # imported once by the forkserver, so its workers start with them (and the main module, the default)
-_WORKER_MODULES = ("vine_nlp.front.sweep.executors", "vine_nlp.methods.methods")
+_WORKER_MODULES = ("vine_nlp.front.sweep.executors", "vine_nlp.pipeline.runs")
 _PR_SET_PDEATHSIG = 1
 _ONE_SOLVE = threading.Lock()
 
@@ -37,19 +37,18 @@ _ONE_SOLVE = threading.Lock()
 def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]:
     """Solve one sweep item with each of ``methods`` (in a worker process): ``(runs, timings)``.
 
-    ``runs``: method -> Result for each method that finished; ``timings``: ``total_s``, ``cpu_s``
-    and ``errors`` (method -> "Type: message": a method that raises fails alone). KeyboardInterrupt
-    propagates unless ``remote`` (a worker ignores Ctrl-C: there it comes from inside IPOPT and
-    fails that run).
+    Each method is one request to the pipeline, as `vine-nlp design --method M` makes it (obstacles,
+    calibration and the judgement of every hard requirement included). ``runs``: run name -> Result of
+    each method that finished, with the runs it brings along (an obstacle design's ``nlp_free``);
+    ``timings``: ``total_s``, ``cpu_s`` and ``errors`` (method -> "Type: message": a method that raises
+    fails alone). KeyboardInterrupt propagates unless ``remote`` (a worker ignores Ctrl-C: there it
+    comes from inside IPOPT and fails that run).
     """
-    from vine_nlp.methods import methods as design
-
     runs, errors = {}, {}
     t_item, c_item = time.perf_counter(), time.process_time()
     for method in methods:
         try:
-            # looked up on the module at call time: one place to replace it (tests)
-            runs[method] = design.run_design(problem_file.problem, method)
+            runs |= design_item(problem_file, method)
         except Exception as exc:  # noqa: BLE001 - any failure of one run is that run's result
             errors[method] = error_text(exc)
         except KeyboardInterrupt:
@@ -60,6 +59,13 @@ def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]
                 "(IPOPT status NonIpopt_Exception_Thrown: an exception inside the solve)"
             )
     return runs, {"total_s": time.perf_counter() - t_item, "cpu_s": time.process_time() - c_item, "errors": errors}
+
+
+def design_item(problem_file, method: str) -> dict:
+    """The runs of one method of one item: the pipeline's (run name -> Result)."""
+    from vine_nlp import pipeline  # the solvers load in the worker (fork_is_safe: none in the parent)
+
+    return pipeline.run(problem_file, pipeline.Request(methods=(method,))).runs
 
 
 def write_item(out_dir, item: str, problem_file, runs: dict) -> dict:
@@ -104,6 +110,7 @@ def solve_chunk(chunk, out_dir=None, token=None, remote: bool = False) -> list[d
         with _ONE_SOLVE:  # a dask worker's threads share its solvers, which are not thread-safe (two crashed)
             solved, timings = solve_item(problem_file, [m for m in methods if m not in previous], remote=remote)
         runs = {m: solved.get(m) or previous[m] for m in methods if m in solved or m in previous}
+        runs |= {name: r for name, r in solved.items() if name not in runs}  # brought along: nlp_free
         record = {"runs": runs, "errors": timings["errors"], "total_s": timings["total_s"], "cpu_s": timings["cpu_s"]}
         records.append(archive_outcome(out_dir, item, problem_file, record) if here else record)
         if "stop" in record:
@@ -161,7 +168,7 @@ def _exit_at_eof(fd: int) -> None:
 
 def _warm_up():
     """The first task of every local worker: the solver modules imported before the first item arrives."""
-    import vine_nlp.methods.methods  # noqa: F401
+    import vine_nlp.pipeline.runs  # noqa: F401
 
 
 def fork_is_safe() -> bool:
