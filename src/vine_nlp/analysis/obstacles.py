@@ -203,18 +203,30 @@ def sample_chain(routing: Routing, diameter: float, per_segment=DEFAULT_PER_SEGM
     return {"points": pts, "s": s, "l": l, "seg": seg, "frac": frac}
 
 
-def _points_at(routing: Routing, D: float, l, frames) -> np.ndarray:
-    """(P, 3) center-line points at material lengths ``l`` (clipped to the tube), one chain evaluation."""
-    cum = np.concatenate([[0.0], np.cumsum(routing.length)])
-    l = np.clip(np.asarray(l, float).reshape(-1), 0.0, float(cum[-1]))
-    j = np.clip(np.searchsorted(cum, l, side="right") - 1, 0, routing.segments - 1)
-    pts, _ = chain_points(routing.theta, routing.lam, routing.length, D, j, (l - cum[j]) / routing.length[j],
-                          routing.initial_pose, frames=frames)
-    return pts
+class ModelLine:
+    """Exact center-line points of a routing at material coordinates l (for refinement)."""
 
+    def __init__(self, routing, D):
+        self.r, self.D = routing, D
+        self.cum = np.concatenate([[0.0], np.cumsum(routing.length)])
+        _, _, lc = center_rates(routing.theta, routing.lam, D)
+        self.cum_s = np.concatenate([[0.0], np.cumsum(routing.length * lc)])
+        self.frames = chain_frames(routing.theta, routing.lam, routing.length, D, routing.initial_pose)
 
-def _point_at(routing: Routing, D: float, l: float, frames) -> np.ndarray:
-    return _points_at(routing, D, [l], frames)[0]
+    def locate(self, l):
+        l = np.clip(np.asarray(l, float).reshape(-1), 0.0, self.cum[-1])
+        seg = np.clip(np.searchsorted(self.cum, l, side="right") - 1, 0, self.r.segments - 1)
+        return seg, (l - self.cum[seg]) / self.r.length[seg]
+
+    def points(self, l):
+        """(P, 3) center-line points at material lengths ``l`` (clipped to the tube), one chain evaluation."""
+        seg, frac = self.locate(l)
+        r = self.r
+        return chain_points(r.theta, r.lam, r.length, self.D, seg, frac, r.initial_pose, frames=self.frames)[0]
+
+    def arc(self, l):
+        seg, frac = self.locate(l)
+        return self.cum_s[seg] + frac * (self.cum_s[seg + 1] - self.cum_s[seg])
 
 
 def grown_prefixes(routing: Routing, diameter: float, lengths, per_segment=DEFAULT_PER_SEGMENT) -> list[dict]:
@@ -226,19 +238,15 @@ def grown_prefixes(routing: Routing, diameter: float, lengths, per_segment=DEFAU
     """
     D = float(diameter)
     full = sample_chain(routing, D, per_segment)
-    frames = chain_frames(routing.theta, routing.lam, routing.length, D, routing.initial_pose)
-    _, _, lc = center_rates(routing.theta, routing.lam, D)
-    cum_l = np.concatenate([[0.0], np.cumsum(routing.length)])
-    cum_s = np.concatenate([[0.0], np.cumsum(routing.length * lc)])
+    model = ModelLine(routing, D)
     out = []
     for Lg in np.atleast_1d(np.asarray(lengths, float)):
-        Lg = float(min(max(Lg, 0.0), cum_l[-1]))
+        Lg = float(min(max(Lg, 0.0), model.cum[-1]))
         keep = full["l"] < Lg
-        end = _point_at(routing, D, Lg, frames)
         out.append({
             "length": Lg,
-            "points": np.vstack([full["points"][keep], end]),
-            "s": np.append(full["s"][keep], np.interp(Lg, cum_l, cum_s)),
+            "points": np.vstack([full["points"][keep], model.points([Lg])]),
+            "s": np.append(full["s"][keep], np.interp(Lg, model.cum, model.cum_s)),
             "l": np.append(full["l"][keep], Lg),
         })
     return out
@@ -290,7 +298,7 @@ REFINE_GRID = 17  # points per bracket and round of the refined minima
 REFINE_ROUNDS = 8  # each round shrinks every bracket 8-fold: 8 rounds leave ~1e-7 of two sample spacings
 
 
-def _refined_minima(routing, D, obstacles, l, gaps, frames) -> list[tuple[float, float]]:
+def _refined_minima(model: ModelLine, obstacles, l, gaps) -> list[tuple[float, float]]:
     """Per obstacle, (gap, material length) of the minimum of the gap over the material interval around its
     smallest sample: a grid search whose bracket shrinks round by round to the best point's neighbours, every
     obstacle's grid in one chain evaluation per round (a search per obstacle, point by point, paid the chain's
@@ -306,9 +314,9 @@ def _refined_minima(routing, D, obstacles, l, gaps, frames) -> list[tuple[float,
         if live.size == 0:
             break
         x = lo[live, None] + (hi - lo)[live, None] * u  # (K, G)
-        pts = _points_at(routing, D, x, frames).reshape(live.size, REFINE_GRID, 3)
+        pts = model.points(x).reshape(live.size, REFINE_GRID, 3)
         for m, k in enumerate(live):
-            f = np.asarray(obstacles[k].distance(pts[m]), float).reshape(-1) - 0.5 * D
+            f = np.asarray(obstacles[k].distance(pts[m]), float).reshape(-1) - 0.5 * model.D
             b = int(np.argmin(f))
             if f[b] < best[k][0]:
                 best[k] = (float(f[b]), float(x[m, b]))
@@ -318,12 +326,10 @@ def _refined_minima(routing, D, obstacles, l, gaps, frames) -> list[tuple[float,
 
 def _shape_gaps(routing, D, obstacles, margin, smp, refine) -> list[dict]:
     gaps = min_gap(smp["points"], D, obstacles)
-    frames = chain_frames(routing.theta, routing.lam, routing.length, D, routing.initial_pose) if refine else None
-    _, _, lc = center_rates(routing.theta, routing.lam, D)
-    cum_l = np.concatenate([[0.0], np.cumsum(routing.length)])
-    cum_s = np.concatenate([[0.0], np.cumsum(routing.length * lc)])
+    model = ModelLine(routing, D)
+    cum_l, cum_s = model.cum, model.cum_s
     out = []
-    refined = _refined_minima(routing, D, obstacles, smp["l"], gaps, frames) if refine and len(obstacles) else None
+    refined = _refined_minima(model, obstacles, smp["l"], gaps) if refine and len(obstacles) else None
     for k, ob in enumerate(obstacles):
         g = gaps[:, k]
         i = int(np.argmin(g))

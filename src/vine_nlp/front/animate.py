@@ -27,11 +27,12 @@ from pathlib import Path
 import numpy as np
 
 from vine_nlp.analysis.collision import growth_contacts, routing_clearance
+from vine_nlp.analysis.obstacles import ModelLine
 from vine_nlp.front.plot import equal_view_3d, label_3d_axes
 from vine_nlp.front.view import tube_rings
 from vine_nlp.io.archive import Archive, write_atomic
 from vine_nlp.model import shape_lines
-from vine_nlp.model.chain import chain_points, segment_end_samples
+from vine_nlp.model.chain import segment_end_samples
 from vine_nlp.problem import Routing
 
 MODES = ("grow", "after", "both")
@@ -83,12 +84,7 @@ def frame_contacts(routing: Routing, D: float, mode: str, value: float, growth=N
         ls = [(c["l_early"], c["l_late"]) for c in (growth or []) if not c["transient"] and c["growth_length"] <= value + 1e-12]
         if not ls:
             return np.zeros((0, 3))
-        S = np.concatenate([[0.0], np.cumsum(routing.length)])
-        ll = np.clip(np.ravel(ls), 0.0, S[-1])
-        seg = np.clip(np.searchsorted(S, ll, side="right") - 1, 0, routing.segments - 1)
-        pts, _ = chain_points(routing.theta, routing.lam, routing.length, D, seg, (ll - S[seg]) / routing.length[seg],
-                              routing.initial_pose)
-        return pts
+        return ModelLine(routing, D).points(np.ravel(ls))
     lam = 1.0 - value * (1.0 - routing.lam)
     res = routing_clearance(Routing(routing.theta, lam, routing.length, routing.initial_pose), D, refine=False, closest=False)
     if not res["regions"]:
@@ -176,12 +172,7 @@ def write_movie(archive: Archive, path, mode: str = "both", run: str | None = No
         raise ValueError(f"mode must be one of {', '.join(MODES)}, not {mode!r}")
     if frames < 2:
         raise ValueError("a movie needs 2 frames or more")
-    if run is None:
-        run = archive.default_run()
-        if run is None:
-            raise ValueError("the archive has no runs")
-    elif run not in archive.runs:
-        raise ValueError(f"no run {run!r} in the archive (runs: {', '.join(archive.runs) or 'none'})")
+    run = archive.pick_run(run)
     if ext == ".mp4" and not ffmpeg_available():
         raise RuntimeError("MP4 needs ffmpeg, which is not installed (apt-get install ffmpeg), or write a .gif")
     routing = archive.runs[run].routing

@@ -161,12 +161,7 @@ def write_mesh(archive: Archive, path, run: str | None = None) -> dict:
 
     path = Path(path)
     ext = mesh_format(path)
-    if run is None:
-        run = archive.default_run()
-        if run is None:
-            raise ValueError("the archive has no runs")
-    elif run not in archive.runs:
-        raise ValueError(f"no run {run!r} in the archive (runs: {', '.join(archive.runs) or 'none'})")
+    run = archive.pick_run(run)
     units = archive.units
     if ext == ".glb" and units not in METRES_PER_UNIT:
         raise ValueError(f"glTF is in metres: cannot scale units {units!r} (use {', '.join(METRES_PER_UNIT)})")

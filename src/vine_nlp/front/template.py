@@ -110,17 +110,6 @@ def _paper(paper: str) -> tuple[str, tuple[float, float]]:
     raise ValueError(f"paper must be one of {', '.join(PAPERS_MM)}, not {paper!r}")
 
 
-def pick_run(archive: Archive, run: str | None = None) -> str:
-    """``run`` if given, else the archive's default run (``Archive.default_run``)."""
-    if run is not None:
-        if run not in archive.runs:
-            raise ValueError(f"no run {run!r} in the archive (runs: {', '.join(archive.runs) or 'none'})")
-        return run
-    if not archive.runs:
-        raise ValueError("the archive has no runs")
-    return archive.default_run()
-
-
 def cut_table(archive: Archive, run: str, kind: str | None = None) -> dict:
     """Per-segment fabrication numbers (the CUTS.csv columns) as arrays, in the problem's units; NaN where a
     column does not apply. ``kind``: the actuator kind (default: the archived problem's)."""
@@ -293,7 +282,7 @@ def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str 
     a = archive_path_or_archive if isinstance(archive_path_or_archive, Archive) else load_archive(archive_path_or_archive)
     if a.units not in CM_PER_UNIT:
         raise ValueError(f"a 1:1 template needs lengths in cm or mm, not {a.units!r}")
-    name = pick_run(a, run)
+    name = a.pick_run(run)
     kind = source_table(a, "actuator").get("kind")
     spam = kind == "spam" if spam is None else bool(spam)
     table = cut_table(a, name, "spam" if spam else (None if kind in ("tendon", "programmed") else "tendon"))

@@ -264,17 +264,6 @@ def _frame_data(go, shape, D, count):
     ]
 
 
-def _pick_runs(archive: Archive, run: str | None) -> list[str]:
-    if run is not None:
-        if run not in archive.runs:
-            raise ValueError(f"no run {run!r} in the archive (runs: {', '.join(archive.runs) or 'none'})")
-        return [run]
-    if not archive.runs:
-        raise ValueError("the archive has no runs")
-    first = archive.default_run()  # shown; the others start hidden (one legend click each)
-    return [first] + [n for n in archive.runs if n != first]
-
-
 def growth_lengths(total: float, steps: int = GROWTH_STEPS) -> np.ndarray:
     return np.linspace(0.0, total, steps + 1)
 
@@ -308,7 +297,8 @@ def view_figure(archive: Archive, run: str | None = None):
     import plotly.graph_objects as go
     from scipy.spatial import cKDTree
 
-    names = _pick_runs(archive, run)
+    first = archive.pick_run(run)  # shown; without ``run`` the others start hidden (one legend click each)
+    names = [first] + ([n for n in archive.runs if n != first] if run is None else [])
     D, u = archive.diameter, archive.units
     tree = cKDTree(np.asarray(archive.target, float)) if archive.target is not None and len(archive.target) else None
     fig = go.Figure()

@@ -68,6 +68,16 @@ class Archive:
         the first run (None for an archive without runs)."""
         return next((r for r in DEFAULT_RUNS if r in self.runs), next(iter(self.runs), None))
 
+    def pick_run(self, run: str | None = None) -> str:
+        """``run`` if given, else the default run; ValueError when there is no such run."""
+        if run is None:
+            run = self.default_run()
+            if run is None:
+                raise ValueError("the archive has no runs")
+        elif run not in self.runs:
+            raise ValueError(f"no run {run!r} in the archive (runs: {', '.join(self.runs) or 'none'})")
+        return run
+
 
 # the design a command reads from an archive by default (template, analyze, --warm), in this order
 DEFAULT_RUNS = ("nlp", "nlp_robust", "nlp_clearance", "greedy", "forward", "fit", "tip", "multishape")
