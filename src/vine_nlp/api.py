@@ -131,15 +131,12 @@ def _integer(args: _Arguments, key: str, value, least: int) -> int:
     return check.integer(args, key, _plain(value), least)
 
 
-def _text(args: _Arguments, key: str, value) -> str:
-    return check.nonempty_text(args, key, value)
-
-
-def _units(args: _Arguments, units) -> str:
+def _name_units(args: _Arguments, name, units) -> tuple[str, str]:
+    name = check.nonempty_text(args, "name", name)
     units = check.nonempty_text(args, "units", units)
     if len(units) > 32:  # the archive reader takes unit names of up to 32 characters
         raise args.error("units", "must be a unit name of at most 32 characters")
-    return units
+    return name, units
 
 
 def _diameter(diameter) -> float:
@@ -181,8 +178,7 @@ def _design_problem(points, diameter, *, actuator, theta_max_deg, lambda_min, po
                     method, seed, units, name, budget=DesignOptions.budget, solver=DesignOptions.solver, correction_margin=None,
                     min_feature=None, base="free") -> DesignProblem:
     args = _Arguments(_DESIGN_ARGUMENTS)
-    name = _text(args, "name", name)
-    units = _units(args, units)
+    name, units = _name_units(args, name, units)
     D = _diameter(diameter)
     table = {"kind": actuator}
     if lambda_min is not None:
@@ -258,10 +254,6 @@ class _Context:
     @property
     def runs(self) -> dict:
         return self.outcome.runs
-
-    @property
-    def name(self) -> str:
-        return self.problem_file.name
 
     def as_archive(self) -> Archive:
         return self.archive if self.archive is not None else self.outcome.archive()
@@ -781,8 +773,7 @@ def forward(theta, lam, length, diameter, *, segments: int | None = None, initia
     ArgumentError
     """
     args = _Arguments()
-    name = _text(args, "name", name)
-    units = _units(args, units)
+    name, units = _name_units(args, name, units)
     D = _diameter(diameter)
     routing = _routing(theta, lam, length, segments=segments, initial_pose=initial_pose)
     # the forward shape is sampled in pieces of at most D/4 (model.shape.forward_shape); the archive
@@ -826,8 +817,7 @@ def fit(points, routing, diameter, *, line: str = "outer", free=("lambda",), sta
     ArgumentError
     """
     args = _Arguments()
-    name = _text(args, "name", name)
-    units = _units(args, units)
+    name, units = _name_units(args, name, units)
     D = _diameter(diameter)
     measured = _points(points, least=3, ordered=False)
     if isinstance(routing, Design):

@@ -176,13 +176,8 @@ def _dataset(parent, name: str, data) -> None:
 
 
 def _write(h5: h5py.File, a: Archive):
-    _attrs(h5, dict(
-        format=FORMAT,
-        format_version=FORMAT_VERSION,
-        software_version=__version__,
-        created=a.created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        units=a.units,
-    ))
+    created = a.created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    _attrs(h5, dict(format=FORMAT, format_version=FORMAT_VERSION, software_version=__version__, created=created, units=a.units))
     _attrs(h5.create_group("problem"), dict(name=a.name, kind=a.kind, source=a.source))
     _attrs(h5.create_group("tube"), {"diameter": float(a.diameter)})
     if a.target is not None:
@@ -398,18 +393,10 @@ def _run(c: _Checker, name: str, g, a: Archive) -> Result:
             stats[k] = v
     if "levels" in g:
         _levels(c, g, d, M, a)
-    return Result(
-        method=c.text(g, "method"),
-        routing=Routing(theta, lam, length, pose),
-        shape=shape,
-        status=c.text(g, "status"),
-        solve_time_s=c.number(g, "solve_time_s", minimum=0),
-        iterations=c.number(g, "iterations", integer=True, minimum=0),
-        metrics=c.metrics(g),
-        stats=stats,
-        diameter=a.diameter,
-        shortfall=tuple(s for s in c.text(g, "shortfall", required=False).split("\n") if s),
-    )
+    return Result(method=c.text(g, "method"), routing=Routing(theta, lam, length, pose), shape=shape, status=c.text(g, "status"),
+                  solve_time_s=c.number(g, "solve_time_s", minimum=0), iterations=c.number(g, "iterations", integer=True, minimum=0),
+                  metrics=c.metrics(g), stats=stats, diameter=a.diameter,
+                  shortfall=tuple(s for s in c.text(g, "shortfall", required=False).split("\n") if s))
 
 
 def _levels(c: _Checker, g, d, M, a: Archive) -> None:
@@ -482,17 +469,9 @@ def _load(c: _Checker, h5) -> Archive:
         target = c.array(tg, "points", (None, 3), 3 * limits.MAX_TARGET_POINTS, limit_name="MAX_TARGET_POINTS")
         if target.shape[0] < 2:
             c.fail("/target/points", f"needs at least 2 points, got {target.shape[0]}")
-    a = Archive(
-        name=c.text(p, "name"),
-        kind=c.text(p, "kind"),
-        source=c.text(p, "source", lines=True),
-        diameter=diameter,
-        units=units,
-        target=target,
-        software_version=c.text(h5, "software_version"),
-        created=c.text(h5, "created", required=False),
-        format_version=version,
-    )
+    a = Archive(name=c.text(p, "name"), kind=c.text(p, "kind"), source=c.text(p, "source", lines=True), diameter=diameter,
+                units=units, target=target, software_version=c.text(h5, "software_version"),
+                created=c.text(h5, "created", required=False), format_version=version)
     # everything outside the core layout comes back as it was written (measured points, frames, ...)
     _extras(c, h5, a)
     if "obstacles" in h5:
