@@ -229,14 +229,10 @@ def _clearance(points, s, D, exclude_arc, margin, refine, closest=True):
             d, si, sj, pi, pj, i, j = best
     pairs = np.concatenate([r["pairs"] for r in regions]) if regions else np.zeros((0, 2), int)
     return {
-        "clearance": float(d),
-        "gap": float(d - D),
-        "contact": bool(regions),
-        "i": i, "j": j, "s_i": float(si), "s_j": float(sj), "point_i": pi, "point_j": pj,
-        "pairs": pairs,
+        "clearance": float(d), "gap": float(d - D), "contact": bool(regions),
+        "i": i, "j": j, "s_i": float(si), "s_j": float(sj), "point_i": pi, "point_j": pj, "pairs": pairs,
         "distances": np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1) if len(pairs) else np.zeros(0),
-        "regions": regions,
-        "points": points, "s": np.asarray(s, float),
+        "regions": regions, "points": points, "s": np.asarray(s, float),
         "exclude_arc": float(exclude_arc), "threshold": float(threshold), "spacing": h,
     }
 

@@ -244,10 +244,8 @@ def grown_prefixes(routing: Routing, diameter: float, lengths, per_segment=DEFAU
         Lg = float(min(max(Lg, 0.0), model.cum[-1]))
         keep = full["l"] < Lg
         out.append({
-            "length": Lg,
-            "points": np.vstack([full["points"][keep], model.points([Lg])]),
-            "s": np.append(full["s"][keep], np.interp(Lg, model.cum, model.cum_s)),
-            "l": np.append(full["l"][keep], Lg),
+            "length": Lg, "points": np.vstack([full["points"][keep], model.points([Lg])]),
+            "s": np.append(full["s"][keep], np.interp(Lg, model.cum, model.cum_s)), "l": np.append(full["l"][keep], Lg),
         })
     return out
 

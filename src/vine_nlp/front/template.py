@@ -137,22 +137,11 @@ def cut_table(archive: Archive, run: str, kind: str | None = None) -> dict:
     if settings["kind"] == "programmed":
         extra["pinch_length"] = np.where(act, (1.0 - r.lam) * actuator, np.nan)
     return {
-        "segment": np.arange(r.segments),
-        "s_start": S[:-1],
-        "s_end": S[1:],
-        "theta_deg": np.degrees(r.theta),
-        "lambda": r.lam,
-        "phi_start_rad": phi[:-1],
-        "phi_end_rad": phi[1:],
-        "c_start": wrap(c[:-1], C),
-        "c_end": wrap(c[1:], C),
-        "actuator_length": actuator,
-        "stopper_length": np.where(act, r.lam, 0.0) * actuator,
-        "gap_length": np.where(act, 1.0 - r.lam, 0.0) * actuator,
-        "actuated": act.astype(float),
-        **extra,
-        "refused": rep.refused,
-        "gap_fractions": frac,
+        "segment": np.arange(r.segments), "s_start": S[:-1], "s_end": S[1:], "theta_deg": np.degrees(r.theta),
+        "lambda": r.lam, "phi_start_rad": phi[:-1], "phi_end_rad": phi[1:], "c_start": wrap(c[:-1], C),
+        "c_end": wrap(c[1:], C), "actuator_length": actuator, "stopper_length": np.where(act, r.lam, 0.0) * actuator,
+        "gap_length": np.where(act, 1.0 - r.lam, 0.0) * actuator, "actuated": act.astype(float), **extra,
+        "refused": rep.refused, "gap_fractions": frac,
     }
 
 
@@ -317,20 +306,10 @@ def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str 
         write_atomic(pdf_path, write_sheet)
         pages, size = 1, (sheet.width_mm, sheet.height_mm)
     return {
-        "pages": pages,
-        "strips": len(lay.tiles),
-        "paper": lay.paper,
-        "paper_mm": size,
-        "orientation": lay.orientation,
-        "run": name,
-        "spam": spam,
-        "segments": int(len(table["segment"])),
-        **split_counts(table, spam),
-        "tube_length": L,
-        "format": fmt[1:],
-        "changes": len(table["changes"]),
-        "unactuated": int((table["actuated"] == 0).sum()),
-        "refused": table["refused"],
+        "pages": pages, "strips": len(lay.tiles), "paper": lay.paper, "paper_mm": size, "orientation": lay.orientation,
+        "run": name, "spam": spam, "segments": int(len(table["segment"])), **split_counts(table, spam),
+        "tube_length": L, "format": fmt[1:], "changes": len(table["changes"]),
+        "unactuated": int((table["actuated"] == 0).sum()), "refused": table["refused"],
     }
 
 
