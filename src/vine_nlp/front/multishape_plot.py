@@ -17,14 +17,7 @@ import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
 
-from vine_nlp.front.plot import (
-    PAGE_IN,
-    STYLE,
-    figure_format,
-    label_3d_axes,
-    save_figure,
-    set_equal_3d,
-)
+from vine_nlp.front.plot import PAGE_IN, STYLE, figure_format, label_3d_axes, save_figure, set_equal_3d
 from vine_nlp.io.formulations import read_multishape_archive
 from vine_nlp.model.pairing import pair_points
 

@@ -203,6 +203,11 @@ def _f32(a):
     return np.asarray(a, dtype=np.float32)
 
 
+def _xyz(p) -> dict:
+    """The x, y, z arguments of a plotly 3-D trace through the points ``p`` (P, 3)."""
+    return {"x": _f32(p[:, 0]), "y": _f32(p[:, 1]), "z": _f32(p[:, 2])}
+
+
 def tube_vertices(shape: dict, D: float, count: int) -> np.ndarray:
     """Vertices of the drawn tube: ``count`` rings of RING points (the shape's rings, the last one
     repeated up to ``count``: every frame has the same vertices and faces, so frames carry
@@ -240,15 +245,11 @@ def _run_traces(go, name, shape, D, color, units, visible=True):
              f"<br>lambda = %{{customdata[2]:.3g}}<br>error = %{{customdata[3]:.3g}} {units}<extra></extra>")
     return [
         # a triangle mesh, not a Surface: plotly draws it faster, and fixed faces let frames send coordinates only
-        go.Mesh3d(x=_f32(V[:, 0]), y=_f32(V[:, 1]), z=_f32(V[:, 2]), i=F[:, 0], j=F[:, 1], k=F[:, 2], name=f"{name} tube",
-                  legendgroup=group, showlegend=True, color=color, opacity=0.45, hoverinfo="skip", visible=visible,
-                  lighting={"ambient": 0.6, "diffuse": 0.6, "specular": 0.2}),
-        go.Scatter3d(x=_f32(shape["inner"][:, 0]), y=_f32(shape["inner"][:, 1]), z=_f32(shape["inner"][:, 2]),
-                     mode="lines", line={"color": "#d62728", "width": 5}, name=f"{name} actuator",
-                     legendgroup=group, showlegend=False, hovertemplate=f"actuator line, run {name}<extra></extra>",
-                     visible=visible),
-        go.Scatter3d(x=_f32(shape["center"][:, 0]), y=_f32(shape["center"][:, 1]), z=_f32(shape["center"][:, 2]),
-                     mode="lines", line={"color": color, "width": 2}, name=f"{name} center",
+        go.Mesh3d(**_xyz(V), i=F[:, 0], j=F[:, 1], k=F[:, 2], name=f"{name} tube", legendgroup=group, showlegend=True,
+                  color=color, opacity=0.45, hoverinfo="skip", visible=visible, lighting={"ambient": 0.6, "diffuse": 0.6, "specular": 0.2}),
+        go.Scatter3d(**_xyz(shape["inner"]), mode="lines", line={"color": "#d62728", "width": 5}, name=f"{name} actuator",
+                     legendgroup=group, showlegend=False, hovertemplate=f"actuator line, run {name}<extra></extra>", visible=visible),
+        go.Scatter3d(**_xyz(shape["center"]), mode="lines", line={"color": color, "width": 2}, name=f"{name} center",
                      legendgroup=group, showlegend=False, customdata=_hover_data(shape), hovertemplate=hover, visible=visible),
     ]
 
@@ -256,12 +257,7 @@ def _run_traces(go, name, shape, D, color, units, visible=True):
 def _frame_data(go, shape, D, count):
     """The data of one run's three traces in a frame (same order as :func:`_run_traces`)."""
     V = tube_vertices(shape, D, count)
-    return [
-        go.Mesh3d(x=_f32(V[:, 0]), y=_f32(V[:, 1]), z=_f32(V[:, 2])),
-        go.Scatter3d(x=_f32(shape["inner"][:, 0]), y=_f32(shape["inner"][:, 1]), z=_f32(shape["inner"][:, 2])),
-        go.Scatter3d(x=_f32(shape["center"][:, 0]), y=_f32(shape["center"][:, 1]), z=_f32(shape["center"][:, 2]),
-                     customdata=_hover_data(shape)),
-    ]
+    return [go.Mesh3d(**_xyz(V)), go.Scatter3d(**_xyz(shape["inner"])), go.Scatter3d(**_xyz(shape["center"]), customdata=_hover_data(shape))]
 
 
 def growth_lengths(total: float, steps: int = GROWTH_STEPS) -> np.ndarray:
@@ -312,8 +308,7 @@ def view_figure(archive: Archive, run: str | None = None):
     if archive.target is not None:
         t = np.asarray(archive.target, float)
         pts.append(t)
-        fig.add_trace(go.Scatter3d(x=_f32(t[:, 0]), y=_f32(t[:, 1]), z=_f32(t[:, 2]), mode="lines",
-                                   line={"color": "black", "width": 3, "dash": "dash"}, name="target",
+        fig.add_trace(go.Scatter3d(**_xyz(t), mode="lines", line={"color": "black", "width": 3, "dash": "dash"}, name="target",
                                    hovertemplate="target<extra></extra>"))
     allp = np.concatenate(pts)
     extent = float(np.ptp(allp, axis=0).max()) or 10 * D
@@ -322,8 +317,7 @@ def view_figure(archive: Archive, run: str | None = None):
         if mesh is None:
             continue
         V, F = mesh
-        fig.add_trace(go.Mesh3d(x=_f32(V[:, 0]), y=_f32(V[:, 1]), z=_f32(V[:, 2]), i=F[:, 0], j=F[:, 1], k=F[:, 2],
-                                color=OBSTACLE_COLOR, opacity=0.35, showlegend=True,
+        fig.add_trace(go.Mesh3d(**_xyz(V), i=F[:, 0], j=F[:, 1], k=F[:, 2], color=OBSTACLE_COLOR, opacity=0.35, showlegend=True,
                                 name=f"obstacle {k} {o['name']} ({o['shape']})" if o.get("name") else f"obstacle {k} ({o['shape']})",
                                 hovertemplate=f"obstacle {k}: {o['shape']}<extra></extra>"))
     run_traces = list(range(TRACES_PER_RUN * len(names)))

@@ -357,14 +357,8 @@ def read_obstacles(h5group, file) -> list:
                 raise InputError(file, path, "must be finite")
             params[key] = a
         try:
-            if shape == "sphere":
-                ob = Sphere(params["center"], float(params["radius"]), name)
-            elif shape == "box":
-                ob = Box(params["center"], params["size"], params["rotation"], name)
-            elif shape == "capsule":
-                ob = Capsule(params["p0"], params["p1"], float(params["radius"]), name)
-            elif shape == "plane":
-                ob = Plane(params["point"], params["normal"], name)
+            if shape != "mesh":  # the datasets are named as the shape's fields
+                ob = OBSTACLE_TYPES[shape](**{k: float(v) if k == "radius" else v for k, v in params.items()}, name=name)
             else:
                 faces = params["faces"]
                 if faces.dtype.kind == "f" and not np.array_equal(faces, np.round(faces)):
