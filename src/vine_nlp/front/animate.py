@@ -136,34 +136,14 @@ def movie_figure(archive: Archive, run: str, panels: int = 2, dpi: int = 80):
 
 def write_movie(archive: Archive, path, mode: str = "both", run: str | None = None, frames: int = 40, fps: int = 10,
                 dpi: int = 80) -> dict:
-    """Write the movie of one run.
+    """Write the movie of ``run`` (default: the archive's default run) to ``path``, .gif (pillow) or .mp4 (ffmpeg):
+    ``mode`` "grow" (growth while actuated), "after" (actuation after growth) or "both" side by side, ``frames``
+    (>= 2) moving both panels together.
 
-    Parameters
-    ----------
-    archive : vine_nlp.io.archive.Archive
-    path : str or Path
-        .gif (pillow) or .mp4 (ffmpeg).
-    mode : {"grow", "after", "both"}
-        Growth while actuated, actuation after growth, or both side by side.
-    run : str, optional
-        Default: the archive's default run.
-    frames : int
-        Frames of the movie (>= 2); both panels move together.
-    fps, dpi : int
-
-    Returns
-    -------
-    dict
-        run, mode, frames, contacts_grow (contacts of the final shape, marked while
-        growing), contacts_after (largest number of contact regions in one frame after
-        growth), format.
-
-    Raises
-    ------
-    ValueError
-        Unknown extension or mode, no such run, no runs, fewer than 2 frames.
-    RuntimeError
-        An MP4 without ffmpeg installed (nothing is written).
+    Returns dict(run, mode, frames, contacts_grow (contacts of the final shape, marked while growing),
+    contacts_after (largest number of contact regions in one frame after growth), format). ValueError for an
+    unknown extension or mode, no such run, no runs, fewer than 2 frames; RuntimeError for an MP4 without
+    ffmpeg installed (nothing is written).
     """
     from matplotlib import animation
 

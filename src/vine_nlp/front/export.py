@@ -82,23 +82,9 @@ def _frames(line, normal0=None):
 
 
 def tube_mesh(line, diameter: float, normal=None, ring: int = RING):
-    """A closed tube of ``diameter`` around the polyline ``line`` (P >= 2 distinct points) with flat end caps.
-
-    Parameters
-    ----------
-    line : (P, 3) array
-    diameter : float
-    normal : (3,) array, optional
-        Direction of the first ring's first vertex (the model's N at the base); the rings follow on a
-        rotation-minimizing frame.
-    ring : int
-        Vertices per ring.
-
-    Returns
-    -------
-    trimesh.Trimesh
-        Watertight, faces wound outward.
-    """
+    """A closed trimesh.Trimesh (watertight, faces wound outward) of ``diameter`` around the polyline ``line``
+    (P >= 2 distinct points) with flat end caps, ``ring`` vertices per ring; ``normal``: direction of the first
+    ring's first vertex (the model's N at the base), the rings following on a rotation-minimizing frame."""
     import trimesh
 
     line = np.asarray(line, float)
@@ -140,22 +126,9 @@ def run_meshes(archive: Archive, run: str):
 def write_mesh(archive: Archive, path, run: str | None = None) -> dict:
     """Write the tube of ``run`` (default: the archive's default run) to ``path`` (.stl, .obj, .ply, .glb).
 
-    Parameters
-    ----------
-    archive : vine_nlp.io.archive.Archive
-    path : str or Path
-    run : str, optional
-
-    Returns
-    -------
-    dict
-        run, files (written, in order), faces, watertight, volume (archive units^3),
-        units (of the file's coordinates), scale (file units per archive unit).
-
-    Raises
-    ------
-    ValueError
-        Unknown extension, unknown run, an archive without runs or units glTF cannot scale.
+    Returns dict(run, files (written, in order), faces, watertight, volume (archive units^3), units (of the file's
+    coordinates), scale (file units per archive unit)). ValueError for an unknown extension, an unknown run, an
+    archive without runs or units glTF cannot scale.
     """
     import trimesh
 

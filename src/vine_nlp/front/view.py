@@ -269,26 +269,12 @@ def actuation_fractions(steps: int = ACTUATION_STEPS) -> np.ndarray:
 
 
 def view_figure(archive: Archive, run: str | None = None):
-    """The 3-D view of an archive as a plotly Figure (module docstring).
+    """The 3-D view of an archive as a plotly Figure (module docstring): only ``run`` if given, else every run,
+    each toggled by its legend entry (the archive's default run first and shown, the others hidden until clicked).
 
-    Parameters
-    ----------
-    archive : vine_nlp.io.archive.Archive
-    run : str, optional
-        Show only this run (default: every run, each toggled by its legend entry; the
-        archive's default run first and shown, the others hidden until clicked).
-
-    Returns
-    -------
-    plotly.graph_objects.Figure
-        Traces: the runs (tube mesh, actuator line, center line each; the default run
-        first), then the target and the obstacles. Frames ``grow-<k>`` and ``after-<k>``
-        drive the two sliders (growth first).
-
-    Raises
-    ------
-    ValueError
-        If the run is not in the archive or the archive has no runs.
+    Traces: the runs (tube mesh, actuator line, center line each), then the target and the obstacles. Frames
+    ``grow-<k>`` and ``after-<k>`` drive the two sliders (growth first). ValueError (``Archive.pick_run``) for a
+    run not in the archive or an archive without runs.
     """
     import plotly.graph_objects as go
     from scipy.spatial import cKDTree
@@ -359,27 +345,8 @@ def view_figure(archive: Archive, run: str | None = None):
 
 
 def view_html(archive: Archive, run: str | None = None, full_html: bool = True, include_plotlyjs=True) -> str:
-    """The view of :func:`view_figure` as HTML.
-
-    Parameters
-    ----------
-    archive : vine_nlp.io.archive.Archive
-    run : str, optional
-        Show only this run.
-    full_html : bool
-        A whole page (True) or a ``<div>`` for notebooks (False).
-    include_plotlyjs : bool or str
-        True embeds plotly.js (opens with no network); "cdn" links it (smaller).
-
-    Returns
-    -------
-    str
-
-    Raises
-    ------
-    ValueError
-        As :func:`view_figure`.
-    """
+    """The view of :func:`view_figure` as HTML: a whole page (``full_html``) or a ``<div>`` for notebooks;
+    ``include_plotlyjs`` True embeds plotly.js (opens with no network), "cdn" links it (smaller)."""
     fig = view_figure(archive, run)
     return fig.to_html(full_html=full_html, include_plotlyjs=include_plotlyjs, auto_play=False,
                        config={"displaylogo": False, "responsive": True})
