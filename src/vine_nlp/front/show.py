@@ -88,22 +88,8 @@ def _range(values: np.ndarray) -> str:
 
 
 def summarize(archive) -> str:
-    """Multi-line summary of an archive (an Archive or a path): problem, software, target, and every run.
-
-    Parameters
-    ----------
-    archive : Archive or path-like
-        A path is loaded (and so validated) with :func:`vine_nlp.io.archive.load_archive`.
-
-    Returns
-    -------
-    str
-
-    Raises
-    ------
-    InputError
-        For a path whose archive is missing or invalid.
-    """
+    """Multi-line summary of an archive (an Archive, or a path loaded and so validated by ``load_archive``: an
+    InputError when missing or invalid): problem, software, target, and every run."""
     a = archive if isinstance(archive, Archive) else load_archive(archive)
     u = a.units
     lines = [f"problem   {a.name} ({a.kind})"]

@@ -492,23 +492,9 @@ def _load(c: _Checker, h5) -> Archive:
 
 
 def load_archive(path) -> Archive:
-    """Read an archive back into typed objects, every part checked (see the module docstring).
-
-    Parameters
-    ----------
-    path : path-like
-        The archive.
-
-    Returns
-    -------
-    Archive
-
-    Raises
-    ------
-    ArchiveError
-        (an InputError and a ValueError) for a missing, unreadable, malformed or
-        oversized archive, naming the dataset and the reason. Nothing else.
-    """
+    """Read the archive at ``path`` back into an Archive, every part checked (see the module docstring).
+    Raises ArchiveError (an InputError and a ValueError) for a missing, unreadable, malformed or oversized
+    archive, naming the dataset and the reason; nothing else."""
     c = _Checker(path)
     try:
         with open_archive(path) as h5:

@@ -58,24 +58,10 @@ _DATASETS = {
 def parse_obstacles(tables, file, base_dir=None) -> list:
     """The obstacles of a problem file's ``[[obstacles]]`` array of tables, validated.
 
-    Parameters
-    ----------
-    tables : list of dict
-        ``data["obstacles"]`` of the parsed TOML document.
-    file : str or Path
-        The problem file, named in errors.
-    base_dir : str or Path, optional
-        Directory that mesh ``file`` paths are relative to (default: the problem file's).
-
-    Returns
-    -------
-    list of Sphere, Box, Capsule, Plane, Mesh
-        In file order.
-
-    Raises
-    ------
-    InputError
-        ``(file, "obstacles[k].key", reason)``; a bad mesh file's content: ``(mesh file, "mesh", reason)``.
+    ``tables`` is ``data["obstacles"]`` of the parsed TOML document, ``file`` the problem file (named in errors),
+    ``base_dir`` the directory mesh ``file`` paths are relative to (default: the problem file's). Returns the
+    shapes in file order. InputError ``(file, "obstacles[k].key", reason)``; a bad mesh file's content:
+    ``(mesh file, "mesh", reason)``.
     """
     file = str(file)
     base = Path(file).parent if base_dir is None else Path(base_dir)
@@ -250,23 +236,8 @@ def load_mesh_file(path, data: bytes | None = None) -> tuple[np.ndarray, np.ndar
 
 
 def parse_obstacle_design(design, file) -> tuple[float, str]:
-    """``[design] obstacle_margin`` (>= 0, default 0) and ``growth`` (default "while-actuated").
-
-    Parameters
-    ----------
-    design : dict
-        The problem's ``[design]`` table (may be empty).
-    file : str
-        The problem file, named in errors (keys ``design.obstacle_margin``, ``design.growth``).
-
-    Returns
-    -------
-    (margin, growth)
-
-    Raises
-    ------
-    InputError
-    """
+    """(margin, growth) of the problem's ``[design]`` table (may be empty): ``obstacle_margin`` (>= 0, default 0)
+    and ``growth`` (default "while-actuated"); InputError naming ``file`` and the key."""
     file = str(file)
     margin = _float(lambda key, reason: InputError(file, "design.obstacle_margin", reason), "", design.get("obstacle_margin", 0.0), "a number")
     if not math.isfinite(margin):

@@ -281,9 +281,7 @@ def fit_problem(problem: FitProblem, starts: int = 24, seed: int = 0):
       along the fitted model line, ``measured/s_tube`` (K,) the same as unactuated
       tube length, ``measured/line`` (K,) 0 center, 1 inner, 2 outer.
     """
-    return fit_lines(
-        problem.routing, problem.diameter, {problem.line: problem.measured}, free=problem.free, starts=starts, seed=seed
-    )
+    return fit_lines(problem.routing, problem.diameter, {problem.line: problem.measured}, free=problem.free, starts=starts, seed=seed)
 
 
 def describe_fit(result: Result, units: str = "cm") -> str:
@@ -291,7 +289,5 @@ def describe_fit(result: Result, units: str = "cm") -> str:
     m, st = result.metrics, result.stats
     free = st.get("free", [])
     lam = f", lambda {m['lambda']:.4f}" + (" (fitted)" if "lambda" in free else " (given)")
-    return (
-        f"fit of the {st.get('line', '?')} line to {st.get('points', '?')} points: rmse {m['rmse']:.4g} {units}, "
-        f"max {m['max_error']:.4g} {units}, R^2 {m['r2']:.4f}{lam}"
-    )
+    return (f"fit of the {st.get('line', '?')} line to {st.get('points', '?')} points: rmse {m['rmse']:.4g} {units}, "
+            f"max {m['max_error']:.4g} {units}, R^2 {m['r2']:.4f}{lam}")
