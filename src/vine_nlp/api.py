@@ -565,32 +565,12 @@ _KIND = {DesignProblem: "design", ForwardProblem: "forward", FitProblem: "fit", 
 # ---------------------------------------------------------------- entry points
 
 
-def design(
-    points,
-    diameter,
-    *,
-    actuator: str = Actuator.kind,
-    theta_max_deg: float = _THETA_MAX_DEG,
-    lambda_min: float | None = None,
-    points_per_segment: int = DesignOptions.points_per_segment,
-    smoothing=None,
-    starts: int = DesignOptions.starts,
-    hops: int = DesignOptions.hops,
-    budget: float = DesignOptions.budget,
-    solver: str = DesignOptions.solver,
-    method: str = DesignOptions.method,
-    clearance: float | None = None,
-    robust=None,
-    robust_weight: float = 1.0,
-    seed: int = DesignOptions.seed,
-    workers: int = 1,
-    units: str = "cm",
-    name: str = "design",
-    calibration=None,
-    correction_margin: float | None = None,
-    min_feature: float | None = None,
-    base="free",
-) -> Design:
+def design(points, diameter, *, actuator: str = Actuator.kind, theta_max_deg: float = _THETA_MAX_DEG, lambda_min: float | None = None,
+           points_per_segment: int = DesignOptions.points_per_segment, smoothing=None, starts: int = DesignOptions.starts,
+           hops: int = DesignOptions.hops, budget: float = DesignOptions.budget, solver: str = DesignOptions.solver,
+           method: str = DesignOptions.method, clearance: float | None = None, robust=None, robust_weight: float = 1.0,
+           seed: int = DesignOptions.seed, workers: int = 1, units: str = "cm", name: str = "design", calibration=None,
+           correction_margin: float | None = None, min_feature: float | None = None, base="free") -> Design:
     """Inverse design: the actuator routing whose tube follows ``points`` (``vine-nlp design``).
 
     Parameters

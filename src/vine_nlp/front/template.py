@@ -249,23 +249,17 @@ def template_format(path) -> str:
 
 def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str = "A4", run: str | None = None,
                    spam: bool | None = None, orientation: str = "auto", changes: list | None = None) -> dict:
-    """Write the 1:1 fabrication template of one run: a multi-page PDF, or one SVG or DXF sheet
-    in millimetres (by the extension of ``pdf_path``), and CUTS.csv.
+    """Write the 1:1 fabrication template of ``run`` (default: the archive's default run): a multi-page PDF, or
+    one SVG or DXF sheet in millimetres (by the extension of ``pdf_path``), and CUTS.csv, all atomically.
 
-    run: default the first of nlp, greedy, forward present. spam: default from the
-    archived problem file's [actuator] kind. Units must be cm or mm (ValueError
-    otherwise). Strips are cut for ``paper`` in every format (SVG and DXF stack all
-    strips on one sheet, :func:`template_sheet`). All files are written atomically.
-    Returns {"pages" (1 for SVG and DXF), "strips", "paper", "paper_mm" (width,
-    height as printed; the sheet's for SVG and DXF), "orientation", "run", "spam",
-    "segments", "stoppers" (segments drawn with a stopper/gap split), "gaps"
-    (segments with a gap drawn), "unactuated" (segments without an actuator), "refused"
-    (analysis.buildability's reasons), "tube_length", "format"}.
-
-    changes: rows of ``front.changes.change_rows`` (a correction archive against the robot built
-    last); each changing segment is framed in orange on the template with its stopper change
-    ("+2.3 mm longer", "-1.1 mm shorter", "redraw"), and the legend says so. Returns also "changes"
-    (segments marked).
+    spam: default from the archived problem file's [actuator] kind. Units must be cm or mm (ValueError otherwise).
+    Strips are cut for ``paper`` in every format (SVG and DXF stack them on one sheet, :func:`template_sheet`).
+    changes: rows of ``front.changes.change_rows`` (a correction archive against the robot built last); each
+    changing segment is framed in orange with its stopper change ("+2.3 mm longer", "-1.1 mm shorter", "redraw"),
+    and the legend says so. Returns {"pages" (1 for SVG and DXF), "strips", "paper", "paper_mm" (width, height as
+    printed; the sheet's for SVG and DXF), "orientation", "run", "spam", "segments", "stoppers" (segments drawn
+    with a stopper/gap split), "gaps" (segments with a gap drawn), "unactuated" (segments without an actuator),
+    "refused" (analysis.buildability's reasons), "tube_length", "format", "changes" (segments marked)}.
     """
     fmt = template_format(pdf_path)
     a = archive_path_or_archive if isinstance(archive_path_or_archive, Archive) else load_archive(archive_path_or_archive)

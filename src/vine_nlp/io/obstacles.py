@@ -25,6 +25,7 @@ import numpy as np
 from vine_nlp.analysis.obstacles import GROWTH_MODES
 from vine_nlp.errors import InputError
 from vine_nlp.io import files, limits
+from vine_nlp.io.validate import is_number
 from vine_nlp.model.obstacles import OBSTACLE_TYPES, SHAPES, Box, Capsule, Mesh, Plane, Sphere, is_rotation, rotation_from_degrees
 
 MAX_OBSTACLES = 1000
@@ -140,12 +141,8 @@ def _bad_name(name: str) -> bool:
     return not name.isprintable() or len(name) > limits.MAX_NAME_CHARS
 
 
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
 def _float(err, key, v, what):
-    if not _is_number(v):
+    if not is_number(v):
         raise err(key, f"must be {what}")
     if isinstance(v, float) and not math.isfinite(v):
         return v  # the callers say "must be finite"

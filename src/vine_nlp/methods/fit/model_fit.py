@@ -167,17 +167,8 @@ class LineFitter:
         return best["lam"], best["fit"]
 
 
-def fit_lines(
-    routing: Routing,
-    diameter: float,
-    measured: dict,
-    free=(),
-    starts: int = 24,
-    seed: int = 0,
-    spacing: float = SPACING,
-    lambda_bounds=LAMBDA_BOUNDS,
-    warm_start=None,
-):
+def fit_lines(routing: Routing, diameter: float, measured: dict, free=(), starts: int = 24, seed: int = 0,
+              spacing: float = SPACING, lambda_bounds=LAMBDA_BOUNDS, warm_start=None):
     """Fit the model of ``routing`` to measured lines sharing one rigid pose.
 
     ``measured``: {"center" | "inner" | "outer": (K, 3) points in any order}; several
