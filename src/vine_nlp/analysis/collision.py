@@ -52,9 +52,8 @@ import math
 
 import numpy as np
 
-from vine_nlp.analysis.obstacles import ModelLine, sample_chain
+from vine_nlp.analysis.obstacles import ModelLine, after_growth_routing, sample_chain
 from vine_nlp.model.helix import center_rates, helix_self_collides, helix_turns
-from vine_nlp.model.routing import Routing
 
 _ModelLine = ModelLine  # its former name here (vine_nlp.methods.clearance imports it)
 
@@ -376,7 +375,7 @@ def growth_contacts(routing, D: float, margin: float = 0.0, spacing: float | Non
     transient = []  # [(t_first, min clearance, merged region)]
     if actuation_steps > 0:
         for t in np.linspace(0.0, 1.0, actuation_steps + 1)[1:]:
-            rt = routing if t == 1.0 else Routing(routing.theta, 1 - t * (1 - routing.lam), routing.length, routing.initial_pose)
+            rt = routing if t == 1.0 else after_growth_routing(routing, t)
             res = final if t == 1.0 else routing_clearance(rt, D, spacing, exclude_arc, margin, closest=False)
             for q in res["regions"]:
                 hit = False

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from vine_nlp.analysis.collision import growth_contacts, routing_clearance
-from vine_nlp.analysis.obstacles import ModelLine
+from vine_nlp.analysis.obstacles import ModelLine, after_growth_routing
 from vine_nlp.front.plot import equal_view_3d, label_3d_axes
 from vine_nlp.front.view import tube_rings
 from vine_nlp.io.archive import Archive, write_atomic
@@ -85,8 +85,7 @@ def frame_contacts(routing: Routing, D: float, mode: str, value: float, growth=N
         if not ls:
             return np.zeros((0, 3))
         return ModelLine(routing, D).points(np.ravel(ls))
-    lam = 1.0 - value * (1.0 - routing.lam)
-    res = routing_clearance(Routing(routing.theta, lam, routing.length, routing.initial_pose), D, refine=False, closest=False)
+    res = routing_clearance(after_growth_routing(routing, value), D, refine=False, closest=False)
     if not res["regions"]:
         return np.zeros((0, 3))
     return np.array([p for r in res["regions"] for p in (r["point_i"], r["point_j"])])

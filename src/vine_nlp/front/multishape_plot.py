@@ -96,9 +96,7 @@ def multishape_figure(a, r, targets) -> Figure:
         ax_e.set_ylabel(f"error [{u}]")
         ax_e.set_title("(c) center-line error to each target", loc="left", pad=2)
         m = r.metrics
-        fig.suptitle(
-            f"{a.name} (multishape), D = {a.diameter:.3g} {u}: RMSE {m['rmse']:.3g} {u}, max {m['max_error']:.3g} {u}, {r.status}"
-        )
+        fig.suptitle(f"{a.name} (multishape), D = {a.diameter:.3g} {u}: RMSE {m['rmse']:.3g} {u}, max {m['max_error']:.3g} {u}, {r.status}")
     return fig
 
 
