@@ -303,7 +303,7 @@ def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str 
         "pages": pages, "strips": len(lay.tiles), "paper": lay.paper, "paper_mm": size, "orientation": lay.orientation,
         "run": name, "spam": spam, "segments": int(len(table["segment"])), **split_counts(table, spam),
         "tube_length": L, "format": fmt[1:], "changes": len(table["changes"]),
-        "unactuated": int((table["actuated"] == 0).sum()), "refused": table["refused"],
+        "unactuated": _none_count(table), "refused": table["refused"],
     }
 
 

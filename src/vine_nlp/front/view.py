@@ -260,14 +260,6 @@ def _frame_data(go, shape, D, count):
     return [go.Mesh3d(**_xyz(V)), go.Scatter3d(**_xyz(shape["inner"])), go.Scatter3d(**_xyz(shape["center"]), customdata=_hover_data(shape))]
 
 
-def growth_lengths(total: float, steps: int = GROWTH_STEPS) -> np.ndarray:
-    return np.linspace(0.0, total, steps + 1)
-
-
-def actuation_fractions(steps: int = ACTUATION_STEPS) -> np.ndarray:
-    return np.linspace(0.0, 1.0, steps + 1)
-
-
 def view_figure(archive: Archive, run: str | None = None):
     """The 3-D view of an archive as a plotly Figure (module docstring): only ``run`` if given, else every run,
     each toggled by its legend entry (the archive's default run first and shown, the others hidden until clicked).
@@ -310,7 +302,7 @@ def view_figure(archive: Archive, run: str | None = None):
     total = max(float(np.sum(archive.runs[n].routing.length)) for n in names)
     frames, grow_steps, after_steps = [], [], []
     anim = {"mode": "immediate", "frame": {"duration": 0, "redraw": True}, "transition": {"duration": 0}}
-    for k, lg in enumerate(growth_lengths(total)):
+    for k, lg in enumerate(np.linspace(0.0, total, GROWTH_STEPS + 1)):
         data = []
         for name in names:
             r = archive.runs[name].routing
@@ -318,7 +310,7 @@ def view_figure(archive: Archive, run: str | None = None):
                                 len(finals[name]["center"]))
         frames.append(go.Frame(name=f"grow-{k}", data=data, traces=run_traces))
         grow_steps.append({"label": f"{lg:.3g}", "method": "animate", "args": [[f"grow-{k}"], anim]})
-    for k, t in enumerate(actuation_fractions()):
+    for k, t in enumerate(np.linspace(0.0, 1.0, ACTUATION_STEPS + 1)):
         data = []
         for name in names:
             r = archive.runs[name].routing
