@@ -364,13 +364,8 @@ def is_sweep_dir(path) -> bool:
 
 
 def sweep_figure(directory):
-    """The view of a sweep directory: (figure, item shapes) with the shapes for the click handler.
-
-    Raises
-    ------
-    ValueError
-        If the directory has no readable summary.csv or no item archive.
-    """
+    """The view of a sweep directory: (figure, item shapes) with the shapes for the click handler; ValueError
+    if the directory has no readable summary.csv or no item archive."""
     import plotly.graph_objects as go
     from plotly.subplots import make_subplots
 

@@ -89,13 +89,8 @@ DEFAULT_RUNS = ("nlp", "nlp_robust", "nlp_clearance", "greedy", "forward", "fit"
 def write_atomic(path, write):
     """Call ``write(tmp_path)`` then rename onto ``path``; on any failure nothing is left behind.
     An output the command line reserved (``vine_nlp.io.outputs``) is renamed when the command ends.
-
-    Raises
-    ------
-    OutputError
-        For an OSError while writing or renaming (disk full, permissions, read-only
-        filesystem, a directory at ``path``). Other exceptions pass through unchanged.
-    """
+    An OSError while writing or renaming (disk full, permissions, read-only filesystem, a directory at
+    ``path``) raises OutputError; other exceptions pass through unchanged."""
     path = Path(path)
     staged = outputs.staged(path, written=True)
     tmp = staged or temp_file(path)

@@ -198,13 +198,8 @@ def _mesh(err, base, value, name) -> Mesh:
 def load_mesh_file(path, data: bytes | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Vertices and faces of a closed triangle mesh file (.stl, .obj, .ply) read through trimesh, from
     its bytes (``data``, default: read within MAX_MESH_BYTES): trimesh opens no other file (an OBJ's
-    ``mtllib`` is not followed).
-
-    Raises
-    ------
-    InputError
-        ``(path, "mesh", reason)``: unreadable, no triangles, too many faces, not closed.
-    """
+    ``mtllib`` is not followed). InputError ``(path, "mesh", reason)``: unreadable, no triangles, too many
+    faces, not closed."""
     import trimesh
 
     path = Path(path)
@@ -280,13 +275,8 @@ def _text_attr(v):
 
 
 def read_obstacles(h5group, file) -> list:
-    """Obstacles from an archive's ``/obstacles`` group, validated.
-
-    Raises
-    ------
-    InputError
-        ``(file, "<dataset or group path>", reason)``.
-    """
+    """Obstacles from an archive's ``/obstacles`` group, validated: InputError ``(file, "<dataset or group path>",
+    reason)``."""
     file = str(file)
     names = list(h5group.keys())
     base = h5group.name.rstrip("/")
