@@ -152,24 +152,22 @@ def write_mesh(archive: Archive, path, run: str | None = None) -> dict:
             m.visual.face_colors = color
             scene.add_geometry(m, node_name=name, geom_name=name)
         data = scene.export(file_type="glb")
-        write_atomic(path, lambda t: Path(t).write_bytes(data))
-        info["files"] = [path]
-        return info
-    if ext == ".obj":
+    elif ext == ".obj":
         scene = trimesh.Scene()
         scene.add_geometry(tube, node_name="tube", geom_name="tube")
         scene.add_geometry(actuator, node_name="actuator", geom_name="actuator")
         text = scene.export(file_type="obj")
         text = text if isinstance(text, str) else text.decode()
         data = f"# {note}\n{text}".encode()
-        write_atomic(path, lambda t: Path(t).write_bytes(data))
-        info["files"] = [path]
+    else:  # STL and PLY: one mesh per file, the actuator line beside the tube
+        second = path.with_name(f"{path.stem}.actuator{path.suffix}")
+        blobs = [_with_units(tube.export(file_type=ext[1:]), ext, note), _with_units(actuator.export(file_type=ext[1:]), ext, note + ", actuator line")]
+        write_atomic(path, lambda t: Path(t).write_bytes(blobs[0]))
+        write_atomic(second, lambda t: Path(t).write_bytes(blobs[1]))
+        info["files"] = [path, second]
         return info
-    second = path.with_name(f"{path.stem}.actuator{path.suffix}")
-    blobs = [_with_units(tube.export(file_type=ext[1:]), ext, note), _with_units(actuator.export(file_type=ext[1:]), ext, note + ", actuator line")]
-    write_atomic(path, lambda t: Path(t).write_bytes(blobs[0]))
-    write_atomic(second, lambda t: Path(t).write_bytes(blobs[1]))
-    info["files"] = [path, second]
+    write_atomic(path, lambda t: Path(t).write_bytes(data))
+    info["files"] = [path]
     return info
 
 
