@@ -84,24 +84,12 @@ class _Arguments(check.SourceFile):
 
 # problem-file keys -> the argument that carries them
 _DESIGN_ARGUMENTS = {
-    "actuator.kind": "actuator",
-    "actuator.lambda_min": "lambda_min",
-    "actuator.theta_max_deg": "theta_max_deg",
-    "design.method": "method",
-    "design.points_per_segment": "points_per_segment",
-    "design.starts": "starts",
-    "design.hops": "hops",
-    "design.budget": "budget",
-    "design.solver": "solver",
-    "design.seed": "seed",
-    "design.max_iter": "max_iter",
-    "design.smoothness": "smoothing",
-    "design.smoothness.theta": "smoothing",
-    "design.smoothness.lambda": "smoothing",
-    "design.correction_margin": "correction_margin",
-    "design.min_feature": "min_feature",
-    "design.base": "base",
-    "routing.initial_pose": "base",
+    "actuator.kind": "actuator", "actuator.lambda_min": "lambda_min", "actuator.theta_max_deg": "theta_max_deg",
+    "design.method": "method", "design.points_per_segment": "points_per_segment", "design.starts": "starts",
+    "design.hops": "hops", "design.budget": "budget", "design.solver": "solver", "design.seed": "seed",
+    "design.max_iter": "max_iter", "design.smoothness": "smoothing", "design.smoothness.theta": "smoothing",
+    "design.smoothness.lambda": "smoothing", "design.correction_margin": "correction_margin",
+    "design.min_feature": "min_feature", "design.base": "base", "routing.initial_pose": "base",
 }
 
 
@@ -212,8 +200,7 @@ def _design_problem(points, diameter, *, actuator, theta_max_deg, lambda_min, po
 def _sigmas(robust) -> Sigmas:
     """``robust``: a Sigmas, or a dict with any of theta_deg, lambda, length (relative) or length_abs (in units)."""
     if isinstance(robust, Sigmas):
-        sig = robust
-        values = {"theta": sig.theta, "lambda": sig.lam, "length": sig.length}
+        values = {"theta": robust.theta, "lambda": robust.lam, "length": robust.length}
     elif isinstance(robust, dict):
         keys = ("theta_deg", "lambda", "length", "length_abs")
         unknown = [k for k in robust if k not in keys]
@@ -809,9 +796,7 @@ def fit(points, routing, diameter, *, line: str = "outer", free=("lambda",), sta
     elif not isinstance(routing, Routing):
         raise ArgumentError("routing", "must be a Routing, a Design or a dict with theta, lam, length")
     line = check.choice(args, "line", line, MEASURED_LINES)
-    if isinstance(free, str):
-        free = (free,)
-    free = tuple(free)
+    free = (free,) if isinstance(free, str) else tuple(free)
     for item in free:
         check.choice(args, "free", item, problems._FREE_CHOICES)
     if len(set(free)) != len(free):

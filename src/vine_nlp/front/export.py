@@ -161,7 +161,8 @@ def write_mesh(archive: Archive, path, run: str | None = None) -> dict:
         data = f"# {note}\n{text}".encode()
     else:  # STL and PLY: one mesh per file, the actuator line beside the tube
         second = path.with_name(f"{path.stem}.actuator{path.suffix}")
-        blobs = [_with_units(tube.export(file_type=ext[1:]), ext, note), _with_units(actuator.export(file_type=ext[1:]), ext, note + ", actuator line")]
+        blobs = [_with_units(tube.export(file_type=ext[1:]), ext, note),
+                 _with_units(actuator.export(file_type=ext[1:]), ext, note + ", actuator line")]
         write_atomic(path, lambda t: Path(t).write_bytes(blobs[0]))
         write_atomic(second, lambda t: Path(t).write_bytes(blobs[1]))
         info["files"] = [path, second]

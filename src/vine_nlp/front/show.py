@@ -108,7 +108,8 @@ def summarize(archive) -> str:
         r = a.runs[name]
         ro = r.routing
         lines += ["", f"run {name}", f"  method      {r.method}", f"  status      {r.status}", f"  iterations  {r.iterations}",
-                  f"  solve time  {r.solve_time_s:.3f} s", f"  segments    {ro.segments}", f"  tube length {_num(float(ro.length.sum()))} {u}"]
+                  f"  solve time  {r.solve_time_s:.3f} s", f"  segments    {ro.segments}",
+                  f"  tube length {_num(float(ro.length.sum()))} {u}"]
         if ro.segments:
             lines.append(f"  theta       {_range(np.degrees(ro.theta))} deg")
             lines.append(f"  lambda      {_range(ro.lam)}")

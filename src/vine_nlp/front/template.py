@@ -556,6 +556,17 @@ def _muscle_lambda(table: dict) -> float:
     return float(np.mean(lam)) if lam.size else 1.0
 
 
+def _legend(table: dict, spam: bool) -> list[tuple[str, str]]:
+    """The legend's rows of the PDF and the sheets: (path kind or "changes", text)."""
+    rows = ([("muscle", f"sPAM muscle path, one \u03bb = {_muscle_lambda(table):.3g}")] if spam else
+            [("stopper", "stays: stopper / unpinched (\u03bb)"), ("gap", "removed: gap / pinched (1 \u2212 \u03bb)")])
+    if not table["actuated"].all():
+        rows.append(("none", NONE_LEGEND))
+    if table.get("changes"):
+        rows.append(("changes", f"framed: {len(table['changes'])} segment(s) to change against the robot built last"))
+    return rows
+
+
 def split_counts(table: dict, spam: bool) -> dict:
     """Segments drawn with a stopper/gap split ("stoppers") and with a gap ("gaps"); both 0 for sPAM."""
     counts = {"stoppers": 0, "gaps": 0}
@@ -577,12 +588,7 @@ def _footer(fig, W, H, spam, table):
     fig.text(fx(x0), fy(y0 - 1.5), f"scale check: this bar must measure {SCALE_BAR_CM * 10:.0f} mm ({SCALE_BAR_CM:.0f} cm) on the print",
              fontsize=FONT, va="top", ha="left")
     lx = x1 + 8.0
-    items = ([(SPAM_COLOR, 1.6, f"sPAM muscle path, one \u03bb = {_muscle_lambda(table):.3g}")] if spam else
-             [(STOPPER_COLOR, 1.6, "stays: stopper / unpinched (\u03bb)"), (GAP_COLOR, 2.4, "removed: gap / pinched (1 \u2212 \u03bb)")])
-    if not table["actuated"].all():
-        items.append((GAP_COLOR, 0.8, NONE_LEGEND))
-    if table.get("changes"):
-        items.append((CHANGE_COLOR, 0.9, f"framed: {len(table['changes'])} segment(s) to change against the robot built last"))
+    items = [(PATH_COLORS.get(kind, CHANGE_COLOR), PATH_WIDTHS_PT.get(kind, 0.9), text) for kind, text in _legend(table, spam)]
     items.append((None, 0, "+ alignment marks, shaded: 1 cm overlap"))
     for i, (color, lw, text) in enumerate(items):
         y = y0 + 3.0 - 3.6 * i
@@ -698,13 +704,8 @@ def template_sheet(a: Archive, run: str, table: dict, lay: Layout, spam: bool) -
         sh.line("scale", [(bx + 10.0 * i, by), (bx + 10.0 * i, by + (2.0 if i % 5 == 0 else 1.0))])
     sh.text("text", bx, by - 4.0, f"scale check: this bar must measure {SCALE_BAR_CM * 10:.0f} mm ({SCALE_BAR_CM:.0f} cm)", 2.2)
     lx = bx + SCALE_BAR_CM * 10.0 + 8.0
-    legend = ([("actuator_path", f"sPAM muscle path, one \u03bb = {_muscle_lambda(table):.3g}")] if spam else
-              [("stoppers", "stays: stopper / unpinched (\u03bb)"), ("removed", "removed: gap / pinched (1 \u2212 \u03bb)")])
-    if not table["actuated"].all():
-        legend.append(("removed", NONE_LEGEND))
-    if table.get("changes"):
-        legend.append(("changes", f"framed: {len(table['changes'])} segment(s) to change against the robot built last"))
-    legend.append(("marks", "alignment marks; outlined: 1 cm overlap"))
+    layers = {"muscle": "actuator_path", "stopper": "stoppers", "gap": "removed", "none": "removed", "changes": "changes"}
+    legend = [(layers[kind], text) for kind, text in _legend(table, spam)] + [("marks", "alignment marks; outlined: 1 cm overlap")]
     for i, (layer, text) in enumerate(legend):
         y = by + 3.0 - 3.6 * i
         sh.text("text", lx, y - 0.8, f"[{layer}] {text}", 2.2)  # by layer name: nothing on the cut layers but the strips

@@ -257,7 +257,8 @@ def _run_traces(go, name, shape, D, color, units, visible=True):
 def _frame_data(go, shape, D, count):
     """The data of one run's three traces in a frame (same order as :func:`_run_traces`)."""
     V = tube_vertices(shape, D, count)
-    return [go.Mesh3d(**_xyz(V)), go.Scatter3d(**_xyz(shape["inner"])), go.Scatter3d(**_xyz(shape["center"]), customdata=_hover_data(shape))]
+    return [go.Mesh3d(**_xyz(V)), go.Scatter3d(**_xyz(shape["inner"])),
+            go.Scatter3d(**_xyz(shape["center"]), customdata=_hover_data(shape))]
 
 
 def view_figure(archive: Archive, run: str | None = None):
