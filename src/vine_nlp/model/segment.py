@@ -43,11 +43,7 @@ def _exp_coefficients(x):
         r = L.sqrt(x)
         return (r - L.sin(r)) / (x * r)
 
-    return (
-        safe_series(x, a, _A, _X_SWITCH),
-        safe_series(x, b, _B, _X_SWITCH),
-        safe_series(x, c, _C, _X_SWITCH),
-    )
+    return safe_series(x, a, _A, _X_SWITCH), safe_series(x, b, _B, _X_SWITCH), safe_series(x, c, _C, _X_SWITCH)
 
 
 def segment_parts(theta, lam, length, D):

@@ -180,10 +180,8 @@ def _helix_candidates(X, n_dirs=96, max_points=400, residual="orthogonal"):
 
 def _solve_helix(X, F0, p0, line_idx, nradii, residual, tol=1e-14, max_nfev=2000):
     from scipy.optimize import least_squares  # SciPy loads where it is used: the command line starts faster
-    sol = least_squares(
-        _helix_residuals, p0, args=(X, F0, line_idx, nradii, residual), method="lm", x_scale="jac",
-        xtol=tol, ftol=tol, gtol=tol, max_nfev=max_nfev,
-    )
+    sol = least_squares(_helix_residuals, p0, args=(X, F0, line_idx, nradii, residual), method="lm", x_scale="jac",
+                        xtol=tol, ftol=tol, gtol=tol, max_nfev=max_nfev)
     return sol.x, float(np.sum(sol.fun**2)) / X.shape[0]
 
 
