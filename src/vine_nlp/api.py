@@ -84,24 +84,12 @@ class _Arguments(check.SourceFile):
 
 # problem-file keys -> the argument that carries them
 _DESIGN_ARGUMENTS = {
-    "actuator.kind": "actuator",
-    "actuator.lambda_min": "lambda_min",
-    "actuator.theta_max_deg": "theta_max_deg",
-    "design.method": "method",
-    "design.points_per_segment": "points_per_segment",
-    "design.starts": "starts",
-    "design.hops": "hops",
-    "design.budget": "budget",
-    "design.solver": "solver",
-    "design.seed": "seed",
-    "design.max_iter": "max_iter",
-    "design.smoothness": "smoothing",
-    "design.smoothness.theta": "smoothing",
-    "design.smoothness.lambda": "smoothing",
-    "design.correction_margin": "correction_margin",
-    "design.min_feature": "min_feature",
-    "design.base": "base",
-    "routing.initial_pose": "base",
+    "actuator.kind": "actuator", "actuator.lambda_min": "lambda_min", "actuator.theta_max_deg": "theta_max_deg",
+    "design.method": "method", "design.points_per_segment": "points_per_segment", "design.starts": "starts",
+    "design.hops": "hops", "design.budget": "budget", "design.solver": "solver", "design.seed": "seed",
+    "design.max_iter": "max_iter", "design.smoothness": "smoothing", "design.smoothness.theta": "smoothing",
+    "design.smoothness.lambda": "smoothing", "design.correction_margin": "correction_margin",
+    "design.min_feature": "min_feature", "design.base": "base", "routing.initial_pose": "base",
 }
 
 
@@ -131,15 +119,12 @@ def _integer(args: _Arguments, key: str, value, least: int) -> int:
     return check.integer(args, key, _plain(value), least)
 
 
-def _text(args: _Arguments, key: str, value) -> str:
-    return check.nonempty_text(args, key, value)
-
-
-def _units(args: _Arguments, units) -> str:
+def _name_units(args: _Arguments, name, units) -> tuple[str, str]:
+    name = check.nonempty_text(args, "name", name)
     units = check.nonempty_text(args, "units", units)
     if len(units) > 32:  # the archive reader takes unit names of up to 32 characters
         raise args.error("units", "must be a unit name of at most 32 characters")
-    return units
+    return name, units
 
 
 def _diameter(diameter) -> float:
@@ -181,8 +166,7 @@ def _design_problem(points, diameter, *, actuator, theta_max_deg, lambda_min, po
                     method, seed, units, name, budget=DesignOptions.budget, solver=DesignOptions.solver, correction_margin=None,
                     min_feature=None, base="free") -> DesignProblem:
     args = _Arguments(_DESIGN_ARGUMENTS)
-    name = _text(args, "name", name)
-    units = _units(args, units)
+    name, units = _name_units(args, name, units)
     D = _diameter(diameter)
     table = {"kind": actuator}
     if lambda_min is not None:
@@ -216,8 +200,7 @@ def _design_problem(points, diameter, *, actuator, theta_max_deg, lambda_min, po
 def _sigmas(robust) -> Sigmas:
     """``robust``: a Sigmas, or a dict with any of theta_deg, lambda, length (relative) or length_abs (in units)."""
     if isinstance(robust, Sigmas):
-        sig = robust
-        values = {"theta": sig.theta, "lambda": sig.lam, "length": sig.length}
+        values = {"theta": robust.theta, "lambda": robust.lam, "length": robust.length}
     elif isinstance(robust, dict):
         keys = ("theta_deg", "lambda", "length", "length_abs")
         unknown = [k for k in robust if k not in keys]
@@ -258,10 +241,6 @@ class _Context:
     @property
     def runs(self) -> dict:
         return self.outcome.runs
-
-    @property
-    def name(self) -> str:
-        return self.problem_file.name
 
     def as_archive(self) -> Archive:
         return self.archive if self.archive is not None else self.outcome.archive()
@@ -450,17 +429,12 @@ class Design:
     def summary(self) -> dict:
         """The key numbers: run, method, status, segments, tube length, RMSE, max error, solve time, iterations."""
         return {
-            "name": self.name,
-            "run": self.run,
-            "method": self.method,
-            "status": self.status,
-            "segments": self.segments,
+            "name": self.name, "run": self.run, "method": self.method, "status": self.status, "segments": self.segments,
             "tube length": f"{float(self.length.sum()):.4g} {self.units}",
             "diameter": f"{self.diameter:.4g} {self.units}",
             "rmse": f"{self.rmse:.4g} {self.units}" if "rmse" in self.metrics else "-",
             "max error": f"{self.max_error:.4g} {self.units}" if "max_error" in self.metrics else "-",
-            "solve time": f"{self.solve_time_s:.3f} s",
-            "iterations": self.iterations,
+            "solve time": f"{self.solve_time_s:.3f} s", "iterations": self.iterations,
         }
 
     def __repr__(self) -> str:
@@ -578,32 +552,12 @@ _KIND = {DesignProblem: "design", ForwardProblem: "forward", FitProblem: "fit", 
 # ---------------------------------------------------------------- entry points
 
 
-def design(
-    points,
-    diameter,
-    *,
-    actuator: str = Actuator.kind,
-    theta_max_deg: float = _THETA_MAX_DEG,
-    lambda_min: float | None = None,
-    points_per_segment: int = DesignOptions.points_per_segment,
-    smoothing=None,
-    starts: int = DesignOptions.starts,
-    hops: int = DesignOptions.hops,
-    budget: float = DesignOptions.budget,
-    solver: str = DesignOptions.solver,
-    method: str = DesignOptions.method,
-    clearance: float | None = None,
-    robust=None,
-    robust_weight: float = 1.0,
-    seed: int = DesignOptions.seed,
-    workers: int = 1,
-    units: str = "cm",
-    name: str = "design",
-    calibration=None,
-    correction_margin: float | None = None,
-    min_feature: float | None = None,
-    base="free",
-) -> Design:
+def design(points, diameter, *, actuator: str = Actuator.kind, theta_max_deg: float = _THETA_MAX_DEG, lambda_min: float | None = None,
+           points_per_segment: int = DesignOptions.points_per_segment, smoothing=None, starts: int = DesignOptions.starts,
+           hops: int = DesignOptions.hops, budget: float = DesignOptions.budget, solver: str = DesignOptions.solver,
+           method: str = DesignOptions.method, clearance: float | None = None, robust=None, robust_weight: float = 1.0,
+           seed: int = DesignOptions.seed, workers: int = 1, units: str = "cm", name: str = "design", calibration=None,
+           correction_margin: float | None = None, min_feature: float | None = None, base="free") -> Design:
     """Inverse design: the actuator routing whose tube follows ``points`` (``vine-nlp design``).
 
     Parameters
@@ -781,8 +735,7 @@ def forward(theta, lam, length, diameter, *, segments: int | None = None, initia
     ArgumentError
     """
     args = _Arguments()
-    name = _text(args, "name", name)
-    units = _units(args, units)
+    name, units = _name_units(args, name, units)
     D = _diameter(diameter)
     routing = _routing(theta, lam, length, segments=segments, initial_pose=initial_pose)
     # the forward shape is sampled in pieces of at most D/4 (model.shape.forward_shape); the archive
@@ -826,8 +779,7 @@ def fit(points, routing, diameter, *, line: str = "outer", free=("lambda",), sta
     ArgumentError
     """
     args = _Arguments()
-    name = _text(args, "name", name)
-    units = _units(args, units)
+    name, units = _name_units(args, name, units)
     D = _diameter(diameter)
     measured = _points(points, least=3, ordered=False)
     if isinstance(routing, Design):
@@ -844,9 +796,7 @@ def fit(points, routing, diameter, *, line: str = "outer", free=("lambda",), sta
     elif not isinstance(routing, Routing):
         raise ArgumentError("routing", "must be a Routing, a Design or a dict with theta, lam, length")
     line = check.choice(args, "line", line, MEASURED_LINES)
-    if isinstance(free, str):
-        free = (free,)
-    free = tuple(free)
+    free = (free,) if isinstance(free, str) else tuple(free)
     for item in free:
         check.choice(args, "free", item, problems._FREE_CHOICES)
     if len(set(free)) != len(free):

@@ -14,11 +14,7 @@ DEFAULT_SAMPLES = 400  # the paper samples its trefoils and Bezier targets with 
 MAX_BEZIER_POINTS = 1000  # binomial coefficients of higher degrees overflow a float
 
 
-def trefoil(
-    scale=(4.0, 4.0, 4.0),
-    t_range=(-0.2 * math.pi, 1.5 * math.pi),
-    samples: int = DEFAULT_SAMPLES,
-) -> np.ndarray:
+def trefoil(scale=(4.0, 4.0, 4.0), t_range=(-0.2 * math.pi, 1.5 * math.pi), samples: int = DEFAULT_SAMPLES) -> np.ndarray:
     """Trefoil knot of eq. (knot), ``samples`` points equally spaced in t.
 
     r(t) = [m_x (sin t + 2 sin 2t), m_y (cos t - 2 cos 2t), -m_z sin 3t] with
@@ -26,9 +22,7 @@ def trefoil(
     """
     mx, my, mz = (float(m) for m in scale)
     t = np.linspace(float(t_range[0]), float(t_range[1]), _samples(samples))
-    return np.column_stack(
-        [mx * (np.sin(t) + 2 * np.sin(2 * t)), my * (np.cos(t) - 2 * np.cos(2 * t)), -mz * np.sin(3 * t)]
-    )
+    return np.column_stack([mx * (np.sin(t) + 2 * np.sin(2 * t)), my * (np.cos(t) - 2 * np.cos(2 * t)), -mz * np.sin(3 * t)])
 
 
 def bezier(control_points, samples: int = DEFAULT_SAMPLES) -> np.ndarray:

@@ -52,9 +52,10 @@ import math
 
 import numpy as np
 
-from vine_nlp.model.chain import chain_frames, chain_points, segment_end_samples
+from vine_nlp.analysis.obstacles import ModelLine, after_growth_routing, sample_chain
 from vine_nlp.model.helix import center_rates, helix_self_collides, helix_turns
-from vine_nlp.model.routing import Routing
+
+_ModelLine = ModelLine  # its former name here (vine_nlp.methods.clearance imports it)
 
 # ---------------------------------------------------------------------------------------------
 # analytic: uniform sections
@@ -91,20 +92,11 @@ def helix_collisions(routing, D: float, atol: float = 1e-9) -> list[dict]:
 
 
 def sample_routing(routing, D: float, spacing: float | None = None) -> dict:
-    """The routing's center line sampled at most ``spacing`` apart (default D/8) along the actuated arc.
-
-    Returns dict(points (P, 3), s (actuated arc), l (material coordinate), seg, frac).
-    """
+    """The routing's center line sampled at most ``spacing`` apart (default D/8) along the actuated arc:
+    :func:`vine_nlp.analysis.obstacles.sample_chain`'s dict(points, s, l, seg, frac)."""
     spacing = D / 8 if spacing is None else float(spacing)
-    th, lam, ln = routing.theta, routing.lam, routing.length
-    _, _, lc = center_rates(th, lam, D)
-    arc = ln * lc
-    per = np.maximum(1, np.ceil(arc / spacing)).astype(int)
-    seg, frac = segment_end_samples(ln, per)
-    pts, _ = chain_points(th, lam, ln, D, seg, frac, routing.initial_pose)
-    s = np.concatenate([[0.0], np.cumsum(arc)])[seg] + frac * arc[seg]
-    l = np.concatenate([[0.0], np.cumsum(ln)])[seg] + frac * ln[seg]
-    return {"points": pts, "s": s, "l": l, "seg": seg, "frac": frac}
+    _, _, lc = center_rates(routing.theta, routing.lam, D)
+    return sample_chain(routing, D, np.maximum(1, np.ceil(routing.length * lc / spacing)).astype(int))
 
 
 def _segment_distance(p0, p1, q0, q1):
@@ -236,14 +228,10 @@ def _clearance(points, s, D, exclude_arc, margin, refine, closest=True):
             d, si, sj, pi, pj, i, j = best
     pairs = np.concatenate([r["pairs"] for r in regions]) if regions else np.zeros((0, 2), int)
     return {
-        "clearance": float(d),
-        "gap": float(d - D),
-        "contact": bool(regions),
-        "i": i, "j": j, "s_i": float(si), "s_j": float(sj), "point_i": pi, "point_j": pj,
-        "pairs": pairs,
+        "clearance": float(d), "gap": float(d - D), "contact": bool(regions),
+        "i": i, "j": j, "s_i": float(si), "s_j": float(sj), "point_i": pi, "point_j": pj, "pairs": pairs,
         "distances": np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1) if len(pairs) else np.zeros(0),
-        "regions": regions,
-        "points": points, "s": np.asarray(s, float),
+        "regions": regions, "points": points, "s": np.asarray(s, float),
         "exclude_arc": float(exclude_arc), "threshold": float(threshold), "spacing": h,
     }
 
@@ -289,31 +277,6 @@ def min_clearance(center, D: float, s=None, exclude_arc: float | None = None, ma
     return _clearance(pts, s, D, exclude_arc, margin, ref)
 
 
-class _ModelLine:
-    """Exact center-line points of a routing at material coordinates l (for refinement)."""
-
-    def __init__(self, routing, D):
-        self.r, self.D = routing, D
-        self.cum = np.concatenate([[0.0], np.cumsum(routing.length)])
-        _, _, lc = center_rates(routing.theta, routing.lam, D)
-        self.cum_s = np.concatenate([[0.0], np.cumsum(routing.length * lc)])
-        self.frames = chain_frames(routing.theta, routing.lam, routing.length, D, routing.initial_pose)
-
-    def locate(self, l):
-        l = np.clip(np.atleast_1d(np.asarray(l, float)), 0.0, self.cum[-1])
-        seg = np.clip(np.searchsorted(self.cum, l, side="right") - 1, 0, self.r.segments - 1)
-        return seg, (l - self.cum[seg]) / self.r.length[seg]
-
-    def points(self, l):
-        seg, frac = self.locate(l)
-        r = self.r
-        return chain_points(r.theta, r.lam, r.length, self.D, seg, frac, r.initial_pose, frames=self.frames)[0]
-
-    def arc(self, l):
-        seg, frac = self.locate(l)
-        return self.cum_s[seg] + frac * (self.cum_s[seg + 1] - self.cum_s[seg])
-
-
 def routing_clearance(routing, D: float, spacing: float | None = None, exclude_arc: float | None = None, margin: float = 0.0, refine: bool = True,
                       closest: bool = True) -> dict:
     """:func:`min_clearance` of a routing's center line, sampled by the model (spacing <= D/8 by
@@ -327,7 +290,7 @@ def routing_clearance(routing, D: float, spacing: float | None = None, exclude_a
     smp = sample_routing(routing, D, spacing)
     pts, s, l = smp["points"], smp["s"], smp["l"]
     exclude_arc = 0.5 * math.pi * D if exclude_arc is None else float(exclude_arc)
-    model = _ModelLine(routing, D)
+    model = ModelLine(routing, D)
     hl = float(np.max(np.diff(l))) if len(l) > 1 else 0.0
 
     def ref(i, j):
@@ -412,7 +375,7 @@ def growth_contacts(routing, D: float, margin: float = 0.0, spacing: float | Non
     transient = []  # [(t_first, min clearance, merged region)]
     if actuation_steps > 0:
         for t in np.linspace(0.0, 1.0, actuation_steps + 1)[1:]:
-            rt = routing if t == 1.0 else Routing(routing.theta, 1 - t * (1 - routing.lam), routing.length, routing.initial_pose)
+            rt = routing if t == 1.0 else after_growth_routing(routing, t)
             res = final if t == 1.0 else routing_clearance(rt, D, spacing, exclude_arc, margin, closest=False)
             for q in res["regions"]:
                 hit = False

@@ -29,16 +29,9 @@ costs an inflation of D/32.
 A mesh's unsigned distance is the minimum over its (convex) triangles, so the
 bound holds for it with R_K = 0.
 
-Growth (paper Sec. VI-D; as in ``vine_nlp.analysis.collision``)
----------------------------------------------------------------
-Grown while actuated, the body at every moment is a prefix of the final center
-line (material coordinate l <= L_grown), so every intermediate gap is >= the final
-shape's gap: checking the final shape covers growth (:func:`grown_prefixes`).
-Actuated after full growth, the tube sweeps lambda_t = 1 - t (1 - lambda), theta
-fixed, t: 0 -> 1 (:func:`after_growth_shapes`), and every intermediate shape must
-clear the obstacles too.
-
-Layer 2: imports vine_nlp.model, numpy, casadi, scipy; trimesh inside functions.
+Growth (paper Sec. VI-D; as in ``vine_nlp.analysis.collision``): grown while actuated, every body is a prefix
+of the final center line, so the final shape's gaps cover growth (:func:`grown_prefixes`); actuated after
+growth, every intermediate shape (:func:`after_growth_shapes`) must clear the obstacles too.
 """
 
 from __future__ import annotations
@@ -62,21 +55,8 @@ DEFAULT_AFTER_STEPS = 20  # t grid of actuation after growth: 0, 1/20, ..., 1
 
 
 def min_gap(center_points, diameter: float, obstacles) -> np.ndarray:
-    """Gap between the tube surface and every obstacle at every center point.
-
-    Parameters
-    ----------
-    center_points : (P, 3) array
-        Center-line points.
-    diameter : float
-        Tube diameter D.
-    obstacles : sequence of Sphere, Box, Capsule, Plane, Mesh
-
-    Returns
-    -------
-    (P, K) array
-        Signed distance minus D/2 (negative: the tube cuts into the obstacle); meshes exact (trimesh).
-    """
+    """(P, K) gaps between the tube surface and every obstacle at every center point (P, 3): signed distance
+    minus D/2 (negative: the tube cuts into the obstacle); meshes exact (trimesh)."""
     p = np.atleast_2d(np.asarray(center_points, float))
     out = np.empty((len(p), len(obstacles)))
     for k, ob in enumerate(obstacles):
@@ -114,23 +94,9 @@ def dip(h: float, diameter: float, margin: float = 0.0, kappa: float | None = No
 
 def sample_spacing(diameter: float, margin: float = 0.0, tol: float | None = None, kappa: float | None = None,
                    sharpness: float = 0.0) -> float:
-    """Largest spacing h of center-line samples (arc length) with dip(h) <= tol.
-
-    Parameters
-    ----------
-    diameter, margin : float
-    tol : float, optional
-        Allowed drop of the gap between samples (default 1e-3 D).
-    kappa : float, optional
-        Largest center-line curvature (default 2/D; see :func:`curvature_bound`).
-    sharpness : float
-        The obstacle's smallest radius of curvature (:func:`sharpness_radius`).
-
-    Returns
-    -------
-    float
-        h, by bisection on :func:`dip`.
-    """
+    """Largest spacing h of center-line samples (arc length) with dip(h) <= ``tol`` (default 1e-3 D), by bisection
+    on :func:`dip`; ``kappa``: largest center-line curvature (default 2/D, :func:`curvature_bound`), ``sharpness``:
+    the obstacle's smallest radius of curvature (:func:`sharpness_radius`)."""
     tol = 1e-3 * diameter if tol is None else float(tol)
     lo, hi = 0.0, 2 * (0.5 * diameter + margin + (0.0 if math.isinf(sharpness) else sharpness))
     if math.isinf(sharpness):
@@ -146,25 +112,9 @@ def sample_spacing(diameter: float, margin: float = 0.0, tol: float | None = Non
 
 def samples_needed(length: float, diameter: float, margin: float, obstacles, tol: float | None = None,
                    kappa: float | None = None) -> int:
-    """Center-line samples needed so that the sampled gap bounds the continuous one within ``tol``.
-
-    Parameters
-    ----------
-    length : float
-        Arc length of the center line (the unactuated length is an upper bound).
-    diameter, margin : float
-    obstacles : sequence of obstacles
-        The sharpest (smallest :func:`sharpness_radius`) decides.
-    tol : float, optional
-        Default 1e-3 D.
-    kappa : float, optional
-        Largest center-line curvature (default 2/D).
-
-    Returns
-    -------
-    int
-        Samples, both ends included, equally spaced at most :func:`sample_spacing` apart (2 without obstacles).
-    """
+    """Center-line samples (both ends included; 2 without obstacles) so that the sampled gap bounds the continuous
+    one within ``tol`` (default 1e-3 D): ``length`` (arc length; the unactuated length bounds it) in pieces of
+    :func:`sample_spacing` for the sharpest obstacle (smallest :func:`sharpness_radius`)."""
     if not obstacles:
         return 2
     sharp = min(sharpness_radius(o) for o in obstacles)
@@ -176,21 +126,9 @@ def samples_needed(length: float, diameter: float, margin: float, obstacles, tol
 
 
 def sample_chain(routing: Routing, diameter: float, per_segment=DEFAULT_PER_SEGMENT) -> dict:
-    """Center line of ``routing`` at ``per_segment`` equal pieces of every segment, base to tip.
-
-    Parameters
-    ----------
-    routing : Routing
-    diameter : float
-    per_segment : int or (M,) ints
-        Pieces per segment (default 20, as the obstacle goals are checked).
-
-    Returns
-    -------
-    dict
-        points (P, 3), s (actuated arc length), l (material coordinate), seg, frac; the
-        segment ends are included, P = sum(per_segment) + 1.
-    """
+    """Center line of ``routing`` at ``per_segment`` (int or (M,) ints; default 20, as the obstacle goals are
+    checked) equal pieces of every segment, base to tip: dict(points (P, 3), s (actuated arc length), l (material
+    coordinate), seg, frac), the segment ends included, P = sum(per_segment) + 1."""
     D = float(diameter)
     th, lam, ln = routing.theta, routing.lam, routing.length
     seg, frac = segment_end_samples(ln, per_segment)
@@ -203,18 +141,30 @@ def sample_chain(routing: Routing, diameter: float, per_segment=DEFAULT_PER_SEGM
     return {"points": pts, "s": s, "l": l, "seg": seg, "frac": frac}
 
 
-def _points_at(routing: Routing, D: float, l, frames) -> np.ndarray:
-    """(P, 3) center-line points at material lengths ``l`` (clipped to the tube), one chain evaluation."""
-    cum = np.concatenate([[0.0], np.cumsum(routing.length)])
-    l = np.clip(np.asarray(l, float).reshape(-1), 0.0, float(cum[-1]))
-    j = np.clip(np.searchsorted(cum, l, side="right") - 1, 0, routing.segments - 1)
-    pts, _ = chain_points(routing.theta, routing.lam, routing.length, D, j, (l - cum[j]) / routing.length[j],
-                          routing.initial_pose, frames=frames)
-    return pts
+class ModelLine:
+    """Exact center-line points of a routing at material coordinates l (for refinement)."""
 
+    def __init__(self, routing, D):
+        self.r, self.D = routing, D
+        self.cum = np.concatenate([[0.0], np.cumsum(routing.length)])
+        _, _, lc = center_rates(routing.theta, routing.lam, D)
+        self.cum_s = np.concatenate([[0.0], np.cumsum(routing.length * lc)])
+        self.frames = chain_frames(routing.theta, routing.lam, routing.length, D, routing.initial_pose)
 
-def _point_at(routing: Routing, D: float, l: float, frames) -> np.ndarray:
-    return _points_at(routing, D, [l], frames)[0]
+    def locate(self, l):
+        l = np.clip(np.asarray(l, float).reshape(-1), 0.0, self.cum[-1])
+        seg = np.clip(np.searchsorted(self.cum, l, side="right") - 1, 0, self.r.segments - 1)
+        return seg, (l - self.cum[seg]) / self.r.length[seg]
+
+    def points(self, l):
+        """(P, 3) center-line points at material lengths ``l`` (clipped to the tube), one chain evaluation."""
+        seg, frac = self.locate(l)
+        r = self.r
+        return chain_points(r.theta, r.lam, r.length, self.D, seg, frac, r.initial_pose, frames=self.frames)[0]
+
+    def arc(self, l):
+        seg, frac = self.locate(l)
+        return self.cum_s[seg] + frac * (self.cum_s[seg + 1] - self.cum_s[seg])
 
 
 def grown_prefixes(routing: Routing, diameter: float, lengths, per_segment=DEFAULT_PER_SEGMENT) -> list[dict]:
@@ -226,20 +176,14 @@ def grown_prefixes(routing: Routing, diameter: float, lengths, per_segment=DEFAU
     """
     D = float(diameter)
     full = sample_chain(routing, D, per_segment)
-    frames = chain_frames(routing.theta, routing.lam, routing.length, D, routing.initial_pose)
-    _, _, lc = center_rates(routing.theta, routing.lam, D)
-    cum_l = np.concatenate([[0.0], np.cumsum(routing.length)])
-    cum_s = np.concatenate([[0.0], np.cumsum(routing.length * lc)])
+    model = ModelLine(routing, D)
     out = []
     for Lg in np.atleast_1d(np.asarray(lengths, float)):
-        Lg = float(min(max(Lg, 0.0), cum_l[-1]))
+        Lg = float(min(max(Lg, 0.0), model.cum[-1]))
         keep = full["l"] < Lg
-        end = _point_at(routing, D, Lg, frames)
         out.append({
-            "length": Lg,
-            "points": np.vstack([full["points"][keep], end]),
-            "s": np.append(full["s"][keep], np.interp(Lg, cum_l, cum_s)),
-            "l": np.append(full["l"][keep], Lg),
+            "length": Lg, "points": np.vstack([full["points"][keep], model.points([Lg])]),
+            "s": np.append(full["s"][keep], np.interp(Lg, model.cum, model.cum_s)), "l": np.append(full["l"][keep], Lg),
         })
     return out
 
@@ -250,23 +194,9 @@ def after_growth_routing(routing: Routing, t: float) -> Routing:
 
 
 def after_growth_shapes(routing: Routing, diameter: float, ts=None, per_segment=DEFAULT_PER_SEGMENT) -> list[dict]:
-    """Center lines of the intermediate shapes of actuation after full growth, one per t.
-
-    Parameters
-    ----------
-    routing : Routing
-        The final routing (theta, lambda).
-    diameter : float
-    ts : sequence of float, optional
-        Actuation fractions; default 0, 1/20, ..., 1. t = 0 is the unactuated straight
-        tube (lambda_t = 1), t = 1 the final shape.
-    per_segment : int or (M,) ints
-
-    Returns
-    -------
-    list of dict
-        One per t: t, routing (lambda_t = 1 - t (1 - lambda)), points, s, l.
-    """
+    """Center lines of the intermediate shapes of actuation after full growth, one dict(t, routing (lambda_t =
+    1 - t (1 - lambda)), points, s, l) per actuation fraction t of ``ts`` (default 0, 1/20, ..., 1; t = 0 is the
+    unactuated straight tube, t = 1 the final shape)."""
     ts = np.linspace(0.0, 1.0, DEFAULT_AFTER_STEPS + 1) if ts is None else np.atleast_1d(np.asarray(ts, float))
     out = []
     for t in ts:
@@ -290,7 +220,7 @@ REFINE_GRID = 17  # points per bracket and round of the refined minima
 REFINE_ROUNDS = 8  # each round shrinks every bracket 8-fold: 8 rounds leave ~1e-7 of two sample spacings
 
 
-def _refined_minima(routing, D, obstacles, l, gaps, frames) -> list[tuple[float, float]]:
+def _refined_minima(model: ModelLine, obstacles, l, gaps) -> list[tuple[float, float]]:
     """Per obstacle, (gap, material length) of the minimum of the gap over the material interval around its
     smallest sample: a grid search whose bracket shrinks round by round to the best point's neighbours, every
     obstacle's grid in one chain evaluation per round (a search per obstacle, point by point, paid the chain's
@@ -306,9 +236,9 @@ def _refined_minima(routing, D, obstacles, l, gaps, frames) -> list[tuple[float,
         if live.size == 0:
             break
         x = lo[live, None] + (hi - lo)[live, None] * u  # (K, G)
-        pts = _points_at(routing, D, x, frames).reshape(live.size, REFINE_GRID, 3)
+        pts = model.points(x).reshape(live.size, REFINE_GRID, 3)
         for m, k in enumerate(live):
-            f = np.asarray(obstacles[k].distance(pts[m]), float).reshape(-1) - 0.5 * D
+            f = np.asarray(obstacles[k].distance(pts[m]), float).reshape(-1) - 0.5 * model.D
             b = int(np.argmin(f))
             if f[b] < best[k][0]:
                 best[k] = (float(f[b]), float(x[m, b]))
@@ -318,12 +248,10 @@ def _refined_minima(routing, D, obstacles, l, gaps, frames) -> list[tuple[float,
 
 def _shape_gaps(routing, D, obstacles, margin, smp, refine) -> list[dict]:
     gaps = min_gap(smp["points"], D, obstacles)
-    frames = chain_frames(routing.theta, routing.lam, routing.length, D, routing.initial_pose) if refine else None
-    _, _, lc = center_rates(routing.theta, routing.lam, D)
-    cum_l = np.concatenate([[0.0], np.cumsum(routing.length)])
-    cum_s = np.concatenate([[0.0], np.cumsum(routing.length * lc)])
+    model = ModelLine(routing, D)
+    cum_l, cum_s = model.cum, model.cum_s
     out = []
-    refined = _refined_minima(routing, D, obstacles, smp["l"], gaps, frames) if refine and len(obstacles) else None
+    refined = _refined_minima(model, obstacles, smp["l"], gaps) if refine and len(obstacles) else None
     for k, ob in enumerate(obstacles):
         g = gaps[:, k]
         i = int(np.argmin(g))
@@ -348,29 +276,14 @@ def _shape_gaps(routing, D, obstacles, margin, smp, refine) -> list[dict]:
 
 def obstacle_report(routing: Routing, diameter: float, obstacles, growth: str = "while-actuated", margin: float = 0.0,
                     per_segment=DEFAULT_PER_SEGMENT, ts=None, refine: bool = True) -> dict:
-    """Distance from the tube to every obstacle along the tube, and the contacts (gap < margin).
+    """Distance from the tube to every obstacle along the tube, and the contacts (runs of samples with gap < ``margin``).
 
     Final shape: sampled at ``per_segment`` points per segment, each obstacle's minimum
-    refined on the continuous model (bounded 1-D search around the smallest sample).
+    refined on the continuous model (``refine``: a bounded 1-D search around the smallest sample).
     Intermediate shapes: grown while actuated they are prefixes (covered by the final
     shape; each obstacle's ``first_contact_length`` is the material length grown when its
-    first contact appears); with growth "after", the shapes lambda_t on the grid ``ts``
+    first contact appears); with ``growth`` "after", the shapes lambda_t on the grid ``ts``
     (default 21 values of t) are checked at the samples.
-
-    Parameters
-    ----------
-    routing : Routing
-    diameter : float
-    obstacles : sequence of Sphere, Box, Capsule, Plane, Mesh
-    growth : {"while-actuated", "after"}
-    margin : float
-        Required gap; a contact is a run of samples with gap < margin.
-    per_segment : int or (M,) ints
-        Samples per segment (default 20).
-    ts : sequence of float, optional
-        Actuation fractions for growth "after" (default 0, 0.05, ..., 1).
-    refine : bool
-        Refine each obstacle's minimum on the continuous final shape.
 
     Returns
     -------

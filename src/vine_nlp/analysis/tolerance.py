@@ -154,18 +154,11 @@ def tolerance_report(problem, result, sigmas: Sigmas, samples: int = 2000, seed:
     tips = P[:, -1]
     mc_cov = np.cov(tips.T)
     return {
-        "sigmas": sigmas.as_dict(),
-        "units": getattr(problem, "units", ""),
-        "segments": M,
-        "points": N,
+        "sigmas": sigmas.as_dict(), "units": getattr(problem, "units", ""), "segments": M, "points": N,
         "nominal": {"rmse": math.sqrt(mse0), "mse": mse0, "tip": pts[-1]},
         "first_order": {
-            "mse_increase": inc,
-            "rmse": math.sqrt(mse0 + inc),
-            "rmse_increase": math.sqrt(mse0 + inc) - math.sqrt(mse0),
-            "tip_cov": tip_cov,
-            "tip_std": float(math.sqrt(np.trace(tip_cov))),
-            "point_std": np.sqrt(by.sum(axis=(1, 2))),
+            "mse_increase": inc, "rmse": math.sqrt(mse0 + inc), "rmse_increase": math.sqrt(mse0 + inc) - math.sqrt(mse0),
+            "tip_cov": tip_cov, "tip_std": float(math.sqrt(np.trace(tip_cov))), "point_std": np.sqrt(by.sum(axis=(1, 2))),
         },
         "per_segment": {
             "l_start": cum[:-1], "l_end": cum[1:], "l_mid": 0.5 * (cum[:-1] + cum[1:]),
@@ -173,14 +166,9 @@ def tolerance_report(problem, result, sigmas: Sigmas, samples: int = 2000, seed:
             "mse": mse_by.sum(axis=1), "mse_by_param": mse_by,
         },
         "monte_carlo": {
-            "samples": int(samples), "seed": int(seed),
-            "rmse": np.sqrt(mse),
-            "mean_rmse": float(np.sqrt(mse).mean()),
-            "rms_rmse": float(math.sqrt(mse.mean())),
-            "mse_increase": float(mse.mean() - mse0),
-            "tip_cov": mc_cov,
-            "tip_std": float(math.sqrt(np.trace(mc_cov))),
-            "tip_mean_shift": tips.mean(axis=0) - pts[-1],
+            "samples": int(samples), "seed": int(seed), "rmse": np.sqrt(mse), "mean_rmse": float(np.sqrt(mse).mean()),
+            "rms_rmse": float(math.sqrt(mse.mean())), "mse_increase": float(mse.mean() - mse0), "tip_cov": mc_cov,
+            "tip_std": float(math.sqrt(np.trace(mc_cov))), "tip_mean_shift": tips.mean(axis=0) - pts[-1],
         },
     }
 
@@ -190,13 +178,9 @@ def tolerance_metrics(report: dict) -> dict:
     fo, mc, ps = report["first_order"], report["monte_carlo"], report["per_segment"]
     worst = int(np.argmax(ps["tip_var"]))
     return {
-        "tolerance_rmse_first_order": fo["rmse"],
-        "tolerance_rmse_increase_first_order": fo["rmse_increase"],
-        "tolerance_tip_std_first_order": fo["tip_std"],
-        "tolerance_rmse_mc_mean": mc["mean_rmse"],
-        "tolerance_rmse_mc_rms": mc["rms_rmse"],
-        "tolerance_tip_std_mc": mc["tip_std"],
-        "tolerance_worst_segment": float(worst),
-        "tolerance_worst_segment_l_mid": float(ps["l_mid"][worst]),
+        "tolerance_rmse_first_order": fo["rmse"], "tolerance_rmse_increase_first_order": fo["rmse_increase"],
+        "tolerance_tip_std_first_order": fo["tip_std"], "tolerance_rmse_mc_mean": mc["mean_rmse"],
+        "tolerance_rmse_mc_rms": mc["rms_rmse"], "tolerance_tip_std_mc": mc["tip_std"],
+        "tolerance_worst_segment": float(worst), "tolerance_worst_segment_l_mid": float(ps["l_mid"][worst]),
         "tolerance_worst_segment_tip_share": float(ps["tip_var"][worst] / max(ps["tip_var"].sum(), 1e-300)),
     }

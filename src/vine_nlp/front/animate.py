@@ -27,11 +27,12 @@ from pathlib import Path
 import numpy as np
 
 from vine_nlp.analysis.collision import growth_contacts, routing_clearance
+from vine_nlp.analysis.obstacles import ModelLine, after_growth_routing
 from vine_nlp.front.plot import equal_view_3d, label_3d_axes
 from vine_nlp.front.view import tube_rings
 from vine_nlp.io.archive import Archive, write_atomic
 from vine_nlp.model import shape_lines
-from vine_nlp.model.chain import chain_points, segment_end_samples
+from vine_nlp.model.chain import segment_end_samples
 from vine_nlp.problem import Routing
 
 MODES = ("grow", "after", "both")
@@ -83,14 +84,8 @@ def frame_contacts(routing: Routing, D: float, mode: str, value: float, growth=N
         ls = [(c["l_early"], c["l_late"]) for c in (growth or []) if not c["transient"] and c["growth_length"] <= value + 1e-12]
         if not ls:
             return np.zeros((0, 3))
-        S = np.concatenate([[0.0], np.cumsum(routing.length)])
-        ll = np.clip(np.ravel(ls), 0.0, S[-1])
-        seg = np.clip(np.searchsorted(S, ll, side="right") - 1, 0, routing.segments - 1)
-        pts, _ = chain_points(routing.theta, routing.lam, routing.length, D, seg, (ll - S[seg]) / routing.length[seg],
-                              routing.initial_pose)
-        return pts
-    lam = 1.0 - value * (1.0 - routing.lam)
-    res = routing_clearance(Routing(routing.theta, lam, routing.length, routing.initial_pose), D, refine=False, closest=False)
+        return ModelLine(routing, D).points(np.ravel(ls))
+    res = routing_clearance(after_growth_routing(routing, value), D, refine=False, closest=False)
     if not res["regions"]:
         return np.zeros((0, 3))
     return np.array([p for r in res["regions"] for p in (r["point_i"], r["point_j"])])
@@ -140,34 +135,14 @@ def movie_figure(archive: Archive, run: str, panels: int = 2, dpi: int = 80):
 
 def write_movie(archive: Archive, path, mode: str = "both", run: str | None = None, frames: int = 40, fps: int = 10,
                 dpi: int = 80) -> dict:
-    """Write the movie of one run.
+    """Write the movie of ``run`` (default: the archive's default run) to ``path``, .gif (pillow) or .mp4 (ffmpeg):
+    ``mode`` "grow" (growth while actuated), "after" (actuation after growth) or "both" side by side, ``frames``
+    (>= 2) moving both panels together.
 
-    Parameters
-    ----------
-    archive : vine_nlp.io.archive.Archive
-    path : str or Path
-        .gif (pillow) or .mp4 (ffmpeg).
-    mode : {"grow", "after", "both"}
-        Growth while actuated, actuation after growth, or both side by side.
-    run : str, optional
-        Default: the archive's default run.
-    frames : int
-        Frames of the movie (>= 2); both panels move together.
-    fps, dpi : int
-
-    Returns
-    -------
-    dict
-        run, mode, frames, contacts_grow (contacts of the final shape, marked while
-        growing), contacts_after (largest number of contact regions in one frame after
-        growth), format.
-
-    Raises
-    ------
-    ValueError
-        Unknown extension or mode, no such run, no runs, fewer than 2 frames.
-    RuntimeError
-        An MP4 without ffmpeg installed (nothing is written).
+    Returns dict(run, mode, frames, contacts_grow (contacts of the final shape, marked while growing),
+    contacts_after (largest number of contact regions in one frame after growth), format). ValueError for an
+    unknown extension or mode, no such run, no runs, fewer than 2 frames; RuntimeError for an MP4 without
+    ffmpeg installed (nothing is written).
     """
     from matplotlib import animation
 
@@ -176,12 +151,7 @@ def write_movie(archive: Archive, path, mode: str = "both", run: str | None = No
         raise ValueError(f"mode must be one of {', '.join(MODES)}, not {mode!r}")
     if frames < 2:
         raise ValueError("a movie needs 2 frames or more")
-    if run is None:
-        run = archive.default_run()
-        if run is None:
-            raise ValueError("the archive has no runs")
-    elif run not in archive.runs:
-        raise ValueError(f"no run {run!r} in the archive (runs: {', '.join(archive.runs) or 'none'})")
+    run = archive.pick_run(run)
     if ext == ".mp4" and not ffmpeg_available():
         raise RuntimeError("MP4 needs ffmpeg, which is not installed (apt-get install ffmpeg), or write a .gif")
     routing = archive.runs[run].routing

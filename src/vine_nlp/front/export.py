@@ -82,23 +82,9 @@ def _frames(line, normal0=None):
 
 
 def tube_mesh(line, diameter: float, normal=None, ring: int = RING):
-    """A closed tube of ``diameter`` around the polyline ``line`` (P >= 2 distinct points) with flat end caps.
-
-    Parameters
-    ----------
-    line : (P, 3) array
-    diameter : float
-    normal : (3,) array, optional
-        Direction of the first ring's first vertex (the model's N at the base); the rings follow on a
-        rotation-minimizing frame.
-    ring : int
-        Vertices per ring.
-
-    Returns
-    -------
-    trimesh.Trimesh
-        Watertight, faces wound outward.
-    """
+    """A closed trimesh.Trimesh (watertight, faces wound outward) of ``diameter`` around the polyline ``line``
+    (P >= 2 distinct points) with flat end caps, ``ring`` vertices per ring; ``normal``: direction of the first
+    ring's first vertex (the model's N at the base), the rings following on a rotation-minimizing frame."""
     import trimesh
 
     line = np.asarray(line, float)
@@ -140,33 +126,15 @@ def run_meshes(archive: Archive, run: str):
 def write_mesh(archive: Archive, path, run: str | None = None) -> dict:
     """Write the tube of ``run`` (default: the archive's default run) to ``path`` (.stl, .obj, .ply, .glb).
 
-    Parameters
-    ----------
-    archive : vine_nlp.io.archive.Archive
-    path : str or Path
-    run : str, optional
-
-    Returns
-    -------
-    dict
-        run, files (written, in order), faces, watertight, volume (archive units^3),
-        units (of the file's coordinates), scale (file units per archive unit).
-
-    Raises
-    ------
-    ValueError
-        Unknown extension, unknown run, an archive without runs or units glTF cannot scale.
+    Returns dict(run, files (written, in order), faces, watertight, volume (archive units^3), units (of the file's
+    coordinates), scale (file units per archive unit)). ValueError for an unknown extension, an unknown run, an
+    archive without runs or units glTF cannot scale.
     """
     import trimesh
 
     path = Path(path)
     ext = mesh_format(path)
-    if run is None:
-        run = archive.default_run()
-        if run is None:
-            raise ValueError("the archive has no runs")
-    elif run not in archive.runs:
-        raise ValueError(f"no run {run!r} in the archive (runs: {', '.join(archive.runs) or 'none'})")
+    run = archive.pick_run(run)
     units = archive.units
     if ext == ".glb" and units not in METRES_PER_UNIT:
         raise ValueError(f"glTF is in metres: cannot scale units {units!r} (use {', '.join(METRES_PER_UNIT)})")
@@ -184,24 +152,23 @@ def write_mesh(archive: Archive, path, run: str | None = None) -> dict:
             m.visual.face_colors = color
             scene.add_geometry(m, node_name=name, geom_name=name)
         data = scene.export(file_type="glb")
-        write_atomic(path, lambda t: Path(t).write_bytes(data))
-        info["files"] = [path]
-        return info
-    if ext == ".obj":
+    elif ext == ".obj":
         scene = trimesh.Scene()
         scene.add_geometry(tube, node_name="tube", geom_name="tube")
         scene.add_geometry(actuator, node_name="actuator", geom_name="actuator")
         text = scene.export(file_type="obj")
         text = text if isinstance(text, str) else text.decode()
         data = f"# {note}\n{text}".encode()
-        write_atomic(path, lambda t: Path(t).write_bytes(data))
-        info["files"] = [path]
+    else:  # STL and PLY: one mesh per file, the actuator line beside the tube
+        second = path.with_name(f"{path.stem}.actuator{path.suffix}")
+        blobs = [_with_units(tube.export(file_type=ext[1:]), ext, note),
+                 _with_units(actuator.export(file_type=ext[1:]), ext, note + ", actuator line")]
+        write_atomic(path, lambda t: Path(t).write_bytes(blobs[0]))
+        write_atomic(second, lambda t: Path(t).write_bytes(blobs[1]))
+        info["files"] = [path, second]
         return info
-    second = path.with_name(f"{path.stem}.actuator{path.suffix}")
-    blobs = [_with_units(tube.export(file_type=ext[1:]), ext, note), _with_units(actuator.export(file_type=ext[1:]), ext, note + ", actuator line")]
-    write_atomic(path, lambda t: Path(t).write_bytes(blobs[0]))
-    write_atomic(second, lambda t: Path(t).write_bytes(blobs[1]))
-    info["files"] = [path, second]
+    write_atomic(path, lambda t: Path(t).write_bytes(data))
+    info["files"] = [path]
     return info
 
 

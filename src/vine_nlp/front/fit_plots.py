@@ -92,12 +92,8 @@ def plot_fit(source, path, extras=None, title=None):
     ax2.set_ylim(bottom=0)
     ax2.grid(alpha=0.3)
     m = result.metrics
-    bits = [
-        f"RMSE {m['rmse']:.3g} {units}" if "rmse" in m else "",
-        f"max {m['max_error']:.3g} {units}" if "max_error" in m else "",
-        f"$R^2$ {m['r2']:.4f}" if "r2" in m else "",
-        f"$\\lambda$ = {m['lambda']:.4f}" if "lambda" in m else "",
-    ]
+    bits = [f"RMSE {m['rmse']:.3g} {units}" if "rmse" in m else "", f"max {m['max_error']:.3g} {units}" if "max_error" in m else "",
+            f"$R^2$ {m['r2']:.4f}" if "r2" in m else "", f"$\\lambda$ = {m['lambda']:.4f}" if "lambda" in m else ""]
     ax2.set_title(", ".join(b for b in bits if b), fontsize=9)
     fig.suptitle(title or (f"{name}: model fit" if name else "model fit"), fontsize=10)
     fig.tight_layout()

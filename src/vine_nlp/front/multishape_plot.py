@@ -17,14 +17,7 @@ import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
 
-from vine_nlp.front.plot import (
-    PAGE_IN,
-    STYLE,
-    figure_format,
-    label_3d_axes,
-    save_figure,
-    set_equal_3d,
-)
+from vine_nlp.front.plot import PAGE_IN, STYLE, figure_format, label_3d_axes, save_figure, set_equal_3d
 from vine_nlp.io.formulations import read_multishape_archive
 from vine_nlp.model.pairing import pair_points
 
@@ -103,9 +96,7 @@ def multishape_figure(a, r, targets) -> Figure:
         ax_e.set_ylabel(f"error [{u}]")
         ax_e.set_title("(c) center-line error to each target", loc="left", pad=2)
         m = r.metrics
-        fig.suptitle(
-            f"{a.name} (multishape), D = {a.diameter:.3g} {u}: RMSE {m['rmse']:.3g} {u}, max {m['max_error']:.3g} {u}, {r.status}"
-        )
+        fig.suptitle(f"{a.name} (multishape), D = {a.diameter:.3g} {u}: RMSE {m['rmse']:.3g} {u}, max {m['max_error']:.3g} {u}, {r.status}")
     return fig
 
 

@@ -31,6 +31,7 @@ from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
 from vine_nlp.front.files import figure_format
 from vine_nlp.front.show import ordered_runs, source_table
+from vine_nlp.front.view import tube_rings
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
 from vine_nlp.model import chain_frames, chain_points
 from vine_nlp.model.obstacles import Box, Capsule, Mesh, Plane, Sphere
@@ -43,17 +44,9 @@ TUBE_COLOR = "0.72"
 RUN_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink")
 RUN_STYLES = ("-", "--", ":", "-.")
 STYLE = {
-    "font.size": 8,
-    "axes.titlesize": 8,
-    "axes.labelsize": 8,
-    "xtick.labelsize": 7,
-    "ytick.labelsize": 7,
-    "legend.fontsize": 7,
-    "figure.titlesize": 9,
-    "axes.linewidth": 0.6,
-    "lines.linewidth": 1.0,
-    "xtick.major.width": 0.6,
-    "ytick.major.width": 0.6,
+    "font.size": 8, "axes.titlesize": 8, "axes.labelsize": 8, "xtick.labelsize": 7, "ytick.labelsize": 7,
+    "legend.fontsize": 7, "figure.titlesize": 9, "axes.linewidth": 0.6, "lines.linewidth": 1.0,
+    "xtick.major.width": 0.6, "ytick.major.width": 0.6,
 }
 COLUMN_IN, PAGE_IN = 3.5, 7.16  # IEEE column and text widths
 
@@ -111,26 +104,13 @@ def point_s(archive: Archive, result) -> np.ndarray:
 
 
 def tube_surface(shape, diameter: float, around: int = 24, max_rows: int = 500):
-    """(X, Y, Z) grids of the tube wall: circles of diameter D around the center line.
-
-    center = (inner + outer)/2, normal = (inner - outer)/D, tangent from the center
-    line (made normal to the normal), binormal = tangent x normal.
-    """
+    """(X, Y, Z) grids of the tube wall: circles of diameter D around the center line (inner + outer) / 2
+    (``vine_nlp.front.view.tube_rings``), at most ``max_rows`` of them."""
     inner, outer = np.asarray(shape.inner, float), np.asarray(shape.outer, float)
     rows = np.arange(inner.shape[0])
     if rows.size > max_rows:
         rows = np.unique(np.linspace(0, rows.size - 1, max_rows).round().astype(int))
-    inner, outer = inner[rows], outer[rows]
-    center = 0.5 * (inner + outer)
-    normal = (inner - outer) / diameter
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-    tangent = np.gradient(center, axis=0) if len(center) > 1 else np.tile([1.0, 0, 0], (1, 1))
-    tangent = tangent - np.sum(tangent * normal, axis=1, keepdims=True) * normal
-    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
-    binormal = np.cross(tangent, normal)
-    a = np.linspace(0.0, 2.0 * np.pi, around + 1)
-    ring = np.cos(a)[None, :, None] * normal[:, None, :] + np.sin(a)[None, :, None] * binormal[:, None, :]
-    wall = center[:, None, :] + 0.5 * diameter * ring
+    wall = tube_rings(0.5 * (inner[rows] + outer[rows]), inner[rows], diameter, around)
     return wall[..., 0], wall[..., 1], wall[..., 2]
 
 

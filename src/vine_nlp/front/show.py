@@ -88,31 +88,14 @@ def _range(values: np.ndarray) -> str:
 
 
 def summarize(archive) -> str:
-    """Multi-line summary of an archive (an Archive or a path): problem, software, target, and every run.
-
-    Parameters
-    ----------
-    archive : Archive or path-like
-        A path is loaded (and so validated) with :func:`vine_nlp.io.archive.load_archive`.
-
-    Returns
-    -------
-    str
-
-    Raises
-    ------
-    InputError
-        For a path whose archive is missing or invalid.
-    """
+    """Multi-line summary of an archive (an Archive, or a path loaded and so validated by ``load_archive``: an
+    InputError when missing or invalid): problem, software, target, and every run."""
     a = archive if isinstance(archive, Archive) else load_archive(archive)
     u = a.units
     lines = [f"problem   {a.name} ({a.kind})"]
     kind = source_table(a, "actuator").get("kind")
-    tube = f"tube      D = {_num(a.diameter)} {u}, units {u}"
-    if isinstance(kind, str):
-        tube += f", actuator {kind}"
-    lines.append(tube)
-    lines.append(f"software  vine_nlp {a.software_version}, format {a.format_version}, created {a.created or '-'}")
+    tube = f"tube      D = {_num(a.diameter)} {u}, units {u}" + (f", actuator {kind}" if isinstance(kind, str) else "")
+    lines += [tube, f"software  vine_nlp {a.software_version}, format {a.format_version}, created {a.created or '-'}"]
     if a.target is not None:
         t = np.asarray(a.target)
         chord = float(np.linalg.norm(np.diff(t, axis=0), axis=1).sum()) if len(t) > 1 else 0.0
@@ -124,14 +107,9 @@ def summarize(archive) -> str:
     for name in ordered_runs(a):
         r = a.runs[name]
         ro = r.routing
-        lines.append("")
-        lines.append(f"run {name}")
-        lines.append(f"  method      {r.method}")
-        lines.append(f"  status      {r.status}")
-        lines.append(f"  iterations  {r.iterations}")
-        lines.append(f"  solve time  {r.solve_time_s:.3f} s")
-        lines.append(f"  segments    {ro.segments}")
-        lines.append(f"  tube length {_num(float(ro.length.sum()))} {u}")
+        lines += ["", f"run {name}", f"  method      {r.method}", f"  status      {r.status}", f"  iterations  {r.iterations}",
+                  f"  solve time  {r.solve_time_s:.3f} s", f"  segments    {ro.segments}",
+                  f"  tube length {_num(float(ro.length.sum()))} {u}"]
         if ro.segments:
             lines.append(f"  theta       {_range(np.degrees(ro.theta))} deg")
             lines.append(f"  lambda      {_range(ro.lam)}")

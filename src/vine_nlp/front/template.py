@@ -110,17 +110,6 @@ def _paper(paper: str) -> tuple[str, tuple[float, float]]:
     raise ValueError(f"paper must be one of {', '.join(PAPERS_MM)}, not {paper!r}")
 
 
-def pick_run(archive: Archive, run: str | None = None) -> str:
-    """``run`` if given, else the archive's default run (``Archive.default_run``)."""
-    if run is not None:
-        if run not in archive.runs:
-            raise ValueError(f"no run {run!r} in the archive (runs: {', '.join(archive.runs) or 'none'})")
-        return run
-    if not archive.runs:
-        raise ValueError("the archive has no runs")
-    return archive.default_run()
-
-
 def cut_table(archive: Archive, run: str, kind: str | None = None) -> dict:
     """Per-segment fabrication numbers (the CUTS.csv columns) as arrays, in the problem's units; NaN where a
     column does not apply. ``kind``: the actuator kind (default: the archived problem's)."""
@@ -148,22 +137,11 @@ def cut_table(archive: Archive, run: str, kind: str | None = None) -> dict:
     if settings["kind"] == "programmed":
         extra["pinch_length"] = np.where(act, (1.0 - r.lam) * actuator, np.nan)
     return {
-        "segment": np.arange(r.segments),
-        "s_start": S[:-1],
-        "s_end": S[1:],
-        "theta_deg": np.degrees(r.theta),
-        "lambda": r.lam,
-        "phi_start_rad": phi[:-1],
-        "phi_end_rad": phi[1:],
-        "c_start": wrap(c[:-1], C),
-        "c_end": wrap(c[1:], C),
-        "actuator_length": actuator,
-        "stopper_length": np.where(act, r.lam, 0.0) * actuator,
-        "gap_length": np.where(act, 1.0 - r.lam, 0.0) * actuator,
-        "actuated": act.astype(float),
-        **extra,
-        "refused": rep.refused,
-        "gap_fractions": frac,
+        "segment": np.arange(r.segments), "s_start": S[:-1], "s_end": S[1:], "theta_deg": np.degrees(r.theta),
+        "lambda": r.lam, "phi_start_rad": phi[:-1], "phi_end_rad": phi[1:], "c_start": wrap(c[:-1], C),
+        "c_end": wrap(c[1:], C), "actuator_length": actuator, "stopper_length": np.where(act, r.lam, 0.0) * actuator,
+        "gap_length": np.where(act, 1.0 - r.lam, 0.0) * actuator, "actuated": act.astype(float), **extra,
+        "refused": rep.refused, "gap_fractions": frac,
     }
 
 
@@ -271,29 +249,23 @@ def template_format(path) -> str:
 
 def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str = "A4", run: str | None = None,
                    spam: bool | None = None, orientation: str = "auto", changes: list | None = None) -> dict:
-    """Write the 1:1 fabrication template of one run: a multi-page PDF, or one SVG or DXF sheet
-    in millimetres (by the extension of ``pdf_path``), and CUTS.csv.
+    """Write the 1:1 fabrication template of ``run`` (default: the archive's default run): a multi-page PDF, or
+    one SVG or DXF sheet in millimetres (by the extension of ``pdf_path``), and CUTS.csv, all atomically.
 
-    run: default the first of nlp, greedy, forward present. spam: default from the
-    archived problem file's [actuator] kind. Units must be cm or mm (ValueError
-    otherwise). Strips are cut for ``paper`` in every format (SVG and DXF stack all
-    strips on one sheet, :func:`template_sheet`). All files are written atomically.
-    Returns {"pages" (1 for SVG and DXF), "strips", "paper", "paper_mm" (width,
-    height as printed; the sheet's for SVG and DXF), "orientation", "run", "spam",
-    "segments", "stoppers" (segments drawn with a stopper/gap split), "gaps"
-    (segments with a gap drawn), "unactuated" (segments without an actuator), "refused"
-    (analysis.buildability's reasons), "tube_length", "format"}.
-
-    changes: rows of ``front.changes.change_rows`` (a correction archive against the robot built
-    last); each changing segment is framed in orange on the template with its stopper change
-    ("+2.3 mm longer", "-1.1 mm shorter", "redraw"), and the legend says so. Returns also "changes"
-    (segments marked).
+    spam: default from the archived problem file's [actuator] kind. Units must be cm or mm (ValueError otherwise).
+    Strips are cut for ``paper`` in every format (SVG and DXF stack them on one sheet, :func:`template_sheet`).
+    changes: rows of ``front.changes.change_rows`` (a correction archive against the robot built last); each
+    changing segment is framed in orange with its stopper change ("+2.3 mm longer", "-1.1 mm shorter", "redraw"),
+    and the legend says so. Returns {"pages" (1 for SVG and DXF), "strips", "paper", "paper_mm" (width, height as
+    printed; the sheet's for SVG and DXF), "orientation", "run", "spam", "segments", "stoppers" (segments drawn
+    with a stopper/gap split), "gaps" (segments with a gap drawn), "unactuated" (segments without an actuator),
+    "refused" (analysis.buildability's reasons), "tube_length", "format", "changes" (segments marked)}.
     """
     fmt = template_format(pdf_path)
     a = archive_path_or_archive if isinstance(archive_path_or_archive, Archive) else load_archive(archive_path_or_archive)
     if a.units not in CM_PER_UNIT:
         raise ValueError(f"a 1:1 template needs lengths in cm or mm, not {a.units!r}")
-    name = pick_run(a, run)
+    name = a.pick_run(run)
     kind = source_table(a, "actuator").get("kind")
     spam = kind == "spam" if spam is None else bool(spam)
     table = cut_table(a, name, "spam" if spam else (None if kind in ("tendon", "programmed") else "tendon"))
@@ -328,20 +300,10 @@ def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str 
         write_atomic(pdf_path, write_sheet)
         pages, size = 1, (sheet.width_mm, sheet.height_mm)
     return {
-        "pages": pages,
-        "strips": len(lay.tiles),
-        "paper": lay.paper,
-        "paper_mm": size,
-        "orientation": lay.orientation,
-        "run": name,
-        "spam": spam,
-        "segments": int(len(table["segment"])),
-        **split_counts(table, spam),
-        "tube_length": L,
-        "format": fmt[1:],
-        "changes": len(table["changes"]),
-        "unactuated": int((table["actuated"] == 0).sum()),
-        "refused": table["refused"],
+        "pages": pages, "strips": len(lay.tiles), "paper": lay.paper, "paper_mm": size, "orientation": lay.orientation,
+        "run": name, "spam": spam, "segments": int(len(table["segment"])), **split_counts(table, spam),
+        "tube_length": L, "format": fmt[1:], "changes": len(table["changes"]),
+        "unactuated": _none_count(table), "refused": table["refused"],
     }
 
 
@@ -594,6 +556,17 @@ def _muscle_lambda(table: dict) -> float:
     return float(np.mean(lam)) if lam.size else 1.0
 
 
+def _legend(table: dict, spam: bool) -> list[tuple[str, str]]:
+    """The legend's rows of the PDF and the sheets: (path kind or "changes", text)."""
+    rows = ([("muscle", f"sPAM muscle path, one \u03bb = {_muscle_lambda(table):.3g}")] if spam else
+            [("stopper", "stays: stopper / unpinched (\u03bb)"), ("gap", "removed: gap / pinched (1 \u2212 \u03bb)")])
+    if not table["actuated"].all():
+        rows.append(("none", NONE_LEGEND))
+    if table.get("changes"):
+        rows.append(("changes", f"framed: {len(table['changes'])} segment(s) to change against the robot built last"))
+    return rows
+
+
 def split_counts(table: dict, spam: bool) -> dict:
     """Segments drawn with a stopper/gap split ("stoppers") and with a gap ("gaps"); both 0 for sPAM."""
     counts = {"stoppers": 0, "gaps": 0}
@@ -615,12 +588,7 @@ def _footer(fig, W, H, spam, table):
     fig.text(fx(x0), fy(y0 - 1.5), f"scale check: this bar must measure {SCALE_BAR_CM * 10:.0f} mm ({SCALE_BAR_CM:.0f} cm) on the print",
              fontsize=FONT, va="top", ha="left")
     lx = x1 + 8.0
-    items = ([(SPAM_COLOR, 1.6, f"sPAM muscle path, one \u03bb = {_muscle_lambda(table):.3g}")] if spam else
-             [(STOPPER_COLOR, 1.6, "stays: stopper / unpinched (\u03bb)"), (GAP_COLOR, 2.4, "removed: gap / pinched (1 \u2212 \u03bb)")])
-    if not table["actuated"].all():
-        items.append((GAP_COLOR, 0.8, NONE_LEGEND))
-    if table.get("changes"):
-        items.append((CHANGE_COLOR, 0.9, f"framed: {len(table['changes'])} segment(s) to change against the robot built last"))
+    items = [(PATH_COLORS.get(kind, CHANGE_COLOR), PATH_WIDTHS_PT.get(kind, 0.9), text) for kind, text in _legend(table, spam)]
     items.append((None, 0, "+ alignment marks, shaded: 1 cm overlap"))
     for i, (color, lw, text) in enumerate(items):
         y = y0 + 3.0 - 3.6 * i
@@ -736,13 +704,8 @@ def template_sheet(a: Archive, run: str, table: dict, lay: Layout, spam: bool) -
         sh.line("scale", [(bx + 10.0 * i, by), (bx + 10.0 * i, by + (2.0 if i % 5 == 0 else 1.0))])
     sh.text("text", bx, by - 4.0, f"scale check: this bar must measure {SCALE_BAR_CM * 10:.0f} mm ({SCALE_BAR_CM:.0f} cm)", 2.2)
     lx = bx + SCALE_BAR_CM * 10.0 + 8.0
-    legend = ([("actuator_path", f"sPAM muscle path, one \u03bb = {_muscle_lambda(table):.3g}")] if spam else
-              [("stoppers", "stays: stopper / unpinched (\u03bb)"), ("removed", "removed: gap / pinched (1 \u2212 \u03bb)")])
-    if not table["actuated"].all():
-        legend.append(("removed", NONE_LEGEND))
-    if table.get("changes"):
-        legend.append(("changes", f"framed: {len(table['changes'])} segment(s) to change against the robot built last"))
-    legend.append(("marks", "alignment marks; outlined: 1 cm overlap"))
+    layers = {"muscle": "actuator_path", "stopper": "stoppers", "gap": "removed", "none": "removed", "changes": "changes"}
+    legend = [(layers[kind], text) for kind, text in _legend(table, spam)] + [("marks", "alignment marks; outlined: 1 cm overlap")]
     for i, (layer, text) in enumerate(legend):
         y = by + 3.0 - 3.6 * i
         sh.text("text", lx, y - 0.8, f"[{layer}] {text}", 2.2)  # by layer name: nothing on the cut layers but the strips

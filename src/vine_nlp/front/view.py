@@ -203,6 +203,11 @@ def _f32(a):
     return np.asarray(a, dtype=np.float32)
 
 
+def _xyz(p) -> dict:
+    """The x, y, z arguments of a plotly 3-D trace through the points ``p`` (P, 3)."""
+    return {"x": _f32(p[:, 0]), "y": _f32(p[:, 1]), "z": _f32(p[:, 2])}
+
+
 def tube_vertices(shape: dict, D: float, count: int) -> np.ndarray:
     """Vertices of the drawn tube: ``count`` rings of RING points (the shape's rings, the last one
     repeated up to ``count``: every frame has the same vertices and faces, so frames carry
@@ -240,15 +245,11 @@ def _run_traces(go, name, shape, D, color, units, visible=True):
              f"<br>lambda = %{{customdata[2]:.3g}}<br>error = %{{customdata[3]:.3g}} {units}<extra></extra>")
     return [
         # a triangle mesh, not a Surface: plotly draws it faster, and fixed faces let frames send coordinates only
-        go.Mesh3d(x=_f32(V[:, 0]), y=_f32(V[:, 1]), z=_f32(V[:, 2]), i=F[:, 0], j=F[:, 1], k=F[:, 2], name=f"{name} tube",
-                  legendgroup=group, showlegend=True, color=color, opacity=0.45, hoverinfo="skip", visible=visible,
-                  lighting={"ambient": 0.6, "diffuse": 0.6, "specular": 0.2}),
-        go.Scatter3d(x=_f32(shape["inner"][:, 0]), y=_f32(shape["inner"][:, 1]), z=_f32(shape["inner"][:, 2]),
-                     mode="lines", line={"color": "#d62728", "width": 5}, name=f"{name} actuator",
-                     legendgroup=group, showlegend=False, hovertemplate=f"actuator line, run {name}<extra></extra>",
-                     visible=visible),
-        go.Scatter3d(x=_f32(shape["center"][:, 0]), y=_f32(shape["center"][:, 1]), z=_f32(shape["center"][:, 2]),
-                     mode="lines", line={"color": color, "width": 2}, name=f"{name} center",
+        go.Mesh3d(**_xyz(V), i=F[:, 0], j=F[:, 1], k=F[:, 2], name=f"{name} tube", legendgroup=group, showlegend=True,
+                  color=color, opacity=0.45, hoverinfo="skip", visible=visible, lighting={"ambient": 0.6, "diffuse": 0.6, "specular": 0.2}),
+        go.Scatter3d(**_xyz(shape["inner"]), mode="lines", line={"color": "#d62728", "width": 5}, name=f"{name} actuator",
+                     legendgroup=group, showlegend=False, hovertemplate=f"actuator line, run {name}<extra></extra>", visible=visible),
+        go.Scatter3d(**_xyz(shape["center"]), mode="lines", line={"color": color, "width": 2}, name=f"{name} center",
                      legendgroup=group, showlegend=False, customdata=_hover_data(shape), hovertemplate=hover, visible=visible),
     ]
 
@@ -256,59 +257,23 @@ def _run_traces(go, name, shape, D, color, units, visible=True):
 def _frame_data(go, shape, D, count):
     """The data of one run's three traces in a frame (same order as :func:`_run_traces`)."""
     V = tube_vertices(shape, D, count)
-    return [
-        go.Mesh3d(x=_f32(V[:, 0]), y=_f32(V[:, 1]), z=_f32(V[:, 2])),
-        go.Scatter3d(x=_f32(shape["inner"][:, 0]), y=_f32(shape["inner"][:, 1]), z=_f32(shape["inner"][:, 2])),
-        go.Scatter3d(x=_f32(shape["center"][:, 0]), y=_f32(shape["center"][:, 1]), z=_f32(shape["center"][:, 2]),
-                     customdata=_hover_data(shape)),
-    ]
-
-
-def _pick_runs(archive: Archive, run: str | None) -> list[str]:
-    if run is not None:
-        if run not in archive.runs:
-            raise ValueError(f"no run {run!r} in the archive (runs: {', '.join(archive.runs) or 'none'})")
-        return [run]
-    if not archive.runs:
-        raise ValueError("the archive has no runs")
-    first = archive.default_run()  # shown; the others start hidden (one legend click each)
-    return [first] + [n for n in archive.runs if n != first]
-
-
-def growth_lengths(total: float, steps: int = GROWTH_STEPS) -> np.ndarray:
-    return np.linspace(0.0, total, steps + 1)
-
-
-def actuation_fractions(steps: int = ACTUATION_STEPS) -> np.ndarray:
-    return np.linspace(0.0, 1.0, steps + 1)
+    return [go.Mesh3d(**_xyz(V)), go.Scatter3d(**_xyz(shape["inner"])),
+            go.Scatter3d(**_xyz(shape["center"]), customdata=_hover_data(shape))]
 
 
 def view_figure(archive: Archive, run: str | None = None):
-    """The 3-D view of an archive as a plotly Figure (module docstring).
+    """The 3-D view of an archive as a plotly Figure (module docstring): only ``run`` if given, else every run,
+    each toggled by its legend entry (the archive's default run first and shown, the others hidden until clicked).
 
-    Parameters
-    ----------
-    archive : vine_nlp.io.archive.Archive
-    run : str, optional
-        Show only this run (default: every run, each toggled by its legend entry; the
-        archive's default run first and shown, the others hidden until clicked).
-
-    Returns
-    -------
-    plotly.graph_objects.Figure
-        Traces: the runs (tube mesh, actuator line, center line each; the default run
-        first), then the target and the obstacles. Frames ``grow-<k>`` and ``after-<k>``
-        drive the two sliders (growth first).
-
-    Raises
-    ------
-    ValueError
-        If the run is not in the archive or the archive has no runs.
+    Traces: the runs (tube mesh, actuator line, center line each), then the target and the obstacles. Frames
+    ``grow-<k>`` and ``after-<k>`` drive the two sliders (growth first). ValueError (``Archive.pick_run``) for a
+    run not in the archive or an archive without runs.
     """
     import plotly.graph_objects as go
     from scipy.spatial import cKDTree
 
-    names = _pick_runs(archive, run)
+    first = archive.pick_run(run)  # shown; without ``run`` the others start hidden (one legend click each)
+    names = [first] + ([n for n in archive.runs if n != first] if run is None else [])
     D, u = archive.diameter, archive.units
     tree = cKDTree(np.asarray(archive.target, float)) if archive.target is not None and len(archive.target) else None
     fig = go.Figure()
@@ -322,8 +287,7 @@ def view_figure(archive: Archive, run: str | None = None):
     if archive.target is not None:
         t = np.asarray(archive.target, float)
         pts.append(t)
-        fig.add_trace(go.Scatter3d(x=_f32(t[:, 0]), y=_f32(t[:, 1]), z=_f32(t[:, 2]), mode="lines",
-                                   line={"color": "black", "width": 3, "dash": "dash"}, name="target",
+        fig.add_trace(go.Scatter3d(**_xyz(t), mode="lines", line={"color": "black", "width": 3, "dash": "dash"}, name="target",
                                    hovertemplate="target<extra></extra>"))
     allp = np.concatenate(pts)
     extent = float(np.ptp(allp, axis=0).max()) or 10 * D
@@ -332,15 +296,14 @@ def view_figure(archive: Archive, run: str | None = None):
         if mesh is None:
             continue
         V, F = mesh
-        fig.add_trace(go.Mesh3d(x=_f32(V[:, 0]), y=_f32(V[:, 1]), z=_f32(V[:, 2]), i=F[:, 0], j=F[:, 1], k=F[:, 2],
-                                color=OBSTACLE_COLOR, opacity=0.35, showlegend=True,
+        fig.add_trace(go.Mesh3d(**_xyz(V), i=F[:, 0], j=F[:, 1], k=F[:, 2], color=OBSTACLE_COLOR, opacity=0.35, showlegend=True,
                                 name=f"obstacle {k} {o['name']} ({o['shape']})" if o.get("name") else f"obstacle {k} ({o['shape']})",
                                 hovertemplate=f"obstacle {k}: {o['shape']}<extra></extra>"))
     run_traces = list(range(TRACES_PER_RUN * len(names)))
     total = max(float(np.sum(archive.runs[n].routing.length)) for n in names)
     frames, grow_steps, after_steps = [], [], []
     anim = {"mode": "immediate", "frame": {"duration": 0, "redraw": True}, "transition": {"duration": 0}}
-    for k, lg in enumerate(growth_lengths(total)):
+    for k, lg in enumerate(np.linspace(0.0, total, GROWTH_STEPS + 1)):
         data = []
         for name in names:
             r = archive.runs[name].routing
@@ -348,7 +311,7 @@ def view_figure(archive: Archive, run: str | None = None):
                                 len(finals[name]["center"]))
         frames.append(go.Frame(name=f"grow-{k}", data=data, traces=run_traces))
         grow_steps.append({"label": f"{lg:.3g}", "method": "animate", "args": [[f"grow-{k}"], anim]})
-    for k, t in enumerate(actuation_fractions()):
+    for k, t in enumerate(np.linspace(0.0, 1.0, ACTUATION_STEPS + 1)):
         data = []
         for name in names:
             r = archive.runs[name].routing
@@ -375,27 +338,8 @@ def view_figure(archive: Archive, run: str | None = None):
 
 
 def view_html(archive: Archive, run: str | None = None, full_html: bool = True, include_plotlyjs=True) -> str:
-    """The view of :func:`view_figure` as HTML.
-
-    Parameters
-    ----------
-    archive : vine_nlp.io.archive.Archive
-    run : str, optional
-        Show only this run.
-    full_html : bool
-        A whole page (True) or a ``<div>`` for notebooks (False).
-    include_plotlyjs : bool or str
-        True embeds plotly.js (opens with no network); "cdn" links it (smaller).
-
-    Returns
-    -------
-    str
-
-    Raises
-    ------
-    ValueError
-        As :func:`view_figure`.
-    """
+    """The view of :func:`view_figure` as HTML: a whole page (``full_html``) or a ``<div>`` for notebooks;
+    ``include_plotlyjs`` True embeds plotly.js (opens with no network), "cdn" links it (smaller)."""
     fig = view_figure(archive, run)
     return fig.to_html(full_html=full_html, include_plotlyjs=include_plotlyjs, auto_play=False,
                        config={"displaylogo": False, "responsive": True})
@@ -421,13 +365,8 @@ def is_sweep_dir(path) -> bool:
 
 
 def sweep_figure(directory):
-    """The view of a sweep directory: (figure, item shapes) with the shapes for the click handler.
-
-    Raises
-    ------
-    ValueError
-        If the directory has no readable summary.csv or no item archive.
-    """
+    """The view of a sweep directory: (figure, item shapes) with the shapes for the click handler; ValueError
+    if the directory has no readable summary.csv or no item archive."""
     import plotly.graph_objects as go
     from plotly.subplots import make_subplots
 

@@ -68,6 +68,16 @@ class Archive:
         the first run (None for an archive without runs)."""
         return next((r for r in DEFAULT_RUNS if r in self.runs), next(iter(self.runs), None))
 
+    def pick_run(self, run: str | None = None) -> str:
+        """``run`` if given, else the default run; ValueError when there is no such run."""
+        if run is None:
+            run = self.default_run()
+            if run is None:
+                raise ValueError("the archive has no runs")
+        elif run not in self.runs:
+            raise ValueError(f"no run {run!r} in the archive (runs: {', '.join(self.runs) or 'none'})")
+        return run
+
 
 # the design a command reads from an archive by default (template, analyze, --warm), in this order
 DEFAULT_RUNS = ("nlp", "nlp_robust", "nlp_clearance", "greedy", "forward", "fit", "tip", "multishape")
@@ -79,13 +89,8 @@ DEFAULT_RUNS = ("nlp", "nlp_robust", "nlp_clearance", "greedy", "forward", "fit"
 def write_atomic(path, write):
     """Call ``write(tmp_path)`` then rename onto ``path``; on any failure nothing is left behind.
     An output the command line reserved (``vine_nlp.io.outputs``) is renamed when the command ends.
-
-    Raises
-    ------
-    OutputError
-        For an OSError while writing or renaming (disk full, permissions, read-only
-        filesystem, a directory at ``path``). Other exceptions pass through unchanged.
-    """
+    An OSError while writing or renaming (disk full, permissions, read-only filesystem, a directory at
+    ``path``) raises OutputError; other exceptions pass through unchanged."""
     path = Path(path)
     staged = outputs.staged(path, written=True)
     tmp = staged or temp_file(path)
@@ -166,13 +171,8 @@ def _dataset(parent, name: str, data) -> None:
 
 
 def _write(h5: h5py.File, a: Archive):
-    _attrs(h5, dict(
-        format=FORMAT,
-        format_version=FORMAT_VERSION,
-        software_version=__version__,
-        created=a.created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        units=a.units,
-    ))
+    created = a.created or _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    _attrs(h5, dict(format=FORMAT, format_version=FORMAT_VERSION, software_version=__version__, created=created, units=a.units))
     _attrs(h5.create_group("problem"), dict(name=a.name, kind=a.kind, source=a.source))
     _attrs(h5.create_group("tube"), {"diameter": float(a.diameter)})
     if a.target is not None:
@@ -388,18 +388,10 @@ def _run(c: _Checker, name: str, g, a: Archive) -> Result:
             stats[k] = v
     if "levels" in g:
         _levels(c, g, d, M, a)
-    return Result(
-        method=c.text(g, "method"),
-        routing=Routing(theta, lam, length, pose),
-        shape=shape,
-        status=c.text(g, "status"),
-        solve_time_s=c.number(g, "solve_time_s", minimum=0),
-        iterations=c.number(g, "iterations", integer=True, minimum=0),
-        metrics=c.metrics(g),
-        stats=stats,
-        diameter=a.diameter,
-        shortfall=tuple(s for s in c.text(g, "shortfall", required=False).split("\n") if s),
-    )
+    return Result(method=c.text(g, "method"), routing=Routing(theta, lam, length, pose), shape=shape, status=c.text(g, "status"),
+                  solve_time_s=c.number(g, "solve_time_s", minimum=0), iterations=c.number(g, "iterations", integer=True, minimum=0),
+                  metrics=c.metrics(g), stats=stats, diameter=a.diameter,
+                  shortfall=tuple(s for s in c.text(g, "shortfall", required=False).split("\n") if s))
 
 
 def _levels(c: _Checker, g, d, M, a: Archive) -> None:
@@ -472,17 +464,9 @@ def _load(c: _Checker, h5) -> Archive:
         target = c.array(tg, "points", (None, 3), 3 * limits.MAX_TARGET_POINTS, limit_name="MAX_TARGET_POINTS")
         if target.shape[0] < 2:
             c.fail("/target/points", f"needs at least 2 points, got {target.shape[0]}")
-    a = Archive(
-        name=c.text(p, "name"),
-        kind=c.text(p, "kind"),
-        source=c.text(p, "source", lines=True),
-        diameter=diameter,
-        units=units,
-        target=target,
-        software_version=c.text(h5, "software_version"),
-        created=c.text(h5, "created", required=False),
-        format_version=version,
-    )
+    a = Archive(name=c.text(p, "name"), kind=c.text(p, "kind"), source=c.text(p, "source", lines=True), diameter=diameter,
+                units=units, target=target, software_version=c.text(h5, "software_version"),
+                created=c.text(h5, "created", required=False), format_version=version)
     # everything outside the core layout comes back as it was written (measured points, frames, ...)
     _extras(c, h5, a)
     if "obstacles" in h5:
@@ -503,23 +487,9 @@ def _load(c: _Checker, h5) -> Archive:
 
 
 def load_archive(path) -> Archive:
-    """Read an archive back into typed objects, every part checked (see the module docstring).
-
-    Parameters
-    ----------
-    path : path-like
-        The archive.
-
-    Returns
-    -------
-    Archive
-
-    Raises
-    ------
-    ArchiveError
-        (an InputError and a ValueError) for a missing, unreadable, malformed or
-        oversized archive, naming the dataset and the reason. Nothing else.
-    """
+    """Read the archive at ``path`` back into an Archive, every part checked (see the module docstring).
+    Raises ArchiveError (an InputError and a ValueError) for a missing, unreadable, malformed or oversized
+    archive, naming the dataset and the reason; nothing else."""
     c = _Checker(path)
     try:
         with open_archive(path) as h5:

@@ -25,6 +25,7 @@ import numpy as np
 from vine_nlp.analysis.obstacles import GROWTH_MODES
 from vine_nlp.errors import InputError
 from vine_nlp.io import files, limits
+from vine_nlp.io.validate import is_number
 from vine_nlp.model.obstacles import OBSTACLE_TYPES, SHAPES, Box, Capsule, Mesh, Plane, Sphere, is_rotation, rotation_from_degrees
 
 MAX_OBSTACLES = 1000
@@ -58,24 +59,10 @@ _DATASETS = {
 def parse_obstacles(tables, file, base_dir=None) -> list:
     """The obstacles of a problem file's ``[[obstacles]]`` array of tables, validated.
 
-    Parameters
-    ----------
-    tables : list of dict
-        ``data["obstacles"]`` of the parsed TOML document.
-    file : str or Path
-        The problem file, named in errors.
-    base_dir : str or Path, optional
-        Directory that mesh ``file`` paths are relative to (default: the problem file's).
-
-    Returns
-    -------
-    list of Sphere, Box, Capsule, Plane, Mesh
-        In file order.
-
-    Raises
-    ------
-    InputError
-        ``(file, "obstacles[k].key", reason)``; a bad mesh file's content: ``(mesh file, "mesh", reason)``.
+    ``tables`` is ``data["obstacles"]`` of the parsed TOML document, ``file`` the problem file (named in errors),
+    ``base_dir`` the directory mesh ``file`` paths are relative to (default: the problem file's). Returns the
+    shapes in file order. InputError ``(file, "obstacles[k].key", reason)``; a bad mesh file's content:
+    ``(mesh file, "mesh", reason)``.
     """
     file = str(file)
     base = Path(file).parent if base_dir is None else Path(base_dir)
@@ -154,12 +141,8 @@ def _bad_name(name: str) -> bool:
     return not name.isprintable() or len(name) > limits.MAX_NAME_CHARS
 
 
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
 def _float(err, key, v, what):
-    if not _is_number(v):
+    if not is_number(v):
         raise err(key, f"must be {what}")
     if isinstance(v, float) and not math.isfinite(v):
         return v  # the callers say "must be finite"
@@ -215,13 +198,8 @@ def _mesh(err, base, value, name) -> Mesh:
 def load_mesh_file(path, data: bytes | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Vertices and faces of a closed triangle mesh file (.stl, .obj, .ply) read through trimesh, from
     its bytes (``data``, default: read within MAX_MESH_BYTES): trimesh opens no other file (an OBJ's
-    ``mtllib`` is not followed).
-
-    Raises
-    ------
-    InputError
-        ``(path, "mesh", reason)``: unreadable, no triangles, too many faces, not closed.
-    """
+    ``mtllib`` is not followed). InputError ``(path, "mesh", reason)``: unreadable, no triangles, too many
+    faces, not closed."""
     import trimesh
 
     path = Path(path)
@@ -250,23 +228,8 @@ def load_mesh_file(path, data: bytes | None = None) -> tuple[np.ndarray, np.ndar
 
 
 def parse_obstacle_design(design, file) -> tuple[float, str]:
-    """``[design] obstacle_margin`` (>= 0, default 0) and ``growth`` (default "while-actuated").
-
-    Parameters
-    ----------
-    design : dict
-        The problem's ``[design]`` table (may be empty).
-    file : str
-        The problem file, named in errors (keys ``design.obstacle_margin``, ``design.growth``).
-
-    Returns
-    -------
-    (margin, growth)
-
-    Raises
-    ------
-    InputError
-    """
+    """(margin, growth) of the problem's ``[design]`` table (may be empty): ``obstacle_margin`` (>= 0, default 0)
+    and ``growth`` (default "while-actuated"); InputError naming ``file`` and the key."""
     file = str(file)
     margin = _float(lambda key, reason: InputError(file, "design.obstacle_margin", reason), "", design.get("obstacle_margin", 0.0), "a number")
     if not math.isfinite(margin):
@@ -312,13 +275,8 @@ def _text_attr(v):
 
 
 def read_obstacles(h5group, file) -> list:
-    """Obstacles from an archive's ``/obstacles`` group, validated.
-
-    Raises
-    ------
-    InputError
-        ``(file, "<dataset or group path>", reason)``.
-    """
+    """Obstacles from an archive's ``/obstacles`` group, validated: InputError ``(file, "<dataset or group path>",
+    reason)``."""
     file = str(file)
     names = list(h5group.keys())
     base = h5group.name.rstrip("/")
@@ -357,14 +315,8 @@ def read_obstacles(h5group, file) -> list:
                 raise InputError(file, path, "must be finite")
             params[key] = a
         try:
-            if shape == "sphere":
-                ob = Sphere(params["center"], float(params["radius"]), name)
-            elif shape == "box":
-                ob = Box(params["center"], params["size"], params["rotation"], name)
-            elif shape == "capsule":
-                ob = Capsule(params["p0"], params["p1"], float(params["radius"]), name)
-            elif shape == "plane":
-                ob = Plane(params["point"], params["normal"], name)
+            if shape != "mesh":  # the datasets are named as the shape's fields
+                ob = OBSTACLE_TYPES[shape](**{k: float(v) if k == "radius" else v for k, v in params.items()}, name=name)
             else:
                 faces = params["faces"]
                 if faces.dtype.kind == "f" and not np.array_equal(faces, np.round(faces)):

@@ -49,8 +49,7 @@ def _actuator_table(a: Actuator) -> dict:
 def _options_table(o: DesignOptions, kind: str = "design") -> dict:
     table = {"method": o.method, "points_per_segment": o.points_per_segment, "starts": o.starts}
     if kind == "design":
-        table["hops"] = o.hops
-        table["budget"] = o.budget
+        table |= {"hops": o.hops, "budget": o.budget}
         if o.solver != DesignOptions.solver:
             table["solver"] = o.solver
         table |= {"correction_margin": o.correction_margin, "min_feature": o.min_feature, "base": o.base}

@@ -195,24 +195,14 @@ def _design(f: SourceFile, data: dict, name: str, units: str, diameter: float) -
     design = sub_table(f, data, "design", (*_DESIGN_KEYS, *OBSTACLE_DESIGN_KEYS, *_BUILD_KEYS))
     options = _build_options(f, data, design, actuator, _options(f, {k: v for k, v in design.items() if k not in _BUILD_KEYS}))
     need = options.points_per_segment + 1
-    check(
-        f,
-        points_key,
-        points.shape[0] >= need,
-        f"needs at least points_per_segment + 1 = {need} points, got {points.shape[0]}",
-    )
+    check(f, points_key, points.shape[0] >= need, f"needs at least points_per_segment + 1 = {need} points, got {points.shape[0]}")
     problem = DesignProblem(name=name, diameter=diameter, target=points, actuator=actuator, options=options, units=units)
     return _design_tables(f, data, problem)
 
 
 def _design_tables(f: SourceFile, data: dict, problem: DesignProblem) -> DesignProblem:
-    """The optional tables of a design problem beyond [target], [actuator] and [design].
-
-    The place for further optional tables of a design problem: each is read from
-    ``data`` (its key listed in ``_TOP_KEYS["design"]``) by its own module of
-    ``vine_nlp.io`` and applied with ``dataclasses.replace(problem, ...)``; errors name
-    ``f`` and the table's dotted keys like every other check.
-    """
+    """The optional tables of a design problem beyond [target], [actuator] and [design]: each read by its own
+    module of ``vine_nlp.io`` (its key listed in ``_TOP_KEYS["design"]``) and applied with ``dataclasses.replace``."""
     cal = calibration_of(f, data)
     if cal is not None:
         problem = dataclasses.replace(problem, calibration=cal)
@@ -276,9 +266,7 @@ def _target(f: SourceFile, data: dict, diameter: float) -> tuple[np.ndarray, str
             check(f, "target.t_range", t_range[0] < t_range[1], "must be [start, end] with start < end")
             kwargs["t_range"] = t_range
     elif curve in ("bezier", "polyline"):
-        kwargs["control_points"] = point_list(
-            f, "target.control_points", required_value(f, table, "control_points", "target.")
-        )
+        kwargs["control_points"] = point_list(f, "target.control_points", required_value(f, table, "control_points", "target."))
     else:  # helix
         for key in ("radius", "pitch", "length"):
             kwargs[key] = real_number(f, f"target.{key}", required_value(f, table, key, "target."))
@@ -346,9 +334,7 @@ def _fit(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> F
     check(f, "fit.free", len(set(free)) == len(free), "lists a parameter twice")
     check_spread(str(f.dir / measured["file"]), points, diameter, 3)
     check_scale(f, "measured.file", points, diameter, "the measurement")
-    return FitProblem(
-        name=name, diameter=diameter, measured=points, line=line, routing=routing, free=tuple(free), units=units
-    )
+    return FitProblem(name=name, diameter=diameter, measured=points, line=line, routing=routing, free=tuple(free), units=units)
 
 
 # ---------------------------------------------------------------- multi-shape and tip problems
@@ -386,12 +372,8 @@ def _starts_default(table: dict, options: DesignOptions, kind: str) -> DesignOpt
 def _multishape(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> MultiShapeProblem:
     """[[targets]]: K targets (same number of points), each optionally with a fixed lambda; an sPAM actuator."""
     items = data["targets"]
-    check(
-        f,
-        "targets",
-        isinstance(items, list) and len(items) > 0 and all(isinstance(t, dict) for t in items),
-        "must be an array of tables ([[targets]]), at least one",
-    )
+    check(f, "targets", isinstance(items, list) and len(items) > 0 and all(isinstance(t, dict) for t in items),
+          "must be an array of tables ([[targets]]), at least one")
     check(f, "targets", len(items) <= limits.MAX_LEVELS, f"has {len(items)} targets; at most {limits.MAX_LEVELS}")
     table = sub_table(f, data, "actuator", _ACTUATOR_KEYS)
     if "kind" in table and table["kind"] != "spam":
@@ -410,30 +392,16 @@ def _multishape(f: SourceFile, data: dict, name: str, units: str, diameter: floa
         pts, points_key = _target(tf, {"target": {key: v for key, v in item.items() if key != "lambda"}}, diameter)
         check(tf, points_key, pts.shape[0] >= need, f"needs at least points_per_segment + 1 = {need} points, got {pts.shape[0]}")
         if k > 0 and pts.shape[0] != points[0].shape[0]:
-            raise tf.error(
-                points_key, f"has {pts.shape[0]} points; every target needs as many as targets.0 ({points[0].shape[0]})"
-            )
+            raise tf.error(points_key, f"has {pts.shape[0]} points; every target needs as many as targets.0 ({points[0].shape[0]})")
         level = None
         if "lambda" in item:
             level = real_number(f, f"targets.{k}.lambda", item["lambda"])
-            check(
-                f,
-                f"targets.{k}.lambda",
-                actuator.lambda_min <= level <= 1,
-                f"must be in [actuator.lambda_min, 1] = [{actuator.lambda_min:g}, 1]",
-            )
+            check(f, f"targets.{k}.lambda", actuator.lambda_min <= level <= 1,
+                  f"must be in [actuator.lambda_min, 1] = [{actuator.lambda_min:g}, 1]")
         points.append(pts)
         levels.append(level)
-    return MultiShapeProblem(
-        name=name,
-        diameter=diameter,
-        targets=tuple(points),
-        levels=tuple(levels),
-        actuator=actuator,
-        options=options,
-        shared_pose=shared_pose,
-        units=units,
-    )
+    return MultiShapeProblem(name=name, diameter=diameter, targets=tuple(points), levels=tuple(levels), actuator=actuator,
+                             options=options, shared_pose=shared_pose, units=units)
 
 
 def _tip(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> TipProblem:
@@ -456,20 +424,8 @@ def _tip(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> T
     actuator = _actuator(f, sub_table(f, data, "actuator", _ACTUATOR_KEYS))
     design = sub_table(f, data, "design", (*_OTHER_DESIGN_KEYS, *OBSTACLE_DESIGN_KEYS))
     options = _starts_default(design, _options(f, design), "tip")
-    return TipProblem(
-        **_obstacles_of(f, data),
-        name=name,
-        diameter=diameter,
-        position=position,
-        length=length,
-        segments=segments,
-        direction=direction,
-        objective=objective,
-        initial_pose=pose,
-        actuator=actuator,
-        options=options,
-        units=units,
-    )
+    return TipProblem(**_obstacles_of(f, data), name=name, diameter=diameter, position=position, length=length, segments=segments,
+                      direction=direction, objective=objective, initial_pose=pose, actuator=actuator, options=options, units=units)
 
 
 # ---------------------------------------------------------------- routing

@@ -216,11 +216,7 @@ def rigid_pose(f: SourceFile, key: str, value) -> np.ndarray:
     pose = np.array([[real_number(f, key, x) for x in row] for row in value])
     rotation = pose[:3, :3]
     check(f, key, np.allclose(pose[3], [0, 0, 0, 1], rtol=0, atol=POSE_TOL), "last row must be [0, 0, 0, 1]")
-    check(
-        f,
-        key,
-        np.allclose(rotation.T @ rotation, np.eye(3), rtol=0, atol=POSE_TOL),
-        "rotation part (first 3 rows and columns) is not orthonormal",
-    )
+    check(f, key, np.allclose(rotation.T @ rotation, np.eye(3), rtol=0, atol=POSE_TOL),
+          "rotation part (first 3 rows and columns) is not orthonormal")
     check(f, key, abs(np.linalg.det(rotation) - 1) <= POSE_TOL, "rotation part has det -1 (a mirror, not a rotation)")
     return pose

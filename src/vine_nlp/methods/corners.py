@@ -217,17 +217,9 @@ def error_per_segment(problem: DesignProblem, pairing: Pairing, result: Result) 
 # ---------------------------------------------------------------- the search
 
 
-def search(
-    problem: DesignProblem,
-    result: Result,
-    pairing: Pairing,
-    polish: Callable[[Routing], Result],
-    budget: float = DEFAULT_BUDGET,
-    workers: int = 2,
-    progress: Callable[[int, int], None] | None = None,
-    note: Callable[[str], None] | None = None,
-    rounds: int = SEARCH_ROUNDS,
-) -> Result:
+def search(problem: DesignProblem, result: Result, pairing: Pairing, polish: Callable[[Routing], Result],
+           budget: float = DEFAULT_BUDGET, workers: int = 2, progress: Callable[[int, int], None] | None = None,
+           note: Callable[[str], None] | None = None, rounds: int = SEARCH_ROUNDS) -> Result:
     """Improve the design ``result`` of a corner-like target window by window (module docstring).
 
     ``polish(routing) -> Result``: the full NLP from a design (ends every round); ``budget``: seconds from

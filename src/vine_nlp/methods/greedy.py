@@ -37,15 +37,7 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp.methods import blas
-from vine_nlp.methods.common import (
-    Pairing,
-    clip_to_bounds,
-    evaluate,
-    geometric_guess,
-    pair_points,
-    path_error,
-    variable_bounds,
-)
+from vine_nlp.methods.common import Pairing, clip_to_bounds, evaluate, geometric_guess, pair_points, path_error, variable_bounds
 from vine_nlp.methods.settings import GREEDY_WINDOW, quiet
 from vine_nlp.methods.transcription import ipopt_status
 from vine_nlp.model.chain import chain_points

@@ -5,34 +5,9 @@ and on CasADi SX/MX symbols alike; and the pure value types they take and give
 (Routing, Shape, Pairing, Sigmas). No I/O.
 """
 
-from vine_nlp.model.chain import (  # noqa: F401
-    chain_frames,
-    chain_points,
-    phi_from_theta,
-    shape_lines,
-    theta_from_phi,
-)
-from vine_nlp.model.helix import (  # noqa: F401
-    center_rates,
-    cosserat,
-    helix_forward,
-    helix_inverse,
-    helix_self_collides,
-    line_offset_angles,
-)
+from vine_nlp.model.chain import chain_frames, chain_points, phi_from_theta, shape_lines, theta_from_phi  # noqa: F401
+from vine_nlp.model.helix import center_rates, cosserat, helix_forward, helix_inverse, helix_self_collides, line_offset_angles  # noqa: F401
 from vine_nlp.model.pairing import Pairing, pair_points  # noqa: F401
 from vine_nlp.model.routing import MEASURED_LINES, Routing, Sigmas  # noqa: F401
-from vine_nlp.model.segment import (  # noqa: F401
-    line_transform,
-    paper_segment_transform,
-    segment_function,
-    segment_point,
-    segment_transform,
-)
-from vine_nlp.model.shape import (  # noqa: F401
-    Shape,
-    error_metrics,
-    forward_shape,
-    routing_metrics,
-    total_variation,
-)
+from vine_nlp.model.segment import line_transform, paper_segment_transform, segment_function, segment_point, segment_transform  # noqa: F401
+from vine_nlp.model.shape import Shape, error_metrics, forward_shape, routing_metrics, total_variation  # noqa: F401

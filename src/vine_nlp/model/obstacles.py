@@ -215,8 +215,15 @@ def nearest_rotation(R) -> np.ndarray:
     return U @ Vt
 
 
+class _RoundedBox:
+    """A shape whose distance is :func:`rounded_box_distance` with the parameters of its ``rounded_box()``."""
+
+    def distance(self, p):
+        return rounded_box_distance(p, *self.rounded_box())
+
+
 @dataclass(frozen=True)
-class Sphere:
+class Sphere(_RoundedBox):
     center: tuple
     radius: float
     name: str = ""
@@ -232,9 +239,6 @@ class Sphere:
         """(center, rotation, half sizes, radius, eps) of :func:`rounded_box_distance`: a point rounded by the radius."""
         return np.array(self.center), np.eye(3), np.zeros(3), self.radius, EPS_REL * self.radius
 
-    def distance(self, p):
-        return rounded_box_distance(p, *self.rounded_box())
-
     def parameters(self) -> dict:
         return {"center": np.array(self.center), "radius": np.float64(self.radius)}
 
@@ -247,7 +251,7 @@ class Sphere:
 
 
 @dataclass(frozen=True)
-class Box:
+class Box(_RoundedBox):
     center: tuple
     size: tuple  # full edge lengths along the box's own axes
     rotation: tuple = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))  # world from box
@@ -270,9 +274,6 @@ class Box:
         """(center, rotation, half sizes, radius, eps) of :func:`rounded_box_distance`: the box itself."""
         return np.array(self.center), np.array(self.rotation), 0.5 * np.array(self.size), 0.0, EPS_REL * float(np.linalg.norm(self.size))
 
-    def distance(self, p):
-        return rounded_box_distance(p, *self.rounded_box())
-
     def parameters(self) -> dict:
         return {"center": np.array(self.center), "size": np.array(self.size), "rotation": np.array(self.rotation)}
 
@@ -289,7 +290,7 @@ class Box:
 
 
 @dataclass(frozen=True)
-class Capsule:
+class Capsule(_RoundedBox):
     p0: tuple
     p1: tuple
     radius: float
@@ -310,9 +311,6 @@ class Capsule:
         a, b = np.array(self.p0), np.array(self.p1)
         length = float(np.linalg.norm(b - a))
         return 0.5 * (a + b), _frame((b - a) / length), np.array([0.5 * length, 0.0, 0.0]), self.radius, EPS_REL * max(self.radius, length)
-
-    def distance(self, p):
-        return rounded_box_distance(p, *self.rounded_box())
 
     def parameters(self) -> dict:
         return {"p0": np.array(self.p0), "p1": np.array(self.p1), "radius": np.float64(self.radius)}

@@ -28,10 +28,7 @@ class _Numpy:
     fabs = staticmethod(np.abs)
     fmax = staticmethod(np.maximum)
     fmin = staticmethod(np.minimum)
-
-    @staticmethod
-    def where(cond, a, b):
-        return np.where(cond, a, b)
+    where = staticmethod(np.where)
 
 
 class _Casadi:

@@ -34,25 +34,10 @@ class Pairing:
 
 
 def pair_points(target: np.ndarray, n: int) -> Pairing:
-    """Pair the N target points with model points: M = ceil((N - 1) / n) segments (module docstring).
-
-    Parameters
-    ----------
-    target : (N, 3) array
-        The target center line, in order.
-    n : int
-        Points per segment (intervals of the target per segment).
-
-    Returns
-    -------
-    Pairing
-        Segment and fraction of every target point, the target index of each segment
-        end and the target's cumulative chord length.
-
-    Raises
-    ------
-    ValueError
-        A target of fewer than two points.
+    """Pair the N target points (the center line (N, 3), in order) with model points, ``n`` intervals of the
+    target per segment: M = ceil((N - 1) / n) segments (module docstring). The Pairing holds the segment and
+    fraction of every target point, the target index of each segment end and the target's cumulative chord
+    length. ValueError for a target of fewer than two points.
     """
     target = np.asarray(target, float)
     N = target.shape[0]

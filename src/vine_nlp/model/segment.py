@@ -43,11 +43,7 @@ def _exp_coefficients(x):
         r = L.sqrt(x)
         return (r - L.sin(r)) / (x * r)
 
-    return (
-        safe_series(x, a, _A, _X_SWITCH),
-        safe_series(x, b, _B, _X_SWITCH),
-        safe_series(x, c, _C, _X_SWITCH),
-    )
+    return safe_series(x, a, _A, _X_SWITCH), safe_series(x, b, _B, _X_SWITCH), safe_series(x, c, _C, _X_SWITCH)
 
 
 def segment_parts(theta, lam, length, D):
@@ -173,21 +169,11 @@ def so3_exp(w):
 
 @lru_cache(maxsize=8)
 def segment_function(n: int) -> ca.Function:
-    """One segment as a CasADi SX function, in units of the tube diameter (D = 1).
-
-    Parameters
-    ----------
-    n : int
-        Number of points evaluated inside the segment.
-
-    Returns
-    -------
-    casadi.Function
-        ``(X (12), theta, lam, dl, u (n)) -> (Xn (12), pts (3 x n))``: the frame at the
-        segment's start (rotation column-major, then position), the routing parameters and
-        segment length dl (in D), the fractions u of the segment where points are wanted;
-        the frame at its end and the center-line points at the fractions. Cached: one
-        function per n, shared by every formulation and analysis.
+    """One segment as a CasADi SX function of ``n`` points inside it, in units of the tube diameter (D = 1):
+    ``(X (12), theta, lam, dl, u (n)) -> (Xn (12), pts (3 x n))``: the frame at the segment's start (rotation
+    column-major, then position), the routing parameters and segment length dl (in D), the fractions u of the
+    segment where points are wanted; the frame at its end and the center-line points at the fractions. Cached:
+    one function per n, shared by every formulation and analysis.
     """
     X = ca.SX.sym("X", 12)  # rotation column-major (9), then position (3)
     theta, lam, dl = ca.SX.sym("theta"), ca.SX.sym("lam"), ca.SX.sym("dl")

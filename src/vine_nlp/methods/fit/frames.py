@@ -51,10 +51,8 @@ def fit_frames(
         X = np.asarray(frame, float).reshape(-1, 3)
         X = X[np.all(np.isfinite(X), axis=1)]
         if X.shape[0] < min_points:
-            out.append(
-                FrameFit(math.nan, math.nan, ok=False, r2=math.nan, max_error=math.nan, transform=None,
-                         error=np.zeros(0), s=np.zeros(0), points=X)
-            )
+            out.append(FrameFit(math.nan, math.nan, ok=False, r2=math.nan, max_error=math.nan, transform=None,
+                                error=np.zeros(0), s=np.zeros(0), points=X))
             continue
         fitter = LineFitter(problem.routing, D, {problem.line: X}, starts=starts, seed=seed)
         lam, fit = None, None
@@ -76,8 +74,6 @@ def fit_frames(
         result, extras = finish_fit(fitter, lam, fit.T, free, SPACING)
         m = result.metrics
         prev = (m["lambda"], fit.T, m["rmse"])
-        out.append(
-            FrameFit(m["lambda"], m["rmse"], ok=True, r2=m["r2"], max_error=m["max_error"], transform=fit.T,
-                     error=extras["measured/error"], s=extras["measured/s"], points=X)
-        )
+        out.append(FrameFit(m["lambda"], m["rmse"], ok=True, r2=m["r2"], max_error=m["max_error"], transform=fit.T,
+                            error=extras["measured/error"], s=extras["measured/s"], points=X))
     return out

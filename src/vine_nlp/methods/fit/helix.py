@@ -180,10 +180,8 @@ def _helix_candidates(X, n_dirs=96, max_points=400, residual="orthogonal"):
 
 def _solve_helix(X, F0, p0, line_idx, nradii, residual, tol=1e-14, max_nfev=2000):
     from scipy.optimize import least_squares  # SciPy loads where it is used: the command line starts faster
-    sol = least_squares(
-        _helix_residuals, p0, args=(X, F0, line_idx, nradii, residual), method="lm", x_scale="jac",
-        xtol=tol, ftol=tol, gtol=tol, max_nfev=max_nfev,
-    )
+    sol = least_squares(_helix_residuals, p0, args=(X, F0, line_idx, nradii, residual), method="lm", x_scale="jac",
+                        xtol=tol, ftol=tol, gtol=tol, max_nfev=max_nfev)
     return sol.x, float(np.sum(sol.fun**2)) / X.shape[0]
 
 
@@ -242,11 +240,8 @@ def _helix_dict(p, F0, mean, nradii):
     from scipy.spatial.transform import Rotation  # SciPy loads where it is used: the command line starts faster
     F = F0 @ Rotation.from_rotvec([alpha, beta, 0.0]).as_matrix()
     return {
-        "axis_point": mean + F[:, 0] * cx + F[:, 1] * cy,
-        "axis_dir": F[:, 2].copy(),
-        "b": 1.0 / w if w != 0 else math.inf,
-        "phase": float(phi0),
-        "radii": np.asarray(p[6 : 6 + nradii], float),
+        "axis_point": mean + F[:, 0] * cx + F[:, 1] * cy, "axis_dir": F[:, 2].copy(),
+        "b": 1.0 / w if w != 0 else math.inf, "phase": float(phi0), "radii": np.asarray(p[6 : 6 + nradii], float),
     }
 
 
@@ -276,12 +271,8 @@ def best_fit_helix(points, top: int = 6, residual: str = "orthogonal") -> dict:
     R = float(h["radii"][0])
     err = _distances(_helix_residuals(p, Xc, F0, idx, 1, residual), X.shape[0])
     return {
-        "R": abs(R),
-        "b": h["b"],
-        "axis_point": h["axis_point"],
-        "axis_dir": h["axis_dir"],
-        "phase": h["phase"] + (math.pi if R < 0 else 0.0),
-        "rmse": float(np.sqrt(np.mean(err**2))),
+        "R": abs(R), "b": h["b"], "axis_point": h["axis_point"], "axis_dir": h["axis_dir"],
+        "phase": h["phase"] + (math.pi if R < 0 else 0.0), "rmse": float(np.sqrt(np.mean(err**2))),
         "r2": r_squared(X, err),
     }
 
@@ -324,19 +315,10 @@ def best_fit_helix_pair(inner_points, outer_points, top: int = 3, residual: str 
     theta, lam, D = helix_inverse(R_o, R_i, h["b"])
     err = _distances(_helix_residuals(p, Xc, F0, idx, 2, residual), K)
     return {
-        "R_i": float(R_i),
-        "R_o": float(R_o),
-        "b": float(h["b"]),
-        "theta": float(theta),
-        "lam": float(lam),
-        "D": float(D),
-        "axis_point": h["axis_point"],
-        "axis_dir": h["axis_dir"],
-        "phase": float(phase),
-        "rmse": float(np.sqrt(np.mean(err**2))),
-        "rmse_inner": float(np.sqrt(np.mean(err[idx == 0] ** 2))),
-        "rmse_outer": float(np.sqrt(np.mean(err[idx == 1] ** 2))),
-        "r2": r_squared(X, err, idx),
+        "R_i": float(R_i), "R_o": float(R_o), "b": float(h["b"]), "theta": float(theta), "lam": float(lam),
+        "D": float(D), "axis_point": h["axis_point"], "axis_dir": h["axis_dir"], "phase": float(phase),
+        "rmse": float(np.sqrt(np.mean(err**2))), "rmse_inner": float(np.sqrt(np.mean(err[idx == 0] ** 2))),
+        "rmse_outer": float(np.sqrt(np.mean(err[idx == 1] ** 2))), "r2": r_squared(X, err, idx),
     }
 
 

@@ -167,17 +167,8 @@ class LineFitter:
         return best["lam"], best["fit"]
 
 
-def fit_lines(
-    routing: Routing,
-    diameter: float,
-    measured: dict,
-    free=(),
-    starts: int = 24,
-    seed: int = 0,
-    spacing: float = SPACING,
-    lambda_bounds=LAMBDA_BOUNDS,
-    warm_start=None,
-):
+def fit_lines(routing: Routing, diameter: float, measured: dict, free=(), starts: int = 24, seed: int = 0,
+              spacing: float = SPACING, lambda_bounds=LAMBDA_BOUNDS, warm_start=None):
     """Fit the model of ``routing`` to measured lines sharing one rigid pose.
 
     ``measured``: {"center" | "inner" | "outer": (K, 3) points in any order}; several
@@ -235,18 +226,12 @@ def finish_fit(fitter: LineFitter, lam_fit, T, free, spacing):
     pts, closest, err, s, s_tube_pts, code = map(np.concatenate, (pts, closest, err, s, s_tube_pts, code))
     rmse = float(np.sqrt(np.mean(err**2)))
     metrics = {
-        "rmse": rmse,
-        "max_error": float(err.max()),
-        "r2": r_squared(pts, err, code),
+        "rmse": rmse, "max_error": float(err.max()), "r2": r_squared(pts, err, code),
         "lambda": float(lam_fit) if lam_fit is not None else float(np.mean(routing.lam)),
     }
     stats = {
-        "line": ",".join(fitter.measured),
-        "free": list(free),
-        "points": int(pts.shape[0]),
-        "spacing": spacing * D,
-        "transform": T.tolist(),
-        "lambda_evaluations": len(fitter.evaluations),
+        "line": ",".join(fitter.measured), "free": list(free), "points": int(pts.shape[0]), "spacing": spacing * D,
+        "transform": T.tolist(), "lambda_evaluations": len(fitter.evaluations),
         "model_line_length": {name: polylines[name].length for name in MEASURED_LINES},
     }
     # RMSE of all measured points against each model line, at the fitted pose (diagnostic:
@@ -260,12 +245,8 @@ def finish_fit(fitter: LineFitter, lam_fit, T, free, spacing):
     status = "optimal" if np.isfinite(rmse) else "failed"
     result = Result(method="fit", routing=fitted, shape=shape, status=status, metrics=metrics, stats=stats, diameter=D)
     extras = {
-        "measured/points": pts,
-        "measured/closest": closest,
-        "measured/error": err,
-        "measured/s": s,
-        "measured/s_tube": s_tube_pts,
-        "measured/line": code.astype(np.int8),
+        "measured/points": pts, "measured/closest": closest, "measured/error": err, "measured/s": s,
+        "measured/s_tube": s_tube_pts, "measured/line": code.astype(np.int8),
     }
     return result, extras
 
@@ -291,9 +272,7 @@ def fit_problem(problem: FitProblem, starts: int = 24, seed: int = 0):
       along the fitted model line, ``measured/s_tube`` (K,) the same as unactuated
       tube length, ``measured/line`` (K,) 0 center, 1 inner, 2 outer.
     """
-    return fit_lines(
-        problem.routing, problem.diameter, {problem.line: problem.measured}, free=problem.free, starts=starts, seed=seed
-    )
+    return fit_lines(problem.routing, problem.diameter, {problem.line: problem.measured}, free=problem.free, starts=starts, seed=seed)
 
 
 def describe_fit(result: Result, units: str = "cm") -> str:
@@ -301,7 +280,5 @@ def describe_fit(result: Result, units: str = "cm") -> str:
     m, st = result.metrics, result.stats
     free = st.get("free", [])
     lam = f", lambda {m['lambda']:.4f}" + (" (fitted)" if "lambda" in free else " (given)")
-    return (
-        f"fit of the {st.get('line', '?')} line to {st.get('points', '?')} points: rmse {m['rmse']:.4g} {units}, "
-        f"max {m['max_error']:.4g} {units}, R^2 {m['r2']:.4f}{lam}"
-    )
+    return (f"fit of the {st.get('line', '?')} line to {st.get('points', '?')} points: rmse {m['rmse']:.4g} {units}, "
+            f"max {m['max_error']:.4g} {units}, R^2 {m['r2']:.4f}{lam}")
