@@ -11,8 +11,8 @@ import time
 
 from common import ROOT, machine, table, write_section
 
-from vine_nlp.io.problem_file import load_problem
 from vine_nlp import pipeline
+from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import corners, transcription
 from vine_nlp.methods import greedy as greedy_mod
 from vine_nlp.methods.greedy import lowpass

@@ -55,8 +55,6 @@ import numpy as np
 from vine_nlp.analysis.obstacles import ModelLine, after_growth_routing, sample_chain
 from vine_nlp.model.helix import center_rates, helix_self_collides, helix_turns
 
-_ModelLine = ModelLine  # its former name here (vine_nlp.methods.clearance imports it)
-
 # ---------------------------------------------------------------------------------------------
 # analytic: uniform sections
 

@@ -25,7 +25,8 @@ from typing import ClassVar
 import casadi as ca
 import numpy as np
 
-from vine_nlp.analysis.collision import _ModelLine, routing_clearance
+from vine_nlp.analysis.collision import routing_clearance
+from vine_nlp.analysis.obstacles import ModelLine
 from vine_nlp.methods import drive
 from vine_nlp.methods.blocks import BlockType
 from vine_nlp.methods.buildable import inherited_bounds
@@ -209,7 +210,7 @@ class _Pairs:
 
     def _add(self, check, routing):
         """The pairs of every region of ``check``, and each region's minimum where it is short."""
-        model = _ModelLine(routing, self.D)
+        model = ModelLine(routing, self.D)
         for r in check["regions"]:
             _add_pairs(self.active, _region_pairs(r, check["line"], model, self.exclude_arc, self.step), self.step / 4)
             if r["clearance"] < self.need - self.tol:
