@@ -150,8 +150,22 @@ def _state(file, h5, a: Archive) -> CorrectionState:
     B = _attr(file, g, "builds", (int,))
     if not 1 <= B <= limits.MAX_RUNS:
         raise ArchiveError(file, "/correction@builds", f"must be 1..{limits.MAX_RUNS}, got {B}")
-    builds = []
-    M = None
+    builds = _builds(file, a, B)
+    ms = _measurements(file, h5, a, B)
+    attrs = {name: _attr(file, g, name, (str, int, float, bool)) for name in g.attrs}
+    sysv, sys_sd = a.extra.get("correction/systematic"), a.extra.get("correction/systematic_std")
+    for key, v in (("systematic", sysv), ("systematic_std", sys_sd)):
+        if v is None or np.shape(v) != (3,):
+            raise ArchiveError(file, f"/correction/{key}", "missing or not 3 values")
+    if not sysv[2] > 0 or np.any(sys_sd < 0):
+        raise ArchiveError(file, "/correction/systematic", "length scale must be > 0 and standard deviations >= 0")
+    unc, dev = _as_built_spread(file, h5, builds[0].theta.size)
+    return CorrectionState(builds, ms, attrs, np.asarray(sysv, float), np.asarray(sys_sd, float), unc, dev)
+
+
+def _builds(file, a: Archive, B: int) -> list:
+    """The B routings built so far (/correction/builds/b), one segment count in all."""
+    builds, M = [], None
     for b in range(B):
         key = f"correction/builds/{b}"
         try:
@@ -166,9 +180,12 @@ def _state(file, h5, a: Archive) -> CorrectionState:
         if pose.shape != (4, 4):
             raise ArchiveError(file, f"/{key}/initial_pose", f"shape {pose.shape}, expected (4, 4)")
         builds.append(Routing(theta, lam, length, pose))
-    ms = []
-    mg = h5.get("measured")
-    k = 0
+    return builds
+
+
+def _measurements(file, h5, a: Archive, B: int) -> list:
+    """Every measurement kept (/measured/k), each of one of the B builds; at least one."""
+    ms, mg, k = [], h5.get("measured"), 0
     while mg is not None and str(k) in mg:
         node = mg[str(k)]
         pts = a.extra.get(f"measured/{k}/points")
@@ -184,13 +201,11 @@ def _state(file, h5, a: Archive) -> CorrectionState:
         k += 1
     if not ms:
         raise ArchiveError(file, "/measured/0/points", "missing: a correction archive holds its measurements")
-    attrs = {name: _attr(file, g, name, (str, int, float, bool)) for name in g.attrs}
-    sysv, sys_sd = a.extra.get("correction/systematic"), a.extra.get("correction/systematic_std")
-    for key, v in (("systematic", sysv), ("systematic_std", sys_sd)):
-        if v is None or np.shape(v) != (3,):
-            raise ArchiveError(file, f"/correction/{key}", "missing or not 3 values")
-    if not sysv[2] > 0 or np.any(sys_sd < 0):
-        raise ArchiveError(file, "/correction/systematic", "length scale must be > 0 and standard deviations >= 0")
+    return ms
+
+
+def _as_built_spread(file, h5, M: int) -> tuple[dict, dict]:
+    """The as-built estimate's uncertainty and deviation per segment (/runs/as_built/...), where stored."""
     unc, dev = {}, {}
     ab = h5.get("runs/as_built")
     if ab is not None:
@@ -203,4 +218,4 @@ def _state(file, h5, a: Archive) -> CorrectionState:
                 if v.shape != (M,) or not np.all(np.isfinite(v)):
                     raise ArchiveError(file, f"/runs/as_built/{grp}/{n}", f"must be {M} finite values")
                 out[n] = v
-    return CorrectionState(builds, ms, attrs, np.asarray(sysv, float), np.asarray(sys_sd, float), unc, dev)
+    return unc, dev

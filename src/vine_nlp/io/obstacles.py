@@ -77,6 +77,19 @@ def _obstacle(file, base, k, t):
     def err(key, reason):
         return InputError(file, f"obstacles[{k}].{key}" if key else f"obstacles[{k}]", reason)
 
+    shape = _check_keys(err, t)
+    name = t.get("name", "")
+    if not isinstance(name, str):
+        raise err("name", "must be a string")
+    if _bad_name(name):
+        raise err("name", f"must be printable text of at most {limits.MAX_NAME_CHARS} characters")
+    if shape == "mesh":
+        return _mesh(err, base, t["file"], name)
+    return _BUILD[shape](err, t, name)
+
+
+def _check_keys(err, t) -> str:
+    """The table's shape, once its keys are the shape's (each unknown or missing key named)."""
     if "shape" not in t:
         raise err("shape", "missing (required)")
     shape = t["shape"]
@@ -99,42 +112,44 @@ def _obstacle(file, base, k, t):
     for key in _REQUIRED[shape]:
         if key not in t:
             raise err(key, "missing (required)")
-    name = t.get("name", "")
-    if not isinstance(name, str):
-        raise err("name", "must be a string")
-    if _bad_name(name):
-        raise err("name", f"must be printable text of at most {limits.MAX_NAME_CHARS} characters")
+    return shape
 
-    if shape == "sphere":
-        return Sphere(_vector(err, "center", t["center"]), _positive(err, "radius", t["radius"]), name)
-    if shape == "capsule":
-        p0, p1 = _vector(err, "p0", t["p0"]), _vector(err, "p1", t["p1"])
-        if np.array_equal(p0, p1):
-            raise err("p1", "must differ from p0 (for a ball use shape = \"sphere\")")
-        return Capsule(p0, p1, _positive(err, "radius", t["radius"]), name)
-    if shape == "plane":
-        normal = _vector(err, "normal", t["normal"])
-        if not np.any(normal != 0):
-            raise err("normal", "must not be zero")
-        return Plane(_vector(err, "point", t["point"]), normal, name)
-    if shape == "box":
-        center = _vector(err, "center", t["center"])
-        size = _vector(err, "size", t["size"])
-        for i, s in enumerate(size):
-            if not s > 0:
-                raise err("size", f"must be > 0 (entry {i + 1})")
-        if "rotation" in t and "rotation_deg" in t:
-            raise err("rotation_deg", "give rotation or rotation_deg, not both")
-        if "rotation" in t:
-            R = _matrix(err, "rotation", t["rotation"])
-            if not is_rotation(R):
-                raise err("rotation", "must be a proper rotation matrix (orthonormal rows, determinant +1, within 0.001)")
-        elif "rotation_deg" in t:
-            R = rotation_from_degrees(_vector(err, "rotation_deg", t["rotation_deg"]))
-        else:
-            R = np.eye(3)
-        return Box(center, size, R, name)
-    return _mesh(err, base, t["file"], name)
+
+def _capsule(err, t, name):
+    p0, p1 = _vector(err, "p0", t["p0"]), _vector(err, "p1", t["p1"])
+    if np.array_equal(p0, p1):
+        raise err("p1", "must differ from p0 (for a ball use shape = \"sphere\")")
+    return Capsule(p0, p1, _positive(err, "radius", t["radius"]), name)
+
+
+def _plane(err, t, name):
+    normal = _vector(err, "normal", t["normal"])
+    if not np.any(normal != 0):
+        raise err("normal", "must not be zero")
+    return Plane(_vector(err, "point", t["point"]), normal, name)
+
+
+def _box(err, t, name):
+    center = _vector(err, "center", t["center"])
+    size = _vector(err, "size", t["size"])
+    for i, s in enumerate(size):
+        if not s > 0:
+            raise err("size", f"must be > 0 (entry {i + 1})")
+    if "rotation" in t and "rotation_deg" in t:
+        raise err("rotation_deg", "give rotation or rotation_deg, not both")
+    if "rotation" in t:
+        R = _matrix(err, "rotation", t["rotation"])
+        if not is_rotation(R):
+            raise err("rotation", "must be a proper rotation matrix (orthonormal rows, determinant +1, within 0.001)")
+    elif "rotation_deg" in t:
+        R = rotation_from_degrees(_vector(err, "rotation_deg", t["rotation_deg"]))
+    else:
+        R = np.eye(3)
+    return Box(center, size, R, name)
+
+
+_BUILD = {"sphere": lambda err, t, name: Sphere(_vector(err, "center", t["center"]), _positive(err, "radius", t["radius"]), name),
+          "capsule": _capsule, "plane": _plane, "box": _box}
 
 
 def _bad_name(name: str) -> bool:
