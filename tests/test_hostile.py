@@ -466,7 +466,11 @@ pf = load_problem(sys.argv[1])
 design_nlp(pf.problem)  # builds (and compiles) the solvers of this structure
 print("solving", flush=True)
 try:
-    design_nlp(dataclasses.replace(pf.problem, diameter=1e-15))  # past the reader: Fatrop loops for good on it
+    # past the reader: Fatrop loops for good on a diameter of 1e-15 on some CPUs, of 1e-100 on others (one
+    # that finishes hands over to the next: the signal lands in a solve either way)
+    while True:
+        for diameter in (1e-100, 1e-15):
+            design_nlp(dataclasses.replace(pf.problem, diameter=diameter))
 except KeyboardInterrupt:
     print("interrupted", flush=True)
     sys.exit(130)
