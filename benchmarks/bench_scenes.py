@@ -81,6 +81,82 @@ def measure(path: Path) -> dict:
     return rec
 
 
+def slsqp_side_by_side(path: Path, max_iter: int = 500) -> dict:
+    """The obstacle design's first solve with rows (round 0 of methods.obstacles.design.Rounds: its variables,
+    rows, bounds, data and start, captured while the pipeline runs the scene) solved again by IPOPT (the
+    project's solver object) and by scipy's SLSQP on the same casadi functions (exact gradients and Jacobian)."""
+    import casadi as ca
+    from scipy.optimize import minimize
+
+    from vine_nlp.io.problems import load_problem
+    from vine_nlp.methods.obstacles import design as od
+    from vine_nlp.pipeline import run
+
+    cap = {}
+    orig = od.Rounds.solve
+
+    def solve(self, x, round, last):
+        if round == 0 and not cap:
+            solver = self.solver(round, last)
+            lbx, ubx = self.plan.trust(solver, x, *self.bounds)
+            cap.update(solver=solver, x0=np.array(x, float), p=solver.pack_params(self.params | self.data), lbx=lbx, ubx=ubx)
+        return orig(self, x, round, last)
+
+    od.Rounds.solve = solve
+    try:
+        run(load_problem(path))
+    finally:
+        od.Rounds.solve = orig
+    if not cap:
+        return {"name": path.stem, "error": "no solve with rows (the obstacle-free design already cleared)"}
+    sv, x0, p, lbx, ubx = cap["solver"], cap["x0"], cap["p"], cap["lbx"], cap["ubx"]
+    lbg, ubg = np.asarray(sv.lbg, float), np.asarray(sv.ubg, float)
+    # IPOPT's own oracle functions (the rows' blocks are compiled functions with their derivatives as given to IPOPT)
+    solver = getattr(sv.nlpsol, "_solver", None) or sv.nlpsol
+    gf, jg = solver.get_function("nlp_grad_f"), solver.get_function("nlp_jac_g")
+
+    def F(xv, pv):
+        f, g = gf(xv, pv)
+        return float(f), np.asarray(g).ravel()
+
+    def G(xv, pv):
+        g, J = jg(xv, pv)
+        return np.asarray(g).ravel(), J
+
+    def viol(xv):
+        gv = G(xv, p)[0]
+        return float(np.max(np.concatenate([[0.0], lbg - gv, gv - ubg, lbx - xv, xv - ubx])))
+
+    out = {"name": path.stem, "variables": int(x0.size), "rows": int(lbg.size),
+           "equalities": int(np.sum(lbg == ubg)), "start_violation": viol(x0)}
+    c0, w0 = time.process_time(), time.perf_counter()
+    xi, status, st = sv.solve(x0, p, lbx, ubx)
+    out["ipopt"] = {"status": status, "objective": F(xi, p)[0], "violation": viol(xi), "iterations": int(st.get("iterations", 0)),
+                    "cpu_s": time.process_time() - c0, "wall_s": time.perf_counter() - w0}
+    eq, lo, hi = lbg == ubg, np.isfinite(lbg) & (lbg != ubg), np.isfinite(ubg) & (lbg != ubg)
+
+    def g_all(xv):
+        g, J = G(xv, p)
+        return g, np.asarray(ca.densify(J))
+
+    cons = [
+        {"type": "eq", "fun": lambda v: g_all(v)[0][eq] - lbg[eq], "jac": lambda v: g_all(v)[1][eq]},
+        {"type": "ineq", "fun": lambda v: np.concatenate([g_all(v)[0][lo] - lbg[lo], ubg[hi] - g_all(v)[0][hi]]),
+         "jac": lambda v: np.vstack([g_all(v)[1][lo], -g_all(v)[1][hi]])},
+    ]
+    bounds = [(None if not np.isfinite(a) else a, None if not np.isfinite(b) else b) for a, b in zip(lbx, ubx)]
+
+    def fg(v):
+        return F(v, p)
+
+    c0, w0 = time.process_time(), time.perf_counter()
+    res = minimize(fg, np.clip(x0, lbx, ubx), jac=True, method="SLSQP", bounds=bounds, constraints=cons,
+                   options={"maxiter": max_iter, "ftol": 1e-10})
+    out["slsqp"] = {"status": f"{res.status}: {res.message}", "objective": float(res.fun), "violation": viol(res.x),
+                    "iterations": int(res.nit), "cpu_s": time.process_time() - c0, "wall_s": time.perf_counter() - w0}
+    return out
+
+
 def _key(path: Path) -> str:
     h = hashlib.sha1(path.read_bytes())
     csv = path.with_suffix(".csv")
@@ -103,13 +179,14 @@ def away_pass(rec) -> bool | None:
     return rec["rmse_away"] <= max(GOALS["ratio"] * rec["free_rmse_away"], ACC_FLOOR_CM)
 
 
-def mirror_pairs(recs: dict) -> list[tuple[str, float]]:
+def mirror_pairs(recs: dict, key: str = "rmse") -> list[tuple[str, float]]:
+    """(scene, |RMSE - mirror's RMSE| / the larger) of every pair; ``key`` "free_rmse": the obstacle-free designs'."""
     out = []
     for name, rec in recs.items():
         m = recs.get(f"{name}-mirror")
         if m is None or name.endswith("-mirror") or rec.get("error") or m.get("error"):
             continue
-        a, b = rec["rmse"], m["rmse"]
+        a, b = rec[key], m[key]
         out.append((name, abs(a - b) / max(a, b, 1e-300)))
     return out
 
@@ -118,7 +195,7 @@ def _f(x, fmt="{:.4g}"):
     return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else fmt.format(x)
 
 
-def report(recs: dict, scene_dir: Path, loads: tuple, seconds: float) -> Path:
+def report(recs: dict, scene_dir: Path, loads: tuple, seconds: float, measured: int | None = None) -> Path:
     rows = list(recs.values())
     n = len(rows)
     errors = [r for r in rows if r.get("error")]
@@ -129,21 +206,25 @@ def report(recs: dict, scene_dir: Path, loads: tuple, seconds: float) -> Path:
     aw = [(r, p) for r, p in aw if p is not None]
     excess = [r["rmse_away"] - max(GOALS["ratio"] * r["free_rmse_away"], ACC_FLOOR_CM) for r, _ in aw]
     ratios = [r["rmse_away"] / r["free_rmse_away"] for r, _ in aw if r["free_rmse_away"] > 0]
-    pairs = mirror_pairs(recs)
+    pairs, free_pairs = mirror_pairs(recs), mirror_pairs(recs, "free_rmse")
+    orig = [r for r in rows if not r["name"].endswith("-mirror")]
+    orig_ok = [r for r in orig if ok_design(r)]
     cpu = [r["cpu_s"] for r in rows if "cpu_s" in r]
     wall = [r["wall_s"] for r in rows if "wall_s" in r]
     med = statistics.median
     goal_rows = [
         ["1 no false success", "exit 0 => converged and clear (dense check)", f"{len(fs)} false successes of {len(ok)} exits 0",
          "met" if not fs else "NOT met"],
-        ["2 clear designs", ">= 98 % of scenes exit 0", f"{len(ok)}/{n} = {100 * len(ok) / max(n, 1):.1f} % (converged and clear by the dense check: {len(clear)}; pipeline raised: {len(errors)})",
+        ["2 clear designs", ">= 98 % of scenes exit 0", f"{len(ok)}/{n} = {100 * len(ok) / max(n, 1):.1f} % (originals {len(orig_ok)}/{len(orig)}, mirrors {len(ok) - len(orig_ok)}/{n - len(orig)}; converged and clear by the dense check: {len(clear)}; pipeline raised: {len(errors)})",
          "met" if len(ok) >= GOALS["clear_share"] * n else "NOT met"],
         ["3 away accuracy", "median scene: away RMSE <= max(2 x free, 0.5 mm)",
          (f"{sum(p for _, p in aw)}/{len(aw)} scenes within; median excess {_f(med(excess), '{:+.4f}')} cm; median away RMSE "
           f"{_f(med([r['rmse_away'] for r, _ in aw]))} cm vs free {_f(med([r['free_rmse_away'] for r, _ in aw]))} cm; median ratio {_f(med(ratios) if ratios else None, '{:.3g}')}")
          if aw else "no scene", ("met" if aw and med(excess) <= 0 else "NOT met")],
         ["4 mirror designs", "RMSE within 1 %", (f"{len(pairs)} pairs; difference median {100 * med([d for _, d in pairs]):.3g} %, max {100 * max(d for _, d in pairs):.3g} %; "
-                                                 f"{sum(d <= GOALS['mirror'] for _, d in pairs)}/{len(pairs)} within 1 %") if pairs else "no pairs",
+                                                 f"{sum(d <= GOALS['mirror'] for _, d in pairs)}/{len(pairs)} within 1 %; the obstacle-free designs (nlp_free) of the same pairs: "
+                                                 f"median {100 * med([d for _, d in free_pairs]):.3g} %, max {100 * max(d for _, d in free_pairs):.3g} %, "
+                                                 f"{sum(d <= GOALS['mirror'] for _, d in free_pairs)}/{len(free_pairs)} within 1 %") if pairs else "no pairs",
          ("met" if pairs and max(d for _, d in pairs) <= GOALS["mirror"] else "NOT met")],
         ["5 speed", "CPU median <= 2 s, max <= 20 s", (f"median {med(cpu):.2f} s, max {max(cpu):.2f} s CPU; wall median {med(wall):.2f} s, max {max(wall):.2f} s") if cpu else "-",
          ("met" if cpu and med(cpu) <= GOALS["cpu_median"] and max(cpu) <= GOALS["cpu_max"] else "NOT met")],
@@ -157,22 +238,43 @@ def report(recs: dict, scene_dir: Path, loads: tuple, seconds: float) -> Path:
                     _f(r["rmse"]), _f(r["rmse_away"]), _f(r["free_rmse_away"]), f"{r['away_points']}/{r['points']}",
                     f"{r['cpu_s']:.2f} ({r['wall_s']:.2f})", "; ".join(r["shortfall"]) + (" FALSE SUCCESS" if false_success(r) else "")])
     fails = [r for r in rows if not ok_design(r) or false_success(r)]
-    fail_lines = [f"- {r['name']}: " + (r["error"] if r.get("error") else f"exit {r['exit']}, {r['status']}; " + ("; ".join(r["shortfall"]) or "did not converge"))
+    fail_lines = [f"- {r['name']}: " + (r["error"] if r.get("error") else
+                                        f"exit {r['exit']}, {r['status']}; " + ("; ".join(r["shortfall"]) or "did not converge")
+                                        + f" (dense check: {'clear' if r['clear_dense'] else 'not clear'}, min gap {r['min_gap_dense']:.3f} cm, margin {r['margin']:g}; "
+                                        f"RMSE {r['rmse']:.3f} cm; {r['iterations']} iterations; CPU {r['cpu_s']:.1f} s)"
+                                        + (" FALSE SUCCESS" if false_success(r) else ""))
                   for r in sorted(fails, key=lambda r: r["name"])] or ["- none"]
     desc = (
         f"Scenes: {n} problem files made by `benchmarks/obstacle_scenes.py` (in `{scene_dir}`; its docstring has the construction: "
         "each scene's target is a shape the robot realizes exactly, pushed a few mm to cm into slots, poles, pipe bends, boxes or spheres "
         "placed so that the unpushed shape's routing clears them by margin + 0.1 cm or more; plus issue 33's slot scene; mirror images in y). "
         "Each scene through `vine_nlp.pipeline.run(load_problem(path))`, as `vine-nlp design` runs it (the default request), all in one process "
-        f"(`nice -n 5`, solver structures built on first use and reused: the first scene of each size pays the build). Load average before/after: {loads[0]} / {loads[1]}; "
-        f"total {seconds / 60:.1f} min. Clear = `obstacle_report` on the run's routing with 40 points per segment (minima refined), gap >= margin - 1e-3 D. "
+        f"(`nice -n 5`, solver structures built on first use and reused: the first scene of each size pays the build). Load average (1, 5, 15 min) before/after the run that measured "
+        f"{measured if measured is not None else 'them'} of them: {loads[0]} / {loads[1]}, {seconds / 60:.1f} min (the machine is shared: wall times are inflated, CPU times less so). Clear = `obstacle_report` on the run's routing with 40 points per segment (minima refined), gap >= margin - 1e-3 D. "
         "Away points: target points more than 3 D from every obstacle surface; the free design is the run `nlp_free` the pipeline archives beside `nlp`. "
         "CPU = `time.process_time` around the whole run (free design, planning, obstacle design, judgement); wall in parentheses."
     )
+    blocks = []
+    sfile = CACHE / "slsqp.json"
+    if sfile.exists():
+        sq = json.loads(sfile.read_text())
+        if "error" in sq:
+            blocks.append(f"SLSQP side by side ({sq['name']}): {sq['error']}")
+        else:
+            blocks.append(
+                f"Side by side on scene `{sq['name']}`: the obstacle design's first solve with rows (round 0: {sq['variables']} variables, "
+                f"{sq['rows']} rows of which {sq['equalities']} equalities; the same data, bounds and start, whose largest violation is "
+                f"{sq['start_violation']:.3g}), by IPOPT (the project's solver object, exact Hessian) and by scipy SLSQP (IPOPT's own "
+                "oracle functions nlp_grad_f and nlp_jac_g: exact gradient, dense Jacobian, ftol 1e-10, at most 500 iterations). Objective in the NLP's scaling; "
+                "violation = largest row or bound violation.\n\n"
+                + table(["solver", "status", "objective", "violation", "iterations", "CPU s", "wall s"],
+                        [[k, sq[k]["status"], f"{sq[k]['objective']:.6g}", f"{sq[k]['violation']:.3g}", sq[k]["iterations"],
+                          f"{sq[k]['cpu_s']:.2f}", f"{sq[k]['wall_s']:.2f}"] for k in ("ipopt", "slsqp")]))
     return write_report(
         "scenes", "Obstacle scenes (issue 33): random scenes with a known clear routing, through the pipeline", desc,
         table(["goal", "asks", "measured", ""], goal_rows),
         "Failing scenes (not exit 0, or a false success):\n\n" + "\n".join(fail_lines),
+        *blocks,
         table(["scene", "exit", "status", "clear", "min gap / margin (cm)", "RMSE (cm)", "away RMSE", "free away RMSE", "away pts", "CPU s (wall)", "shortfall"], per),
     )
 
@@ -184,6 +286,7 @@ def main(argv=None) -> None:
     ap.add_argument("--no-mirrors", action="store_true", help="skip the *-mirror scenes")
     ap.add_argument("--fresh", action="store_true", help="ignore the cache")
     ap.add_argument("--limit", type=int, default=None, help="at most this many scenes (originals first)")
+    ap.add_argument("--slsqp", default=None, metavar="NAME", help="also the side by side with scipy SLSQP on this scene")
     args = ap.parse_args(argv)
     if not list(args.scenes.glob("*.toml")):
         subprocess.run([sys.executable, str(ROOT / "benchmarks" / "obstacle_scenes.py"), "--out", str(args.scenes), "--mirrors"], check=True,
@@ -198,7 +301,7 @@ def main(argv=None) -> None:
     CACHE.mkdir(parents=True, exist_ok=True)
     loads0 = " ".join(f"{x:.2f}" for x in os.getloadavg())
     t0 = time.perf_counter()
-    recs = {}
+    recs, fresh = {}, 0
     for k, p in enumerate(paths, 1):
         key, cfile = _key(p), CACHE / f"{p.stem}.json"
         rec = None
@@ -206,6 +309,7 @@ def main(argv=None) -> None:
             old = json.loads(cfile.read_text())
             rec = old if old.get("key") == key else None
         cached = rec is not None
+        fresh += not cached
         if rec is None:
             rec = measure(p) | {"key": key}
             cfile.write_text(json.dumps(rec, indent=1))
@@ -214,8 +318,17 @@ def main(argv=None) -> None:
                 f"exit {rec['exit']} {rec['status']} clear {rec['clear_dense']} gap {rec['min_gap_dense']:.3f}/{rec['margin']:g} "
                 f"rmse {rec['rmse']:.4f} away {rec['rmse_away']:.4f} (free {rec['free_rmse_away']:.4f}) cpu {rec['cpu_s']:.2f} s wall {rec['wall_s']:.2f} s")
         print(f"[{k}/{len(paths)}] {p.stem}: {line}{' (cached)' if cached else ''}", flush=True)
+    if args.slsqp:
+        sq = slsqp_side_by_side(args.scenes / f"{args.slsqp}.toml")
+        (CACHE / "slsqp.json").write_text(json.dumps(sq, indent=1))
+        print("slsqp:", json.dumps(sq), flush=True)
     loads1 = " ".join(f"{x:.2f}" for x in os.getloadavg())
-    out = report(recs, args.scenes.relative_to(ROOT) if args.scenes.is_relative_to(ROOT) else args.scenes, (loads0, loads1), time.perf_counter() - t0)
+    runfile = CACHE / "run.json"  # the load and duration of the last run that measured scenes (not of a run from the cache)
+    if fresh or not runfile.exists():
+        runfile.write_text(json.dumps({"loads": [loads0, loads1], "seconds": time.perf_counter() - t0, "measured": fresh}))
+    run_info = json.loads(runfile.read_text())
+    out = report(recs, args.scenes.relative_to(ROOT) if args.scenes.is_relative_to(ROOT) else args.scenes, tuple(run_info["loads"]),
+                 run_info["seconds"], run_info.get("measured"))
     print(out.read_text().split("Failing scenes")[0][-3000:])
 
 
