@@ -14,8 +14,10 @@ planning and the obstacle design ``nlp`` together; wall time too). Goals:
 5. Speed with planning included: median scene <= 2 s CPU, slowest <= 20 s.
 
 Resumable: one JSON per scene under benchmarks/.cache/scenes (keyed by the scene file's text; --fresh
-ignores it). Writes results/benchmarks/scenes.md.
-Run: PYTHONPATH=src nice -n 5 python3 benchmarks/bench_scenes.py [--scenes DIR] [--only NAME ...] [--no-mirrors]
+ignores it). Records of an earlier run moved to benchmarks/.cache/scenes-cold (say, the first run on a cold
+cache of compiled NLP functions) are shown beside this run's. ``--slsqp NAME``: also scipy SLSQP side by side
+with IPOPT on that scene's first solve with obstacle rows. Writes results/benchmarks/scenes.md.
+Run: PYTHONPATH=src nice -n 5 python3 benchmarks/bench_scenes.py [--scenes DIR] [--only NAME ...] [--no-mirrors] [--slsqp NAME]
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ import numpy as np
 from common import ROOT, table, write_report
 
 CACHE = ROOT / "benchmarks" / ".cache" / "scenes"
+COLD = ROOT / "benchmarks" / ".cache" / "scenes-cold"  # an earlier run's records, on a cold cache of compiled functions (if kept there)
 AWAY = 3.0  # target points farther than this many D from every obstacle surface
 ACC_FLOOR_CM = 0.05  # 0.5 mm
 GOALS = {"clear_share": 0.98, "ratio": 2.0, "mirror": 0.01, "cpu_median": 2.0, "cpu_max": 20.0}
@@ -157,6 +160,15 @@ def slsqp_side_by_side(path: Path, max_iter: int = 500) -> dict:
     return out
 
 
+def _records(d: Path) -> dict:
+    out = {}
+    for f in sorted(d.glob("*.json")) if d.is_dir() else ():
+        rec = json.loads(f.read_text())
+        if "name" in rec and "key" in rec:
+            out[rec["name"]] = rec
+    return out
+
+
 def _key(path: Path) -> str:
     h = hashlib.sha1(path.read_bytes())
     csv = path.with_suffix(".csv")
@@ -195,7 +207,24 @@ def _f(x, fmt="{:.4g}"):
     return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else fmt.format(x)
 
 
-def report(recs: dict, scene_dir: Path, loads: tuple, seconds: float, measured: int | None = None) -> Path:
+def cold_block(recs: dict, cold: dict) -> str:
+    """This run beside an earlier one with a cold cache of compiled NLP functions (benchmarks/.cache/scenes-cold)."""
+    both = [n for n in recs if n in cold and "cpu_s" in recs[n] and "cpu_s" in cold[n]]
+    if not both:
+        return ""
+    med = statistics.median
+    diff = [n for n in both if recs[n]["exit"] != cold[n]["exit"] or abs(recs[n]["rmse"] - cold[n]["rmse"]) > 1e-6 * max(recs[n]["rmse"], 1e-12)]
+    cpu = [cold[n]["cpu_s"] for n in both]
+    ok = sum(cold[n]["exit"] == 0 for n in both)
+    lines = [f"- {n}: exit {cold[n]['exit']} -> {recs[n]['exit']}, RMSE {cold[n]['rmse']:.4g} -> {recs[n]['rmse']:.4g} cm" for n in sorted(diff)]
+    return (f"The same {len(both)} scenes measured before on a cold cache of compiled NLP functions (the first run on this machine of many of "
+            "these NLP structures: they ran interpreted while compiled in the background, the compilers' CPU not counted; what a user meets "
+            f"on a first run): CPU median {med(cpu):.2f} s, max {max(cpu):.2f} s (wall median {med([cold[n]['wall_s'] for n in both]):.2f} s); "
+            f"exit 0 on {ok}/{len(both)}; scenes whose exit or RMSE differ between the two runs: {len(diff)}"
+            + (":\n\n" + "\n".join(lines) if lines else "."))
+
+
+def report(recs: dict, scene_dir: Path, loads: tuple, seconds: float, measured: int | None = None, cold: dict | None = None) -> Path:
     rows = list(recs.values())
     n = len(rows)
     errors = [r for r in rows if r.get("error")]
@@ -254,7 +283,7 @@ def report(recs: dict, scene_dir: Path, loads: tuple, seconds: float, measured: 
         "Away points: target points more than 3 D from every obstacle surface; the free design is the run `nlp_free` the pipeline archives beside `nlp`. "
         "CPU = `time.process_time` around the whole run (free design, planning, obstacle design, judgement); wall in parentheses."
     )
-    blocks = []
+    blocks = [b for b in [cold_block(recs, cold or {})] if b]
     sfile = CACHE / "slsqp.json"
     if sfile.exists():
         sq = json.loads(sfile.read_text())
@@ -328,7 +357,7 @@ def main(argv=None) -> None:
         runfile.write_text(json.dumps({"loads": [loads0, loads1], "seconds": time.perf_counter() - t0, "measured": fresh}))
     run_info = json.loads(runfile.read_text())
     out = report(recs, args.scenes.relative_to(ROOT) if args.scenes.is_relative_to(ROOT) else args.scenes, tuple(run_info["loads"]),
-                 run_info["seconds"], run_info.get("measured"))
+                 run_info["seconds"], run_info.get("measured"), _records(COLD))
     print(out.read_text().split("Failing scenes")[0][-3000:])
 
 
