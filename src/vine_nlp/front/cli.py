@@ -151,7 +151,6 @@ def _request(args, pf, methods):
 
 def cmd_solve(args) -> int:
     """forward, design, compare, fit: problem -> pipeline -> archive, lines, figure; the exit status of the outcome."""
-    from vine_nlp.front.figures import draw
     from vine_nlp.front.reports import comparison_table, outcome_lines
     from vine_nlp.pipeline import run  # CasADi loads when a command solves
 
@@ -176,6 +175,8 @@ def cmd_solve(args) -> int:
     for line in outcome.shortfalls():
         print(f"{pf.name}: {line}", file=sys.stderr)
     if figures:
+        from vine_nlp.front.figures import draw  # matplotlib loads only for a figure (half a second)
+
         draw(out, figures[0])
         print(f"figure -> {figures[0]}")
     if len(figures) > 1:
