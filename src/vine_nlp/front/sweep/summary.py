@@ -168,7 +168,7 @@ def cells(result) -> dict:
         "max_error": float(m["max_error"]) if "max_error" in m else None,
         "solve_time_s": float(result.solve_time_s),
         "iterations": int(result.iterations),
-        "shortfall": "; ".join(getattr(result, "shortfall", ())),  # the hard requirements a run misses
+        "shortfall": "; ".join(result.shortfall),  # the hard requirements a run misses
     }
 
 

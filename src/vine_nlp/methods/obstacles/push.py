@@ -101,8 +101,8 @@ def pushed_target(target: np.ndarray, obstacles, need: float, passes: int = PUSH
 
     def tmax(ob):  # no push goes farther than across the target and the obstacle's box (a plane's is unbounded)
         box = ob.bounds()
-        size = float(np.linalg.norm(np.subtract(box[1], box[0]))) if box is not None else np.inf
-        return span + (size if np.isfinite(size) else span) + 2 * need
+        size = float(np.linalg.norm(np.subtract(box[1], box[0]))) if box is not None else span
+        return span + size + 2 * need
 
     tan = np.gradient(p, axis=0)
     tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-300)
