@@ -5,7 +5,10 @@ the rows from the pushed start's chain (``push``), check with the report (analys
 20 points per segment, exact mesh distances, refined minima), refresh the plan, re-solve warm; until the
 report is clear or the rounds are done (``drive.refine`` with the rule :class:`Rounds`). A re-solve before
 the last round stops after settings.ROUND_MAX_ITER iterations and the next round goes on from where it
-stopped, with fresh active sets; the first solve is not cut (from the pushed start it may legitimately need
+stopped, with fresh active sets; a re-solve with the same rows as the round before starts warm (its answer's
+multipliers, IPOPT's small first barrier: a cold start's barrier pushed a converged design that missed the
+margin by 0.5 mm far off, and the capped re-solves never converged again), and where the warm start fails
+(the raise or the new active set violates rows at the start) the same start is solved cold; the first solve is not cut (from the pushed start it may legitimately need
 more). The rows' length bounds make room for a segment the pushed start's detour lengthened past its bound
 (a start outside the bounds is moved inside by IPOPT, its chain torn apart).
 
@@ -55,9 +58,23 @@ class Rounds:
     def solve(self, x, round, last):
         if round:
             self.data = self.plan.data(self.routing)
-        solver = self.built = self.solver(round, last)
-        x, status, st = solver.solve(x, solver.pack_params(self.params | self.data), *self.plan.trust(solver, x, *self.bounds))
-        return x, self.result(solver, x, status, st)
+        solver = self.solver(round, last, round > 0)
+        duals = self.duals if round and len(self.duals[1]) == len(solver.lbg) else None
+        if round and duals is None:  # new slots: rows the last answer has no multipliers for, a cold start
+            solver = self.solver(round, last, False)
+        self.built = solver
+        zero = (np.zeros(len(x)), np.zeros(len(solver.lbg)))
+        p, bounds = solver.pack_params(self.params | self.data), self.plan.trust(solver, x, *self.bounds)
+        x1, status, st = solver.solve(x, p, *bounds, duals=duals if duals is not None else zero)
+        if duals is not None and status not in ("optimal", "max_iter"):
+            # the warm start failed (rows the raise or the new active set violate at the start): cold, from the same x
+            solver = self.built = self.solver(round, last, False)
+            x1, status, st1 = solver.solve(x, p, *bounds, duals=zero)
+            for key in ("iterations", "solve_time_s", "ipopt_time_s"):
+                st1[key] += st[key]
+            st = st1
+        self.duals = st.pop("duals", zero)
+        return x1, self.result(solver, x1, status, st)
 
     def judge(self, res):
         rep = self.plan.report(res.routing)
@@ -107,8 +124,9 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
     params["cells"] = _weigh_blocked(problem, pairing, params["cells"], factor, ramp)
     rounds = max(rounds, settings.MESH_ROUNDS) if plan.has_mesh else rounds
 
-    def solver(round, last):  # cached per spec: new only when the slots grew; a re-solve before the last is cut
-        return extended_solver(problem, pairing, (plan.term,), plan.extra, settings.ROUND_MAX_ITER if 0 < round and not last else None)
+    def solver(round, last, warm=False):  # cached per spec: new only when the slots grew; a re-solve before the last is cut
+        return extended_solver(problem, pairing, (plan.term,), plan.extra, settings.ROUND_MAX_ITER if 0 < round and not last else None,
+                               warm=warm)
 
     def result(solver, x, status, st):
         return result_of(problem, pairing, solver, x, status, st, R0g, METHOD)
