@@ -49,22 +49,29 @@ class Rounds:
     last)``: the NLP for the plan's current slots; ``data``: the rows' data for ``routing``, the first round's),
     judge by the report, refresh the plan (plan.next_round). ``params``: the formulation's data beside the
     rows'; ``bounds``: (lbx, ubx); ``result(solver, x, status, st)``: a round's Result; ``stop_at_cap``: a
-    solve that reaches its iteration limit ends the loop (a tip start left for the next)."""
+    solve that reaches its iteration limit ends the loop (a tip start left for the next); ``warm``: a re-solve
+    with the rows of the round before starts from its answer's multipliers (``solver(round, last, warm)``;
+    module docstring)."""
 
-    def __init__(self, plan: Plan, routing, data: dict, solver, params: dict, bounds: tuple, result, stop_at_cap: bool = False):
+    def __init__(self, plan: Plan, routing, data: dict, solver, params: dict, bounds: tuple, result, stop_at_cap: bool = False,
+                 warm: bool = False):
         self.plan, self.routing, self.data, self.solver, self.params, self.bounds = plan, routing, data, solver, params, bounds
-        self.result, self.stop_at_cap = result, stop_at_cap
+        self.result, self.stop_at_cap, self.warm = result, stop_at_cap, warm
 
     def solve(self, x, round, last):
         if round:
             self.data = self.plan.data(self.routing)
-        solver = self.solver(round, last, round > 0)
-        duals = self.duals if round and len(self.duals[1]) == len(solver.lbg) else None
-        if round and duals is None:  # new slots: rows the last answer has no multipliers for, a cold start
+        warm = self.warm and round > 0
+        solver = self.solver(round, last, True) if warm else self.solver(round, last)
+        duals = self.duals if warm and len(self.duals[1]) == len(solver.lbg) else None
+        if warm and duals is None:  # new slots: rows the last answer has no multipliers for, a cold start
             solver = self.solver(round, last, False)
         self.built = solver
         zero = (np.zeros(len(x)), np.zeros(len(solver.lbg)))
         p, bounds = solver.pack_params(self.params | self.data), self.plan.trust(solver, x, *self.bounds)
+        if not self.warm:
+            x1, status, st = solver.solve(x, p, *bounds)
+            return x1, self.result(solver, x1, status, st)
         x1, status, st = solver.solve(x, p, *bounds, duals=duals if duals is not None else zero)
         if duals is not None and status not in ("optimal", "max_iter"):
             # the warm start failed (rows the raise or the new active set violate at the start): cold, from the same x
@@ -139,7 +146,7 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
     dl0 = routing.length / D
     bounds = first_solver.bounds(theta_b, lam_b, (dl_lo, np.where(dl0 > dl_hi, LENGTH_SLACK * dl0, dl_hi)))
     x = plan.fill_extra(first_solver, start_x(first_solver, chain_guess(problem, routing), D, "chain"), routing)
-    found = drive.refine(Rounds(plan, routing, data, solver, params, bounds, result), rounds, x, stats)
+    found = drive.refine(Rounds(plan, routing, data, solver, params, bounds, result, warm=True), rounds, x, stats)
     best, rep = stats.stamp(found.best), found.verdict.report
     best.metrics.update(obstacle_stats(rep))
     best.stats.update(stats0 | {"obstacle_rounds": found.rounds, "obstacle_clear": bool(rep["clear"]),
