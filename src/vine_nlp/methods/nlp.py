@@ -45,12 +45,14 @@ def nlp_spec(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: flo
                 hessian, Settings(max_iter, tol, warm=warm, guess=guess, hard=hard))
 
 
-def extended_solver(problem: DesignProblem, pairing: Pairing, terms: tuple, extra: int = 0, max_iter: int | None = None):
+def extended_solver(problem: DesignProblem, pairing: Pairing, terms: tuple, extra: int = 0, max_iter: int | None = None,
+                    warm: bool = False):
     """The plain NLP of ``problem`` plus ``terms`` with hard rows and ``extra`` variables per stage, exact Hessian
-    (clearance, robust, obstacles); ``max_iter``: a cap below ``options.max_iter``."""
+    (clearance, robust, obstacles); ``max_iter``: a cap below ``options.max_iter``; ``warm``: a start near the answer."""
     o = problem.options
     max_iter = o.max_iter if max_iter is None else min(o.max_iter, max_iter)
-    return _get(nlp_spec(pairing.segments, pairing.n, problem.actuator.shared_lambda, max_iter, o.tol, terms=terms, hard=True, extra=extra))
+    return _get(nlp_spec(pairing.segments, pairing.n, problem.actuator.shared_lambda, max_iter, o.tol, warm=warm, terms=terms, hard=True,
+                         extra=extra))
 
 
 def get_solver(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False, hessian: str = "exact"):

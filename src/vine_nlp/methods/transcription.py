@@ -483,10 +483,11 @@ class Solver:
     def terms(self, x, p) -> dict:
         return {k: float(v) for k, v in zip(self.term_names, self._terms(x, p))}
 
-    def solve(self, x0, p, lbx, ubx, lbg=None, ubg=None, multipliers: bool = False) -> tuple:
+    def solve(self, x0, p, lbx, ubx, lbg=None, ubg=None, multipliers: bool = False, duals: tuple | None = None) -> tuple:
         """One solve, IPOPT's or Fatrop's (``spec.backend``), from x0 clipped into the bounds: (x, status, stats);
         ``multipliers``: also the bound multipliers lam_x (> 0 at an active upper bound, < 0 at a lower one: minus
-        the objective's gradient where a variable is fixed). Fatrop loops without end on non-finite data: callers
+        the objective's gradient where a variable is fixed); ``duals``: (lam_x, lam_g) to start from (a warm
+        start), and stats["duals"] holds the answer's. Fatrop loops without end on non-finite data: callers
         check ``fatrop_safe`` first."""
         build = 0.0 if self._built else self.build_time_s
         self._built = True
@@ -495,7 +496,8 @@ class Solver:
         ubg = self.ubg if ubg is None else ubg
         t0 = time.perf_counter()
         try:
-            sol = interrupt.call(self.nlpsol, x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+            start = {} if duals is None else {"lam_x0": duals[0], "lam_g0": duals[1]}
+            sol = interrupt.call(self.nlpsol, x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, **start)
             st = self.nlpsol.stats()
         except RuntimeError:
             if self.spec.backend != "fatrop":
@@ -523,6 +525,8 @@ class Solver:
             "max_constraint_violation": viol,
             "hessian": self.spec.hessian,
         } | {f"objective_{k}": v for k, v in self.terms(x, p).items()}
+        if duals is not None and "lam_g" in sol:
+            stats["duals"] = (np.array(sol["lam_x"]).ravel(), np.array(sol["lam_g"]).ravel())
         return (x, status, stats, np.array(sol.get("lam_x", np.zeros(x.size))).ravel()) if multipliers else (x, status, stats)
 
 

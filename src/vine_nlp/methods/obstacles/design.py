@@ -5,7 +5,10 @@ the rows from the pushed start's chain (``push``), check with the report (analys
 20 points per segment, exact mesh distances, refined minima), refresh the plan, re-solve warm; until the
 report is clear or the rounds are done (``drive.refine`` with the rule :class:`Rounds`). A re-solve before
 the last round stops after settings.ROUND_MAX_ITER iterations and the next round goes on from where it
-stopped, with fresh active sets; the first solve is not cut (from the pushed start it may legitimately need
+stopped, with fresh active sets; a re-solve with the same rows as the round before starts warm (its answer's
+multipliers, IPOPT's small first barrier: a cold start's barrier pushed a converged design that missed the
+margin by 0.5 mm far off, and the capped re-solves never converged again), and where the warm start fails
+(the raise or the new active set violates rows at the start) the same start is solved cold; the first solve is not cut (from the pushed start it may legitimately need
 more). The rows' length bounds make room for a segment the pushed start's detour lengthened past its bound
 (a start outside the bounds is moved inside by IPOPT, its chain torn apart).
 
@@ -46,18 +49,42 @@ class Rounds:
     last)``: the NLP for the plan's current slots; ``data``: the rows' data for ``routing``, the first round's),
     judge by the report, refresh the plan (plan.next_round). ``params``: the formulation's data beside the
     rows'; ``bounds``: (lbx, ubx); ``result(solver, x, status, st)``: a round's Result; ``stop_at_cap``: a
-    solve that reaches its iteration limit ends the loop (a tip start left for the next)."""
+    solve that reaches its iteration limit ends the loop (a tip start left for the next); ``warm``: a re-solve
+    with the rows of the round before starts from its answer's multipliers (``solver(round, last, warm)``;
+    module docstring)."""
 
-    def __init__(self, plan: Plan, routing, data: dict, solver, params: dict, bounds: tuple, result, stop_at_cap: bool = False):
+    def __init__(self, plan: Plan, routing, data: dict, solver, params: dict, bounds: tuple, result, stop_at_cap: bool = False,
+                 warm: bool = False):
         self.plan, self.routing, self.data, self.solver, self.params, self.bounds = plan, routing, data, solver, params, bounds
-        self.result, self.stop_at_cap = result, stop_at_cap
+        self.result, self.stop_at_cap, self.warm = result, stop_at_cap, warm
 
     def solve(self, x, round, last):
         if round:
             self.data = self.plan.data(self.routing)
-        solver = self.built = self.solver(round, last)
-        x, status, st = solver.solve(x, solver.pack_params(self.params | self.data), *self.plan.trust(solver, x, *self.bounds))
-        return x, self.result(solver, x, status, st)
+        warm = self.warm and round > 0
+        solver = self.solver(round, last, True) if warm else self.solver(round, last)
+        duals = self.duals if warm and len(self.duals[1]) == len(solver.lbg) else None
+        if warm and duals is None:  # new slots: rows the last answer has no multipliers for, a cold start
+            solver = self.solver(round, last, False)
+        self.built = solver
+        zero = (np.zeros(len(x)), np.zeros(len(solver.lbg)))
+        p, bounds = solver.pack_params(self.params | self.data), self.plan.trust(solver, x, *self.bounds)
+        if not self.warm:
+            x1, status, st = solver.solve(x, p, *bounds)
+            return x1, self.result(solver, x1, status, st)
+        x1, status, st = solver.solve(x, p, *bounds, duals=duals if duals is not None else zero)
+        if duals is not None and status not in ("optimal", "max_iter"):
+            # the warm start failed (rows the raise or the new active set violate at the start): cold, from the same x
+            solver = self.built = self.solver(round, last, False)
+            x1, status, st1 = solver.solve(x, p, *bounds, duals=zero)
+            for key in ("iterations", "solve_time_s", "ipopt_time_s"):
+                st1[key] += st[key]
+            st = st1
+        # only a converged answer's multipliers start the next round (from a capped solve's, the warm re-solves
+        # wandered off: a box scene's RMSE 0.4 -> 94 cm)
+        duals = st.pop("duals", zero)
+        self.duals = duals if status == "optimal" else (zero[0], np.zeros(0))
+        return x1, self.result(solver, x1, status, st)
 
     def judge(self, res):
         rep = self.plan.report(res.routing)
@@ -107,8 +134,9 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
     params["cells"] = _weigh_blocked(problem, pairing, params["cells"], factor, ramp)
     rounds = max(rounds, settings.MESH_ROUNDS) if plan.has_mesh else rounds
 
-    def solver(round, last):  # cached per spec: new only when the slots grew; a re-solve before the last is cut
-        return extended_solver(problem, pairing, (plan.term,), plan.extra, settings.ROUND_MAX_ITER if 0 < round and not last else None)
+    def solver(round, last, warm=False):  # cached per spec: new only when the slots grew; a re-solve before the last is cut
+        return extended_solver(problem, pairing, (plan.term,), plan.extra, settings.ROUND_MAX_ITER if 0 < round and not last else None,
+                               warm=warm)
 
     def result(solver, x, status, st):
         return result_of(problem, pairing, solver, x, status, st, R0g, METHOD)
@@ -121,7 +149,7 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
     dl0 = routing.length / D
     bounds = first_solver.bounds(theta_b, lam_b, (dl_lo, np.where(dl0 > dl_hi, LENGTH_SLACK * dl0, dl_hi)))
     x = plan.fill_extra(first_solver, start_x(first_solver, chain_guess(problem, routing), D, "chain"), routing)
-    found = drive.refine(Rounds(plan, routing, data, solver, params, bounds, result), rounds, x, stats)
+    found = drive.refine(Rounds(plan, routing, data, solver, params, bounds, result, warm=True), rounds, x, stats)
     best, rep = stats.stamp(found.best), found.verdict.report
     best.metrics.update(obstacle_stats(rep))
     best.stats.update(stats0 | {"obstacle_rounds": found.rounds, "obstacle_clear": bool(rep["clear"]),

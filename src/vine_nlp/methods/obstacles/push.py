@@ -63,6 +63,32 @@ def _march(obstacle, p, w, need: float, tmax: float) -> np.ndarray:
     return np.minimum(t, tmax)
 
 
+def _across(p: np.ndarray, i0: int, i1: int) -> np.ndarray:
+    """PUSH_DIRECTIONS unit directions across the chord of the run p[i0:i1] (from the point before it to the
+    point after it), evenly round it: a set that a mirror image of the run maps onto itself."""
+    c = p[min(i1, len(p) - 1)] - p[max(i0 - 1, 0)]
+    c /= max(float(np.linalg.norm(c)), 1e-300)
+    e1 = np.cross(c, [1.0, 0.0, 0.0] if abs(c[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    ang = 2 * np.pi * np.arange(PUSH_DIRECTIONS) / PUSH_DIRECTIONS
+    return np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * np.cross(c, e1)
+
+
+def _fewer_push(obstacle, q: np.ndarray, own: np.ndarray, need: float, tmax: float) -> np.ndarray:
+    """The directions that push the run ``q`` out of ``obstacle`` least in all (the sum of :func:`_march`):
+    each point along its ``own`` direction, or ONE direction across the run's chord (:func:`_across`) for
+    all. The side of the obstacle is chosen by geometry, the shortest way round: a run beside a slot's wall
+    whose end points' outward directions point round the wall's far edge (their gradient off the wall's end
+    faces, the target's tangent taken out) goes back into the slot as its middle does, not 20 cm round."""
+    n = len(q)
+    W = _across(np.vstack([q[:1], q, q[-1:]]), 1, n + 1)
+    t = _march(obstacle, np.tile(q, (PUSH_DIRECTIONS, 1)), np.repeat(W, n, axis=0), need, tmax).reshape(PUSH_DIRECTIONS, n)
+    k = int(np.argmin(t.sum(axis=1)))
+    if t[k].sum() < _march(obstacle, q, np.ascontiguousarray(own), need, tmax).sum():
+        return np.broadcast_to(W[k], q.shape)
+    return own
+
+
 def _push_mesh(p: np.ndarray, mesh: Mesh, d: np.ndarray, need: float) -> np.ndarray:
     """Every run of points closer than ``need`` to ``mesh`` (``d``: their signed distances) moved out along
     ONE direction across the run's chord: of PUSH_DIRECTIONS directions around it, the one whose pushes
@@ -73,12 +99,7 @@ def _push_mesh(p: np.ndarray, mesh: Mesh, d: np.ndarray, need: float) -> np.ndar
     tmax = float(np.linalg.norm(hi - lo)) + 2 * need
     m = np.concatenate([[False], d < need, [False]]).astype(int)
     for i0, i1 in zip(np.flatnonzero(np.diff(m) == 1), np.flatnonzero(np.diff(m) == -1)):
-        c = p[min(i1, len(p) - 1)] - p[max(i0 - 1, 0)]
-        c /= max(float(np.linalg.norm(c)), 1e-300)
-        e1 = np.cross(c, [1.0, 0.0, 0.0] if abs(c[0]) < 0.9 else [0.0, 1.0, 0.0])
-        e1 /= np.linalg.norm(e1)
-        ang = 2 * np.pi * np.arange(PUSH_DIRECTIONS) / PUSH_DIRECTIONS
-        W = np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * np.cross(c, e1)
+        W = _across(p, i0, i1)
         probe = p[np.unique(np.linspace(i0, i1 - 1, PUSH_PROBES).round().astype(int))]
         n = len(probe)
         t = _march(mesh, np.tile(probe, (PUSH_DIRECTIONS, 1)), np.repeat(W, n, axis=0), need, tmax).reshape(PUSH_DIRECTIONS, n)
@@ -132,8 +153,9 @@ def pushed_target(target: np.ndarray, obstacles, need: float, passes: int = PUSH
                 n = float(np.linalg.norm(w))
                 if n >= 0.5 * float(gn.mean()) and n > 1e-12:  # a pass through the obstacle: all to one side
                     dirs = np.broadcast_to(w / n, g[run].shape)
-                elif np.all(gn > 1e-12):  # a run along the obstacle (a helix round a cylinder): each point outward
-                    dirs = g[run] / gn[:, None]
+                elif np.all(gn > 1e-12):  # a run along the obstacle (a helix round a cylinder): each point outward,
+                    # unless one side pushes less in all (a run beside a wall whose ends point round its far edge)
+                    dirs = _fewer_push(ob, p[run], g[run] / gn[:, None], need, tmax(ob))
                 else:  # dead center: any side across the tangent
                     w = np.cross(tan[i0], [0.0, 0.0, 1.0] if abs(tan[i0, 2]) < 0.9 else [1.0, 0.0, 0.0])
                     dirs = np.broadcast_to(w / np.linalg.norm(w), g[run].shape)
