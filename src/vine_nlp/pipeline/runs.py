@@ -29,7 +29,7 @@ from vine_nlp.analysis.obstacles import obstacle_report
 from vine_nlp.io.archive import Archive, write_archive
 from vine_nlp.io.formulations import write_multishape_archive, write_tip_archive
 from vine_nlp.io.problems import ProblemFile
-from vine_nlp.methods import blas
+from vine_nlp.methods import blas, mirror
 from vine_nlp.methods.buildable import design_buildable
 from vine_nlp.methods.clearance import design_with_clearance
 from vine_nlp.methods.common import evaluate, pair_points, run_forward
@@ -117,6 +117,17 @@ class Outcome:
 
 
 def _design(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, dict, dict]:
+    """The design runs, in the handedness the problem's geometry picks (methods.mirror): a problem of the
+    other one is designed as its mirror image and every run mirrored back, so that a problem and its mirror
+    image get mirror-image designs (a calibrated problem as given: its systematic errors have a side)."""
+    if problem.calibration is None and mirror.handedness(problem) < 0:
+        warm = None if rq.warm is None else mirror.mirrored_routing(rq.warm)
+        runs, decisive, extra, details = _design_as_given(mirror.mirrored_problem(problem), dataclasses.replace(rq, warm=warm))
+        return {name: mirror.mirrored_result(r) for name, r in runs.items()}, decisive, extra, details
+    return _design_as_given(problem, rq)
+
+
+def _design_as_given(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, dict, dict]:
     methods = rq.methods or (problem.options.method,)
     runs = {}
     for m in methods:
