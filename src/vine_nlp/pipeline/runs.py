@@ -29,7 +29,7 @@ from vine_nlp.analysis.obstacles import obstacle_report
 from vine_nlp.io.archive import Archive, write_archive
 from vine_nlp.io.formulations import write_multishape_archive, write_tip_archive
 from vine_nlp.io.problems import ProblemFile
-from vine_nlp.methods import blas
+from vine_nlp.methods import blas, mirror
 from vine_nlp.methods.buildable import design_buildable
 from vine_nlp.methods.clearance import design_with_clearance
 from vine_nlp.methods.common import evaluate, pair_points, run_forward
@@ -117,6 +117,49 @@ class Outcome:
 
 
 def _design(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, dict, dict]:
+    """The design runs, in the handedness the problem's geometry picks (methods.mirror): a problem of the
+    other one is designed as its mirror image and every run mirrored back, so that a problem and its mirror
+    image get mirror-image designs (a calibrated problem as given: its systematic errors have a side). Among
+    obstacles, where a decisive run of that handedness is not ok (not converged or not clear), the other
+    handedness is designed too and the better kept (:func:`_better`): both images of a scene try the same two."""
+    if problem.calibration is not None:
+        return _design_as_given(problem, rq)
+    flip = mirror.handedness(problem) < 0
+    first = _design_in(problem, rq, flip)
+    if not problem.obstacles or _all_ok(problem, first):
+        return first
+    second = _design_in(problem, rq, not flip)
+    # the canonical handedness's try first: a tie keeps it
+    tries = (first, second) if not flip else (second, first)
+    best = tries[min((0, 1), key=lambda k: _better(problem, tries[k]))]
+    for r in best[0].values():
+        r.stats["handedness_tries"] = 2
+    return best
+
+
+def _design_in(problem: DesignProblem, rq: Request, flip: bool) -> tuple[dict, tuple, dict, dict]:
+    """The design runs of ``problem`` (``flip``: designed as its mirror image, every run mirrored back)."""
+    if not flip:
+        return _design_as_given(problem, rq)
+    warm = None if rq.warm is None else mirror.mirrored_routing(rq.warm)
+    runs, decisive, extra, details = _design_as_given(mirror.mirrored_problem(problem), dataclasses.replace(rq, warm=warm))
+    return {name: mirror.mirrored_result(r) for name, r in runs.items()}, decisive, extra, details
+
+
+def _all_ok(problem, found) -> bool:
+    runs, decisive = found[0], found[1]
+    for name in decisive:
+        judge(problem, runs[name])
+    return all(runs[name].ok for name in decisive)
+
+
+def _better(problem, found) -> tuple:
+    """Ranks one handedness's runs: fewer decisive runs not ok, then the last decisive run's RMSE."""
+    runs, decisive = found[0], found[1]
+    return sum(not runs[n].ok for n in decisive), float(runs[decisive[-1]].metrics.get("rmse", np.inf))
+
+
+def _design_as_given(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, dict, dict]:
     methods = rq.methods or (problem.options.method,)
     runs = {}
     for m in methods:
