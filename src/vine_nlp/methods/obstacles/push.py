@@ -37,6 +37,10 @@ REPUSH = 1  # primitives: times the designed chain of the pushed target is pushe
 PUSH_DIRECTIONS = 16  # meshes: directions tried around a run's chord
 PUSH_PROBES = 9  # meshes: points of a run that choose its direction
 MARCH_STEPS = 80  # sphere-tracing steps of a push, at most
+# IPOPT's tolerance for the designs of the pushed target: a start, which the rows' solve takes to the problem's
+# own tolerance; at the problem's 1e-8 these designs crawled through their last digits on the pushed target's
+# corners and took half of a typical scene's time ("Obstacle scenes")
+PUSH_TOL = 1e-4
 
 
 def push_need(plan: Plan) -> float:
@@ -170,7 +174,8 @@ def pushed_target(target: np.ndarray, obstacles, need: float, passes: int = PUSH
 
 def pushed_start(problem: DesignProblem, plan: Plan) -> Routing:
     """A start around the obstacles: the plain design of the pushed target (:func:`pushed_target`, center
-    distance D/2 + margin + PUSH_EXTRA D, MESH_PUSH_EXTRA with a mesh) from its own geometric guess; without
+    distance D/2 + margin + PUSH_EXTRA D, MESH_PUSH_EXTRA with a mesh) from its own geometric guess, to
+    PUSH_TOL; without
     a mesh, where it does not clear, the plain design of its own chain pushed out (REPUSH times); a
     function of the problem alone (module docstring, "Start")."""
     need = push_need(plan)
@@ -178,6 +183,7 @@ def pushed_start(problem: DesignProblem, plan: Plan) -> Routing:
     # the exact Hessian from the start: Gauss-Newton does not converge on a pushed target's corners, and
     # "auto" then solves the same start again with it (the same design, ~100 Gauss-Newton iterations later)
     options = dataclasses.replace(problem.options, hessian="exact") if problem.options.hessian == "auto" else problem.options
+    options = dataclasses.replace(options, tol=max(options.tol, PUSH_TOL))
     for k in range(passes + 1):
         tg = pushed_target(tg, problem.obstacles, need)
         res = solve_from(dataclasses.replace(problem, target=tg, obstacles=(), options=options), None,
