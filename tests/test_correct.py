@@ -256,6 +256,11 @@ def test_correction_figure_has_equal_axes_and_the_obstacles(setup):
         np.testing.assert_allclose(spans, spans[0], rtol=1e-12)
         np.testing.assert_allclose(a.get_box_aspect(), a.get_box_aspect()[0], rtol=1e-12)
     assert len(ax_ob.collections) == len(ax.collections) + 1
+    # the points are shown on the line they were measured on, which is drawn too: not D/2 off the center line unexplained
+    line = result.measurements[0].line
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert f"measured, {line} line" in legend
+    assert (f"as built, {line} line" in legend) == (line != "center")
 
 
 def _fails(capsys, argv, out, key):

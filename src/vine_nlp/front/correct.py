@@ -59,9 +59,13 @@ def correction_figure(result, problem, units: str = "cm"):
     lines = [problem.target, result.as_built.shape.center, result.corrected.shape.center]
     for line, style, label in zip(lines, ("k-", "C1-", "C2-"), ("target", "as built (estimate)", "corrected (predicted)")):
         ax.plot(*line.T, style, lw=1.2, label=label)
-    for k, m in enumerate(result.measurements):
-        ax.scatter(*m.points.T, s=2, color="C0", label="measured" if k == 0 else None)
-        lines.append(m.points)
+    # the points sit on the line they were measured on (outer: D/2 off the center line), so that line is drawn too
+    for name in dict.fromkeys(m.line for m in result.measurements):
+        if name != "center":
+            ax.plot(*getattr(result.as_built.shape, name).T, "C1:", lw=0.8, label=f"as built, {name} line")
+        pts = [m.points for m in result.measurements if m.line == name]
+        ax.scatter(*np.vstack(pts).T, s=2, color="C0", label=f"measured, {name} line")
+        lines.extend(pts)
     label_3d_axes(ax, units)
     equal_view_3d(ax, lines, problem.obstacles)
     ax.legend(loc="upper left", fontsize=8)
