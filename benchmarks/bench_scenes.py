@@ -180,8 +180,9 @@ def slsqp_block(recs: list) -> str:
     ok = {k: sum(r[k]["violation"] <= SLSQP_OK and (r[k]["status"] == "optimal" if k == "ipopt" else r[k]["status"].startswith("0:")) for r in done)
           for k in ("ipopt", "slsqp")}
     ratios = sorted(r["slsqp"]["cpu_s"] / max(r["ipopt"]["cpu_s"], 1e-9) for r in done)
-    head = (f"Side by side with scipy SLSQP (goal: IPOPT >= 20x faster on the set, and clear where SLSQP is not), on {len(done)} scenes: "
-            "every obstacle kind on every target (`SLSQP_SAMPLE`; SLSQP at 500 iterations takes about a minute per scene, so not all 130). "
+    head = (f"Side by side with scipy SLSQP (goal: IPOPT >= 20x faster on the set, and clear where SLSQP is not), on {len(done)} scenes "
+            f"of the {len(SLSQP_SAMPLE)} of `SLSQP_SAMPLE` (every obstacle kind on every target; SLSQP at 500 iterations takes one to five "
+            "minutes per scene, so not all 130). "
             "Each scene's obstacle design's first solve with rows (round 0 of methods.obstacles.design.Rounds: its variables, rows, bounds, "
             "data and start, captured while the pipeline runs the scene) solved again by IPOPT (the project's solver object, exact Hessian) "
             "and by SLSQP (IPOPT's own oracle functions nlp_grad_f and nlp_jac_g: exact gradient, dense Jacobian, ftol 1e-10, at most 500 "
@@ -248,15 +249,19 @@ def cold_block(recs: dict, cold: dict) -> str:
     diff = [n for n in both if recs[n]["exit"] != cold[n]["exit"] or abs(recs[n]["rmse"] - cold[n]["rmse"]) > 1e-6 * max(recs[n]["rmse"], 1e-12)]
     cpu = [cold[n]["cpu_s"] for n in both]
     ok = sum(cold[n]["exit"] == 0 for n in both)
-    lines = [f"- {n}: exit {cold[n]['exit']} -> {recs[n]['exit']}, RMSE {cold[n]['rmse']:.4g} -> {recs[n]['rmse']:.4g} cm" for n in sorted(diff)]
+    rel = {n: abs(recs[n]["rmse"] - cold[n]["rmse"]) / max(recs[n]["rmse"], cold[n]["rmse"], 1e-12) for n in both}
+    lines = [f"- {n}: exit {cold[n]['exit']} -> {recs[n]['exit']}, RMSE {cold[n]['rmse']:.4g} -> {recs[n]['rmse']:.4g} cm ({100 * rel[n]:.2g} %)"
+             for n in sorted(diff)]
     return (f"The same {len(both)} scenes measured before on a cold cache of compiled NLP functions (the first run on this machine of many of "
             "these NLP structures: they ran interpreted while compiled in the background, the compilers' CPU not counted; what a user meets "
             f"on a first run): CPU median {med(cpu):.2f} s, max {max(cpu):.2f} s (wall median {med([cold[n]['wall_s'] for n in both]):.2f} s); "
-            f"exit 0 on {ok}/{len(both)}; scenes whose exit or RMSE differ between the two runs: {len(diff)}"
+            f"exit 0 on {ok}/{len(both)}; scenes whose exit or RMSE differ between the two runs (RMSE by more than 1e-6 relative): {len(diff)}, "
+            f"by more than 0.1 %: {sum(rel[n] > 1e-3 for n in both)}, by more than 1 %: {sum(rel[n] > 1e-2 for n in both)}"
             + (":\n\n" + "\n".join(lines) if lines else "."))
 
 
-def report(recs: dict, scene_dir: Path, loads: tuple, seconds: float, measured: int | None = None, cold: dict | None = None) -> Path:
+def report(recs: dict, scene_dir: Path, loads: tuple, seconds: float, measured: int | None = None, cold: dict | None = None,
+           commit: str | None = None) -> Path:
     rows = list(recs.values())
     n = len(rows)
     errors = [r for r in rows if r.get("error")]
@@ -311,7 +316,7 @@ def report(recs: dict, scene_dir: Path, loads: tuple, seconds: float, measured: 
         "placed so that the unpushed shape's routing clears them by margin + 0.1 cm or more; plus issue 33's slot scene; mirror images in y). "
         "Each scene through `vine_nlp.pipeline.run(load_problem(path))`, as `vine-nlp design` runs it (the default request), all in one process "
         f"(`nice -n 5`, solver structures built on first use and reused: the first scene of each size pays the build). Load average (1, 5, 15 min) before/after the run that measured "
-        f"{measured if measured is not None else 'them'} of them: {loads[0]} / {loads[1]}, {seconds / 60:.1f} min (the machine is shared: wall times are inflated, CPU times less so). Clear = `obstacle_report` on the run's routing with 40 points per segment (minima refined), gap >= margin - 1e-3 D. "
+        f"{measured if measured is not None else 'them'} of them{f' (at commit {commit}; the header names the commit that wrote this report)' if commit else ''}: {loads[0]} / {loads[1]}, {seconds / 60:.1f} min (the machine is shared: wall times are inflated, CPU times less so). Clear = `obstacle_report` on the run's routing with 40 points per segment (minima refined), gap >= margin - 1e-3 D. "
         "Away points: target points more than 3 D from every obstacle surface; the free design is the run `nlp_free` the pipeline archives beside `nlp`. "
         "CPU = `time.process_time` around the whole run (free design, planning, obstacle design, judgement); wall in parentheses."
     )
@@ -381,10 +386,11 @@ def main(argv=None) -> None:
     loads1 = " ".join(f"{x:.2f}" for x in os.getloadavg())
     runfile = CACHE / "run.json"  # the load and duration of the last run that measured scenes (not of a run from the cache)
     if fresh or not runfile.exists():
-        runfile.write_text(json.dumps({"loads": [loads0, loads1], "seconds": time.perf_counter() - t0, "measured": fresh}))
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+        runfile.write_text(json.dumps({"loads": [loads0, loads1], "seconds": time.perf_counter() - t0, "measured": fresh, "commit": rev}))
     run_info = json.loads(runfile.read_text())
     out = report(recs, args.scenes.relative_to(ROOT) if args.scenes.is_relative_to(ROOT) else args.scenes, tuple(run_info["loads"]),
-                 run_info["seconds"], run_info.get("measured"), _records(COLD))
+                 run_info["seconds"], run_info.get("measured"), _records(COLD), run_info.get("commit"))
     print(out.read_text().split("Failing scenes")[0][-3000:])
 
 
