@@ -35,7 +35,7 @@ import sys
 import time
 
 import numpy as np
-from common import ROOT, table, write_report
+from common import ROOT, table, write_atomic, write_report
 
 sys.path.insert(0, str(ROOT / "tests"))  # simulated builds: the tests' helpers
 from simulate import draw_deviations, simulate_build  # noqa: E402
@@ -74,14 +74,8 @@ def design(name, kind, cache):
     r = res.routing
     d = {"theta": r.theta.tolist(), "lam": r.lam.tolist(), "length": r.length.tolist(), "initial_pose": r.initial_pose.tolist(),
          "rmse": res.metrics["rmse"]}
-    write_json(path, d)
+    write_atomic(path, json.dumps(d))
     return pb, r, d["rmse"]
-
-
-def write_json(path, obj):
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(obj))
-    os.replace(tmp, path)
 
 
 def nearest_rmse(target, r: Routing, D) -> float:
@@ -261,7 +255,7 @@ def main():
                     recs.append(json.loads(path.read_text()))
                 elif not args.report and seed % n == k:
                     recs.append(run_seed(pb, nom, seed, mm))
-                    write_json(path, recs[-1])
+                    write_atomic(path, json.dumps(recs[-1]))
                     c = recs[-1]["counts"]["200"]["routes"]
                     print(name, kind, seed, f"{mm * recs[-1]['e0'][1]:.2f} mm ->",
                           ", ".join(f"{r}: {mm * c[r]['e1'][1]:.2f} / {mm * c[r]['e2'][1]:.2f}" for r in ROUTES), flush=True)

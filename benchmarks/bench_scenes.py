@@ -35,7 +35,8 @@ import traceback
 from pathlib import Path
 
 import numpy as np
-from common import ROOT, table, write_report
+from common import ROOT, commit, table, write_atomic, write_report
+from obstacle_scenes import KINDS
 
 CACHE = ROOT / "benchmarks" / ".cache" / "scenes"
 COLD = ROOT / "benchmarks" / ".cache" / "scenes-cold"  # an earlier run's records, on a cold cache of compiled functions (if kept there)
@@ -160,9 +161,9 @@ def slsqp_side_by_side(path: Path, max_iter: int = 500) -> dict:
     return out
 
 
-# the side by side's sample of the set: every obstacle kind on every target (scenes cycle slot, pole, pipe, box, sphere)
-SLSQP_SAMPLE = tuple(f"{t}-{i:02d}-{k}" for t, i0 in (("line", 0), ("trefoil", 0), ("bezier", 5), ("hook", 5))
-                     for i, k in zip(range(i0, i0 + 5), ("slot", "pole", "pipe", "box", "sphere")[i0 % 5:] + ("slot", "pole", "pipe", "box", "sphere")[:i0 % 5]))
+# the side by side's sample of the set: every obstacle kind on every target (scene i of a target is of kind KINDS[i % 5])
+SLSQP_SAMPLE = tuple(f"{t}-{i:02d}-{KINDS[i % len(KINDS)]}" for t, i0 in (("line", 0), ("trefoil", 0), ("bezier", 5), ("hook", 5))
+                     for i in range(i0, i0 + len(KINDS)))
 SLSQP_OK = 1e-6  # a solve "keeps the rows" when its largest row or bound violation is at most this
 
 
@@ -179,7 +180,7 @@ def slsqp_block(recs: list) -> str:
     ip, sl = sum(r["ipopt"]["cpu_s"] for r in done), sum(r["slsqp"]["cpu_s"] for r in done)
     ok = {k: sum(r[k]["violation"] <= SLSQP_OK and (r[k]["status"] == "optimal" if k == "ipopt" else r[k]["status"].startswith("0:")) for r in done)
           for k in ("ipopt", "slsqp")}
-    ratios = sorted(r["slsqp"]["cpu_s"] / max(r["ipopt"]["cpu_s"], 1e-9) for r in done)
+    ratios = [r["slsqp"]["cpu_s"] / max(r["ipopt"]["cpu_s"], 1e-9) for r in done]
     head = (f"Side by side with scipy SLSQP (goal: IPOPT >= 20x faster on the set, and clear where SLSQP is not), on {len(done)} scenes "
             f"of the {len(SLSQP_SAMPLE)} of `SLSQP_SAMPLE` (every obstacle kind on every target; SLSQP at 500 iterations takes one to five "
             "minutes per scene, so not all 130). "
@@ -188,7 +189,7 @@ def slsqp_block(recs: list) -> str:
             "and by SLSQP (IPOPT's own oracle functions nlp_grad_f and nlp_jac_g: exact gradient, dense Jacobian, ftol 1e-10, at most 500 "
             f"iterations), from the same start. Objective in the NLP's scaling; violation = largest row or bound violation. Totals: IPOPT "
             f"{ip:.2f} s CPU, SLSQP {sl:.1f} s CPU: {sl / max(ip, 1e-9):.0f}x on the set (per scene: median "
-            f"{ratios[len(ratios) // 2] if ratios else float('nan'):.0f}x, least {ratios[0] if ratios else float('nan'):.0f}x). Converged with every row kept "
+            f"{statistics.median(ratios) if ratios else float('nan'):.0f}x, least {min(ratios, default=float('nan')):.0f}x). Converged with every row kept "
             f"(violation <= {SLSQP_OK:g}): IPOPT {ok['ipopt']}/{len(done)}, SLSQP {ok['slsqp']}/{len(done)}.\n\n")
     return head + table(["scene", "variables / rows", "solver", "status", "objective", "violation", "iterations / CPU s"], rows)
 
@@ -367,7 +368,7 @@ def main(argv=None) -> None:
         fresh += not cached
         if rec is None:
             rec = measure(p) | {"key": key}
-            cfile.write_text(json.dumps(rec, indent=1))
+            write_atomic(cfile, json.dumps(rec, indent=1))
         recs[p.stem] = rec
         line = (f"error {rec['error'][:100]}" if rec.get("error") else
                 f"exit {rec['exit']} {rec['status']} clear {rec['clear_dense']} gap {rec['min_gap_dense']:.3f}/{rec['margin']:g} "
@@ -381,13 +382,12 @@ def main(argv=None) -> None:
             if sfile.exists() and not args.fresh and json.loads(sfile.read_text()).get("key") == _key(path):
                 continue
             sq = slsqp_side_by_side(path) | {"key": _key(path)}
-            sfile.write_text(json.dumps(sq, indent=1))
+            write_atomic(sfile, json.dumps(sq, indent=1))
             print("slsqp:", json.dumps({k: v for k, v in sq.items() if k != "key"}), flush=True)
     loads1 = " ".join(f"{x:.2f}" for x in os.getloadavg())
     runfile = CACHE / "run.json"  # the load and duration of the last run that measured scenes (not of a run from the cache)
     if fresh or not runfile.exists():
-        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-        runfile.write_text(json.dumps({"loads": [loads0, loads1], "seconds": time.perf_counter() - t0, "measured": fresh, "commit": rev}))
+        write_atomic(runfile, json.dumps({"loads": [loads0, loads1], "seconds": time.perf_counter() - t0, "measured": fresh, "commit": commit()}))
     run_info = json.loads(runfile.read_text())
     out = report(recs, args.scenes.relative_to(ROOT) if args.scenes.is_relative_to(ROOT) else args.scenes, tuple(run_info["loads"]),
                  run_info["seconds"], run_info.get("measured"), _records(COLD), run_info.get("commit"))

@@ -23,6 +23,14 @@ SECTIONS = ROOT / "results" / "benchmarks"
 FIGURES = ROOT / "results" / "figures"
 
 
+def commit() -> str:
+    """The checkout's short commit ("?" without git)."""
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip() or "?"
+    except OSError:
+        return "?"
+
+
 def machine() -> str:
     cpu = platform.processor() or platform.machine()
     try:
@@ -41,23 +49,23 @@ def machine() -> str:
         mem = f", {kb / 2**20:.0f} GiB"
     except (OSError, StopIteration, ValueError):
         pass
-    try:
-        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    except OSError:
-        rev = "?"
     return (
         f"{cpu}, {os.cpu_count()} cores{mem}; Python {platform.python_version()}, casadi {casadi.__version__}, "
-        f"numpy {numpy.__version__}; BLAS threads {os.environ.get('OPENBLAS_NUM_THREADS', 'default')}; commit {rev}; {_dt.datetime.now(_dt.timezone.utc).isoformat(timespec='minutes')}"
+        f"numpy {numpy.__version__}; BLAS threads {os.environ.get('OPENBLAS_NUM_THREADS', 'default')}; commit {commit()}; {_dt.datetime.now(_dt.timezone.utc).isoformat(timespec='minutes')}"
     )
+
+
+def write_atomic(path: Path, text: str) -> Path:
+    """``text`` to ``path`` whole or not at all: an interrupted benchmark leaves no half-written file to trip the next run."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+    return path
 
 
 def write_section(name: str, text: str) -> Path:
     SECTIONS.mkdir(parents=True, exist_ok=True)
-    path = SECTIONS / f"{name}.md"
-    tmp = path.with_suffix(".md.tmp")
-    tmp.write_text(text.rstrip() + "\n")
-    os.replace(tmp, path)
-    return path
+    return write_atomic(SECTIONS / f"{name}.md", text.rstrip() + "\n")
 
 
 def write_report(name: str, title: str, description: str, *blocks: str) -> Path:
