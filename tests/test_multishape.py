@@ -10,7 +10,7 @@ from conftest import mutate
 from scipy.spatial.transform import Rotation
 
 from vine_nlp.errors import InputError
-from vine_nlp.front.multishape_plot import plot_multishape_file as plot_multishape
+from vine_nlp.front.figures import draw
 from vine_nlp.front.reports import run_lines
 from vine_nlp.io.archive import load_archive
 from vine_nlp.io.formulations import read_multishape_archive, write_multishape_archive
@@ -142,7 +142,7 @@ def test_archive_layout_round_trip_and_old_readers(tmp_path):
     np.testing.assert_allclose(back.levels, r.levels)
     np.testing.assert_allclose(back.shapes[1].center, r.shapes[1].center)
     assert len(tg) == 2 and back.level_metrics[1]["rmse"] == pytest.approx(r.level_metrics[1]["rmse"])
-    fig = plot_multishape(path, tmp_path / "ms.png")
+    fig = draw(path, tmp_path / "ms.png")
     assert Path(fig).stat().st_size > 10_000
     lines = run_lines("multishape", back, None, "cm")
     assert len(lines) == 3 and "level 1: lambda" in lines[2]

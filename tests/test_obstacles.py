@@ -366,7 +366,7 @@ def test_obstacle_report_after_growth_sees_the_sweep():
     assert rep["min_gap"] > 0
     assert rep["intermediate"]["worst"][0]["t"] == 0.0 and rep["min_gap_intermediate"] < 0
     assert rep["clear"] is False
-    m = obstacle_metrics(r, D, [ob], growth="after")
+    m = obstacle_metrics(rep)
     assert m["min_obstacle_gap"] == pytest.approx(rep["min_gap"]) and m["min_obstacle_gap_after"] < 0
 
 

@@ -10,7 +10,8 @@ import pytest
 from matplotlib.text import Text
 
 from vine_nlp.front import template as tpl
-from vine_nlp.front.plot import plot_archive, plot_archive_file, point_s, tube_surface
+from vine_nlp.front.figures import draw
+from vine_nlp.front.plot import plot_archive, point_s, tube_surface
 from vine_nlp.front.show import summarize
 from vine_nlp.io.archive import Archive, load_archive, write_archive
 from vine_nlp.methods.common import evaluate, pair_points, run_forward
@@ -82,7 +83,7 @@ def test_figures_render_without_warnings(archives, tmp_path, which, suffix):
     out = tmp_path / f"fig.{suffix}"
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        plot_archive_file(archives[which], out)
+        draw(archives[which], out)
     data = out.read_bytes()
     assert data.startswith(b"\x89PNG" if suffix == "png" else b"%PDF")
     assert sorted(p.name for p in tmp_path.iterdir()) == [out.name]  # no temporary file left
@@ -161,7 +162,7 @@ def test_error_is_plotted_against_tube_length(archives):
 
 def test_unknown_figure_format_is_refused(archives, tmp_path):
     with pytest.raises(ValueError, match="png"):
-        plot_archive_file(archives["forward"], tmp_path / "fig.jpg")
+        draw(archives["forward"], tmp_path / "fig.jpg")
     assert list(tmp_path.iterdir()) == []
 
 

@@ -337,14 +337,12 @@ def obstacle_report(routing: Routing, diameter: float, obstacles, growth: str = 
     return out
 
 
-def obstacle_metrics(routing: Routing, diameter: float, obstacles, growth: str = "while-actuated", margin: float = 0.0,
-                     per_segment=DEFAULT_PER_SEGMENT) -> dict:
-    """Floats for the run's metrics attributes: ``min_obstacle_gap`` (final shape, formats.md), and
-    with growth "after" also ``min_obstacle_gap_after`` (smallest over the intermediate shapes)."""
-    rep = obstacle_report(routing, diameter, obstacles, growth, margin, per_segment)
-    out = {"min_obstacle_gap": float(rep["min_gap"])}
-    if growth == "after":
-        out["min_obstacle_gap_after"] = float(rep["min_gap_intermediate"])
+def obstacle_metrics(report: dict) -> dict:
+    """The run's metrics attributes of an :func:`obstacle_report`: ``min_obstacle_gap`` (final shape,
+    formats.md), and with growth "after" also ``min_obstacle_gap_after`` (smallest over the intermediate shapes)."""
+    out = {"min_obstacle_gap": float(report["min_gap"])}
+    if report["growth"] == "after":
+        out["min_obstacle_gap_after"] = float(report["min_gap_intermediate"])
     return out
 
 

@@ -17,7 +17,7 @@ import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
 
-from vine_nlp.front.plot import PAGE_IN, STYLE, figure_format, label_3d_axes, save_figure, set_equal_3d
+from vine_nlp.front.plot import PAGE_IN, STYLE, label_3d_axes, set_equal_3d
 from vine_nlp.io.formulations import read_multishape_archive
 from vine_nlp.model.pairing import pair_points
 
@@ -98,9 +98,3 @@ def multishape_figure(a, r, targets) -> Figure:
         m = r.metrics
         fig.suptitle(f"{a.name} (multishape), D = {a.diameter:.3g} {u}: RMSE {m['rmse']:.3g} {u}, max {m['max_error']:.3g} {u}, {r.status}")
     return fig
-
-
-def plot_multishape_file(archive_path, fig_path) -> Path:
-    """Draw the multi-shape archive at ``archive_path`` into ``fig_path`` (png, pdf or svg), atomically."""
-    figure_format(fig_path)  # before any drawing
-    return save_figure(plot_multishape_figure(archive_path), fig_path)

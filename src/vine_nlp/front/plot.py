@@ -445,10 +445,3 @@ def save_figure(fig, figure_path, dpi: int = 300) -> Path:
 
             plt.close(fig)
     return Path(figure_path)
-
-
-def plot_archive_file(archive_path, figure_path):
-    """Draw the archive at ``archive_path`` into ``figure_path`` (.png or .pdf, chosen by suffix), atomically."""
-    figure_format(figure_path)  # before any drawing
-    archive = load_archive(archive_path)
-    return save_figure(plot_archive(archive, obstacles=archive.obstacles), figure_path)

@@ -183,15 +183,6 @@ def _window_solver_for(problem, n, K, first):
                              min(int(o.max_iter), WINDOW_MAX_ITER), float(o.tol))
 
 
-def _frame_at(routing: Routing, D: float, j: int):
-    """Frame T^j_w at the start of segment j of the routing (numpy)."""
-    T = np.asarray(routing.initial_pose, float)
-    if j:
-        for s in segment_transform(routing.theta[:j], routing.lam[:j], routing.length[:j], D):
-            T = T @ s
-    return T
-
-
 # ---------------------------------------------------------------- one greedy pass
 
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vine_nlp.analysis.obstacles import obstacle_report
+from vine_nlp.analysis.obstacles import obstacle_metrics, obstacle_report
 from vine_nlp.io.archive import Archive, write_archive
 from vine_nlp.io.formulations import write_multishape_archive, write_tip_archive
 from vine_nlp.io.problems import ProblemFile
@@ -270,9 +270,7 @@ def judge(problem, result: Result) -> None:
         cal = getattr(problem, "calibration", None)
         realized = realized_of(r, cal, a.lambda_min if a else 0.0) if cal is not None else r
         rep = obstacle_report(realized, problem.diameter, obstacles, problem.growth, problem.obstacle_margin)
-        result.metrics["min_obstacle_gap"] = float(rep["min_gap"])
-        if problem.growth == "after":
-            result.metrics["min_obstacle_gap_after"] = float(rep["min_gap_intermediate"])
+        result.metrics.update(obstacle_metrics(rep))
         if not rep["clear"]:
             worst = min(rep["min_gap"], rep["min_gap_intermediate"])
             short.append(f"obstacle margin not kept: min gap {worst:.4g} {problem.units} < margin {problem.obstacle_margin:g}")
