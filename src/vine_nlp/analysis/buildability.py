@@ -24,9 +24,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vine_nlp.model.chain import phi_from_theta
+from vine_nlp.model.units import MM_PER_UNIT, mm_per_unit  # noqa: F401  MM_PER_UNIT: for the importers from here
 
 MIN_FEATURE_MM = 2.0  # the template's precision: a feature printed 1:1 and cut by hand, below 2 mm, is not built to 10 %
-MM_PER_UNIT = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
 POUCH_LAMBDA_MIN = 2.0 / math.pi  # the ideal pouch motor's full contraction (a = pi / 2)
 POUCH_LENGTH_D = 1.0
 GAP_NAMES = {"tendon": ("stopper gap", "stopper"), "programmed": ("pinch", "unpinched part")}
@@ -34,7 +34,8 @@ GAP_NAMES = {"tendon": ("stopper gap", "stopper"), "programmed": ("pinch", "unpi
 
 def default_min_feature(units: str) -> float:
     """MIN_FEATURE_MM in ``units`` (0: no check, for units other than mm, cm, m, in)."""
-    return MIN_FEATURE_MM / MM_PER_UNIT[units] if units in MM_PER_UNIT else 0.0
+    mm = mm_per_unit(units)
+    return MIN_FEATURE_MM / mm if mm else 0.0
 
 
 def wrap_angle(a):

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-MM_PER_UNIT = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4, "inch": 25.4}
+from vine_nlp.model.units import mm_per_unit
+
 COLUMNS = ("segment", "s_start", "s_end", "lambda_built", "lambda_new", "theta_built_deg", "theta_new_deg",
            "stopper_built_mm", "stopper_new_mm", "stopper_change_mm", "action")
 TOL = 1e-9
@@ -32,7 +33,7 @@ def built_nominal(archive):
 
 def change_rows(archive, run: str = "corrected") -> list[dict]:
     """One dict per segment that changes (columns COLUMNS), lengths in millimetres, s in archive units."""
-    mm = MM_PER_UNIT.get(archive.units.lower())
+    mm = mm_per_unit(archive.units)
     if mm is None:
         raise ValueError(f"units {archive.units!r}: the change list needs mm, cm, m or in")
     th0, lam0, len0 = built_nominal(archive)

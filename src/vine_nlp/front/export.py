@@ -29,10 +29,11 @@ from vine_nlp.io.archive import Archive, write_atomic
 from vine_nlp.model import shape_lines
 from vine_nlp.model.chain import segment_end_samples
 from vine_nlp.model.helix import center_rates
+from vine_nlp.model.units import MM_PER_UNIT
 from vine_nlp.problem import Routing
 
 FORMATS = (".stl", ".obj", ".ply", ".glb")
-METRES_PER_UNIT = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+METRES_PER_UNIT = {u: mm / 1000 for u, mm in MM_PER_UNIT.items()}
 RING = 64
 # the faces between two rings run straight: where the center line turns by a between them, the tube loses about
 # a^2 / 8 of its volume there (a tight bend sampled at D/8 only: 0.3 %); 2 deg keeps that below 0.02 %

@@ -44,9 +44,10 @@ from vine_nlp.analysis.buildability import buildability, gap_fractions
 from vine_nlp.front.show import build_settings, source_table
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
 from vine_nlp.model.chain import phi_from_theta
+from vine_nlp.model.units import MM_PER_UNIT
 
 PAPERS_MM = {"A4": (210.0, 297.0), "Letter": (215.9, 279.4)}
-CM_PER_UNIT = {"cm": 1.0, "mm": 0.1}
+CM_PER_UNIT = {u: MM_PER_UNIT[u] / 10 for u in ("cm", "mm")}  # the units a template takes
 STOPPER_COLOR = "#1f5fbf"  # blue: stays (stopper / unpinched)
 GAP_COLOR = "#d62728"  # red: removed or pinched
 SPAM_COLOR = "#6a3d9a"

@@ -18,9 +18,8 @@ from vine_nlp.io.problems import design_problem_of
 from vine_nlp.methods.correct import ADJUST, Deviations, Measurement, combine_systematic, correct
 from vine_nlp.model.pairing import pair_points
 from vine_nlp.model.routing import MEASURED_LINES, Sigmas
+from vine_nlp.model.units import mm_per_unit
 
-# problem units per millimetre, for the default measurement sigma of 1 mm
-UNITS_PER_MM = {"mm": 1.0, "cm": 0.1, "m": 0.001, "in": 1 / 25.4, "inch": 1 / 25.4}
 PLAUSIBLE_MEDIAN = 5.0  # median distance of the measured points to the estimated line, in noise sigmas, beyond which it is not this robot
 
 
@@ -62,8 +61,8 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
     for k, (p, f) in enumerate(zip(pts, measured)):
         check_spread(f if isinstance(f, (str, Path)) else f"measured[{k}]", p, archive.diameter, MIN_MEASURED_POINTS)
     problem = design_problem_of(archive, archive_path)
-    units_per_mm = UNITS_PER_MM.get(archive.units.lower())
-    if measurement_sigma is None and units_per_mm is None:
+    mm = mm_per_unit(archive.units)  # for the default measurement sigma of 1 mm
+    if measurement_sigma is None and mm is None:
         raise InputError("command line", "--sigma-measurement", f"archive units {archive.units!r}: give the measurement sigma in them")
     if measurement_sigma is not None and not measurement_sigma > 0:
         raise InputError("command line", "--sigma-measurement", f"must be > 0, got {measurement_sigma}")
@@ -83,7 +82,7 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
     dev = state.deviation if state is not None and len(state.deviation) == 3 else None
     start = Deviations(dev["theta"], dev["lambda"], dev["length_ratio"]) if dev else None
     result = correct(problem, builds, ms, adjust=adjust, sigmas=sigmas, measurement_sigma=measurement_sigma,
-                     units_per_mm=units_per_mm or 0.1, start=start, start_systematic=state.systematic if start else None)
+                     units_per_mm=1 / (mm or 10.0), start=start, start_systematic=state.systematic if start else None)
     _check_plausible(result, new, problem.diameter, archive.units)
     settings = {"built_run": run, "adjust": ",".join(result.adjust), "recommended": result.recommended, "free_pose": bool(free_pose), "sigma_theta_rad": sigmas.theta,
                 "sigma_lambda": sigmas.lam, "sigma_length": sigmas.length, "relative_length": bool(sigmas.relative_length),

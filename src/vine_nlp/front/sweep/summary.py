@@ -9,14 +9,14 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from vine_nlp.model.units import mm_per_unit
+
 SPEC_COLUMNS = ("method", "status", "rmse", "max_error", "solve_time_s")
 EXTRA_COLUMNS = ("iterations", "units", "error")
 SUMMARY_CSV = "summary.csv"
 SUMMARY_PNG = "summary.png"
 FAILED = "failed"
 _CONVERGED = ("optimal", "acceptable")
-# Length units -> factor to millimetres, for the figure and the report.
-_TO_MM = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4}
 
 
 @dataclass
@@ -130,7 +130,7 @@ def method_stats(rows) -> dict:
 
 
 def _mm(units: str):
-    factor = _TO_MM.get(units)
+    factor = mm_per_unit(units)  # the figure and the report in millimetres
     return (factor, "mm") if factor else (1.0, units)
 
 
