@@ -117,12 +117,12 @@ DESCRIPTIONS = {
         "lambda": "w_lambda of (1/L) int (D lambda')^2 ds (>= 0).",
     },
     "routing": {
-        "length": "Total unactuated tube length L (> 0).",
-        "segment_length": "Length of each segment (the last one takes the rest) (> 0, <= length).",
+        "length": "Total unactuated tube length L (> 0); with a `segment_length` array optional, and if given their sum.",
+        "segment_length": "Length of each segment (the last one takes the rest) (> 0, <= length), or an array of one length per segment (each > 0): then M is its size.",
         "theta": "Drawn angle per segment, rad: a number, an array (one per segment) or an expression of s.",
         "theta_deg": "The same in degrees (instead of `theta`).",
         "phi": "Actuator angle around the tube at the segment ends, rad: a number, an array of M+1 values or an expression of s (instead of `theta`); with an expression theta_j = arctan((D/2) (phi(s_j+1) - phi(s_j)) / (s_j+1 - s_j)).",
-        "lambda": "Contraction ratio per segment: a number, an array or an expression of s, in (0, 1].",
+        "lambda": "Contraction ratio per segment: a number, an array (one per segment) or an expression of s, in (0, 1].",
         "initial_pose": "4 x 4 pose T^0_w of the base (a rotation and a translation; default the identity).",
     },
     "measured": {
@@ -218,7 +218,7 @@ CHOICES = {
     "SOLVERS": "`[design] solver`",
     "MEASURED_LINES": "`[measured] line`",
     "TIP_OBJECTIVES": "`[tip] objective`",
-    "_FREE_CHOICES": "entries of `[fit] free`",
+    "FREE_CHOICES": "entries of `[fit] free`",
 }
 LIMITS = {
     "MAX_TARGET_POINTS": "target points of a curve (`samples`) or a point file",

@@ -18,6 +18,7 @@ import vine_nlp as vn
 from vine_nlp.errors import InputError
 from vine_nlp.front.cli import main
 from vine_nlp.io.archive import load_archive
+from vine_nlp.io.problems import parse_problem
 
 D = 2.0
 M, N_PER = 6, 5
@@ -291,8 +292,10 @@ def test_forward_errors():
         vn.forward([0.1] * 4, [0.8] * 3, 1.0, D)
     with pytest.raises(vn.ArgumentError, match=r"^theta: \|theta\| must be < 90 deg \(segment 2: 91 deg\)$"):
         vn.forward(np.radians([0.0, 91.0]), 0.8, 1.0, D)
-    with pytest.raises(vn.ArgumentError, match=r"^length: must be > 0 \(segment 1: 0\)$"):
+    with pytest.raises(vn.ArgumentError, match=r"^length: must be > 0$"):  # a number: the problem files' reason
         vn.forward(0.1, 0.8, 0.0, D)
+    with pytest.raises(vn.ArgumentError, match=r"^length: must be > 0 \(segment 2: -1\)$"):
+        vn.forward(0.1, 0.8, [1.0, -1.0], D)
     with pytest.raises(vn.ArgumentError, match=r"^initial_pose: rotation part has det -1"):
         vn.forward(0.1, 0.8, 1.0, D, initial_pose=np.diag([1.0, 1.0, -1.0, 1.0]))
 
@@ -308,6 +311,25 @@ def test_forward_archive_round_trip(tmp_path, capsys):
     routing = tomllib.loads(a.source)["routing"]
     assert routing["length"] == pytest.approx(12.0) and routing["segment_length"] == 1.5 and routing["lambda"] == 0.7
     assert main(["show", str(path)]) == 0 and "run forward" in capsys.readouterr().out
+
+
+def test_design_routing_as_a_forward_problem_reproduces_the_shape(designed, tmp_path):
+    # issue 46: the routing of a design archive, written down as a forward problem (per-segment segment_length)
+    r = vn.load(designed.save(tmp_path / "d.h5")).run().routing
+    assert np.ptp(r.length) > 0  # unequal segments: what a single segment_length cannot say
+    rows = ", ".join("[" + ", ".join(map(repr, row)) + "]" for row in r.initial_pose.tolist())
+    (tmp_path / "built.toml").write_text(
+        f"[tube]\ndiameter = {D!r}\n[routing]\nsegment_length = {list(map(float, r.length))}\ntheta = {list(map(float, r.theta))}\n"
+        f"lambda = {list(map(float, r.lam))}\ninitial_pose = [{rows}]\n")
+    f = vn.solve(tmp_path / "built.toml")
+    assert f.kind == "forward" and f.segments == M
+    g = vn.forward(r.theta, r.lam, r.length, D, initial_pose=r.initial_pose)
+    np.testing.assert_allclose(f.shape.center, g.shape.center, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(f.shape.center[[0, -1]], designed.shape.center[[0, -1]], rtol=0, atol=1e-12)  # base and tip
+    # the text archived with an API routing is such a problem: read back, the same routing
+    back = parse_problem(tomllib.loads(g.source), "g.toml", g.source)
+    for k in ("theta", "lam", "length", "initial_pose"):
+        np.testing.assert_array_equal(getattr(back.problem.routing, k), getattr(r, k))
 
 
 def test_fit_recovers_lambda(tmp_path):

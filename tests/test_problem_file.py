@@ -19,7 +19,7 @@ from vine_nlp.io.problem_file import (
     load_sweep,
     parse_problem,
 )
-from vine_nlp.problem import Actuator, DesignOptions, DesignProblem, FitProblem, ForwardProblem
+from vine_nlp.problem import Actuator, DesignOptions, DesignProblem, FitProblem, ForwardProblem, Routing
 
 TUBE = "[tube]\ndiameter = 2.0\n"
 
@@ -86,6 +86,21 @@ def test_forward_last_segment_is_shorter_when_the_length_does_not_divide(tmp_pat
     assert r.segments == 11 and r.length[-1] == pytest.approx(0.5) and r.length.sum() == pytest.approx(10.5)
     r = forward(tmp_path, "length = 0.3\nsegment_length = 0.1\ntheta = 0\nlambda = 1\n").problem.routing
     assert r.segments == 3  # 0.3 / 0.1 = 2.9999999999999996 must not give 4 segments
+
+
+def test_forward_per_segment_lengths_are_the_chain_of_that_routing(tmp_path):
+    # issue 46: a built routing of unequal segments written down; the same shape as the Routing of those lengths
+    from vine_nlp.model.shape import forward_shape
+
+    pf = forward(tmp_path, "segment_length = [20.0, 25.0, 15.0]\ntheta_deg = [10.0, -20.0, 5.0]\nlambda = [0.8, 1.0, 0.6]\n")
+    r = pf.problem.routing
+    np.testing.assert_array_equal(r.length, [20.0, 25.0, 15.0])
+    np.testing.assert_array_equal(r.theta, np.radians([10.0, -20.0, 5.0]))
+    built = Routing(np.radians([10.0, -20.0, 5.0]), np.array([0.8, 1.0, 0.6]), np.array([20.0, 25.0, 15.0]))
+    np.testing.assert_array_equal(forward_shape(r, 2.0).center, forward_shape(built, 2.0).center)
+    # length, if given, is their sum; expressions are taken at the segment starts 0, 20, 45
+    r = forward(tmp_path, "length = 60.0\nsegment_length = [20.0, 25.0, 15.0]\ntheta = '0.001 * s'\nlambda = 1\n").problem.routing
+    np.testing.assert_allclose(r.theta, [0.0, 0.02, 0.045], rtol=0, atol=1e-15)
 
 
 def test_forward_initial_pose(tmp_path):
@@ -210,6 +225,8 @@ def test_fit_problem(tmp_path):
 # ------------------------------------------------------------------ bad files
 
 FWD = TUBE + "[routing]\nlength = 5\nsegment_length = 1\n"
+FWD_LENGTHS = TUBE + "[routing]\nsegment_length = {}\n"
+SEG = FWD_LENGTHS.format("[20.0, 25.0, 15.0]")
 TREFOIL = TUBE + '[target]\ncurve = "trefoil"\n'
 POINTS = TUBE + '[target]\ncurve = "points"\nfile = "t.csv"\n'
 GOOD_CSV = "0 0 0\n1 0 0\n2 1 0\n3 1 1\n"
@@ -286,6 +303,14 @@ BAD = [
     ("fit-line", TUBE + "[measured]\nfile = 'm.csv'\nline = 'middle'\n", {"m.csv": GOOD_CSV}, "", "measured.line: must be one of 'center', 'inner', 'outer'"),
     ("target-and-measured", TREFOIL + "[measured]\nfile = 'm.csv'\n", {}, "", "target: a problem has [target] (design) or [measured] (fit), not both"),
     ("units", 'units = ""\n' + TREFOIL, {}, "", "units: must be a non-empty string"),
+    # per-segment lengths (issue 46): one line naming the key
+    ("lengths-count", SEG + "theta = [0.1, 0.2]\nlambda = 1\n", {}, "", "routing.theta: needs 3 values (one per segment), got 2"),
+    ("lengths-lambda-count", SEG + "theta = 0\nlambda = [1, 1, 1, 1]\n", {}, "", "routing.lambda: needs 3 values (one per segment), got 4"),
+    ("lengths-phi-count", SEG + "phi = [0, 1, 2]\nlambda = 1\n", {}, "", "routing.phi: needs 4 values (one per segment end), got 3"),
+    ("lengths-sum", SEG + "length = 50\ntheta = 0\nlambda = 1\n", {}, "", "routing.length: must be the sum of routing.segment_length (60), got 50"),
+    ("lengths-negative", FWD_LENGTHS.format("[20.0, -1.0, 15.0]") + "theta = 0\nlambda = 1\n", {}, "", "routing.segment_length: must be > 0 (segment 2: -1)"),
+    ("lengths-empty", FWD_LENGTHS.format("[]") + "theta = 0\nlambda = 1\n", {}, "", "routing.segment_length: needs 1 to 100000 values (one per segment)"),
+    ("lengths-text", FWD_LENGTHS.format("[1.0, 'a']") + "theta = 0\nlambda = 1\n", {}, "", "routing.segment_length: must be a list of numbers"),
 ]
 
 

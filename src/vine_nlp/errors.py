@@ -23,3 +23,15 @@ class InputError(Exception):
 
     def __str__(self):
         return f"{printable(self.file)}: {printable(self.key)}: {printable(self.reason)}"
+
+
+class ArgumentError(ValueError):
+    """Bad input to the Python API: ``argument`` names the argument, ``reason`` says what is wrong.
+
+    The message is ``"<argument>: <reason>"``, the command line's ``<key>: <reason>``.
+    """
+
+    def __init__(self, argument: str, reason: str):
+        self.argument = str(argument)
+        self.reason = str(reason)
+        super().__init__(f"{self.argument}: {self.reason}")

@@ -31,7 +31,7 @@ def bezier(control_points, samples: int = DEFAULT_SAMPLES) -> np.ndarray:
     2-D control points mean z = 0. The first and last samples are the first and
     last control points.
     """
-    p = _as_3d(control_points, least=2)
+    p = as_3d(control_points, least=2)
     if p.shape[0] > MAX_BEZIER_POINTS:
         raise ValueError(f"at most {MAX_BEZIER_POINTS} control points")
     degree = p.shape[0] - 1
@@ -49,7 +49,7 @@ def polyline(control_points, samples: int = DEFAULT_SAMPLES) -> np.ndarray:
     corners are generally not sampled. Repeated consecutive control points are
     ignored.
     """
-    p = _as_3d(control_points, least=2)
+    p = as_3d(control_points, least=2)
     keep = np.concatenate([[True], np.any(np.diff(p, axis=0) != 0, axis=1)])
     p = p[keep]
     if p.shape[0] < 2:
@@ -85,7 +85,7 @@ def check_points(points) -> np.ndarray:
     Needs at least 3 finite points and no two consecutive identical points (a
     zero-length step has no direction to fit); indices in messages count from 1.
     """
-    p = _as_3d(points, least=3)
+    p = as_3d(points, least=3)
     if not np.all(np.isfinite(p)):
         row = int(np.argmax(~np.all(np.isfinite(p), axis=1)))
         raise ValueError(f"point {row + 1} is not finite")
@@ -102,7 +102,8 @@ def arc_length(points) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
 
 
-def _as_3d(points, least: int) -> np.ndarray:
+def as_3d(points, least: int) -> np.ndarray:
+    """Points as a float (N, 3) array, N >= ``least`` (2-D columns mean z = 0), or ValueError."""
     try:
         p = np.array(points, dtype=float)
     except (TypeError, ValueError):

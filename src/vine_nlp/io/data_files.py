@@ -31,14 +31,20 @@ def data_points(f: SourceFile, key: str, value, ordered: bool) -> np.ndarray:
         raise f.error(key, f"unsupported file type '{path.suffix}' (use .csv or .npy)")
     data_file = SourceFile(str(path))
     points = read_npy(data_file, f.path, key) if path.suffix.lower() == ".npy" else read_csv(data_file, f.path, key)
-    if ordered:
-        try:
-            return targets.check_points(points)
-        except ValueError as err:
-            raise data_file.error("values", str(err)) from None
-    # Measured points come in any order, so repeats are fine; the fit needs a few of them.
-    check(data_file, "values", points.shape[0] >= 3, f"needs at least 3 points, got {points.shape[0]}")
-    return np.column_stack([points, np.zeros(points.shape[0])]) if points.shape[1] == 2 else points
+    return points_of(data_file, "values", points, ordered)
+
+
+def points_of(f: SourceFile, key: str, value, ordered: bool) -> np.ndarray:
+    """(N, 3) float points (2-D columns mean z = 0), finite, at most MAX_TARGET_POINTS: ``ordered`` (a target)
+    by ``targets.check_points``'s rules, else (measured points, in any order, repeats fine) at least 3."""
+    try:
+        p = targets.check_points(value) if ordered else targets.as_3d(value, least=3)
+    except ValueError as err:
+        raise f.error(key, str(err)) from None
+    finite = np.all(np.isfinite(p), axis=1)
+    check(f, key, finite.all(), f"point {int(np.argmin(finite)) + 1} is not finite")
+    check(f, key, p.shape[0] <= limits.MAX_TARGET_POINTS, f"has {p.shape[0]} points; at most {limits.MAX_TARGET_POINTS}")
+    return p
 
 
 def check_spread(file, points: np.ndarray, diameter: float, least: int) -> None:

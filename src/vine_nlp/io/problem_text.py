@@ -58,20 +58,16 @@ def _options_table(o: DesignOptions, kind: str = "design") -> dict:
 
 
 def _routing_table(r: Routing) -> dict:
-    """[routing] of a problem file where it can say the routing exactly, else a pointer to the archive."""
+    """[routing] of a problem file where it can say the routing exactly (per-segment arrays of up to
+    _SOURCE_ARRAY_MAX values), else a pointer to the archive."""
     table = {"length": float(r.length.sum())}
-    equal = r.segments > 0 and np.all(r.length == r.length[0])
-    if equal:
-        table["segment_length"] = float(r.length[0])
-    for key, v in (("theta", r.theta), ("lambda", r.lam)):
+    for key, v, name in (("segment_length", r.length, "length"), ("theta", r.theta, "theta"), ("lambda", r.lam, "lambda")):
         if v.size and np.all(v == v[0]):
             table[key] = float(v[0])
-        elif v.size <= _SOURCE_ARRAY_MAX and equal:
+        elif v.size <= _SOURCE_ARRAY_MAX:
             table[key] = v
         else:
-            table[f"#{key}"] = f"# {key}: per segment, see /runs/<run>/design/{key}"
-    if not equal:
-        table["#length"] = "# unequal segment lengths: see /runs/<run>/design/length"
+            table[f"#{key}"] = f"# {key}: per segment, see /runs/<run>/design/{name}"
     if not np.array_equal(r.initial_pose, np.eye(4)):
         table["initial_pose"] = r.initial_pose
     return table

@@ -41,6 +41,7 @@ from vine_nlp.io.validate import (
     rigid_pose,
     sub_table,
     unknown_key,
+    validate_routing,
 )
 from vine_nlp.model.routing import MEASURED_LINES, Routing
 from vine_nlp.problem import (
@@ -104,7 +105,7 @@ _MEASURED_KEYS = ("file", "line")
 
 _FIT_KEYS = ("free",)
 
-_FREE_CHOICES = ("lambda",)
+FREE_CHOICES = ("lambda",)
 
 # basin hopping (hops) and the corner search (budget) are strategies of the design NLP only
 _OTHER_DESIGN_KEYS = tuple(k for k in _DESIGN_KEYS if k not in ("hops", "budget"))
@@ -190,7 +191,12 @@ def _kind(f: SourceFile, data: dict) -> str:
 
 
 def _design(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> DesignProblem:
-    points, points_key = _target(f, data, diameter)
+    return design_problem(f, data, name, units, diameter, *_target(f, data, diameter))
+
+
+def design_problem(f: SourceFile, data: dict, name: str, units: str, diameter: float, points: np.ndarray, points_key: str) -> DesignProblem:
+    """A design problem around its checked target ``points``: [actuator], [design], a fixed base's [routing] and
+    the optional tables of ``data``, as a problem file has them (the Python API passes its arguments so)."""
     actuator = _actuator(f, sub_table(f, data, "actuator", _ACTUATOR_KEYS))
     design = sub_table(f, data, "design", (*_DESIGN_KEYS, *OBSTACLE_DESIGN_KEYS, *_BUILD_KEYS))
     options = _build_options(f, data, design, actuator, _options(f, {k: v for k, v in design.items() if k not in _BUILD_KEYS}))
@@ -330,7 +336,7 @@ def _fit(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> F
     free = sub_table(f, data, "fit", _FIT_KEYS).get("free", [])
     check(f, "fit.free", isinstance(free, list), "must be a list: [] or [\"lambda\"]")
     for item in free:
-        choice(f, "fit.free", item, _FREE_CHOICES)
+        choice(f, "fit.free", item, FREE_CHOICES)
     check(f, "fit.free", len(set(free)) == len(free), "lists a parameter twice")
     check_spread(str(f.dir / measured["file"]), points, diameter, 3)
     check_scale(f, "measured.file", points, diameter, "the measurement")
@@ -432,52 +438,54 @@ def _tip(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> T
 
 
 def _routing(f: SourceFile, table: dict, diameter: float) -> Routing:
-    """Segments of a given routing (paper Sec. IV-B): per-segment theta, lambda and length."""
-    total = real_number(f, "routing.length", required_value(f, table, "length", "routing."))
-    check(f, "routing.length", total > 0, "must be > 0")
-    step = real_number(f, "routing.segment_length", required_value(f, table, "segment_length", "routing."))
-    check(f, "routing.segment_length", step > 0, "must be > 0")
-    check(f, "routing.segment_length", step <= total, "must be <= routing.length")
-    ratio = total / step
-    check(f, "routing.segment_length", ratio <= limits.MAX_SEGMENTS, f"gives more than {limits.MAX_SEGMENTS} segments")
+    """Segments of a given routing (paper Sec. IV-B): per-segment theta, lambda and length. ``segment_length`` is
+    one number (equal segments up to ``length``, the last one shorter) or one length per segment (``length``,
+    if given, their sum)."""
+    step = required_value(f, table, "segment_length", "routing.")
+    if isinstance(step, list):
+        check(f, "routing.segment_length", 0 < len(step) <= limits.MAX_SEGMENTS, f"needs 1 to {limits.MAX_SEGMENTS} values (one per segment)")
+        lengths = real_array(f, "routing.segment_length", step)
+        j = int(np.argmin(lengths))
+        check(f, "routing.segment_length", lengths[j] > 0, f"must be > 0 (segment {j + 1}: {lengths[j]:.6g})")
+        total = float(lengths.sum())
+        if "length" in table:
+            given = real_number(f, "routing.length", table["length"])
+            check(f, "routing.length", abs(given - total) <= 1e-9 * total, f"must be the sum of routing.segment_length ({total:.12g}), got {given:.12g}")
+    else:
+        total = real_number(f, "routing.length", required_value(f, table, "length", "routing."))
+        check(f, "routing.length", total > 0, "must be > 0")
+        step = real_number(f, "routing.segment_length", step)
+        check(f, "routing.segment_length", step > 0, "must be > 0")
+        check(f, "routing.segment_length", step <= total, "must be <= routing.length")
+        check(f, "routing.segment_length", total / step <= limits.MAX_SEGMENTS, f"gives more than {limits.MAX_SEGMENTS} segments")
+        # The 1e-9 keeps round-off in length/segment_length from adding a sliver of a last segment.
+        ends = np.minimum(step * np.arange(math.ceil(total / step - 1e-9) + 1), total)
+        ends[-1] = total
+        lengths = np.diff(ends)
     check_scale(f, "routing.length", [[0.0, 0.0, 0.0], [total, 0.0, 0.0]], diameter, "the routing")
-    # The 1e-9 keeps round-off in length/segment_length from adding a sliver of a last segment.
-    m = math.ceil(ratio - 1e-9)
-    ends = np.minimum(step * np.arange(m + 1), total)
-    ends[-1] = total
-    lengths = np.diff(ends)
+    ends = np.concatenate([[0.0], np.cumsum(lengths)])
     starts = ends[:-1]
-
     given = [key for key in _ANGLE_KEYS if key in table]
     if not given:
         raise f.error("routing.theta", "missing (give one of theta, theta_deg, phi)")
     if len(given) > 1:
         raise f.error(f"routing.{given[1]}", f"conflicts with routing.{given[0]} (give only one of theta, theta_deg, phi)")
     angle_key = f"routing.{given[0]}"
-    value = table[given[0]]
     if given[0] == "phi":
         # Inverse of eq. (phi(s_j)): phi_{j+1} - phi_j = (2/D) tan(theta_j) dl_j.
-        phi = _per_point(f, angle_key, value, ends, "one per segment end")
+        phi = np.broadcast_to(_per_point(f, angle_key, table["phi"], ends, "one per segment end"), ends.shape)
         with np.errstate(all="ignore"):
             theta = np.arctan((diameter / 2) * np.diff(phi) / lengths)
     else:
-        theta = _per_point(f, angle_key, value, starts, "one per segment")
-        if given[0] == "theta_deg":
-            theta = np.radians(theta)
-    _check_each(f, angle_key, value, np.abs(theta) < math.pi / 2, np.degrees(theta), "|theta| must be < 90 deg", " deg")
-
-    lam_value = required_value(f, table, "lambda", "routing.")
-    lam = _per_point(f, "routing.lambda", lam_value, starts, "one per segment")
-    _check_each(f, "routing.lambda", lam_value, (lam > 0) & (lam <= 1), lam, "must be in (0, 1]", "")
-
-    pose = np.eye(4)
-    if "initial_pose" in table:
-        pose = rigid_pose(f, "routing.initial_pose", table["initial_pose"])
-    return Routing(theta=theta, lam=lam, length=lengths, initial_pose=pose)
+        theta = _per_point(f, angle_key, table[given[0]], starts, "one per segment")
+        theta = np.radians(theta) if given[0] == "theta_deg" else theta
+    lam = _per_point(f, "routing.lambda", required_value(f, table, "lambda", "routing."), starts, "one per segment")
+    keys = {"theta": angle_key, "lam": "routing.lambda", "length": "routing.segment_length", "initial_pose": "routing.initial_pose"}
+    return validate_routing(f, theta, lam, lengths, table.get("initial_pose"), keys, segments=lengths.size)
 
 
 def _per_point(f: SourceFile, key: str, value, s: np.ndarray, what: str) -> np.ndarray:
-    """A number, an array with one value per s, or an expression of s evaluated at s."""
+    """A number (a 0-d array), an array with one value per s, or an expression of s evaluated at s."""
     if isinstance(value, str):
         try:
             values = compile_expression(value)(s)
@@ -486,23 +494,14 @@ def _per_point(f: SourceFile, key: str, value, s: np.ndarray, what: str) -> np.n
         bad = ~np.isfinite(values)
         if bad.any():
             raise f.error(key, f"expression is not finite at s = {s[np.argmax(bad)]:g}")
-        return values
+        return np.broadcast_to(values, s.shape)
     if isinstance(value, list):
         values = real_array(f, key, value)
         check(f, key, values.size == s.size, f"needs {s.size} values ({what}), got {values.size}")
         return values
     if not is_number(value):
         raise f.error(key, "must be a number, an array or an expression of s")
-    return np.full(s.size, real_number(f, key, value))
-
-
-def _check_each(f: SourceFile, key: str, given, ok: np.ndarray, shown: np.ndarray, rule: str, unit: str) -> None:
-    if ok.all():
-        return
-    if is_number(given):
-        raise f.error(key, rule)
-    j = int(np.argmin(ok))
-    raise f.error(key, f"{rule} (segment {j + 1}: {shown[j]:.6g}{unit})")
+    return np.array(real_number(f, key, value))
 
 
 def design_problem_of(archive, path) -> DesignProblem:
@@ -516,3 +515,27 @@ def design_problem_of(archive, path) -> DesignProblem:
     except InputError:
         pass
     return DesignProblem(archive.name, archive.diameter, archive.target, units=archive.units)
+
+
+@dataclass(frozen=True)
+class LoadedProblem:
+    """The problem of an archive whose problem type is not rebuilt (multishape, tip, unknown kinds)."""
+
+    name: str
+    diameter: float
+    units: str
+    target: np.ndarray | None = None
+
+
+def problem_of_archive(archive, runs: dict, path):
+    """A problem object for a read archive: what the archive holds of it (solver settings stay in ``source``)."""
+    first = next(iter(runs.values()), None)
+    if archive.kind == "design" and archive.target is not None:
+        return design_problem_of(archive, path)
+    if archive.kind == "forward" and first is not None:
+        return ForwardProblem(archive.name, archive.diameter, first.routing, units=archive.units)
+    if archive.kind == "fit" and first is not None and "measured/points" in archive.extra:
+        line = first.stats.get("line")
+        return FitProblem(archive.name, archive.diameter, np.asarray(archive.extra["measured/points"]),
+                          line if line in MEASURED_LINES else "outer", first.routing, units=archive.units)
+    return LoadedProblem(name=archive.name, diameter=archive.diameter, units=archive.units, target=archive.target)

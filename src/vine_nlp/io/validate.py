@@ -20,6 +20,7 @@ import numpy as np
 from vine_nlp.errors import InputError
 from vine_nlp.io import limits
 from vine_nlp.io.files import read_text  # noqa: F401  the bounded reader, for the readers importing it from here
+from vine_nlp.model.routing import Routing
 
 MAX_INT = 2**31 - 1  # solver options such as max_iter are C ints
 
@@ -209,7 +210,8 @@ def choice(f: SourceFile, key: str, value, choices) -> str:
 
 
 def rigid_pose(f: SourceFile, key: str, value) -> np.ndarray:
-    """T^0_w: a 4 x 4 rigid transform (rotation with det +1, last row 0 0 0 1)."""
+    """T^0_w: a 4 x 4 rigid transform (rotation with det +1, last row 0 0 0 1); a list of rows or an array."""
+    value = np.asarray(value, dtype=object).tolist() if isinstance(value, np.ndarray) else value
     shape_ok = isinstance(value, list) and len(value) == 4
     shape_ok = shape_ok and all(isinstance(row, list) and len(row) == 4 and all(map(is_number, row)) for row in value)
     check(f, key, shape_ok, "must be a 4 x 4 array (4 rows of 4 numbers)")
@@ -220,3 +222,34 @@ def rigid_pose(f: SourceFile, key: str, value) -> np.ndarray:
           "rotation part (first 3 rows and columns) is not orthonormal")
     check(f, key, abs(np.linalg.det(rotation) - 1) <= POSE_TOL, "rotation part has det -1 (a mirror, not a rotation)")
     return pose
+
+
+ROUTING_KEYS = {"theta": "theta", "lam": "lam", "length": "length", "initial_pose": "initial_pose"}
+
+
+def validate_routing(f: SourceFile, theta, lam, length, initial_pose=None, keys: dict = ROUTING_KEYS, segments: int | None = None) -> Routing:
+    """The one check of a routing, wherever it is read (problem files, the Python API, archives): ``theta``
+    (rad), ``lam`` and ``length`` are numbers (the same on every segment) or float arrays of one value per
+    segment; M is ``segments``, else the size of the first array among length, theta, lam. Every bad value
+    is ``f.error(keys[name], reason)`` (``f``: any object with that method), naming the segment for arrays."""
+    values = {k: np.asarray(v, dtype=float) for k, v in (("theta", theta), ("lam", lam), ("length", length))}
+    for k, v in values.items():
+        check(f, keys[k], v.ndim <= 1, f"must be a number or a 1-D array (one value per segment), got shape {v.shape}")
+    sizes = [values[k].size for k in ("length", "theta", "lam") if values[k].ndim == 1]
+    m = segments if segments is not None else (sizes[0] if sizes else 1)
+    first = next((k for k in ("length", "theta", "lam") if values[k].ndim == 1), "length")
+    check(f, keys[first], m >= 1, "needs at least one value (one per segment)")
+    check(f, keys[first], m <= limits.MAX_SEGMENTS, f"gives more than {limits.MAX_SEGMENTS} segments")
+    for k, v in values.items():
+        check(f, keys[k], v.ndim == 0 or v.size == m, f"needs {m} values (one per segment), got {v.size}")
+        bad = ~np.isfinite(np.atleast_1d(v))
+        check(f, keys[k], not bad.any(), "must be finite" if v.ndim == 0 else f"must be finite (segment {int(np.argmax(bad)) + 1})")
+    th, la, dl = (np.broadcast_to(values[k], (m,)).copy() for k in ("theta", "lam", "length"))
+    for k, ok, rule, shown, unit in (("theta", np.abs(th) < math.pi / 2, "|theta| must be < 90 deg", np.degrees(th), " deg"),
+                                     ("lam", (la > 0) & (la <= 1), "must be in (0, 1]", la, ""),
+                                     ("length", dl > 0, "must be > 0", dl, "")):
+        if not ok.all():
+            j = int(np.argmin(ok))
+            raise f.error(keys[k], rule if values[k].ndim == 0 else f"{rule} (segment {j + 1}: {shown[j]:.6g}{unit})")
+    pose = np.eye(4) if initial_pose is None else rigid_pose(f, keys["initial_pose"], initial_pose)
+    return Routing(theta=th, lam=la, length=dl, initial_pose=pose)
