@@ -1,22 +1,10 @@
-"""The public Python API: inverse design, forward model, fit and archives from a notebook or script.
+"""The public Python API (``import vine_nlp as vn``; docs/reference/api.md): :func:`design`, :func:`forward`,
+:func:`fit`, :func:`solve`, :func:`correct` and :func:`load` from a notebook or script.
 
-::
-
-    import vine_nlp as vn
-    r = vn.design(points, diameter=2.43)           # points: (N, 3) array-like
-    r.rmse, r.max_error, r.status, r.routing.theta, r.routing.lam, r.routing.length
-    r.save("out.h5")                               # the archive every command reads
-    fig = r.plot()                                 # a matplotlib Figure
-    r.template("t.pdf")                            # the 1:1 fabrication template
-    a = vn.load("out.h5")                          # a.runs["nlp"], a.run(), a.target
-
-Every argument is checked before any solver runs, with the limits of the problem
-files (``vine_nlp.io.problem_file``); bad input raises :class:`ArgumentError`, a
-ValueError whose message starts with the argument's name (``"diameter: must be >
-0"``). Solvers report trouble through ``status``, not exceptions.
-
-Every entry point is a thin adapter: its arguments checked into a problem, ``vine_nlp.pipeline.run``,
-the outcome wrapped as a :class:`Design` (the command line runs the same pipeline).
+Every entry point is a thin adapter: its arguments read by the problem files' reader (``vine_nlp.io``: the same
+rules; bad input raises :class:`ArgumentError`, a ValueError whose message starts with the argument's name),
+``vine_nlp.pipeline.run`` (the command line's), the outcome wrapped as a :class:`Design` (``vine_nlp.front.design``).
+Solvers report trouble through ``status``, not exceptions.
 """
 
 from __future__ import annotations
@@ -24,25 +12,23 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-from pathlib import Path
+import tomllib
 
 import numpy as np
 
 from vine_nlp import __all__ as _API_NAMES
 from vine_nlp import pipeline
 from vine_nlp.errors import ArgumentError, InputError
-from vine_nlp.front.design import Context, Design, Project
+from vine_nlp.front.design import Context, Design, Project, read_project
 from vine_nlp.io import limits
 from vine_nlp.io import validate as check
-from vine_nlp.io.archive import load_archive
 from vine_nlp.io.calibration import read_calibration
 from vine_nlp.io.data_files import points_of
-from vine_nlp.io.formulations import read_multishape_archive
 from vine_nlp.io.problem_text import call_text, problem_source
-from vine_nlp.io.problems import FREE_CHOICES, ProblemFile, design_problem, load_problem, problem_of_archive
+from vine_nlp.io.problems import FREE_CHOICES, ProblemFile, design_problem, load_problem
 from vine_nlp.model.calibration import Calibration
 from vine_nlp.model.routing import MEASURED_LINES, Routing, Sigmas
-from vine_nlp.pipeline import Outcome, Request
+from vine_nlp.pipeline import Request
 from vine_nlp.pipeline.correct import correct_files, correct_to_file
 from vine_nlp.problem import Actuator, DesignOptions, DesignProblem, FitProblem, ForwardProblem, MultiShapeProblem, Result, TipProblem
 
@@ -64,8 +50,8 @@ class _Arguments(check.SourceFile):
         super().__init__(_API_FILE)
         self.names, self.prefix = names or {}, prefix
 
-    def error(self, key: str, reason: str) -> ArgumentError:
-        return ArgumentError(self.prefix + self.names.get(key, key), reason)
+    def error(self, key: str, reason: str) -> ArgumentError:  # a key inside a mapped table: the table's argument
+        return ArgumentError(self.prefix + self.names.get(key, self.names.get(key.rpartition(".")[0], key)), reason)
 
 
 # problem-file keys -> the argument that carries them
@@ -105,15 +91,11 @@ def _common(args: _Arguments, name, units, diameter) -> tuple[str, str, float]:
 def _smoothness(value) -> dict:
     """``smoothing``: one weight for theta and lambda, a pair (theta, lambda) or a dict with keys theta, lambda."""
     if isinstance(value, dict):
-        unknown = [k for k in value if k not in ("theta", "lambda")]
-        if unknown:
-            raise ArgumentError("smoothing", f"unknown key {unknown[0]!r}; the keys are 'theta' and 'lambda'")
         return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple, np.ndarray)):
-        if len(value) != 2:
-            raise ArgumentError("smoothing", "must be a number, a pair (theta, lambda) or a dict")
-        return {"theta": _plain(value[0]), "lambda": _plain(value[1])}
-    return {"theta": _plain(value), "lambda": _plain(value)}
+    pair = [value, value] if np.ndim(value) == 0 else list(value)
+    if len(pair) != 2:
+        raise ArgumentError("smoothing", "must be a number, a pair (theta, lambda) or a dict")
+    return {"theta": _plain(pair[0]), "lambda": _plain(pair[1])}
 
 
 def _design_problem(points, diameter, *, actuator, theta_max_deg, lambda_min, smoothing=None, units, name, correction_margin=None,
@@ -159,6 +141,16 @@ def _sigmas(robust) -> Sigmas:
     return Sigmas.from_degrees(checked.get("theta_deg", 0.0), checked.get("lambda", 0.0), length, relative_length="length_abs" not in checked)
 
 
+def _request(*, robust=None, robust_weight=1.0, clearance=None, workers=1, starts=None, hops=None, budget=None, **more) -> Request:
+    """The runs and options asked for beside the problem's own (``vine-nlp design``'s options), checked."""
+    args = _Arguments()
+    return Request(robust=None if robust is None else _sigmas(robust), robust_weight=_at_least(args, "robust_weight", robust_weight),
+                   clearance=None if clearance is None else _at_least(args, "clearance", clearance),
+                   starts=None if starts is None else _integer(args, "starts", starts, 1),
+                   hops=None if hops is None else _integer(args, "hops", hops, 0),
+                   budget=None if budget is None else _at_least(args, "budget", budget), workers=_integer(args, "workers", workers, 1), **more)
+
+
 def _calibration(value):
     """A Calibration from a Calibration or the path of a CAL.toml (``vine-nlp calibrate``)."""
     if isinstance(value, Calibration):
@@ -171,7 +163,7 @@ def _calibration(value):
     raise ArgumentError("calibration", f"must be a Calibration or the path of a calibration TOML file, got {type(value).__name__}")
 
 
-def _routing(theta, lam, length, *, segments=None, initial_pose=None, prefix="") -> Routing:
+def _routing(theta, lam, length, *, segments=None, initial_pose=None, prefix="", diameter=None) -> Routing:
     """A Routing from numbers or per-segment arrays: ``io.validate.validate_routing``, the problem files' and archives' check."""
     args = _Arguments(prefix=prefix)
     values = {}
@@ -180,7 +172,7 @@ def _routing(theta, lam, length, *, segments=None, initial_pose=None, prefix="")
         check.check(args, key, a.ndim <= 1, f"must be a number or a 1-D array (one value per segment), got shape {a.shape}")
         values[key] = np.array([check.real_number(args, key, _plain(x)) for x in a.reshape(-1)]).reshape(a.shape)
     m = _integer(args, "segments", segments, 1) if segments is not None else next((v.size for v in values.values() if v.ndim), 1)
-    return check.validate_routing(args, **values, initial_pose=initial_pose, keys=_ROUTING_ARGUMENTS, segments=m)
+    return check.validate_routing(args, **values, initial_pose=initial_pose, keys=_ROUTING_ARGUMENTS, segments=m, diameter=diameter)
 
 
 def _run(problem, call: str, request: Request | None = None, notes=()) -> Design:
@@ -278,16 +270,12 @@ def design(points, diameter, *, actuator: str = Actuator.kind, theta_max_deg: fl
                               points_per_segment=points_per_segment, smoothing=smoothing, starts=starts, hops=hops,
                               method=method, seed=seed, units=units, name=name, budget=budget, solver=solver,
                               correction_margin=correction_margin, min_feature=min_feature, base=base, calibration=calibration)
-    args = _Arguments()
-    workers = _integer(args, "workers", workers, 1)
-    min_gap = None if clearance is None else _at_least(args, "clearance", clearance)
-    sigmas = None if robust is None else _sigmas(robust)
-    weight = _at_least(args, "robust_weight", robust_weight)
-    notes = [f"clearance: min_gap = {min_gap!r} (run nlp_clearance)"] if min_gap is not None else []
-    if sigmas is not None:
-        notes.append(f"robust: weight = {weight!r}, sigmas {sigmas.as_dict()} (run nlp_robust)")
+    rq = _request(robust=robust, robust_weight=robust_weight, clearance=clearance, workers=workers)
+    notes = [f"clearance: min_gap = {rq.clearance!r} (run nlp_clearance)"] if rq.clearance is not None else []
+    if rq.robust is not None:
+        notes.append(f"robust: weight = {rq.robust_weight!r}, sigmas {rq.robust.as_dict()} (run nlp_robust)")
     call = call_text("design", diameter=problem.diameter, actuator=problem.actuator.kind, method=problem.options.method)
-    return _run(problem, call, Request(robust=sigmas, robust_weight=weight, clearance=min_gap, workers=workers), notes)
+    return _run(problem, call, rq, notes)
 
 
 def forward(theta, lam, length, diameter, *, segments: int | None = None, initial_pose=None, units: str = "cm",
@@ -326,13 +314,7 @@ def forward(theta, lam, length, diameter, *, segments: int | None = None, initia
     ArgumentError
     """
     name, units, D = _common(_Arguments(), name, units, diameter)
-    routing = _routing(theta, lam, length, segments=segments, initial_pose=initial_pose)
-    # the forward shape is sampled in pieces of at most D/4 (model.shape.forward_shape); the archive
-    # readers take at most MAX_SHAPE_POINTS rows
-    rows = int(np.maximum(1, np.ceil(routing.length / (0.25 * D))).sum()) + 1
-    if rows > limits.MAX_SHAPE_POINTS:
-        raise ArgumentError("length", f"a tube {float(routing.length.sum()) / D:.4g} diameters long has a shape of {rows} "
-                                      f"points (pieces of D/4); at most {limits.MAX_SHAPE_POINTS}")
+    routing = _routing(theta, lam, length, segments=segments, initial_pose=initial_pose, diameter=D)
     problem = ForwardProblem(name=name, diameter=D, routing=routing, units=units)
     return _run(problem, call_text("forward", diameter=D, segments=routing.segments))
 
@@ -373,14 +355,10 @@ def fit(points, routing, diameter, *, line: str = "outer", free=("lambda",), sta
     if isinstance(routing, Design):
         routing = routing.routing
     elif isinstance(routing, dict):
-        keys = ("theta", "lam", "length", "segments", "initial_pose")
-        unknown = [k for k in routing if k not in keys]
-        if unknown:
-            raise ArgumentError("routing", f"unknown key {unknown[0]!r}; the keys are {', '.join(keys)}")
-        missing = [k for k in keys[:3] if k not in routing]
-        if missing:
-            raise ArgumentError("routing", f"missing key {missing[0]!r}")
-        routing = _routing(**routing, prefix="routing: ")
+        inside = _Arguments(prefix="routing: ")
+        check.check_keys(inside, routing, "", ("theta", "lam", "length", "segments", "initial_pose"))
+        routing = _routing(*(check.required_value(inside, routing, k, "") for k in ("theta", "lam", "length")),
+                           segments=routing.get("segments"), initial_pose=routing.get("initial_pose"), prefix="routing: ")
     elif not isinstance(routing, Routing):
         raise ArgumentError("routing", "must be a Routing, a Design or a dict with theta, lam, length")
     line = check.choice(args, "line", line, MEASURED_LINES)
@@ -431,14 +409,8 @@ def solve(problem, method: str | None = None, *, starts: int | None = None, hops
         A bad problem file (the argument ``problem``, with the file's key and reason) or object, or an
         option the problem cannot take (named).
     """
-    args = _Arguments()
-    rq = Request(methods=(method,) if method is not None else (), robust=None if robust is None else _sigmas(robust),
-                 robust_weight=_at_least(args, "robust_weight", robust_weight),
-                 clearance=None if clearance is None else _at_least(args, "clearance", clearance),
-                 starts=None if starts is None else _integer(args, "starts", starts, 1),
-                 hops=None if hops is None else _integer(args, "hops", hops, 0),
-                 budget=None if budget is None else _at_least(args, "budget", budget),
-                 workers=_integer(args, "workers", workers, 1))
+    rq = _request(methods=(method,) if method is not None else (), robust=robust, robust_weight=robust_weight, clearance=clearance,
+                  starts=starts, hops=hops, budget=budget, workers=workers)
     if isinstance(problem, (str, os.PathLike)):
         try:
             outcome = pipeline.run(load_problem(problem), rq)
@@ -448,14 +420,12 @@ def solve(problem, method: str | None = None, *, starts: int | None = None, hops
     if type(problem) not in _KIND:
         raise ArgumentError("problem", f"must be a problem file or a problem object ({', '.join(k.__name__ for k in _KIND)}), "
                                        f"got {type(problem).__name__}")
-    _at_least(args, "diameter", problem.diameter, strict=True)
-    if isinstance(problem, DesignProblem):  # the rules of vine_nlp.design(...) and of problem files; solved as given
-        a, o = problem.actuator, problem.options
-        _design_problem(problem.target, problem.diameter, actuator=a.kind, theta_max_deg=math.degrees(a.theta_max),
-                        lambda_min=a.lambda_min, points_per_segment=o.points_per_segment, smoothing=(o.smooth_theta, o.smooth_lambda),
-                        starts=o.starts, hops=o.hops, method=o.method, seed=o.seed, units=problem.units, name=problem.name,
-                        budget=o.budget, solver=o.solver, correction_margin=o.correction_margin, min_feature=o.min_feature,
-                        base=o.base if o.base_pose is None else o.base_pose)
+    _at_least(_Arguments(), "diameter", problem.diameter, strict=True)
+    if isinstance(problem, DesignProblem):  # read as the problem file it is archived as; solved as given
+        args = _Arguments(_DESIGN_ARGUMENTS)
+        data = tomllib.loads(problem_source(problem, "solve"))
+        design_problem(args, data, *_common(args, problem.name, problem.units, problem.diameter),
+                       points_of(args, "points", problem.target, ordered=True), "points")
     if isinstance(problem, (ForwardProblem, FitProblem)):
         r = problem.routing
         _routing(r.theta, r.lam, r.length, initial_pose=r.initial_pose, prefix="routing: ")
@@ -483,19 +453,7 @@ def load(path) -> Project:
     """
     if not isinstance(path, (str, os.PathLike)):
         raise ArgumentError("path", "must be a file name")
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
-    try:
-        archive = load_archive(path)
-        runs = dict(archive.runs)
-        if archive.kind == "multishape":  # its levels are groups the generic reader leaves out
-            runs["multishape"] = read_multishape_archive(path)[1]
-    except (OSError, KeyError, ValueError) as e:
-        raise ArgumentError("path", f"cannot read the archive {str(path)!r} ({e})") from None
-    pf = ProblemFile(path=str(path), source=archive.source, kind=archive.kind, name=archive.name, units=archive.units,
-                     problem=problem_of_archive(archive, runs, path))
-    return Project(Context(Outcome(pf, runs, tuple(runs), dict(archive.extra)), archive=archive, path=str(path)))
+    return read_project(path)
 
 
 def correct(archive, measured, *, run=None, lines=("outer",), adjust=None, free_pose=False, sigmas=None,

@@ -18,8 +18,9 @@ from pathlib import Path
 import numpy as np
 
 from vine_nlp.errors import ArgumentError
-from vine_nlp.io.archive import Archive, write_atomic
-from vine_nlp.io.problems import ProblemFile
+from vine_nlp.io.archive import Archive, load_archive, write_atomic
+from vine_nlp.io.formulations import read_multishape_archive
+from vine_nlp.io.problems import ProblemFile, problem_of_archive
 from vine_nlp.pipeline import Outcome
 from vine_nlp.problem import Result
 
@@ -302,6 +303,23 @@ class Project:
 
     def __repr__(self) -> str:
         return f"<Project {self.name!r} ({self.kind}) from {self._context.path}: runs {', '.join(self._context.runs) or 'none'}>"
+
+
+def read_project(path) -> Project:
+    """The runs of the archive file ``path`` (``vine_nlp.load``): ArgumentError ``path`` when it is no archive."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    try:
+        archive = load_archive(path)
+        runs = dict(archive.runs)
+        if archive.kind == "multishape":  # its levels are groups the generic reader leaves out
+            runs["multishape"] = read_multishape_archive(path)[1]
+    except (OSError, KeyError, ValueError) as e:
+        raise ArgumentError("path", f"cannot read the archive {str(path)!r} ({e})") from None
+    pf = ProblemFile(path=str(path), source=archive.source, kind=archive.kind, name=archive.name, units=archive.units,
+                     problem=problem_of_archive(archive, runs, path))
+    return Project(Context(Outcome(pf, runs, tuple(runs), dict(archive.extra)), archive=archive, path=str(path)))
 
 
 def _figure_png(fig, dpi: int = 110) -> bytes:

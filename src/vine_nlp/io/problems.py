@@ -481,7 +481,7 @@ def _routing(f: SourceFile, table: dict, diameter: float) -> Routing:
         theta = np.radians(theta) if given[0] == "theta_deg" else theta
     lam = _per_point(f, "routing.lambda", required_value(f, table, "lambda", "routing."), starts, "one per segment")
     keys = {"theta": angle_key, "lam": "routing.lambda", "length": "routing.segment_length", "initial_pose": "routing.initial_pose"}
-    return validate_routing(f, theta, lam, lengths, table.get("initial_pose"), keys, segments=lengths.size)
+    return validate_routing(f, theta, lam, lengths, table.get("initial_pose"), keys, segments=lengths.size, diameter=diameter)
 
 
 def _per_point(f: SourceFile, key: str, value, s: np.ndarray, what: str) -> np.ndarray:

@@ -227,11 +227,13 @@ def rigid_pose(f: SourceFile, key: str, value) -> np.ndarray:
 ROUTING_KEYS = {"theta": "theta", "lam": "lam", "length": "length", "initial_pose": "initial_pose"}
 
 
-def validate_routing(f: SourceFile, theta, lam, length, initial_pose=None, keys: dict = ROUTING_KEYS, segments: int | None = None) -> Routing:
+def validate_routing(f: SourceFile, theta, lam, length, initial_pose=None, keys: dict = ROUTING_KEYS, segments: int | None = None,
+                     diameter: float | None = None) -> Routing:
     """The one check of a routing, wherever it is read (problem files, the Python API, archives): ``theta``
     (rad), ``lam`` and ``length`` are numbers (the same on every segment) or float arrays of one value per
     segment; M is ``segments``, else the size of the first array among length, theta, lam. Every bad value
-    is ``f.error(keys[name], reason)`` (``f``: any object with that method), naming the segment for arrays."""
+    is ``f.error(keys[name], reason)`` (``f``: any object with that method), naming the segment for arrays.
+    With ``diameter`` (a routing to run), its forward shape must fit an archive (MAX_SHAPE_POINTS rows)."""
     values = {k: np.asarray(v, dtype=float) for k, v in (("theta", theta), ("lam", lam), ("length", length))}
     for k, v in values.items():
         check(f, keys[k], v.ndim <= 1, f"must be a number or a 1-D array (one value per segment), got shape {v.shape}")
@@ -251,5 +253,9 @@ def validate_routing(f: SourceFile, theta, lam, length, initial_pose=None, keys:
         if not ok.all():
             j = int(np.argmin(ok))
             raise f.error(keys[k], rule if values[k].ndim == 0 else f"{rule} (segment {j + 1}: {shown[j]:.6g}{unit})")
+    if diameter is not None:  # the forward shape: pieces of at most D/4 (model.shape.forward_shape)
+        rows = int(np.maximum(1, np.ceil(dl / (0.25 * diameter))).sum()) + 1
+        check(f, keys["length"], rows <= limits.MAX_SHAPE_POINTS, f"a tube {float(dl.sum()) / diameter:.4g} diameters long has a "
+              f"shape of {rows} points (pieces of D/4); at most {limits.MAX_SHAPE_POINTS}")
     pose = np.eye(4) if initial_pose is None else rigid_pose(f, keys["initial_pose"], initial_pose)
     return Routing(theta=th, lam=la, length=dl, initial_pose=pose)
