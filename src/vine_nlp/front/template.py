@@ -630,6 +630,41 @@ class Sheet:
         self.texts.append((layer, float(x), float(y), str(text), float(height), anchor))
 
 
+def _sheet_strip(sh: Sheet, g: StripGeometry, tile, x0: float, y_ax: float, mm: float, mark: float) -> None:
+    """One strip's band, marks, actuator path, labels and changes on the sheet, its lower left corner at (x0, y_ax)."""
+
+    def xy(s, c):
+        return x0 + (s - tile.s0) * mm, y_ax + (c - (tile.c0 - mark)) * mm
+
+    s0, c0, s1, c1 = g.band
+    sh.line("outline", [xy(s0, c0), xy(s1, c0), xy(s1, c1), xy(s0, c1)], closed=True)
+    for r in g.shared:  # the part under the neighbouring strip
+        sh.line("marks", [xy(r[0], r[1]), xy(r[2], r[1]), xy(r[2], r[3]), xy(r[0], r[3])], closed=True)
+    for c in g.references:
+        sh.line("marks", [xy(s0, c), xy(s1, c)])
+    for p, q in g.crosses + g.ticks:
+        sh.line("marks", [xy(*p), xy(*q)])
+    for s, word in g.ends:
+        sh.line("marks", [xy(s, tile.c0 - mark), xy(s, tile.c_end + mark)])
+        x, y = xy(s, g.mark_c[1])
+        sh.text("text", x + (1.0 if word == "base" else -1.0), y - 0.8, word, anchor="start" if word == "base" else "end")
+    layer = {"stopper": "stoppers", "gap": "removed", "muscle": None, "none": "removed"}
+    for kind, lines in g.paths.items():
+        for p, q in lines:
+            sh.line("actuator_path", [xy(*p), xy(*q)])
+            if layer[kind]:
+                sh.line(layer[kind], [xy(*p), xy(*q)])
+    for s, c, text in g.labels:
+        x, y = xy(s, c)
+        sh.text("text", x, y - 0.7, text, 2.0, "middle")
+    for lines, label in g.changes:
+        for p, q in lines:
+            sh.line("changes", [xy(*p), xy(*q)])
+        if label is not None:
+            x, y = xy(label[0], label[1])
+            sh.text("changes", x, y - 0.7, label[2], 2.0, "middle")
+
+
 def template_sheet(a: Archive, run: str, table: dict, lay: Layout, spam: bool) -> Sheet:
     """Every strip of ``lay`` stacked on one sheet at 1:1 in mm (the strips of the PDF, from
     :func:`strip_geometry`), with the title, the 10 cm scale bar and the legend."""
@@ -654,49 +689,16 @@ def template_sheet(a: Archive, run: str, table: dict, lay: Layout, spam: bool) -
     top = H - MARGIN - TITLE_H
     x0 = MARGIN + LEFT_LABELS
     for tile, ax_h in zip(lay.tiles, heights):
-        g = strip_geometry(table, tile, D, u, spam)
         y_ax = top - STRIP_LABEL_H - ax_h
-
-        def xy(s, c, tile=tile, y_ax=y_ax):
-            return x0 + (s - tile.s0) * mm, y_ax + (c - (tile.c0 - mark)) * mm
-
         sh.text("text", x0, top - 3.5, tile.label + f" {u}")
-        s0, c0, s1, c1 = g.band
-        sh.line("outline", [xy(s0, c0), xy(s1, c0), xy(s1, c1), xy(s0, c1)], closed=True)
-        for r in g.shared:  # the part under the neighbouring strip
-            sh.line("marks", [xy(r[0], r[1]), xy(r[2], r[1]), xy(r[2], r[3]), xy(r[0], r[3])], closed=True)
-        for c in g.references:
-            sh.line("marks", [xy(s0, c), xy(s1, c)])
-        for p, q in g.crosses + g.ticks:
-            sh.line("marks", [xy(*p), xy(*q)])
-        for s, word in g.ends:
-            sh.line("marks", [xy(s, tile.c0 - mark), xy(s, tile.c_end + mark)])
-            x, y = xy(s, g.mark_c[1])
-            sh.text("text", x + (1.0 if word == "base" else -1.0), y - 0.8, word, anchor="start" if word == "base" else "end")
-        layer = {"stopper": "stoppers", "gap": "removed", "muscle": None, "none": "removed"}
-        for kind, lines in g.paths.items():
-            for p, q in lines:
-                sh.line("actuator_path", [xy(*p), xy(*q)])
-                if layer[kind]:
-                    sh.line(layer[kind], [xy(*p), xy(*q)])
-        for s, c, text in g.labels:
-            x, y = xy(s, c)
-            sh.text("text", x, y - 0.7, text, 2.0, "middle")
-        for lines, label in g.changes:
-            for p, q in lines:
-                sh.line("changes", [xy(*p), xy(*q)])
-            if label is not None:
-                x, y = xy(label[0], label[1])
-                sh.text("changes", x, y - 0.7, label[2], 2.0, "middle")
+        _sheet_strip(sh, strip_geometry(table, tile, D, u, spam), tile, x0, y_ax, mm, mark)
         # the s ruler under the strip: a tick every cm, labelled every 5 cm
-        y_base = y_ax
-        sh.line("marks", [(x0, y_base), (x0 + (tile.s_end - tile.s0) * mm, y_base)])
-        n0, n1 = math.ceil(tile.s0 * k - 1e-9), math.floor(tile.s_end * k + 1e-9)
-        for n in range(n0, n1 + 1):
+        sh.line("marks", [(x0, y_ax), (x0 + (tile.s_end - tile.s0) * mm, y_ax)])
+        for n in range(math.ceil(tile.s0 * k - 1e-9), math.floor(tile.s_end * k + 1e-9) + 1):
             x = x0 + (n / k - tile.s0) * mm
-            sh.line("marks", [(x, y_base), (x, y_base - (3.0 if n % 5 == 0 else 1.5))])
+            sh.line("marks", [(x, y_ax), (x, y_ax - (3.0 if n % 5 == 0 else 1.5))])
             if n % 5 == 0:
-                sh.text("text", x, y_base - 5.5, f"{n / k:.4g}", 2.0, "middle")
+                sh.text("text", x, y_ax - 5.5, f"{n / k:.4g}", 2.0, "middle")
         top = y_ax - TICKS_H - STRIP_GAP
     # scale bar and legend
     bx, by = MARGIN, MARGIN + 9.0

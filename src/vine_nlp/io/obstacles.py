@@ -289,6 +289,22 @@ def _text_attr(v):
     return v
 
 
+def _obstacle_dataset(g, key: str, want: tuple, file: str, path: str) -> np.ndarray:
+    """Dataset ``key`` of obstacle group ``g``: numbers of shape ``want`` (None: any size), finite."""
+    if key not in g or not isinstance(g[key], h5py.Dataset):
+        raise InputError(file, path, "missing")
+    ds = g[key]
+    if ds.dtype.kind not in "iuf":
+        raise InputError(file, path, "must hold numbers")
+    a = ds[()]
+    if not (np.ndim(a) == len(want) and all(w is None or w == s for w, s in zip(want, np.shape(a)))):
+        shown = "(" + ", ".join("N" if w is None else str(w) for w in want) + (",)" if len(want) == 1 else ")")
+        raise InputError(file, path, f"must have shape {shown if want else '() (a scalar)'}, got {np.shape(a)}")
+    if not np.all(np.isfinite(a)):
+        raise InputError(file, path, "must be finite")
+    return a
+
+
 def read_obstacles(h5group, file) -> list:
     """Obstacles from an archive's ``/obstacles`` group, validated: InputError ``(file, "<dataset or group path>",
     reason)``."""
@@ -313,22 +329,7 @@ def read_obstacles(h5group, file) -> list:
         name = _text_attr(g.attrs.get("name", ""))
         if not isinstance(name, str) or _bad_name(name):
             raise InputError(file, f"{where}@name", f"must be printable text of at most {limits.MAX_NAME_CHARS} characters")
-        params = {}
-        for key, want in _DATASETS[shape].items():
-            path = f"{where}/{key}"
-            if key not in g or not isinstance(g[key], h5py.Dataset):
-                raise InputError(file, path, "missing")
-            ds = g[key]
-            if ds.dtype.kind not in "iuf":
-                raise InputError(file, path, "must hold numbers")
-            a = ds[()]
-            ok = np.ndim(a) == len(want) and all(w is None or w == s for w, s in zip(want, np.shape(a)))
-            if not ok:
-                shown = "(" + ", ".join("N" if w is None else str(w) for w in want) + (",)" if len(want) == 1 else ")")
-                raise InputError(file, path, f"must have shape {shown if want else '() (a scalar)'}, got {np.shape(a)}")
-            if not np.all(np.isfinite(a)):
-                raise InputError(file, path, "must be finite")
-            params[key] = a
+        params = {key: _obstacle_dataset(g, key, want, file, f"{where}/{key}") for key, want in _DATASETS[shape].items()}
         try:
             if shape != "mesh":  # the datasets are named as the shape's fields
                 ob = OBSTACLE_TYPES[shape](**{k: float(v) if k == "radius" else v for k, v in params.items()}, name=name)

@@ -30,24 +30,7 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
     (K, 3) arrays; ``lines``: one for all or one per file), estimate and correct (``adjust``: the route taken, None:
     the recommended one); no file written. Returns (CorrectionResult, base Archive, builds (Routing, oldest first),
     the /correction attributes). Raises InputError: a bad archive or CSV, an unknown run, mismatched lines."""
-    if isinstance(archive_path, Archive):
-        archive, state = archive_path, None
-        if any(k.startswith("correction/") for k in archive.extra):
-            raise InputError(archive.name, "ARCHIVE", "a correction archive: pass its path (its measurements are read from the file)")
-        archive_path = Path(f"{archive.name}.h5")
-    else:
-        archive_path = Path(archive_path)
-        if not archive_path.exists():
-            raise InputError(archive_path, "ARCHIVE", "no such file")
-        archive, state = read_correction(archive_path)
-    if archive.kind != "design" or archive.target is None:
-        raise InputError(archive_path, "/problem@kind", f"correct needs a design archive with a target (this is {archive.kind!r})")
-    if run is None:
-        run = "corrected" if state is not None and "corrected" in archive.runs else archive.default_run()
-    if run is None or run not in archive.runs:
-        raise InputError(archive_path, "--run", f"no run {run!r} (runs: {', '.join(archive.runs) or 'none'})")
-    if run == "as_built":
-        raise InputError(archive_path, "--run", "as_built is an estimate, not a nominal that was built")
+    archive_path, archive, state, run = _built_run(archive_path, run)
     lines = tuple(lines)
     if len(lines) not in (1, len(measured)):
         raise InputError("command line", "--line", f"one line for all files or one per file ({len(measured)}), got {len(lines)}")
@@ -88,6 +71,29 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
                 "sigma_lambda": sigmas.lam, "sigma_length": sigmas.length, "relative_length": bool(sigmas.relative_length),
                 "sigma_measurement": result.estimate.stats["measurement_sigma"]}
     return result, archive, builds, settings
+
+
+def _built_run(archive_path, run):
+    """(path, design Archive, correction state or None, the run that was built) of ``correct_files``'s archive."""
+    if isinstance(archive_path, Archive):
+        archive, state = archive_path, None
+        if any(k.startswith("correction/") for k in archive.extra):
+            raise InputError(archive.name, "ARCHIVE", "a correction archive: pass its path (its measurements are read from the file)")
+        archive_path = Path(f"{archive.name}.h5")
+    else:
+        archive_path = Path(archive_path)
+        if not archive_path.exists():
+            raise InputError(archive_path, "ARCHIVE", "no such file")
+        archive, state = read_correction(archive_path)
+    if archive.kind != "design" or archive.target is None:
+        raise InputError(archive_path, "/problem@kind", f"correct needs a design archive with a target (this is {archive.kind!r})")
+    if run is None:
+        run = "corrected" if state is not None and "corrected" in archive.runs else archive.default_run()
+    if run is None or run not in archive.runs:
+        raise InputError(archive_path, "--run", f"no run {run!r} (runs: {', '.join(archive.runs) or 'none'})")
+    if run == "as_built":
+        raise InputError(archive_path, "--run", "as_built is an estimate, not a nominal that was built")
+    return archive_path, archive, state, run
 
 
 def _check_plausible(result, new, D, units):
