@@ -23,7 +23,6 @@ from vine_nlp.analysis.obstacles import (
     obstacle_report,
     sample_chain,
     sample_spacing,
-    samples_needed,
 )
 from vine_nlp.errors import InputError
 from vine_nlp.io.obstacles import (
@@ -45,6 +44,7 @@ from vine_nlp.model.obstacles import (
     nearest_triangles,
     point_triangle_distance,
     rotation_from_degrees,
+    sharpness_radius,
 )
 from vine_nlp.model.routing import Routing
 
@@ -251,10 +251,9 @@ def test_sample_spacing_matches_dip():
     assert dip(h, D, 0.3) == pytest.approx(1e-3 * D, rel=1e-6)
     assert dip(0.5 * D, D, 0.0) < dip(0.9 * D, D, 0.0) < math.inf
     assert dip(2.0 * D, D, 0.0) == math.inf  # a point obstacle fits between samples 2 (D/2) apart
-    n = samples_needed(100.0, D, 0.3, [Sphere((0, 0, 0), 1.0), Box((0, 0, 0), (1, 1, 1))])
-    assert n == math.ceil(100.0 / h) + 1
+    assert sample_spacing(D, 0.3, sharpness=sharpness_radius(Box((0, 0, 0), (1, 1, 1)))) == h  # a box's edges are sharp
     # a round obstacle allows sparser samples than a sharp one
-    assert samples_needed(100.0, D, 0.3, [Sphere((0, 0, 0), 5.0)]) < n
+    assert sample_spacing(D, 0.3, sharpness=sharpness_radius(Sphere((0, 0, 0), 5.0))) > h
 
 
 def _straight(length, M=4, pose=None):

@@ -43,7 +43,6 @@ import numpy as np
 
 from vine_nlp.model.chain import chain_frames, chain_points, segment_end_samples
 from vine_nlp.model.helix import center_rates
-from vine_nlp.model.obstacles import sharpness_radius
 from vine_nlp.model.routing import Routing
 
 GROWTH_MODES = ("while-actuated", "after")
@@ -108,18 +107,6 @@ def sample_spacing(diameter: float, margin: float = 0.0, tol: float | None = Non
         else:
             hi = mid
     return lo
-
-
-def samples_needed(length: float, diameter: float, margin: float, obstacles, tol: float | None = None,
-                   kappa: float | None = None) -> int:
-    """Center-line samples (both ends included; 2 without obstacles) so that the sampled gap bounds the continuous
-    one within ``tol`` (default 1e-3 D): ``length`` (arc length; the unactuated length bounds it) in pieces of
-    :func:`sample_spacing` for the sharpest obstacle (smallest :func:`sharpness_radius`)."""
-    if not obstacles:
-        return 2
-    sharp = min(sharpness_radius(o) for o in obstacles)
-    h = sample_spacing(diameter, margin, tol, kappa, sharp)
-    return int(math.ceil(float(length) / h)) + 1
 
 
 # ------------------------------------------------------------------ sampling the model
