@@ -343,6 +343,7 @@ def test_fit_recovers_lambda(tmp_path):
     a = vn.load(path)
     np.testing.assert_array_equal(a.extra["measured/points"], measured)
     assert main(["plot", str(path), "-o", str(tmp_path / "fit.png")]) == 0
+    assert r.plot().get_suptitle() == "fit: model fit" == a.run().plot().get_suptitle()  # the command's figure of a fit
     with pytest.raises(vn.ArgumentError, match="^free: must be one of 'lambda'"):
         vn.fit(measured, built, D, free=("theta",))
     with pytest.raises(vn.ArgumentError, match="^line: must be one of 'center', 'inner', 'outer'"):

@@ -11,18 +11,17 @@ from vine_nlp.io.archive import Archive, load_archive
 
 
 def figure(archive: Archive, path=None):
-    """The matplotlib Figure of ``archive`` (not registered with pyplot); a multi-shape archive is drawn
-    from its file ``path`` (its levels are groups the generic reader leaves out)."""
+    """The matplotlib Figure of ``archive`` (not registered with pyplot): a fit archive gets the fit's own figure
+    (measured points against the model, error along it); a multi-shape archive is drawn from its file ``path``
+    (its levels are groups the generic reader leaves out)."""
     if archive.kind == "multishape":
         return plot_multishape_figure(path)
+    if archive.kind == "fit":
+        return plot_fit(archive)
     return plot_archive(archive, obstacles=archive.obstacles)
 
 
 def draw(archive_path, figure_path) -> Path:
-    """Draw the archive file into ``figure_path`` (png, pdf or svg by suffix), atomically; a fit archive
-    gets the fit's own figure (measured points against the model, error along it)."""
+    """Draw the archive file into ``figure_path`` (png, pdf or svg by suffix), atomically."""
     figure_format(figure_path)  # before any drawing
-    archive = load_archive(archive_path)
-    if archive.kind == "fit":
-        return plot_fit(archive, figure_path)
-    return save_figure(figure(archive, archive_path), figure_path)
+    return save_figure(figure(load_archive(archive_path), archive_path), figure_path)

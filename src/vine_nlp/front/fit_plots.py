@@ -43,12 +43,12 @@ def _fit_inputs(source, extras):
     return result, extras, units, name
 
 
-def plot_fit(source, path, extras=None, title=None):
+def plot_fit(source, path=None, extras=None, title=None):
     """Measured points against the fitted model, and the error against length.
 
     ``source``: an archive written by ``vine-nlp fit`` (an :class:`Archive` or its
     path), a ``(Result, extras)`` pair from :func:`vine_nlp.methods.fit.fit_problem`, or a
-    Result with ``extras`` given separately. Writes ``path`` (png or pdf).
+    Result with ``extras`` given separately. Returns the Figure, also written to ``path`` (png or pdf) if given.
     """
     result, ex, units, name = _fit_inputs(source, extras)
     pts = ex["measured/points"].reshape(-1, 3)
@@ -97,7 +97,9 @@ def plot_fit(source, path, extras=None, title=None):
     ax2.set_title(", ".join(b for b in bits if b), fontsize=9)
     fig.suptitle(title or (f"{name}: model fit" if name else "model fit"), fontsize=10)
     fig.tight_layout()
-    save_figure(fig, path, dpi=150)
+    if path is not None:
+        save_figure(fig, path, dpi=150)
+    return fig
 
 
 def plot_frames(results, path, units: str = "cm", show: int = 5, title=None, frame_times=None):
@@ -138,4 +140,6 @@ def plot_frames(results, path, units: str = "cm", show: int = 5, title=None, fra
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    save_figure(fig, path, dpi=150)
+    if path is not None:
+        save_figure(fig, path, dpi=150)
+    return fig
