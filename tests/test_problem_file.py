@@ -103,6 +103,21 @@ def test_forward_per_segment_lengths_are_the_chain_of_that_routing(tmp_path):
     np.testing.assert_allclose(r.theta, [0.0, 0.02, 0.045], rtol=0, atol=1e-15)
 
 
+def test_one_routing_check_names_the_readers_key():
+    # problem files, the API and archives check a routing with io.validate.validate_routing; each names its own keys
+    from vine_nlp.io.h5read import ArchiveError
+    from vine_nlp.io.validate import SourceFile, validate_routing
+
+    keys = {k: f"/runs/nlp/design/{k}" for k in ("theta", "lam", "length", "initial_pose")}
+    with pytest.raises(ArchiveError) as e:
+        validate_routing(SourceFile("a.h5", ArchiveError), np.zeros(3), np.array([1.0, 0.0, 1.0]), np.ones(3), np.eye(4), keys)
+    assert str(e.value) == "a.h5: /runs/nlp/design/lam: must be in (0, 1] (segment 2: 0)"
+    with pytest.raises(InputError, match=r"^p.toml: theta: needs 3 values \(one per segment\), got 2$"):
+        validate_routing(SourceFile("p.toml"), np.zeros(2), 1.0, np.ones(3))
+    r = validate_routing(SourceFile("p.toml"), 0.1, np.array([0.5, 1.0]), 2.0)  # numbers repeat over the segments
+    np.testing.assert_array_equal(r.theta, [0.1, 0.1]) and np.testing.assert_array_equal(r.length, [2.0, 2.0])
+
+
 def test_forward_initial_pose(tmp_path):
     pose = [[0, -1, 0, 1.5], [1, 0, 0, 0], [0, 0, 1, -2], [0, 0, 0, 1]]
     r = forward(tmp_path, f"length = 2\nsegment_length = 1\ntheta = 0\nlambda = 1\ninitial_pose = {pose}\n").problem.routing

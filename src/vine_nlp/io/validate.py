@@ -28,14 +28,15 @@ POSE_TOL = 1e-6
 
 
 class SourceFile:
-    """The file being read: names it in errors and anchors relative paths."""
+    """The file being read: names it in errors (of type ``error_type``, an InputError) and anchors relative paths."""
 
-    def __init__(self, path: str):
+    def __init__(self, path: str, error_type: type = InputError):
         self.path = str(path)
         self.dir = Path(self.path).parent
+        self.error_type = error_type
 
     def error(self, key: str, reason: str) -> InputError:
-        return InputError(self.path, key, reason)
+        return self.error_type(self.path, key, reason)
 
 
 MAX_DEPTH = 32  # tables and arrays inside each other, parts of a dotted key
@@ -232,7 +233,8 @@ def validate_routing(f: SourceFile, theta, lam, length, initial_pose=None, keys:
     """The one check of a routing, wherever it is read (problem files, the Python API, archives): ``theta``
     (rad), ``lam`` and ``length`` are numbers (the same on every segment) or float arrays of one value per
     segment; M is ``segments``, else the size of the first array among length, theta, lam. Every bad value
-    is ``f.error(keys[name], reason)`` (``f``: any object with that method), naming the segment for arrays.
+    is ``f.error(keys[name], reason)`` (``f``: any object with that method; an archive's reader:
+    ``SourceFile(file, ArchiveError)`` with ``keys`` the datasets), naming the segment for arrays.
     With ``diameter`` (a routing to run), its forward shape must fit an archive (MAX_SHAPE_POINTS rows)."""
     values = {k: np.asarray(v, dtype=float) for k, v in (("theta", theta), ("lam", lam), ("length", length))}
     for k, v in values.items():
