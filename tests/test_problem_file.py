@@ -96,7 +96,7 @@ def test_forward_per_segment_lengths_are_the_chain_of_that_routing(tmp_path):
     r = pf.problem.routing
     np.testing.assert_array_equal(r.length, [20.0, 25.0, 15.0])
     np.testing.assert_array_equal(r.theta, np.radians([10.0, -20.0, 5.0]))
-    built = Routing(np.radians([10.0, -20.0, 5.0]), np.array([0.8, 1.0, 0.6]), np.array([20.0, 25.0, 15.0]))
+    built = Routing(theta=np.radians([10.0, -20.0, 5.0]), lam=np.array([0.8, 1.0, 0.6]), length=np.array([20.0, 25.0, 15.0]))
     np.testing.assert_array_equal(forward_shape(r, 2.0).center, forward_shape(built, 2.0).center)
     # length, if given, is their sum; expressions are taken at the segment starts 0, 20, 45
     r = forward(tmp_path, "length = 60.0\nsegment_length = [20.0, 25.0, 15.0]\ntheta = '0.001 * s'\nlambda = 1\n").problem.routing
