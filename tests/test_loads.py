@@ -4,11 +4,16 @@ files, the judgement and the design with the load rows."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+import vine_nlp
 from vine_nlp.analysis.loads import METRES_PER_UNIT, _samples, load_report
+from vine_nlp.front.cli import main
+from vine_nlp.io.archive import load_archive
+from vine_nlp.methods.loads import BUDGET
 from vine_nlp.model.routing import Routing
 from vine_nlp.problem import Load
 
@@ -93,3 +98,116 @@ def test_growth_prefix_loads_more_than_the_final_shape():
     assert rep["moment_growth"][0] >= 9.81 * (0.01 * 0.5**2 / 2 + 0.2 * 0.5) * (1 - 1e-9)
     # actuated after growth: the straight metre grown first, payload at its end
     assert after["moment_growth"][0] == pytest.approx(9.81 * (0.01 * 1.0**2 / 2 + 0.2 * 1.0), rel=1e-3)
+
+
+# ---------------------------------------------------------------- [load] files and the judgement
+
+BUNDLED = Path(__file__).resolve().parents[1] / "problems" / "load-reach.toml"
+
+FORWARD = """name = "cantilever"
+units = "cm"
+[tube]
+diameter = 5.0
+[routing]
+length = 100.0
+segment_length = 10.0
+theta = 0.0
+lambda = 1.0
+[load]
+pressure = {pressure}
+mass_per_length = 0.04
+tip_mass = 0.02
+safety = 1.5
+"""
+
+
+def _need() -> float:
+    """The straight horizontal metre's least pressure, kPa: 1.5 (w g L^2 / 2 + m g L) / (pi r^3)."""
+    return 1.5 * 9.81 * (0.04 / 2 + 0.02) / (math.pi * 0.025**3) / 1e3
+
+
+def test_judgement_exits_1_with_its_line_below_the_needed_pressure(tmp_path, capsys):
+    need = _need()
+    for factor, code in ((0.5, 1), (1.01, 0)):
+        p = tmp_path / f"c{factor}.toml"
+        p.write_text(FORWARD.format(pressure=repr(need * factor)))
+        out = tmp_path / f"c{factor}.h5"
+        assert main(["forward", str(p), "-o", str(out)]) == code
+        err = capsys.readouterr().err.strip().splitlines()
+        if code:
+            assert err == [f"cantilever: forward: optimal; folds under its weight at s = 0 cm (load margin {1.5 * factor:.3g} < safety 1.5 "
+                           f"at {need * factor:g} kPa); it needs at least {need:.4g} kPa"]
+        else:
+            assert err == []
+        m = load_archive(out).runs["forward"].metrics
+        assert m["load_margin"] == pytest.approx(1.5 * factor, rel=1e-3) and m["min_pressure"] == pytest.approx(need, rel=1e-3)
+
+
+@pytest.mark.parametrize("change,line", [
+    ("pressure = -1.0", "load.pressure: must be > 0, got -1"),
+    ("pressure = 0", "load.pressure: must be > 0, got 0"),
+    ("mass_per_length = -0.1", "load.mass_per_length: must be >= 0, got -0.1"),
+    ("tip_mass = -2", "load.tip_mass: must be >= 0, got -2"),
+    ("safety = 0.5", "load.safety: must be >= 1, got 0.5"),
+    ("gravity = [0.0, 0.0, 0.0]", "load.safety: asks for a safety factor under zero gravity: nothing weighs (give gravity)"),
+    ("gravity = [0.0, -9.81]", "load.gravity: must be a list of 3 numbers"),
+    ("tip_mas = 0.1", "load.tip_mas: unknown key; did you mean 'tip_mass'?"),
+    ("units_ = 1", "load.units_: unknown key"),
+])
+def test_bad_load_keys_give_one_error_line(tmp_path, capsys, change, line):
+    text = BUNDLED.read_text()
+    key = change.split(" = ")[0]
+    text = "\n".join(ln for ln in text.splitlines() if not ln.startswith(f"{key} =")) + "\n" + change + "\n"
+    p, out = tmp_path / "bad.toml", tmp_path / "bad.h5"
+    p.write_text(text)
+    assert main(["design", str(p), "-o", str(out)]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [f"error: {p}: {line}"]
+    assert not out.exists()
+
+
+def test_load_needs_units_that_convert_to_metres(tmp_path, capsys):
+    p, out = tmp_path / "ft.toml", tmp_path / "ft.h5"
+    p.write_text(FORWARD.format(pressure=5.0).replace('units = "cm"', 'units = "ft"'))
+    assert main(["forward", str(p), "-o", str(out)]) == 2
+    assert capsys.readouterr().err.strip() == f"error: {p}: units: must be one of m, cm, mm, in, inch with [load] (its SI values need metres)"
+    assert not out.exists()
+
+
+def test_load_is_refused_in_a_tip_problem(tmp_path, capsys):
+    p = tmp_path / "tip.toml"
+    p.write_text((BUNDLED.parents[0] / "tip-target.toml").read_text() + "\n[load]\npressure = 5.0\nmass_per_length = 0.1\n")
+    assert main(["design", str(p), "-o", str(tmp_path / "t.h5")]) == 2
+    assert capsys.readouterr().err.strip() == f"error: {p}: load: not used in a tip problem"
+
+
+# ---------------------------------------------------------------- the design
+
+
+def test_design_with_load_meets_its_rows_and_the_judge(tmp_path):
+    """The bundled reach at 8 kPa: on the target it would need 8.25 kPa; the design stands (margin >= safety
+    everywhere, every grown prefix) a few millimetres off the target, and is ok; Design.ok agrees."""
+    d = vine_nlp.solve(BUNDLED)
+    r = d.result
+    assert d.ok and r.ok and r.method == "nlp_load" and r.stats["load_rounds"] >= 1
+    assert r.stats["start_load_margin"] < 1.5 <= r.metrics["load_margin"]
+    assert r.metrics["min_pressure"] <= 8.0 * (1 + 1e-9)
+    assert r.stats["start_rmse"] < r.metrics["rmse"] < r.stats["start_rmse"] + BUDGET * 8.0
+    rep = load_report(r.routing, 8.0, "cm", d.problem.load)
+    assert rep["holds"] and rep["margin"] == pytest.approx(r.metrics["load_margin"])
+
+
+def test_design_at_half_the_pressure_keeps_the_target_and_folds(tmp_path):
+    """At 4 kPa the design that stands curls far off the target: the design on the target stays run nlp, judged
+    to fold (not ok), the one that stands beside it (run nlp_load)."""
+    p = tmp_path / "half.toml"
+    p.write_text(BUNDLED.read_text().replace("pressure = 8.0", "pressure = 4.0"))
+    d = vine_nlp.solve(p)
+    runs = d.runs
+    nlp = runs["nlp"].result
+    assert not d.ok and d.run == "nlp" and "nlp_load" in runs
+    assert nlp.shortfall == (f"folds under its weight at s = 0 cm (load margin {nlp.metrics['load_margin']:.3g} < safety 1.5 at 4 kPa); "
+                             f"it needs at least {nlp.metrics['min_pressure']:.4g} kPa",)
+    # the design on the target, judged: as design_with_load found it before its rows; it needs about 8.25 kPa
+    assert nlp.metrics["load_margin"] == pytest.approx(runs["nlp_load"].result.stats["start_load_margin"], rel=1e-12)
+    assert 8.0 < nlp.metrics["min_pressure"] < 8.5
+    assert runs["nlp_load"].result.metrics["rmse"] > nlp.metrics["rmse"] + BUDGET * 8.0

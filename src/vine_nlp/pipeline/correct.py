@@ -18,6 +18,7 @@ from vine_nlp.io.problems import design_problem_of
 from vine_nlp.methods.correct import ADJUST, Deviations, Measurement, combine_systematic, correct
 from vine_nlp.model.pairing import pair_points
 from vine_nlp.model.routing import MEASURED_LINES, Sigmas
+from vine_nlp.pipeline.runs import judge_load
 
 # problem units per millimetre, for the default measurement sigma of 1 mm
 UNITS_PER_MM = {"mm": 1.0, "cm": 0.1, "m": 0.001, "in": 1 / 25.4, "inch": 1 / 25.4}
@@ -85,6 +86,9 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
     result = correct(problem, builds, ms, adjust=adjust, sigmas=sigmas, measurement_sigma=measurement_sigma,
                      units_per_mm=units_per_mm or 0.1, start=start, start_systematic=state.systematic if start else None)
     _check_plausible(result, new, problem.diameter, archive.units)
+    if problem.load is not None:  # the robot as built and the correction to build, under the problem's [load]
+        judge_load(problem, result.as_built)
+        result.corrected.shortfall = tuple(result.corrected.shortfall) + tuple(judge_load(problem, result.corrected))
     settings = {"built_run": run, "adjust": ",".join(result.adjust), "recommended": result.recommended, "free_pose": bool(free_pose), "sigma_theta_rad": sigmas.theta,
                 "sigma_lambda": sigmas.lam, "sigma_length": sigmas.length, "relative_length": bool(sigmas.relative_length),
                 "sigma_measurement": result.estimate.stats["measurement_sigma"]}

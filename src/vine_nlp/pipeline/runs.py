@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vine_nlp.analysis.loads import fold_line, load_metrics, load_report
 from vine_nlp.analysis.obstacles import obstacle_report
 from vine_nlp.io.archive import Archive, write_archive
 from vine_nlp.io.formulations import write_multishape_archive, write_tip_archive
@@ -35,6 +36,7 @@ from vine_nlp.methods.clearance import design_with_clearance
 from vine_nlp.methods.common import evaluate, pair_points, run_forward
 from vine_nlp.methods.fit import fit_frames, fit_problem
 from vine_nlp.methods.greedy import design_greedy, lowpass
+from vine_nlp.methods.loads import load_runs
 from vine_nlp.methods.multishape import design_multishape
 from vine_nlp.methods.nlp import design_nlp
 from vine_nlp.methods.obstacles import FREE_RUN, design_with_obstacles, tip_design
@@ -176,6 +178,8 @@ def _design_as_given(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, 
     if problem.obstacles:  # the obstacle design is run nlp; the obstacle-free design it started from is kept beside it
         free = runs.pop("nlp")
         runs = {"nlp": design_with_obstacles(problem, start=free), FREE_RUN: free} | runs
+    if problem.load is not None and "nlp" in runs and not problem.obstacles:  # among obstacles the load is judged only
+        runs = load_runs(problem, runs.pop("nlp")) | runs
     if rq.robust is not None:
         runs["nlp_robust"] = design_robust(problem, rq.robust, start=runs["nlp"], weight=rq.robust_weight)
     if rq.clearance is not None:
@@ -257,7 +261,8 @@ def calibrated(problem: DesignProblem, result: Result) -> Result:
 def judge(problem, result: Result) -> None:
     """Set ``result.shortfall``: every hard requirement of ``problem`` the result misses, one line each
     (the actuator's bounds; the obstacle margin, checked densely on the shape the robot realizes; the
-    clearance a clearance run was asked for). Adds the obstacle metrics of problems with obstacles."""
+    clearance a clearance run was asked for; a [load]: every section holds with its safety factor). Adds the
+    obstacle and load metrics of problems with obstacles and loads."""
     short = []
     a, r = getattr(problem, "actuator", None), result.routing
     if a is not None and result.method not in ("forward", "fit"):
@@ -265,10 +270,11 @@ def judge(problem, result: Result) -> None:
             short.append(f"|theta| above its bound {np.degrees(a.theta_max):g} deg")
         if np.any(r.lam < a.lambda_min * (1 - BOUND_TOL)) or np.any(r.lam > 1 + BOUND_TOL):
             short.append(f"lambda outside [{a.lambda_min:g}, 1]")
+    cal = getattr(problem, "calibration", None)
+    realized = realized_of(r, cal, a.lambda_min if a else 0.0) if cal is not None else r
+    short += judge_load(problem, result, realized)
     obstacles = getattr(problem, "obstacles", ())
     if obstacles:
-        cal = getattr(problem, "calibration", None)
-        realized = realized_of(r, cal, a.lambda_min if a else 0.0) if cal is not None else r
         rep = obstacle_report(realized, problem.diameter, obstacles, problem.growth, problem.obstacle_margin)
         result.metrics["min_obstacle_gap"] = float(rep["min_gap"])
         if problem.growth == "after":
@@ -280,3 +286,15 @@ def judge(problem, result: Result) -> None:
         need = problem.diameter + result.stats.get("min_gap", 0.0)
         short.append(f"clearance not kept: min {result.stats['min_clearance']:.4g} {problem.units} < D + min_gap = {need:.4g}")
     result.shortfall = tuple(short)
+
+
+def judge_load(problem, result: Result, routing=None) -> list[str]:
+    """A [load] problem's run: its load metrics (analysis.loads: load_margin, collapse_at, min_pressure) on
+    ``routing`` (default the run's; the shape the robot realizes), and the line where it folds, if it does."""
+    load = getattr(problem, "load", None)
+    if load is None or result.method == "fit":
+        return []
+    rep = load_report(result.routing if routing is None else routing, problem.diameter, problem.units, load,
+                      getattr(problem, "growth", "while-actuated"))
+    result.metrics.update(load_metrics(rep))
+    return [] if rep["holds"] else [fold_line(rep, load, problem.units)]

@@ -1,0 +1,67 @@
+"""``vine-nlp analyze`` under a problem's [load] (issue 45): the lines it prints and its figure, the bending
+moment and the capacity along the tube, the final shape's and the largest over growth (analysis.loads)."""
+
+from __future__ import annotations
+
+import math
+
+import matplotlib
+
+from vine_nlp.analysis.loads import fold_line, load_metrics, load_report
+from vine_nlp.errors import InputError
+from vine_nlp.front.plot import COLUMN_IN, STYLE, save_figure
+from vine_nlp.io.problems import parse_problem
+from vine_nlp.io.validate import parse_toml
+
+
+def archived_load(archive, path):
+    """(Load, growth) of the archive's problem, or (None, None) where its source has no valid [load]."""
+    try:
+        pf = parse_problem(parse_toml(str(path), archive.source), str(path), archive.source)
+    except InputError:
+        return None, None
+    load = getattr(pf.problem, "load", None)
+    return load, getattr(pf.problem, "growth", "while-actuated")
+
+
+def analyze_load(archive, path, routing, figure=None, title: str = "") -> dict:
+    """Print the load lines of one run, draw ``figure`` if asked; the run's load metrics ({} without [load])."""
+    load, growth = archived_load(archive, path)
+    if load is None:
+        if figure:
+            raise InputError(path, "--load-figure", "the archived problem has no [load]")
+        return {}
+    u = archive.units
+    rep = load_report(routing, archive.diameter, u, load, growth)
+    m = load_metrics(rep)
+    where = f" at s = {rep['collapse_at']:.4g} {u}" if math.isfinite(rep["margin"]) else ""
+    print(f"load        {load.pressure:g} kPa, {load.mass_per_length:g} kg/m, tip {load.tip_mass:g} kg, safety {load.safety:g}, "
+          f"growth {growth}: margin {rep['margin']:.3g}{where}; needs {rep['min_pressure']:.4g} kPa; "
+          + ("holds" if rep["holds"] else fold_line(rep, load, u)))
+    if figure:
+        load_figure(rep, figure, u, title)
+        print(f"figure -> {figure}")
+    return m
+
+
+def load_figure(rep: dict, path=None, units: str = "", title: str = ""):
+    """Bending moment (final shape; the largest over growth) and capacity along the tube, N m."""
+    from matplotlib.figure import Figure
+
+    with matplotlib.rc_context(STYLE):
+        fig = Figure(figsize=(COLUMN_IN, 2.4), layout="constrained")
+        ax = fig.subplots()
+        s = rep["s"]
+        ax.plot(s, rep["capacity"], color="k", lw=1.0, label="capacity (fold)")
+        ax.plot(s, rep["moment_growth"], color="tab:red", lw=1.0, ls="--", label="moment, largest over growth")
+        ax.plot(s, rep["moment"], color="tab:blue", lw=1.0, label="moment, final shape")
+        if math.isfinite(rep["margin"]):
+            ax.axvline(rep["collapse_at"], color="0.5", lw=0.6, ls=":")
+        ax.set_xlabel(f"arc length along the tube [{units}]")
+        ax.set_ylabel("bending moment [N m]")
+        ax.set_ylim(bottom=0)
+        ax.legend(frameon=False, loc="upper right")
+        ax.set_title(f"{title}: margin {rep['margin']:.3g}, needs {rep['min_pressure']:.3g} kPa".lstrip(": "))
+    if path is not None:
+        save_figure(fig, path)
+    return fig
