@@ -12,7 +12,8 @@ import pytest
 import vine_nlp
 from vine_nlp.analysis.loads import METRES_PER_UNIT, _samples, load_report
 from vine_nlp.front.cli import main
-from vine_nlp.io.archive import load_archive
+from vine_nlp.front.show import summarize
+from vine_nlp.io.archive import load_archive, write_archive
 from vine_nlp.methods.loads import BUDGET
 from vine_nlp.model.routing import Routing
 from vine_nlp.problem import Load
@@ -211,3 +212,36 @@ def test_design_at_half_the_pressure_keeps_the_target_and_folds(tmp_path):
     assert nlp.metrics["load_margin"] == pytest.approx(runs["nlp_load"].result.stats["start_load_margin"], rel=1e-12)
     assert 8.0 < nlp.metrics["min_pressure"] < 8.5
     assert runs["nlp_load"].result.metrics["rmse"] > nlp.metrics["rmse"] + BUDGET * 8.0
+
+
+def test_analyze_prints_draws_and_writes_the_load_metrics(tmp_path, capsys):
+    p, out, fig = tmp_path / "c.toml", tmp_path / "c.h5", tmp_path / "load.png"
+    need = _need()
+    p.write_text(FORWARD.format(pressure=repr(2 * need)))
+    assert main(["forward", str(p), "-o", str(out)]) == 0
+    a = load_archive(out)
+    a.runs["forward"].metrics.clear()  # as an archive written before [load] was judged
+    write_archive(out, a)
+    capsys.readouterr()
+    assert main(["analyze", str(out), "--write-metrics", "--load-figure", str(fig), "--samples", "10"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [ln for ln in lines if ln.startswith("load ")] == [
+        f"load        {2 * need:g} kPa, 0.04 kg/m, tip 0.02 kg, safety 1.5, growth while-actuated: margin 3 at s = 0 cm; "
+        f"needs {need:.4g} kPa; holds"]
+    assert fig.stat().st_size > 1000 and f"figure -> {fig}" in lines
+    m = load_archive(out).runs["forward"].metrics
+    assert m["load_margin"] == pytest.approx(3.0, rel=1e-3) and m["collapse_at"] == 0.0 and m["min_pressure"] == pytest.approx(need, rel=1e-3)
+    assert "  min_pressure " + f"{m['min_pressure']:.6g} kPa" in summarize(out).splitlines()
+
+
+@pytest.mark.slow
+def test_sweep_error_column_agrees_with_the_judgement(tmp_path):
+    """Sweep items over the pressure: the error column says where an item folds, as the design's exit line does."""
+    import csv
+
+    sweep = tmp_path / "s.toml"
+    sweep.write_text(f'name = "press"\nbase = "{BUNDLED.as_posix()}"\nmethods = ["nlp"]\n[grid]\n"load.pressure" = [4.0, 12.0]\n')
+    main(["sweep", str(sweep), "-o", str(tmp_path / "out"), "--workers", "1"])
+    rows = list(csv.DictReader(open(tmp_path / "out" / "summary.csv", encoding="utf-8")))
+    assert [r["error"].startswith("misses: folds under its weight at s = 0 cm") for r in rows] == [True, False]
+    assert "it needs at least 8.2" in rows[0]["error"] and rows[1]["error"] == ""
