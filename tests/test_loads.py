@@ -226,8 +226,8 @@ def test_analyze_prints_draws_and_writes_the_load_metrics(tmp_path, capsys):
     assert main(["analyze", str(out), "--write-metrics", "--load-figure", str(fig), "--samples", "10"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert [ln for ln in lines if ln.startswith("load ")] == [
-        f"load        {2 * need:g} kPa, 0.04 kg/m, tip 0.02 kg, safety 1.5, growth while-actuated: margin 3 at s = 0 cm; "
-        f"needs {need:.4g} kPa; holds"]
+        f"load        {2 * need:g} kPa, 0.04 kg/m, tip 0.02 kg, safety 1.5, growth while-actuated: holds, margin 3 at s = 0 cm; "
+        f"it needs {need:.4g} kPa"]
     assert fig.stat().st_size > 1000 and f"figure -> {fig}" in lines
     m = load_archive(out).runs["forward"].metrics
     assert m["load_margin"] == pytest.approx(3.0, rel=1e-3) and m["collapse_at"] == 0.0 and m["min_pressure"] == pytest.approx(need, rel=1e-3)

@@ -39,8 +39,8 @@ from vine_nlp.model.routing import Routing
 METRES_PER_UNIT = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "inch": 0.0254}
 WRINKLED = 0.5  # an actuated section's capacity, as a fraction of pi P r^3 (module docstring)
 PER_SEGMENT = 20  # samples per segment of the report (as the obstacle report's)
-ZERO = 1e-12  # a bending moment below this fraction of the largest possible one is none (round-off)
-CHUNK = 256  # sections per block of the prefix search (memory: CHUNK x N x 3)
+ZERO = 1e-6  # a bending moment below this fraction of the largest possible one is none (round-off)
+CHUNK = 512  # sections per block of the prefix search (memory: a few CHUNK x N arrays)
 
 
 def collapse_moment(pressure_kpa: float, radius_m: float, actuated=False):
@@ -74,17 +74,27 @@ def bending(M, tangents) -> np.ndarray:
 
 def prefix_bending(points, l, tangents, mass_per_length: float, tip_mass: float, gravity) -> tuple[np.ndarray, np.ndarray]:
     """Growth while actuated: for every section k, the largest bending moment over the grown prefixes ending at
-    a point q >= k, the tip mass at q; (moment (N,), the prefix's end q (N,))."""
+    a point q >= k, the tip mass at q; (moment (N,), the prefix's end q (N,)).
+
+    The lever of prefix q about section k is a_k + b_q + S0_q p_k (a_k = S1_k - (S0_k + m) p_k, b_q = m p_q -
+    S1_q), so |L x g|^2 - ((L x g) . t_k)^2 = |L|^2 |g|^2 - (L . g)^2 - (L . (g x t_k))^2 is a few matrix
+    products: O(N^2) numbers, no N x N x 3 array."""
     p, l, g, t = (np.asarray(v, float) for v in (points, l, gravity, tangents))
     S0, S1 = _levers(p, l, mass_per_length, tip_mass)
+    a, b, h = S1 - (S0 + tip_mass)[:, None] * p, tip_mass * p - S1, np.cross(g, t)
     N = p.shape[0]
     best, where = np.zeros(N), np.arange(N)
-    for a in range(0, N, CHUNK):
-        k = np.arange(a, min(N, a + CHUNK))
-        lever = (S1[k, None] - S1[None]) - p[k, None] * (S0[k, None] - S0[None])[..., None] + tip_mass * (p[None] - p[k, None])
-        b = bending(np.cross(lever, g), t[k, None])
-        b[np.arange(N)[None] < k[:, None]] = 0.0  # a prefix ends beyond its section
-        where[k], best[k] = np.argmax(b, axis=1), np.max(b, axis=1)
+    for lo in range(0, N, CHUNK):
+        k = slice(lo, min(N, lo + CHUNK))
+        ak, pk, hk = a[k], p[k], h[k]
+        LL = (np.sum(ak * ak, 1)[:, None] + np.sum(b * b, 1)[None] + np.sum(pk * pk, 1)[:, None] * S0**2 + 2 * ak @ b.T
+              + 2 * S0 * (np.sum(ak * pk, 1)[:, None] + pk @ b.T))
+        Lg = (ak @ g)[:, None] + (b @ g)[None] + (pk @ g)[:, None] * S0
+        Lh = np.sum(ak * hk, 1)[:, None] + hk @ b.T + np.sum(pk * hk, 1)[:, None] * S0
+        b2 = LL * (g @ g) - Lg**2 - Lh**2
+        b2[np.arange(N)[None] < np.arange(lo, k.stop)[:, None]] = 0.0  # a prefix ends beyond its section
+        where[k] = np.argmax(b2, axis=1)
+        best[k] = np.sqrt(np.maximum(b2[np.arange(b2.shape[0]), where[k]], 0.0))
     return best, where
 
 
@@ -129,7 +139,7 @@ def load_report(routing: Routing, D: float, units: str, load, growth: str = "whi
     margin = float(ratio[i])
     return {"s": s, "l": l, "moment": final, "moment_growth": worst, "capacity": cap, "margin": margin,
             "collapse_at": float(s[i]) if math.isfinite(margin) else math.nan,
-            "min_pressure": load.pressure * load.safety / margin, "holds": margin >= load.safety,
+            "min_pressure": load.pressure * load.safety / margin, "holds": margin >= load.safety, "safety": load.safety,
             "growth_length": float(l[end[i]])}
 
 

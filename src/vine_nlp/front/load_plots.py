@@ -36,8 +36,8 @@ def analyze_load(archive, path, routing, figure=None, title: str = "") -> dict:
     m = load_metrics(rep)
     where = f" at s = {rep['collapse_at']:.4g} {u}" if math.isfinite(rep["margin"]) else ""
     print(f"load        {load.pressure:g} kPa, {load.mass_per_length:g} kg/m, tip {load.tip_mass:g} kg, safety {load.safety:g}, "
-          f"growth {growth}: margin {rep['margin']:.3g}{where}; needs {rep['min_pressure']:.4g} kPa; "
-          + ("holds" if rep["holds"] else fold_line(rep, load, u)))
+          f"growth {growth}: " + (f"holds, margin {rep['margin']:.3g}{where}; it needs {rep['min_pressure']:.4g} kPa" if rep["holds"]
+                                  else fold_line(rep, load, u)))
     if figure:
         load_figure(rep, figure, u, title)
         print(f"figure -> {figure}")
@@ -52,15 +52,16 @@ def load_figure(rep: dict, path=None, units: str = "", title: str = ""):
         fig = Figure(figsize=(COLUMN_IN, 2.4), layout="constrained")
         ax = fig.subplots()
         s = rep["s"]
-        ax.plot(s, rep["capacity"], color="k", lw=1.0, label="capacity (fold)")
-        ax.plot(s, rep["moment_growth"], color="tab:red", lw=1.0, ls="--", label="moment, largest over growth")
+        ax.plot(s, rep["capacity"], color="k", lw=1.0, label="capacity (it folds)")
+        ax.plot(s, rep["capacity"] / rep["safety"], color="k", lw=0.8, ls=":", label=f"capacity / safety {rep['safety']:g}")
         ax.plot(s, rep["moment"], color="tab:blue", lw=1.0, label="moment, final shape")
+        ax.plot(s, rep["moment_growth"], color="tab:red", lw=1.0, ls="--", label="moment, largest while growing")
         if math.isfinite(rep["margin"]):
             ax.axvline(rep["collapse_at"], color="0.5", lw=0.6, ls=":")
         ax.set_xlabel(f"arc length along the tube [{units}]")
         ax.set_ylabel("bending moment [N m]")
-        ax.set_ylim(bottom=0)
-        ax.legend(frameon=False, loc="upper right")
+        ax.set_ylim(0, 1.45 * max(float(rep["capacity"].max()), float(rep["moment_growth"].max())))
+        ax.legend(frameon=False, loc="upper center", ncol=2, fontsize=6)
         ax.set_title(f"{title}: margin {rep['margin']:.3g}, needs {rep['min_pressure']:.3g} kPa".lstrip(": "))
     if path is not None:
         save_figure(fig, path)
