@@ -58,7 +58,8 @@ def main() -> None:
     write_report("loads", "Design under self-weight and payload",
                  f"The pipeline's design (vine-nlp design) of each problem with its [load] and without it; median of {REPEATS} runs "
                  "after a warm-up of each. The design with [load] is the design without it, then, where that one does not stand "
-                 "with the safety factor, a re-solve with the load rows from it (methods.loads).",
+                 "with the safety factor, a re-solve with the load rows from it (methods.loads). A shared machine (other jobs "
+                 "running): compare the ratios, not the seconds.",
                  table(["problem", "without [load], s", "with [load], s", "ratio", "run nlp", "load rounds", "margin on target",
                         "margin", "RMSE", "ok"], rows))
 
