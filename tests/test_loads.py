@@ -245,3 +245,67 @@ def test_sweep_error_column_agrees_with_the_judgement(tmp_path):
     rows = list(csv.DictReader(open(tmp_path / "out" / "summary.csv", encoding="utf-8")))
     assert [r["error"].startswith("misses: folds under its weight at s = 0 cm") for r in rows] == [True, False]
     assert "it needs at least 8.2" in rows[0]["error"] and rows[1]["error"] == ""
+
+
+def test_the_design_rows_recursion_matches_the_analysis():
+    """methods.loads' recursion (4 weight points per segment) and its prefix rows against analysis.loads on the
+    full shape and on the shape grown to segment k (payload there), at the segment starts, within 0.5 %."""
+    from vine_nlp.methods.loads import load_extra, scales
+    from vine_nlp.model.chain import chain_frames
+    from vine_nlp.problem import DesignProblem
+
+    r, D = _curved(), 3.0
+    load = Load(pressure=5.0, mass_per_length=0.08, tip_mass=0.03, gravity=(0.0, -2.0, -9.81), safety=1.2)
+    problem = DesignProblem("c", D, np.zeros((12, 3)), load=load)
+    E = load_extra(problem, r)
+    a, _, g = scales(problem)
+    SM = math.pi * 5e3 * (0.015**3) / 1.2
+    F = chain_frames(r.theta, r.lam, r.length, D, r.initial_pose)
+    t, p = F[:, :3, 0], F[:, :3, 3] / D
+
+    def bend(mu, j):
+        return SM * np.linalg.norm(mu - mu.dot(t[j]) * t[j])
+
+    full = load_report(r, D, "cm", load, growth="after")["moment"][::20]
+    assert [bend(E[:3, j], j) for j in range(r.segments)] == pytest.approx(full[:-1], rel=5e-3)
+    for k in (2, 4):
+        grown = Routing(r.theta[:k], r.lam[:k], r.length[:k], r.initial_pose)
+        want = load_report(grown, D, "cm", load, growth="after")["moment"][::20][:k]
+        got = [bend(E[:3, j] - E[:3, k] - np.cross(p[k] - p[j], g) * a * E[3, k], j) for j in range(k)]
+        assert got == pytest.approx(want, rel=5e-3)
+
+
+HOOK = """name = "hook"
+units = "cm"
+[tube]
+diameter = 8.0
+[target]
+curve = "bezier"
+control_points = [[0, 0, 0], [60, 0, 0], [110, 0, 0], [110, 0, 50], [60, 0, 50]]
+samples = 121
+[actuator]
+kind = "tendon"
+[design]
+base = "fixed"
+[routing]
+initial_pose = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+[load]
+pressure = 12.0
+mass_per_length = 0.03
+tip_mass = 0.1
+safety = 1.5
+"""
+
+
+@pytest.mark.slow
+def test_a_hook_stands_while_it_grows(tmp_path):
+    """A reach that turns back over itself: grown part way, its payload is farther out than at the end, so a
+    grown prefix loads the base most. The design adds rows for those prefixes and stands all the way."""
+    p = tmp_path / "hook.toml"
+    p.write_text(HOOK)
+    d = vine_nlp.solve(p)
+    r = d.result
+    assert d.ok and r.method == "nlp_load" and r.stats["load_prefix_rows"] >= 1
+    rep = load_report(r.routing, 8.0, "cm", d.problem.load)
+    assert rep["holds"] and rep["margin"] >= 1.5
+    assert np.any(rep["moment_growth"] > 1.05 * rep["moment"])  # growth matters here

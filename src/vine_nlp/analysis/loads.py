@@ -118,7 +118,8 @@ def load_report(routing: Routing, D: float, units: str, load, growth: str = "whi
     (the largest over growth: prefixes while actuated, the straight tube after), capacity (N m), margin (min
     capacity / moment, inf where nothing bends), collapse_at (s of that minimum, problem units; NaN where
     inf), min_pressure (kPa: every section holds with the safety factor), holds (margin >= safety),
-    growth_length (the grown length, problem units, of the prefix that loads the weakest section most).
+    growth_length (the grown length, problem units, of the prefix that loads the weakest section most), l (the
+    samples' grown lengths), prefix_end (per sample, the grown length of the prefix that loads it most).
     """
     k = METRES_PER_UNIT[units]
     pts, t, s, l, actuated = _samples(routing, D, per_segment)
@@ -137,10 +138,10 @@ def load_report(routing: Routing, D: float, units: str, load, growth: str = "whi
         ratio = np.where(worst > ZERO * scale, cap / np.maximum(worst, 1e-300), np.inf)
     i = int(np.argmin(ratio))
     margin = float(ratio[i])
-    return {"s": s, "l": l, "moment": final, "moment_growth": worst, "capacity": cap, "margin": margin,
+    return {"s": s, "moment": final, "moment_growth": worst, "capacity": cap, "margin": margin,
             "collapse_at": float(s[i]) if math.isfinite(margin) else math.nan,
             "min_pressure": load.pressure * load.safety / margin, "holds": margin >= load.safety, "safety": load.safety,
-            "growth_length": float(l[end[i]])}
+            "growth_length": float(l[end[i]]), "l": l, "prefix_end": l[end]}
 
 
 def load_metrics(rep: dict) -> dict:

@@ -70,10 +70,30 @@ def load_block(last: bool) -> BlockType:
     return BlockType(f"load{'_last' if last else ''}", ca.Function("load_block", [v, d], [ca.SX(0), r]))
 
 
+@lru_cache(maxsize=1)
+def prefix_block() -> BlockType:
+    """A grown prefix's row: the section at segment j's start with the tube grown to segment k's start (k > j),
+    the payload there. By the recursion's linearity its moment is mu_j - mu_k - (p_k - p_j) x g^ a Lambda_k (the
+    weight beyond k taken off, the payload moved to p_k). v = (X_j (12), mu_j (3), p_k (3), mu_k (3), Lambda_k);
+    d = (a, g^ (3), c / tau)."""
+    v, d = ca.SX.sym("v", 22), ca.SX.sym("d", 5)
+    X, mu_j, p_k, mu_k = v[:12], v[12:15], v[15:18], v[18:21]
+    mu = mu_j - mu_k - ca.cross(p_k - X[9:12], d[1:4]) * d[0] * v[21]
+    r = d[4] ** 2 - (ca.sumsqr(mu) - ca.dot(mu, X[:3]) ** 2)
+    return BlockType("load_prefix", ca.Function("prefix_block", [v, d], [ca.SX(0), r]))
+
+
 @dataclass(frozen=True)
 class LoadRows:
     """The load rows on the chain (module docstring); extra stage variables E_j = (mu_j, Lambda_j): the
-    structure's ``extra`` = 4. Parameter ``load`` (6 + S, M): per segment (a, b, g^, c_j / tau, u)."""
+    structure's ``extra`` = 4. Parameter ``load`` (6 + S, M): per segment (a, b, g^, c_j / tau, u); with
+    ``pairs`` ((j, k), ...: grown prefixes, an active set), ``load_prefix`` (5, P): (a, g^, c_j / tau)."""
+
+    pairs: tuple = ()
+
+    @property
+    def compile(self):  # an active set of prefixes: each block type compiled on its own (as the obstacle rows)
+        return "blocks" if self.pairs else True
 
     def apply(self, c) -> None:
         lay, M = c.lay, c.s.M
@@ -87,6 +107,19 @@ class LoadRows:
         if M > 1:
             c.add_block(load_block(False), np.array([index(j, False) for j in range(M - 1)]).T, data[:, : M - 1], *rows, term="load")
         c.add_block(load_block(True), index(M - 1, True)[:, None], data[:, M - 1], *rows, term="load")
+        if self.pairs:
+            idx = np.array([np.r_[lay.X[j, 0], lay.extra[j, :3], lay.X[k, 0, 9:], lay.extra[k, :4]] for j, k in self.pairs]).T
+            c.add_block(prefix_block(), idx, c.param("load_prefix", (5, len(self.pairs))), 0.0, np.inf, term="load")
+
+
+def prefix_pairs(rep: dict, length) -> set:
+    """(j, k) of the grown prefixes that load a section past its allowed moment in ``rep`` (analysis.loads): the
+    segment start nearest the section, the one nearest the prefix's end (k > j, short of the tip)."""
+    cum = np.r_[0.0, np.cumsum(length)]
+    bad = np.flatnonzero((rep["moment_growth"] * rep["safety"] > rep["capacity"]) & (rep["prefix_end"] < cum[-1] * (1 - 1e-9)))
+    j = np.clip(np.abs(cum[None, :-1] - rep["l"][bad, None]).argmin(axis=1), 0, len(length) - 1)
+    k = np.abs(cum[None, :-1] - rep["prefix_end"][bad, None]).argmin(axis=1)
+    return {(int(a), int(b)) for a, b in zip(j, k) if b > a}
 
 
 def scales(problem: DesignProblem) -> tuple[float, float, np.ndarray]:
@@ -113,6 +146,12 @@ def load_data(problem: DesignProblem, lam, tau: float) -> np.ndarray:
     return np.vstack([np.full(M, a), np.full(M, b), np.tile(g[:, None], M), cap, np.tile(u[:, None], M)])
 
 
+def prefix_data(problem: DesignProblem, lam, tau: float, pairs) -> np.ndarray:
+    a, _, g = scales(problem)
+    cap = section_caps(lam) / tau
+    return np.array([[a, *g, cap[j]] for j, _ in pairs]).T.reshape(5, len(pairs))
+
+
 def load_extra(problem: DesignProblem, routing) -> np.ndarray:
     """The extra variables (4, M) of ``routing``: the recursion evaluated (numpy), units of D and S_M."""
     D, M = problem.diameter, routing.segments
@@ -132,19 +171,19 @@ def load_extra(problem: DesignProblem, routing) -> np.ndarray:
     return E[:, :M]
 
 
-def load_spec(problem: DesignProblem, pairing) -> Spec:
+def load_spec(problem: DesignProblem, pairing, pairs: tuple = ()) -> Spec:
     """The plain NLP plus the load rows, exact Hessian; the base pose free, or fixed where the problem fixes it."""
     o = problem.options
     s = Structure(pairing.segments, pairing.n, 1, "shared" if problem.actuator.shared_lambda else "segment",
                   "fixed" if o.base == "fixed" else "free", extra=4)
-    return Spec(s, (Smoothness(), SoftTip(), LoadRows()), "exact", Settings(o.max_iter, o.tol, hard=True))
+    return Spec(s, (Smoothness(), SoftTip(), LoadRows(tuple(sorted(pairs)))), "exact", Settings(o.max_iter, o.tol, hard=True))
 
 
 def design_with_load(problem: DesignProblem, start: Result, rounds: int = ROUNDS) -> Result:
     """The design of ``problem`` that stands under its [load] (module docstring), from ``start`` (the design
     without the load), returned as it is (with its load metrics) where it already stands. Method "nlp_load";
     metrics load_margin, collapse_at, min_pressure (analysis.loads); stats load_rounds, load_tighten,
-    start_rmse, start_load_margin; iterations and solver time summed over the solves with rows."""
+    load_prefix_rows, start_rmse, start_load_margin; iterations and solver time summed over the solves with rows."""
     growth = problem.growth
     first = load_report(start.routing, problem.diameter, problem.units, problem.load, growth)
     stats0 = {"start_rmse": float(start.metrics["rmse"]), "start_load_margin": first["margin"]}
@@ -157,17 +196,20 @@ def design_with_load(problem: DesignProblem, start: Result, rounds: int = ROUNDS
     D, R0g = problem.diameter, start.routing.initial_pose[:3, :3].copy()
     params = nlp_parameters(problem, pairing, R0g)
     fixed = problem.options.base == "fixed"
-    solver = get_solver(load_spec(problem, pairing))
-    # a buildable start's classes kept; a fixed base where the problem fixes it
-    base = start.routing.initial_pose if fixed else R0g
-    bounds = solver.bounds(*inherited_bounds(problem, pairing, start), X0=frames12(base[None], D).T if fixed else None)
-    x = start_x(solver, chain_guess(problem, start.routing), D, "chain")
-    x[solver.layout.extra.T] = load_extra(problem, start.routing)
-    tau, best, best_rep, res = 1.0, None, None, start
+    base = start.routing.initial_pose if fixed else R0g  # a fixed base where the problem fixes it
+    pairs = prefix_pairs(first, start.routing.length) if growth == "while-actuated" else set()
+    x, tau, best, best_rep, res = None, 1.0, None, None, start
     for k in range(rounds):
-        # the capacities of the latest design's sections (a buildable start's classes stay)
-        p = solver.pack_params(params | {"load": load_data(problem, res.routing.lam, tau)})
-        x, status, st = solver.solve(x, p, *bounds)
+        solver = get_solver(load_spec(problem, pairing, tuple(sorted(pairs))))
+        if x is None:  # the prefixes' rows add no variables: one start, one set of bounds (a buildable start's classes kept)
+            bounds = solver.bounds(*inherited_bounds(problem, pairing, start), X0=frames12(base[None], D).T if fixed else None)
+            x = start_x(solver, chain_guess(problem, start.routing), D, "chain")
+            x[solver.layout.extra.T] = load_extra(problem, start.routing)
+        # the capacities of the latest design's sections
+        data = {"load": load_data(problem, res.routing.lam, tau)}
+        if pairs:
+            data["load_prefix"] = prefix_data(problem, res.routing.lam, tau, sorted(pairs))
+        x, status, st = solver.solve(x, solver.pack_params(params | data), *bounds)
         res, done = stats.absorb(result_of(problem, pairing, solver, x, status, st, base, "nlp_load")), k + 1
         rep = load_report(res.routing, D, problem.units, problem.load, growth)
         key = drive.rank(res, rep["holds"], problem.load.safety - rep["margin"])
@@ -175,10 +217,12 @@ def design_with_load(problem: DesignProblem, start: Result, rounds: int = ROUNDS
             best, best_rep = res, rep
         if res.converged and (rep["holds"] or res.metrics["rmse"] > stats0["start_rmse"] + BUDGET * D):
             break  # it stands; or it stands only far off the target, where tightening goes farther (load_runs)
-        tau *= max(problem.load.safety / rep["margin"], 1.0) * TIGHTEN if rep["margin"] > 0 else 1.5
+        new = prefix_pairs(rep, res.routing.length) - pairs if growth == "while-actuated" else set()
+        pairs |= new  # a grown prefix short: its rows; else the rows tightened by the shortfall
+        tau *= 1.0 if new else max(problem.load.safety / rep["margin"], 1.0) * TIGHTEN if rep["margin"] > 0 else 1.5
     best = stats.stamp(best)
     best.metrics.update(load_metrics(best_rep))
-    best.stats.update(stats0 | {"load_rounds": done, "load_tighten": tau})
+    best.stats.update(stats0 | {"load_rounds": done, "load_tighten": tau, "load_prefix_rows": len(pairs)})
     return best
 
 
