@@ -309,3 +309,35 @@ def test_a_hook_stands_while_it_grows(tmp_path):
     rep = load_report(r.routing, 8.0, "cm", d.problem.load)
     assert rep["holds"] and rep["margin"] >= 1.5
     assert np.any(rep["moment_growth"] > 1.05 * rep["moment"])  # growth matters here
+
+
+@pytest.mark.slow
+def test_correct_judges_the_correction_under_the_load(tmp_path, capsys):
+    """``vine-nlp correct`` of a design with [load]: the corrected run gets the load metrics, and at a pressure it
+    folds at, the correction is not ok (exit 1, the fold line in its line)."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from simulate import draw_deviations, simulate_build
+
+    from vine_nlp.io.correction import read_correction
+    from vine_nlp.model.routing import Sigmas
+
+    problem = ('name = "t"\nunits = "cm"\n[tube]\ndiameter = 2.43\n[target]\ncurve = "trefoil"\nscale = [4.0, 4.0, 4.0]\n'
+               't_range = [-0.6283185307179586, 1.5707963267948966]\nsamples = 121\n'
+               '[load]\npressure = 1000.0\nmass_per_length = 0.02\ntip_mass = 0.01\nsafety = 1.5\n')
+    (tmp_path / "p.toml").write_text(problem)
+    assert main(["design", str(tmp_path / "p.toml"), "-o", str(tmp_path / "d.h5")]) == 0
+    a = load_archive(tmp_path / "d.h5")
+    nominal = a.runs["nlp"].routing
+    dev = draw_deviations(nominal, Sigmas.from_degrees(1.0, 0.02, 0.02), (0.01, 0.02, 1.02), seed=3)
+    np.savetxt(tmp_path / "m.csv", simulate_build(nominal, dev, 2.43, "outer", 150, 0.05, seed=4), delimiter=",", header="x,y,z", comments="")
+    a.source = a.source.replace("pressure = 1000.0", "pressure = 0.01")  # the robot as it is run: 10 Pa
+    write_archive(tmp_path / "low.h5", a)
+    capsys.readouterr()
+    for name, folds in (("d.h5", False), ("low.h5", True)):
+        code = main(["correct", str(tmp_path / name), str(tmp_path / "m.csv"), "-o", str(tmp_path / f"c-{name}"), "--adjust", "lambda,theta"])
+        err = capsys.readouterr().err
+        corrected = read_correction(tmp_path / f"c-{name}")[0].runs["corrected"]
+        assert {"load_margin", "collapse_at", "min_pressure"} <= corrected.metrics.keys()
+        assert ("folds under its weight" in err) == folds and (code == 1 if folds else True)
