@@ -297,7 +297,6 @@ safety = 1.5
 """
 
 
-@pytest.mark.slow
 def test_a_hook_stands_while_it_grows(tmp_path):
     """A reach that turns back over itself: grown part way, its payload is farther out than at the end, so a
     grown prefix loads the base most. The design adds rows for those prefixes and stands all the way."""

@@ -12,8 +12,10 @@ Mechanics (SI units throughout; lengths converted from the problem's units, :dat
   here (assumed, not modelled). The moment of a shape is static: the shape is the model's, not deflected
   by the load (a stiff, pressurized tube; collapse is a local fold, not a large deflection).
 - Capacity: an unactuated section folds at the collapse moment of an inflated beam, pi P r^3 (Comer and
-  Levy 1963; r = D/2; McFarland and Coad 2023 use it for straight vine robots collapsing under their own
-  weight). A section whose actuator is contracted (lambda < 1) is already wrinkled on its actuator side; it
+  Levy 1963; r = D/2). McFarland and Coad 2023 extend the inflated-beam models to straight vine robots under
+  their own weight at any launch angle; the trends their abstract reports (collapse length growing with the
+  square root of P and linearly with D) are what w L^2 / 2 = pi P r^3 gives for a wall mass w proportional
+  to D (their full model was not available here; it is not reproduced). A section whose actuator is contracted (lambda < 1) is already wrinkled on its actuator side; it
   is given the wrinkling-onset moment pi P r^3 / 2 (Comer and Levy: the moment at which the axial membrane
   stress P r / 2 t first vanishes on one side), whatever the direction of the load against the actuator
   and ignoring the actuator's own tension: a conservative choice (McFarland and McGuinness 2025 model
