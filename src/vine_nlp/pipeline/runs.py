@@ -5,7 +5,9 @@ The one place that decides which runs a problem makes, in which order, from whic
 - design problems: the design method(s) (``nlp``, a buildable design made from the free one:
   methods.buildable; ``greedy``, as the paper has it; ``compare``: nlp, greedy and the paper's
   low-pass-filtered greedy); among ``[[obstacles]]`` the obstacle design as run ``nlp``
-  with the obstacle-free design it started from as ``nlp_free``; then, if asked, the robust
+  with the obstacle-free design it started from as ``nlp_free``; with a ``[load]`` (no obstacles) the design
+  that stands under it (methods.loads; ``nlp_load`` beside the design on the target where it stands only far
+  off it); then, if asked, the robust
   (``nlp_robust``) and self-clearing (``nlp_clearance``) designs, started from ``nlp`` (keeping its
   actuated segments and margins). Every run is designed for what the robot should realize; with a
   ``[calibration]`` every run then becomes the nominal to build (the systematic errors taken out,
@@ -14,7 +16,7 @@ The one place that decides which runs a problem makes, in which order, from whic
 
 Every run is then judged against the hard requirements of its problem (:func:`judge`: the
 actuator's bounds, the obstacle margin checked densely against the exact shapes, the clearance
-asked for): ``Result.shortfall`` says what it misses. The exit status is 0 only where every run
+asked for, a [load]'s sections): ``Result.shortfall`` says what it misses. The exit status is 0 only where every run
 the request asked for converged and misses nothing (:attr:`Outcome.ok`).
 """
 
