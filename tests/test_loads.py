@@ -340,3 +340,13 @@ def test_correct_judges_the_correction_under_the_load(tmp_path, capsys):
         corrected = read_correction(tmp_path / f"c-{name}")[0].runs["corrected"]
         assert {"load_margin", "collapse_at", "min_pressure"} <= corrected.metrics.keys()
         assert ("folds under its weight" in err) == folds and (code == 1 if folds else True)
+
+
+def test_growth_curve_of_a_straight_reach_is_the_closed_form():
+    """The base's moment as a horizontal tube grows to L', its payload at the tip: w g L'^2 / 2 + m g L'."""
+    from vine_nlp.analysis.loads import growth_curve
+
+    load = Load(pressure=4.0, mass_per_length=0.05, tip_mass=0.02)
+    l, moment = growth_curve(_tilted(0.0, 120.0), 5.0, "cm", load, 0)
+    Lm = l * 0.01
+    assert moment == pytest.approx(9.81 * (0.05 * Lm**2 / 2 + 0.02 * Lm), rel=1e-9, abs=1e-12)

@@ -74,9 +74,10 @@ def bending(M, tangents) -> np.ndarray:
     return np.linalg.norm(M - np.sum(M * t, axis=-1, keepdims=True) * t, axis=-1)
 
 
-def prefix_bending(points, l, tangents, mass_per_length: float, tip_mass: float, gravity) -> tuple[np.ndarray, np.ndarray]:
+def prefix_bending(points, l, tangents, mass_per_length: float, tip_mass: float, gravity, section: int | None = None):
     """Growth while actuated: for every section k, the largest bending moment over the grown prefixes ending at
-    a point q >= k, the tip mass at q; (moment (N,), the prefix's end q (N,)).
+    a point q >= k, the tip mass at q; (moment (N,), the prefix's end q (N,)). With ``section``: that section's
+    bending moment under every prefix (N,), 0 for those that end before it.
 
     The lever of prefix q about section k is a_k + b_q + S0_q p_k (a_k = S1_k - (S0_k + m) p_k, b_q = m p_q -
     S1_q), so |L x g|^2 - ((L x g) . t_k)^2 = |L|^2 |g|^2 - (L . g)^2 - (L . (g x t_k))^2 is a few matrix
@@ -85,18 +86,23 @@ def prefix_bending(points, l, tangents, mass_per_length: float, tip_mass: float,
     S0, S1 = _levers(p, l, mass_per_length, tip_mass)
     a, b, h = S1 - (S0 + tip_mass)[:, None] * p, tip_mass * p - S1, np.cross(g, t)
     N = p.shape[0]
-    best, where = np.zeros(N), np.arange(N)
-    for lo in range(0, N, CHUNK):
-        k = slice(lo, min(N, lo + CHUNK))
+
+    def squared(k: np.ndarray) -> np.ndarray:  # (len(k), N): sections k, every prefix end; 0 where it ends before
         ak, pk, hk = a[k], p[k], h[k]
         LL = (np.sum(ak * ak, 1)[:, None] + np.sum(b * b, 1)[None] + np.sum(pk * pk, 1)[:, None] * S0**2 + 2 * ak @ b.T
               + 2 * S0 * (np.sum(ak * pk, 1)[:, None] + pk @ b.T))
         Lg = (ak @ g)[:, None] + (b @ g)[None] + (pk @ g)[:, None] * S0
         Lh = np.sum(ak * hk, 1)[:, None] + hk @ b.T + np.sum(pk * hk, 1)[:, None] * S0
-        b2 = LL * (g @ g) - Lg**2 - Lh**2
-        b2[np.arange(N)[None] < np.arange(lo, k.stop)[:, None]] = 0.0  # a prefix ends beyond its section
+        return np.where(np.arange(N)[None] < k[:, None], 0.0, np.maximum(LL * (g @ g) - Lg**2 - Lh**2, 0.0))
+
+    if section is not None:
+        return np.sqrt(squared(np.array([section]))[0])
+    best, where = np.zeros(N), np.arange(N)
+    for lo in range(0, N, CHUNK):
+        k = np.arange(lo, min(N, lo + CHUNK))
+        b2 = squared(k)
         where[k] = np.argmax(b2, axis=1)
-        best[k] = np.sqrt(np.maximum(b2[np.arange(b2.shape[0]), where[k]], 0.0))
+        best[k] = np.sqrt(b2[np.arange(k.size), where[k]])
     return best, where
 
 
@@ -143,7 +149,16 @@ def load_report(routing: Routing, D: float, units: str, load, growth: str = "whi
     return {"s": s, "moment": final, "moment_growth": worst, "capacity": cap, "margin": margin,
             "collapse_at": float(s[i]) if math.isfinite(margin) else math.nan,
             "min_pressure": load.pressure * load.safety / margin, "holds": margin >= load.safety, "safety": load.safety,
-            "growth_length": float(l[end[i]]), "l": l, "prefix_end": l[end]}
+            "growth_length": float(l[end[i]]), "l": l, "prefix_end": l[end], "weakest": i}
+
+
+def growth_curve(routing: Routing, D: float, units: str, load, section: int, per_segment: int = PER_SEGMENT):
+    """Grown while actuated: the bending moment (N m) at sample ``section`` of :func:`load_report` as the tube
+    grows, (grown length (problem units), moment), from the section on."""
+    k = METRES_PER_UNIT[units]
+    pts, t, _, l, _ = _samples(routing, D, per_segment)
+    curve = prefix_bending(pts * k, l * k, t, load.mass_per_length, load.tip_mass, np.asarray(load.gravity, float), section=section)
+    return l[section:], curve[section:]
 
 
 def load_metrics(rep: dict) -> dict:

@@ -7,7 +7,7 @@ import math
 
 import matplotlib
 
-from vine_nlp.analysis.loads import fold_line, load_metrics, load_report
+from vine_nlp.analysis.loads import fold_line, growth_curve, load_metrics, load_report
 from vine_nlp.errors import InputError
 from vine_nlp.front.plot import COLUMN_IN, STYLE, save_figure
 from vine_nlp.io.problems import parse_problem
@@ -33,6 +33,8 @@ def analyze_load(archive, path, routing, figure=None, title: str = "") -> dict:
         return {}
     u = archive.units
     rep = load_report(routing, archive.diameter, u, load, growth)
+    if growth == "while-actuated" and math.isfinite(rep["margin"]):
+        rep["growth_curve"] = growth_curve(routing, archive.diameter, u, load, rep["weakest"])
     m = load_metrics(rep)
     where = f" at s = {rep['collapse_at']:.4g} {u}" if math.isfinite(rep["margin"]) else ""
     print(f"load        {load.pressure:g} kPa, {load.mass_per_length:g} kg/m, tip {load.tip_mass:g} kg, safety {load.safety:g}, "
@@ -45,12 +47,14 @@ def analyze_load(archive, path, routing, figure=None, title: str = "") -> dict:
 
 
 def load_figure(rep: dict, path=None, units: str = "", title: str = ""):
-    """Bending moment (final shape; the largest over growth) and capacity along the tube, N m."""
+    """Bending moment (final shape; the largest over growth) and capacity along the tube, N m; with
+    ``rep["growth_curve"]`` a second panel: the weakest section's moment as the tube grows."""
     from matplotlib.figure import Figure
 
+    curve = rep.get("growth_curve")
     with matplotlib.rc_context(STYLE):
-        fig = Figure(figsize=(COLUMN_IN, 2.4), layout="constrained")
-        ax = fig.subplots()
+        fig = Figure(figsize=(COLUMN_IN, 4.2 if curve else 2.4), layout="constrained")
+        ax, *more = fig.subplots(2 if curve else 1, 1) if curve else [fig.subplots()]
         s = rep["s"]
         ax.plot(s, rep["capacity"], color="k", lw=1.0, label="capacity (it folds)")
         ax.plot(s, rep["capacity"] / rep["safety"], color="k", lw=0.8, ls=":", label=f"capacity / safety {rep['safety']:g}")
@@ -62,7 +66,16 @@ def load_figure(rep: dict, path=None, units: str = "", title: str = ""):
         ax.set_ylabel("bending moment [N m]")
         ax.set_ylim(0, 1.45 * max(float(rep["capacity"].max()), float(rep["moment_growth"].max())))
         ax.legend(frameon=False, loc="upper center", ncol=2, fontsize=6)
-        ax.set_title(f"{title}: margin {rep['margin']:.3g}, needs {rep['min_pressure']:.3g} kPa".lstrip(": "))
+        ax.set_title(("(a) " if curve else "") + f"{title}: margin {rep['margin']:.3g}, needs {rep['min_pressure']:.3g} kPa".lstrip(": "))
+        if curve:
+            b, i = more[0], rep["weakest"]
+            b.plot(curve[0], curve[1], color="tab:red", lw=1.0, label=f"moment at s = {rep['collapse_at']:.3g} {units}")
+            b.axhline(rep["capacity"][i] / rep["safety"], color="k", lw=0.8, ls=":", label="its capacity / safety")
+            b.set_xlabel(f"grown length [{units}]")
+            b.set_ylabel("bending moment [N m]")
+            b.set_ylim(0, 1.3 * max(float(curve[1].max()), float(rep["capacity"][i] / rep["safety"])))
+            b.legend(frameon=False, loc="upper left", fontsize=6)
+            b.set_title("(b) the weakest section as the tube grows")
     if path is not None:
         save_figure(fig, path)
     return fig
