@@ -71,6 +71,7 @@ DESCRIPTIONS = {
         "tip": "Table `[tip]`: a tip position and direction to reach (a **tip** problem).",
         "obstacles": "Array of tables `[[obstacles]]`: obstacles the tube must keep clear of (see below).",
         "calibration": "Table `[calibration]`, or the name of a file holding one (as `vine-nlp calibrate` writes): systematic construction errors the design compensates.",
+        "load": "Table `[load]`: self-weight and payload, in SI units (a **design** or **forward** problem; see below).",
     },
     "tube": {
         "diameter": "Tube diameter D (> 0).",
@@ -162,6 +163,13 @@ DESCRIPTIONS = {
         "theta_offset_deg_se": "Standard error of `theta_offset_deg` (>= 0).",
         "length_scale_se": "Standard error of `length_scale` (>= 0).",
         "prototypes": "Number of built prototypes the calibration was estimated from (>= 0).",
+    },
+    "load": {
+        "gravity": "`[gx, gy, gz]` in m/s^2, in the problem's world frame (default `[0, 0, -9.81]`).",
+        "pressure": "The tube's gauge pressure, kPa (> 0; required).",
+        "mass_per_length": "kg per metre of grown tube: wall, actuators, everything grown (>= 0; required).",
+        "tip_mass": "kg, a payload at the tip (>= 0; default 0).",
+        "safety": "Every bending moment stays below capacity / safety (>= 1; default 1; not under zero gravity).",
     },
     "sweep": {
         "name": "Name of the sweep; items are named `<name>-<index:04d>` (letters, digits, `. _ + -`).",
@@ -397,6 +405,17 @@ def formats_page(archives: bool = True) -> str:
             "",
             'A design problem may hold the table inline or name a file: `calibration = "CAL.toml"`',
             "(relative to the problem file), as `vine-nlp calibrate` writes it.",
+        ]
+
+    if "load" in all_top:
+        loads = importlib.import_module("vine_nlp.io.loads")
+        used["load"].update(loads.KEYS)
+        out += ["", "### `[load]`", "", *_key_table("load", loads.KEYS, problems)]
+        out += [
+            "",
+            "SI units whatever the file's `units` (which must be m, cm, mm or in). Every run of the problem gets the",
+            "metrics `load_margin`, `collapse_at` and `min_pressure`; a run that does not hold with its safety factor",
+            "is not ok (exit 1). The model and its assumptions: the tutorial *Will it stand?*.",
         ]
 
     out += ["", "### Choices", "", "| value of | allowed |", "|---|---|"]

@@ -39,6 +39,7 @@ __all__ = [
     "Actuator",
     "DesignOptions",
     "Calibration",
+    "Load",
     "Routing",
     "Sigmas",
     "Result",

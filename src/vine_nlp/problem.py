@@ -118,6 +118,31 @@ class DesignOptions:
 
 
 @dataclass(frozen=True)
+class Load:
+    """Self-weight and payload ([load]; SI units whatever the problem's length units; ``analysis.loads``).
+
+    Parameters
+    ----------
+    pressure : float
+        The tube's gauge pressure, kPa.
+    mass_per_length : float
+        kg per metre of grown tube (wall, actuators, everything grown).
+    tip_mass : float
+        kg, a payload at the tip.
+    gravity : tuple
+        m/s^2, in the problem's world frame.
+    safety : float
+        Every bending moment stays below capacity / safety.
+    """
+
+    pressure: float
+    mass_per_length: float = 0.0
+    tip_mass: float = 0.0
+    gravity: tuple = (0.0, 0.0, -9.81)
+    safety: float = 1.0
+
+
+@dataclass(frozen=True)
 class DesignProblem:
     """Inverse design: a routing whose center line follows a target curve.
 
@@ -144,6 +169,8 @@ class DesignProblem:
     calibration : Calibration or None
         Systematic construction errors of the builder (vine_nlp.model.calibration): the design is made for
         the robot as built.
+    load : Load or None
+        Self-weight and payload: every section's bending moment stays below its capacity / safety.
     """
 
     name: str
@@ -157,6 +184,7 @@ class DesignProblem:
     growth: str = "while-actuated"
     # the nominal to build has the calibration's systematic errors taken out (the pipeline)
     calibration: Calibration | None = None
+    load: Load | None = None
 
 
 @dataclass(frozen=True)
@@ -173,12 +201,15 @@ class ForwardProblem:
         The routing to model.
     units : str
         Length unit.
+    load : Load or None
+        Self-weight and payload to judge the shape under.
     """
 
     name: str
     diameter: float
     routing: Routing
     units: str = "cm"
+    load: Load | None = None
 
 
 @dataclass(frozen=True)

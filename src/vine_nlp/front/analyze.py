@@ -10,6 +10,7 @@ from vine_nlp.analysis.tolerance import tolerance_metrics, tolerance_report
 from vine_nlp.errors import InputError
 from vine_nlp.front.analysis_plots import clearance_figure, tolerance_figure
 from vine_nlp.front.files import archive_run, check_figure, read_archive, sigmas
+from vine_nlp.front.load_plots import analyze_load
 from vine_nlp.io.archive import write_archive
 from vine_nlp.io.obstacles import DEFAULT_GROWTH, parse_obstacle_design
 from vine_nlp.io.problems import design_problem_of
@@ -20,7 +21,7 @@ def cmd_analyze(args) -> int:
     """Self-collision, growth order and manufacturing tolerance of an archived design."""
     archive = read_archive(args.archive)
     run = archive_run(archive, args.archive, args.run)
-    for flag in ("tolerance_figure", "clearance_figure"):
+    for flag in ("tolerance_figure", "clearance_figure", "load_figure"):
         check_figure(getattr(args, flag), True)
     r = archive.runs[run]
     D, u = archive.diameter, archive.units
@@ -41,6 +42,7 @@ def cmd_analyze(args) -> int:
     metrics = collision_metrics(r, D, margin=args.margin)
     if archive.obstacles:
         metrics |= _analyze_obstacles(archive, r, u)
+    metrics |= analyze_load(archive, args.archive, r.routing, getattr(args, "load_figure", None), f"{archive.name}: {run}")
     figures = []
     if archive.kind == "design" and archive.target is not None:
         problem = design_problem_of(archive, args.archive)

@@ -434,6 +434,7 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--margin", type=float, default=0.0, metavar="G", help="count approaches closer than D + G as contacts")
     an.add_argument("--tolerance-figure", metavar="FIG.png", help="where along the tube errors matter most")
     an.add_argument("--clearance-figure", metavar="FIG.png", help="clearance along the tube")
+    an.add_argument("--load-figure", metavar="FIG.png", help="[load]: bending moment and capacity along the tube and over growth")
     an.add_argument("--write-metrics", action="store_true", help="store the figures as metrics of the run in the archive")
     an.set_defaults(func=cmd_analyze)
 

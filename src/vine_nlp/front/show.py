@@ -120,5 +120,5 @@ def summarize(archive) -> str:
                 lines.append(f"  {m:<11s} {_num(r.metrics[m])}{unit}")
         for m, v in r.metrics.items():
             if m not in METRICS:
-                lines.append(f"  {m:<11s} {_num(v)}")
+                lines.append(f"  {m:<11s} {_num(v)}" + {"collapse_at": f" {u}", "min_pressure": " kPa"}.get(m, ""))
     return "\n".join(lines)

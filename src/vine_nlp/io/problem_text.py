@@ -100,6 +100,9 @@ def problem_source(problem, call: str, notes=()) -> str:
             tables["routing"] = {"initial_pose": problem.options.base_pose}
         if problem.calibration is not None:
             tables["calibration"] = {k: getattr(problem.calibration, k) for k in CALIBRATION_KEYS}
+    if getattr(problem, "load", None) is not None:  # read back by analyze and correct
+        tables["load"] = {k: list(v) if k == "gravity" else v for k, v in vars(problem.load).items()
+                          if k != "safety" or any(problem.load.gravity)}
     return toml_text("\n".join(notes), {"name": problem.name, "units": problem.units}, tables)
 
 

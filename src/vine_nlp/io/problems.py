@@ -22,6 +22,7 @@ from vine_nlp.io import limits
 from vine_nlp.io.calibration import calibration_of
 from vine_nlp.io.data_files import check_spread, data_points
 from vine_nlp.io.expr import ExpressionError, compile_expression
+from vine_nlp.io.loads import load_of
 from vine_nlp.io.obstacles import DESIGN_KEYS as OBSTACLE_DESIGN_KEYS
 from vine_nlp.io.obstacles import parse_obstacle_design, parse_obstacles
 from vine_nlp.io.validate import (
@@ -65,8 +66,8 @@ SPAM_LAMBDA_MIN = 0.5
 
 
 _TOP_KEYS = {
-    "design": ("name", "units", "tube", "target", "actuator", "design", "calibration", "obstacles", "routing"),
-    "forward": ("name", "units", "tube", "routing"),
+    "design": ("name", "units", "tube", "target", "actuator", "design", "calibration", "obstacles", "routing", "load"),
+    "forward": ("name", "units", "tube", "routing", "load"),
     "fit": ("name", "units", "tube", "measured", "routing", "fit"),
     "multishape": ("name", "units", "tube", "targets", "actuator", "design"),
     "tip": ("name", "units", "tube", "tip", "actuator", "design", "obstacles"),
@@ -163,7 +164,7 @@ def parse_problem(data: dict, path: str, source: str) -> ProblemFile:
         problem = _design(f, data, name, units, diameter)
     elif kind == "forward":
         routing = _routing(f, sub_table(f, data, "routing", _ROUTING_KEYS, required=True), diameter)
-        problem = ForwardProblem(name=name, diameter=diameter, routing=routing, units=units)
+        problem = ForwardProblem(name=name, diameter=diameter, routing=routing, units=units, load=load_of(f, data, units))
     elif kind == "multishape":
         problem = _multishape(f, data, name, units, diameter)
     elif kind == "tip":
@@ -212,7 +213,7 @@ def _design_tables(f: SourceFile, data: dict, problem: DesignProblem) -> DesignP
     cal = calibration_of(f, data)
     if cal is not None:
         problem = dataclasses.replace(problem, calibration=cal)
-    return dataclasses.replace(problem, **_obstacles_of(f, data))
+    return dataclasses.replace(problem, load=load_of(f, data, problem.units), **_obstacles_of(f, data))
 
 
 def _obstacles_of(f: SourceFile, data: dict) -> dict:

@@ -67,11 +67,12 @@ def mirrored_obstacle(ob):
 
 
 def mirrored_problem(problem: DesignProblem) -> DesignProblem:
-    """The mirror image of a design problem: its target and obstacles, a fixed base pose."""
+    """The mirror image of a design problem: its target and obstacles, a fixed base pose, gravity."""
     o = problem.options
     if o.base_pose is not None:
         o = dataclasses.replace(o, base_pose=tuple(map(tuple, mirrored_pose(o.base_pose))))
-    return dataclasses.replace(problem, target=np.asarray(problem.target, float) @ M3, options=o,
+    load = problem.load and dataclasses.replace(problem.load, gravity=_y(problem.load.gravity))  # gravity mirrored too
+    return dataclasses.replace(problem, target=np.asarray(problem.target, float) @ M3, options=o, load=load,
                                obstacles=tuple(mirrored_obstacle(ob) for ob in problem.obstacles))
 
 

@@ -19,6 +19,7 @@ from vine_nlp.methods.correct import ADJUST, Deviations, Measurement, combine_sy
 from vine_nlp.model.pairing import pair_points
 from vine_nlp.model.routing import MEASURED_LINES, Sigmas
 from vine_nlp.model.units import mm_per_unit
+from vine_nlp.pipeline.runs import judge_load
 
 PLAUSIBLE_MEDIAN = 5.0  # median distance of the measured points to the estimated line, in noise sigmas, beyond which it is not this robot
 
@@ -67,6 +68,9 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
     result = correct(problem, builds, ms, adjust=adjust, sigmas=sigmas, measurement_sigma=measurement_sigma,
                      units_per_mm=1 / (mm or 10.0), start=start, start_systematic=state.systematic if start else None)
     _check_plausible(result, new, problem.diameter, archive.units)
+    if problem.load is not None:  # the robot as built and the correction to build, under the problem's [load]
+        judge_load(problem, result.as_built)
+        result.corrected.shortfall = tuple(result.corrected.shortfall) + tuple(judge_load(problem, result.corrected))
     settings = {"built_run": run, "adjust": ",".join(result.adjust), "recommended": result.recommended, "free_pose": bool(free_pose), "sigma_theta_rad": sigmas.theta,
                 "sigma_lambda": sigmas.lam, "sigma_length": sigmas.length, "relative_length": bool(sigmas.relative_length),
                 "sigma_measurement": result.estimate.stats["measurement_sigma"]}

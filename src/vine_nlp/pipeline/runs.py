@@ -5,7 +5,9 @@ The one place that decides which runs a problem makes, in which order, from whic
 - design problems: the design method(s) (``nlp``, a buildable design made from the free one:
   methods.buildable; ``greedy``, as the paper has it; ``compare``: nlp, greedy and the paper's
   low-pass-filtered greedy); among ``[[obstacles]]`` the obstacle design as run ``nlp``
-  with the obstacle-free design it started from as ``nlp_free``; then, if asked, the robust
+  with the obstacle-free design it started from as ``nlp_free``; with a ``[load]`` (no obstacles) the design
+  that stands under it (methods.loads; ``nlp_load`` beside the design on the target where it stands only far
+  off it); then, if asked, the robust
   (``nlp_robust``) and self-clearing (``nlp_clearance``) designs, started from ``nlp`` (keeping its
   actuated segments and margins). Every run is designed for what the robot should realize; with a
   ``[calibration]`` every run then becomes the nominal to build (the systematic errors taken out,
@@ -14,7 +16,7 @@ The one place that decides which runs a problem makes, in which order, from whic
 
 Every run is then judged against the hard requirements of its problem (:func:`judge`: the
 actuator's bounds, the obstacle margin checked densely against the exact shapes, the clearance
-asked for): ``Result.shortfall`` says what it misses. The exit status is 0 only where every run
+asked for, a [load]'s sections): ``Result.shortfall`` says what it misses. The exit status is 0 only where every run
 the request asked for converged and misses nothing (:attr:`Outcome.ok`).
 """
 
@@ -25,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vine_nlp.analysis.loads import fold_line, load_metrics, load_report
 from vine_nlp.analysis.obstacles import obstacle_metrics, obstacle_report
 from vine_nlp.io.archive import Archive, write_archive
 from vine_nlp.io.formulations import write_multishape_archive, write_tip_archive
@@ -35,6 +38,7 @@ from vine_nlp.methods.clearance import design_with_clearance
 from vine_nlp.methods.common import evaluate, pair_points, run_forward
 from vine_nlp.methods.fit import fit_frames, fit_problem
 from vine_nlp.methods.greedy import design_greedy, lowpass
+from vine_nlp.methods.loads import load_runs
 from vine_nlp.methods.multishape import design_multishape
 from vine_nlp.methods.nlp import design_nlp
 from vine_nlp.methods.obstacles import FREE_RUN, design_with_obstacles, tip_design
@@ -176,6 +180,8 @@ def _design_as_given(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, 
     if problem.obstacles:  # the obstacle design is run nlp; the obstacle-free design it started from is kept beside it
         free = runs.pop("nlp")
         runs = {"nlp": design_with_obstacles(problem, start=free), FREE_RUN: free} | runs
+    if problem.load is not None and "nlp" in runs and not problem.obstacles:  # among obstacles the load is judged only
+        runs = load_runs(problem, runs.pop("nlp")) | runs
     if rq.robust is not None:
         runs["nlp_robust"] = design_robust(problem, rq.robust, start=runs["nlp"], weight=rq.robust_weight)
     if rq.clearance is not None:
@@ -257,7 +263,8 @@ def calibrated(problem: DesignProblem, result: Result) -> Result:
 def judge(problem, result: Result) -> None:
     """Set ``result.shortfall``: every hard requirement of ``problem`` the result misses, one line each
     (the actuator's bounds; the obstacle margin, checked densely on the shape the robot realizes; the
-    clearance a clearance run was asked for). Adds the obstacle metrics of problems with obstacles."""
+    clearance a clearance run was asked for; a [load]: every section holds with its safety factor). Adds the
+    obstacle and load metrics of problems with obstacles and loads."""
     short = []
     a, r = getattr(problem, "actuator", None), result.routing
     if a is not None and result.method not in ("forward", "fit"):
@@ -265,10 +272,11 @@ def judge(problem, result: Result) -> None:
             short.append(f"|theta| above its bound {np.degrees(a.theta_max):g} deg")
         if np.any(r.lam < a.lambda_min * (1 - BOUND_TOL)) or np.any(r.lam > 1 + BOUND_TOL):
             short.append(f"lambda outside [{a.lambda_min:g}, 1]")
+    cal = getattr(problem, "calibration", None)
+    realized = realized_of(r, cal, a.lambda_min if a else 0.0) if cal is not None else r
+    short += judge_load(problem, result, realized)
     obstacles = getattr(problem, "obstacles", ())
     if obstacles:
-        cal = getattr(problem, "calibration", None)
-        realized = realized_of(r, cal, a.lambda_min if a else 0.0) if cal is not None else r
         rep = obstacle_report(realized, problem.diameter, obstacles, problem.growth, problem.obstacle_margin)
         result.metrics.update(obstacle_metrics(rep))
         if not rep["clear"]:
@@ -278,3 +286,15 @@ def judge(problem, result: Result) -> None:
         need = problem.diameter + result.stats.get("min_gap", 0.0)
         short.append(f"clearance not kept: min {result.stats['min_clearance']:.4g} {problem.units} < D + min_gap = {need:.4g}")
     result.shortfall = tuple(short)
+
+
+def judge_load(problem, result: Result, routing=None) -> list[str]:
+    """A [load] problem's run: its load metrics (analysis.loads: load_margin, collapse_at, min_pressure) on
+    ``routing`` (default the run's; the shape the robot realizes), and the line where it folds, if it does."""
+    load = getattr(problem, "load", None)
+    if load is None or result.method == "fit":
+        return []
+    rep = load_report(result.routing if routing is None else routing, problem.diameter, problem.units, load,
+                      getattr(problem, "growth", "while-actuated"))
+    result.metrics.update(load_metrics(rep))
+    return [] if rep["holds"] else [fold_line(rep, load, problem.units)]
