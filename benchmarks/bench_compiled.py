@@ -101,7 +101,7 @@ def _calls(pb, repeat):
 
 def design_calls(repeat):
     """``design_nlp`` at the problem's defaults, solvers built: the whole call (guesses, starts, evaluation);
-    compiled, the default's first solve runs on Fatrop (bench_fatrop.py compares it with IPOPT).
+    compiled.
 
     Then, compiled, the plain NLP's Gauss-Newton IPOPT settings (methods.settings.GAUSS_NEWTON) against
     CHAIN alone, the two alternating in blocks of 5 calls (a shared machine drifts)."""

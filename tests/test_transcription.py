@@ -12,7 +12,7 @@ from vine_nlp.methods.nlp import nlp_spec
 from vine_nlp.methods.robust import RobustTerm
 from vine_nlp.methods.structure import Structure
 from vine_nlp.methods.tip import tip_spec
-from vine_nlp.methods.transcription import Smoothness, SoftTip, Solver, Spec
+from vine_nlp.methods.transcription import Solver, Spec
 
 
 def _automatic(solver):
@@ -43,8 +43,6 @@ SPECS = {
     # rows of one segment pair share a block (pair_block(k)): two groups of different sizes, interleaved
     "clearance grouped": _with(nlp_spec(6, 2, False, terms=(ClearancePairs(((0, 4), (1, 5), (0, 4), (2, 5), (0, 4))),)), extra=0),
     "robust": _with(nlp_spec(5, 2, False, terms=(RobustTerm(),)), extra=9),
-    "stage form": Spec(Structure(6, 3, stages=True), (Smoothness(), SoftTip())),
-    "stage form M=1": Spec(Structure(1, 2, stages=True), (Smoothness(), SoftTip())),
 }
 
 

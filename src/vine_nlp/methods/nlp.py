@@ -22,12 +22,12 @@ import time
 
 import numpy as np
 
-from vine_nlp.methods import compiled, corners, drive
+from vine_nlp.methods import corners, drive
 from vine_nlp.methods.common import LENGTH_FACTOR, Guess, evaluate, geometric_guess, pair_points
 from vine_nlp.methods.drive import TIE_RTOL
-from vine_nlp.methods.settings import AUTO_GN_MAX_ITER, FATROP_MAX_SEGMENTS, WINDOW, Settings
+from vine_nlp.methods.settings import AUTO_GN_MAX_ITER, WINDOW, Settings
 from vine_nlp.methods.structure import Structure, frames12
-from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, cell_data, fatrop_safe, routing_of, smoothing_steps
+from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, cell_data, routing_of, smoothing_steps
 from vine_nlp.methods.transcription import get_solver as _get
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.pairing import Pairing
@@ -58,27 +58,6 @@ def extended_solver(problem: DesignProblem, pairing: Pairing, terms: tuple, extr
 def get_solver(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False, hessian: str = "exact"):
     """The plain NLP's solver, cached per structure (building costs more than one solve)."""
     return _get(nlp_spec(M, n, shared_lambda, max_iter, tol, warm, hessian))
-
-
-def fatrop_spec(M: int, n: int, max_iter: int = 3000, tol: float = 1e-8, hessian: str = "gauss-newton") -> Spec:
-    """The plain NLP (lambda per segment) in the transcription's stage form, for Fatrop."""
-    return Spec(Structure(M, n, stages=True), (Smoothness(), SoftTip()), hessian, Settings(max_iter, tol, backend="fatrop"))
-
-
-_NO_FATROP: set = set()  # specs whose Fatrop solver could not be built in this process (compiler failed)
-
-def get_fatrop(M: int, n: int, max_iter: int = 3000, tol: float = 1e-8, hessian: str = "gauss-newton"):
-    """The plain NLP's Fatrop solver, cached like ``get_solver``; None where its functions are not compiled
-    (VINE_NLP_CODEGEN=off, no compiler, a failed compile): the caller uses IPOPT."""
-    spec = fatrop_spec(M, n, max_iter, tol, hessian)
-    if compiled.mode() == "off" or spec in _NO_FATROP:
-        return None
-    try:
-        return _get(spec)
-    except compiled.NotCompiled as e:
-        if not isinstance(e, compiled.Compiling):  # being compiled in the background: asked again next time
-            _NO_FATROP.add(spec)
-        return None
 
 
 def nlp_parameters(problem: DesignProblem, pairing: Pairing, R0g: np.ndarray) -> dict:
@@ -122,10 +101,7 @@ def solve_from(
     ``warm``: IPOPT's warm-start options. ``options.hessian`` "auto" (default) is the drive's Hessian
     schedule: Gauss-Newton (several times cheaper per iteration, and a true KKT point where it converges)
     for settings.AUTO_GN_MAX_ITER iterations, then the exact Hessian from the same start, or from
-    Gauss-Newton's "acceptable" point (a polish). ``options.solver`` "auto": a Gauss-Newton solve from a
-    guess runs on Fatrop (the stage form) where its functions are compiled, the chain has at most
-    settings.FATROP_MAX_SEGMENTS segments and a lambda per segment; IPOPT solves the same start where Fatrop
-    fails (stats fatrop_status, fatrop_iterations, fatrop_time_s; counted in the result's).
+    Gauss-Newton's "acceptable" point (a polish).
     """
     o = problem.options
     pairing = pairing or pair_points(problem.target, o.points_per_segment)
@@ -154,22 +130,9 @@ def _solve(problem, guess, pairing, frames, warm, hessian, max_iter) -> Result:
     R0g = guess.initial_pose[:3, :3]
     data = nlp_parameters(problem, pairing, R0g)
     bounds = design_bounds(problem, pairing)
-    tried = {}
-    # Fatrop: the Gauss-Newton solve from a guess of a chain it can take as stages (results/BENCHMARKS.md, "Fatrop")
-    if o.solver == "auto" and hessian == "gauss-newton" and not warm and M <= FATROP_MAX_SEGMENTS and not problem.actuator.shared_lambda:
-        solver = get_fatrop(M, n, max_iter, o.tol, hessian)
-        if solver is not None:
-            lbx, ubx = solver.bounds(*bounds)
-            x0, p = start_x(solver, guess, D, frames), solver.pack_params(data)
-            x, status, st = solver.solve(x0, p, lbx, ubx) if fatrop_safe(x0, p, lbx, ubx) else (x0, "invalid_number", {"iterations": 0, "solve_time_s": 0.0})
-            if status == "optimal":
-                return result_of(problem, pairing, solver, x, status, st, R0g, "nlp", max_iter=max_iter, hessian=hessian)
-            tried = {"fatrop_status": status, "fatrop_iterations": st["iterations"], "fatrop_time_s": st["solve_time_s"]}
     solver = get_solver(M, n, problem.actuator.shared_lambda, max_iter, o.tol, warm, hessian)
     lbx, ubx = solver.bounds(*bounds)
     x, status, st = solver.solve(start_x(solver, guess, D, frames), solver.pack_params(data), lbx, ubx)
-    if tried:  # Fatrop's failed attempt counts in the solve's iterations and time
-        st |= tried | {"iterations": st["iterations"] + tried["fatrop_iterations"], "solve_time_s": st["solve_time_s"] + tried["fatrop_time_s"]}
     return result_of(problem, pairing, solver, x, status, st, R0g, "nlp", max_iter=max_iter, hessian=hessian)
 
 

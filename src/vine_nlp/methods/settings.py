@@ -57,8 +57,7 @@ class Settings:
     ``max_iter``, ``tol``: the solver's limit and tolerance; ``warm``: the start is near the answer (WARM);
     ``guess``: a Gauss-Newton solve of the plain chain from a guess (GAUSS_NEWTON); ``exact_bounds``: the
     bounds hold exactly (EXACT_BOUNDS); ``monotone``: IPOPT's monotone barrier (MONOTONE); ``hard``: rows
-    that are hard requirements (HARD); ``repeated``: one structure solved many times (REPEATED);
-    ``backend``: "ipopt", or "fatrop" for the stage form (its own options; the flags do not apply).
+    that are hard requirements (HARD); ``repeated``: one structure solved many times (REPEATED).
     """
 
     max_iter: int = 3000
@@ -69,14 +68,9 @@ class Settings:
     monotone: bool = False
     hard: bool = False
     repeated: bool = False
-    backend: str = "ipopt"
 
     def options(self) -> dict:
         """The solver's options: in the order above, a later set overriding an earlier one's entries."""
-        if self.backend == "fatrop":
-            # Fatrop: the NLP's tolerance, a low first barrier (the starts are close; "Fatrop")
-            return {"fatrop.print_level": 0, "fatrop.tol": float(self.tol), "fatrop.max_iter": int(self.max_iter),
-                    "fatrop.mu_init": 1e-6, "print_time": False}
         opts = quiet(self.max_iter, self.tol) | CHAIN
         for on, extra in ((self.warm, WARM), (self.guess, GAUSS_NEWTON), (self.exact_bounds, EXACT_BOUNDS),
                           (self.monotone, MONOTONE), (self.hard, HARD), (self.repeated, REPEATED)):
@@ -90,9 +84,6 @@ class Settings:
 # Hessian "auto": Gauss-Newton gets this many iterations, then the exact Hessian solves the same start
 # (a Gauss-Newton solve that needs more has large residuals: corners; "Initialization and multi-start")
 AUTO_GN_MAX_ITER = 50
-# Fatrop's set-up grows about as M^2 where IPOPT's stays at milliseconds: beyond this many segments it costs
-# more than the solve it saves ("Fatrop")
-FATROP_MAX_SEGMENTS = 100
 # the correction starts at the as-built routing, near its answer: the exact Hessian converges in a few tens
 # of iterations where Gauss-Newton ran into its cap; Gauss-Newton only where the exact one fails
 CORRECTION_SCHEDULE = (("exact", 300), ("gauss-newton", 300))

@@ -9,7 +9,7 @@ block-banded and an IPOPT iteration costs O(M):
              lambda variables (one for an sPAM, one per level for multi-shape); extra globals; the
              base frames X_0(k)
     stage j  theta_j, lam_j (per-segment lambda only), dl_j, the formulation's extra stage
-             variables, (stage form) the carried (theta_j, lam_j), the frames X_{j+1}(k) of every level k
+             variables, the frames X_{j+1}(k) of every level k
 
 A frame X is 12 numbers: the rotation column-major, then the position. Lengths are in units of the
 tube diameter (D = 1), so one built solver serves every tube.
@@ -44,15 +44,12 @@ class Structure:
     pose: str = "free"  # "free" | "fixed" | "shared" (one for all levels) | "level" (one per level)
     extra: int = 0  # extra variables per stage
     globals: int = 0  # extra global variables (head), e.g. systematic construction errors
-    stages: bool = False  # stage form (methods.blocks, "Stage form"): the plain chain for a stage-structured solver
 
     def __post_init__(self):
         if self.M < 1 or self.n < 1 or self.K < 1:
             raise ValueError(f"a chain needs M, n, K >= 1 (got {self.M}, {self.n}, {self.K})")
         if self.lam not in LAMBDAS or self.pose not in POSES:
             raise ValueError(f"lam must be one of {LAMBDAS}, pose one of {POSES}")
-        if self.stages and (self.K, self.lam, self.pose, self.extra, self.globals) != (1, "segment", "free", 0, 0):
-            raise ValueError("the stage form is the plain chain: one level, lambda per segment, a free pose, no extra variables")
 
     @property
     def poses(self) -> int:
@@ -79,14 +76,12 @@ class Layout:
         self.theta, self.dl = np.zeros(M, int), np.zeros(M, int)
         self.lam = np.zeros((M, K), int)
         self.extra = np.zeros((M, E), int)
-        self.carry = np.zeros((M, 2 if s.stages else 0), int)  # stage form: (theta_j, lam_j) carried to stage j+1
         for j in range(M):
             self.theta[j] = take(1)[0]
             if s.lam == "segment":
                 self.lam[j, :] = take(1)[0]
             self.dl[j] = take(1)[0]
             self.extra[j] = take(E)
-            self.carry[j] = take(self.carry.shape[1])
             X[j + 1] = take(12 * K).reshape(K, 12)
         if s.lam == "shared":
             self.lam[:, :] = self.lam_global[0]
