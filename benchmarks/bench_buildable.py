@@ -63,7 +63,7 @@ def figures(pb, build, routing, act):
 def built(nominal: Routing, dev, lambda_min: float) -> Routing:
     """What a robot with deviations ``dev`` realizes: no lambda error where lambda is 1 (no actuator), else within [lambda_min, 1]."""
     lam = np.where(nominal.lam != 1.0, np.clip(nominal.lam + dev[:, 1], lambda_min, 1.0), 1.0)
-    return Routing(nominal.theta + dev[:, 0], lam, nominal.length * (1 + dev[:, 2]), nominal.initial_pose)
+    return Routing(theta=nominal.theta + dev[:, 0], lam=lam, length=nominal.length * (1 + dev[:, 2]), initial_pose=nominal.initial_pose)
 
 
 def correct_oracle(pb, pairing, nominal: Routing, dev) -> Routing:
@@ -76,11 +76,11 @@ def correct_oracle(pb, pairing, nominal: Routing, dev) -> Routing:
     lo = np.where(act, np.maximum(a.lambda_min, a.lambda_min + dev[:, 1]), 1.0)
     hi = np.where(act, np.minimum(1.0, 1.0 + dev[:, 1]), 1.0)
     f12 = frames12(chain_frames(ab.theta, ab.lam, ab.length, D, ab.initial_pose), D)
-    lbx, ubx = solver.bounds((ab.theta, ab.theta), (lo, hi), (ab.length / D, ab.length / D), X0=f12[:, 0][None])
+    lbx, ubx = solver.bounds(X0=f12[:, 0][None], theta=(ab.theta, ab.theta), lam=(lo, hi), length=(ab.length / D, ab.length / D))
     p = solver.pack_params(nlp_parameters(pb, pairing, ab.initial_pose[:3, :3]))
-    x, _, _ = solver.solve(solver.pack_x(ab.theta, np.clip(ab.lam, lo, hi), ab.length / D, f12[None]), p, lbx, ubx)
+    x, _, _ = solver.solve(solver.pack_x(f12[None], theta=ab.theta, lam=np.clip(ab.lam, lo, hi), length=ab.length / D), p, lbx, ubx)
     lam = solver.unpack(x)["lam"][:, 0]
-    return Routing(nominal.theta, np.where(act, lam - dev[:, 1], 1.0), nominal.length, nominal.initial_pose)
+    return Routing(theta=nominal.theta, lam=np.where(act, lam - dev[:, 1], 1.0), length=nominal.length, initial_pose=nominal.initial_pose)
 
 
 def correction(pb, design: Routing, seeds: int):

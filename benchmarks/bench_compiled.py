@@ -45,7 +45,7 @@ def _setup(pb, hessian):
 def _solves(solver, pb, pairing, repeat):
     guess = geometric_guess(pb, pairing)
     p = solver.pack_params(nlp_parameters(pb, pairing, guess.initial_pose[:3, :3]))
-    lbx, ubx = solver.bounds(*design_bounds(pb, pairing))
+    lbx, ubx = solver.bounds(**design_bounds(pb, pairing))
     x0 = start_x(solver, guess, pb.diameter)
     times, iters, x = [], 0, None
     for _ in range(repeat):

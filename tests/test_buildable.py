@@ -93,7 +93,7 @@ def test_unwinding_keeps_the_shape_and_takes_the_shortest_way():
     act = np.array([0, 0, 1, 1, 0, 0, 0, 1, 1, 1, 0, 0], bool)
     theta = rng.uniform(-1.0, 1.0, M)
     lam = np.where(act, rng.uniform(0.5, 0.9, M), 1.0)
-    r = Routing(theta, lam, np.full(M, 2.0), np.eye(4))
+    r = Routing(theta=theta, lam=lam, length=np.full(M, 2.0), initial_pose=np.eye(4))
     u = B.unwind(r, act, build(D=D))
     seg, frac = segment_end_samples(r.length, 5)
     a, b = (shape_lines(x.theta, x.lam, x.length, D, seg, frac, x.initial_pose)[0] for x in (r, u))
@@ -142,7 +142,7 @@ class _Fake:
 
     def __call__(self, act, start):
         miss = int(np.sum(act != self.want))
-        res = Result("nlp", Routing(start.theta, np.where(act, 0.95, 1.0), start.length, start.initial_pose), None, status="optimal",
+        res = Result("nlp", Routing(theta=start.theta, lam=np.where(act, 0.95, 1.0), length=start.length, initial_pose=start.initial_pose), None, status="optimal",
                      metrics={"rmse": 1.0 + miss})
         mult = np.where(self.want & ~act, -1.0, np.where(~self.want & act, 1.0, 0.0))
         mult[self.lie] = 1.0
@@ -150,7 +150,7 @@ class _Fake:
 
 
 WANT = np.array([1, 1, 0, 1, 0, 0, 1, 0], bool)
-START = Routing(np.zeros(8), np.full(8, 0.9), np.full(8, 2.0), np.eye(4))
+START = Routing(theta=np.zeros(8), lam=np.full(8, 0.9), length=np.full(8, 2.0), initial_pose=np.eye(4))
 
 
 @pytest.mark.parametrize("act, limit, lie", [

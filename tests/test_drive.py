@@ -9,7 +9,7 @@ import pytest
 from vine_nlp.methods import drive
 from vine_nlp.problem import Result, Routing
 
-ROUTING = Routing(np.zeros(2), np.ones(2), np.ones(2))
+ROUTING = Routing(theta=np.zeros(2), lam=np.ones(2), length=np.ones(2))
 
 
 def _r(objective, status="optimal", iterations=1, time_s=0.5, **stats):

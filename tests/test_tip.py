@@ -76,7 +76,7 @@ def test_direction_constraint_holds_and_turns_objective():
     assert r.converged and r.metrics["tip_error"] < 1e-6
     end = chain_frames(r.routing.theta, r.routing.lam, r.routing.length, D)[-1]
     assert np.dot(end[:3, 0], tangent) > 1 - 1e-10 and r.metrics["direction_error"] < 1e-6
-    known = actuation(Routing(theta, lam, length), D)
+    known = actuation(Routing(theta=theta, lam=lam, length=length), D)
     assert r.metrics["actuation_turning"] <= known["actuation_turning"]
     _check_bounds(r, pb)
 

@@ -21,7 +21,10 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp.methods import compiled
+from vine_nlp.methods.variables import CELL, POINT, Slots
 from vine_nlp.model.segment import segment_function, so3_exp
+
+POSE = Slots(("w", 3), ("p", 3), ("X", 12))  # the pose block's variables: rotation vector, position, X_0
 
 
 @dataclass(frozen=True)
@@ -135,19 +138,19 @@ def _sampled(bt: BlockType, sub: tuple) -> tuple:
 def segment_block(n: int) -> BlockType:
     """Continuity and point fit of one (segment, level) cell.
 
-    v = (X_j (12), theta, lam, dl, X_{j+1} (12)); d = (u (n), target slots (3 n, slot-major), w (n)).
+    v = ``variables.CELL`` (X_j (12), theta, lam, length, X_{j+1} (12)); d = (u (n), target slots (3 n, slot-major), w (n)).
     f = sum_i w_i |r_c(u_i) - r_d,i|^2; r = X_j T^{j+1}_j - X_{j+1}. Gauss-Newton: 2 J^T J of the
     weighted residuals, the constraint curvature left out (always PSD, cheap, linear convergence on
     large-residual targets)."""
 
     def build():
-        v, d = ca.SX.sym("v", 27), ca.SX.sym("d", 5 * n)
+        v, d = ca.SX.sym("v", CELL.size), ca.SX.sym("d", 5 * n)
         u, tgt, w = d[:n], ca.reshape(d[n : 4 * n], 3, n), d[4 * n :].T
-        Xn, pts = segment_function(n)(v[:12], v[12], v[13], v[14], u)
+        Xn, pts = segment_function(n)(*POINT.split(v), u)
         err = pts - tgt
         f = ca.sum2(w * ca.sum1(err * err))
         res = ca.vec(ca.repmat(ca.sqrt(w), 3, 1) * err)
-        return [ca.Function("segment_block", [v, d], [f, Xn - v[15:]]), ca.Function("segment_res", [v, d], [res])]
+        return [ca.Function("segment_block", [v, d], [f, Xn - v[CELL["next"]]]), ca.Function("segment_res", [v, d], [res])]
 
     fn, res = compiled.stored(f"segment_block{n}", build)
     return BlockType(f"segment{n}", fn, res)
@@ -156,9 +159,9 @@ def segment_block(n: int) -> BlockType:
 @lru_cache(maxsize=None)
 def pose_block() -> BlockType:
     """X_0 = [vec(R0g exp(w)); p]: the base rotation stays a proper rotation. v = (w, p, X_0); d = vec(R0g)."""
-    v, d = ca.SX.sym("v", 18), ca.SX.sym("d", 9)
-    R = ca.mtimes(ca.reshape(d, 3, 3), so3_exp(v[:3]))
-    r = ca.vertcat(ca.vec(R), v[3:6]) - v[6:]
+    v, d = ca.SX.sym("v", POSE.size), ca.SX.sym("d", 9)
+    w, p, X0 = POSE.split(v)
+    r = ca.vertcat(ca.vec(ca.mtimes(ca.reshape(d, 3, 3), so3_exp(w))), p) - X0
     return BlockType("pose", ca.Function("pose_block", [v, d], [ca.SX(0), r]), ca.Function("pose_res", [v, d], [ca.SX(0, 1)]))
 
 

@@ -151,7 +151,7 @@ def unwind(routing: Routing, act, build: Build) -> Routing:
             net += math.atan2(R[2, 1], R[1, 1])
         theta[run] = np.arctan(0.5 * D * float(wrap_angle(net)) / (p.s1 - p.s0))
     T0 = T0 if build.pose is None else build.pose.copy()
-    return Routing(np.clip(theta, -build.theta_max, build.theta_max), routing.lam, routing.length, T0)
+    return Routing(theta=np.clip(theta, -build.theta_max, build.theta_max), lam=routing.lam, length=routing.length, initial_pose=T0)
 
 
 @dataclass(frozen=True)
@@ -255,12 +255,11 @@ def solve_classes(problem: DesignProblem, pairing, build: Build, act, start: Rou
     D, act = problem.diameter, np.asarray(act, bool)
     solver = get_solver(buildable_spec(problem, pairing, build))
     lo, hi = lambda_bounds(act, start.length, build)
-    th, _, dl = design_bounds(problem, pairing)
     T0 = start.initial_pose if build.pose is None else build.pose
     guess = Guess(start.theta, np.clip(start.lam, lo, hi), start.length, T0, None)
     data = nlp_parameters(problem, pairing, T0[:3, :3])
     data |= effort_data(act, data["L"], build.pose is None)
-    lbx, ubx = solver.bounds(th, (lo, hi), dl, X0=None if build.pose is None else frames12(T0[None], D).T)
+    lbx, ubx = solver.bounds(X0=None if build.pose is None else frames12(T0[None], D).T, **design_bounds(problem, pairing) | {"lam": (lo, hi)})
     x, status, st, lam_x = solver.solve(start_x(solver, guess, D, "chain"), solver.pack_params(data), lbx, ubx, multipliers=True)
     # lambda exactly 1 without an actuator: IPOPT holds a variable whose bounds are equal at its value
     return result_of(problem, pairing, solver, x, status, st, T0[:3, :3] if build.pose is None else T0, "nlp"), lam_x[solver.layout.lam[:, 0]]
@@ -280,7 +279,7 @@ def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Res
     best, act = found.best, rule.act
     # a solve may leave an unactuated run's turning beyond half a turn: the same shape the shortest way round
     r = unwind(best.routing, act, build)
-    short = evaluate(problem, Routing(r.theta, best.routing.lam, r.length, r.initial_pose), pairing, "nlp", status=best.status,
+    short = evaluate(problem, Routing(theta=r.theta, lam=best.routing.lam, length=r.length, initial_pose=r.initial_pose), pairing, "nlp", status=best.status,
                      iterations=best.iterations, stats=best.stats)
     best = short if short.metrics["rmse"] <= best.metrics["rmse"] * (1 + 1e-9) else best
     best.stats |= {k: v for k, v in start.stats.items() if k.startswith(("start", "best_start", "hops", "corner"))}
@@ -293,8 +292,8 @@ def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Res
 def inherited_bounds(problem: DesignProblem, pairing, start: Result | None):
     """``design_bounds``, with a buildable start's classes kept (lambda exactly 1 where it has no actuator, the
     margins elsewhere): robust and clearance designs started from a buildable design stay buildable."""
-    th, lam, dl = design_bounds(problem, pairing)
+    box = design_bounds(problem, pairing)
     if start is None or not start.stats.get("buildable"):
-        return th, lam, dl
+        return box
     build, r = Build.of(problem), start.routing
-    return th, lambda_bounds(np.ones(r.segments, bool) if build.shared else r.lam != 1.0, r.length, build), dl
+    return box | {"lam": lambda_bounds(np.ones(r.segments, bool) if build.shared else r.lam != 1.0, r.length, build)}

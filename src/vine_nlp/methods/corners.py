@@ -38,8 +38,7 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
-from vine_nlp.methods import blas, drive
-from vine_nlp.methods.common import LENGTH_FACTOR
+from vine_nlp.methods import blas, drive, variables
 from vine_nlp.methods.settings import (
     CORNER_RMSE,
     CORNER_WINDOW,
@@ -157,12 +156,13 @@ class _Window:
         self.p = np.r_[frames12(frames[a : a + 1], D)[:, 0], u.ravel(order="F"), slots.ravel(order="F"), w.ravel(order="F"), lam_shared,
                        c, Ws, Q, C.ravel(order="F"), T]
         a_, chord = problem.actuator, pairing.segment_chord[a : self.b] / D
-        lo = [np.full(W, -a_.theta_max)] + ([] if self.shared else [np.full(W, a_.lambda_min)]) + [LENGTH_FACTOR[0] * chord]
-        hi = [np.full(W, a_.theta_max)] + ([] if self.shared else [np.ones(W)]) + [LENGTH_FACTOR[1] * chord]
-        self.lbx, self.ubx = np.column_stack(lo).ravel(), np.column_stack(hi).ravel()
-        cur = [routing.theta[a : self.b]] + ([] if self.shared else [routing.lam[a : self.b]]) + [routing.length[a : self.b] / D]
-        self.x = np.column_stack(cur).ravel()
-        self.per = len(cur)
+        # the window's variables per segment: the routing's declared ones (no lambda where one is shared)
+        self.names = [v.name for v in variables.ROUTING if not (self.shared and v.levels)]
+        box = variables.box(a_, chord, only=self.names)
+        self.lbx, self.ubx = (np.column_stack([box[n][i] for n in self.names]).ravel() for i in (0, 1))
+        cur = {"theta": routing.theta[a : self.b], "lam": routing.lam[a : self.b], "length": routing.length[a : self.b] / D}
+        self.x = np.column_stack([cur[n] for n in self.names]).ravel()
+        self.per = len(self.names)
 
     def objective(self, x) -> float:
         return float(_window_objective(self.W, self.n1, self.shared)(x, self.p))
@@ -182,13 +182,11 @@ class _Window:
         return out[:count]
 
     def apply(self, routing: Routing, x, D: float) -> Routing:
-        theta, lam, length = routing.theta.copy(), routing.lam.copy(), routing.length.copy()
+        values = {"theta": routing.theta.copy(), "lam": routing.lam.copy(), "length": routing.length.copy()}
         v = np.asarray(x, float).reshape(self.W, self.per)
-        theta[self.a : self.b] = v[:, 0]
-        if not self.shared:
-            lam[self.a : self.b] = v[:, 1]
-        length[self.a : self.b] = v[:, -1] * D
-        return Routing(theta, lam, length, routing.initial_pose.copy())
+        for i, name in enumerate(self.names):
+            values[name][self.a : self.b] = v[:, i] * D if name == "length" else v[:, i]
+        return Routing(**values, initial_pose=routing.initial_pose.copy())
 
 
 def _solve_start(window: _Window, x0: np.ndarray, slots: queue.SimpleQueue, stop: threading.Event):

@@ -9,7 +9,7 @@ neighbour's theta and lambda, its length scaled to its own chord. First-window v
 lambda 0.75, theta 0, dl the segment's target chord.
 
 Shared with the NLP so that a comparison is about the algorithm: the pairing (``common.pair_points``), the
-bounds (``common.variable_bounds``), the segment model and the error: the window error is the sum of
+bounds (``common.design_bounds``), the segment model and the error: the window error is the sum of
 SQUARED distances of the paired points from the window's start to its end (``common.path_error``, what the
 NLP minimizes; the paper's sum of distances is not differentiable at a perfect fit and is used only for the
 sPAM abandonment test, where its threshold is defined).
@@ -36,8 +36,8 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
-from vine_nlp.methods import blas
-from vine_nlp.methods.common import Pairing, clip_to_bounds, evaluate, geometric_guess, pair_points, path_error, variable_bounds
+from vine_nlp.methods import blas, variables
+from vine_nlp.methods.common import Pairing, clip_to_bounds, design_bounds, evaluate, geometric_guess, pair_points, path_error
 from vine_nlp.methods.settings import GREEDY_WINDOW, quiet
 from vine_nlp.methods.transcription import ipopt_status
 from vine_nlp.model.chain import chain_points
@@ -215,10 +215,12 @@ def _greedy_pass(problem: DesignProblem, pairing: Pairing, counter: _Counter, la
     M, k = pairing.segments, max(1, int(o.lookahead))
     shared = lam_fixed is not None
     rng = np.random.default_rng(o.seed)
-    (tl, ll, dlo), (tu, lu, dhi) = variable_bounds(problem, pairing)
+    box = design_bounds(problem, pairing)
+    (tl, tu), (ll, lu), (dlo, dhi) = box["theta"], box["lam"], box["length"]
     chord = pairing.segment_chord
 
-    theta, lam, dl = clip_to_bounds(np.zeros(M), np.full(M, float(lam_fixed) if shared else LAMBDA_START), chord, problem, pairing)
+    theta, lam, dl = variables.clip({"theta": np.zeros(M), "lam": np.full(M, float(lam_fixed) if shared else LAMBDA_START),
+                                     "length": chord}, box).values()
     guess = geometric_guess(problem, pairing)
     T = guess.initial_pose.copy()  # frame at the current window's start (fixed numeric parameter)
     T0 = T.copy()
@@ -266,7 +268,7 @@ def _greedy_pass(problem: DesignProblem, pairing: Pairing, counter: _Counter, la
             abandoned = True
             counter.step(M - 1 - j)
             break
-    return tally | {"routing": Routing(theta, lam, dl, T0), "window_status": window_status, "window_sq": window_sq, "window_dist": window_dist, "abandoned": abandoned,
+    return tally | {"routing": Routing(theta=theta, lam=lam, length=dl, initial_pose=T0), "window_status": window_status, "window_sq": window_sq, "window_dist": window_dist, "abandoned": abandoned,
             "windows_done": len(window_status), "starts": (starts_first, starts_later)}
 
 
@@ -415,8 +417,7 @@ def lowpass(result_or_routing, problem: DesignProblem, pairing: Pairing | None =
         theta = filtfilt(b, a, theta)
         if not problem.actuator.shared_lambda:
             lam = filtfilt(b, a, lam)
-    theta, lam, length = clip_to_bounds(theta, lam, routing.length, problem, pairing)
-    new = Routing(theta, lam, length, routing.initial_pose)
+    new = Routing(**clip_to_bounds(problem, pairing, theta=theta, lam=lam, length=routing.length), initial_pose=routing.initial_pose)
     stats = dict(src.stats) if isinstance(src, Result) else {}
     stats.update({"filter": "butterworth+filtfilt", "filter_order": FILTER_ORDER, "cutoff": float(cutoff),
                   "filtered": bool(filtered)})

@@ -43,7 +43,7 @@ def mirrored_pose(T) -> np.ndarray:
 
 def mirrored_routing(r: Routing) -> Routing:
     """The routing whose shape is the mirror of ``r``'s: theta -> -theta, the base pose mirrored."""
-    return Routing(-np.asarray(r.theta, float), np.array(r.lam, float), np.array(r.length, float), mirrored_pose(r.initial_pose))
+    return Routing(theta=-np.asarray(r.theta, float), lam=np.array(r.lam, float), length=np.array(r.length, float), initial_pose=mirrored_pose(r.initial_pose))
 
 
 def _y(p) -> tuple:

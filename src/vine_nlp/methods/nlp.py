@@ -8,7 +8,8 @@ with the chain's end, and the smoothness penalties:
 
 the derivative integrals on the target's arc length so the penalties mean the same at any discretization
 (they replace the paper's low-pass filter); one lambda for an sPAM. Bounds |theta| <= theta_max,
-lambda_min <= lambda <= 1, segment lengths within LENGTH_FACTOR of the target's chord of the segment.
+lambda_min <= lambda <= 1, segment lengths within LENGTH_FACTOR of the target's chord of the segment
+(the declarations of methods.variables).
 The solver is built once per structure and cached; targets, weights and guesses are data. On the drive:
 the starts (``drive.multistart``), the Hessian schedule (``solve_from``), basin hops; where the first
 solve shows a corner-like target the windowed search of ``methods.corners`` follows.
@@ -22,8 +23,8 @@ import time
 
 import numpy as np
 
-from vine_nlp.methods import corners, drive
-from vine_nlp.methods.common import LENGTH_FACTOR, Guess, evaluate, geometric_guess, pair_points
+from vine_nlp.methods import common, corners, drive, variables
+from vine_nlp.methods.common import Guess, evaluate, geometric_guess, pair_points
 from vine_nlp.methods.drive import TIE_RTOL
 from vine_nlp.methods.settings import AUTO_GN_MAX_ITER, WINDOW, Settings
 from vine_nlp.methods.structure import Structure, frames12
@@ -71,12 +72,9 @@ def nlp_parameters(problem: DesignProblem, pairing: Pairing, R0g: np.ndarray) ->
             "h": h, "L": L, "tip": tgt[-1], "wtip": 1.0 / N}
 
 
-def design_bounds(problem: DesignProblem, pairing: Pairing):
-    """(theta, lam, dl) (lo, hi) pairs in units of D (paper Sec. VI-A; lengths within LENGTH_FACTOR of the chords)."""
-    a, M = problem.actuator, pairing.segments
-    chord = pairing.segment_chord / problem.diameter
-    return ((np.full(M, -a.theta_max), np.full(M, a.theta_max)), (np.full(M, a.lambda_min), np.ones(M)),
-            (LENGTH_FACTOR[0] * chord, LENGTH_FACTOR[1] * chord))
+def design_bounds(problem: DesignProblem, pairing: Pairing) -> dict:
+    """``common.design_bounds`` in units of D (the NLP's)."""
+    return common.design_bounds(problem, pairing, problem.diameter)
 
 
 def start_x(solver, guess: Guess, D: float, frames: str = "target") -> np.ndarray:
@@ -89,7 +87,7 @@ def start_x(solver, guess: Guess, D: float, frames: str = "target") -> np.ndarra
         fr = chain_frames(guess.theta, guess.lam, guess.length, D, guess.initial_pose)
     fr[:, :3, 3] /= D
     pose = np.r_[np.zeros(3), guess.initial_pose[:3, 3] / D]
-    return solver.pack_x(guess.theta, guess.lam, guess.length / D, frames12(fr)[None], poses=pose[None])
+    return solver.pack_x(frames12(fr)[None], poses=pose[None], theta=guess.theta, lam=guess.lam, length=guess.length / D)
 
 
 def solve_from(
@@ -131,7 +129,7 @@ def _solve(problem, guess, pairing, frames, warm, hessian, max_iter) -> Result:
     data = nlp_parameters(problem, pairing, R0g)
     bounds = design_bounds(problem, pairing)
     solver = get_solver(M, n, problem.actuator.shared_lambda, max_iter, o.tol, warm, hessian)
-    lbx, ubx = solver.bounds(*bounds)
+    lbx, ubx = solver.bounds(**bounds)
     x, status, st = solver.solve(start_x(solver, guess, D, frames), solver.pack_params(data), lbx, ubx)
     return result_of(problem, pairing, solver, x, status, st, R0g, "nlp", max_iter=max_iter, hessian=hessian)
 
@@ -162,10 +160,10 @@ def start_guesses(problem: DesignProblem, pairing: Pairing, starts: int) -> list
     a = problem.actuator
     for k in range(2, starts):
         base = guesses[k % 2]
-        theta = np.clip(base.theta + rng.normal(0.0, 0.25, base.theta.shape), -a.theta_max, a.theta_max)
-        lam = np.clip(base.lam + rng.normal(0.0, 0.1, base.lam.shape), a.lambda_min, 1.0)
+        theta = variables.perturb(variables.THETA, base.theta, rng, a)
+        lam = variables.perturb(variables.LAM, base.lam, rng, a)
         if a.shared_lambda:
-            lam = np.full_like(lam, np.clip(rng.uniform(a.lambda_min, 1.0), a.lambda_min, 1.0))
+            lam = np.full_like(lam, variables.draw(variables.LAM, rng, a))
         guesses.append(Guess(theta, lam, base.length, base.initial_pose, base.frames))
     return guesses
 
@@ -192,10 +190,8 @@ def guess_from_routing(problem: DesignProblem, pairing: Pairing, routing: Routin
         theta = np.interp(s_new, s_old, routing.theta)
         lam = np.interp(s_new, s_old, routing.lam)
         length = np.full(M, routing.length.sum() / M)
-    a = problem.actuator
-    theta = np.clip(theta, -a.theta_max, a.theta_max)
-    lam = np.clip(lam, a.lambda_min, 1.0)
-    if a.shared_lambda:
+    theta, lam = variables.clip({"theta": theta, "lam": lam}, variables.box(problem.actuator, np.zeros(M), only=("theta", "lam"))).values()
+    if problem.actuator.shared_lambda:
         lam = np.full(M, float(np.mean(lam)))
     frames = chain_frames(theta, lam, length, problem.diameter, routing.initial_pose)
     return Guess(theta, lam, length, routing.initial_pose.copy(), frames)
@@ -276,9 +272,9 @@ def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairi
         w = slice(start, start + WINDOW)
         old = best.routing
         theta, lam = old.theta.copy(), old.lam.copy()
-        theta[w] = rng.uniform(-a.theta_max, a.theta_max, theta[w].shape)
+        theta[w] = variables.draw(variables.THETA, rng, a, theta[w].shape)
         if not a.shared_lambda:  # one shared lambda is not a property of a window
-            lam[w] = rng.uniform(a.lambda_min, 1.0, lam[w].shape)
+            lam[w] = variables.draw(variables.LAM, rng, a, lam[w].shape)
         # multiple shooting: frames inside the window follow the new values, the others stay where
         # the design put them, so the only continuity defect is at the window's end
         frames = chain_frames(old.theta, old.lam, old.length, problem.diameter, old.initial_pose)

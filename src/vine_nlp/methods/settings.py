@@ -79,6 +79,15 @@ class Settings:
         return opts
 
 
+# ---------------------------------------------------------------- the design variables (methods.variables)
+
+# segment lengths stay within this factor of the target's chord of the segment: a loose box that keeps IPOPT
+# away from dl -> 0 without constraining real designs
+LENGTH_FACTOR = (0.2, 5.0)
+# a random start perturbs the geometric guess by normal draws of these standard deviations (theta in rad):
+# the spread that decides more than solver options do ("Initialization and multi-start")
+START_SPREAD = {"theta": 0.25, "lam": 0.1}
+
 # ---------------------------------------------------------------- the drive's loops
 
 # Hessian "auto": Gauss-Newton gets this many iterations, then the exact Hessian solves the same start

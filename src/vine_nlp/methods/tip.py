@@ -42,6 +42,7 @@ from vine_nlp.methods.common import _perpendicular, _unit, geometric_guess, pair
 from vine_nlp.methods.settings import Settings
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Chain, Smoothness, Spec, get_solver, routing_of
+from vine_nlp.methods.variables import ROUTE, box
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.shape import forward_shape, routing_metrics
 from vine_nlp.problem import DesignProblem, Result, Routing, TipProblem
@@ -70,7 +71,7 @@ class TipTerms:
         tip, tangent = c.tip(0), c.frames(0)[0:3, -1]  # tangent: first column of the tip rotation
         scale = CLOSEST_ACTUATION if self.closest else 1.0
         M, lay = c.s.M, c.lay
-        idx = np.vstack([lay.theta, lay.lam[:, 0], lay.dl])
+        idx = np.array([lay.routing_at(j) for j in range(M)]).T  # variables.ROUTE
         w = ca.repmat(scale / P_L, 1, M)
         main, tie = actuation_blocks(self.objective)
         c.add_block(main, idx, w, term="actuation")
@@ -91,12 +92,12 @@ class TipTerms:
 
 @lru_cache(maxsize=None)
 def actuation_blocks(objective: str) -> tuple[BlockType, BlockType]:
-    """Per-segment actuation and its tie-break as blocks: v = (theta, lam, dl), d = weight (1/L, scaled).
+    """Per-segment actuation and its tie-break as blocks: v = ``variables.ROUTE`` (theta, lam, dl), d = weight (1/L, scaled).
 
     "contraction": (1 - lam) dl, tie-break tan^2 theta dl (least twist among least-contraction routings);
     "turns": sqrt(tan^2 theta + eps) dl, tie-break (1 - lam)^2 dl (least contraction among least-turning ones)."""
-    v, d = ca.SX.sym("v", 3), ca.SX.sym("d")
-    th, la, dl = v[0], v[1], v[2]
+    v, d = ca.SX.sym("v", ROUTE.size), ca.SX.sym("d")
+    th, la, dl = ROUTE.split(v)
     if objective == "contraction":
         main, tie = (1 - la) * dl, ca.tan(th) ** 2 * dl
     else:
@@ -194,7 +195,7 @@ def tip_bounds(solver, problem: TipProblem) -> tuple:
     """Box bounds of the tip NLP: the design's theta and lambda, lengths from MIN_LENGTH_FACTOR L / M to L, the base fixed."""
     a, D, M, L = problem.actuator, problem.diameter, problem.segments, problem.length
     X0 = frames12(problem.initial_pose[None], D)[:, 0]
-    return solver.bounds((-a.theta_max, a.theta_max), (a.lambda_min, 1.0), (MIN_LENGTH_FACTOR * L / M / D, L / D), X0=X0)
+    return solver.bounds(X0=X0, **box(a, np.zeros(M), only=("theta", "lam")), length=(MIN_LENGTH_FACTOR * L / M / D, L / D))
 
 
 def tip_result(problem: TipProblem, solver, x, status: str, st: dict, closest: bool = False) -> Result:
@@ -216,7 +217,7 @@ def solve_from(problem: TipProblem, theta, lam, dl, frames, closest: bool = Fals
     o, D = problem.options, problem.diameter
     solver = get_solver(tip_spec(problem.segments, problem.actuator.shared_lambda, problem.direction is not None, problem.objective,
                                  o.max_iter, o.tol, closest, monotone))
-    x0 = solver.pack_x(theta, lam, dl / D, frames12(frames, D)[None])
+    x0 = solver.pack_x(frames12(frames, D)[None], theta=theta, lam=lam, length=dl / D)
     x, status, st = solver.solve(x0, solver.pack_params(tip_data(problem, closest)), *tip_bounds(solver, problem))
     return tip_result(problem, solver, x, status, st, closest)
 

@@ -22,7 +22,7 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp import interrupt
-from vine_nlp.methods import compiled
+from vine_nlp.methods import compiled, variables
 from vine_nlp.methods.blocks import (
     BlockType,
     _c_functions,
@@ -108,7 +108,7 @@ class Chain:
             idx = np.vstack([lay.pose[lay.pose_of_level].T, lay.X[0].T])  # (18, K)
             self.add_block(pose_block(), idx, self.R0g[:, lay.pose_of_level.tolist()])
         cells = [(j, k) for j in range(M) for k in range(K)]
-        idx = np.array([np.r_[lay.X[j, k], lay.theta[j], lay.lam[j, k], lay.dl[j], lay.X[j + 1, k]] for j, k in cells]).T
+        idx = np.array([np.r_[lay.X[j, k], lay.routing_at(j, k), lay.X[j + 1, k]] for j, k in cells]).T  # variables.CELL
         self.add_block(segment_block(n), idx, self.cells)
 
     # views
@@ -181,9 +181,8 @@ class SoftTip:
 
 
 def segment_point_index(c: Chain, j: int, k: int = 0) -> np.ndarray:
-    """Local variables (X_j (12), theta, lam, dl) of segment j of level k, for blocks on its points."""
-    lay = c.lay
-    return np.r_[lay.X[j, k], lay.theta[j], lay.lam[j, k], lay.dl[j]]
+    """Local variables of segment j of level k for blocks on its points (``variables.POINT``: X_j, then the routing's)."""
+    return np.r_[c.lay.X[j, k], c.lay.routing_at(j, k)]
 
 
 @dataclass(frozen=True)
@@ -350,18 +349,22 @@ class Solver:
         """Where parameter ``name`` sits in the packed parameter vector."""
         return self._param_slices[name]
 
-    def pack_x(self, theta, lam, dl, frames, poses=None, lam_global=None, extra=None, globals_=None) -> np.ndarray:
-        """x from per-segment theta, dl (M,), lam (M,) or (M, K), frames (K, 12, M+1), poses (P, 6),
-        global lambdas (shared or level), extra (E, M), extra globals (G,)."""
+    def pack_x(self, frames, poses=None, lam_global=None, extra=None, globals_=None, **values) -> np.ndarray:
+        """x from the declared variables by name (``values``: theta (M,), lam (M,) or (M, K), length (M,), in
+        units of D), frames (K, 12, M+1), poses (P, 6), global lambdas (shared or level), extra (E, M), extra
+        globals (G,)."""
         s, lay = self.structure, self.layout
         x = np.zeros(lay.size)
-        x[lay.theta], x[lay.dl] = theta, dl
-        if s.lam == "segment":
-            x[lay.lam[:, 0]] = np.asarray(lam, float).reshape(s.M, -1)[:, 0]
-        elif lam_global is not None:
-            x[lay.lam_global] = lam_global
-        else:
-            x[lay.lam_global] = np.mean(lam) if s.lam == "shared" else np.asarray(lam, float).reshape(s.M, s.K)[0]
+        for v in s.variables:
+            val = values[v.name]
+            if not v.levels:
+                x[lay.var[v.name]] = val
+            elif s.lam == "segment":
+                x[lay.var[v.name][:, 0]] = np.asarray(val, float).reshape(s.M, -1)[:, 0]
+            elif lam_global is not None:
+                x[lay.lam_global] = lam_global
+            else:
+                x[lay.lam_global] = np.mean(val) if s.lam == "shared" else np.asarray(val, float).reshape(s.M, s.K)[0]
         frames = np.asarray(frames, float).reshape(s.K, 12, s.M + 1)
         for k in range(s.K):
             x[lay.X[:, k, :].T] = frames[k]
@@ -376,10 +379,7 @@ class Solver:
     def unpack(self, x) -> dict:
         s, lay = self.structure, self.layout
         x = np.asarray(x, float)
-        return {
-            "theta": x[lay.theta].copy(),
-            "lam": x[lay.lam].copy(),  # (M, K)
-            "dl": x[lay.dl].copy(),
+        return {v.name: x[lay.var[v.name]].copy() for v in s.variables} | {  # lam: (M, K); length in units of D
             "poses": x[lay.pose].copy(),
             "lam_global": x[lay.lam_global].copy(),
             "frames": np.stack([x[lay.X[:, k, :].T] for k in range(s.K)]),  # (K, 12, M+1)
@@ -387,22 +387,25 @@ class Solver:
             "globals": x[lay.globals].copy(),
         }
 
-    def bounds(self, theta, lam, dl, X0=None) -> tuple[np.ndarray, np.ndarray]:
-        """Box bounds from (lo, hi) pairs: theta, lam (per segment (M,) or per level (K,) or scalars), dl;
-        ``X0``: (K, 12) fixed base frames for a fixed pose. Extra and global variables are free: set
-        their entries of the returned arrays (``layout.extra``, ``layout.globals``) to bound them."""
+    def bounds(self, X0=None, **boxes) -> tuple[np.ndarray, np.ndarray]:
+        """Box bounds of the declared variables by name from (lo, hi) pairs (``variables.box``'s; per segment
+        or scalars; lam per level (K,) for lambda per level; length in units of D); ``X0``: (K, 12) fixed base
+        frames for a fixed pose. Extra and global variables are free: set their entries of the returned arrays
+        (``layout.extra``, ``layout.globals``) to bound them."""
         s, lay = self.structure, self.layout
         lbx, ubx = np.full(lay.size, -np.inf), np.full(lay.size, np.inf)
-        lbx[lay.theta], ubx[lay.theta] = theta
-        lbx[lay.dl], ubx[lay.dl] = dl
-        if s.lam == "level":
-            lbx[lay.lam_global], ubx[lay.lam_global] = lam
-        else:
-            lo, hi = (np.broadcast_to(np.asarray(v, float), (s.M,)) for v in lam)
-            if s.lam == "shared":
-                lbx[lay.lam_global], ubx[lay.lam_global] = lo[0], hi[0]
+        for v in s.variables:
+            b = boxes[v.name]
+            if not v.levels:
+                lbx[lay.var[v.name]], ubx[lay.var[v.name]] = b
+            elif s.lam == "level":
+                lbx[lay.lam_global], ubx[lay.lam_global] = b
             else:
-                lbx[lay.lam[:, 0]], ubx[lay.lam[:, 0]] = lo, hi
+                lo, hi = (np.broadcast_to(np.asarray(e, float), (s.M,)) for e in b)
+                if s.lam == "shared":
+                    lbx[lay.lam_global], ubx[lay.lam_global] = lo[0], hi[0]
+                else:
+                    lbx[lay.var[v.name][:, 0]], ubx[lay.var[v.name][:, 0]] = lo, hi
         if s.pose == "fixed":
             if X0 is None:
                 raise ValueError("a fixed pose needs its base frames X0")
@@ -461,7 +464,8 @@ def routing_of(solver: Solver, x, D: float, base: np.ndarray, k: int = 0) -> Rou
         T0 = np.eye(4)
         T0[:3, :3] = base @ so3_exp(v["poses"][q, :3])
         T0[:3, 3] = v["poses"][q, 3:] * D
-    return Routing(v["theta"], v["lam"][:, k], v["dl"] * D, T0)
+    declared = solver.structure.variables
+    return variables.routing({d.name: v[d.name][:, k] if d.levels else v[d.name] for d in declared}, T0, D, declared)
 
 
 # ---------------------------------------------------------------- data of the plain chain

@@ -91,8 +91,8 @@ def correct_routing(problem: DesignProblem, as_built: Routing, dev: Deviations, 
     def step(hessian, cap, previous):
         solver = get_solver(correction_spec(M, pairing.n, a.shared_lambda, min(cap or o.max_iter, o.max_iter), o.tol, hessian))
         p = solver.pack_params(nlp_parameters(problem, pairing, as_built.initial_pose[:3, :3]))
-        x0 = solver.pack_x(as_built.theta, as_built.lam, dl, f12[None], lam_global=float(np.mean(as_built.lam)))
-        x, status, st = solver.solve(x0, p, *solver.bounds(th, lam_b, (dl, dl), X0=f12[:, 0][None]))
+        x0 = solver.pack_x(f12[None], lam_global=float(np.mean(as_built.lam)), theta=as_built.theta, lam=as_built.lam, length=dl)
+        x, status, st = solver.solve(x0, p, *solver.bounds(X0=f12[:, 0][None], theta=th, lam=lam_b, length=(dl, dl)))
         _log.debug("correction %s: %s, %d iterations, %.2f s", hessian, status, st["iterations"], st["solve_time_s"])
         realized = dataclasses.replace(routing_of(solver, x, D, as_built.initial_pose), length=as_built.length)
         return Result("corrected", realized, None, status, iterations=st.pop("iterations"), stats=st)
@@ -102,7 +102,7 @@ def correct_routing(problem: DesignProblem, as_built: Routing, dev: Deviations, 
         return best.routing, best.routing, best.status, best.stats | {"iterations": best.iterations}
     nominal = remove_deviations(best.routing, dev, actuated(built.lam))
     # what the builder does not change stays exactly what was built
-    nominal = Routing(nominal.theta if "theta" in adjust else built.theta, nominal.lam, built.length, built.initial_pose)
+    nominal = Routing(theta=nominal.theta if "theta" in adjust else built.theta, lam=nominal.lam, length=built.length, initial_pose=built.initial_pose)
     return nominal, apply_deviations(nominal, dev), best.status, best.stats | {"iterations": best.iterations}
 
 

@@ -38,13 +38,15 @@ from typing import ClassVar
 import casadi as ca
 import numpy as np
 
-from vine_nlp.methods import drive, settings
+from vine_nlp.methods import drive, settings, variables
 from vine_nlp.methods.blocks import BlockType
 from vine_nlp.methods.correct.deviations import Deviations, apply_deviations, deviations_of
 from vine_nlp.methods.correct.laplace import laplace
 from vine_nlp.methods.correct.pairing import LINE_SIDE, SLIDE, in_frame, pair_with_line, rigid_start
+from vine_nlp.methods.settings import LENGTH_FACTOR
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Chain, Spec, get_solver
+from vine_nlp.methods.variables import CELL, POINT
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.helix import center_rates
 from vine_nlp.model.routing import Routing, Sigmas, actuated
@@ -86,19 +88,20 @@ def measure_block(free: bool) -> BlockType:
     min(cap, lam + shift): 1 where the shift may pass 1 (the physical rule), NO_CAP elsewhere).
     Residual w (I - (1 - SLIDE) t t^T)(P - m) (the square root as data: a zero-weight slot has finite derivatives);
     a free-frame point (flag 1) is moved by exp(w) (m - c) + c + t first (m stored as given, c their centroid)."""
-    nv = 21 if free else 15
+    slots = POINT + ((("w", 3), ("p", 3)) if free else ())  # variables.POINT, then the free frame's rotation and shift
     nd = SLOT_DATA_FREE if free else SLOT_DATA
-    v, d = ca.SX.sym("v", nv), ca.SX.sym("d", nd)
-    th, la, dl = v[12] + d[0], _cap(d[nd - 1], v[13] + d[1]), v[14] * d[2]
+    v, d = ca.SX.sym("v", slots.size), ca.SX.sym("d", nd)
+    X, th, la, dl = POINT.split(v)
+    th, la, dl = th + d[0], _cap(d[nd - 1], la + d[1]), dl * d[2]
     u, mi, tg, w, side = d[3], d[4:7], d[7:10], d[10], d[11]
-    R, p = ca.reshape(v[:9], 3, 3), v[9:12]
+    R, p = ca.reshape(X[:9], 3, 3), X[9:12]
     kappa, tau, lc = center_rates(th, la, 1.0)
     Rs, q = twist_parts(kappa, tau, u * dl * lc)
     local = ca.vertcat(q[0] + side * Rs[0][1], q[1] + side * Rs[1][1], q[2] + side * Rs[2][1])
     P = p + ca.mtimes(R, local)
     if free:
         c, flag = d[12:15], d[15]
-        mi = mi + flag * (ca.mtimes(so3_exp(v[15:18]), mi - c) + c + v[18:21] - mi)
+        mi = mi + flag * (ca.mtimes(so3_exp(v[slots["w"]]), mi - c) + c + v[slots["p"]] - mi)
     e = P - mi
     res = w * (e - (1.0 - SLIDE) * tg * ca.dot(tg, e))
     return BlockType(f"measure{'f' if free else ''}", ca.Function("measure_block", [v, d], [ca.sumsqr(res), ca.SX(0, 1)]),
@@ -108,10 +111,11 @@ def measure_block(free: bool) -> BlockType:
 @lru_cache(maxsize=1)
 def shifted_segment_block() -> BlockType:
     """Continuity of an earlier build's chain: X'_{j+1} = X'_j T(theta + d_theta, min(cap, lam + d_lam), dl f).
-    v = (X'_j (12), theta, lam, dl, X'_{j+1} (12)); d = (d_theta, d_lam, f, cap)."""
-    v, d = ca.SX.sym("v", 27), ca.SX.sym("d", 4)
-    Xn, _ = segment_function(1)(v[:12], v[12] + d[0], _cap(d[3], v[13] + d[1]), v[14] * d[2], 0.0)
-    return BlockType("shifted_segment", ca.Function("shifted_block", [v, d], [ca.SX(0), Xn - v[15:]]),
+    v = ``variables.CELL`` (X'_j (12), theta, lam, dl, X'_{j+1} (12)); d = (d_theta, d_lam, f, cap)."""
+    v, d = ca.SX.sym("v", CELL.size), ca.SX.sym("d", 4)
+    X, th, la, dl, _ = CELL.split(v)
+    Xn, _ = segment_function(1)(X, th + d[0], _cap(d[3], la + d[1]), dl * d[2], 0.0)
+    return BlockType("shifted_segment", ca.Function("shifted_block", [v, d], [ca.SX(0), Xn - v[CELL["next"]]]),
                      ca.Function("shifted_res", [v, d], [ca.SX(0, 1)]))
 
 
@@ -145,10 +149,10 @@ class AsBuiltTerm:
             return lay.extra[j - 1, 12 * b : 12 * b + 12]
 
         glob = lay.globals[3:9] if self.free else np.zeros(0, int)
-        cols = [np.r_[frame(b, j), lay.theta[j], lay.lam[j, 0], lay.dl[j], glob] for b in range(B) for j in range(M)]
+        cols = [np.r_[frame(b, j), lay.routing_at(j), glob] for b in range(B) for j in range(M)]
         c.add_block(bt, np.hstack([np.repeat(col[:, None], S, axis=1) for col in cols]), meas, term="fit")
         if B > 1:
-            idx = [np.r_[frame(b, j), lay.theta[j], lay.lam[j, 0], lay.dl[j], lay.extra[j, 12 * b : 12 * b + 12]]
+            idx = [np.r_[frame(b, j), lay.routing_at(j), lay.extra[j, 12 * b : 12 * b + 12]]
                    for b in range(B - 1) for j in range(M)]
             c.add_block(shifted_segment_block(), np.array(idx).T, shift)
         g = c.globals
@@ -262,7 +266,7 @@ class _ICP:
 
     def _routings(self) -> list:
         """Every build's as-built routing: the estimate shifted by the build's known differences."""
-        return [Routing(self.ab.theta + a, np.minimum(1.0, self.ab.lam + b), self.ab.length * c, self.T0) for a, b, c in self.shifts]
+        return [Routing(theta=self.ab.theta + a, lam=np.minimum(1.0, self.ab.lam + b), length=self.ab.length * c, initial_pose=self.T0) for a, b, c in self.shifts]
 
     def _pairs(self):
         rs = self._routings()
@@ -294,13 +298,13 @@ class _ICP:
                 x[lay.globals[3:9]] = self.g_free
         lbx, ubx = np.full(lay.size, -np.inf), np.full(lay.size, np.inf)
         lbx[lay.X[0, 0]] = ubx[lay.X[0, 0]] = np.r_[self.T0[:3, :3].ravel(order="F"), self.T0[:3, 3] / D]
-        lbx[lay.dl], ubx[lay.dl] = 0.2 * self.latest.length / D, 5.0 * self.latest.length / D
+        lbx[lay.dl], ubx[lay.dl] = LENGTH_FACTOR[0] * self.latest.length / D, LENGTH_FACTOR[1] * self.latest.length / D
         lam = lay.lam_global if self.shared else lay.lam[:, 0]
         lbx[lam], ubx[lam] = np.where(self.act, self.lambda_min, 1.0)[: np.size(lam)], 1.0
         lbx[lay.theta], ubx[lay.theta] = -1.45, 1.45
         self.x, status, st = solver.solve(x, p, lbx, ubx)
         v = solver.unpack(self.x)
-        self.ab = Routing(v["theta"], v["lam"][:, 0], v["dl"] * D, self.T0)
+        self.ab = variables.routing(v | {"lam": v["lam"][:, 0]}, self.T0, D)
         if self.free:
             self.g_free, self.Tcorr = v["globals"][3:9].copy(), _free_transform(v["globals"], self.centroid, D)
         return self.x, Result("as_built", self.ab, None, status, iterations=st.pop("iterations"), stats=st)
@@ -360,8 +364,8 @@ def _free_transform(g, centroid, D):
 
 def _start_x(solver, ab, D, routings, B, lay):
     frames = chain_frames(ab.theta, ab.lam, ab.length, D, ab.initial_pose)
-    x = solver.pack_x(ab.theta, ab.lam, ab.length / D, frames12(frames, D)[None], lam_global=np.mean(ab.lam),
-                      globals_=np.zeros(lay.globals.size))
+    x = solver.pack_x(frames12(frames, D)[None], lam_global=np.mean(ab.lam), globals_=np.zeros(lay.globals.size), theta=ab.theta,
+                      lam=ab.lam, length=ab.length / D)
     for b in range(B - 1):
         r = routings[b]
         fb = frames12(chain_frames(r.theta, r.lam, r.length, D, r.initial_pose), D)

@@ -73,7 +73,7 @@ def model_lines(routing: Routing, diameter: float, spacing: float = SPACING):
 def _with_lambda(routing: Routing, lam) -> Routing:
     if lam is None:
         return routing
-    return Routing(routing.theta, np.full(routing.segments, float(lam)), routing.length, routing.initial_pose)
+    return Routing(theta=routing.theta, lam=np.full(routing.segments, float(lam)), length=routing.length, initial_pose=routing.initial_pose)
 
 
 class LineFitter:
@@ -208,7 +208,7 @@ def finish_fit(fitter: LineFitter, lam_fit, T, free, spacing):
     lines, s_tube, _ = model_lines(routing, D, spacing)
     polylines = {name: Polyline(pts, s_tube) for name, pts in lines.items()}
     Tinv = invert_transform(T)
-    fitted = Routing(routing.theta, routing.lam, routing.length, Tinv @ routing.initial_pose)
+    fitted = Routing(theta=routing.theta, lam=routing.lam, length=routing.length, initial_pose=Tinv @ routing.initial_pose)
     shape = Shape(*(apply_transform(Tinv, lines[name]) for name in ("center", "inner", "outer")))
 
     pts, closest, err, s, s_tube_pts, code = [], [], [], [], [], []

@@ -143,11 +143,12 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
 
     data = plan.data(routing)  # the first round's: it fixes the first solver's slots
     first_solver = solver(0, rounds == 1)
-    theta_b, lam_b, (dl_lo, dl_hi) = design_bounds(problem, pairing)
+    box = design_bounds(problem, pairing)
+    dl_hi = box["length"][1]
     # the pushed start's detour may lengthen a segment past LENGTH_FACTOR of its chord on the target: there the
     # bound makes room for it (module docstring)
     dl0 = routing.length / D
-    bounds = first_solver.bounds(theta_b, lam_b, (dl_lo, np.where(dl0 > dl_hi, LENGTH_SLACK * dl0, dl_hi)))
+    bounds = first_solver.bounds(**box | {"length": (box["length"][0], np.where(dl0 > dl_hi, LENGTH_SLACK * dl0, dl_hi))})
     x = plan.fill_extra(first_solver, start_x(first_solver, chain_guess(problem, routing), D, "chain"), routing)
     found = drive.refine(Rounds(plan, routing, data, solver, params, bounds, result, warm=True), rounds, x, stats)
     best, rep = stats.stamp(found.best), found.verdict.report

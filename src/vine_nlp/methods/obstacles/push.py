@@ -205,4 +205,4 @@ def pushed_chain(problem: TipProblem, plan: Plan, routing: Routing) -> Routing:
     tg = pushed_target(sample_chain(routing, D, n)["points"], problem.obstacles, push_need(plan))
     fit = DesignProblem(problem.name, D, tg, problem.actuator, DesignOptions(points_per_segment=n, hessian="exact"), problem.units)
     r = solve_from(fit, None, pair_points(tg, n), frames="target").routing
-    return Routing(r.theta, r.lam, r.length, routing.initial_pose)
+    return Routing(theta=r.theta, lam=r.lam, length=r.length, initial_pose=routing.initial_pose)

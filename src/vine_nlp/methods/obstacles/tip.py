@@ -58,7 +58,7 @@ def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, ro
     n = max(1, problem.options.starts if starts is None else starts)
     # each made when it is tried: the pushed chain costs a design solve
     guesses = [lambda: free.routing, lambda: pushed_chain(problem, plan, free.routing)]
-    guesses += [lambda g=g: Routing(g[0], g[1], g[2], problem.initial_pose) for g in start_guesses(problem, n)]
+    guesses += [lambda g=g: Routing(theta=g[0], lam=g[1], length=g[2], initial_pose=problem.initial_pose) for g in start_guesses(problem, n)]
     found = drive.multistart(lambda routing: _tip_start(problem, plan, routing, rounds), guesses, key=rank,
                              accept=None if thorough else (lambda r: r.status == "optimal" and r.stats["obstacle_clear"]), progress=progress)
     best = drive.record_starts(found, stats, always=True)
@@ -89,7 +89,7 @@ def _tip_start(problem: TipProblem, plan: Plan, routing: Routing, rounds: int) -
 
     first = solver(0, False)
     fr = chain_frames(routing.theta, routing.lam, routing.length, D, problem.initial_pose)
-    x = plan.fill_extra(first, first.pack_x(routing.theta, routing.lam, routing.length / D, frames12(fr, D)[None]), routing)
+    x = plan.fill_extra(first, first.pack_x(frames12(fr, D)[None], theta=routing.theta, lam=routing.lam, length=routing.length / D), routing)
     rule = Rounds(plan, routing, data, solver, tip_data(problem), tip_bounds(first, problem),
                   lambda solver, x, status, st: tip_result(problem, solver, x, status, st), stop_at_cap=True)
     found = drive.refine(rule, rounds, x, stats)
