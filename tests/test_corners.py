@@ -137,7 +137,7 @@ def test_budget_in_problem_files_and_on_the_command_line(tmp_path, capsys):
     path.write_text(text + "[design]\nbudget = 1.5\n")
     assert load_problem(path).problem.options.budget == 1.5
     path.write_text(text)
-    assert load_problem(path).problem.options.budget == DesignOptions().budget == settings.DEFAULT_BUDGET
+    assert load_problem(path).problem.options.budget == DesignOptions().budget == settings.Method().budget
     path.write_text(text + "[design]\nbudget = -1\n")
     out = tmp_path / "o.h5"
     assert main(["design", str(path), "-o", str(out)]) == 2

@@ -20,7 +20,8 @@ from vine_nlp.methods import correct as C
 from vine_nlp.methods.common import evaluate, pair_points
 from vine_nlp.methods.correct.estimate import CAP_ROUND, measure_block
 from vine_nlp.methods.correct.laplace import line_jacobian
-from vine_nlp.methods.correct.pairing import SLIDE, line_points
+from vine_nlp.methods.correct.pairing import line_points
+from vine_nlp.methods.settings import SLIDE
 from vine_nlp.methods.structure import frames12
 from vine_nlp.model.calibration import Calibration, realized_of
 from vine_nlp.model.chain import chain_frames

@@ -32,21 +32,22 @@ from vine_nlp.analysis.buildability import MM_PER_UNIT, POUCH_LAMBDA_MIN, builda
 from vine_nlp.methods import drive
 from vine_nlp.methods.common import Guess, evaluate, pair_points
 from vine_nlp.methods.nlp import design_bounds, nlp_parameters, result_of, start_x
-from vine_nlp.methods.settings import Settings
+from vine_nlp.methods.settings import (
+    ACCURACY_FLOOR_MM,
+    ACCURACY_SLACK,
+    BEND_TOL,
+    BUILDABLE_REPAIRS,
+    BUILDABLE_ROUNDS,
+    EFFORT,
+    EFFORT_ACTUATED,
+    EFFORT_INNER,
+    Settings,
+)
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Chain, Smoothness, SoftTip, Spec, get_solver
 from vine_nlp.model.chain import phi_from_theta
 from vine_nlp.model.helix import center_rates
 from vine_nlp.problem import DesignProblem, Result, Routing
-
-# build-effort weights against the fit's mean squared error / D^2 (results/BENCHMARKS.md, "Buildable designs"):
-# where the shape does not see the line (a first or last unactuated run) it holds it at theta 0 at no cost; where
-# theta shapes the tube a tenth curbs the winding that cancels a bend the margin forces (bezier-b 807 -> 161 deg)
-# at a few % RMSE (1e-3 cost polyline-d its budget); inner unactuated runs' turning the shape needs: nearly free
-EFFORT, EFFORT_ACTUATED, EFFORT_INNER = 1e-3, 1e-4, 1e-6
-ACCURACY_SLACK, ACCURACY_FLOOR_MM = 0.10, 0.05  # what the reclassification may give up: the issue's budget
-ROUNDS, REPAIRS = 8, 2  # solves at most; of them, re-solves while a gap is below min_feature (the lengths moved)
-BEND_TOL = 1e-6  # rad: a segment of the target bending less is straight
 
 
 @dataclass(frozen=True)
@@ -182,11 +183,11 @@ def accuracy_budget(problem: DesignProblem, rmse: float) -> float:
 
 
 class Reclassify:
-    """The reclassification, a ``drive.refine`` rule (x: the routing to start from; ``trials + REPAIRS`` rounds) for
+    """The reclassification, a ``drive.refine`` rule (x: the routing to start from; ``trials + BUILDABLE_REPAIRS`` rounds) for
     any formulation: ``solve(act, start)`` solves with the classes ``act`` from ``start`` (unwound here): (Result,
     the lambda bounds' multipliers (M,)). ``limit``: the RMSE budget. After refine: ``act``, the best round's."""
 
-    def __init__(self, solve: Callable, act, build: Build, limit: float, trials: int = ROUNDS - REPAIRS):
+    def __init__(self, solve: Callable, act, build: Build, limit: float, trials: int = BUILDABLE_ROUNDS - BUILDABLE_REPAIRS):
         self._solve, self.build, self.limit, self.trials = solve, build, limit, trials
         self.act = self.trial = np.asarray(act, bool)
         self.best, self.mult, self.cand, self.k, self.over = None, None, np.zeros(0, int), 0, False
@@ -236,7 +237,7 @@ class Reclassify:
                 return trial
             self.k //= 2
         b, r = self.build, self.best.routing
-        if self.repairs < REPAIRS and buildability(r, b.D, b.kind, b.lambda_min, b.margin, b.min_feature).below:
+        if self.repairs < BUILDABLE_REPAIRS and buildability(r, b.D, b.kind, b.lambda_min, b.margin, b.min_feature).below:
             self.repairs += 1  # the lengths moved: bounds from the new ones
             return self.act.copy()
         return None
@@ -275,7 +276,7 @@ def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Res
     build = Build.of(problem)
     act = classify(target_bends(problem, pairing), start.routing.length, build)
     rule = Reclassify(lambda a, r: solve_classes(problem, pairing, build, a, r), act, build, accuracy_budget(problem, start.metrics["rmse"]))
-    found = drive.refine(rule, ROUNDS, start.routing, stats)
+    found = drive.refine(rule, BUILDABLE_ROUNDS, start.routing, stats)
     best, act = found.best, rule.act
     # a solve may leave an unactuated run's turning beyond half a turn: the same shape the shortest way round
     r = unwind(best.routing, act, build)

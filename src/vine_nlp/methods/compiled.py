@@ -37,6 +37,7 @@ from pathlib import Path
 
 from vine_nlp.errors import InputError
 from vine_nlp.methods import blas
+from vine_nlp.methods.settings import BLOCK_BUDGET
 
 __all__ = ["mode", "cache_dir", "compiler", "wait", "nlpsol", "block_functions", "stored", "CompileError", "stats"]
 
@@ -272,11 +273,6 @@ def wait(timeout: float | None = None) -> bool:
     return True
 
 
-# a block type is compiled on its own only up to this many SX instructions (its functions and derivatives): gcc
-# -O1's time grows with them, and a larger block (an obstacle segment's samples against its primitives or
-# triangles) would take longer than the solves it speeds up; such a block is a map of one sample's
-# (blocks.Samples), whose block is compiled instead ("Active sets on compiled blocks")
-BLOCK_BUDGET = 30_000
 
 
 def block_functions(name: str, functions: list) -> list | None:

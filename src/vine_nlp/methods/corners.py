@@ -42,15 +42,15 @@ from vine_nlp.methods import blas, drive, variables
 from vine_nlp.methods.settings import (
     CORNER_RMSE,
     CORNER_WINDOW,
-    DEFAULT_BUDGET,
+    CORNER_WINDOW_MAX_ITER,
     MIN_WINDOWS,
     SEARCH_ROUNDS,
     WINDOW,
     WINDOW_GAIN,
-    WINDOW_MAX_ITER,
     WINDOW_SHARE,
     WINDOW_STARTS,
     WINDOW_TOL,
+    Method,
     quiet,
 )
 from vine_nlp.methods.structure import frames12
@@ -108,7 +108,7 @@ def _window_objective(W: int, n1: int, shared: bool) -> ca.Function:
 def _window_solver(W: int, n1: int, shared: bool, slot: int) -> ca.Function:
     """One IPOPT solver of the window NLP per thread slot: a CasADi solver keeps its workspace in
     itself, so two threads never share one."""
-    opts = quiet(WINDOW_MAX_ITER, WINDOW_TOL) | CORNER_WINDOW
+    opts = quiet(CORNER_WINDOW_MAX_ITER, WINDOW_TOL) | CORNER_WINDOW
     blas.one_thread()
     return ca.nlpsol(f"vine_window{slot}", "ipopt", _window_nlp(W, n1, shared), opts)
 
@@ -216,7 +216,7 @@ def error_per_segment(problem: DesignProblem, pairing: Pairing, result: Result) 
 
 
 def search(problem: DesignProblem, result: Result, pairing: Pairing, polish: Callable[[Routing], Result],
-           budget: float = DEFAULT_BUDGET, workers: int = 2, progress: Callable[[int, int], None] | None = None,
+           budget: float = Method.budget, workers: int = 2, progress: Callable[[int, int], None] | None = None,
            note: Callable[[str], None] | None = None, rounds: int = SEARCH_ROUNDS) -> Result:
     """Improve the design ``result`` of a corner-like target window by window (module docstring).
 

@@ -20,10 +20,8 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
 
+from vine_nlp.methods.settings import TIE_RTOL
 from vine_nlp.problem import Result
-
-# objectives this close (relative) are the same optimum reached from different starts or rounds
-TIE_RTOL = 1e-6
 
 
 @dataclass

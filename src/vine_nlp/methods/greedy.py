@@ -16,7 +16,7 @@ sPAM abandonment test, where its threshold is defined).
 
 Each window is a small single-shooting NLP (:class:`WindowSolver`, D = 1), built once per window size and
 variant and reused. Multi-start (for MATLAB's GlobalSearch with 2000 / 300 trial points): start 0 is the
-carried-over values, the others draw theta and lambda uniformly in a box of half-width SPREAD x (bound
+carried-over values, the others draw theta and lambda uniformly in a box of half-width GREEDY_SPREAD x (bound
 range) around them (``options.greedy_starts``, FIRST_WINDOW_FACTOR times more for the first window); the
 best is kept.
 
@@ -38,7 +38,18 @@ import numpy as np
 
 from vine_nlp.methods import blas, variables
 from vine_nlp.methods.common import Pairing, clip_to_bounds, design_bounds, evaluate, geometric_guess, pair_points, path_error
-from vine_nlp.methods.settings import GREEDY_WINDOW, quiet
+from vine_nlp.methods.settings import (
+    FILTER_ORDER,
+    FIRST_WINDOW_FACTOR,
+    GREEDY_SPREAD,
+    GREEDY_WINDOW,
+    GREEDY_WINDOW_MAX_ITER,
+    LAMBDA_START,
+    SPAM_CANDIDATES,
+    SPAM_REFINE,
+    TOL,
+    quiet,
+)
 from vine_nlp.methods.transcription import ipopt_status
 from vine_nlp.model.chain import chain_points
 from vine_nlp.model.segment import segment_parts, segment_transform, so3_exp
@@ -46,13 +57,6 @@ from vine_nlp.problem import DesignProblem, Result, Routing
 
 __all__ = ["design_greedy", "lowpass", "WindowSolver", "get_window_solver"]
 
-LAMBDA_START = 0.75  # paper: lambda_{1:k,0} = 0.75
-SPREAD = 0.5  # random starts: half-width of the box around the carried-over values, x bound range
-FIRST_WINDOW_FACTOR = 4  # the first window gets this many times the starts (paper: 2000 vs 300)
-WINDOW_MAX_ITER = 200  # a window has <= 3k + 6 variables: a start that needs more is a bad start
-SPAM_CANDIDATES = 11  # linspace(lambda_min, 1, 11)
-SPAM_REFINE = 5  # second pass: 5 values within +-half a step of the best
-FILTER_ORDER = 2
 
 
 # ---------------------------------------------------------------- the window NLP
@@ -69,7 +73,7 @@ class WindowSolver:
     Objective: sum_slots w |r - r_d|^2 + |r_end - r_end,d|^2 (D-scaled).
     """
 
-    def __init__(self, K: int, n: int, first: bool, shared: bool, max_iter: int = WINDOW_MAX_ITER, tol: float = 1e-8):
+    def __init__(self, K: int, n: int, first: bool, shared: bool, max_iter: int = GREEDY_WINDOW_MAX_ITER, tol: float = TOL):
         t0 = time.perf_counter()
         self.K, self.n, self.first, self.shared = K, n, first, shared
         self.per_seg = 2 if shared else 3
@@ -147,7 +151,7 @@ class WindowSolver:
 
 
 @lru_cache(maxsize=64)
-def get_window_solver(K: int, n: int, first: bool, shared: bool, max_iter: int = WINDOW_MAX_ITER, tol: float = 1e-8) -> WindowSolver:
+def get_window_solver(K: int, n: int, first: bool, shared: bool, max_iter: int = GREEDY_WINDOW_MAX_ITER, tol: float = TOL) -> WindowSolver:
     """Cached window solver: one per window size and variant, reused for every window."""
     return WindowSolver(K, n, first, shared, max_iter, tol)
 
@@ -180,7 +184,7 @@ def _window_data(problem: DesignProblem, pairing: Pairing, j: int, K: int):
 def _window_solver_for(problem, n, K, first):
     o = problem.options
     return get_window_solver(K, n, first, problem.actuator.shared_lambda,
-                             min(int(o.max_iter), WINDOW_MAX_ITER), float(o.tol))
+                             min(int(o.max_iter), GREEDY_WINDOW_MAX_ITER), float(o.tol))
 
 
 def _frame_at(routing: Routing, D: float, j: int):
@@ -282,7 +286,7 @@ def _window_starts(solver, p, lbx, ubx, x_carry, starts: int, shared: bool, K: i
         if s > 0:
             for r in ([0] if shared else [0, 1]):
                 idx = solver.npose + r + solver.per_seg * np.arange(K)
-                half = SPREAD * (ubx[idx] - lbx[idx])
+                half = GREEDY_SPREAD * (ubx[idx] - lbx[idx])
                 x0[idx] = rng.uniform(np.maximum(lbx[idx], x_carry[idx] - half), np.minimum(ubx[idx], x_carry[idx] + half))
         sol = solver.solver(x0=x0, p=p, lbx=lbx, ubx=ubx)
         st = solver.solver.stats()

@@ -23,7 +23,7 @@ import numpy as np
 
 from vine_nlp.methods import drive, variables
 from vine_nlp.methods.common import evaluate, geometric_guess, pair_points
-from vine_nlp.methods.settings import Settings
+from vine_nlp.methods.settings import MAX_ITER, TOL, Settings
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, cell_data, get_solver, routing_of, smoothing_steps
 from vine_nlp.model.helix import center_rates
@@ -60,7 +60,7 @@ class MultiShapeResult(Result):
 # ---------------------------------------------------------------- the NLP
 
 
-def multishape_spec(M: int, n: int, K: int, shared_pose: bool, max_iter: int = 3000, tol: float = 1e-8) -> Spec:
+def multishape_spec(M: int, n: int, K: int, shared_pose: bool, max_iter: int = MAX_ITER, tol: float = TOL) -> Spec:
     """K chains of one routing (theta_j, dl_j shared), one lambda per level, one base pose or one per level."""
     return Spec(Structure(M, n, K, "level", "shared" if shared_pose else "level"), (Smoothness(lam=False), SoftTip()),
                 "exact", Settings(max_iter, tol))

@@ -39,7 +39,17 @@ import numpy as np
 from vine_nlp.methods import drive
 from vine_nlp.methods.blocks import BlockType
 from vine_nlp.methods.common import _perpendicular, _unit, geometric_guess, pair_points
-from vine_nlp.methods.settings import Settings
+from vine_nlp.methods.settings import (
+    CLOSE_ENOUGH,
+    CLOSEST_ACTUATION,
+    GUESS_POINTS,
+    MAX_ITER,
+    MIN_LENGTH_FACTOR,
+    TIE_BREAK,
+    TOL,
+    TURNS_EPS,
+    Settings,
+)
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Chain, Smoothness, Spec, get_solver, routing_of
 from vine_nlp.methods.variables import ROUTE, box
@@ -48,12 +58,6 @@ from vine_nlp.model.shape import forward_shape, routing_metrics
 from vine_nlp.problem import DesignProblem, Result, Routing, TipProblem
 
 RUN = "tip"
-MIN_LENGTH_FACTOR = 0.2  # dl_j >= 0.2 L / M
-TURNS_EPS = 1e-6
-TIE_BREAK = 1e-2  # weight of the secondary measure (see module doc)
-CLOSEST_ACTUATION = 1e-6  # weight of the actuation in the nearest-approach variant
-CLOSE_ENOUGH = 1e-3  # nearest approach within this many D of the tip: re-solve the design from it
-GUESS_POINTS = 4  # points per segment of the guide curve of the geometric guess
 
 
 @dataclass(frozen=True)
@@ -107,7 +111,7 @@ def actuation_blocks(objective: str) -> tuple[BlockType, BlockType]:
             BlockType(f"actuation_tie_{objective}", ca.Function("actuation_tie", [v, d], [d * tie, empty])))
 
 
-def tip_spec(M: int, shared: bool, direction: bool, objective: str, max_iter: int = 3000, tol: float = 1e-8, closest: bool = False,
+def tip_spec(M: int, shared: bool, direction: bool, objective: str, max_iter: int = MAX_ITER, tol: float = TOL, closest: bool = False,
              monotone: bool = False, hard: bool = False, extra: int = 0, terms: tuple = ()) -> Spec:
     """A fixed base, no points to fit (one empty slot per segment), the tip terms and rows, the smoothness, exact
     bounds; ``monotone``: IPOPT's monotone barrier (design_tip's own solves); ``terms`` (with ``extra`` stage

@@ -29,7 +29,7 @@ from vine_nlp.methods.correct.deviations import TOP, Deviations, apply_deviation
 from vine_nlp.methods.correct.estimate import DEFAULT_SYSTEMATIC_SIGMAS, Estimate, estimate_as_built
 from vine_nlp.methods.correct.pairing import in_frame
 from vine_nlp.methods.nlp import nlp_parameters
-from vine_nlp.methods.settings import Settings
+from vine_nlp.methods.settings import REACH_TOL, ROUTE_GAIN, THETA_TRUST, Settings
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, get_solver, routing_of
 from vine_nlp.model.chain import chain_frames
@@ -40,9 +40,6 @@ from vine_nlp.problem import DesignProblem, Result
 _log = logging.getLogger(__name__)
 
 ADJUST = (("lambda",), ("lambda", "theta"))
-THETA_TRUST = 2.0  # with theta adjusted, the corrected theta stays within this many sigma_theta of the as-built one
-ROUTE_GAIN = 2.0  # lambda and theta (a new tube) is recommended where it predicts this many times less error
-REACH_TOL = 0.1  # the bounds cost accuracy where the unbounded prediction is this fraction (and 0.1 sigma_m) better
 
 
 def correction_spec(M: int, n: int, shared: bool, max_iter: int, tol: float, hessian: str) -> Spec:

@@ -42,8 +42,17 @@ from vine_nlp.methods import drive, settings, variables
 from vine_nlp.methods.blocks import BlockType
 from vine_nlp.methods.correct.deviations import Deviations, apply_deviations, deviations_of
 from vine_nlp.methods.correct.laplace import laplace
-from vine_nlp.methods.correct.pairing import LINE_SIDE, SLIDE, in_frame, pair_with_line, rigid_start
-from vine_nlp.methods.settings import LENGTH_FACTOR
+from vine_nlp.methods.correct.pairing import LINE_SIDE, in_frame, pair_with_line, rigid_start
+from vine_nlp.methods.settings import (
+    CAP_ROUND,
+    DEFAULT_MEASUREMENT_SIGMA_MM,
+    DEFAULT_SYSTEMATIC_SIGMAS,
+    HELD_SIGMAS,
+    LENGTH_FACTOR,
+    SLIDE,
+    SLOT_STEP,
+    TRIM,
+)
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Chain, Spec, get_solver
 from vine_nlp.methods.variables import CELL, POINT
@@ -55,12 +64,6 @@ from vine_nlp.problem import Result
 
 _log = logging.getLogger(__name__)
 
-# weak priors on the systematic parts: wide against any construction method seen
-DEFAULT_SYSTEMATIC_SIGMAS = (math.radians(10.0), 0.2, 0.2)
-DEFAULT_MEASUREMENT_SIGMA_MM = 1.0
-TRIM = 4.0  # pairs farther than this many sigmas of the stage are left out of it
-SLOT_STEP = 8  # slots per segment are rounded up to a multiple of this (cached structures)
-HELD_SIGMAS = 2.0  # an actuator estimated within this many standard deviations of lambda 1 may be clipped: held
 
 
 # data rows of one measurement slot (measure_block): shift (3), u, m (3), tangent (3), sqrt weight, side
@@ -68,7 +71,6 @@ HELD_SIGMAS = 2.0  # an actuator estimated within this many standard deviations 
 SLOT_DATA = 13
 SLOT_DATA_FREE = 17
 NO_CAP = 10.0  # no lambda cap (min(NO_CAP, lam + shift) = lam + shift)
-CAP_ROUND = 1e-3  # lambda units: the cap's rounding (at most CAP_ROUND / 2 off min, at the kink)
 
 
 def _cap(cap, lam):  # min(cap, lam) rounded over CAP_ROUND: a kink at the solution stalls IPOPT (a build clipped near 1)

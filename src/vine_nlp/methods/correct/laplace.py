@@ -12,7 +12,8 @@ import math
 
 import numpy as np
 
-from vine_nlp.methods.correct.pairing import LINE_SIDE, SLIDE, in_frame
+from vine_nlp.methods.correct.pairing import LINE_SIDE, in_frame
+from vine_nlp.methods.settings import SLIDE
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.routing import Routing
 from vine_nlp.model.segment import segment_transform, so3_exp

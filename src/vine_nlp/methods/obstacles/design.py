@@ -31,17 +31,15 @@ from vine_nlp.analysis.obstacles import min_gap
 from vine_nlp.methods import drive, settings
 from vine_nlp.methods.common import pair_points
 from vine_nlp.methods.nlp import chain_guess, design_bounds, design_nlp, extended_solver, nlp_parameters, result_of, start_x
-from vine_nlp.methods.obstacles.plan import LENGTH_SLACK, SPACING, Plan, obstacle_stats
+from vine_nlp.methods.obstacles.plan import LENGTH_SLACK, SAMPLE_SPACING, Plan, obstacle_stats
 from vine_nlp.methods.obstacles.push import pushed_start
 from vine_nlp.methods.obstacles.rows import MESH_K
+from vine_nlp.methods.settings import BLOCKED_WEIGHT, MESH_BLOCKED_WEIGHT, MESH_WEIGHT_RAMP
 from vine_nlp.problem import DesignProblem, Result
 
 RUN = "nlp"  # the obstacle design is the problem's design (archived as run "nlp"); the obstacle-free start: FREE_RUN
 FREE_RUN = "nlp_free"
 METHOD = "nlp_obstacles"
-BLOCKED_WEIGHT = 0.1  # weight of the target points closer than the margin to an obstacle (their fit cannot be exact)
-MESH_BLOCKED_WEIGHT = 0.01  # the same where the scene has a mesh (module docstring, "Weights")
-MESH_WEIGHT_RAMP = 1.0  # units of D: with a mesh, weights rise from MESH_BLOCKED_WEIGHT at the margin to 1 at margin + this
 
 
 class Rounds:
@@ -99,7 +97,7 @@ class Rounds:
 
 
 def design_with_obstacles(problem: DesignProblem, start: Result | None = None, rounds: int = settings.ROUNDS, ts=None,
-                          k: int = MESH_K, spacing: float = SPACING, **kw) -> Result:
+                          k: int = MESH_K, spacing: float = SAMPLE_SPACING, **kw) -> Result:
     """Inverse design that keeps the tube ``problem.obstacle_margin`` clear of ``problem.obstacles``.
 
     ``start``: the obstacle-free design (default design_nlp(problem, **kw)), returned (with the obstacle

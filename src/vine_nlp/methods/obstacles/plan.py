@@ -1,6 +1,6 @@
 """What the obstacle rows need, round by round: samples, requirements, active sets, the shapes with rows.
 
-Samples. S per segment, from the longest segment (``SPACING``, ``LENGTH_SLACK``, ``MAX_SAMPLES``); each
+Samples. S per segment, from the longest segment (``SAMPLE_SPACING``, ``LENGTH_SLACK``, ``MAX_SAMPLES``); each
 sample's requirement is D/2 + margin + dip(h_j) + the loop's raise (``Plan.need``), from the current
 segment lengths times LENGTH_SLACK (dl moves during a solve).
 
@@ -46,33 +46,28 @@ from vine_nlp.analysis.obstacles import (
     obstacle_report,
 )
 from vine_nlp.methods.obstacles.rows import MESH_K, PRIM_DATA, ObstacleRows, prim_data_size, primitive_slot
-from vine_nlp.methods.settings import RAISE_FACTOR
+from vine_nlp.methods.settings import (
+    ACTIVE_REACH,
+    AFTER_SLOTS,
+    LENGTH_SLACK,
+    MAX_SAMPLES,
+    MESH_REACH,
+    MESH_TRUST,
+    RAISE_FACTOR,
+    REACH_DL,
+    SAMPLE_SPACING,
+    TANGENT_REACH,
+)
 from vine_nlp.methods.structure import frames12
 from vine_nlp.model.chain import chain_frames, chain_points
 from vine_nlp.model.obstacles import Mesh, mesh_signed_distance, nearest_triangles, point_triangle_distance, sharpness_radius
 from vine_nlp.problem import Routing
 
-SPACING = 0.25  # target sample spacing h0, units of D: dip(D/4) ~ 0.03 D for a sharp obstacle
-LENGTH_SLACK = 1.25  # segment lengths may grow this much during a solve before the rows' dip is too small
-MAX_SAMPLES = 40  # samples per segment, at most (long segments: their rows' dip grows instead)
-AFTER_SLOTS = 5  # growth "after": intermediate shapes with rows at a time (rows on all at once: a first solve of many minutes)
-# units of D: a primitive gets rows on a segment when its slack is below ACTIVE_REACH plus REACH_DL times the
-# segment's length (within reach of one solve)
-ACTIVE_REACH = 1.0
-REACH_DL = 0.5
-MESH_TRUST = 1.5  # units of D: a frame moves at most this far per solve with a mesh (its nearest triangles stay valid)
-# units of D: a column carries a mesh's rows when its slack is below this plus REACH_DL dl_j: far fewer rows than
-# every column; a reach as short as the primitives' sent obstacle-mesh round a far wider detour ("Obstacles")
-MESH_REACH = 8.0
-# units of D: an outside sample closer than its requirement plus this also gets the tangent plane's row at its
-# nearest point on the mesh (fewer rounds on obstacle-mesh and the torus scene: "Obstacles")
-TANGENT_REACH = 0.5
-
 
 class Plan:
     """What the rows of one problem need: samples per segment, shapes (t), the data of every block."""
 
-    def __init__(self, obstacles, D, margin, growth, lengths, actuator, ts=None, k=MESH_K, spacing=SPACING):
+    def __init__(self, obstacles, D, margin, growth, lengths, actuator, ts=None, k=MESH_K, spacing=SAMPLE_SPACING):
         self.obstacles, self.D, self.margin, self.growth = tuple(obstacles), float(D), float(margin), growth
         if growth == "after":
             grid = np.linspace(0.0, 1.0, DEFAULT_AFTER_STEPS + 1) if ts is None else np.asarray(ts, float)

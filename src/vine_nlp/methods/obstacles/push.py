@@ -25,22 +25,19 @@ from vine_nlp.analysis.obstacles import sample_chain
 from vine_nlp.methods.common import pair_points
 from vine_nlp.methods.nlp import solve_from
 from vine_nlp.methods.obstacles.plan import Plan
+from vine_nlp.methods.settings import (
+    MARCH_STEPS,
+    MESH_PUSH_EXTRA,
+    PUSH_DIRECTIONS,
+    PUSH_EXTRA,
+    PUSH_PASSES,
+    PUSH_PROBES,
+    PUSH_TOL,
+    REPUSH,
+    Method,
+)
 from vine_nlp.model.obstacles import Mesh
 from vine_nlp.problem import DesignOptions, DesignProblem, Routing, TipProblem
-
-# units of D: the pushed target clears by this much more than the rows ask; less with a mesh (its exact pushes
-# already go the shortest way round, "Obstacles")
-PUSH_EXTRA = 0.25
-MESH_PUSH_EXTRA = 0.05
-PUSH_PASSES = 8  # passes over the obstacles (a point pushed out of one may land in another)
-REPUSH = 1  # primitives: times the designed chain of the pushed target is pushed and designed again where it does not clear
-PUSH_DIRECTIONS = 16  # meshes: directions tried around a run's chord
-PUSH_PROBES = 9  # meshes: points of a run that choose its direction
-MARCH_STEPS = 80  # sphere-tracing steps of a push, at most
-# IPOPT's tolerance for the designs of the pushed target: a start, which the rows' solve takes to the problem's
-# own tolerance; at the problem's 1e-8 these designs crawled through their last digits on the pushed target's
-# corners and took half of a typical scene's time ("Obstacle scenes")
-PUSH_TOL = 1e-4
 
 
 def push_need(plan: Plan) -> float:
@@ -182,12 +179,13 @@ def pushed_start(problem: DesignProblem, plan: Plan) -> Routing:
     tg, passes = problem.target, 0 if plan.has_mesh else REPUSH
     # the exact Hessian from the start: Gauss-Newton does not converge on a pushed target's corners, and
     # "auto" then solves the same start again with it (the same design, ~100 Gauss-Newton iterations later)
-    options = dataclasses.replace(problem.options, hessian="exact") if problem.options.hessian == "auto" else problem.options
-    options = dataclasses.replace(options, tol=max(options.tol, PUSH_TOL))
+    method = Method.of(problem.options)
+    method = method.with_(hessian="exact") if method.hessian == "auto" else method
+    method = method.with_(tol=max(method.tol, PUSH_TOL))
     for k in range(passes + 1):
         tg = pushed_target(tg, problem.obstacles, need)
-        res = solve_from(dataclasses.replace(problem, target=tg, obstacles=(), options=options), None,
-                         pair_points(tg, problem.options.points_per_segment), frames="target")
+        res = solve_from(dataclasses.replace(problem, target=tg, obstacles=()), None,
+                         pair_points(tg, problem.options.points_per_segment), frames="target", method=method)
         if k == passes or plan.report(res.routing)["min_gap"] >= plan.margin:
             break
         # the chain cuts an obstacle where it could not follow the pushed target's corners: push the

@@ -36,14 +36,13 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp.methods.blocks import BlockType, Samples
+from vine_nlp.methods.settings import MESH_K, TRI_EPS
 from vine_nlp.methods.transcription import Chain
 from vine_nlp.methods.variables import CELL, POINT
 from vine_nlp.model.obstacles import point_triangle_distance, rounded_box_distance
 from vine_nlp.model.segment import segment_function
 
 PRIM_DATA = 19  # per slot: center (3), R (9, world from local, column-major), half sizes (3), radius, eps, need, a
-MESH_K = 6  # nearest triangles per mesh sample (the plan's default)
-TRI_EPS = 1e-9  # sqrt(d2 + eps^2) (units of D): finite gradients at distance 0
 
 
 def primitive_slot(ob) -> np.ndarray:
