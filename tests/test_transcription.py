@@ -79,7 +79,7 @@ def test_layout_is_in_stage_order_and_fixes_what_it_should():
 
 class _R:
     def __init__(self, objective, converged=True):
-        self.stats, self.converged = {"objective": objective}, converged
+        self.objective, self.converged = objective, converged
 
 
 def test_one_tie_rule_picks_the_first_of_equal_objectives():

@@ -371,6 +371,18 @@ class Result:
     shortfall : tuple of str
         Every hard requirement of the problem the design misses, one line each (the pipeline's judge:
         bounds, obstacle margin, clearance); empty when it meets them all.
+    objective : float or None
+        The NLP's objective at the design (None: no NLP made it, e.g. the greedy's): what the methods rank on.
+    hessian : str
+        The Hessian the design's solve ended with ("gauss-newton", "exact ..."; "" where none was scheduled).
+    met : dict
+        The formulation's own hard requirements as it judged them ({"clearance": bool}, {"obstacles": bool}).
+    buildable : bool
+        A buildable design (every lambda exactly 1 or inside the margins): formulations started from it keep it so.
+    runs : tuple of Result
+        The results this one was chosen from (the starts of a multi-start, the steps of a Hessian schedule).
+
+    ``stats`` is for the archive only: nothing decides on it.
     """
 
     method: str
@@ -383,6 +395,11 @@ class Result:
     stats: dict = field(default_factory=dict)  # solver statistics and options, archived as attributes
     diameter: float = 1.0
     shortfall: tuple = ()
+    objective: float | None = None
+    hessian: str = ""
+    met: dict = field(default_factory=dict)
+    buildable: bool = False
+    runs: tuple = field(default=(), repr=False)
 
     @property
     def phi(self) -> np.ndarray:

@@ -261,9 +261,9 @@ def solve_classes(problem: DesignProblem, pairing, build: Build, act, start: Rou
     data = nlp_parameters(problem, pairing, T0[:3, :3])
     data |= effort_data(act, data["L"], build.pose is None)
     lbx, ubx = solver.bounds(X0=None if build.pose is None else frames12(T0[None], D).T, **design_bounds(problem, pairing) | {"lam": (lo, hi)})
-    x, status, st, lam_x = solver.solve(start_x(solver, guess, D, "chain"), solver.pack_params(data), lbx, ubx, multipliers=True)
+    sol = solver.solve(start_x(solver, guess, D, "chain"), solver.pack_params(data), lbx, ubx, multipliers=True)
     # lambda exactly 1 without an actuator: IPOPT holds a variable whose bounds are equal at its value
-    return result_of(problem, pairing, solver, x, status, st, T0[:3, :3] if build.pose is None else T0, "nlp"), lam_x[solver.layout.lam[:, 0]]
+    return result_of(problem, pairing, sol, T0[:3, :3] if build.pose is None else T0, "nlp"), sol.lam_x[solver.layout.lam[:, 0]]
 
 
 def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Result:
@@ -281,9 +281,10 @@ def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Res
     # a solve may leave an unactuated run's turning beyond half a turn: the same shape the shortest way round
     r = unwind(best.routing, act, build)
     short = evaluate(problem, Routing(theta=r.theta, lam=best.routing.lam, length=r.length, initial_pose=r.initial_pose), pairing, "nlp", status=best.status,
-                     iterations=best.iterations, stats=best.stats)
+                     iterations=best.iterations, stats=best.stats, objective=best.objective, hessian=best.hessian)
     best = short if short.metrics["rmse"] <= best.metrics["rmse"] * (1 + 1e-9) else best
     best.stats |= {k: v for k, v in start.stats.items() if k.startswith(("start", "best_start", "hops", "corner"))}
+    best.buildable = True
     best.stats |= {"buildable": True, "buildable_actuated": int(act.sum()), "buildable_free_rmse": float(start.metrics["rmse"]),
                    "buildable_budget": float(rule.limit), "buildable_rounds": found.rounds, "correction_margin": build.margin,
                    "min_feature": build.min_feature}
@@ -294,7 +295,7 @@ def inherited_bounds(problem: DesignProblem, pairing, start: Result | None):
     """``design_bounds``, with a buildable start's classes kept (lambda exactly 1 where it has no actuator, the
     margins elsewhere): robust and clearance designs started from a buildable design stay buildable."""
     box = design_bounds(problem, pairing)
-    if start is None or not start.stats.get("buildable"):
+    if start is None or not start.buildable:
         return box
     build, r = Build.of(problem), start.routing
     return box | {"lam": lambda_bounds(np.ones(r.segments, bool) if build.shared else r.lam != 1.0, r.length, build)}

@@ -182,12 +182,13 @@ def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, pairs=No
                   tol_gap * D, 0.5 * D if pair_step is None else float(pair_step), pairs)
     first = rule.check
     if first["clearance"] >= rule.need - rule.tol and not pairs:
-        best, check, solves = dataclasses.replace(start, metrics=dict(start.metrics), stats=dict(start.stats)), first, 0
+        best, check, solves = dataclasses.replace(start, metrics=dict(start.metrics), stats=dict(start.stats), met=dict(start.met)), first, 0
     else:
         found = drive.refine(rule, rounds, stats=stats)
         best, check, solves = stats.stamp(found.best), found.verdict.report, found.rounds
+    best.met["clearance"] = bool(check["clearance"] >= rule.need - rule.tol)
     best.stats.update({
-        "clearance_rounds": solves, "clearance_met": bool(check["clearance"] >= rule.need - rule.tol), "clearance_pairs": len(rule.active),
+        "clearance_rounds": solves, "clearance_met": best.met["clearance"], "clearance_pairs": len(rule.active),
         "clearance_row_margin": rule.row_margin, "min_clearance": float(check["clearance"]), "min_gap": float(min_gap),
         "start_rmse": float(start.metrics["rmse"]), "start_min_clearance": float(first["clearance"]),
     })
@@ -228,8 +229,8 @@ class _Pairs:
         p = solver.pack_params(self.params | {"pair_u": np.array([[ea[1], eb[1]] for ea, eb in ends]).T,
                                               "pair_need": ((self.need + self.row_margin) / D) ** 2})
         x0 = start_x(solver, chain_guess(problem, self.start.routing), D, "chain") if x is None else x
-        x, status, st = solver.solve(x0, p, *solver.bounds(**inherited_bounds(problem, pairing, self.start)))  # a buildable start's classes kept
-        return x, result_of(problem, pairing, solver, x, status, st, self.R0g, "nlp_clearance")
+        sol = solver.solve(x0, p, *solver.bounds(**inherited_bounds(problem, pairing, self.start)))  # a buildable start's classes kept
+        return sol.x, result_of(problem, pairing, sol, self.R0g, "nlp_clearance")
 
     def judge(self, res):
         check = routing_clearance(res.routing, self.D, exclude_arc=self.exclude_arc, margin=self.detect)

@@ -65,9 +65,9 @@ __all__ = ["corner_like", "search", "clear_caches"]
 
 def corner_like(problem: DesignProblem, result: Result) -> bool:
     """Whether the first solve ``result`` of ``problem`` shows a corner-like target: Gauss-Newton did not
-    converge on it (``stats["hessian"]``) and its RMSE is above settings.CORNER_RMSE tube diameters, large
+    converge on it (``result.hessian``) and its RMSE is above settings.CORNER_RMSE tube diameters, large
     residuals the smooth paper cases never show."""
-    gauss_newton = str(result.stats.get("hessian", "")) == "gauss-newton" and result.status == "optimal"
+    gauss_newton = result.hessian == "gauss-newton" and result.status == "optimal"
     return (not gauss_newton) and float(result.metrics["rmse"]) > CORNER_RMSE * problem.diameter
 
 
@@ -237,7 +237,7 @@ def search(problem: DesignProblem, result: Result, pairing: Pairing, polish: Cal
             if not changed or run.hit:  # a round the budget cut short is not polished: its design stays as it was
                 if note:
                     note(f"corner search round {rnd + 1}: " + ("stopped by the budget" if run.hit else "no window changed")
-                         + f", objective {run.best.stats['objective']:.6g} ({time.perf_counter() - run.t0:.1f} s)")
+                         + f", objective {run.best.objective:.6g} ({time.perf_counter() - run.t0:.1f} s)")
                 break
             if run.polish_time and time.perf_counter() + run.polish_time > run.deadline:
                 run.hit = True
@@ -246,12 +246,12 @@ def search(problem: DesignProblem, result: Result, pairing: Pairing, polish: Cal
             polished = polish(run.routing)
             run.polish_time = max(run.polish_time, time.perf_counter() - tp)
             run.iterations += polished.iterations
-            run.objectives.append(polished.stats["objective"])
+            run.objectives.append(polished.objective)
             run.accepted += changed
             run.report((rnd + 1) * run.per_round)
             if note:
-                note(f"corner search round {rnd + 1}: {changed} windows changed, objective {run.best.stats['objective']:.6g} -> "
-                     f"{polished.stats['objective']:.6g} ({time.perf_counter() - run.t0:.1f} s)")
+                note(f"corner search round {rnd + 1}: {changed} windows changed, objective {run.best.objective:.6g} -> "
+                     f"{polished.objective:.6g} ({time.perf_counter() - run.t0:.1f} s)")
             if drive.pick_best([run.best, polished]) == 0:  # not better (ties keep the earlier design)
                 break
             run.best, run.routing = polished, polished.routing

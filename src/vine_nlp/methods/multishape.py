@@ -25,7 +25,7 @@ from vine_nlp.methods import drive, variables
 from vine_nlp.methods.common import evaluate, geometric_guess, pair_points
 from vine_nlp.methods.settings import MAX_ITER, TOL, Settings
 from vine_nlp.methods.structure import Structure, frames12
-from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, cell_data, get_solver, routing_of, smoothing_steps
+from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, cell_data, get_solver, smoothing_steps
 from vine_nlp.model.helix import center_rates
 from vine_nlp.model.pairing import Pairing
 from vine_nlp.model.shape import routing_metrics
@@ -181,13 +181,13 @@ def solve_from(problem: MultiShapeProblem, guess: MultiGuess, pairings=None) -> 
     a = problem.actuator
     levels = ([a.lambda_min if v is None else v for v in problem.levels], [1.0 if v is None else v for v in problem.levels])
     lbx, ubx = solver.bounds(**variables.box(a, seg_chord) | {"lam": levels})  # lambda: one per level
-    x, status, st = solver.solve(x0, p, lbx, ubx)
-    v = solver.unpack(x)
-    T = [routing_of(solver, x, D, guess.poses[q][:3, :3], k).initial_pose for k, q in enumerate(solver.layout.pose_of_level)]
+    sol = solver.solve(x0, p, lbx, ubx)
+    v, st = sol.unpack(), sol.stats
+    T = [sol.routing(D, guess.poses[q][:3, :3], k).initial_pose for k, q in enumerate(solver.layout.pose_of_level)]
     stats = st | {"segments": M, "points_per_segment": n, "levels": K, "shared_pose": problem.shared_pose,
                   "fixed_levels": [lv is not None for lv in problem.levels], "smooth_theta": o.smooth_theta, "tol": o.tol,
                   "max_iter": o.max_iter}
-    return assemble(problem, v["theta"], v["length"] * D, v["lam_global"], T, pairings, status=status,
+    return assemble(problem, v["theta"], v["length"] * D, v["lam_global"], T, pairings, status=sol.status, objective=sol.objective,
                     solve_time_s=stats.pop("solve_time_s"), iterations=stats.pop("iterations"), stats=stats)
 
 

@@ -27,7 +27,7 @@ from vine_nlp.methods.common import Guess, evaluate, geometric_guess, pair_point
 from vine_nlp.methods.drive import TIE_RTOL
 from vine_nlp.methods.settings import AUTO_GN_MAX_ITER, MAX_ITER, TOL, WINDOW, Method, Settings
 from vine_nlp.methods.structure import Structure, frames12
-from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, cell_data, routing_of, smoothing_steps
+from vine_nlp.methods.transcription import Smoothness, SoftTip, Solution, Spec, cell_data, smoothing_steps
 from vine_nlp.methods.transcription import get_solver as _get
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.pairing import Pairing
@@ -111,13 +111,14 @@ def solve_from(
     def step(hessian, max_iter, previous):
         if previous is None:
             r = _solve(problem, guess, pairing, frames, warm, hessian, max_iter, m)
-            r.stats["hessian"] = hessian
+            r.hessian = hessian
         elif previous.status == "acceptable":  # the exact Hessian polishes Gauss-Newton's acceptable point
             r = _solve(problem, guess_from_routing(problem, pairing, previous.routing), pairing, "chain", True, hessian, max_iter, m)
-            r.stats["hessian"] = "exact, polishing gauss-newton's acceptable point"
+            r.hessian = "exact, polishing gauss-newton's acceptable point"
         else:
             r = _solve(problem, guess, pairing, frames, warm, hessian, max_iter, m)
-            r.stats["hessian"] = "exact (after gauss-newton did not converge)"
+            r.hessian = "exact (after gauss-newton did not converge)"
+        r.stats["hessian"] = r.hessian  # archived
         return r
 
     return drive.schedule(step, (("gauss-newton", min(m.max_iter, AUTO_GN_MAX_ITER)), ("exact", m.max_iter)))
@@ -131,20 +132,18 @@ def _solve(problem, guess, pairing, frames, warm, hessian, max_iter, method: Met
     bounds = design_bounds(problem, pairing)
     solver = get_solver(M, n, problem.actuator.shared_lambda, max_iter, method.tol, warm, hessian)
     lbx, ubx = solver.bounds(**bounds)
-    x, status, st = solver.solve(start_x(solver, guess, D, frames), solver.pack_params(data), lbx, ubx)
-    return result_of(problem, pairing, solver, x, status, st, R0g, "nlp", method=method, max_iter=max_iter, hessian=hessian)
+    sol = solver.solve(start_x(solver, guess, D, frames), solver.pack_params(data), lbx, ubx)
+    return result_of(problem, pairing, sol, R0g, "nlp", method=method, max_iter=max_iter, hessian=hessian)
 
 
-def result_of(problem, pairing, solver, x, status, st, R0g, run, method: Method | None = None, **extra) -> Result:
-    """A Result (run ``run``) of a solution x of the plain NLP or a formulation built on it, solved by ``method``
-    (default the problem's options'); ``extra``: more stats."""
-    o, m = problem.options, method or Method.of(problem.options)
-    return evaluate(
-        problem, routing_of(solver, x, problem.diameter, R0g), pairing, run, status=status, solve_time_s=st.pop("solve_time_s"),
-        iterations=st.pop("iterations"),
-        stats=st | {"segments": pairing.segments, "points_per_segment": pairing.n, "smooth_theta": o.smooth_theta,
-                    "smooth_lambda": o.smooth_lambda, "tol": m.tol, "max_iter": m.max_iter} | extra,
-    )
+def result_of(problem, pairing, sol: Solution, R0g, run, method: Method | None = None, **extra) -> Result:
+    """A Result (run ``run``) of a solution of the plain NLP or a formulation built on it, solved by ``method``
+    (default the problem's options'); ``extra``: more stats (archived)."""
+    o, m, st = problem.options, method or Method.of(problem.options), dict(sol.stats)
+    stats = st | {"segments": pairing.segments, "points_per_segment": pairing.n, "smooth_theta": o.smooth_theta,
+                  "smooth_lambda": o.smooth_lambda, "tol": m.tol, "max_iter": m.max_iter} | extra
+    return evaluate(problem, sol.routing(problem.diameter, R0g), pairing, run, status=sol.status, solve_time_s=stats.pop("solve_time_s"),
+                    iterations=stats.pop("iterations"), stats=stats, objective=sol.objective, hessian=str(stats["hessian"]))
 
 
 def start_guesses(problem: DesignProblem, pairing: Pairing, starts: int) -> list[Guess]:
@@ -241,7 +240,7 @@ def _corner_search(problem, best, pairing, budget, workers, progress, note, done
     more iterations there)."""
     def polish(routing: Routing) -> Result:
         r = _solve(problem, guess_from_routing(problem, pairing, routing), pairing, "chain", False, "exact", m.max_iter, m)
-        r.stats["hessian"] = "exact (corner search polish)"
+        r.stats["hessian"] = r.hessian = "exact (corner search polish)"
         return r
 
     threads = max(workers, min(2, os.cpu_count() or 1))
@@ -260,7 +259,7 @@ def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairi
     hop_objectives, hop_iterations.
     """
     m, a = method or Method.of(problem.options), problem.actuator
-    if m.hessian == "auto" and str(result.stats.get("hessian", "")).startswith("exact"):
+    if m.hessian == "auto" and result.hessian.startswith("exact"):
         # Gauss-Newton did not converge on this target: do not try it again on every hop
         m = m.with_(hessian="exact")
     pairing = pairing or pair_points(problem.target, problem.options.points_per_segment)
@@ -285,7 +284,7 @@ def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairi
         r = solve_from(problem, guess, pairing, frames="target", method=m)
         if stats is not None:
             stats.absorb(r)
-        objectives.append(r.stats["objective"])
+        objectives.append(r.objective)
         iterations.append(r.iterations)
         if drive.pick_best([best, r]) == 1:
             best, accepted = r, accepted + 1

@@ -260,8 +260,7 @@ def design_robust(problem: DesignProblem, sigmas: Sigmas, samples: int = 0, seed
     x0, p = _robust_start(problem, pairing, solver, start.routing, sigmas, weight)
     i0 = solver.terms(x0, p)["robust"] / weight * D**2 if weight else 0.0
     lbx, ubx = solver.bounds(**inherited_bounds(problem, pairing, start))  # a buildable start's classes kept
-    x, status, st = solver.solve(x0, p, lbx, ubx)
-    res = stats.absorb(result_of(problem, pairing, solver, x, status, st, start.routing.initial_pose[:3, :3].copy(), "nlp_robust"))
+    res = stats.absorb(result_of(problem, pairing, solver.solve(x0, p, lbx, ubx), start.routing.initial_pose[:3, :3].copy(), "nlp_robust"))
     # the increase of the design found, evaluated with weight 1 (the recursion holds at a converged x)
     i1 = expected_increase(problem, res.routing, sigmas)
     if not weight:

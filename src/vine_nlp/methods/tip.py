@@ -51,7 +51,7 @@ from vine_nlp.methods.settings import (
     Settings,
 )
 from vine_nlp.methods.structure import Structure, frames12
-from vine_nlp.methods.transcription import Chain, Smoothness, Spec, get_solver, routing_of
+from vine_nlp.methods.transcription import Chain, Smoothness, Solution, Spec, get_solver
 from vine_nlp.methods.variables import ROUTE, box
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.shape import forward_shape, routing_metrics
@@ -202,16 +202,16 @@ def tip_bounds(solver, problem: TipProblem) -> tuple:
     return solver.bounds(X0=X0, **box(a, np.zeros(M), only=("theta", "lam")), length=(MIN_LENGTH_FACTOR * L / M / D, L / D))
 
 
-def tip_result(problem: TipProblem, solver, x, status: str, st: dict, closest: bool = False) -> Result:
-    """The Result of a solution x of the tip NLP (or a formulation built on it)."""
-    o = problem.options
+def tip_result(problem: TipProblem, sol: Solution, closest: bool = False) -> Result:
+    """The Result of a solution of the tip NLP (or a formulation built on it)."""
+    o, st = problem.options, sol.stats
     scale = CLOSEST_ACTUATION if closest else 1.0
     stats = st | {"objective_actuation": st["objective_actuation"] / scale, "objective_miss": st.get("objective_miss", 0.0),
                   "objective_kind": problem.objective, "closest_approach": closest, "segments": problem.segments,
                   "tube_length": problem.length, "smooth_theta": o.smooth_theta, "smooth_lambda": o.smooth_lambda, "tol": o.tol,
                   "max_iter": o.max_iter}
     stats.pop("objective_fit", None)
-    return evaluate_tip(problem, routing_of(solver, x, problem.diameter, problem.initial_pose), status=status,
+    return evaluate_tip(problem, sol.routing(problem.diameter, problem.initial_pose), status=sol.status, objective=sol.objective,
                         solve_time_s=stats.pop("solve_time_s"), iterations=stats.pop("iterations"), stats=stats)
 
 
@@ -222,8 +222,7 @@ def solve_from(problem: TipProblem, theta, lam, dl, frames, closest: bool = Fals
     solver = get_solver(tip_spec(problem.segments, problem.actuator.shared_lambda, problem.direction is not None, problem.objective,
                                  o.max_iter, o.tol, closest, monotone))
     x0 = solver.pack_x(frames12(frames, D)[None], theta=theta, lam=lam, length=dl / D)
-    x, status, st = solver.solve(x0, solver.pack_params(tip_data(problem, closest)), *tip_bounds(solver, problem))
-    return tip_result(problem, solver, x, status, st, closest)
+    return tip_result(problem, solver.solve(x0, solver.pack_params(tip_data(problem, closest)), *tip_bounds(solver, problem)), closest)
 
 
 def actuation(routing: Routing, diameter: float) -> dict:

@@ -417,11 +417,11 @@ class Solver:
     def terms(self, x, p) -> dict:
         return {k: float(v) for k, v in zip(self.term_names, self._terms(x, p))}
 
-    def solve(self, x0, p, lbx, ubx, lbg=None, ubg=None, multipliers: bool = False, duals: tuple | None = None) -> tuple:
-        """One IPOPT solve from x0 clipped into the bounds: (x, status, stats);
-        ``multipliers``: also the bound multipliers lam_x (> 0 at an active upper bound, < 0 at a lower one: minus
-        the objective's gradient where a variable is fixed); ``duals``: (lam_x, lam_g) to start from (a warm
-        start), and stats["duals"] holds the answer's."""
+    def solve(self, x0, p, lbx, ubx, lbg=None, ubg=None, multipliers: bool = False, duals: tuple | None = None) -> "Solution":
+        """One IPOPT solve from x0 clipped into the bounds: its :class:`Solution` (which unpacks as (x, status,
+        stats)); ``multipliers``: also the bound multipliers lam_x (> 0 at an active upper bound, < 0 at a lower
+        one: minus the objective's gradient where a variable is fixed; unpacked fourth); ``duals``: (lam_x, lam_g)
+        to start from (a warm start), and stats["duals"] holds the answer's."""
         build = 0.0 if self._built else self.build_time_s
         self._built = True
         x0 = np.clip(np.asarray(x0, float), lbx, ubx)
@@ -450,7 +450,60 @@ class Solver:
         } | {f"objective_{k}": v for k, v in self.terms(x, p).items()}
         if duals is not None and "lam_g" in sol:
             stats["duals"] = (np.array(sol["lam_x"]).ravel(), np.array(sol["lam_g"]).ravel())
-        return (x, status, stats, np.array(sol.get("lam_x", np.zeros(x.size))).ravel()) if multipliers else (x, status, stats)
+        lam_x = np.array(sol.get("lam_x", np.zeros(x.size))).ravel() if multipliers else None
+        return Solution(self, x, np.asarray(p, float), status, stats, lam_x)
+
+    def value(self, expr, x, p) -> np.ndarray:
+        """Any expression of the chain (its views ``x``, ``theta``, ``dl``, ``frames(k)``, ``tip(k)``, ``extra``,
+        parameters, terms) at the decision vector ``x`` with the packed parameters ``p``."""
+        c = self.chain
+        names = [name for name, _ in c.params]
+        f = ca.Function("value", [c.x, *[q for _, q in c.params]], [ca.MX(expr)])
+        args = [np.reshape(p[self._param_slices[n]], self._param_shapes[n], order="F") for n in names]
+        return np.array(f(x, *args)).squeeze()
+
+
+@dataclass
+class Solution:
+    """One solve's answer (rockit's ``sol``): ``value(expr)`` evaluates any expression of the chain at the
+    solution, ``routing(D, base, k)`` builds level k's routing by name from the declarations, ``unpack()``
+    gives every declared variable by name. ``stats`` is the solve's record (archived by the methods'
+    results); ``objective`` and ``iterations`` are read from it once, here. Unpacks as (x, status, stats),
+    with lam_x fourth where the solve was asked for the multipliers."""
+
+    solver: Solver
+    x: np.ndarray
+    p: np.ndarray
+    status: str
+    stats: dict
+    lam_x: np.ndarray | None = None
+
+    @property
+    def objective(self) -> float:
+        return float(self.stats["objective"])
+
+    @property
+    def iterations(self) -> int:
+        return int(self.stats["iterations"])
+
+    @property
+    def converged(self) -> bool:
+        return self.status in ("optimal", "acceptable")
+
+    def value(self, expr) -> np.ndarray:
+        return self.solver.value(expr, self.x, self.p)
+
+    def unpack(self) -> dict:
+        return self.solver.unpack(self.x)
+
+    def routing(self, D: float, base: np.ndarray, k: int = 0) -> Routing:
+        return routing_of(self.solver, self.x, D, base, k)
+
+    def __iter__(self):
+        yield from (self.x, self.status, self.stats) + (() if self.lam_x is None else (self.lam_x,))
+
+    def __getitem__(self, i):
+        return tuple(self)[i]
 
 
 def routing_of(solver: Solver, x, D: float, base: np.ndarray, k: int = 0) -> Routing:

@@ -31,7 +31,7 @@ from vine_nlp.methods.correct.pairing import in_frame
 from vine_nlp.methods.nlp import nlp_parameters
 from vine_nlp.methods.settings import REACH_TOL, ROUTE_GAIN, THETA_TRUST, Settings
 from vine_nlp.methods.structure import Structure, frames12
-from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, get_solver, routing_of
+from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, get_solver
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.routing import Routing, Sigmas, actuated, built_lambda
 from vine_nlp.model.shape import routing_metrics
@@ -89,10 +89,11 @@ def correct_routing(problem: DesignProblem, as_built: Routing, dev: Deviations, 
         solver = get_solver(correction_spec(M, pairing.n, a.shared_lambda, min(cap or o.max_iter, o.max_iter), o.tol, hessian))
         p = solver.pack_params(nlp_parameters(problem, pairing, as_built.initial_pose[:3, :3]))
         x0 = solver.pack_x(f12[None], lam_global=float(np.mean(as_built.lam)), theta=as_built.theta, lam=as_built.lam, length=dl)
-        x, status, st = solver.solve(x0, p, *solver.bounds(X0=f12[:, 0][None], theta=th, lam=lam_b, length=(dl, dl)))
-        _log.debug("correction %s: %s, %d iterations, %.2f s", hessian, status, st["iterations"], st["solve_time_s"])
-        realized = dataclasses.replace(routing_of(solver, x, D, as_built.initial_pose), length=as_built.length)
-        return Result("corrected", realized, None, status, iterations=st.pop("iterations"), stats=st)
+        sol = solver.solve(x0, p, *solver.bounds(X0=f12[:, 0][None], theta=th, lam=lam_b, length=(dl, dl)))
+        st = sol.stats
+        _log.debug("correction %s: %s, %d iterations, %.2f s", hessian, sol.status, st["iterations"], st["solve_time_s"])
+        realized = dataclasses.replace(sol.routing(D, as_built.initial_pose), length=as_built.length)
+        return Result("corrected", realized, None, sol.status, iterations=st.pop("iterations"), stats=st, objective=sol.objective)
 
     best = drive.schedule(step, settings.CORRECTION_SCHEDULE)
     if unbounded:

@@ -219,7 +219,7 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
         systematic_std=sys_std, std=std, transform=icp.Tcorr @ icp.T_free, residuals=residuals, status=found.best.status,
         iterations=stats.iterations, solve_time_s=time.perf_counter() - stats.started, rounds=found.rounds,
         stats={"measurement_sigma": sig_m, "slots_per_segment": icp.S, "points": icp.N, "builds": icp.B, "hessian": icp.hessian,
-               "objective": found.best.stats.get("objective", float("nan")), "free_pose": icp.free, "cpu_time_s": time.process_time() - cpu, "warm_start": start is not None},
+               "objective": float("nan") if found.best.objective is None else found.best.objective, "free_pose": icp.free, "cpu_time_s": time.process_time() - cpu, "warm_start": start is not None},
     )
 
 
@@ -304,12 +304,13 @@ class _ICP:
         lam = lay.lam_global if self.shared else lay.lam[:, 0]
         lbx[lam], ubx[lam] = np.where(self.act, self.lambda_min, 1.0)[: np.size(lam)], 1.0
         lbx[lay.theta], ubx[lay.theta] = -1.45, 1.45
-        self.x, status, st = solver.solve(x, p, lbx, ubx)
-        v = solver.unpack(self.x)
+        sol = solver.solve(x, p, lbx, ubx)
+        self.x, st = sol.x, sol.stats
+        v = sol.unpack()
         self.ab = variables.routing(v | {"lam": v["lam"][:, 0]}, self.T0, D)
         if self.free:
             self.g_free, self.Tcorr = v["globals"][3:9].copy(), _free_transform(v["globals"], self.centroid, D)
-        return self.x, Result("as_built", self.ab, None, status, iterations=st.pop("iterations"), stats=st)
+        return self.x, Result("as_built", self.ab, None, sol.status, iterations=st.pop("iterations"), stats=st, objective=sol.objective)
 
     def judge(self, res):
         new = self._pairs()
