@@ -30,6 +30,7 @@ from vine_nlp.analysis.buildability import MM_PER_UNIT, buildability, turning
 from vine_nlp.analysis.tolerance import batch_points, tolerance_report
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import buildable as B
+from vine_nlp.methods import settings
 from vine_nlp.methods.common import evaluate, pair_points
 from vine_nlp.methods.correct.correction import correction_spec
 from vine_nlp.methods.nlp import design_nlp, nlp_parameters
@@ -175,8 +176,8 @@ def main():
         print(trows, flush=True)
     elapsed = time.perf_counter() - t_start
     desc = (f"benchmarks/bench_buildable.py: today's design (design_nlp, defaults) against the buildable one (vine_nlp.solve, "
-            f"defaults: margin {B.Build.of(designs[cases[0]][0]).margin:g}, min_feature 2 mm, effort weights {B.EFFORT:g} / "
-            f"{B.EFFORT_ACTUATED:g}); {seeds} simulated builds per design; load average {load0:.2f} at the start, "
+            f"defaults: margin {B.Build.of(designs[cases[0]][0]).margin:g}, min_feature 2 mm, effort weights {settings.EFFORT:g} / "
+            f"{settings.EFFORT_ACTUATED:g}); {seeds} simulated builds per design; load average {load0:.2f} at the start, "
             f"{os.getloadavg()[0]:.2f} at the end; {elapsed / 60:.1f} min in all.")
     blocks = [
         "Goals per problem (issue 31): RMSE within budget (10 % or 0.05 mm over today's); turning of the line on the segments "

@@ -13,7 +13,7 @@ from vine_nlp.api import ArgumentError
 from vine_nlp.front.cli import main
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import buildable as B
-from vine_nlp.methods import drive
+from vine_nlp.methods import drive, settings
 from vine_nlp.model import shape_lines
 from vine_nlp.model.chain import segment_end_samples
 from vine_nlp.model.helix import center_rates
@@ -160,7 +160,7 @@ START = Routing(theta=np.zeros(8), lam=np.full(8, 0.9), length=np.full(8, 2.0), 
 ])
 def test_reclassify_rule_flips_what_the_multipliers_ask_for(act, limit, lie):
     rule = B.Reclassify(_Fake(WANT, lie), act, build(min_feature=0.0), limit=limit)
-    found = drive.refine(rule, B.BUILDABLE_ROUNDS, START)
+    found = drive.refine(rule, settings.BUILDABLE_ROUNDS, START)
     np.testing.assert_array_equal(rule.act, WANT)
     np.testing.assert_array_equal(found.best.routing.lam == 1.0, ~WANT)
     assert found.best.metrics["rmse"] == 1.0

@@ -18,10 +18,10 @@ from vine_nlp.io.correction import read_correction
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import correct as C
 from vine_nlp.methods.common import evaluate, pair_points
-from vine_nlp.methods.correct.estimate import CAP_ROUND, measure_block
+from vine_nlp.methods.correct.estimate import measure_block
 from vine_nlp.methods.correct.laplace import line_jacobian
 from vine_nlp.methods.correct.pairing import line_points
-from vine_nlp.methods.settings import SLIDE
+from vine_nlp.methods.settings import CAP_ROUND, SLIDE
 from vine_nlp.methods.structure import frames12
 from vine_nlp.model.calibration import Calibration, realized_of
 from vine_nlp.model.chain import chain_frames

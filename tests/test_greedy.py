@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from vine_nlp.methods.common import design_bounds, pair_points, path_error
-from vine_nlp.methods.greedy import _frame_at, _window_data, _window_solver_for, design_greedy, lowpass
+from vine_nlp.methods.greedy import _window_data, _window_solver_for, design_greedy, lowpass
 from vine_nlp.model import chain_points
-from vine_nlp.model.chain import segment_end_samples
+from vine_nlp.model.chain import chain_frames, segment_end_samples
 from vine_nlp.model.shape import total_variation
 from vine_nlp.problem import Actuator, DesignOptions, DesignProblem, Routing
 
@@ -177,7 +177,7 @@ def window_error(problem: DesignProblem, routing: Routing, j: int, K: int, pairi
     """
     D = problem.diameter
     solver = _window_solver_for(problem, pairing.n, K, j == 0)
-    T = _frame_at(routing, D, j)
+    T = chain_frames(routing.theta, routing.lam, routing.length, D, routing.initial_pose)[j]
     tgt, w, u, end = _window_data(problem, pairing, j, K)
     lam_fixed = float(routing.lam[0]) if problem.actuator.shared_lambda else 0.0
     p = solver.pack_params(T[:3, :3], T[:3, 3] / D, tgt, w, u, end, lam_fixed)

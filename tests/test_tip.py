@@ -13,7 +13,8 @@ from vine_nlp.front.reports import run_lines
 from vine_nlp.io.archive import load_archive
 from vine_nlp.io.formulations import write_tip_archive
 from vine_nlp.io.problem_file import load_problem, parse_problem
-from vine_nlp.methods.tip import MIN_LENGTH_FACTOR, actuation, design_tip
+from vine_nlp.methods.settings import MIN_LENGTH_FACTOR
+from vine_nlp.methods.tip import actuation, design_tip
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.problem import Actuator, DesignOptions, Routing, TipProblem
 

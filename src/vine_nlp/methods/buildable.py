@@ -29,20 +29,9 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp.analysis.buildability import MM_PER_UNIT, POUCH_LAMBDA_MIN, buildability, default_min_feature, partners, pieces, wrap_angle
-from vine_nlp.methods import drive
+from vine_nlp.methods import drive, settings
 from vine_nlp.methods.common import Guess, evaluate, pair_points
 from vine_nlp.methods.nlp import design_bounds, nlp_parameters, result_of, start_x
-from vine_nlp.methods.settings import (
-    ACCURACY_FLOOR_MM,
-    ACCURACY_SLACK,
-    BEND_TOL,
-    BUILDABLE_REPAIRS,
-    BUILDABLE_ROUNDS,
-    EFFORT,
-    EFFORT_ACTUATED,
-    EFFORT_INNER,
-    Settings,
-)
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Chain, Smoothness, SoftTip, Spec, get_solver
 from vine_nlp.model.chain import phi_from_theta
@@ -111,13 +100,13 @@ def classify(bends, length, build: Build) -> np.ndarray:
         return kappa * lc * length
 
     pair, alone = least_bend(np.ones(bends.size, bool)), least_bend(np.zeros(bends.size, bool))
-    act, acc = bends >= np.maximum(pair, BEND_TOL), 0.0
+    act, acc = bends >= np.maximum(pair, settings.BEND_TOL), 0.0
     for j in range(bends.size):  # error diffusion along the gently bent runs
         if act[j]:
             acc = 0.0
             continue
         acc += bends[j]
-        if acc >= max(0.5 * alone[j], BEND_TOL):
+        if acc >= max(0.5 * alone[j], settings.BEND_TOL):
             act[j], acc = True, acc - max(acc, alone[j])
     return merge_short(act, length, build.min_feature)
 
@@ -165,29 +154,29 @@ class BuildEffort:
 
 
 def effort_data(act, L: float, base_free: bool = True) -> dict:
-    """The build effort's data, e_j = w_j / L (L as ``nlp_parameters``' "L"): EFFORT_ACTUATED with an actuator; EFFORT on
-    an unactuated run the shape does not see (the first with a free base, the last); EFFORT_INNER on the others."""
+    """The build effort's data, e_j = w_j / L (L as ``nlp_parameters``' "L"): settings.EFFORT_ACTUATED with an actuator; settings.EFFORT on
+    an unactuated run the shape does not see (the first with a free base, the last); settings.EFFORT_INNER on the others."""
     act = np.asarray(act, bool)
-    w = np.where(act, EFFORT_ACTUATED, EFFORT_INNER)
+    w = np.where(act, settings.EFFORT_ACTUATED, settings.EFFORT_INNER)
     for p in pieces(act, np.ones(act.size), np.ones(act.size)):
         if not p.actuated and ((p.start == 0 and base_free) or p.stop == act.size):
-            w[p.start:p.stop] = EFFORT
+            w[p.start:p.stop] = settings.EFFORT
     return {"effort": w / L}
 
 
 def accuracy_budget(problem: DesignProblem, rmse: float) -> float:
-    """The RMSE the reclassification may reach from a free design's ``rmse``: ACCURACY_SLACK or ACCURACY_FLOOR_MM
+    """The RMSE the reclassification may reach from a free design's ``rmse``: settings.ACCURACY_SLACK or settings.ACCURACY_FLOOR_MM
     more, whichever is larger (units without a millimetre equivalent: the floor is 0.002 D)."""
-    floor = ACCURACY_FLOOR_MM / MM_PER_UNIT[problem.units] if problem.units in MM_PER_UNIT else 0.002 * problem.diameter
-    return max((1 + ACCURACY_SLACK) * rmse, rmse + floor)
+    floor = settings.ACCURACY_FLOOR_MM / MM_PER_UNIT[problem.units] if problem.units in MM_PER_UNIT else 0.002 * problem.diameter
+    return max((1 + settings.ACCURACY_SLACK) * rmse, rmse + floor)
 
 
 class Reclassify:
-    """The reclassification, a ``drive.refine`` rule (x: the routing to start from; ``trials + BUILDABLE_REPAIRS`` rounds) for
+    """The reclassification, a ``drive.refine`` rule (x: the routing to start from; ``trials + settings.BUILDABLE_REPAIRS`` rounds) for
     any formulation: ``solve(act, start)`` solves with the classes ``act`` from ``start`` (unwound here): (Result,
     the lambda bounds' multipliers (M,)). ``limit``: the RMSE budget. After refine: ``act``, the best round's."""
 
-    def __init__(self, solve: Callable, act, build: Build, limit: float, trials: int = BUILDABLE_ROUNDS - BUILDABLE_REPAIRS):
+    def __init__(self, solve: Callable, act, build: Build, limit: float, trials: int = settings.BUILDABLE_ROUNDS - settings.BUILDABLE_REPAIRS):
         self._solve, self.build, self.limit, self.trials = solve, build, limit, trials
         self.act = self.trial = np.asarray(act, bool)
         self.best, self.mult, self.cand, self.k, self.over = None, None, np.zeros(0, int), 0, False
@@ -237,7 +226,7 @@ class Reclassify:
                 return trial
             self.k //= 2
         b, r = self.build, self.best.routing
-        if self.repairs < BUILDABLE_REPAIRS and buildability(r, b.D, b.kind, b.lambda_min, b.margin, b.min_feature).below:
+        if self.repairs < settings.BUILDABLE_REPAIRS and buildability(r, b.D, b.kind, b.lambda_min, b.margin, b.min_feature).below:
             self.repairs += 1  # the lengths moved: bounds from the new ones
             return self.act.copy()
         return None
@@ -247,7 +236,7 @@ def buildable_spec(problem: DesignProblem, pairing, build: Build) -> Spec:
     """The plain NLP plus the build effort; the base pose free, or fixed (``build.pose``); exact Hessian."""
     o = problem.options
     s = Structure(pairing.segments, pairing.n, 1, "shared" if build.shared else "segment", "free" if build.pose is None else "fixed")
-    return Spec(s, (Smoothness(), SoftTip(), BuildEffort()), "exact", Settings(o.max_iter, o.tol))
+    return Spec(s, (Smoothness(), SoftTip(), BuildEffort()), "exact", settings.Settings(o.max_iter, o.tol))
 
 
 def solve_classes(problem: DesignProblem, pairing, build: Build, act, start: Routing) -> tuple[Result, np.ndarray]:
@@ -276,7 +265,7 @@ def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Res
     build = Build.of(problem)
     act = classify(target_bends(problem, pairing), start.routing.length, build)
     rule = Reclassify(lambda a, r: solve_classes(problem, pairing, build, a, r), act, build, accuracy_budget(problem, start.metrics["rmse"]))
-    found = drive.refine(rule, BUILDABLE_ROUNDS, start.routing, stats)
+    found = drive.refine(rule, settings.BUILDABLE_ROUNDS, start.routing, stats)
     best, act = found.best, rule.act
     # a solve may leave an unactuated run's turning beyond half a turn: the same shape the shortest way round
     r = unwind(best.routing, act, build)

@@ -13,12 +13,12 @@ the first solve; ``search`` then improves that design window by window:
   q_i the points in the end frame, Q = sum w_i q_i, C = sum w_i t_i q_i^T, T = sum w_i t_i, W = sum w_i.
   The window NLP (single shooting, a few variables) thus minimizes the *whole* design's point error over the
   window's theta, lambda and lengths.
-* Each window is solved from WINDOW_STARTS starts (the current values, theta mirrored, random draws inside
+* Each window is solved from settings.WINDOW_STARTS starts (the current values, theta mirrored, random draws inside
   the bounds), tasks for ``workers`` threads (CasADi releases the GIL inside IPOPT; each thread has its own
   solver) read back in start order; the best (``drive.pick_best``) replaces the window if it lowers the error
-  by WINDOW_GAIN. A round visits the WINDOW_SHARE of the windows of largest error, largest first.
+  by settings.WINDOW_GAIN. A round visits the settings.WINDOW_SHARE of the windows of largest error, largest first.
 * A round that changed a window ends with one polish: the full NLP from the new design (exact Hessian,
-  frames on its chain). The search stops after SEARCH_ROUNDS, when a round changes nothing or its polish does
+  frames on its chain). The search stops after settings.SEARCH_ROUNDS, when a round changes nothing or its polish does
   not improve, or when the budget is spent (a round cut short is not polished; its changes are dropped).
 
 Deterministic for a given ``options.seed``: a window's work does not depend on which thread ran it, and the
@@ -38,21 +38,7 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
-from vine_nlp.methods import blas, drive, variables
-from vine_nlp.methods.settings import (
-    CORNER_RMSE,
-    CORNER_WINDOW,
-    CORNER_WINDOW_MAX_ITER,
-    MIN_WINDOWS,
-    SEARCH_ROUNDS,
-    WINDOW,
-    WINDOW_GAIN,
-    WINDOW_SHARE,
-    WINDOW_STARTS,
-    WINDOW_TOL,
-    Method,
-    quiet,
-)
+from vine_nlp.methods import blas, drive, settings, variables
 from vine_nlp.methods.structure import frames12
 from vine_nlp.methods.transcription import ipopt_status
 from vine_nlp.model.chain import chain_frames, chain_points
@@ -68,7 +54,7 @@ def corner_like(problem: DesignProblem, result: Result) -> bool:
     converge on it (``result.hessian``) and its RMSE is above settings.CORNER_RMSE tube diameters, large
     residuals the smooth paper cases never show."""
     gauss_newton = result.hessian == "gauss-newton" and result.status == "optimal"
-    return (not gauss_newton) and float(result.metrics["rmse"]) > CORNER_RMSE * problem.diameter
+    return (not gauss_newton) and float(result.metrics["rmse"]) > settings.CORNER_RMSE * problem.diameter
 
 
 # ---------------------------------------------------------------- the window NLP
@@ -108,7 +94,7 @@ def _window_objective(W: int, n1: int, shared: bool) -> ca.Function:
 def _window_solver(W: int, n1: int, shared: bool, slot: int) -> ca.Function:
     """One IPOPT solver of the window NLP per thread slot: a CasADi solver keeps its workspace in
     itself, so two threads never share one."""
-    opts = quiet(CORNER_WINDOW_MAX_ITER, WINDOW_TOL) | CORNER_WINDOW
+    opts = settings.quiet(settings.CORNER_WINDOW_MAX_ITER, settings.WINDOW_TOL) | settings.CORNER_WINDOW
     blas.one_thread()
     return ca.nlpsol(f"vine_window{slot}", "ipopt", _window_nlp(W, n1, shared), opts)
 
@@ -216,8 +202,8 @@ def error_per_segment(problem: DesignProblem, pairing: Pairing, result: Result) 
 
 
 def search(problem: DesignProblem, result: Result, pairing: Pairing, polish: Callable[[Routing], Result],
-           budget: float = Method.budget, workers: int = 2, progress: Callable[[int, int], None] | None = None,
-           note: Callable[[str], None] | None = None, rounds: int = SEARCH_ROUNDS) -> Result:
+           budget: float = settings.Method.budget, workers: int = 2, progress: Callable[[int, int], None] | None = None,
+           note: Callable[[str], None] | None = None, rounds: int = settings.SEARCH_ROUNDS) -> Result:
     """Improve the design ``result`` of a corner-like target window by window (module docstring).
 
     ``polish(routing) -> Result``: the full NLP from a design (ends every round); ``budget``: seconds from
@@ -275,13 +261,13 @@ class _Search:
         self.t0 = time.perf_counter()
         self.deadline = self.t0 + max(0.0, budget)
         M = pairing.segments
-        self.W = min(WINDOW, M)
+        self.W = min(settings.WINDOW, M)
         self.rng = np.random.default_rng([problem.options.seed, 2])  # a stream apart from the starts' and hops'
         self.best, self.routing = result, result.routing
         self.objectives, self.windows_done, self.accepted, self.rounds, self.hit = [], 0, 0, 0, False
         self.iterations, self.window_time, self.polish_time, self.window_iterations = result.iterations, 0.0, 0.0, 0
         n = M - self.W + 1
-        self.per_round = max(min(MIN_WINDOWS, n), int(np.ceil(WINDOW_SHARE * n))) + 1  # windows + the polish
+        self.per_round = max(min(settings.MIN_WINDOWS, n), int(np.ceil(settings.WINDOW_SHARE * n))) + 1  # windows + the polish
         self.workers = max(1, workers)
         self.stop = threading.Event()
         self.pool = ThreadPoolExecutor(max_workers=self.workers, thread_name_prefix="vine-nlp-window")
@@ -298,7 +284,7 @@ class _Search:
         problem, W = self.problem, self.W
         err = error_per_segment(problem, self.pairing, self.best)
         order = np.argsort(-np.convolve(err, np.ones(W), "valid"), kind="stable")  # the corners first
-        order = order[: max(min(MIN_WINDOWS, order.size), int(np.ceil(WINDOW_SHARE * order.size)))]
+        order = order[: max(min(settings.MIN_WINDOWS, order.size), int(np.ceil(settings.WINDOW_SHARE * order.size)))]
         changed = 0
         for i, a in enumerate(order):
             now = time.perf_counter()
@@ -310,11 +296,11 @@ class _Search:
             f_cur = win.objective(win.x)
             # one task per start, in start order; results are read back in that order: the choice does not
             # depend on which thread finished first
-            tasks = [self.pool.submit(_solve_start, win, x0, self.slots, self.stop) for x0 in win.starts(self.rng, WINDOW_STARTS)]
+            tasks = [self.pool.submit(_solve_start, win, x0, self.slots, self.stop) for x0 in win.starts(self.rng, settings.WINDOW_STARTS)]
             solved = [f.result() for f in tasks]
             f_new, x_new, ok, _ = solved[drive.pick_best(solved, key=lambda r: (not r[2], r[0]))]
             self.window_iterations += sum(r[3] for r in solved if r is not None)
-            if ok and f_new < f_cur * (1 - WINDOW_GAIN):
+            if ok and f_new < f_cur * (1 - settings.WINDOW_GAIN):
                 self.routing = win.apply(self.routing, x_new, problem.diameter)
                 changed += 1
             self.windows_done += 1

@@ -174,18 +174,15 @@ SEARCH_ROUNDS = 1  # rounds by default: a second gains little for much more time
 WINDOW_GAIN = 1e-4  # a window's new values must lower the design's error by this much (relative) to be taken
 
 # ---------------------------------------------------------------- the formulations' and helpers' tuned constants
-
 # drive
 # objectives this close (relative) are the same optimum reached from different starts or rounds
 TIE_RTOL = 1e-6
-
 # compiled
 # a block type is compiled on its own only up to this many SX instructions (its functions and derivatives): gcc
 # -O1's time grows with them, and a larger block (an obstacle segment's samples against its primitives or
 # triangles) would take longer than the solves it speeds up; such a block is a map of one sample's
 # (blocks.Samples), whose block is compiled instead ("Active sets on compiled blocks")
 BLOCK_BUDGET = 30_000
-
 # greedy
 LAMBDA_START = 0.75  # paper: lambda_{1:k,0} = 0.75
 GREEDY_SPREAD = 0.5  # random starts: half-width of the box around the carried-over values, x bound range
@@ -194,19 +191,15 @@ GREEDY_WINDOW_MAX_ITER = 200  # a window has <= 3k + 6 variables: a start that n
 SPAM_CANDIDATES = 11  # linspace(lambda_min, 1, 11)
 SPAM_REFINE = 5  # second pass: 5 values within +-half a step of the best
 FILTER_ORDER = 2  # the paper's low-pass filter: a second-order Butterworth, run forwards and backwards
-
 # mirror
 PLANAR = 1e-9  # |torsion sum| / sum |chord|^3 below this: a target planar to round-off (no handedness of its own)
-
 # obstacles.design
 BLOCKED_WEIGHT = 0.1  # weight of the target points closer than the margin to an obstacle (their fit cannot be exact)
 MESH_BLOCKED_WEIGHT = 0.01  # the same where the scene has a mesh (module docstring, "Weights")
 MESH_WEIGHT_RAMP = 1.0  # units of D: with a mesh, weights rise from MESH_BLOCKED_WEIGHT at the margin to 1 at margin + this
-
 # obstacles.rows
 MESH_K = 6  # nearest triangles per mesh sample (the plan's default)
 TRI_EPS = 1e-9  # sqrt(d2 + eps^2) (units of D): finite gradients at distance 0
-
 # obstacles.plan
 SAMPLE_SPACING = 0.25  # target sample spacing h0, units of D: dip(D/4) ~ 0.03 D for a sharp obstacle
 LENGTH_SLACK = 1.25  # segment lengths may grow this much during a solve before the rows' dip is too small
@@ -223,7 +216,6 @@ MESH_REACH = 8.0
 # units of D: an outside sample closer than its requirement plus this also gets the tangent plane's row at its
 # nearest point on the mesh (fewer rounds on obstacle-mesh and the torus scene: "Obstacles")
 TANGENT_REACH = 0.5
-
 # obstacles.push
 # units of D: the pushed target clears by this much more than the rows ask; less with a mesh (its exact pushes
 # already go the shortest way round, "Obstacles")
@@ -238,19 +230,16 @@ MARCH_STEPS = 80  # sphere-tracing steps of a push, at most
 # own tolerance; at the problem's 1e-8 these designs crawled through their last digits on the pushed target's
 # corners and took half of a typical scene's time ("Obstacle scenes")
 PUSH_TOL = 1e-4
-
 # fit.model_fit
 FIT_SPACING = 0.1  # model lines are sampled at <= FIT_SPACING * D
 LAMBDA_BOUNDS = (0.3, 1.0)  # the model fit's lambda range: below 0.3 no tube the fits have seen contracts
 LAMBDA_GRID_STEP = 0.05  # the lambda grid that ranks starts: fine enough that the polish starts in the right basin
 GRID_POLISH_ITER = 12  # the lambda grid only ranks values; the refinement polishes fully
 GRID_POINTS = 1000  # measured points used while ranking the lambda grid
-
 # fit.align
 GLOBAL_POINTS = 300  # measured points used by the ICP of the global stage (all points are used for the polish)
 ICP_GLOBAL_ITER = 60  # ICP rounds of the global stage: its pairs settle well within them
 POLISH_TOP = 3  # the best poses of the global stage that are polished on all points
-
 # buildable
 # build-effort weights against the fit's mean squared error / D^2 (results/BENCHMARKS.md, "Buildable designs"):
 # where the shape does not see the line (a first or last unactuated run) it holds it at theta 0 at no cost; where
@@ -260,7 +249,6 @@ EFFORT, EFFORT_ACTUATED, EFFORT_INNER = 1e-3, 1e-4, 1e-6
 ACCURACY_SLACK, ACCURACY_FLOOR_MM = 0.10, 0.05  # what the reclassification may give up: the issue's budget
 BUILDABLE_ROUNDS, BUILDABLE_REPAIRS = 8, 2  # solves at most; of them, re-solves while a gap is below min_feature (the lengths moved)
 BEND_TOL = 1e-6  # rad: a segment of the target bending less is straight
-
 # tip
 MIN_LENGTH_FACTOR = 0.2  # dl_j >= 0.2 L / M
 TURNS_EPS = 1e-6  # sqrt(tan^2 theta + eps): the "turns" measure smooth at theta 0
@@ -268,13 +256,11 @@ TIE_BREAK = 1e-2  # weight of the secondary measure (see module doc)
 CLOSEST_ACTUATION = 1e-6  # weight of the actuation in the nearest-approach variant
 CLOSE_ENOUGH = 1e-3  # nearest approach within this many D of the tip: re-solve the design from it
 GUESS_POINTS = 4  # points per segment of the guide curve of the geometric guess
-
 # correct.pairing
 SAMPLES_PER_SEGMENT = 24  # pieces per segment of the model lines the pairing projects onto
 # the share of a pair's along-line difference kept in its residual: zero at a closest point, it damps sliding along the
 # line between pairings (pure point-to-line let a hook's straight part slide: a shorter tube, a later bend)
 SLIDE = 0.1
-
 # correct.estimate
 # weak priors on the systematic parts: wide against any construction method seen
 DEFAULT_SYSTEMATIC_SIGMAS = (math.radians(10.0), 0.2, 0.2)
@@ -283,7 +269,6 @@ TRIM = 4.0  # pairs farther than this many sigmas of the stage are left out of i
 SLOT_STEP = 8  # slots per segment are rounded up to a multiple of this (cached structures)
 HELD_SIGMAS = 2.0  # an actuator estimated within this many standard deviations of lambda 1 may be clipped: held
 CAP_ROUND = 1e-3  # lambda units: the cap's rounding (at most CAP_ROUND / 2 off min, at the kink)
-
 # correct.correction
 THETA_TRUST = 2.0  # with theta adjusted, the corrected theta stays within this many sigma_theta of the as-built one
 ROUTE_GAIN = 2.0  # lambda and theta (a new tube) is recommended where it predicts this many times less error

@@ -26,7 +26,7 @@ import numpy as np
 from vine_nlp.methods import drive, settings
 from vine_nlp.methods.common import evaluate, pair_points
 from vine_nlp.methods.correct.deviations import TOP, Deviations, apply_deviations, remove_deviations
-from vine_nlp.methods.correct.estimate import DEFAULT_SYSTEMATIC_SIGMAS, Estimate, estimate_as_built
+from vine_nlp.methods.correct.estimate import Estimate, estimate_as_built
 from vine_nlp.methods.correct.pairing import in_frame
 from vine_nlp.methods.nlp import nlp_parameters
 from vine_nlp.methods.settings import REACH_TOL, ROUTE_GAIN, THETA_TRUST, Settings
@@ -139,7 +139,7 @@ class CorrectionResult:
 
 
 def correct(problem: DesignProblem, nominals: list, measurements: list, *, adjust=None, sigmas: Sigmas | None = None,
-            measurement_sigma: float | None = None, systematic_sigmas=DEFAULT_SYSTEMATIC_SIGMAS, units_per_mm: float = 0.1,
+            measurement_sigma: float | None = None, systematic_sigmas=settings.DEFAULT_SYSTEMATIC_SIGMAS, units_per_mm: float = 0.1,
             theta_trust: float | None = None, start: Deviations | None = None, start_systematic=None) -> CorrectionResult:
     """Estimate the built robot and correct it on both routes (module docstring), no file I/O. ``nominals``: of
     each build measured so far, oldest first; ``measurements``: their points (``build`` indexes ``nominals``);

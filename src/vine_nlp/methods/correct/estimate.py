@@ -21,7 +21,7 @@ started from a rigid ICP alignment. A warm start (the previous round's estimate)
 
 The ICP loop (:class:`_ICP`, a rule of ``drive.refine``): pair, solve warm, pair again until the pairs stop
 moving; coarse to fine, the fit's noise sigma shrinking by settings.STAGE_FACTOR from D/2 to sigma_m, pairs
-beyond TRIM sigmas left out. Each segment of each build has S slots (rounded up to SLOT_STEP), each an instance
+beyond settings.TRIM sigmas left out. Each segment of each build has S slots (rounded up to settings.SLOT_STEP), each an instance
 of the one-point block :func:`measure_block` with its point, fraction, tangent and weight as data: re-pairing
 changes data only, and one structure per (M, S, builds, free pose) serves every round, compiled once.
 """
@@ -43,16 +43,6 @@ from vine_nlp.methods.blocks import BlockType
 from vine_nlp.methods.correct.deviations import Deviations, apply_deviations, deviations_of
 from vine_nlp.methods.correct.laplace import laplace
 from vine_nlp.methods.correct.pairing import LINE_SIDE, in_frame, pair_with_line, rigid_start
-from vine_nlp.methods.settings import (
-    CAP_ROUND,
-    DEFAULT_MEASUREMENT_SIGMA_MM,
-    DEFAULT_SYSTEMATIC_SIGMAS,
-    HELD_SIGMAS,
-    LENGTH_FACTOR,
-    SLIDE,
-    SLOT_STEP,
-    TRIM,
-)
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Chain, Spec, get_solver
 from vine_nlp.methods.variables import CELL, POINT
@@ -73,8 +63,8 @@ SLOT_DATA_FREE = 17
 NO_CAP = 10.0  # no lambda cap (min(NO_CAP, lam + shift) = lam + shift)
 
 
-def _cap(cap, lam):  # min(cap, lam) rounded over CAP_ROUND: a kink at the solution stalls IPOPT (a build clipped near 1)
-    return 0.5 * (cap + lam - ca.sqrt((cap - lam) ** 2 + CAP_ROUND**2))
+def _cap(cap, lam):  # min(cap, lam) rounded over settings.CAP_ROUND: a kink at the solution stalls IPOPT (a build clipped near 1)
+    return 0.5 * (cap + lam - ca.sqrt((cap - lam) ** 2 + settings.CAP_ROUND**2))
 
 
 @lru_cache(maxsize=2)
@@ -88,7 +78,7 @@ def measure_block(free: bool) -> BlockType:
     d = (shift (3): theta and lambda added, length factor (the build's nominal against the latest),
     u, m (3), t (3) tangent, w square root of the weight, side [, c (3) centroid, flag], cap: lambda is
     min(cap, lam + shift): 1 where the shift may pass 1 (the physical rule), NO_CAP elsewhere).
-    Residual w (I - (1 - SLIDE) t t^T)(P - m) (the square root as data: a zero-weight slot has finite derivatives);
+    Residual w (I - (1 - settings.SLIDE) t t^T)(P - m) (the square root as data: a zero-weight slot has finite derivatives);
     a free-frame point (flag 1) is moved by exp(w) (m - c) + c + t first (m stored as given, c their centroid)."""
     slots = POINT + ((("w", 3), ("p", 3)) if free else ())  # variables.POINT, then the free frame's rotation and shift
     nd = SLOT_DATA_FREE if free else SLOT_DATA
@@ -105,7 +95,7 @@ def measure_block(free: bool) -> BlockType:
         c, flag = d[12:15], d[15]
         mi = mi + flag * (ca.mtimes(so3_exp(v[slots["w"]]), mi - c) + c + v[slots["p"]] - mi)
     e = P - mi
-    res = w * (e - (1.0 - SLIDE) * tg * ca.dot(tg, e))
+    res = w * (e - (1.0 - settings.SLIDE) * tg * ca.dot(tg, e))
     return BlockType(f"measure{'f' if free else ''}", ca.Function("measure_block", [v, d], [ca.sumsqr(res), ca.SX(0, 1)]),
                      ca.Function("measure_res", [v, d], [res]))
 
@@ -193,16 +183,16 @@ class Estimate:
 
 
 def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigmas, shared_lambda: bool = False,
-                      measurement_sigma: float | None = None, systematic_sigmas=DEFAULT_SYSTEMATIC_SIGMAS,
+                      measurement_sigma: float | None = None, systematic_sigmas=settings.DEFAULT_SYSTEMATIC_SIGMAS,
                       hessian: str | None = None, rounds: int = settings.ICP_ROUNDS, units_per_mm: float = 0.1,
                       lambda_min: float = 0.0, start: Deviations | None = None, start_systematic=None) -> Estimate:
     """MAP estimate of the as-built robot (module docstring). ``nominals``: of each build, oldest first (the
     estimate is of the last); ``measurements``: of any build (``build`` indexes ``nominals``); ``sigmas``: the
-    prior; ``measurement_sigma``: default DEFAULT_MEASUREMENT_SIGMA_MM; ``systematic_sigmas``: the prior of
+    prior; ``measurement_sigma``: default settings.DEFAULT_MEASUREMENT_SIGMA_MM; ``systematic_sigmas``: the prior of
     (theta offset rad, lambda offset, log length scale); ``rounds``: of the last stage; ``start``,
     ``start_systematic``: a warm start (an earlier round's deviations and systematic parts). ValueError: sigmas <= 0."""
     stats, cpu = drive.Stats(), time.process_time()
-    sig_m = (DEFAULT_MEASUREMENT_SIGMA_MM * units_per_mm) if measurement_sigma is None else float(measurement_sigma)
+    sig_m = (settings.DEFAULT_MEASUREMENT_SIGMA_MM * units_per_mm) if measurement_sigma is None else float(measurement_sigma)
     icp = _ICP(nominals, measurements, D, sigmas, shared_lambda, sig_m, systematic_sigmas, hessian or settings.ESTIMATE_HESSIAN, rounds,
                lambda_min, start, start_systematic)
     found = drive.refine(icp, sum(icp.caps), stats=stats)
@@ -212,7 +202,7 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
                                       icp.prior, shared_lambda, icp.free, icp.centroid, icp.Tcorr)
     latest = nominals[-1]
     # the clip at 1 hides how far beyond it an actuator's error goes: hold what may be clipped
-    held = actuated(latest.lam) & (icp.ab.lam >= 1.0 - HELD_SIGMAS * std[:, 1]) if not shared_lambda else None
+    held = actuated(latest.lam) & (icp.ab.lam >= 1.0 - settings.HELD_SIGMAS * std[:, 1]) if not shared_lambda else None
     dev = replace(deviations_of(latest, icp.ab, lambda_min), held=held)
     return Estimate(
         routing=icp.ab, deviations=dev, systematic=np.array([g[0], g[1], math.exp(g[2])]),
@@ -255,7 +245,7 @@ class _ICP:
         self.g0 = np.zeros(3) if start_sys is None else np.r_[start_sys[:2], math.log(start_sys[2])]
         self.Tcorr, self.g_free = np.eye(4), np.zeros(6)
         self.pairs = self._pairs()
-        self.S = int(math.ceil(1.25 * self._slots_needed() / SLOT_STEP) * SLOT_STEP)
+        self.S = int(math.ceil(1.25 * self._slots_needed() / settings.SLOT_STEP) * settings.SLOT_STEP)
         self.solver = None
         # coarse to fine: the fit's noise sigma from D/2 down to the measurement's
         self.stages, s_k = [], 0.5 * D
@@ -283,12 +273,12 @@ class _ICP:
     def solve(self, x, round, last):
         M, D, need = self.M, self.D, self._slots_needed()
         if need > self.S:
-            self.S, self.solver = int(math.ceil(need / SLOT_STEP) * SLOT_STEP), None
+            self.S, self.solver = int(math.ceil(need / settings.SLOT_STEP) * settings.SLOT_STEP), None
         if self.solver is None:  # a new structure: its own start
             st = Structure(M, 1, 1, "shared" if self.shared else "segment", "fixed", extra=12 * (self.B - 1), globals=9 if self.free else 3)
             self.solver, x = get_solver(Spec(st, (AsBuiltTerm(self.S, self.B, self.free),), self.hessian, settings.ESTIMATE)), None
         solver, lay, s_stage = self.solver, self.solver.layout, self.stages[self.stage]
-        data = self._data(s_stage, TRIM * max(s_stage, self.sig_m))
+        data = self._data(s_stage, settings.TRIM * max(s_stage, self.sig_m))
         self.prior[4] = self.act & (self.ab.lam >= 1.0 - 1e-6)  # clipped in the round before (module docstring)
         self.prior[3] = self.act & ~(self.prior[4] > 0)
         p = solver.pack_params({"cells": np.zeros((5, M)), "meas": data, "shift": self.shift_data, "prior": self.prior,
@@ -300,7 +290,7 @@ class _ICP:
                 x[lay.globals[3:9]] = self.g_free
         lbx, ubx = np.full(lay.size, -np.inf), np.full(lay.size, np.inf)
         lbx[lay.X[0, 0]] = ubx[lay.X[0, 0]] = np.r_[self.T0[:3, :3].ravel(order="F"), self.T0[:3, 3] / D]
-        lbx[lay.dl], ubx[lay.dl] = LENGTH_FACTOR[0] * self.latest.length / D, LENGTH_FACTOR[1] * self.latest.length / D
+        lbx[lay.dl], ubx[lay.dl] = settings.LENGTH_FACTOR[0] * self.latest.length / D, settings.LENGTH_FACTOR[1] * self.latest.length / D
         lam = lay.lam_global if self.shared else lay.lam[:, 0]
         lbx[lam], ubx[lam] = np.where(self.act, self.lambda_min, 1.0)[: np.size(lam)], 1.0
         lbx[lay.theta], ubx[lay.theta] = -1.45, 1.45

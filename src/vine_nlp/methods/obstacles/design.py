@@ -31,7 +31,7 @@ from vine_nlp.analysis.obstacles import min_gap
 from vine_nlp.methods import drive, settings
 from vine_nlp.methods.common import pair_points
 from vine_nlp.methods.nlp import chain_guess, design_bounds, design_nlp, extended_solver, nlp_parameters, result_of, start_x
-from vine_nlp.methods.obstacles.plan import LENGTH_SLACK, SAMPLE_SPACING, Plan, obstacle_stats
+from vine_nlp.methods.obstacles.plan import Plan, obstacle_stats
 from vine_nlp.methods.obstacles.push import pushed_start
 from vine_nlp.methods.obstacles.rows import MESH_K
 from vine_nlp.methods.settings import BLOCKED_WEIGHT, MESH_BLOCKED_WEIGHT, MESH_WEIGHT_RAMP
@@ -97,7 +97,7 @@ class Rounds:
 
 
 def design_with_obstacles(problem: DesignProblem, start: Result | None = None, rounds: int = settings.ROUNDS, ts=None,
-                          k: int = MESH_K, spacing: float = SAMPLE_SPACING, **kw) -> Result:
+                          k: int = MESH_K, spacing: float = settings.SAMPLE_SPACING, **kw) -> Result:
     """Inverse design that keeps the tube ``problem.obstacle_margin`` clear of ``problem.obstacles``.
 
     ``start``: the obstacle-free design (default design_nlp(problem, **kw)), returned (with the obstacle
@@ -147,7 +147,7 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
     # the pushed start's detour may lengthen a segment past LENGTH_FACTOR of its chord on the target: there the
     # bound makes room for it (module docstring)
     dl0 = routing.length / D
-    bounds = first_solver.bounds(**box | {"length": (box["length"][0], np.where(dl0 > dl_hi, LENGTH_SLACK * dl0, dl_hi))})
+    bounds = first_solver.bounds(**box | {"length": (box["length"][0], np.where(dl0 > dl_hi, settings.LENGTH_SLACK * dl0, dl_hi))})
     x = plan.fill_extra(first_solver, start_x(first_solver, chain_guess(problem, routing), D, "chain"), routing)
     found = drive.refine(Rounds(plan, routing, data, solver, params, bounds, result, warm=True), rounds, x, stats)
     best, rep = stats.stamp(found.best), found.verdict.report

@@ -14,7 +14,7 @@ import numpy as np
 
 from vine_nlp.methods import drive, settings
 from vine_nlp.methods.obstacles.design import Rounds
-from vine_nlp.methods.obstacles.plan import SAMPLE_SPACING, Plan, obstacle_stats
+from vine_nlp.methods.obstacles.plan import Plan, obstacle_stats
 from vine_nlp.methods.obstacles.push import pushed_chain
 from vine_nlp.methods.obstacles.rows import MESH_K
 from vine_nlp.methods.structure import frames12
@@ -34,7 +34,7 @@ def tip_design(problem: TipProblem, starts: int | None = None, progress=None) ->
 
 
 def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, rounds: int = settings.ROUNDS, ts=None,
-                              k: int = MESH_K, spacing: float = SAMPLE_SPACING, progress=None, thorough: bool = False) -> Result:
+                              k: int = MESH_K, spacing: float = settings.SAMPLE_SPACING, progress=None, thorough: bool = False) -> Result:
     """Least-actuation tip design that keeps the tube ``problem.obstacle_margin`` clear of ``problem.obstacles``.
 
     ``starts``: the tip design's (default options.starts), after the obstacle-free tip design and its chain
