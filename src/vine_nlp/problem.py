@@ -371,18 +371,10 @@ class Result:
     shortfall : tuple of str
         Every hard requirement of the problem the design misses, one line each (the pipeline's judge:
         bounds, obstacle margin, clearance); empty when it meets them all.
-    objective : float or None
-        The NLP's objective at the design (None: no NLP made it, e.g. the greedy's): what the methods rank on.
-    hessian : str
-        The Hessian the design's solve ended with ("gauss-newton", "exact ..."; "" where none was scheduled).
-    met : dict
-        The formulation's own hard requirements as it judged them ({"clearance": bool}, {"obstacles": bool}).
-    buildable : bool
-        A buildable design (every lambda exactly 1 or inside the margins): formulations started from it keep it so.
-    runs : tuple of Result
-        The results this one was chosen from (the starts of a multi-start, the steps of a Hessian schedule).
-
-    ``stats`` is for the archive only: nothing decides on it.
+    objective, hessian, met, buildable, runs
+        What the methods decide on (``stats`` is for the archive only): the NLP's objective (None: no NLP, the
+        greedy's), the Hessian its solve ended with, the formulation's own hard requirements as it judged them
+        ({"clearance": bool}, {"obstacles": bool}), a buildable design, the results it was chosen from.
     """
 
     method: str

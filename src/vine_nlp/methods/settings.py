@@ -1,11 +1,12 @@
-"""How the NLPs are solved: the solver's options and the drive's tuned constants, apart from the formulations.
+"""How the NLPs are solved, apart from the problems and the formulations: the method, the solver's options
+and every tuned constant of ``methods/``.
 
-rockit keeps the solver and its options in the method, not in the problem. Here a formulation
-declares what its solves are like (:class:`Settings`: a start near the answer, rows that are hard
-requirements, a Gauss-Newton solve from a guess, bounds that must hold exactly, ...) and the
-options follow from the declaration, the same for every formulation that declares the same.
-The loops of ``methods.drive`` take their caps and rules from the constants below: each is named
-here once, with one line on why its value; the figures that chose it are in results/BENCHMARKS.md.
+rockit keeps the solver and its options in the method, not in the problem: :class:`Method` holds what a
+user may retune (starts, hops, max_iter, tol, hessian, budget, seed, rounds), one default each. A
+formulation declares what its solves are like (:class:`Settings`: a start near the answer, rows that are
+hard requirements, a Gauss-Newton solve from a guess, bounds that must hold exactly, ...) and the options
+follow from the declaration. Every tuned constant of ``methods/`` is named here once, with one line on
+why its value (grouped by the module that uses it); the figures that chose them are in results/BENCHMARKS.md.
 """
 
 from __future__ import annotations

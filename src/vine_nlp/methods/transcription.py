@@ -453,23 +453,14 @@ class Solver:
         lam_x = np.array(sol.get("lam_x", np.zeros(x.size))).ravel() if multipliers else None
         return Solution(self, x, np.asarray(p, float), status, stats, lam_x)
 
-    def value(self, expr, x, p) -> np.ndarray:
-        """Any expression of the chain (its views ``x``, ``theta``, ``dl``, ``frames(k)``, ``tip(k)``, ``extra``,
-        parameters, terms) at the decision vector ``x`` with the packed parameters ``p``."""
-        c = self.chain
-        names = [name for name, _ in c.params]
-        f = ca.Function("value", [c.x, *[q for _, q in c.params]], [ca.MX(expr)])
-        args = [np.reshape(p[self._param_slices[n]], self._param_shapes[n], order="F") for n in names]
-        return np.array(f(x, *args)).squeeze()
-
 
 @dataclass
 class Solution:
-    """One solve's answer (rockit's ``sol``): ``value(expr)`` evaluates any expression of the chain at the
-    solution, ``routing(D, base, k)`` builds level k's routing by name from the declarations, ``unpack()``
-    gives every declared variable by name. ``stats`` is the solve's record (archived by the methods'
-    results); ``objective`` and ``iterations`` are read from it once, here. Unpacks as (x, status, stats),
-    with lam_x fourth where the solve was asked for the multipliers."""
+    """One solve's answer (rockit's ``sol``): ``value(expr)`` evaluates any expression of the chain (its views
+    ``x``, ``theta``, ``frames(k)``, ``tip(k)``, ``extra``, parameters, terms) at the solution; ``routing(D, base,
+    k)`` builds level k's routing by name from the declarations; ``unpack()`` gives every declared variable by
+    name. ``stats`` is the solve's record, archived by the methods' results (``objective`` is read from it here,
+    once). Unpacks as (x, status, stats), with lam_x fourth where the solve was asked for the multipliers."""
 
     solver: Solver
     x: np.ndarray
@@ -482,16 +473,10 @@ class Solution:
     def objective(self) -> float:
         return float(self.stats["objective"])
 
-    @property
-    def iterations(self) -> int:
-        return int(self.stats["iterations"])
-
-    @property
-    def converged(self) -> bool:
-        return self.status in ("optimal", "acceptable")
-
     def value(self, expr) -> np.ndarray:
-        return self.solver.value(expr, self.x, self.p)
+        s, params = self.solver, self.solver.chain.params
+        args = [np.reshape(self.p[s.param_slice(n)], s._param_shapes[n], order="F") for n, _ in params]
+        return np.array(ca.Function("value", [s.chain.x, *[q for _, q in params]], [ca.MX(expr)])(self.x, *args)).squeeze()
 
     def unpack(self) -> dict:
         return self.solver.unpack(self.x)
