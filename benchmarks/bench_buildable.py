@@ -30,6 +30,7 @@ from vine_nlp.analysis.buildability import MM_PER_UNIT, buildability, turning
 from vine_nlp.analysis.tolerance import batch_points, tolerance_report
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import buildable as B
+from vine_nlp.methods import settings
 from vine_nlp.methods.common import evaluate, pair_points
 from vine_nlp.methods.correct.correction import correction_spec
 from vine_nlp.methods.nlp import design_nlp, nlp_parameters
@@ -63,7 +64,7 @@ def figures(pb, build, routing, act):
 def built(nominal: Routing, dev, lambda_min: float) -> Routing:
     """What a robot with deviations ``dev`` realizes: no lambda error where lambda is 1 (no actuator), else within [lambda_min, 1]."""
     lam = np.where(nominal.lam != 1.0, np.clip(nominal.lam + dev[:, 1], lambda_min, 1.0), 1.0)
-    return Routing(nominal.theta + dev[:, 0], lam, nominal.length * (1 + dev[:, 2]), nominal.initial_pose)
+    return Routing(theta=nominal.theta + dev[:, 0], lam=lam, length=nominal.length * (1 + dev[:, 2]), initial_pose=nominal.initial_pose)
 
 
 def correct_oracle(pb, pairing, nominal: Routing, dev) -> Routing:
@@ -76,11 +77,11 @@ def correct_oracle(pb, pairing, nominal: Routing, dev) -> Routing:
     lo = np.where(act, np.maximum(a.lambda_min, a.lambda_min + dev[:, 1]), 1.0)
     hi = np.where(act, np.minimum(1.0, 1.0 + dev[:, 1]), 1.0)
     f12 = frames12(chain_frames(ab.theta, ab.lam, ab.length, D, ab.initial_pose), D)
-    lbx, ubx = solver.bounds((ab.theta, ab.theta), (lo, hi), (ab.length / D, ab.length / D), X0=f12[:, 0][None])
+    lbx, ubx = solver.bounds(X0=f12[:, 0][None], theta=(ab.theta, ab.theta), lam=(lo, hi), length=(ab.length / D, ab.length / D))
     p = solver.pack_params(nlp_parameters(pb, pairing, ab.initial_pose[:3, :3]))
-    x, _, _ = solver.solve(solver.pack_x(ab.theta, np.clip(ab.lam, lo, hi), ab.length / D, f12[None]), p, lbx, ubx)
+    x, _, _ = solver.solve(solver.pack_x(f12[None], theta=ab.theta, lam=np.clip(ab.lam, lo, hi), length=ab.length / D), p, lbx, ubx)
     lam = solver.unpack(x)["lam"][:, 0]
-    return Routing(nominal.theta, np.where(act, lam - dev[:, 1], 1.0), nominal.length, nominal.initial_pose)
+    return Routing(theta=nominal.theta, lam=np.where(act, lam - dev[:, 1], 1.0), length=nominal.length, initial_pose=nominal.initial_pose)
 
 
 def correction(pb, design: Routing, seeds: int):
@@ -175,8 +176,8 @@ def main():
         print(trows, flush=True)
     elapsed = time.perf_counter() - t_start
     desc = (f"benchmarks/bench_buildable.py: today's design (design_nlp, defaults) against the buildable one (vine_nlp.solve, "
-            f"defaults: margin {B.Build.of(designs[cases[0]][0]).margin:g}, min_feature 2 mm, effort weights {B.EFFORT:g} / "
-            f"{B.EFFORT_ACTUATED:g}); {seeds} simulated builds per design; load average {load0:.2f} at the start, "
+            f"defaults: margin {B.Build.of(designs[cases[0]][0]).margin:g}, min_feature 2 mm, effort weights {settings.EFFORT:g} / "
+            f"{settings.EFFORT_ACTUATED:g}); {seeds} simulated builds per design; load average {load0:.2f} at the start, "
             f"{os.getloadavg()[0]:.2f} at the end; {elapsed / 60:.1f} min in all.")
     blocks = [
         "Goals per problem (issue 31): RMSE within budget (10 % or 0.05 mm over today's); turning of the line on the segments "

@@ -45,7 +45,7 @@ def _setup(pb, hessian):
 def _solves(solver, pb, pairing, repeat):
     guess = geometric_guess(pb, pairing)
     p = solver.pack_params(nlp_parameters(pb, pairing, guess.initial_pose[:3, :3]))
-    lbx, ubx = solver.bounds(*design_bounds(pb, pairing))
+    lbx, ubx = solver.bounds(**design_bounds(pb, pairing))
     x0 = start_x(solver, guess, pb.diameter)
     times, iters, x = [], 0, None
     for _ in range(repeat):
@@ -101,7 +101,7 @@ def _calls(pb, repeat):
 
 def design_calls(repeat):
     """``design_nlp`` at the problem's defaults, solvers built: the whole call (guesses, starts, evaluation);
-    compiled, the default's first solve runs on Fatrop (bench_fatrop.py compares it with IPOPT).
+    compiled.
 
     Then, compiled, the plain NLP's Gauss-Newton IPOPT settings (methods.settings.GAUSS_NEWTON) against
     CHAIN alone, the two alternating in blocks of 5 calls (a shared machine drifts)."""

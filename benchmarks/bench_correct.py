@@ -67,7 +67,7 @@ def design(name, kind, cache):
     path = cache / f"design-{name}-{kind}.json"
     if path.exists():
         d = json.loads(path.read_text())
-        return pb, Routing(d["theta"], d["lam"], d["length"], d["initial_pose"]), d["rmse"]
+        return pb, Routing(theta=d["theta"], lam=d["lam"], length=d["length"], initial_pose=d["initial_pose"]), d["rmse"]
     res = design_nlp(pb)
     if kind == "margin":
         res = design_buildable(pb, res)

@@ -235,7 +235,7 @@ def derivatives(repeat):
         build_auto = time.perf_counter() - t0
         guess = geometric_guess(pb, pairing)
         p0 = ours.pack_params(nlp_parameters(pb, pairing, guess.initial_pose[:3, :3]))
-        lbx, ubx = ours.bounds(*design_bounds(pb, pairing))
+        lbx, ubx = ours.bounds(**design_bounds(pb, pairing))
         x0 = np.clip(start_x(ours, guess, pb.diameter), lbx, ubx)
         for label, solver, build in [("separable (transcription)", ours.nlpsol, build_ours), ("CasADi automatic", auto, build_auto)]:
             per = []

@@ -64,7 +64,7 @@ print(json.dumps({"wall": min(wall), "cpu": min(cpu)}))
 """
 
 WORKLOADS = {
-    "trefoil": "trefoil-m4, design_nlp (defaults: Fatrop where compiled)",
+    "trefoil": "trefoil-m4, design_nlp (defaults)",
     "trefoil-1600": "trefoil, 1600 segments, n = 1, design_nlp (IPOPT)",
     "tip-target": "tip-target, design_tip",
     "clearance": "tight helix, design_with_clearance (3 solves)",

@@ -103,7 +103,7 @@ DESCRIPTIONS = {
         "max_iter": "IPOPT iteration limit (>= 1).",
         "tol": "IPOPT tolerance (> 0).",
         "hessian": "Hessian of the NLP: `auto` (Gauss-Newton, exact where that does not converge), `exact` or `gauss-newton`.",
-        "solver": "`auto` (default: the NLP's Gauss-Newton solve from a guess runs on Fatrop where its functions are compiled and the chain has at most 100 segments and a lambda per segment; IPOPT otherwise and wherever Fatrop fails) or `ipopt`.",
+        "solver": "`auto` (default) or `ipopt`: both solve with IPOPT (the key is kept for existing files).",
         "budget": "Seconds the NLP's corner search may take where the first solve shows a corner-like target (>= 0, default 20; 0: off; design problems only).",
         "smoothness": "Table `[design.smoothness]`: weights of the smoothness terms.",
         "shared_pose": "multishape: all levels grow from one base pose (default true).",

@@ -32,7 +32,7 @@ def model_target(M=12, n=5, D=2.0, seed=0, spam=False, seg_len=2.0):
     T0[:3, 3] = rng.normal(size=3) * 5
     seg, frac = segment_end_samples(length, n)
     center, _, _ = shape_lines(theta, lam, length, D, seg, frac, T0)
-    return center, Routing(theta, lam, length, T0)
+    return center, Routing(theta=theta, lam=lam, length=length, initial_pose=T0)
 
 
 @pytest.fixture

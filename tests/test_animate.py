@@ -29,7 +29,7 @@ def loop_routing(lam=0.6, turns=1.1, M=24):
     R = D * (1 + lam) / (2 * (1 - lam))
     lc = (1 + lam) / 2
     length = np.concatenate([np.full(4, 3 * D / 4), np.full(M, turns * 2 * math.pi * R / lc / M)])
-    return Routing(np.zeros(4 + M), np.concatenate([np.ones(4), np.full(M, lam)]), length), R, lc
+    return Routing(theta=np.zeros(4 + M), lam=np.concatenate([np.ones(4), np.full(M, lam)]), length=length), R, lc
 
 
 @pytest.fixture(scope="module")

@@ -48,7 +48,7 @@ points_per_segment = 4
 
 def wave_routing(m=10, dl=4.0):
     s = np.arange(m) * dl
-    return Routing(np.radians(20 * np.sin(0.15 * s) + 5), 0.7 + 0.1 * np.cos(0.2 * s), np.full(m, dl))
+    return Routing(theta=np.radians(20 * np.sin(0.15 * s) + 5), lam=0.7 + 0.1 * np.cos(0.2 * s), length=np.full(m, dl))
 
 
 def forward_archive() -> Archive:

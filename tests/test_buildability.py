@@ -67,7 +67,7 @@ D = 2.5
 
 def routing(theta_deg, lam, dl=2.0):
     lam = np.asarray(lam, float)
-    return Routing(np.radians(np.asarray(theta_deg, float)), lam, np.full(lam.size, dl))
+    return Routing(theta=np.radians(np.asarray(theta_deg, float)), lam=lam, length=np.full(lam.size, dl))
 
 
 def step(theta_deg, dl=2.0):
@@ -158,7 +158,7 @@ def archive(lam, kind="tendon", theta_deg=10.0, dl=4.0, extra=""):
     from vine_nlp.problem import ForwardProblem
 
     lam = np.asarray(lam, float)
-    r = Routing(np.full(lam.size, math.radians(theta_deg)), lam, np.full(lam.size, dl))
+    r = Routing(theta=np.full(lam.size, math.radians(theta_deg)), lam=lam, length=np.full(lam.size, dl))
     source = f"[actuator]\nkind = '{kind}'\nlambda_min = 0.4\n[design]\nmin_feature = 0.2\n{extra}"
     return Archive("b", "forward", source, D, runs={"forward": run_forward(ForwardProblem("b", D, r))})
 

@@ -13,7 +13,7 @@ from vine_nlp.api import ArgumentError
 from vine_nlp.front.cli import main
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import buildable as B
-from vine_nlp.methods import drive
+from vine_nlp.methods import drive, settings
 from vine_nlp.model import shape_lines
 from vine_nlp.model.chain import segment_end_samples
 from vine_nlp.model.helix import center_rates
@@ -93,7 +93,7 @@ def test_unwinding_keeps_the_shape_and_takes_the_shortest_way():
     act = np.array([0, 0, 1, 1, 0, 0, 0, 1, 1, 1, 0, 0], bool)
     theta = rng.uniform(-1.0, 1.0, M)
     lam = np.where(act, rng.uniform(0.5, 0.9, M), 1.0)
-    r = Routing(theta, lam, np.full(M, 2.0), np.eye(4))
+    r = Routing(theta=theta, lam=lam, length=np.full(M, 2.0), initial_pose=np.eye(4))
     u = B.unwind(r, act, build(D=D))
     seg, frac = segment_end_samples(r.length, 5)
     a, b = (shape_lines(x.theta, x.lam, x.length, D, seg, frac, x.initial_pose)[0] for x in (r, u))
@@ -142,7 +142,7 @@ class _Fake:
 
     def __call__(self, act, start):
         miss = int(np.sum(act != self.want))
-        res = Result("nlp", Routing(start.theta, np.where(act, 0.95, 1.0), start.length, start.initial_pose), None, status="optimal",
+        res = Result("nlp", Routing(theta=start.theta, lam=np.where(act, 0.95, 1.0), length=start.length, initial_pose=start.initial_pose), None, status="optimal",
                      metrics={"rmse": 1.0 + miss})
         mult = np.where(self.want & ~act, -1.0, np.where(~self.want & act, 1.0, 0.0))
         mult[self.lie] = 1.0
@@ -150,7 +150,7 @@ class _Fake:
 
 
 WANT = np.array([1, 1, 0, 1, 0, 0, 1, 0], bool)
-START = Routing(np.zeros(8), np.full(8, 0.9), np.full(8, 2.0), np.eye(4))
+START = Routing(theta=np.zeros(8), lam=np.full(8, 0.9), length=np.full(8, 2.0), initial_pose=np.eye(4))
 
 
 @pytest.mark.parametrize("act, limit, lie", [
@@ -160,7 +160,7 @@ START = Routing(np.zeros(8), np.full(8, 0.9), np.full(8, 2.0), np.eye(4))
 ])
 def test_reclassify_rule_flips_what_the_multipliers_ask_for(act, limit, lie):
     rule = B.Reclassify(_Fake(WANT, lie), act, build(min_feature=0.0), limit=limit)
-    found = drive.refine(rule, B.ROUNDS, START)
+    found = drive.refine(rule, settings.BUILDABLE_ROUNDS, START)
     np.testing.assert_array_equal(rule.act, WANT)
     np.testing.assert_array_equal(found.best.routing.lam == 1.0, ~WANT)
     assert found.best.metrics["rmse"] == 1.0

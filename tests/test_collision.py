@@ -25,7 +25,7 @@ D = 2.0
 def _helix_routing(theta_deg, lam, turns, M=30):
     h = helix_forward(math.radians(theta_deg), lam, D)
     turn = 2 * math.pi * math.hypot(h.R_c, h.b) / h.lambda_c  # unactuated length of one turn
-    return Routing(np.full(M, math.radians(theta_deg)), np.full(M, lam), np.full(M, turns * turn / M)), h
+    return Routing(theta=np.full(M, math.radians(theta_deg)), lam=np.full(M, lam), length=np.full(M, turns * turn / M)), h
 
 
 # (theta deg, lambda): 2 pi b / D = 0.60, 0.44 (collide), 1.61, 1.68, 2.37, 2.18 (clear); all with R_c >= D/2
@@ -58,7 +58,7 @@ def test_less_than_one_turn():
 
 def test_uniform_sections_splits_runs():
     th = np.radians([10, 10, 10, 5, 5, 10])
-    r = Routing(th, np.full(6, 0.6), np.full(6, 2.0))
+    r = Routing(theta=th, lam=np.full(6, 0.6), length=np.full(6, 2.0))
     runs = uniform_sections(r, D)
     assert [(u["start"], u["stop"]) for u in runs] == [(0, 3), (3, 5), (5, 6)]
     assert runs[0]["length"] == pytest.approx(6.0)
@@ -98,7 +98,7 @@ def _loop_routing(L0=3 * D, lam=0.6, turns=1.1, M=40):
     n0 = 4
     length = np.concatenate([np.full(n0, L0 / n0), np.full(M, turns * 2 * math.pi * R / lc / M)])
     lams = np.concatenate([np.ones(n0), np.full(M, lam)])
-    return Routing(np.zeros(n0 + M), lams, length), R, lc
+    return Routing(theta=np.zeros(n0 + M), lam=lams, length=length), R, lc
 
 
 def test_growth_order_of_a_loop_closing_on_its_lead_in():

@@ -46,7 +46,7 @@ def _solve(solver, make_target):
     pairing = pair_points(problem.target, 3)
     guess = geometric_guess(problem, pairing)
     p = solver.pack_params(nlp_parameters(problem, pairing, guess.initial_pose[:3, :3]))
-    lbx, ubx = solver.bounds(*design_bounds(problem, pairing))
+    lbx, ubx = solver.bounds(**design_bounds(problem, pairing))
     return solver.solve(start_x(solver, guess, problem.diameter), p, lbx, ubx)
 
 

@@ -60,7 +60,7 @@ def test_window_objective_is_the_whole_error_from_the_window_on(first, a, W):
 
 def test_the_detector_fires_on_corners_only(first, make_target):
     pb, _, r = first
-    assert r.stats["hessian"].startswith("exact") and r.metrics["rmse"] > settings.CORNER_RMSE * D
+    assert r.hessian.startswith("exact") and r.metrics["rmse"] > settings.CORNER_RMSE * D
     assert corners.corner_like(pb, r)
     # a target the model follows exactly: Gauss-Newton converges, the residuals vanish
     tgt, _ = make_target(seed=0)
@@ -68,7 +68,7 @@ def test_the_detector_fires_on_corners_only(first, make_target):
     s = solve_from(smooth)
     assert not corners.corner_like(smooth, s)
     # large residuals alone, with Gauss-Newton converged, are not a corner either
-    assert not corners.corner_like(pb, dataclasses.replace(r, stats=r.stats | {"hessian": "gauss-newton"}, status="optimal"))
+    assert not corners.corner_like(pb, dataclasses.replace(r, hessian="gauss-newton", status="optimal"))
 
 
 def test_the_search_lowers_the_objective_and_is_deterministic_in_any_number_of_threads(first):
@@ -137,7 +137,7 @@ def test_budget_in_problem_files_and_on_the_command_line(tmp_path, capsys):
     path.write_text(text + "[design]\nbudget = 1.5\n")
     assert load_problem(path).problem.options.budget == 1.5
     path.write_text(text)
-    assert load_problem(path).problem.options.budget == DesignOptions().budget == settings.DEFAULT_BUDGET
+    assert load_problem(path).problem.options.budget == DesignOptions().budget == settings.Method().budget
     path.write_text(text + "[design]\nbudget = -1\n")
     out = tmp_path / "o.h5"
     assert main(["design", str(path), "-o", str(out)]) == 2

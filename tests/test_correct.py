@@ -18,9 +18,10 @@ from vine_nlp.io.correction import read_correction
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import correct as C
 from vine_nlp.methods.common import evaluate, pair_points
-from vine_nlp.methods.correct.estimate import CAP_ROUND, measure_block
+from vine_nlp.methods.correct.estimate import measure_block
 from vine_nlp.methods.correct.laplace import line_jacobian
-from vine_nlp.methods.correct.pairing import SLIDE, line_points
+from vine_nlp.methods.correct.pairing import line_points
+from vine_nlp.methods.settings import CAP_ROUND, SLIDE
 from vine_nlp.methods.structure import frames12
 from vine_nlp.model.calibration import Calibration, realized_of
 from vine_nlp.model.chain import chain_frames
@@ -78,7 +79,7 @@ def setup(tmp_path_factory):
 
 def test_physical_rule_and_round_trip():
     rng = np.random.default_rng(0)
-    nom = Routing(rng.uniform(-0.5, 0.5, 6), [0.5, 0.7, 1.0, 0.98, 0.45, 0.9], rng.uniform(1, 2, 6))
+    nom = Routing(theta=rng.uniform(-0.5, 0.5, 6), lam=[0.5, 0.7, 1.0, 0.98, 0.45, 0.9], length=rng.uniform(1, 2, 6))
     dev = C.Deviations(np.full(6, 0.01), np.array([0.02, -0.03, 0.05, 0.05, -0.1, -0.02]), np.full(6, 1.03), lambda_min=0.4)
     built = C.apply_deviations(nom, dev)
     # no actuator (lambda 1): exactly 1 whatever the error; elsewhere min(1, nominal + error), at least lambda_min
@@ -89,7 +90,7 @@ def test_physical_rule_and_round_trip():
     d = C.deviations_of(nom, built, 0.4)
     assert d.lam[2] == 0.0  # no lambda deviation without an actuator
     # a nominal inside the range comes back from what it realizes; no actuator stays none
-    other = Routing(rng.uniform(-0.5, 0.5, 6), [0.6, 0.8, 1.0, 0.9, 0.7, 0.95], nom.length)
+    other = Routing(theta=rng.uniform(-0.5, 0.5, 6), lam=[0.6, 0.8, 1.0, 0.9, 0.7, 0.95], length=nom.length)
     back = C.remove_deviations(C.apply_deviations(other, d), d, other.lam < 1)
     np.testing.assert_allclose(back.theta, other.theta, atol=1e-15)
     np.testing.assert_allclose(back.lam, other.lam, atol=1e-15)
@@ -101,7 +102,7 @@ def test_line_jacobian_matches_finite_differences_of_the_chain():
     # the Laplace step's Jacobian from the chain's twists equals differencing the whole chain
     rng = np.random.default_rng(1)
     M = 6
-    r = Routing(rng.uniform(-0.6, 0.6, M), rng.uniform(0.4, 1.0, M), rng.uniform(1.0, 3.0, M), np.eye(4))
+    r = Routing(theta=rng.uniform(-0.6, 0.6, M), lam=rng.uniform(0.4, 1.0, M), length=rng.uniform(1.0, 3.0, M), initial_pose=np.eye(4))
     seg = np.array([0, 1, 2, 3, 5, 5, 4])
     frac = np.array([0.3, 0.0, 1.0, 0.5, 0.9, 0.1, 0.7])
     P, J = line_jacobian(r, 2.0, seg, frac, C.LINE_SIDE["outer"])
@@ -112,8 +113,9 @@ def test_line_jacobian_matches_finite_differences_of_the_chain():
             up, dn = [np.array(getattr(r, n), float) for n in ("theta", "lam", "length")], [np.array(getattr(r, n), float) for n in ("theta", "lam", "length")]
             up[q][k] += h
             dn[q][k] -= h
-            d = (line_points(Routing(*up, np.eye(4)), 2.0, seg, frac, -0.5)[0]
-                 - line_points(Routing(*dn, np.eye(4)), 2.0, seg, frac, -0.5)[0]) / (2 * h)
+            names = ("theta", "lam", "length")
+            d = (line_points(Routing(**dict(zip(names, up)), initial_pose=np.eye(4)), 2.0, seg, frac, -0.5)[0]
+                 - line_points(Routing(**dict(zip(names, dn)), initial_pose=np.eye(4)), 2.0, seg, frac, -0.5)[0]) / (2 * h)
             np.testing.assert_allclose(J[:, :, q * M + k].T, d, atol=1e-6, err_msg=f"{name} of segment {k}")
 
 
@@ -347,7 +349,7 @@ def test_estimate_and_correction_know_where_there_is_no_actuator(setup):
     lam[6] = 0.99  # an actuator that the offset pushes against 1
     theta = nominal.theta.copy()
     theta[[3, 8]] = 0.8  # there the line winds around the straight tube (the shape does not see it, the outer line does)
-    nom = Routing(theta, lam, nominal.length, nominal.initial_pose)
+    nom = Routing(theta=theta, lam=lam, length=nominal.length, initial_pose=nominal.initial_pose)
     dev = draw_deviations(nom, SIGMAS, TRUTH, seed=3)
     pts = simulate_build(nom, dev, problem.diameter, "outer", 150, NOISE, seed=4)
     res = C.correct(problem, [nom], [C.Measurement(pts, "outer")], sigmas=SIGMAS, measurement_sigma=NOISE)
@@ -526,12 +528,12 @@ def test_measure_slot_is_the_point_to_line_residual_of_the_model(free):
     # point (moved by the rigid transform when free), with the tangent projected out, times the weight
     rng = np.random.default_rng(4)
     M = 5
-    r = Routing(rng.uniform(-0.6, 0.6, M), np.r_[rng.uniform(0.4, 0.9, M - 1), 0.99], rng.uniform(1.0, 3.0, M), np.eye(4))
+    r = Routing(theta=rng.uniform(-0.6, 0.6, M), lam=np.r_[rng.uniform(0.4, 0.9, M - 1), 0.99], length=rng.uniform(1.0, 3.0, M), initial_pose=np.eye(4))
     bt = measure_block(free)
     shift = np.array([0.03, 0.05, 1.05])  # an earlier build: its theta and lambda shifted, its lengths scaled
     # the physical rule: its lambda at most 1 (the cap of an earlier build, rounded over CAP_ROUND)
     x = r.lam + shift[1]
-    built = Routing(r.theta + shift[0], 0.5 * (1 + x - np.sqrt((1 - x) ** 2 + CAP_ROUND**2)), r.length * shift[2], np.eye(4))
+    built = Routing(theta=r.theta + shift[0], lam=0.5 * (1 + x - np.sqrt((1 - x) ** 2 + CAP_ROUND**2)), length=r.length * shift[2], initial_pose=np.eye(4))
     assert abs(built.lam[-1] - 1.0) < CAP_ROUND and np.all(np.abs(built.lam[:-1] - x[:-1]) < 1e-5)
     w_rot, t_move, c = np.array([0.1, -0.2, 0.05]), np.array([0.3, 0.1, -0.2]), np.array([1.0, 2.0, 0.5])
     for j, u, side in ((0, 0.0, -0.5), (2, 0.4, 0.5), (4, 1.0, 0.0), (4, 0.6, -0.5)):

@@ -9,11 +9,12 @@ import pytest
 from vine_nlp.methods import drive
 from vine_nlp.problem import Result, Routing
 
-ROUTING = Routing(np.zeros(2), np.ones(2), np.ones(2))
+ROUTING = Routing(theta=np.zeros(2), lam=np.ones(2), length=np.ones(2))
 
 
 def _r(objective, status="optimal", iterations=1, time_s=0.5, **stats):
-    return Result("x", ROUTING, None, status, iterations=iterations, stats={"objective": objective, "ipopt_time_s": time_s} | stats)
+    return Result("x", ROUTING, None, status, iterations=iterations, stats={"objective": objective, "ipopt_time_s": time_s} | stats,
+                  objective=objective)
 
 
 def test_rank_puts_converged_then_clear_first_then_the_lower_value():

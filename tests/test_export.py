@@ -33,7 +33,7 @@ def polygon_area_ratio(n: int) -> float:
 
 @pytest.fixture(scope="module")
 def wave(tmp_path_factory):
-    r = Routing(np.radians(15 * np.sin(np.linspace(0, 6, 12)) + 5), 0.6 + 0.2 * np.cos(np.linspace(0, 6, 12)), np.full(12, 2.5))
+    r = Routing(theta=np.radians(15 * np.sin(np.linspace(0, 6, 12)) + 5), lam=0.6 + 0.2 * np.cos(np.linspace(0, 6, 12)), length=np.full(12, 2.5))
     path = tmp_path_factory.mktemp("export") / "wave.h5"
     write_archive(path, Archive("wave", "forward", "", D, units="mm", runs={"forward": run_forward(ForwardProblem("wave", D, r))}))
     return path
@@ -80,7 +80,7 @@ def test_a_steeply_wound_tube_keeps_its_volume_and_its_surface(theta_deg, lam):
     rings stay on the tube's surface (issue 35: 1.26 % under the volume with rings turned with the actuator line)."""
     from scipy.spatial import cKDTree
 
-    r = Routing(np.full(30, math.radians(theta_deg)), np.full(30, lam), np.full(30, 1.0))
+    r = Routing(theta=np.full(30, math.radians(theta_deg)), lam=np.full(30, lam), length=np.full(30, 1.0))
     center, inner = export.tube_lines(r, D)
     m = export.tube_mesh(center, D, normal=inner[0] - center[0])
     assert m.is_watertight and m.is_winding_consistent
@@ -126,7 +126,7 @@ def test_formats_round_trip(wave, tmp_path, ext):
 
 
 def test_glb_units_are_metres_for_cm(tmp_path):
-    r = Routing(np.zeros(4), np.ones(4), np.full(4, 25.0))  # a straight tube 100 cm long
+    r = Routing(theta=np.zeros(4), lam=np.ones(4), length=np.full(4, 25.0))  # a straight tube 100 cm long
     a = Archive("straight", "forward", "", 5.0, units="cm", runs={"forward": run_forward(ForwardProblem("s", 5.0, r, units="cm"))})
     info = export.write_mesh(a, tmp_path / "s.glb")
     assert info["units"] == "m" and info["scale"] == 0.01

@@ -65,11 +65,11 @@ def smooth_routing(seed, M=80, lam=0.75):
     s = np.arange(M) + 0.5
     theta = sum(rng.uniform(-0.25, 0.25) * np.sin(2 * math.pi * s / rng.uniform(20, 90) + rng.uniform(0, 6)) for _ in range(3))
     lam_s = lam + 0.1 * np.sin(2 * math.pi * s / M + rng.uniform(0, 6))
-    return Routing(theta, lam_s, np.ones(M))
+    return Routing(theta=theta, lam=lam_s, length=np.ones(M))
 
 
 def spam_helix(lam, M=60, theta_deg=4.0):
-    return Routing(np.full(M, math.radians(theta_deg)), lam, np.ones(M))
+    return Routing(theta=np.full(M, math.radians(theta_deg)), lam=lam, length=np.ones(M))
 
 
 # ---------------------------------------------------------------- pose
@@ -78,7 +78,7 @@ def spam_helix(lam, M=60, theta_deg=4.0):
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_pose_recovered_from_random_orientations(seed):
     D = 3.31
-    routing = Routing(math.pi / 12 * np.sin(0.1 * (np.arange(100) + 0.0)), 0.8, np.ones(100))
+    routing = Routing(theta=math.pi / 12 * np.sin(0.1 * (np.arange(100) + 0.0)), lam=0.8, length=np.ones(100))
     clean = samples(routing, D, "inner", 300)
     truth, X, _ = measure(clean, seed)
     result, extras = fit_problem(FitProblem("pose", D, X, "inner", routing))
@@ -233,7 +233,7 @@ def test_icp_to_a_point_cloud():
 @pytest.mark.parametrize("theta_deg, lam, D", [(10.0, 0.7, 2.62), (-25.0, 0.5, 2.62), (30.0, 0.99, 4.77)])
 def test_best_fit_helix_pair_returns_the_actuator(theta_deg, lam, D):
     theta = math.radians(theta_deg)
-    routing = Routing(np.full(30, theta), lam, np.ones(30))
+    routing = Routing(theta=np.full(30, theta), lam=lam, length=np.ones(30))
     lines, *_ = model_lines(routing, D)
     T = random_pose(int(abs(theta_deg)))
     rng = np.random.default_rng(0)
@@ -261,7 +261,7 @@ def test_best_fit_helix_of_a_noisy_flat_helix():
     # theta 2.5 deg, lambda 0.4: pitch 2 pi b = 1.58 cm, about one turn. Orthogonal distances
     # alone would prefer a dense coil through all points; the fit must not.
     theta, lam, D = math.radians(2.5), 0.4, 2.62
-    clean = samples(Routing(np.full(30, theta), lam, np.ones(30)), D, "outer", 200)
+    clean = samples(Routing(theta=np.full(30, theta), lam=lam, length=np.ones(30)), D, "outer", 200)
     _, X, _ = measure(clean, 8)
     fit = best_fit_helix(X)
     h = helix_forward(theta, lam, D)

@@ -5,11 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from vine_nlp.methods.common import pair_points, path_error, variable_bounds
+from vine_nlp.methods.common import design_bounds, pair_points, path_error
 from vine_nlp.methods.greedy import _window_data, _window_solver_for, design_greedy, lowpass
 from vine_nlp.model import chain_points
-from vine_nlp.model.chain import segment_end_samples
-from vine_nlp.model.segment import segment_transform
+from vine_nlp.model.chain import chain_frames, segment_end_samples
 from vine_nlp.model.shape import total_variation
 from vine_nlp.problem import Actuator, DesignOptions, DesignProblem, Routing
 
@@ -48,7 +47,7 @@ def known():
     theta = a * np.sin(2 * np.pi * s + ph) + rng.uniform(-0.1, 0.1)
     lam = 0.72 + 0.12 * np.cos(2.5 * s + rng.uniform(0, 1))
     length = rng.uniform(2.5, 3.5) * np.ones(M)
-    routing = Routing(theta, lam, length, _pose())
+    routing = Routing(theta=theta, lam=lam, length=length, initial_pose=_pose())
     return routing, _target(theta, lam, length, routing.initial_pose)
 
 
@@ -81,7 +80,8 @@ def test_known_answer_recovered(known, known_result):
 
 def _assert_in_bounds(prob, res):
     pairing = pair_points(prob.target, prob.options.points_per_segment)
-    (tl, ll, dl), (tu, lu, du) = variable_bounds(prob, pairing)
+    box = design_bounds(prob, pairing)
+    (tl, tu), (ll, lu), (dl, du) = box["theta"], box["lam"], box["length"]
     r = res.routing
     assert np.all(r.theta >= tl) and np.all(r.theta <= tu)
     assert np.all(r.lam >= ll) and np.all(r.lam <= lu)
@@ -149,7 +149,7 @@ def test_lowpass_reduces_theta_variation(known, known_result):
     # add high-frequency wiggle to theta, as the paper sees at the ends of its designs
     r = res.routing
     wiggle = 0.05 * (-1.0) ** np.arange(r.segments)
-    noisy = Routing(r.theta + wiggle, r.lam, r.length, r.initial_pose)
+    noisy = Routing(theta=r.theta + wiggle, lam=r.lam, length=r.length, initial_pose=r.initial_pose)
     filt = lowpass(noisy, prob)
     assert filt.method == "greedy_filtered"
     assert filt.stats["filtered"] and filt.stats["cutoff"] == 0.5
@@ -177,9 +177,7 @@ def window_error(problem: DesignProblem, routing: Routing, j: int, K: int, pairi
     """
     D = problem.diameter
     solver = _window_solver_for(problem, pairing.n, K, j == 0)
-    T = np.asarray(routing.initial_pose, float)  # the frame at the start of segment j
-    for k in range(j):
-        T = T @ segment_transform(routing.theta[k], routing.lam[k], routing.length[k], D)
+    T = chain_frames(routing.theta, routing.lam, routing.length, D, routing.initial_pose)[j]
     tgt, w, u, end = _window_data(problem, pairing, j, K)
     lam_fixed = float(routing.lam[0]) if problem.actuator.shared_lambda else 0.0
     p = solver.pack_params(T[:3, :3], T[:3, 3] / D, tgt, w, u, end, lam_fixed)
@@ -195,8 +193,8 @@ def test_window_error_is_the_shared_path_error(known, j, K):
     routing, target = known
     rng = np.random.default_rng(j)
     # a routing that does not fit, so the errors are not all zero
-    r = Routing(routing.theta + rng.normal(0, 0.05, routing.segments), routing.lam * 0.97,
-                routing.length * 1.02, routing.initial_pose)
+    r = Routing(theta=routing.theta + rng.normal(0, 0.05, routing.segments), lam=routing.lam * 0.97,
+                length=routing.length * 1.02, initial_pose=routing.initial_pose)
     prob = _problem(target)
     pairing = pair_points(target, N_PTS)
     sq, dist = window_error(prob, r, j, K, pairing)

@@ -206,3 +206,25 @@ def test_guess_vector_helpers_give_numpys_bits():
             assert np.array_equal(_unit3(_reject(a, b)), _unit(a - np.dot(a, b) * b))
             assert np.array_equal(_unit3(a.tolist()), _unit(a))
     assert np.array_equal(_unit3([0.0, 0.0, 0.0]), _unit(np.zeros(3)))  # no direction: left as it is
+
+
+def test_a_solution_evaluates_any_expression_of_the_chain_at_its_answer(make_target):
+    """rockit's sol.value: the tip view at the solution is the routing's chain end (units of D), theta the routing's,
+    the fit term the objective's share; the Result carries the solution's objective as a typed field."""
+    from vine_nlp.methods.nlp import design_bounds, get_solver, nlp_parameters, result_of, start_x
+    from vine_nlp.model.chain import chain_frames
+
+    target, _ = make_target(M=6, n=3, seed=3)
+    problem = _problem(target, n=3)
+    pairing = pair_points(problem.target, 3)
+    guess = geometric_guess(problem, pairing)
+    solver = get_solver(pairing.segments, 3, False)
+    p = solver.pack_params(nlp_parameters(problem, pairing, guess.initial_pose[:3, :3]))
+    sol = solver.solve(start_x(solver, guess, problem.diameter), p, *solver.bounds(**design_bounds(problem, pairing)))
+    assert sol.status == "optimal"
+    r = sol.routing(problem.diameter, guess.initial_pose[:3, :3])
+    end = chain_frames(r.theta, r.lam, r.length, problem.diameter, r.initial_pose)[-1, :3, 3]
+    np.testing.assert_allclose(sol.value(solver.chain.tip(0)) * problem.diameter, end, atol=1e-6 * problem.diameter)
+    np.testing.assert_array_equal(sol.value(solver.chain.theta), r.theta)
+    assert sol.value(solver.chain.terms["smooth"]) == pytest.approx(sol.stats["objective_smooth"], rel=1e-12)
+    assert result_of(problem, pairing, sol, guess.initial_pose[:3, :3], "nlp").objective == sol.objective == sol.stats["objective"]

@@ -452,8 +452,8 @@ def test_samples_hold_against_what_their_rows_asked():
     """A solve lengthens segments, which raises their requirement (its allowance for dips between samples):
     samples that clear what their rows asked hold, or a design short by its dips is never raised."""
     M, eye = 6, np.eye(4)
-    before = Routing(np.zeros(M), np.ones(M), np.full(M, 2.0), eye)  # a straight tube along x
-    after = Routing(np.zeros(M), np.ones(M), np.full(M, 2.6), eye)
+    before = Routing(theta=np.zeros(M), lam=np.ones(M), length=np.full(M, 2.0), initial_pose=eye)  # a straight tube along x
+    after = Routing(theta=np.zeros(M), lam=np.ones(M), length=np.full(M, 2.6), initial_pose=eye)
     actuator = DesignProblem("t", D, TARGET).actuator
 
     def plan_beside(y):  # a unit ball beside a sample of the longer tube, its center y off the axis
@@ -492,12 +492,12 @@ def rows_solves(monkeypatch):
     seen, solve = [], transcription.Solver.solve
 
     def recorded(self, x0, p, lbx, ubx, *a, **kw):
-        x, status, st = solve(self, x0, p, lbx, ubx, *a, **kw)
+        sol = solve(self, x0, p, lbx, ubx, *a, **kw)
         if any(isinstance(t, ObstacleRows) for t in self.spec.terms):
             dl = self.layout.dl
-            seen.append({"dl": x0[dl], "lo": lbx[dl], "hi": ubx[dl], "status": status, "iterations": st["iterations"],
-                         "time": st["ipopt_time_s"], "max_iter": dict(self.spec.options)["ipopt.max_iter"]})
-        return x, status, st
+            seen.append({"dl": x0[dl], "lo": lbx[dl], "hi": ubx[dl], "status": sol.status, "iterations": sol.stats["iterations"],
+                         "time": sol.stats["ipopt_time_s"], "max_iter": dict(self.spec.options)["ipopt.max_iter"]})
+        return sol
 
     monkeypatch.setattr(transcription.Solver, "solve", recorded)
     return seen
@@ -538,12 +538,12 @@ def test_the_rows_start_inside_their_bounds_where_the_detour_lengthens_a_segment
     """The pushed start's detour may lengthen a segment past its bound on the target's chord (LENGTH_FACTOR); the
     rows' bound then makes room for it. A start outside the bounds is moved inside by IPOPT, its chain torn
     apart. Tight length bounds (1.05 chords) make every detour such a segment."""
-    from vine_nlp.methods import nlp
+    from vine_nlp.methods import nlp, variables
 
-    monkeypatch.setattr(nlp, "LENGTH_FACTOR", (0.2, 1.05))
+    monkeypatch.setattr(variables, "LENGTH_FACTOR", (0.2, 1.05))
     ob = PRIMITIVES["sphere"]
     problem = _problem([ob])
-    chord_bound = nlp.design_bounds(problem, pair_points(problem.target, problem.options.points_per_segment))[2][1]
+    chord_bound = nlp.design_bounds(problem, pair_points(problem.target, problem.options.points_per_segment))["length"][1]
     r = design_with_obstacles(problem, start=free)
     first = rows_solves[0]
     assert np.any(first["dl"] > chord_bound)  # the detour's segments are longer than the target's bound

@@ -257,7 +257,7 @@ def test_sample_spacing_matches_dip():
 
 
 def _straight(length, M=4, pose=None):
-    return Routing(np.zeros(M), np.ones(M), np.full(M, length / M), np.eye(4) if pose is None else pose)
+    return Routing(theta=np.zeros(M), lam=np.ones(M), length=np.full(M, length / M), initial_pose=np.eye(4) if pose is None else pose)
 
 
 def test_dip_bounds_the_gap_between_samples():
@@ -269,7 +269,7 @@ def test_dip_bounds_the_gap_between_samples():
     for trial in range(40):
         rng = np.random.default_rng(trial)
         M = 6
-        r = Routing(rng.uniform(-0.6, 0.6, M), rng.uniform(0.4, 1.0, M), rng.uniform(3.0, 8.0, M))
+        r = Routing(theta=rng.uniform(-0.6, 0.6, M), lam=rng.uniform(0.4, 1.0, M), length=rng.uniform(3.0, 8.0, M))
         coarse = sample_chain(r, D, per_segment=np.ceil(r.length / (0.6 * D)).astype(int))
         dense = sample_chain(r, D, per_segment=200)
         P = len(dense["points"])
@@ -292,7 +292,7 @@ def test_dip_bounds_the_gap_between_samples():
 
 def test_after_growth_shapes_start_straight_and_end_final():
     D = 2.43
-    r = Routing([0.3, -0.2, 0.5], [0.5, 0.7, 0.6], [10.0, 12.0, 8.0])
+    r = Routing(theta=[0.3, -0.2, 0.5], lam=[0.5, 0.7, 0.6], length=[10.0, 12.0, 8.0])
     shapes = after_growth_shapes(r, D, ts=[0.0, 0.5, 1.0], per_segment=10)
     p0 = shapes[0]["points"]
     assert np.allclose(shapes[0]["routing"].lam, 1.0)
@@ -305,7 +305,7 @@ def test_after_growth_shapes_start_straight_and_end_final():
 
 def test_grown_prefixes_never_come_closer_than_the_final_shape():
     D = 2.43
-    r = Routing([0.4, 0.4, -0.3, 0.2], [0.5, 0.6, 0.5, 0.7], [8.0, 8.0, 8.0, 8.0])
+    r = Routing(theta=[0.4, 0.4, -0.3, 0.2], lam=[0.5, 0.6, 0.5, 0.7], length=[8.0, 8.0, 8.0, 8.0])
     full = sample_chain(r, D)
     obs = [Sphere(full["points"][50] + [0, 0, 3.0], 1.0), Plane((0, 0, -2.0), (0, 0, 1))]
     final = min_gap(full["points"], D, obs).min(axis=0)
@@ -356,7 +356,7 @@ def test_obstacle_report_finds_a_known_contact():
 def test_obstacle_report_after_growth_sees_the_sweep():
     # a quarter-circle-ish bend; an obstacle on the straight (t = 0) line but clear of the final shape
     D = 1.0
-    r = Routing(np.zeros(4), np.full(4, 0.5), np.full(4, 5.0))
+    r = Routing(theta=np.zeros(4), lam=np.full(4, 0.5), length=np.full(4, 5.0))
     straight_tip = 20.0
     final = sample_chain(r, D)["points"]
     assert np.linalg.norm(final[-1] - [straight_tip, 0, 0]) > 5

@@ -19,7 +19,7 @@ D = 2.0
 
 
 def _straight(length=40.0, segments=10) -> vn.Routing:
-    return vn.Routing(np.zeros(segments), np.ones(segments), np.full(segments, length / segments))
+    return vn.Routing(theta=np.zeros(segments), lam=np.ones(segments), length=np.full(segments, length / segments))
 
 
 def test_judge_names_the_obstacle_margin_a_design_misses():
@@ -38,7 +38,7 @@ def test_judge_names_the_obstacle_margin_a_design_misses():
 
 
 def test_judge_names_a_bound_a_design_breaks():
-    r = vn.Routing(np.full(3, 1.2), np.array([0.3, 0.5, 1.0]), np.ones(3))  # 69 deg > 60 deg; lambda 0.3 < 0.4
+    r = vn.Routing(theta=np.full(3, 1.2), lam=np.array([0.3, 0.5, 1.0]), length=np.ones(3))  # 69 deg > 60 deg; lambda 0.3 < 0.4
     result = Result("nlp", r, forward_shape(r, D), diameter=D)
     judge(DesignProblem("p", D, np.zeros((4, 3))), result)
     assert result.shortfall == ("|theta| above its bound 60 deg", "lambda outside [0.4, 1]")

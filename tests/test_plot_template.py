@@ -38,7 +38,7 @@ theta_max_deg = 60.0
 
 def wave_routing(m=10, dl=4.0, scale=1.0):
     s = np.arange(m) * dl
-    return Routing(np.radians(20 * np.sin(0.15 * s / scale) + 5), 0.7 + 0.1 * np.cos(0.2 * s / scale), np.full(m, dl))
+    return Routing(theta=np.radians(20 * np.sin(0.15 * s / scale) + 5), lam=0.7 + 0.1 * np.cos(0.2 * s / scale), length=np.full(m, dl))
 
 
 def _design(kind="tendon"):
@@ -56,7 +56,7 @@ def archives(tmp_path_factory):
     problem, nlp = _design()
     # a second run: the nlp design with theta perturbed, evaluated like a design method would
     r = nlp.routing
-    other = Routing(r.theta + 0.02 * np.sin(np.arange(r.segments)), r.lam, r.length, r.initial_pose)
+    other = Routing(theta=r.theta + 0.02 * np.sin(np.arange(r.segments)), lam=r.lam, length=r.length, initial_pose=r.initial_pose)
     greedy = evaluate(problem, other, pair_points(problem.target, N), "greedy", status="acceptable", iterations=3)
     src = SOURCE.format(units="cm", D=D, kind="tendon")
     write_archive(d / "design.h5", Archive("small", "design", src, D, target=problem.target, runs={"nlp": nlp, "greedy": greedy}))

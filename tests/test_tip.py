@@ -13,7 +13,8 @@ from vine_nlp.front.reports import run_lines
 from vine_nlp.io.archive import load_archive
 from vine_nlp.io.formulations import write_tip_archive
 from vine_nlp.io.problem_file import load_problem, parse_problem
-from vine_nlp.methods.tip import MIN_LENGTH_FACTOR, actuation, design_tip
+from vine_nlp.methods.settings import MIN_LENGTH_FACTOR
+from vine_nlp.methods.tip import actuation, design_tip
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.problem import Actuator, DesignOptions, Routing, TipProblem
 
@@ -76,7 +77,7 @@ def test_direction_constraint_holds_and_turns_objective():
     assert r.converged and r.metrics["tip_error"] < 1e-6
     end = chain_frames(r.routing.theta, r.routing.lam, r.routing.length, D)[-1]
     assert np.dot(end[:3, 0], tangent) > 1 - 1e-10 and r.metrics["direction_error"] < 1e-6
-    known = actuation(Routing(theta, lam, length), D)
+    known = actuation(Routing(theta=theta, lam=lam, length=length), D)
     assert r.metrics["actuation_turning"] <= known["actuation_turning"]
     _check_bounds(r, pb)
 

@@ -98,17 +98,17 @@ def test_no_lambda_error_without_an_actuator(designed):
 
     pb, res = designed
     r, lam_only = res.routing, Sigmas(0.0, 0.02, 0.0)
-    part = Routing(r.theta, np.where(np.arange(r.segments) % 3 == 0, 1.0, r.lam), r.length, r.initial_pose)
+    part = Routing(theta=r.theta, lam=np.where(np.arange(r.segments) % 3 == 0, 1.0, r.lam), length=r.length, initial_pose=r.initial_pose)
     rep = tolerance_report(pb, dataclasses.replace(res, routing=part), lam_only, samples=200, seed=1)
     by = rep["per_segment"]["mse_by_param"]
     assert np.all(by[::3, 1] == 0.0) and np.all(by[1::3, 1] > 0.0)
     assert expected_increase(pb, part, lam_only) == pytest.approx(rep["first_order"]["mse_increase"], rel=1e-9)
-    flat = dataclasses.replace(res, routing=Routing(r.theta, np.ones(r.segments), r.length, r.initial_pose))
+    flat = dataclasses.replace(res, routing=Routing(theta=r.theta, lam=np.ones(r.segments), length=r.length, initial_pose=r.initial_pose))
     rep = tolerance_report(pb, flat, lam_only, samples=50, seed=1)
     assert rep["first_order"]["mse_increase"] == 0.0 and np.all(rep["monte_carlo"]["rmse"] == rep["nominal"]["rmse"])
     # lambda 0.999 everywhere: an error above 0.001 builds 1, so the errors are one-sided: about min(0, e), whose
     # standard deviation is 0.58 sigma (against lambdas drawn without the rule)
-    near = Routing(r.theta, np.full(r.segments, 0.999), r.length, r.initial_pose)
+    near = Routing(theta=r.theta, lam=np.full(r.segments, 0.999), length=r.length, initial_pose=r.initial_pose)
     mc = tolerance_report(pb, dataclasses.replace(res, routing=near), lam_only, samples=400, seed=1)["monte_carlo"]
     drawn = batch_points(r.theta, 0.999 + 0.02 * np.random.default_rng(0).standard_normal((400, r.segments)), r.length, D,
                          [r.segments - 1], [1.0], r.initial_pose)

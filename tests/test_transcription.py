@@ -12,7 +12,8 @@ from vine_nlp.methods.nlp import nlp_spec
 from vine_nlp.methods.robust import RobustTerm
 from vine_nlp.methods.structure import Structure
 from vine_nlp.methods.tip import tip_spec
-from vine_nlp.methods.transcription import Smoothness, SoftTip, Solver, Spec
+from vine_nlp.methods.transcription import Solver, Spec
+from vine_nlp.model.routing import Routing
 
 
 def _automatic(solver):
@@ -43,8 +44,6 @@ SPECS = {
     # rows of one segment pair share a block (pair_block(k)): two groups of different sizes, interleaved
     "clearance grouped": _with(nlp_spec(6, 2, False, terms=(ClearancePairs(((0, 4), (1, 5), (0, 4), (2, 5), (0, 4))),)), extra=0),
     "robust": _with(nlp_spec(5, 2, False, terms=(RobustTerm(),)), extra=9),
-    "stage form": Spec(Structure(6, 3, stages=True), (Smoothness(), SoftTip())),
-    "stage form M=1": Spec(Structure(1, 2, stages=True), (Smoothness(), SoftTip())),
 }
 
 
@@ -72,7 +71,7 @@ def test_layout_is_in_stage_order_and_fixes_what_it_should():
     assert lay.size == 2 + 12 * 2 + 3 * (1 + 1 + 1 + 12 * 2)
     assert np.all(np.diff(lay.theta) > 0) and np.all(lay.X[1:, :, 0].min(axis=1) > lay.theta)
     X0 = np.arange(24.0).reshape(2, 12)
-    lbx, ubx = s.bounds((-1, 1), (np.array([0.5, 0.6]), np.array([1.0, 0.6])), (0.1, 2), X0=X0)
+    lbx, ubx = s.bounds(X0=X0, theta=(-1, 1), lam=(np.array([0.5, 0.6]), np.array([1.0, 0.6])), length=(0.1, 2))
     np.testing.assert_array_equal(lbx[lay.X[0].ravel()], X0.ravel())
     np.testing.assert_array_equal(ubx[lay.X[0].ravel()], X0.ravel())
     assert lbx[lay.lam_global[1]] == ubx[lay.lam_global[1]] == 0.6
@@ -80,10 +79,38 @@ def test_layout_is_in_stage_order_and_fixes_what_it_should():
 
 class _R:
     def __init__(self, objective, converged=True):
-        self.stats, self.converged = {"objective": objective}, converged
+        self.objective, self.converged = objective, converged
 
 
 def test_one_tie_rule_picks_the_first_of_equal_objectives():
     assert pick_best([_R(2.0), _R(1.0), _R(1.0 * (1 + 1e-9))]) == 1
     assert pick_best([_R(1.0 + 1e-9), _R(1.0)]) == 0  # within the tie tolerance: the earlier start
     assert pick_best([_R(0.5, converged=False), _R(3.0)]) == 1  # converged first
+
+
+def test_a_declared_variable_gets_its_place_bounds_and_round_trip():
+    """One more per-segment variable is one declaration: the layout, packing, unpacking and bounds follow from it."""
+    from vine_nlp.methods.variables import ROUTING, Var, box, slots
+
+    phi0 = Var("phi0", lambda a, ref: (-1.0, 2.0), size=2)
+    s = Solver(Spec(Structure(3, 1, variables=ROUTING + (phi0,))))
+    lay = s.layout
+    assert lay.size == 6 + 12 + 3 * (3 + 2 + 12)
+    assert lay.var["phi0"].shape == (3, 2) and np.all(lay.var["phi0"][:, 0] == lay.dl + 1)  # after the routing's, stage by stage
+    assert slots(s.structure.variables).size == 5
+    rng = np.random.default_rng(0)
+    values = {"theta": rng.normal(size=3), "lam": rng.uniform(0.5, 1, 3), "length": rng.uniform(1, 2, 3), "phi0": rng.normal(size=(3, 2))}
+    v = s.unpack(s.pack_x(rng.normal(size=(1, 12, 4)), **values))
+    for name, val in values.items():
+        np.testing.assert_array_equal(v[name].reshape(np.shape(val)), val)
+    a = type("A", (), {"theta_max": 0.5, "lambda_min": 0.4})()
+    lbx, ubx = s.bounds(**box(a, np.ones(3), s.structure.variables))
+    assert np.all(lbx[lay.var["phi0"]] == -1.0) and np.all(ubx[lay.var["phi0"]] == 2.0)
+    assert np.all(lbx[lay.theta] == -0.5) and np.all(ubx[lay.dl] == 5.0)
+
+
+def test_a_routing_is_built_by_name_only():
+    with pytest.raises(TypeError):
+        Routing(np.zeros(2), np.ones(2), np.ones(2))  # the positional form is refused
+    r = Routing(theta=np.zeros(2), lam=0.5, length=np.ones(2))
+    assert r.lam.tolist() == [0.5, 0.5] and r.segments == 2

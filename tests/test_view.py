@@ -40,7 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def routing(m=12, dl=2.5, phase=0.0):
     s = np.arange(m) / m
-    return Routing(np.radians(15 * np.sin(2 * np.pi * s + phase) + 5), 0.6 + 0.2 * np.cos(2 * np.pi * s), np.full(m, dl))
+    return Routing(theta=np.radians(15 * np.sin(2 * np.pi * s + phase) + 5), lam=0.6 + 0.2 * np.cos(2 * np.pi * s), length=np.full(m, dl))
 
 
 def design_archive(obstacles=None) -> Archive:

@@ -231,8 +231,7 @@ def design(points, diameter, *, actuator: str = Actuator.kind, theta_max_deg: fl
         nlp: seconds for the corner search that runs where the first solve finds a corner-like
         target (>= 0; 0 turns it off), as ``[design] budget`` and ``--budget``.
     solver : {"auto", "ipopt"}
-        nlp: "auto" runs the first Gauss-Newton solve on Fatrop where the NLP's functions are compiled
-        (IPOPT where not, and where Fatrop fails); "ipopt" keeps IPOPT throughout (``[design] solver``).
+        Both IPOPT (``[design] solver``; the key is kept for existing files).
     method : {"nlp", "greedy"}
     clearance : float, optional
         Also a design keeping the tube clear of itself by this gap beyond D (>= 0, ``units``):

@@ -83,8 +83,8 @@ class DesignOptions:
         Seconds the nlp's corner search may take where the first solve shows a corner-like target
         (design.corners); 0 turns it off.
     solver : str
-        "auto": the plain NLP's Gauss-Newton solve from a guess runs on Fatrop where its functions are
-        compiled (IPOPT where not, and where Fatrop fails); "ipopt": IPOPT only.
+        "auto" or "ipopt": both IPOPT (the file key is kept; a Fatrop stage form was removed: no gain end
+        to end).
     correction_margin : float
         Buildable designs: every lambda is exactly 1 (no actuator) or inside [lambda_min + margin,
         1 - margin], so the next round can correct an as-built error both ways.
@@ -110,7 +110,7 @@ class DesignOptions:
     tol: float = 1e-8
     hessian: str = "auto"  # nlp: "auto" (Gauss-Newton, exact if it does not converge), "exact" or "gauss-newton"
     budget: float = 20.0  # nlp: seconds for the corner search (design.corners; a safety stop, 0: off)
-    solver: str = "auto"  # nlp: "auto" (Fatrop for the first Gauss-Newton solve where compiled) or "ipopt"
+    solver: str = "auto"  # "auto" | "ipopt": both IPOPT
     correction_margin: float = 0.05
     min_feature: float | None = None
     base: str = "free"
@@ -402,6 +402,10 @@ class Result:
     shortfall : tuple of str
         Every hard requirement of the problem the design misses, one line each (the pipeline's judge:
         bounds, obstacle margin, clearance); empty when it meets them all.
+    objective, hessian, met, buildable, runs
+        What the methods decide on (``stats`` is for the archive only): the NLP's objective (None: no NLP, the
+        greedy's), the Hessian its solve ended with, the formulation's own hard requirements as it judged them
+        ({"clearance": bool}, {"obstacles": bool}), a buildable design, the results it was chosen from.
     """
 
     method: str
@@ -414,6 +418,11 @@ class Result:
     stats: dict = field(default_factory=dict)  # solver statistics and options, archived as attributes
     diameter: float = 1.0
     shortfall: tuple = ()
+    objective: float | None = None
+    hessian: str = ""
+    met: dict = field(default_factory=dict)
+    buildable: bool = False
+    runs: tuple = field(default=(), repr=False)
 
     @property
     def phi(self) -> np.ndarray:

@@ -177,7 +177,7 @@ def grown_prefixes(routing: Routing, diameter: float, lengths, per_segment=DEFAU
 
 def after_growth_routing(routing: Routing, t: float) -> Routing:
     """The intermediate routing of actuation after growth: lambda_t = 1 - t (1 - lambda), theta fixed."""
-    return Routing(routing.theta, 1.0 - float(t) * (1.0 - routing.lam), routing.length, routing.initial_pose)
+    return Routing(theta=routing.theta, lam=1.0 - float(t) * (1.0 - routing.lam), length=routing.length, initial_pose=routing.initial_pose)
 
 
 def after_growth_shapes(routing: Routing, diameter: float, ts=None, per_segment=DEFAULT_PER_SEGMENT) -> list[dict]:

@@ -388,9 +388,10 @@ def _run(c: _Checker, name: str, g, a: Archive) -> Result:
             stats[k] = v
     if "levels" in g:
         _levels(c, g, d, M, a)
-    return Result(method=c.text(g, "method"), routing=Routing(theta, lam, length, pose), shape=shape, status=c.text(g, "status"),
+    return Result(method=c.text(g, "method"), routing=Routing(theta=theta, lam=lam, length=length, initial_pose=pose), shape=shape, status=c.text(g, "status"),
                   solve_time_s=c.number(g, "solve_time_s", minimum=0), iterations=c.number(g, "iterations", integer=True, minimum=0),
-                  metrics=c.metrics(g), stats=stats, diameter=a.diameter,
+                  metrics=c.metrics(g), stats=stats, diameter=a.diameter, objective=stats.get("objective"),
+                  buildable=bool(stats.get("buildable", False)), hessian=str(stats.get("hessian", "")),
                   shortfall=tuple(s for s in c.text(g, "shortfall", required=False).split("\n") if s))
 
 

@@ -179,7 +179,7 @@ def _builds(file, a: Archive, B: int) -> list:
             raise ArchiveError(file, f"/{key}", "lengths and lambdas must be > 0")
         if pose.shape != (4, 4):
             raise ArchiveError(file, f"/{key}/initial_pose", f"shape {pose.shape}, expected (4, 4)")
-        builds.append(Routing(theta, lam, length, pose))
+        builds.append(Routing(theta=theta, lam=lam, length=length, initial_pose=pose))
     return builds
 
 

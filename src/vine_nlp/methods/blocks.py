@@ -10,20 +10,6 @@ Blocks every chain has:
   pose      X_0(k) = [vec(R0g exp(w)); p]          (not for a fixed pose: bounds fix X_0)
   segment   X_{j+1}(k) = X_j(k) T^{j+1}_j(theta_j, lam_j(k), dl_j)   (continuity)
             and the point fit sum_i w_i |r_c(u_i) - r_d,i|^2 of the slots of the cell
-
-Stage form (``Structure(stages=True)``, the plain chain only): for a solver that factors the
-KKT system stage by stage (Fatrop, a Riccati recursion), every Hessian entry must lie inside
-one stage (x_k, u_k) and the rows must be x_{k+1} - F(x_k, u_k), stage by stage. The
-smoothness penalty couples theta_j with theta_{j-1}, two stages; so each stage carries c_j =
-(theta_j, lam_j) to the next as a state, and the penalty on theta_j - c_{j-1} lies in the stage
-whose controls are segment j's:
-
-    stage 0  x = (w, p)                    row  X_0 - [vec(R0g exp(w)); p]
-    stage 1  x = X_0, u = (theta_0, lam_0, dl_0)
-    stage j+1  x = (c_{j-1}, X_j), u = (theta_j, lam_j, dl_j)
-             rows  c_j - (theta_j, lam_j), X_{j+1} - X_j T^{j+1}_j
-
-The objective is the plain NLP's, term for term (tests compare them).
 """
 
 from __future__ import annotations
@@ -35,7 +21,10 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp.methods import compiled
+from vine_nlp.methods.variables import CELL, POINT, Slots
 from vine_nlp.model.segment import segment_function, so3_exp
+
+POSE = Slots(("w", 3), ("p", 3), ("X", 12))  # the pose block's variables: rotation vector, position, X_0
 
 
 @dataclass(frozen=True)
@@ -149,19 +138,19 @@ def _sampled(bt: BlockType, sub: tuple) -> tuple:
 def segment_block(n: int) -> BlockType:
     """Continuity and point fit of one (segment, level) cell.
 
-    v = (X_j (12), theta, lam, dl, X_{j+1} (12)); d = (u (n), target slots (3 n, slot-major), w (n)).
+    v = ``variables.CELL`` (X_j (12), theta, lam, length, X_{j+1} (12)); d = (u (n), target slots (3 n, slot-major), w (n)).
     f = sum_i w_i |r_c(u_i) - r_d,i|^2; r = X_j T^{j+1}_j - X_{j+1}. Gauss-Newton: 2 J^T J of the
     weighted residuals, the constraint curvature left out (always PSD, cheap, linear convergence on
     large-residual targets)."""
 
     def build():
-        v, d = ca.SX.sym("v", 27), ca.SX.sym("d", 5 * n)
+        v, d = ca.SX.sym("v", CELL.size), ca.SX.sym("d", 5 * n)
         u, tgt, w = d[:n], ca.reshape(d[n : 4 * n], 3, n), d[4 * n :].T
-        Xn, pts = segment_function(n)(v[:12], v[12], v[13], v[14], u)
+        Xn, pts = segment_function(n)(*POINT.split(v), u)
         err = pts - tgt
         f = ca.sum2(w * ca.sum1(err * err))
         res = ca.vec(ca.repmat(ca.sqrt(w), 3, 1) * err)
-        return [ca.Function("segment_block", [v, d], [f, Xn - v[15:]]), ca.Function("segment_res", [v, d], [res])]
+        return [ca.Function("segment_block", [v, d], [f, Xn - v[CELL["next"]]]), ca.Function("segment_res", [v, d], [res])]
 
     fn, res = compiled.stored(f"segment_block{n}", build)
     return BlockType(f"segment{n}", fn, res)
@@ -170,35 +159,10 @@ def segment_block(n: int) -> BlockType:
 @lru_cache(maxsize=None)
 def pose_block() -> BlockType:
     """X_0 = [vec(R0g exp(w)); p]: the base rotation stays a proper rotation. v = (w, p, X_0); d = vec(R0g)."""
-    v, d = ca.SX.sym("v", 18), ca.SX.sym("d", 9)
-    R = ca.mtimes(ca.reshape(d, 3, 3), so3_exp(v[:3]))
-    r = ca.vertcat(ca.vec(R), v[3:6]) - v[6:]
+    v, d = ca.SX.sym("v", POSE.size), ca.SX.sym("d", 9)
+    w, p, X0 = POSE.split(v)
+    r = ca.vertcat(ca.vec(ca.mtimes(ca.reshape(d, 3, 3), so3_exp(w))), p) - X0
     return BlockType("pose", ca.Function("pose_block", [v, d], [ca.SX(0), r]), ca.Function("pose_res", [v, d], [ca.SX(0, 1)]))
-
-
-@lru_cache(maxsize=None)
-def stage_blocks(n: int) -> tuple[BlockType, BlockType, BlockType]:
-    """The blocks of the stage form (module docstring): (pose, segment, smoothness).
-
-    Rows close the gap to the next stage's state, x_{k+1} - F(x_k, u_k): the sign a stage-structured
-    solver reads its dynamics from. pose: v = (w, p, X_0), rows X_0 - [vec(R0g exp(w)); p].
-    segment: v = (X_j, theta_j, lam_j, dl_j, c_j, X_{j+1}), rows (c_j - (theta_j, lam_j), X_{j+1} - X_j T),
-    and the point fit. smoothness: v = (c_{j-1}, theta_j, lam_j), d = (w_theta, w_lambda) / (h_j L), no rows:
-    Smoothness's penalty on the step between segments j-1 and j, inside stage j."""
-    seg, pose = segment_block(n), pose_block()
-    v, d = ca.SX.sym("v", 18), ca.SX.sym("d", 9)
-    f, r = pose.fn(v, d)
-    stage_pose = BlockType("stage_pose", ca.Function("stage_pose", [v, d], [f, -r]), pose.residual)
-    v, d = ca.SX.sym("v", 29), ca.SX.sym("d", 5 * n)
-    cell = ca.vertcat(v[:15], v[17:])  # the segment block's variables
-    f, r = seg.fn(cell, d)
-    segment = BlockType(f"stage_segment{n}", ca.Function("stage_segment", [v, d], [f, ca.vertcat(v[15:17] - v[12:14], -r)]),
-                        ca.Function("stage_segment_res", [v, d], [seg.residual(cell, d)]))
-    v, d = ca.SX.sym("v", 4), ca.SX.sym("d", 2)
-    step = v[2:] - v[:2]
-    smooth = BlockType("stage_smooth", ca.Function("stage_smooth", [v, d], [ca.dot(d, step**2), ca.SX(0, 1)]),
-                       ca.Function("stage_smooth_res", [v, d], [ca.sqrt(d) * step]))
-    return stage_pose, segment, smooth
 
 
 def scatter(shape, blocks, symmetric: bool):

@@ -29,24 +29,14 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp.analysis.buildability import MM_PER_UNIT, POUCH_LAMBDA_MIN, buildability, default_min_feature, partners, pieces, wrap_angle
-from vine_nlp.methods import drive
+from vine_nlp.methods import drive, settings
 from vine_nlp.methods.common import Guess, evaluate, pair_points
 from vine_nlp.methods.nlp import design_bounds, nlp_parameters, result_of, start_x
-from vine_nlp.methods.settings import Settings
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Chain, Smoothness, SoftTip, Spec, get_solver
 from vine_nlp.model.chain import phi_from_theta
 from vine_nlp.model.helix import center_rates
 from vine_nlp.problem import DesignProblem, Result, Routing
-
-# build-effort weights against the fit's mean squared error / D^2 (results/BENCHMARKS.md, "Buildable designs"):
-# where the shape does not see the line (a first or last unactuated run) it holds it at theta 0 at no cost; where
-# theta shapes the tube a tenth curbs the winding that cancels a bend the margin forces (bezier-b 807 -> 161 deg)
-# at a few % RMSE (1e-3 cost polyline-d its budget); inner unactuated runs' turning the shape needs: nearly free
-EFFORT, EFFORT_ACTUATED, EFFORT_INNER = 1e-3, 1e-4, 1e-6
-ACCURACY_SLACK, ACCURACY_FLOOR_MM = 0.10, 0.05  # what the reclassification may give up: the issue's budget
-ROUNDS, REPAIRS = 8, 2  # solves at most; of them, re-solves while a gap is below min_feature (the lengths moved)
-BEND_TOL = 1e-6  # rad: a segment of the target bending less is straight
 
 
 @dataclass(frozen=True)
@@ -110,13 +100,13 @@ def classify(bends, length, build: Build) -> np.ndarray:
         return kappa * lc * length
 
     pair, alone = least_bend(np.ones(bends.size, bool)), least_bend(np.zeros(bends.size, bool))
-    act, acc = bends >= np.maximum(pair, BEND_TOL), 0.0
+    act, acc = bends >= np.maximum(pair, settings.BEND_TOL), 0.0
     for j in range(bends.size):  # error diffusion along the gently bent runs
         if act[j]:
             acc = 0.0
             continue
         acc += bends[j]
-        if acc >= max(0.5 * alone[j], BEND_TOL):
+        if acc >= max(0.5 * alone[j], settings.BEND_TOL):
             act[j], acc = True, acc - max(acc, alone[j])
     return merge_short(act, length, build.min_feature)
 
@@ -151,7 +141,7 @@ def unwind(routing: Routing, act, build: Build) -> Routing:
             net += math.atan2(R[2, 1], R[1, 1])
         theta[run] = np.arctan(0.5 * D * float(wrap_angle(net)) / (p.s1 - p.s0))
     T0 = T0 if build.pose is None else build.pose.copy()
-    return Routing(np.clip(theta, -build.theta_max, build.theta_max), routing.lam, routing.length, T0)
+    return Routing(theta=np.clip(theta, -build.theta_max, build.theta_max), lam=routing.lam, length=routing.length, initial_pose=T0)
 
 
 @dataclass(frozen=True)
@@ -164,29 +154,29 @@ class BuildEffort:
 
 
 def effort_data(act, L: float, base_free: bool = True) -> dict:
-    """The build effort's data, e_j = w_j / L (L as ``nlp_parameters``' "L"): EFFORT_ACTUATED with an actuator; EFFORT on
-    an unactuated run the shape does not see (the first with a free base, the last); EFFORT_INNER on the others."""
+    """The build effort's data, e_j = w_j / L (L as ``nlp_parameters``' "L"): settings.EFFORT_ACTUATED with an actuator; settings.EFFORT on
+    an unactuated run the shape does not see (the first with a free base, the last); settings.EFFORT_INNER on the others."""
     act = np.asarray(act, bool)
-    w = np.where(act, EFFORT_ACTUATED, EFFORT_INNER)
+    w = np.where(act, settings.EFFORT_ACTUATED, settings.EFFORT_INNER)
     for p in pieces(act, np.ones(act.size), np.ones(act.size)):
         if not p.actuated and ((p.start == 0 and base_free) or p.stop == act.size):
-            w[p.start:p.stop] = EFFORT
+            w[p.start:p.stop] = settings.EFFORT
     return {"effort": w / L}
 
 
 def accuracy_budget(problem: DesignProblem, rmse: float) -> float:
-    """The RMSE the reclassification may reach from a free design's ``rmse``: ACCURACY_SLACK or ACCURACY_FLOOR_MM
+    """The RMSE the reclassification may reach from a free design's ``rmse``: settings.ACCURACY_SLACK or settings.ACCURACY_FLOOR_MM
     more, whichever is larger (units without a millimetre equivalent: the floor is 0.002 D)."""
-    floor = ACCURACY_FLOOR_MM / MM_PER_UNIT[problem.units] if problem.units in MM_PER_UNIT else 0.002 * problem.diameter
-    return max((1 + ACCURACY_SLACK) * rmse, rmse + floor)
+    floor = settings.ACCURACY_FLOOR_MM / MM_PER_UNIT[problem.units] if problem.units in MM_PER_UNIT else 0.002 * problem.diameter
+    return max((1 + settings.ACCURACY_SLACK) * rmse, rmse + floor)
 
 
 class Reclassify:
-    """The reclassification, a ``drive.refine`` rule (x: the routing to start from; ``trials + REPAIRS`` rounds) for
+    """The reclassification, a ``drive.refine`` rule (x: the routing to start from; ``trials + settings.BUILDABLE_REPAIRS`` rounds) for
     any formulation: ``solve(act, start)`` solves with the classes ``act`` from ``start`` (unwound here): (Result,
     the lambda bounds' multipliers (M,)). ``limit``: the RMSE budget. After refine: ``act``, the best round's."""
 
-    def __init__(self, solve: Callable, act, build: Build, limit: float, trials: int = ROUNDS - REPAIRS):
+    def __init__(self, solve: Callable, act, build: Build, limit: float, trials: int = settings.BUILDABLE_ROUNDS - settings.BUILDABLE_REPAIRS):
         self._solve, self.build, self.limit, self.trials = solve, build, limit, trials
         self.act = self.trial = np.asarray(act, bool)
         self.best, self.mult, self.cand, self.k, self.over = None, None, np.zeros(0, int), 0, False
@@ -236,7 +226,7 @@ class Reclassify:
                 return trial
             self.k //= 2
         b, r = self.build, self.best.routing
-        if self.repairs < REPAIRS and buildability(r, b.D, b.kind, b.lambda_min, b.margin, b.min_feature).below:
+        if self.repairs < settings.BUILDABLE_REPAIRS and buildability(r, b.D, b.kind, b.lambda_min, b.margin, b.min_feature).below:
             self.repairs += 1  # the lengths moved: bounds from the new ones
             return self.act.copy()
         return None
@@ -246,7 +236,7 @@ def buildable_spec(problem: DesignProblem, pairing, build: Build) -> Spec:
     """The plain NLP plus the build effort; the base pose free, or fixed (``build.pose``); exact Hessian."""
     o = problem.options
     s = Structure(pairing.segments, pairing.n, 1, "shared" if build.shared else "segment", "free" if build.pose is None else "fixed")
-    return Spec(s, (Smoothness(), SoftTip(), BuildEffort()), "exact", Settings(o.max_iter, o.tol))
+    return Spec(s, (Smoothness(), SoftTip(), BuildEffort()), "exact", settings.Settings(o.max_iter, o.tol))
 
 
 def solve_classes(problem: DesignProblem, pairing, build: Build, act, start: Routing) -> tuple[Result, np.ndarray]:
@@ -255,15 +245,14 @@ def solve_classes(problem: DesignProblem, pairing, build: Build, act, start: Rou
     D, act = problem.diameter, np.asarray(act, bool)
     solver = get_solver(buildable_spec(problem, pairing, build))
     lo, hi = lambda_bounds(act, start.length, build)
-    th, _, dl = design_bounds(problem, pairing)
     T0 = start.initial_pose if build.pose is None else build.pose
     guess = Guess(start.theta, np.clip(start.lam, lo, hi), start.length, T0, None)
     data = nlp_parameters(problem, pairing, T0[:3, :3])
     data |= effort_data(act, data["L"], build.pose is None)
-    lbx, ubx = solver.bounds(th, (lo, hi), dl, X0=None if build.pose is None else frames12(T0[None], D).T)
-    x, status, st, lam_x = solver.solve(start_x(solver, guess, D, "chain"), solver.pack_params(data), lbx, ubx, multipliers=True)
+    lbx, ubx = solver.bounds(X0=None if build.pose is None else frames12(T0[None], D).T, **design_bounds(problem, pairing) | {"lam": (lo, hi)})
+    sol = solver.solve(start_x(solver, guess, D, "chain"), solver.pack_params(data), lbx, ubx, multipliers=True)
     # lambda exactly 1 without an actuator: IPOPT holds a variable whose bounds are equal at its value
-    return result_of(problem, pairing, solver, x, status, st, T0[:3, :3] if build.pose is None else T0, "nlp"), lam_x[solver.layout.lam[:, 0]]
+    return result_of(problem, pairing, sol, T0[:3, :3] if build.pose is None else T0, "nlp"), sol.lam_x[solver.layout.lam[:, 0]]
 
 
 def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Result:
@@ -276,14 +265,15 @@ def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Res
     build = Build.of(problem)
     act = classify(target_bends(problem, pairing), start.routing.length, build)
     rule = Reclassify(lambda a, r: solve_classes(problem, pairing, build, a, r), act, build, accuracy_budget(problem, start.metrics["rmse"]))
-    found = drive.refine(rule, ROUNDS, start.routing, stats)
+    found = drive.refine(rule, settings.BUILDABLE_ROUNDS, start.routing, stats)
     best, act = found.best, rule.act
     # a solve may leave an unactuated run's turning beyond half a turn: the same shape the shortest way round
     r = unwind(best.routing, act, build)
-    short = evaluate(problem, Routing(r.theta, best.routing.lam, r.length, r.initial_pose), pairing, "nlp", status=best.status,
-                     iterations=best.iterations, stats=best.stats)
+    short = evaluate(problem, Routing(theta=r.theta, lam=best.routing.lam, length=r.length, initial_pose=r.initial_pose), pairing, "nlp", status=best.status,
+                     iterations=best.iterations, stats=best.stats, objective=best.objective, hessian=best.hessian)
     best = short if short.metrics["rmse"] <= best.metrics["rmse"] * (1 + 1e-9) else best
     best.stats |= {k: v for k, v in start.stats.items() if k.startswith(("start", "best_start", "hops", "corner"))}
+    best.buildable = True
     best.stats |= {"buildable": True, "buildable_actuated": int(act.sum()), "buildable_free_rmse": float(start.metrics["rmse"]),
                    "buildable_budget": float(rule.limit), "buildable_rounds": found.rounds, "correction_margin": build.margin,
                    "min_feature": build.min_feature}
@@ -293,8 +283,8 @@ def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Res
 def inherited_bounds(problem: DesignProblem, pairing, start: Result | None):
     """``design_bounds``, with a buildable start's classes kept (lambda exactly 1 where it has no actuator, the
     margins elsewhere): robust and clearance designs started from a buildable design stay buildable."""
-    th, lam, dl = design_bounds(problem, pairing)
-    if start is None or not start.stats.get("buildable"):
-        return th, lam, dl
+    box = design_bounds(problem, pairing)
+    if start is None or not start.buildable:
+        return box
     build, r = Build.of(problem), start.routing
-    return th, lambda_bounds(np.ones(r.segments, bool) if build.shared else r.lam != 1.0, r.length, build), dl
+    return box | {"lam": lambda_bounds(np.ones(r.segments, bool) if build.shared else r.lam != 1.0, r.length, build)}

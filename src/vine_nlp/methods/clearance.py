@@ -34,6 +34,7 @@ from vine_nlp.methods.common import pair_points
 from vine_nlp.methods.nlp import chain_guess, design_nlp, extended_solver, nlp_parameters, result_of, start_x
 from vine_nlp.methods.settings import RAISE_FACTOR, ROUNDS
 from vine_nlp.methods.transcription import Chain, segment_point_index
+from vine_nlp.methods.variables import POINT
 from vine_nlp.model.segment import segment_function
 from vine_nlp.problem import DesignProblem, Result
 
@@ -46,9 +47,9 @@ def pair_block(k: int = 1) -> BlockType:
     30 x 30 Hessian block (fewer instructions and scattered entries than a block per row). f is a structural
     zero: the block stays out of the objective's evaluation and gradient."""
     F = segment_function(k)
-    v, d = ca.SX.sym("v", 30), ca.SX.sym("d", 2 * k + 1)
-    _, pa = F(v[:12], v[12], v[13], v[14], d[:k])
-    _, pb = F(v[15:27], v[27], v[28], v[29], d[k : 2 * k])
+    v, d = ca.SX.sym("v", 2 * POINT.size), ca.SX.sym("d", 2 * k + 1)  # variables.POINT of segment a, then of b
+    _, pa = F(*POINT.split(v), d[:k])
+    _, pb = F(*POINT.split(v, POINT.size), d[k : 2 * k])
     r = ca.sum1((pa - pb) ** 2).T - d[2 * k]
     return BlockType(f"clearance_pairs{k}", ca.Function("pair_block", [v, d], [ca.SX(1, 1), r], {"cse": True}))
 
@@ -181,12 +182,13 @@ def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, pairs=No
                   tol_gap * D, 0.5 * D if pair_step is None else float(pair_step), pairs)
     first = rule.check
     if first["clearance"] >= rule.need - rule.tol and not pairs:
-        best, check, solves = dataclasses.replace(start, metrics=dict(start.metrics), stats=dict(start.stats)), first, 0
+        best, check, solves = dataclasses.replace(start, metrics=dict(start.metrics), stats=dict(start.stats), met=dict(start.met)), first, 0
     else:
         found = drive.refine(rule, rounds, stats=stats)
         best, check, solves = stats.stamp(found.best), found.verdict.report, found.rounds
+    best.met["clearance"] = bool(check["clearance"] >= rule.need - rule.tol)
     best.stats.update({
-        "clearance_rounds": solves, "clearance_met": bool(check["clearance"] >= rule.need - rule.tol), "clearance_pairs": len(rule.active),
+        "clearance_rounds": solves, "clearance_met": best.met["clearance"], "clearance_pairs": len(rule.active),
         "clearance_row_margin": rule.row_margin, "min_clearance": float(check["clearance"]), "min_gap": float(min_gap),
         "start_rmse": float(start.metrics["rmse"]), "start_min_clearance": float(first["clearance"]),
     })
@@ -227,8 +229,8 @@ class _Pairs:
         p = solver.pack_params(self.params | {"pair_u": np.array([[ea[1], eb[1]] for ea, eb in ends]).T,
                                               "pair_need": ((self.need + self.row_margin) / D) ** 2})
         x0 = start_x(solver, chain_guess(problem, self.start.routing), D, "chain") if x is None else x
-        x, status, st = solver.solve(x0, p, *solver.bounds(*inherited_bounds(problem, pairing, self.start)))  # a buildable start's classes kept
-        return x, result_of(problem, pairing, solver, x, status, st, self.R0g, "nlp_clearance")
+        sol = solver.solve(x0, p, *solver.bounds(**inherited_bounds(problem, pairing, self.start)))  # a buildable start's classes kept
+        return sol.x, result_of(problem, pairing, sol, self.R0g, "nlp_clearance")
 
     def judge(self, res):
         check = routing_clearance(res.routing, self.D, exclude_arc=self.exclude_arc, margin=self.detect)

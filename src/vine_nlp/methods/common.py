@@ -11,15 +11,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vine_nlp.methods import variables
 from vine_nlp.model import shape_lines
 from vine_nlp.model.helix import center_rates, helix_from_curvature
 from vine_nlp.model.pairing import Pairing, pair_points  # noqa: F401  (pair_points: used by every method)
 from vine_nlp.model.shape import Shape, error_metrics, forward_shape, routing_metrics
 from vine_nlp.problem import DesignProblem, ForwardProblem, Result, Routing
-
-# Segment lengths stay within this factor of the target's chord length of the segment:
-# a loose box that keeps IPOPT away from dl -> 0 without constraining real designs.
-LENGTH_FACTOR = (0.2, 5.0)
 
 
 def path_error(model_points, target_points, weights=None):
@@ -28,20 +25,16 @@ def path_error(model_points, target_points, weights=None):
     return float(d2.sum() if weights is None else (weights * d2).sum())
 
 
-def variable_bounds(problem: DesignProblem, pairing: Pairing):
-    """(lower, upper) arrays for theta, lam and length per segment (paper Sec. VI-A)."""
-    a = problem.actuator
-    c = pairing.segment_chord
-    th = np.full(pairing.segments, a.theta_max)
-    return (
-        (-th, np.full(pairing.segments, a.lambda_min), LENGTH_FACTOR[0] * c),
-        (th, np.ones(pairing.segments), LENGTH_FACTOR[1] * c),
-    )
+def design_bounds(problem: DesignProblem, pairing: Pairing, D: float | None = None) -> dict:
+    """{name: (lower, upper)} per segment of the routing's declared variables (paper Sec. VI-A: |theta| <=
+    theta_max, lambda_min <= lam <= 1, lengths within LENGTH_FACTOR of the target's chords), lengths in
+    problem units, or in units of ``D``."""
+    return variables.box(problem.actuator, pairing.segment_chord if D is None else pairing.segment_chord / D)
 
 
-def clip_to_bounds(theta, lam, length, problem, pairing):
-    (tl, ll, dl), (tu, lu, du) = variable_bounds(problem, pairing)
-    return np.clip(theta, tl, tu), np.clip(lam, ll, lu), np.clip(length, dl, du)
+def clip_to_bounds(problem: DesignProblem, pairing: Pairing, **values) -> dict:
+    """Routing ``values`` by name (problem units) clipped into ``design_bounds``."""
+    return variables.clip(values, design_bounds(problem, pairing))
 
 
 def evaluate(problem: DesignProblem, routing: Routing, pairing: Pairing, method: str, **kw) -> Result:
@@ -94,7 +87,7 @@ class Guess:
     frames: np.ndarray  # (M+1, 4, 4) target-based frames at the segment ends
 
     def routing(self) -> Routing:
-        return Routing(self.theta, self.lam, self.length, self.initial_pose)
+        return Routing(theta=self.theta, lam=self.lam, length=self.length, initial_pose=self.initial_pose)
 
 
 def geometric_guess(problem: DesignProblem, pairing: Pairing, flip_sign: float = 1.0) -> Guess:
@@ -148,7 +141,7 @@ def geometric_guess(problem: DesignProblem, pairing: Pairing, flip_sign: float =
     theta, lam = helix_from_curvature(kappa, tau, D)
     _, _, lambda_c = center_rates(theta, lam, D)
     length = arc / lambda_c
-    theta, lam, length = clip_to_bounds(theta, lam, length, problem, pairing)
+    theta, lam, length = clip_to_bounds(problem, pairing, theta=theta, lam=lam, length=length).values()
     # frames at the segment ends, on the target: normal rotated back from the segment middle
     frames = np.zeros((M + 1, 4, 4))
     t_end = tangent[b]

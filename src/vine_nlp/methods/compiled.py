@@ -2,7 +2,7 @@
 
 IPOPT calls five functions of the NLP per iteration; interpreted, they run CasADi's MX virtual machine over
 the mapped per-stage SX blocks, compiled the same expressions run as C (the answers agree to rounding).
-Fatrop (``fatrop_nlpsol``) runs on compiled functions only. A structure built from an active set
+A structure built from an active set
 (clearance pairs, obstacle rows) seldom recurs: it runs interpreted with each block type compiled on its own
 (``block_functions``, up to BLOCK_BUDGET instructions; a map of samples runs on its one-sample block).
 
@@ -37,8 +37,9 @@ from pathlib import Path
 
 from vine_nlp.errors import InputError
 from vine_nlp.methods import blas
+from vine_nlp.methods.settings import BLOCK_BUDGET
 
-__all__ = ["mode", "cache_dir", "compiler", "wait", "nlpsol", "fatrop_nlpsol", "block_functions", "stored", "CompileError", "NotCompiled", "Compiling", "stats"]
+__all__ = ["mode", "cache_dir", "compiler", "wait", "nlpsol", "block_functions", "stored", "CompileError", "stats"]
 
 _log = logging.getLogger("vine_nlp.methods.compiled")
 
@@ -80,14 +81,6 @@ finally:
 
 class CompileError(RuntimeError):
     """VINE_NLP_CODEGEN=on and the NLP functions could not be compiled or loaded."""
-
-
-class NotCompiled(RuntimeError):
-    """A solver that runs on compiled functions only (Fatrop) where there are none: use another."""
-
-
-class Compiling(NotCompiled):
-    """Its functions are being compiled (in the background): ask again later."""
 
 
 class Upgrading:
@@ -280,11 +273,6 @@ def wait(timeout: float | None = None) -> bool:
     return True
 
 
-# a block type is compiled on its own only up to this many SX instructions (its functions and derivatives): gcc
-# -O1's time grows with them, and a larger block (an obstacle segment's samples against its primitives or
-# triangles) would take longer than the solves it speeds up; such a block is a map of one sample's
-# (blocks.Samples), whose block is compiled instead ("Active sets on compiled blocks")
-BLOCK_BUDGET = 30_000
 
 
 def block_functions(name: str, functions: list) -> list | None:
@@ -387,21 +375,3 @@ def nlpsol(name: str, spec_text: str, nlp, opts: dict, enabled: bool = True):
             raise CompileError(f"cannot load {path}: {str(e).splitlines()[0]}") from e
         _warn_once(f"cannot load {path}: the NLP functions run interpreted (slower)")
         return interpreted()
-
-
-def fatrop_nlpsol(name: str, spec_text: str, functions, opts: dict, equality):
-    """A Fatrop solver on compiled functions (``functions()``: named as Fatrop's interface imports them,
-    built on a cache miss only); ``equality``: which rows are equalities. Fatrop takes no derivative
-    functions from Python, and its own (CasADi's automatic ones) would cost more than IPOPT on ours:
-    where nothing is compiled (codegen off, no compiler) this raises NotCompiled, and the caller uses IPOPT.
-    Options "fatrop.X" go to Fatrop as X."""
-    import casadi as ca
-
-    blas.one_thread()
-    later = []
-    path = library(spec_text, functions, later=later) if mode() != "off" and compiler() else None
-    if path is None:
-        raise (Compiling if later else NotCompiled)("no compiled functions for Fatrop")
-    inner = {k.split(".", 1)[1]: v for k, v in opts.items() if k.startswith("fatrop.")}
-    outer = {k: v for k, v in opts.items() if not k.startswith("fatrop.")}
-    return ca.nlpsol(name, "fatrop", path, outer | {"fatrop": inner, "structure_detection": "auto", "equality": [bool(e) for e in equality]})

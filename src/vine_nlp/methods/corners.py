@@ -13,12 +13,12 @@ the first solve; ``search`` then improves that design window by window:
   q_i the points in the end frame, Q = sum w_i q_i, C = sum w_i t_i q_i^T, T = sum w_i t_i, W = sum w_i.
   The window NLP (single shooting, a few variables) thus minimizes the *whole* design's point error over the
   window's theta, lambda and lengths.
-* Each window is solved from WINDOW_STARTS starts (the current values, theta mirrored, random draws inside
+* Each window is solved from settings.WINDOW_STARTS starts (the current values, theta mirrored, random draws inside
   the bounds), tasks for ``workers`` threads (CasADi releases the GIL inside IPOPT; each thread has its own
   solver) read back in start order; the best (``drive.pick_best``) replaces the window if it lowers the error
-  by WINDOW_GAIN. A round visits the WINDOW_SHARE of the windows of largest error, largest first.
+  by settings.WINDOW_GAIN. A round visits the settings.WINDOW_SHARE of the windows of largest error, largest first.
 * A round that changed a window ends with one polish: the full NLP from the new design (exact Hessian,
-  frames on its chain). The search stops after SEARCH_ROUNDS, when a round changes nothing or its polish does
+  frames on its chain). The search stops after settings.SEARCH_ROUNDS, when a round changes nothing or its polish does
   not improve, or when the budget is spent (a round cut short is not polished; its changes are dropped).
 
 Deterministic for a given ``options.seed``: a window's work does not depend on which thread ran it, and the
@@ -38,22 +38,7 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
-from vine_nlp.methods import blas, drive
-from vine_nlp.methods.common import LENGTH_FACTOR
-from vine_nlp.methods.settings import (
-    CORNER_RMSE,
-    CORNER_WINDOW,
-    DEFAULT_BUDGET,
-    MIN_WINDOWS,
-    SEARCH_ROUNDS,
-    WINDOW,
-    WINDOW_GAIN,
-    WINDOW_MAX_ITER,
-    WINDOW_SHARE,
-    WINDOW_STARTS,
-    WINDOW_TOL,
-    quiet,
-)
+from vine_nlp.methods import blas, drive, settings, variables
 from vine_nlp.methods.structure import frames12
 from vine_nlp.methods.transcription import ipopt_status
 from vine_nlp.model.chain import chain_frames, chain_points
@@ -66,10 +51,10 @@ __all__ = ["corner_like", "search", "clear_caches"]
 
 def corner_like(problem: DesignProblem, result: Result) -> bool:
     """Whether the first solve ``result`` of ``problem`` shows a corner-like target: Gauss-Newton did not
-    converge on it (``stats["hessian"]``) and its RMSE is above settings.CORNER_RMSE tube diameters, large
+    converge on it (``result.hessian``) and its RMSE is above settings.CORNER_RMSE tube diameters, large
     residuals the smooth paper cases never show."""
-    gauss_newton = str(result.stats.get("hessian", "")) == "gauss-newton" and result.status == "optimal"
-    return (not gauss_newton) and float(result.metrics["rmse"]) > CORNER_RMSE * problem.diameter
+    gauss_newton = result.hessian == "gauss-newton" and result.status == "optimal"
+    return (not gauss_newton) and float(result.metrics["rmse"]) > settings.CORNER_RMSE * problem.diameter
 
 
 # ---------------------------------------------------------------- the window NLP
@@ -109,7 +94,7 @@ def _window_objective(W: int, n1: int, shared: bool) -> ca.Function:
 def _window_solver(W: int, n1: int, shared: bool, slot: int) -> ca.Function:
     """One IPOPT solver of the window NLP per thread slot: a CasADi solver keeps its workspace in
     itself, so two threads never share one."""
-    opts = quiet(WINDOW_MAX_ITER, WINDOW_TOL) | CORNER_WINDOW
+    opts = settings.quiet(settings.CORNER_WINDOW_MAX_ITER, settings.WINDOW_TOL) | settings.CORNER_WINDOW
     blas.one_thread()
     return ca.nlpsol(f"vine_window{slot}", "ipopt", _window_nlp(W, n1, shared), opts)
 
@@ -157,12 +142,13 @@ class _Window:
         self.p = np.r_[frames12(frames[a : a + 1], D)[:, 0], u.ravel(order="F"), slots.ravel(order="F"), w.ravel(order="F"), lam_shared,
                        c, Ws, Q, C.ravel(order="F"), T]
         a_, chord = problem.actuator, pairing.segment_chord[a : self.b] / D
-        lo = [np.full(W, -a_.theta_max)] + ([] if self.shared else [np.full(W, a_.lambda_min)]) + [LENGTH_FACTOR[0] * chord]
-        hi = [np.full(W, a_.theta_max)] + ([] if self.shared else [np.ones(W)]) + [LENGTH_FACTOR[1] * chord]
-        self.lbx, self.ubx = np.column_stack(lo).ravel(), np.column_stack(hi).ravel()
-        cur = [routing.theta[a : self.b]] + ([] if self.shared else [routing.lam[a : self.b]]) + [routing.length[a : self.b] / D]
-        self.x = np.column_stack(cur).ravel()
-        self.per = len(cur)
+        # the window's variables per segment: the routing's declared ones (no lambda where one is shared)
+        self.names = [v.name for v in variables.ROUTING if not (self.shared and v.levels)]
+        box = variables.box(a_, chord, only=self.names)
+        self.lbx, self.ubx = (np.column_stack([box[n][i] for n in self.names]).ravel() for i in (0, 1))
+        cur = {"theta": routing.theta[a : self.b], "lam": routing.lam[a : self.b], "length": routing.length[a : self.b] / D}
+        self.x = np.column_stack([cur[n] for n in self.names]).ravel()
+        self.per = len(self.names)
 
     def objective(self, x) -> float:
         return float(_window_objective(self.W, self.n1, self.shared)(x, self.p))
@@ -182,13 +168,11 @@ class _Window:
         return out[:count]
 
     def apply(self, routing: Routing, x, D: float) -> Routing:
-        theta, lam, length = routing.theta.copy(), routing.lam.copy(), routing.length.copy()
+        values = {"theta": routing.theta.copy(), "lam": routing.lam.copy(), "length": routing.length.copy()}
         v = np.asarray(x, float).reshape(self.W, self.per)
-        theta[self.a : self.b] = v[:, 0]
-        if not self.shared:
-            lam[self.a : self.b] = v[:, 1]
-        length[self.a : self.b] = v[:, -1] * D
-        return Routing(theta, lam, length, routing.initial_pose.copy())
+        for i, name in enumerate(self.names):
+            values[name][self.a : self.b] = v[:, i] * D if name == "length" else v[:, i]
+        return Routing(**values, initial_pose=routing.initial_pose.copy())
 
 
 def _solve_start(window: _Window, x0: np.ndarray, slots: queue.SimpleQueue, stop: threading.Event):
@@ -218,8 +202,8 @@ def error_per_segment(problem: DesignProblem, pairing: Pairing, result: Result) 
 
 
 def search(problem: DesignProblem, result: Result, pairing: Pairing, polish: Callable[[Routing], Result],
-           budget: float = DEFAULT_BUDGET, workers: int = 2, progress: Callable[[int, int], None] | None = None,
-           note: Callable[[str], None] | None = None, rounds: int = SEARCH_ROUNDS) -> Result:
+           budget: float = settings.Method.budget, workers: int = 2, progress: Callable[[int, int], None] | None = None,
+           note: Callable[[str], None] | None = None, rounds: int = settings.SEARCH_ROUNDS) -> Result:
     """Improve the design ``result`` of a corner-like target window by window (module docstring).
 
     ``polish(routing) -> Result``: the full NLP from a design (ends every round); ``budget``: seconds from
@@ -239,7 +223,7 @@ def search(problem: DesignProblem, result: Result, pairing: Pairing, polish: Cal
             if not changed or run.hit:  # a round the budget cut short is not polished: its design stays as it was
                 if note:
                     note(f"corner search round {rnd + 1}: " + ("stopped by the budget" if run.hit else "no window changed")
-                         + f", objective {run.best.stats['objective']:.6g} ({time.perf_counter() - run.t0:.1f} s)")
+                         + f", objective {run.best.objective:.6g} ({time.perf_counter() - run.t0:.1f} s)")
                 break
             if run.polish_time and time.perf_counter() + run.polish_time > run.deadline:
                 run.hit = True
@@ -248,12 +232,12 @@ def search(problem: DesignProblem, result: Result, pairing: Pairing, polish: Cal
             polished = polish(run.routing)
             run.polish_time = max(run.polish_time, time.perf_counter() - tp)
             run.iterations += polished.iterations
-            run.objectives.append(polished.stats["objective"])
+            run.objectives.append(polished.objective)
             run.accepted += changed
             run.report((rnd + 1) * run.per_round)
             if note:
-                note(f"corner search round {rnd + 1}: {changed} windows changed, objective {run.best.stats['objective']:.6g} -> "
-                     f"{polished.stats['objective']:.6g} ({time.perf_counter() - run.t0:.1f} s)")
+                note(f"corner search round {rnd + 1}: {changed} windows changed, objective {run.best.objective:.6g} -> "
+                     f"{polished.objective:.6g} ({time.perf_counter() - run.t0:.1f} s)")
             if drive.pick_best([run.best, polished]) == 0:  # not better (ties keep the earlier design)
                 break
             run.best, run.routing = polished, polished.routing
@@ -277,13 +261,13 @@ class _Search:
         self.t0 = time.perf_counter()
         self.deadline = self.t0 + max(0.0, budget)
         M = pairing.segments
-        self.W = min(WINDOW, M)
+        self.W = min(settings.WINDOW, M)
         self.rng = np.random.default_rng([problem.options.seed, 2])  # a stream apart from the starts' and hops'
         self.best, self.routing = result, result.routing
         self.objectives, self.windows_done, self.accepted, self.rounds, self.hit = [], 0, 0, 0, False
         self.iterations, self.window_time, self.polish_time, self.window_iterations = result.iterations, 0.0, 0.0, 0
         n = M - self.W + 1
-        self.per_round = max(min(MIN_WINDOWS, n), int(np.ceil(WINDOW_SHARE * n))) + 1  # windows + the polish
+        self.per_round = max(min(settings.MIN_WINDOWS, n), int(np.ceil(settings.WINDOW_SHARE * n))) + 1  # windows + the polish
         self.workers = max(1, workers)
         self.stop = threading.Event()
         self.pool = ThreadPoolExecutor(max_workers=self.workers, thread_name_prefix="vine-nlp-window")
@@ -300,7 +284,7 @@ class _Search:
         problem, W = self.problem, self.W
         err = error_per_segment(problem, self.pairing, self.best)
         order = np.argsort(-np.convolve(err, np.ones(W), "valid"), kind="stable")  # the corners first
-        order = order[: max(min(MIN_WINDOWS, order.size), int(np.ceil(WINDOW_SHARE * order.size)))]
+        order = order[: max(min(settings.MIN_WINDOWS, order.size), int(np.ceil(settings.WINDOW_SHARE * order.size)))]
         changed = 0
         for i, a in enumerate(order):
             now = time.perf_counter()
@@ -312,11 +296,11 @@ class _Search:
             f_cur = win.objective(win.x)
             # one task per start, in start order; results are read back in that order: the choice does not
             # depend on which thread finished first
-            tasks = [self.pool.submit(_solve_start, win, x0, self.slots, self.stop) for x0 in win.starts(self.rng, WINDOW_STARTS)]
+            tasks = [self.pool.submit(_solve_start, win, x0, self.slots, self.stop) for x0 in win.starts(self.rng, settings.WINDOW_STARTS)]
             solved = [f.result() for f in tasks]
             f_new, x_new, ok, _ = solved[drive.pick_best(solved, key=lambda r: (not r[2], r[0]))]
             self.window_iterations += sum(r[3] for r in solved if r is not None)
-            if ok and f_new < f_cur * (1 - WINDOW_GAIN):
+            if ok and f_new < f_cur * (1 - settings.WINDOW_GAIN):
                 self.routing = win.apply(self.routing, x_new, problem.diameter)
                 changed += 1
             self.windows_done += 1

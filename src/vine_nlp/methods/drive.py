@@ -20,10 +20,8 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
 
+from vine_nlp.methods.settings import TIE_RTOL
 from vine_nlp.problem import Result
-
-# objectives this close (relative) are the same optimum reached from different starts or rounds
-TIE_RTOL = 1e-6
 
 
 @dataclass
@@ -59,7 +57,7 @@ def rank(result: Result, clear: bool = True, miss: float | None = None) -> tuple
     """The one ranking of candidate designs, (not converged, not clear, value): converged first, then clear
     of every hard requirement (``clear``, as the formulation judges it); within a tier the lower value: the
     objective of a clear design, else ``miss`` (how far it is from its requirements; default the objective)."""
-    value = result.stats.get("objective", float("inf")) if clear or miss is None else miss
+    value = (float("inf") if result.objective is None else result.objective) if clear or miss is None else miss
     return not result.converged, not clear, float(value)
 
 
@@ -117,8 +115,9 @@ def record_starts(found: Starts, stats: Stats, always: bool = False) -> Result:
     for r in found.results:
         stats.absorb(r)
     if always or len(found.results) > 1:
+        best.runs = tuple(found.results)
         best.stats.update(starts=len(found.results), best_start=found.index,
-                          start_objectives=[r.stats.get("objective") for r in found.results],
+                          start_objectives=[r.objective for r in found.results],
                           start_iterations=[r.iterations for r in found.results])
     return best
 
@@ -136,6 +135,7 @@ def schedule(solve: Callable, steps) -> Result:
         if tried[-1].status == "optimal":
             break
     best = tried[-1] if tried[-1].status == "optimal" else tried[pick_best(tried)]
+    best.runs = tuple(tried)
     best.stats["hessian_schedule"] = "; ".join(f"{h}: {r.status}" for (h, _), r in zip(steps, tried))
     return stats.stamp(best)
 

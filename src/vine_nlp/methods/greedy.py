@@ -9,19 +9,19 @@ neighbour's theta and lambda, its length scaled to its own chord. First-window v
 lambda 0.75, theta 0, dl the segment's target chord.
 
 Shared with the NLP so that a comparison is about the algorithm: the pairing (``common.pair_points``), the
-bounds (``common.variable_bounds``), the segment model and the error: the window error is the sum of
+bounds (``common.design_bounds``), the segment model and the error: the window error is the sum of
 SQUARED distances of the paired points from the window's start to its end (``common.path_error``, what the
 NLP minimizes; the paper's sum of distances is not differentiable at a perfect fit and is used only for the
 sPAM abandonment test, where its threshold is defined).
 
 Each window is a small single-shooting NLP (:class:`WindowSolver`, D = 1), built once per window size and
 variant and reused. Multi-start (for MATLAB's GlobalSearch with 2000 / 300 trial points): start 0 is the
-carried-over values, the others draw theta and lambda uniformly in a box of half-width SPREAD x (bound
-range) around them (``options.greedy_starts``, FIRST_WINDOW_FACTOR times more for the first window); the
+carried-over values, the others draw theta and lambda uniformly in a box of half-width settings.GREEDY_SPREAD x (bound
+range) around them (``options.greedy_starts``, settings.FIRST_WINDOW_FACTOR times more for the first window); the
 best is kept.
 
-sPAM (one shared lambda): an outer loop runs the greedy for each of SPAM_CANDIDATES values in
-[lambda_min, 1], then SPAM_REFINE values within half a step of the best; a candidate is abandoned as soon as
+sPAM (one shared lambda): an outer loop runs the greedy for each of settings.SPAM_CANDIDATES values in
+[lambda_min, 1], then settings.SPAM_REFINE values within half a step of the best; a candidate is abandoned as soon as
 a window's sum of distances reaches n k D / 2 (the paper's early stop). ``lowpass`` is the paper's optional
 low-pass filter of theta(s) and lambda(s) (zero-phase Butterworth), re-evaluated so its cost shows.
 """
@@ -36,9 +36,8 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
-from vine_nlp.methods import blas
-from vine_nlp.methods.common import Pairing, clip_to_bounds, evaluate, geometric_guess, pair_points, path_error, variable_bounds
-from vine_nlp.methods.settings import GREEDY_WINDOW, quiet
+from vine_nlp.methods import blas, settings, variables
+from vine_nlp.methods.common import Pairing, clip_to_bounds, design_bounds, evaluate, geometric_guess, pair_points, path_error
 from vine_nlp.methods.transcription import ipopt_status
 from vine_nlp.model.chain import chain_points
 from vine_nlp.model.segment import segment_parts, segment_transform, so3_exp
@@ -46,13 +45,6 @@ from vine_nlp.problem import DesignProblem, Result, Routing
 
 __all__ = ["design_greedy", "lowpass", "WindowSolver", "get_window_solver"]
 
-LAMBDA_START = 0.75  # paper: lambda_{1:k,0} = 0.75
-SPREAD = 0.5  # random starts: half-width of the box around the carried-over values, x bound range
-FIRST_WINDOW_FACTOR = 4  # the first window gets this many times the starts (paper: 2000 vs 300)
-WINDOW_MAX_ITER = 200  # a window has <= 3k + 6 variables: a start that needs more is a bad start
-SPAM_CANDIDATES = 11  # linspace(lambda_min, 1, 11)
-SPAM_REFINE = 5  # second pass: 5 values within +-half a step of the best
-FILTER_ORDER = 2
 
 
 # ---------------------------------------------------------------- the window NLP
@@ -69,7 +61,7 @@ class WindowSolver:
     Objective: sum_slots w |r - r_d|^2 + |r_end - r_end,d|^2 (D-scaled).
     """
 
-    def __init__(self, K: int, n: int, first: bool, shared: bool, max_iter: int = WINDOW_MAX_ITER, tol: float = 1e-8):
+    def __init__(self, K: int, n: int, first: bool, shared: bool, max_iter: int = settings.GREEDY_WINDOW_MAX_ITER, tol: float = settings.TOL):
         t0 = time.perf_counter()
         self.K, self.n, self.first, self.shared = K, n, first, shared
         self.per_seg = 2 if shared else 3
@@ -107,7 +99,7 @@ class WindowSolver:
         pvec = ca.vertcat(*[ca.vec(q) for q in params])
         # the n slots of a segment repeat its helix rates: merging them speeds up the build
         sq, dist = ca.vertsplit(ca.cse(ca.vertcat(sq, dist)))
-        opts = quiet(max_iter, tol) | GREEDY_WINDOW
+        opts = settings.quiet(max_iter, tol) | settings.GREEDY_WINDOW
         blas.one_thread()
         self.solver = ca.nlpsol(f"greedy_window_{K}", "ipopt", {"x": x, "p": pvec, "f": sq}, opts)
         self.terms = ca.Function("window_terms", [x, pvec], [sq, dist])
@@ -147,7 +139,7 @@ class WindowSolver:
 
 
 @lru_cache(maxsize=64)
-def get_window_solver(K: int, n: int, first: bool, shared: bool, max_iter: int = WINDOW_MAX_ITER, tol: float = 1e-8) -> WindowSolver:
+def get_window_solver(K: int, n: int, first: bool, shared: bool, max_iter: int = settings.GREEDY_WINDOW_MAX_ITER, tol: float = settings.TOL) -> WindowSolver:
     """Cached window solver: one per window size and variant, reused for every window."""
     return WindowSolver(K, n, first, shared, max_iter, tol)
 
@@ -180,7 +172,7 @@ def _window_data(problem: DesignProblem, pairing: Pairing, j: int, K: int):
 def _window_solver_for(problem, n, K, first):
     o = problem.options
     return get_window_solver(K, n, first, problem.actuator.shared_lambda,
-                             min(int(o.max_iter), WINDOW_MAX_ITER), float(o.tol))
+                             min(int(o.max_iter), settings.GREEDY_WINDOW_MAX_ITER), float(o.tol))
 
 
 # ---------------------------------------------------------------- one greedy pass
@@ -206,15 +198,17 @@ def _greedy_pass(problem: DesignProblem, pairing: Pairing, counter: _Counter, la
     M, k = pairing.segments, max(1, int(o.lookahead))
     shared = lam_fixed is not None
     rng = np.random.default_rng(o.seed)
-    (tl, ll, dlo), (tu, lu, dhi) = variable_bounds(problem, pairing)
+    box = design_bounds(problem, pairing)
+    (tl, tu), (ll, lu), (dlo, dhi) = box["theta"], box["lam"], box["length"]
     chord = pairing.segment_chord
 
-    theta, lam, dl = clip_to_bounds(np.zeros(M), np.full(M, float(lam_fixed) if shared else LAMBDA_START), chord, problem, pairing)
+    theta, lam, dl = variables.clip({"theta": np.zeros(M), "lam": np.full(M, float(lam_fixed) if shared else settings.LAMBDA_START),
+                                     "length": chord}, box).values()
     guess = geometric_guess(problem, pairing)
     T = guess.initial_pose.copy()  # frame at the current window's start (fixed numeric parameter)
     T0 = T.copy()
 
-    starts_first = FIRST_WINDOW_FACTOR * max(1, int(o.greedy_starts))
+    starts_first = settings.FIRST_WINDOW_FACTOR * max(1, int(o.greedy_starts))
     starts_later = max(1, int(o.greedy_starts))
     tally = {"solves": 0, "iterations": 0, "statuses": {}}
     window_status, window_sq, window_dist = [], [], []
@@ -257,7 +251,7 @@ def _greedy_pass(problem: DesignProblem, pairing: Pairing, counter: _Counter, la
             abandoned = True
             counter.step(M - 1 - j)
             break
-    return tally | {"routing": Routing(theta, lam, dl, T0), "window_status": window_status, "window_sq": window_sq, "window_dist": window_dist, "abandoned": abandoned,
+    return tally | {"routing": Routing(theta=theta, lam=lam, length=dl, initial_pose=T0), "window_status": window_status, "window_sq": window_sq, "window_dist": window_dist, "abandoned": abandoned,
             "windows_done": len(window_status), "starts": (starts_first, starts_later)}
 
 
@@ -271,7 +265,7 @@ def _window_starts(solver, p, lbx, ubx, x_carry, starts: int, shared: bool, K: i
         if s > 0:
             for r in ([0] if shared else [0, 1]):
                 idx = solver.npose + r + solver.per_seg * np.arange(K)
-                half = SPREAD * (ubx[idx] - lbx[idx])
+                half = settings.GREEDY_SPREAD * (ubx[idx] - lbx[idx])
                 x0[idx] = rng.uniform(np.maximum(lbx[idx], x_carry[idx] - half), np.minimum(ubx[idx], x_carry[idx] + half))
         sol = solver.solver(x0=x0, p=p, lbx=lbx, ubx=ubx)
         st = solver.solver.stats()
@@ -325,7 +319,7 @@ def design_greedy(problem: DesignProblem, pairing: Pairing | None = None, progre
     else:
         a = problem.actuator
         threshold = pairing.n * k * problem.diameter / 2.0
-        total = M * (SPAM_CANDIDATES + SPAM_REFINE)
+        total = M * (settings.SPAM_CANDIDATES + settings.SPAM_REFINE)
         counter = _Counter(total, progress)
         runs, tried = [], []
 
@@ -337,7 +331,7 @@ def design_greedy(problem: DesignProblem, pairing: Pairing | None = None, progre
             tried.append(float(lam_c))
             return r
 
-        grid = np.linspace(a.lambda_min, 1.0, SPAM_CANDIDATES)
+        grid = np.linspace(a.lambda_min, 1.0, settings.SPAM_CANDIDATES)
         for lam_c in grid:
             run_candidate(lam_c)
         step = grid[1] - grid[0] if grid.size > 1 else 0.0
@@ -345,13 +339,13 @@ def design_greedy(problem: DesignProblem, pairing: Pairing | None = None, progre
         refine_new = 0
         if done and step > 0:
             center = min(done, key=lambda r: r["error"])["lambda"]
-            for lam_c in np.linspace(center - step / 2, center + step / 2, SPAM_REFINE):
+            for lam_c in np.linspace(center - step / 2, center + step / 2, settings.SPAM_REFINE):
                 lam_c = float(np.clip(lam_c, a.lambda_min, 1.0))
                 if any(abs(lam_c - t) < 1e-12 for t in tried):
                     continue
                 run_candidate(lam_c)
                 refine_new += 1
-        counter.step(M * (SPAM_REFINE - refine_new))  # skipped refinement values
+        counter.step(M * (settings.SPAM_REFINE - refine_new))  # skipped refinement values
         done = [r for r in runs if not r["abandoned"]]
         if not done:
             # every candidate hit the threshold: finish the one that got furthest, without abandonment
@@ -398,7 +392,7 @@ def lowpass(result_or_routing, problem: DesignProblem, pairing: Pairing | None =
     src = result_or_routing
     routing = src.routing if isinstance(src, Result) else src
     pairing = pairing or pair_points(problem.target, problem.options.points_per_segment)
-    b, a = butter(FILTER_ORDER, cutoff)
+    b, a = butter(settings.FILTER_ORDER, cutoff)
     padlen = 3 * max(len(a), len(b))
     theta, lam = routing.theta.copy(), routing.lam.copy()
     filtered = theta.size > padlen
@@ -406,10 +400,9 @@ def lowpass(result_or_routing, problem: DesignProblem, pairing: Pairing | None =
         theta = filtfilt(b, a, theta)
         if not problem.actuator.shared_lambda:
             lam = filtfilt(b, a, lam)
-    theta, lam, length = clip_to_bounds(theta, lam, routing.length, problem, pairing)
-    new = Routing(theta, lam, length, routing.initial_pose)
+    new = Routing(**clip_to_bounds(problem, pairing, theta=theta, lam=lam, length=routing.length), initial_pose=routing.initial_pose)
     stats = dict(src.stats) if isinstance(src, Result) else {}
-    stats.update({"filter": "butterworth+filtfilt", "filter_order": FILTER_ORDER, "cutoff": float(cutoff),
+    stats.update({"filter": "butterworth+filtfilt", "filter_order": settings.FILTER_ORDER, "cutoff": float(cutoff),
                   "filtered": bool(filtered)})
     kw = {"status": src.status, "solve_time_s": src.solve_time_s, "iterations": src.iterations} if isinstance(src, Result) else {}
     return evaluate(problem, new, pairing, "greedy_filtered", stats=stats, **kw)

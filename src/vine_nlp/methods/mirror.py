@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 
+from vine_nlp.methods.settings import PLANAR
 from vine_nlp.model.obstacles import Box, Capsule, Mesh, Plane, Sphere
 from vine_nlp.model.shape import Shape
 from vine_nlp.problem import DesignProblem, Result, Routing
@@ -33,7 +34,6 @@ from vine_nlp.problem import DesignProblem, Result, Routing
 M3 = np.diag([1.0, -1.0, 1.0])
 _M4 = np.diag([1.0, -1.0, 1.0, 1.0])
 _S4 = np.diag([1.0, 1.0, -1.0, 1.0])
-PLANAR = 1e-9  # |torsion sum| / sum |chord|^3 below this: a target planar to round-off (no handedness of its own)
 
 
 def mirrored_pose(T) -> np.ndarray:
@@ -43,7 +43,7 @@ def mirrored_pose(T) -> np.ndarray:
 
 def mirrored_routing(r: Routing) -> Routing:
     """The routing whose shape is the mirror of ``r``'s: theta -> -theta, the base pose mirrored."""
-    return Routing(-np.asarray(r.theta, float), np.array(r.lam, float), np.array(r.length, float), mirrored_pose(r.initial_pose))
+    return Routing(theta=-np.asarray(r.theta, float), lam=np.array(r.lam, float), length=np.array(r.length, float), initial_pose=mirrored_pose(r.initial_pose))
 
 
 def _y(p) -> tuple:

@@ -21,11 +21,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vine_nlp.methods import drive
-from vine_nlp.methods.common import LENGTH_FACTOR, evaluate, geometric_guess, pair_points
-from vine_nlp.methods.settings import Settings
+from vine_nlp.methods import drive, variables
+from vine_nlp.methods.common import evaluate, geometric_guess, pair_points
+from vine_nlp.methods.settings import MAX_ITER, TOL, Settings
 from vine_nlp.methods.structure import Structure, frames12
-from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, cell_data, get_solver, routing_of, smoothing_steps
+from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, cell_data, get_solver, smoothing_steps
 from vine_nlp.model.helix import center_rates
 from vine_nlp.model.pairing import Pairing
 from vine_nlp.model.shape import routing_metrics
@@ -60,7 +60,7 @@ class MultiShapeResult(Result):
 # ---------------------------------------------------------------- the NLP
 
 
-def multishape_spec(M: int, n: int, K: int, shared_pose: bool, max_iter: int = 3000, tol: float = 1e-8) -> Spec:
+def multishape_spec(M: int, n: int, K: int, shared_pose: bool, max_iter: int = MAX_ITER, tol: float = TOL) -> Spec:
     """K chains of one routing (theta_j, dl_j shared), one lambda per level, one base pose or one per level."""
     return Spec(Structure(M, n, K, "level", "shared" if shared_pose else "level"), (Smoothness(lam=False), SoftTip()),
                 "exact", Settings(max_iter, tol))
@@ -149,7 +149,7 @@ def start_guesses(problem: MultiShapeProblem, pairings, starts: int) -> list[Mul
     rank[order] = np.arange(problem.count)
     for s in range(2, starts):
         base = guesses[s % 2]
-        theta = np.clip(base.theta + rng.normal(0.0, 0.25, base.theta.shape), -a.theta_max, a.theta_max)
+        theta = variables.perturb(variables.THETA, base.theta, rng, a)
         spread = a.lambda_min + (1.0 - a.lambda_min) * (rank + rng.uniform(0.2, 0.8, problem.count)) / problem.count
         levels = np.array([v if v is not None else spread[k] for k, v in enumerate(problem.levels)])
         guesses.append(MultiGuess(theta, base.length.copy(), levels, [p.copy() for p in base.poses], [f.copy() for f in base.frames]))
@@ -176,19 +176,18 @@ def solve_from(problem: MultiShapeProblem, guess: MultiGuess, pairings=None) -> 
                             "tip": np.column_stack([t[-1] / D for t in problem.targets]), "wtip": np.full(K, 1.0 / (N * K))})
     fr = [frames12(f, D) for f in guess.frames]
     poses = np.array([np.r_[np.zeros(3), G[:3, 3] / D] for G in guess.poses[:P]])
-    x0 = solver.pack_x(guess.theta, None, guess.length / D, np.array(fr), poses=poses, lam_global=guess.levels)
+    x0 = solver.pack_x(np.array(fr), poses=poses, lam_global=guess.levels, theta=guess.theta, lam=None, length=guess.length / D)
     seg_chord = np.max([pr.segment_chord for pr in pairings], axis=0) / D
     a = problem.actuator
     levels = ([a.lambda_min if v is None else v for v in problem.levels], [1.0 if v is None else v for v in problem.levels])
-    lbx, ubx = solver.bounds((np.full(M, -a.theta_max), np.full(M, a.theta_max)), levels,
-                             (LENGTH_FACTOR[0] * seg_chord, LENGTH_FACTOR[1] * seg_chord))
-    x, status, st = solver.solve(x0, p, lbx, ubx)
-    v = solver.unpack(x)
-    T = [routing_of(solver, x, D, guess.poses[q][:3, :3], k).initial_pose for k, q in enumerate(solver.layout.pose_of_level)]
+    lbx, ubx = solver.bounds(**variables.box(a, seg_chord) | {"lam": levels})  # lambda: one per level
+    sol = solver.solve(x0, p, lbx, ubx)
+    v, st = sol.unpack(), sol.stats
+    T = [sol.routing(D, guess.poses[q][:3, :3], k).initial_pose for k, q in enumerate(solver.layout.pose_of_level)]
     stats = st | {"segments": M, "points_per_segment": n, "levels": K, "shared_pose": problem.shared_pose,
                   "fixed_levels": [lv is not None for lv in problem.levels], "smooth_theta": o.smooth_theta, "tol": o.tol,
                   "max_iter": o.max_iter}
-    return assemble(problem, v["theta"], v["dl"] * D, v["lam_global"], T, pairings, status=status,
+    return assemble(problem, v["theta"], v["length"] * D, v["lam_global"], T, pairings, status=sol.status, objective=sol.objective,
                     solve_time_s=stats.pop("solve_time_s"), iterations=stats.pop("iterations"), stats=stats)
 
 
@@ -198,7 +197,7 @@ def assemble(problem: MultiShapeProblem, theta, length, levels, poses, pairings=
     K = problem.count
     levels = np.asarray(levels, float).reshape(K)
     poses = np.asarray(poses, float).reshape(K, 4, 4)
-    per = [evaluate(problem.level_problem(k), Routing(theta, np.full(np.size(theta), levels[k]), length, poses[k]), pairings[k], RUN)
+    per = [evaluate(problem.level_problem(k), Routing(theta=theta, lam=np.full(np.size(theta), levels[k]), length=length, initial_pose=poses[k]), pairings[k], RUN)
            for k in range(K)]
     d2 = np.concatenate([np.sum((r.shape.center - t) ** 2, axis=1) for r, t in zip(per, problem.targets)])
     level_metrics = [{"rmse": r.metrics["rmse"], "max_error": r.metrics["max_error"], "lambda": float(levels[k])} for k, r in enumerate(per)]

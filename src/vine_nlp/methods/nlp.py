@@ -8,7 +8,8 @@ with the chain's end, and the smoothness penalties:
 
 the derivative integrals on the target's arc length so the penalties mean the same at any discretization
 (they replace the paper's low-pass filter); one lambda for an sPAM. Bounds |theta| <= theta_max,
-lambda_min <= lambda <= 1, segment lengths within LENGTH_FACTOR of the target's chord of the segment.
+lambda_min <= lambda <= 1, segment lengths within LENGTH_FACTOR of the target's chord of the segment
+(the declarations of methods.variables).
 The solver is built once per structure and cached; targets, weights and guesses are data. On the drive:
 the starts (``drive.multistart``), the Hessian schedule (``solve_from``), basin hops; where the first
 solve shows a corner-like target the windowed search of ``methods.corners`` follows.
@@ -16,18 +17,17 @@ solve shows a corner-like target the windowed search of ``methods.corners`` foll
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import time
 
 import numpy as np
 
-from vine_nlp.methods import compiled, corners, drive
-from vine_nlp.methods.common import LENGTH_FACTOR, Guess, evaluate, geometric_guess, pair_points
+from vine_nlp.methods import common, corners, drive, variables
+from vine_nlp.methods.common import Guess, evaluate, geometric_guess, pair_points
 from vine_nlp.methods.drive import TIE_RTOL
-from vine_nlp.methods.settings import AUTO_GN_MAX_ITER, FATROP_MAX_SEGMENTS, WINDOW, Settings
+from vine_nlp.methods.settings import AUTO_GN_MAX_ITER, MAX_ITER, TOL, WINDOW, Method, Settings
 from vine_nlp.methods.structure import Structure, frames12
-from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, cell_data, fatrop_safe, routing_of, smoothing_steps
+from vine_nlp.methods.transcription import Smoothness, SoftTip, Solution, Spec, cell_data, smoothing_steps
 from vine_nlp.methods.transcription import get_solver as _get
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.pairing import Pairing
@@ -36,7 +36,7 @@ from vine_nlp.problem import DesignProblem, Result, Routing
 __all__ = ["design_nlp", "solve_from", "start_guesses", "guess_from_routing", "basin_hops", "get_solver", "nlp_parameters", "TIE_RTOL"]
 
 
-def nlp_spec(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False,
+def nlp_spec(M: int, n: int, shared_lambda: bool, max_iter: int = MAX_ITER, tol: float = TOL, warm: bool = False,
              hessian: str = "exact", terms: tuple = (), hard: bool = False, extra: int = 0) -> Spec:
     """The plain NLP's structure and terms; more ``terms`` (with ``extra`` stage variables and ``hard`` rows): a
     formulation built on it. A Gauss-Newton solve of the plain chain from a guess declares itself so."""
@@ -55,30 +55,9 @@ def extended_solver(problem: DesignProblem, pairing: Pairing, terms: tuple, extr
                          extra=extra))
 
 
-def get_solver(M: int, n: int, shared_lambda: bool, max_iter: int = 3000, tol: float = 1e-8, warm: bool = False, hessian: str = "exact"):
+def get_solver(M: int, n: int, shared_lambda: bool, max_iter: int = MAX_ITER, tol: float = TOL, warm: bool = False, hessian: str = "exact"):
     """The plain NLP's solver, cached per structure (building costs more than one solve)."""
     return _get(nlp_spec(M, n, shared_lambda, max_iter, tol, warm, hessian))
-
-
-def fatrop_spec(M: int, n: int, max_iter: int = 3000, tol: float = 1e-8, hessian: str = "gauss-newton") -> Spec:
-    """The plain NLP (lambda per segment) in the transcription's stage form, for Fatrop."""
-    return Spec(Structure(M, n, stages=True), (Smoothness(), SoftTip()), hessian, Settings(max_iter, tol, backend="fatrop"))
-
-
-_NO_FATROP: set = set()  # specs whose Fatrop solver could not be built in this process (compiler failed)
-
-def get_fatrop(M: int, n: int, max_iter: int = 3000, tol: float = 1e-8, hessian: str = "gauss-newton"):
-    """The plain NLP's Fatrop solver, cached like ``get_solver``; None where its functions are not compiled
-    (VINE_NLP_CODEGEN=off, no compiler, a failed compile): the caller uses IPOPT."""
-    spec = fatrop_spec(M, n, max_iter, tol, hessian)
-    if compiled.mode() == "off" or spec in _NO_FATROP:
-        return None
-    try:
-        return _get(spec)
-    except compiled.NotCompiled as e:
-        if not isinstance(e, compiled.Compiling):  # being compiled in the background: asked again next time
-            _NO_FATROP.add(spec)
-        return None
 
 
 def nlp_parameters(problem: DesignProblem, pairing: Pairing, R0g: np.ndarray) -> dict:
@@ -92,12 +71,9 @@ def nlp_parameters(problem: DesignProblem, pairing: Pairing, R0g: np.ndarray) ->
             "h": h, "L": L, "tip": tgt[-1], "wtip": 1.0 / N}
 
 
-def design_bounds(problem: DesignProblem, pairing: Pairing):
-    """(theta, lam, dl) (lo, hi) pairs in units of D (paper Sec. VI-A; lengths within LENGTH_FACTOR of the chords)."""
-    a, M = problem.actuator, pairing.segments
-    chord = pairing.segment_chord / problem.diameter
-    return ((np.full(M, -a.theta_max), np.full(M, a.theta_max)), (np.full(M, a.lambda_min), np.ones(M)),
-            (LENGTH_FACTOR[0] * chord, LENGTH_FACTOR[1] * chord))
+def design_bounds(problem: DesignProblem, pairing: Pairing) -> dict:
+    """``common.design_bounds`` in units of D (the NLP's)."""
+    return common.design_bounds(problem, pairing, problem.diameter)
 
 
 def start_x(solver, guess: Guess, D: float, frames: str = "target") -> np.ndarray:
@@ -110,78 +86,64 @@ def start_x(solver, guess: Guess, D: float, frames: str = "target") -> np.ndarra
         fr = chain_frames(guess.theta, guess.lam, guess.length, D, guess.initial_pose)
     fr[:, :3, 3] /= D
     pose = np.r_[np.zeros(3), guess.initial_pose[:3, 3] / D]
-    return solver.pack_x(guess.theta, guess.lam, guess.length / D, frames12(fr)[None], poses=pose[None])
+    return solver.pack_x(frames12(fr)[None], poses=pose[None], theta=guess.theta, lam=guess.lam, length=guess.length / D)
 
 
 def solve_from(
-    problem: DesignProblem, guess: Guess | None = None, pairing: Pairing | None = None, frames: str = "target", warm: bool = False
+    problem: DesignProblem, guess: Guess | None = None, pairing: Pairing | None = None, frames: str = "target", warm: bool = False,
+    method: Method | None = None,
 ) -> Result:
     """One solve of the inverse-design NLP for ``problem`` from ``guess`` (default: the geometric guess).
 
     ``frames``: "target" starts the shooting frames on the target, "chain" on the guessed design's chain;
-    ``warm``: IPOPT's warm-start options. ``options.hessian`` "auto" (default) is the drive's Hessian
+    ``warm``: IPOPT's warm-start options; ``method``: how (default ``Method.of(problem.options)``). Its
+    ``hessian`` "auto" (default) is the drive's Hessian
     schedule: Gauss-Newton (several times cheaper per iteration, and a true KKT point where it converges)
     for settings.AUTO_GN_MAX_ITER iterations, then the exact Hessian from the same start, or from
-    Gauss-Newton's "acceptable" point (a polish). ``options.solver`` "auto": a Gauss-Newton solve from a
-    guess runs on Fatrop (the stage form) where its functions are compiled, the chain has at most
-    settings.FATROP_MAX_SEGMENTS segments and a lambda per segment; IPOPT solves the same start where Fatrop
-    fails (stats fatrop_status, fatrop_iterations, fatrop_time_s; counted in the result's).
+    Gauss-Newton's "acceptable" point (a polish).
     """
-    o = problem.options
-    pairing = pairing or pair_points(problem.target, o.points_per_segment)
+    m = method or Method.of(problem.options)
+    pairing = pairing or pair_points(problem.target, problem.options.points_per_segment)
     guess = guess or geometric_guess(problem, pairing)
-    if o.hessian != "auto":
-        return _solve(problem, guess, pairing, frames, warm, o.hessian, o.max_iter)
+    if m.hessian != "auto":
+        return _solve(problem, guess, pairing, frames, warm, m.hessian, m.max_iter, m)
 
     def step(hessian, max_iter, previous):
         if previous is None:
-            r = _solve(problem, guess, pairing, frames, warm, hessian, max_iter)
-            r.stats["hessian"] = hessian
+            r = _solve(problem, guess, pairing, frames, warm, hessian, max_iter, m)
+            r.hessian = hessian
         elif previous.status == "acceptable":  # the exact Hessian polishes Gauss-Newton's acceptable point
-            r = _solve(problem, guess_from_routing(problem, pairing, previous.routing), pairing, "chain", True, hessian, max_iter)
-            r.stats["hessian"] = "exact, polishing gauss-newton's acceptable point"
+            r = _solve(problem, guess_from_routing(problem, pairing, previous.routing), pairing, "chain", True, hessian, max_iter, m)
+            r.hessian = "exact, polishing gauss-newton's acceptable point"
         else:
-            r = _solve(problem, guess, pairing, frames, warm, hessian, max_iter)
-            r.stats["hessian"] = "exact (after gauss-newton did not converge)"
+            r = _solve(problem, guess, pairing, frames, warm, hessian, max_iter, m)
+            r.hessian = "exact (after gauss-newton did not converge)"
+        r.stats["hessian"] = r.hessian  # archived
         return r
 
-    return drive.schedule(step, (("gauss-newton", min(o.max_iter, AUTO_GN_MAX_ITER)), ("exact", o.max_iter)))
+    return drive.schedule(step, (("gauss-newton", min(m.max_iter, AUTO_GN_MAX_ITER)), ("exact", m.max_iter)))
 
 
-def _solve(problem, guess, pairing, frames, warm, hessian, max_iter) -> Result:
-    o, D = problem.options, problem.diameter
+def _solve(problem, guess, pairing, frames, warm, hessian, max_iter, method: Method | None = None) -> Result:
+    D, method = problem.diameter, method or Method.of(problem.options)
     M, n = pairing.segments, pairing.n
     R0g = guess.initial_pose[:3, :3]
     data = nlp_parameters(problem, pairing, R0g)
     bounds = design_bounds(problem, pairing)
-    tried = {}
-    # Fatrop: the Gauss-Newton solve from a guess of a chain it can take as stages (results/BENCHMARKS.md, "Fatrop")
-    if o.solver == "auto" and hessian == "gauss-newton" and not warm and M <= FATROP_MAX_SEGMENTS and not problem.actuator.shared_lambda:
-        solver = get_fatrop(M, n, max_iter, o.tol, hessian)
-        if solver is not None:
-            lbx, ubx = solver.bounds(*bounds)
-            x0, p = start_x(solver, guess, D, frames), solver.pack_params(data)
-            x, status, st = solver.solve(x0, p, lbx, ubx) if fatrop_safe(x0, p, lbx, ubx) else (x0, "invalid_number", {"iterations": 0, "solve_time_s": 0.0})
-            if status == "optimal":
-                return result_of(problem, pairing, solver, x, status, st, R0g, "nlp", max_iter=max_iter, hessian=hessian)
-            tried = {"fatrop_status": status, "fatrop_iterations": st["iterations"], "fatrop_time_s": st["solve_time_s"]}
-    solver = get_solver(M, n, problem.actuator.shared_lambda, max_iter, o.tol, warm, hessian)
-    lbx, ubx = solver.bounds(*bounds)
-    x, status, st = solver.solve(start_x(solver, guess, D, frames), solver.pack_params(data), lbx, ubx)
-    if tried:  # Fatrop's failed attempt counts in the solve's iterations and time
-        st |= tried | {"iterations": st["iterations"] + tried["fatrop_iterations"], "solve_time_s": st["solve_time_s"] + tried["fatrop_time_s"]}
-    return result_of(problem, pairing, solver, x, status, st, R0g, "nlp", max_iter=max_iter, hessian=hessian)
+    solver = get_solver(M, n, problem.actuator.shared_lambda, max_iter, method.tol, warm, hessian)
+    lbx, ubx = solver.bounds(**bounds)
+    sol = solver.solve(start_x(solver, guess, D, frames), solver.pack_params(data), lbx, ubx)
+    return result_of(problem, pairing, sol, R0g, "nlp", method=method, max_iter=max_iter, hessian=hessian)
 
 
-def result_of(problem, pairing, solver, x, status, st, R0g, method, **extra) -> Result:
-    """A Result of a solution x of the plain NLP or a formulation built on it; ``extra``: more stats."""
-    o = problem.options
-    return evaluate(
-        problem, routing_of(solver, x, problem.diameter, R0g), pairing, method, status=status, solve_time_s=st.pop("solve_time_s"),
-        iterations=st.pop("iterations"),
-        stats=st | {"segments": pairing.segments, "points_per_segment": pairing.n, "smooth_theta": o.smooth_theta,
-                    "smooth_lambda": o.smooth_lambda, "tol": o.tol, "max_iter": o.max_iter} | extra,
-    )
+def result_of(problem, pairing, sol: Solution, R0g, run, method: Method | None = None, **extra) -> Result:
+    """A Result (run ``run``) of a solution of the plain NLP or a formulation built on it, solved by ``method``
+    (default the problem's options'); ``extra``: more stats (archived)."""
+    o, m, st = problem.options, method or Method.of(problem.options), dict(sol.stats)
+    stats = st | {"segments": pairing.segments, "points_per_segment": pairing.n, "smooth_theta": o.smooth_theta,
+                  "smooth_lambda": o.smooth_lambda, "tol": m.tol, "max_iter": m.max_iter} | extra
+    return evaluate(problem, sol.routing(problem.diameter, R0g), pairing, run, status=sol.status, solve_time_s=stats.pop("solve_time_s"),
+                    iterations=stats.pop("iterations"), stats=stats, objective=sol.objective, hessian=str(stats["hessian"]))
 
 
 def start_guesses(problem: DesignProblem, pairing: Pairing, starts: int) -> list[Guess]:
@@ -199,17 +161,17 @@ def start_guesses(problem: DesignProblem, pairing: Pairing, starts: int) -> list
     a = problem.actuator
     for k in range(2, starts):
         base = guesses[k % 2]
-        theta = np.clip(base.theta + rng.normal(0.0, 0.25, base.theta.shape), -a.theta_max, a.theta_max)
-        lam = np.clip(base.lam + rng.normal(0.0, 0.1, base.lam.shape), a.lambda_min, 1.0)
+        theta = variables.perturb(variables.THETA, base.theta, rng, a)
+        lam = variables.perturb(variables.LAM, base.lam, rng, a)
         if a.shared_lambda:
-            lam = np.full_like(lam, np.clip(rng.uniform(a.lambda_min, 1.0), a.lambda_min, 1.0))
+            lam = np.full_like(lam, variables.draw(variables.LAM, rng, a))
         guesses.append(Guess(theta, lam, base.length, base.initial_pose, base.frames))
     return guesses
 
 
 def _solve_start(args):
-    problem, guess, frames, warm = args
-    return solve_from(problem, guess, frames=frames, warm=warm)
+    problem, guess, frames, warm, method = args
+    return solve_from(problem, guess, frames=frames, warm=warm, method=method)
 
 
 def chain_guess(problem: DesignProblem, routing: Routing) -> Guess:
@@ -229,10 +191,8 @@ def guess_from_routing(problem: DesignProblem, pairing: Pairing, routing: Routin
         theta = np.interp(s_new, s_old, routing.theta)
         lam = np.interp(s_new, s_old, routing.lam)
         length = np.full(M, routing.length.sum() / M)
-    a = problem.actuator
-    theta = np.clip(theta, -a.theta_max, a.theta_max)
-    lam = np.clip(lam, a.lambda_min, 1.0)
-    if a.shared_lambda:
+    theta, lam = variables.clip({"theta": theta, "lam": lam}, variables.box(problem.actuator, np.zeros(M), only=("theta", "lam"))).values()
+    if problem.actuator.shared_lambda:
         lam = np.full(M, float(np.mean(lam)))
     frames = chain_frames(theta, lam, length, problem.diameter, routing.initial_pose)
     return Guess(theta, lam, length, routing.initial_pose.copy(), frames)
@@ -240,22 +200,24 @@ def guess_from_routing(problem: DesignProblem, pairing: Pairing, routing: Routin
 
 def design_nlp(
     problem: DesignProblem, starts: int | None = None, workers: int = 1, warm: Routing | None = None, progress=None, hops: int | None = None,
-    budget: float | None = None, note=None,
+    budget: float | None = None, note=None, method: Method | None = None,
 ) -> Result:
-    """Inverse design as one NLP: multi-start (``options.starts``, the drive's ranking), then ``options.hops``
+    """Inverse design as one NLP: multi-start (``method.starts``, the drive's ranking), then ``method.hops``
     rounds of basin hopping, or, where the design shows a corner-like target and no hops were asked for,
-    the windowed corner search within ``budget`` seconds (default ``options.budget``; 0: none; two threads
+    the windowed corner search within ``budget`` seconds (default ``method.budget``; 0: none; two threads
     where the machine has two cores, the same result as one). ``warm``: one start from an earlier design
     (frames on its chain); ``workers`` > 1: the starts in a process pool; ``progress(done, total)`` after
-    each start, hop and window; ``note(line)``: one line per round of the corner search.
+    each start, hop and window; ``note(line)``: one line per round of the corner search; ``method``: how
+    (default ``Method.of(problem.options)``; ``starts``, ``hops``, ``budget`` override its own).
     """
+    m = method or Method.of(problem.options)
     pairing = pair_points(problem.target, problem.options.points_per_segment)
-    n_hops = max(0, problem.options.hops if hops is None else hops)
+    n_hops = max(0, m.hops if hops is None else hops)
     if warm is not None:
-        jobs = [(problem, guess_from_routing(problem, pairing, warm), "chain", True)]
+        jobs = [(problem, guess_from_routing(problem, pairing, warm), "chain", True, m)]
     else:
-        n = max(1, problem.options.starts if starts is None else starts)
-        jobs = [(problem, g, "target", False) for g in start_guesses(problem, pairing, n)]
+        n = max(1, m.starts if starts is None else starts)
+        jobs = [(problem, g, "target", False, m) for g in start_guesses(problem, pairing, n)]
     total = len(jobs) + n_hops
     stats = drive.Stats()
     found = drive.multistart(_solve_start, jobs, workers=workers, progress=progress and (lambda done, _: progress(done, total)))
@@ -263,24 +225,22 @@ def design_nlp(
     if warm is not None:
         best.stats["warm_start"] = True
     if n_hops:
-        return stats.stamp(basin_hops(problem, best, n_hops, pairing, lambda k: progress and progress(len(jobs) + k, total), stats))
-    budget = problem.options.budget if budget is None else budget
+        return stats.stamp(basin_hops(problem, best, n_hops, pairing, lambda k: progress and progress(len(jobs) + k, total), stats, m))
+    budget = m.budget if budget is None else budget
     if budget > 0 and corners.corner_like(problem, best):
-        best = _corner_search(problem, best, pairing, budget, workers, progress, note, len(jobs))
+        best = _corner_search(problem, best, pairing, budget, workers, progress, note, len(jobs), m)
         best.solve_time_s = time.perf_counter() - stats.started
         return best
     return stats.stamp(best)
 
 
-def _corner_search(problem, best, pairing, budget, workers, progress, note, done) -> Result:
+def _corner_search(problem, best, pairing, budget, workers, progress, note, done, m: Method) -> Result:
     """corners.search with the full NLP as its polish: exact Hessian, frames on the design's chain, IPOPT's
     ordinary start (the windows' changes leave the design away from a KKT point: warm-start options cost
     more iterations there)."""
-    o = problem.options
-
     def polish(routing: Routing) -> Result:
-        r = _solve(problem, guess_from_routing(problem, pairing, routing), pairing, "chain", False, "exact", o.max_iter)
-        r.stats["hessian"] = "exact (corner search polish)"
+        r = _solve(problem, guess_from_routing(problem, pairing, routing), pairing, "chain", False, "exact", m.max_iter, m)
+        r.stats["hessian"] = r.hessian = "exact (corner search polish)"
         return r
 
     threads = max(workers, min(2, os.cpu_count() or 1))
@@ -289,22 +249,22 @@ def _corner_search(problem, best, pairing, budget, workers, progress, note, done
 
 
 def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairing | None = None, progress=None,
-               stats: drive.Stats | None = None) -> Result:
+               stats: drive.Stats | None = None, method: Method | None = None) -> Result:
     """Basin hopping for rugged targets (corners): ``hops`` rounds of re-drawing theta and lambda of
     settings.WINDOW neighbouring segments (uniformly inside the bounds; the rest of the design, its lengths
     and frames kept) and solving again, keeping the better design (``drive.pick_best``). The window's middle
     segment is drawn with probability proportional to its squared error: the search goes where the design
     misses the target (a polyline's corners, separate local minima no single descent crosses).
-    Deterministic for ``options.seed``; every hop's solves count in ``stats``. Stats hops, hops_accepted,
+    Deterministic for the method's seed; every hop's solves count in ``stats``. Stats hops, hops_accepted,
     hop_objectives, hop_iterations.
     """
-    o, a = problem.options, problem.actuator
-    if o.hessian == "auto" and str(result.stats.get("hessian", "")).startswith("exact"):
+    m, a = method or Method.of(problem.options), problem.actuator
+    if m.hessian == "auto" and result.hessian.startswith("exact"):
         # Gauss-Newton did not converge on this target: do not try it again on every hop
-        problem = dataclasses.replace(problem, options=dataclasses.replace(o, hessian="exact"))
-    pairing = pairing or pair_points(problem.target, o.points_per_segment)
+        m = m.with_(hessian="exact")
+    pairing = pairing or pair_points(problem.target, problem.options.points_per_segment)
     M = pairing.segments
-    rng = np.random.default_rng([o.seed, 1])  # a stream apart from start_guesses'
+    rng = np.random.default_rng([m.seed, 1])  # a stream apart from start_guesses'
     best, objectives, iterations, accepted = result, [], [], 0
     for k in range(hops):
         per_segment = corners.error_per_segment(problem, pairing, best) + 1e-300
@@ -313,18 +273,18 @@ def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairi
         w = slice(start, start + WINDOW)
         old = best.routing
         theta, lam = old.theta.copy(), old.lam.copy()
-        theta[w] = rng.uniform(-a.theta_max, a.theta_max, theta[w].shape)
+        theta[w] = variables.draw(variables.THETA, rng, a, theta[w].shape)
         if not a.shared_lambda:  # one shared lambda is not a property of a window
-            lam[w] = rng.uniform(a.lambda_min, 1.0, lam[w].shape)
+            lam[w] = variables.draw(variables.LAM, rng, a, lam[w].shape)
         # multiple shooting: frames inside the window follow the new values, the others stay where
         # the design put them, so the only continuity defect is at the window's end
         frames = chain_frames(old.theta, old.lam, old.length, problem.diameter, old.initial_pose)
         frames[start + 1 : start + WINDOW] = chain_frames(theta, lam, old.length, problem.diameter, old.initial_pose)[start + 1 : start + WINDOW]
         guess = Guess(theta, lam, old.length.copy(), old.initial_pose.copy(), frames)
-        r = solve_from(problem, guess, pairing, frames="target")
+        r = solve_from(problem, guess, pairing, frames="target", method=m)
         if stats is not None:
             stats.absorb(r)
-        objectives.append(r.stats["objective"])
+        objectives.append(r.objective)
         iterations.append(r.iterations)
         if drive.pick_best([best, r]) == 1:
             best, accepted = r, accepted + 1

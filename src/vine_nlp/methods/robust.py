@@ -47,6 +47,7 @@ from vine_nlp.methods.buildable import inherited_bounds
 from vine_nlp.methods.common import pair_points
 from vine_nlp.methods.nlp import chain_guess, design_nlp, extended_solver, nlp_parameters, result_of, start_x
 from vine_nlp.methods.transcription import Chain, segment_point_index
+from vine_nlp.methods.variables import POINT, ROUTE, Slots
 from vine_nlp.model.helix import center_rates
 from vine_nlp.model.routing import Sigmas, actuated
 from vine_nlp.model.segment import _exp_coefficients, twist_parts
@@ -140,19 +141,24 @@ def robust_blocks(n: int) -> tuple[BlockType, BlockType, BlockType]:
     """
     seg, down = robust_segment_function(n), _downstream_function()
     one = robust_segment_function(1)
-    v, d = ca.SX.sym("v", 27), ca.SX.sym("d", 6)
+    down_v = POINT + (("tip", 3), ("S", 9))  # variables.POINT, X_{j+1}'s position, S_j
+    v, d = ca.SX.sym("v", down_v.size), ca.SX.sym("d", 6)
     W, sg, weight = d[0], d[1:5], d[5]
-    sig = ca.vertcat(sg[0], sg[1], sg[2] * v[14] + sg[3])
-    A, B, _, _, _ = one(v[:12], v[12], v[13], v[14], 0.0, 0.0, sig)
-    downstream = _block(f"robust_downstream{n}", v, d, weight * down(A, B, v[15:18], W, v[18:21], v[21:27]))
-    v1, d1 = ca.SX.sym("v", 3), ca.SX.sym("d", 2 * n + 5)
+    X, th, la, dl, tip, S = down_v.split(v)
+    sig = ca.vertcat(sg[0], sg[1], sg[2] * dl + sg[3])
+    A, B, _, _, _ = one(X, th, la, dl, 0.0, 0.0, sig)
+    downstream = _block(f"robust_downstream{n}", v, d, weight * down(A, B, tip, W, S[:3], S[3:]))
+    v1, d1 = ca.SX.sym("v", ROUTE.size), ca.SX.sym("d", 2 * n + 5)
+    th, la, dl = ROUTE.split(v1)
     sg1 = d1[2 * n : 2 * n + 4]
-    sig1 = ca.vertcat(sg1[0], sg1[1], sg1[2] * v1[2] + sg1[3])
-    own = _block(f"robust_direct{n}", v1, d1, d1[2 * n + 4] * direct_term(v1[0], v1[1], v1[2], d1[:n], d1[n : 2 * n], sig1))
-    v2, d2 = ca.SX.sym("v", 33), ca.SX.sym("d", 2 * n)
-    _, _, _, P1, P2 = seg(v2[18:30], v2[30], v2[31], v2[32], d2[:n], d2[n:], ca.SX.zeros(3))
+    sig1 = ca.vertcat(sg1[0], sg1[1], sg1[2] * dl + sg1[3])
+    own = _block(f"robust_direct{n}", v1, d1, d1[2 * n + 4] * direct_term(th, la, dl, d1[:n], d1[n : 2 * n], sig1))
+    rec_v = Slots(("S", 9), ("S_next", 9)) + POINT.parts  # S_j, S_{j+1}, variables.POINT of stage j+1
+    v2, d2 = ca.SX.sym("v", rec_v.size), ca.SX.sym("d", 2 * n)
+    S, S_next, X, th, la, dl = rec_v.split(v2)
+    _, _, _, P1, P2 = seg(X, th, la, dl, d2[:n], d2[n:], ca.SX.zeros(3))
     # rows only: f is a structural zero, so the block stays out of the objective's evaluation and gradient
-    recursion = _block(f"robust_recursion{n}", v2, d2, ca.SX(1, 1), v2[:9] - v2[9:18] - ca.vertcat(P1, P2))
+    recursion = _block(f"robust_recursion{n}", v2, d2, ca.SX(1, 1), S - S_next - ca.vertcat(P1, P2))
     return downstream, own, recursion
 
 
@@ -172,7 +178,7 @@ class RobustTerm:
         sig = ca.vertcat(ca.repmat(P[0], 1, M), P[1] * act, ca.repmat(P[2:], 1, M))
         idx = np.array([np.r_[segment_point_index(c, j), lay.X[j + 1, 0, 9:], lay.extra[j]] for j in range(M)]).T
         c.add_block(down, idx, ca.vertcat(Wd, sig), term="robust")
-        c.add_block(own, np.vstack([lay.theta, lay.lam[:, 0], lay.dl]), ca.vertcat(u, w, sig), term="robust")
+        c.add_block(own, np.array([lay.routing_at(j) for j in range(M)]).T, ca.vertcat(u, w, sig), term="robust")
         if M > 1:
             idx = np.array([np.r_[lay.extra[j], lay.extra[j + 1], segment_point_index(c, j + 1)] for j in range(M - 1)]).T
             c.add_block(rec, idx, ca.vertcat(u[:, 1:], w[:, 1:]))
@@ -253,9 +259,8 @@ def design_robust(problem: DesignProblem, sigmas: Sigmas, samples: int = 0, seed
     solver = robust_solver(problem, pairing)
     x0, p = _robust_start(problem, pairing, solver, start.routing, sigmas, weight)
     i0 = solver.terms(x0, p)["robust"] / weight * D**2 if weight else 0.0
-    lbx, ubx = solver.bounds(*inherited_bounds(problem, pairing, start))  # a buildable start's classes kept
-    x, status, st = solver.solve(x0, p, lbx, ubx)
-    res = stats.absorb(result_of(problem, pairing, solver, x, status, st, start.routing.initial_pose[:3, :3].copy(), "nlp_robust"))
+    lbx, ubx = solver.bounds(**inherited_bounds(problem, pairing, start))  # a buildable start's classes kept
+    res = stats.absorb(result_of(problem, pairing, solver.solve(x0, p, lbx, ubx), start.routing.initial_pose[:3, :3].copy(), "nlp_robust"))
     # the increase of the design found, evaluated with weight 1 (the recursion holds at a converged x)
     i1 = expected_increase(problem, res.routing, sigmas)
     if not weight:

@@ -1,16 +1,25 @@
-"""How the NLPs are solved: the solver's options and the drive's tuned constants, apart from the formulations.
+"""How the NLPs are solved, apart from the problems and the formulations: the method, the solver's options
+and every tuned constant of ``methods/``.
 
-rockit keeps the solver and its options in the method, not in the problem. Here a formulation
-declares what its solves are like (:class:`Settings`: a start near the answer, rows that are hard
-requirements, a Gauss-Newton solve from a guess, bounds that must hold exactly, ...) and the
-options follow from the declaration, the same for every formulation that declares the same.
-The loops of ``methods.drive`` take their caps and rules from the constants below: each is named
-here once, with one line on why its value; the figures that chose it are in results/BENCHMARKS.md.
+rockit keeps the solver and its options in the method, not in the problem: :class:`Method` holds what a
+user may retune (starts, hops, max_iter, tol, hessian, budget, seed, rounds), one default each. A
+formulation declares what its solves are like (:class:`Settings`: a start near the answer, rows that are
+hard requirements, a Gauss-Newton solve from a guess, bounds that must hold exactly, ...) and the options
+follow from the declaration. Every tuned constant of ``methods/`` is named here once, with one line on
+why its value (grouped by the module that uses it); the figures that chose them are in results/BENCHMARKS.md.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
+
+from vine_nlp.problem import DesignOptions
+
+# IPOPT's iteration limit and tolerance unless a problem or a method says otherwise: the problem file's [design]
+# defaults (the file contract; converged designs end in tens to a few hundred iterations)
+MAX_ITER = DesignOptions.max_iter
+TOL = DesignOptions.tol
 
 
 def quiet(max_iter: int, tol: float) -> dict:
@@ -57,26 +66,20 @@ class Settings:
     ``max_iter``, ``tol``: the solver's limit and tolerance; ``warm``: the start is near the answer (WARM);
     ``guess``: a Gauss-Newton solve of the plain chain from a guess (GAUSS_NEWTON); ``exact_bounds``: the
     bounds hold exactly (EXACT_BOUNDS); ``monotone``: IPOPT's monotone barrier (MONOTONE); ``hard``: rows
-    that are hard requirements (HARD); ``repeated``: one structure solved many times (REPEATED);
-    ``backend``: "ipopt", or "fatrop" for the stage form (its own options; the flags do not apply).
+    that are hard requirements (HARD); ``repeated``: one structure solved many times (REPEATED).
     """
 
-    max_iter: int = 3000
-    tol: float = 1e-8
+    max_iter: int = MAX_ITER
+    tol: float = TOL
     warm: bool = False
     guess: bool = False
     exact_bounds: bool = False
     monotone: bool = False
     hard: bool = False
     repeated: bool = False
-    backend: str = "ipopt"
 
     def options(self) -> dict:
         """The solver's options: in the order above, a later set overriding an earlier one's entries."""
-        if self.backend == "fatrop":
-            # Fatrop: the NLP's tolerance, a low first barrier (the starts are close; "Fatrop")
-            return {"fatrop.print_level": 0, "fatrop.tol": float(self.tol), "fatrop.max_iter": int(self.max_iter),
-                    "fatrop.mu_init": 1e-6, "print_time": False}
         opts = quiet(self.max_iter, self.tol) | CHAIN
         for on, extra in ((self.warm, WARM), (self.guess, GAUSS_NEWTON), (self.exact_bounds, EXACT_BOUNDS),
                           (self.monotone, MONOTONE), (self.hard, HARD), (self.repeated, REPEATED)):
@@ -85,14 +88,56 @@ class Settings:
         return opts
 
 
+# ---------------------------------------------------------------- the design variables (methods.variables)
+
+# segment lengths stay within this factor of the target's chord of the segment: a loose box that keeps IPOPT
+# away from dl -> 0 without constraining real designs
+LENGTH_FACTOR = (0.2, 5.0)
+# a random start perturbs the geometric guess by normal draws of these standard deviations (theta in rad):
+# the spread that decides more than solver options do ("Initialization and multi-start")
+START_SPREAD = {"theta": 0.25, "lam": 0.1}
+
+# ---------------------------------------------------------------- the method apart from the problem
+
+
+@dataclass(frozen=True)
+class Method:
+    """How a design problem is solved, apart from what it asks (rockit's ``ocp.method``, ``ocp.solver``): one
+    default each. ``Method.of(options)`` reads a problem file's ``[design]`` table (``DesignOptions``, the file
+    contract); ``with_(...)`` retunes a solve without touching the problem (a basin hop's exact Hessian, the
+    pushed target's loose tolerance).
+
+    ``starts``: multi-start; ``hops``: basin-hopping rounds; ``max_iter``, ``tol``: IPOPT's; ``hessian``: "auto"
+    (the drive's schedule), "exact" or "gauss-newton"; ``budget``: seconds of the corner search (0: none);
+    ``seed``: every random choice; ``rounds``: active-set solves at most. The defaults of what a problem file may
+    set are its ``[design]`` table's (``DesignOptions``): one default each."""
+
+    starts: int = DesignOptions.starts
+    hops: int = DesignOptions.hops
+    max_iter: int = MAX_ITER
+    tol: float = TOL
+    hessian: str = DesignOptions.hessian
+    budget: float = DesignOptions.budget  # a safety stop: the polyline (d)'s corner search ends well within it
+    seed: int = DesignOptions.seed
+    rounds: int = 6  # active sets (clearance pairs, obstacle rows): the bundled problems end in 1-3 ("Obstacles")
+
+    @classmethod
+    def of(cls, options) -> "Method":
+        """The method a problem's options (``DesignOptions``, read from its file) ask for."""
+        return cls(**{k: getattr(options, k) for k in ("starts", "hops", "max_iter", "tol", "hessian", "budget", "seed")
+                      if hasattr(options, k)})
+
+    def with_(self, **changes) -> "Method":
+        return replace(self, **changes)
+
+
+ROUNDS = Method.rounds
+
 # ---------------------------------------------------------------- the drive's loops
 
 # Hessian "auto": Gauss-Newton gets this many iterations, then the exact Hessian solves the same start
 # (a Gauss-Newton solve that needs more has large residuals: corners; "Initialization and multi-start")
 AUTO_GN_MAX_ITER = 50
-# Fatrop's set-up grows about as M^2 where IPOPT's stays at milliseconds: beyond this many segments it costs
-# more than the solve it saves ("Fatrop")
-FATROP_MAX_SEGMENTS = 100
 # the correction starts at the as-built routing, near its answer: the exact Hessian converges in a few tens
 # of iterations where Gauss-Newton ran into its cap; Gauss-Newton only where the exact one fails
 CORRECTION_SCHEDULE = (("exact", 300), ("gauss-newton", 300))
@@ -107,8 +152,6 @@ ICP_ROUNDS = 6
 COARSE_ROUNDS = 2
 STAGE_FACTOR = 0.25
 STAGE_MERGE = 1.5
-# active sets (clearance pairs, obstacle rows): solves at most; the bundled problems end in 1-3 ("Obstacles")
-ROUNDS = 6
 # obstacles with a mesh: each solve moves the tube at most a trust radius and the active sets follow, so more rounds
 MESH_ROUNDS = 12
 # an active set's requirement rises by this times what the last round still misses where that is a dip between
@@ -125,12 +168,112 @@ TIP_MAX_ITER = 1200
 # a first solve is corner-like when Gauss-Newton did not converge on it and its RMSE exceeds this share of D:
 # the smooth paper cases end far below it, the polyline (d) far above ("Inverse design: the paper's cases")
 CORNER_RMSE = 0.05
-DEFAULT_BUDGET = 20.0  # seconds of the corner search: a safety stop, the polyline (d)'s search ends well within it
 WINDOW = 3  # segments per window of the corner search and of a basin hop: a corner spans about three at 10 points each
 WINDOW_STARTS = 4  # starts per window: the current values, theta mirrored, random draws
-WINDOW_MAX_ITER = 50  # a window has <= 3 W variables: a start that needs more is a bad start
+CORNER_WINDOW_MAX_ITER = 50  # a window has <= 3 W variables: a start that needs more is a bad start
 WINDOW_TOL = 1e-6  # the polish that ends the round converges the design fully
 WINDOW_SHARE = 0.5  # the share of the windows (those of largest error) a round visits ...
 MIN_WINDOWS = 3  # ... but at least this many (short designs)
 SEARCH_ROUNDS = 1  # rounds by default: a second gains little for much more time ("compare")
 WINDOW_GAIN = 1e-4  # a window's new values must lower the design's error by this much (relative) to be taken
+
+# ---------------------------------------------------------------- the formulations' and helpers' tuned constants
+# drive
+# objectives this close (relative) are the same optimum reached from different starts or rounds
+TIE_RTOL = 1e-6
+# compiled
+# a block type is compiled on its own only up to this many SX instructions (its functions and derivatives): gcc
+# -O1's time grows with them, and a larger block (an obstacle segment's samples against its primitives or
+# triangles) would take longer than the solves it speeds up; such a block is a map of one sample's
+# (blocks.Samples), whose block is compiled instead ("Active sets on compiled blocks")
+BLOCK_BUDGET = 30_000
+# greedy
+LAMBDA_START = 0.75  # paper: lambda_{1:k,0} = 0.75
+GREEDY_SPREAD = 0.5  # random starts: half-width of the box around the carried-over values, x bound range
+FIRST_WINDOW_FACTOR = 4  # the first window gets this many times the starts (paper: 2000 vs 300)
+GREEDY_WINDOW_MAX_ITER = 200  # a window has <= 3k + 6 variables: a start that needs more is a bad start
+SPAM_CANDIDATES = 11  # linspace(lambda_min, 1, 11)
+SPAM_REFINE = 5  # second pass: 5 values within +-half a step of the best
+FILTER_ORDER = 2  # the paper's low-pass filter: a second-order Butterworth, run forwards and backwards
+# mirror
+PLANAR = 1e-9  # |torsion sum| / sum |chord|^3 below this: a target planar to round-off (no handedness of its own)
+# obstacles.design
+BLOCKED_WEIGHT = 0.1  # weight of the target points closer than the margin to an obstacle (their fit cannot be exact)
+MESH_BLOCKED_WEIGHT = 0.01  # the same where the scene has a mesh (module docstring, "Weights")
+MESH_WEIGHT_RAMP = 1.0  # units of D: with a mesh, weights rise from MESH_BLOCKED_WEIGHT at the margin to 1 at margin + this
+# obstacles.rows
+MESH_K = 6  # nearest triangles per mesh sample (the plan's default)
+TRI_EPS = 1e-9  # sqrt(d2 + eps^2) (units of D): finite gradients at distance 0
+# obstacles.plan
+SAMPLE_SPACING = 0.25  # target sample spacing h0, units of D: dip(D/4) ~ 0.03 D for a sharp obstacle
+LENGTH_SLACK = 1.25  # segment lengths may grow this much during a solve before the rows' dip is too small
+MAX_SAMPLES = 40  # samples per segment, at most (long segments: their rows' dip grows instead)
+AFTER_SLOTS = 5  # growth "after": intermediate shapes with rows at a time (rows on all at once: a first solve of many minutes)
+# units of D: a primitive gets rows on a segment when its slack is below ACTIVE_REACH plus REACH_DL times the
+# segment's length (within reach of one solve)
+ACTIVE_REACH = 1.0
+REACH_DL = 0.5
+MESH_TRUST = 1.5  # units of D: a frame moves at most this far per solve with a mesh (its nearest triangles stay valid)
+# units of D: a column carries a mesh's rows when its slack is below this plus REACH_DL dl_j: far fewer rows than
+# every column; a reach as short as the primitives' sent obstacle-mesh round a far wider detour ("Obstacles")
+MESH_REACH = 8.0
+# units of D: an outside sample closer than its requirement plus this also gets the tangent plane's row at its
+# nearest point on the mesh (fewer rounds on obstacle-mesh and the torus scene: "Obstacles")
+TANGENT_REACH = 0.5
+# obstacles.push
+# units of D: the pushed target clears by this much more than the rows ask; less with a mesh (its exact pushes
+# already go the shortest way round, "Obstacles")
+PUSH_EXTRA = 0.25
+MESH_PUSH_EXTRA = 0.05
+PUSH_PASSES = 8  # passes over the obstacles (a point pushed out of one may land in another)
+REPUSH = 1  # primitives: times the designed chain of the pushed target is pushed and designed again where it does not clear
+PUSH_DIRECTIONS = 16  # meshes: directions tried around a run's chord
+PUSH_PROBES = 9  # meshes: points of a run that choose its direction
+MARCH_STEPS = 80  # sphere-tracing steps of a push, at most
+# IPOPT's tolerance for the designs of the pushed target: a start, which the rows' solve takes to the problem's
+# own tolerance; at the problem's 1e-8 these designs crawled through their last digits on the pushed target's
+# corners and took half of a typical scene's time ("Obstacle scenes")
+PUSH_TOL = 1e-4
+# fit.model_fit
+FIT_SPACING = 0.1  # model lines are sampled at <= FIT_SPACING * D
+LAMBDA_BOUNDS = (0.3, 1.0)  # the model fit's lambda range: below 0.3 no tube the fits have seen contracts
+LAMBDA_GRID_STEP = 0.05  # the lambda grid that ranks starts: fine enough that the polish starts in the right basin
+GRID_POLISH_ITER = 12  # the lambda grid only ranks values; the refinement polishes fully
+GRID_POINTS = 1000  # measured points used while ranking the lambda grid
+# fit.align
+GLOBAL_POINTS = 300  # measured points used by the ICP of the global stage (all points are used for the polish)
+ICP_GLOBAL_ITER = 60  # ICP rounds of the global stage: its pairs settle well within them
+POLISH_TOP = 3  # the best poses of the global stage that are polished on all points
+# buildable
+# build-effort weights against the fit's mean squared error / D^2 (results/BENCHMARKS.md, "Buildable designs"):
+# where the shape does not see the line (a first or last unactuated run) it holds it at theta 0 at no cost; where
+# theta shapes the tube a tenth curbs the winding that cancels a bend the margin forces (bezier-b 807 -> 161 deg)
+# at a few % RMSE (1e-3 cost polyline-d its budget); inner unactuated runs' turning the shape needs: nearly free
+EFFORT, EFFORT_ACTUATED, EFFORT_INNER = 1e-3, 1e-4, 1e-6
+ACCURACY_SLACK, ACCURACY_FLOOR_MM = 0.10, 0.05  # what the reclassification may give up: the issue's budget
+BUILDABLE_ROUNDS, BUILDABLE_REPAIRS = 8, 2  # solves at most; of them, re-solves while a gap is below min_feature (the lengths moved)
+BEND_TOL = 1e-6  # rad: a segment of the target bending less is straight
+# tip
+MIN_LENGTH_FACTOR = 0.2  # dl_j >= 0.2 L / M
+TURNS_EPS = 1e-6  # sqrt(tan^2 theta + eps): the "turns" measure smooth at theta 0
+TIE_BREAK = 1e-2  # weight of the secondary measure (see module doc)
+CLOSEST_ACTUATION = 1e-6  # weight of the actuation in the nearest-approach variant
+CLOSE_ENOUGH = 1e-3  # nearest approach within this many D of the tip: re-solve the design from it
+GUESS_POINTS = 4  # points per segment of the guide curve of the geometric guess
+# correct.pairing
+SAMPLES_PER_SEGMENT = 24  # pieces per segment of the model lines the pairing projects onto
+# the share of a pair's along-line difference kept in its residual: zero at a closest point, it damps sliding along the
+# line between pairings (pure point-to-line let a hook's straight part slide: a shorter tube, a later bend)
+SLIDE = 0.1
+# correct.estimate
+# weak priors on the systematic parts: wide against any construction method seen
+DEFAULT_SYSTEMATIC_SIGMAS = (math.radians(10.0), 0.2, 0.2)
+DEFAULT_MEASUREMENT_SIGMA_MM = 1.0  # a scanned or hand-measured point: about a millimetre
+TRIM = 4.0  # pairs farther than this many sigmas of the stage are left out of it
+SLOT_STEP = 8  # slots per segment are rounded up to a multiple of this (cached structures)
+HELD_SIGMAS = 2.0  # an actuator estimated within this many standard deviations of lambda 1 may be clipped: held
+CAP_ROUND = 1e-3  # lambda units: the cap's rounding (at most CAP_ROUND / 2 off min, at the kink)
+# correct.correction
+THETA_TRUST = 2.0  # with theta adjusted, the corrected theta stays within this many sigma_theta of the as-built one
+ROUTE_GAIN = 2.0  # lambda and theta (a new tube) is recommended where it predicts this many times less error
+REACH_TOL = 0.1  # the bounds cost accuracy where the unbounded prediction is this fraction (and 0.1 sigma_m) better

@@ -8,8 +8,9 @@ block-banded and an IPOPT iteration costs O(M):
              position; none for a fixed pose, one shared by all K levels, or one per level; the global
              lambda variables (one for an sPAM, one per level for multi-shape); extra globals; the
              base frames X_0(k)
-    stage j  theta_j, lam_j (per-segment lambda only), dl_j, the formulation's extra stage
-             variables, (stage form) the carried (theta_j, lam_j), the frames X_{j+1}(k) of every level k
+    stage j  the structure's declared variables of segment j in order (``methods.variables``: theta_j,
+             lam_j (per-segment lambda only), length_j), the formulation's extra stage variables, the
+             frames X_{j+1}(k) of every level k
 
 A frame X is 12 numbers: the rotation column-major, then the position. Lengths are in units of the
 tube diameter (D = 1), so one built solver serves every tube.
@@ -20,6 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from vine_nlp.methods.variables import ROUTING
 
 
 def frames12(frames: np.ndarray, D: float = 1.0) -> np.ndarray:
@@ -35,7 +38,8 @@ LAMBDAS = ("segment", "shared", "level")
 @dataclass(frozen=True)
 class Structure:
     """What fixes the NLP's shape: M segments, n point slots per segment, K levels, how lambda and
-    the base pose are shared, and extra variables per stage requested by terms."""
+    the base pose are shared, extra variables per stage requested by terms, and the declared design
+    variables per segment (``methods.variables``)."""
 
     M: int
     n: int = 1
@@ -44,15 +48,13 @@ class Structure:
     pose: str = "free"  # "free" | "fixed" | "shared" (one for all levels) | "level" (one per level)
     extra: int = 0  # extra variables per stage
     globals: int = 0  # extra global variables (head), e.g. systematic construction errors
-    stages: bool = False  # stage form (methods.blocks, "Stage form"): the plain chain for a stage-structured solver
+    variables: tuple = ROUTING  # the declared per-segment variables, in stage order
 
     def __post_init__(self):
         if self.M < 1 or self.n < 1 or self.K < 1:
             raise ValueError(f"a chain needs M, n, K >= 1 (got {self.M}, {self.n}, {self.K})")
         if self.lam not in LAMBDAS or self.pose not in POSES:
             raise ValueError(f"lam must be one of {LAMBDAS}, pose one of {POSES}")
-        if self.stages and (self.K, self.lam, self.pose, self.extra, self.globals) != (1, "segment", "free", 0, 0):
-            raise ValueError("the stage form is the plain chain: one level, lambda per segment, a free pose, no extra variables")
 
     @property
     def poses(self) -> int:
@@ -60,11 +62,13 @@ class Structure:
 
 
 class Layout:
-    """Where each quantity lives in the decision vector (stage order: module docstring)."""
+    """Where each quantity lives in the decision vector (stage order: module docstring). ``var[name]``: the
+    entries of a declared variable, (M,) for size 1 ((M, K) where the lambda sharing applies), else (M, size);
+    ``theta``, ``lam``, ``dl`` (the length's): those of the routing."""
 
     def __init__(self, s: Structure):
         M, K, E = s.M, s.K, s.extra
-        i = 0
+        self.variables, i = s.variables, 0
 
         def take(count: int) -> np.ndarray:  # the next ``count`` entries of x
             nonlocal i
@@ -76,22 +80,25 @@ class Layout:
         self.globals = take(s.globals)
         X = np.zeros((M + 1, K, 12), int)
         X[0] = take(12 * K).reshape(K, 12)
-        self.theta, self.dl = np.zeros(M, int), np.zeros(M, int)
-        self.lam = np.zeros((M, K), int)
+        self.var = {v.name: np.zeros((M, K) if v.levels else (M,) if v.size == 1 else (M, v.size), int) for v in s.variables}
         self.extra = np.zeros((M, E), int)
-        self.carry = np.zeros((M, 2 if s.stages else 0), int)  # stage form: (theta_j, lam_j) carried to stage j+1
         for j in range(M):
-            self.theta[j] = take(1)[0]
-            if s.lam == "segment":
-                self.lam[j, :] = take(1)[0]
-            self.dl[j] = take(1)[0]
+            for v in s.variables:
+                if not v.levels:
+                    self.var[v.name][j] = take(v.size)[0] if v.size == 1 else take(v.size)
+                elif s.lam == "segment":
+                    self.var[v.name][j, :] = take(1)[0]
             self.extra[j] = take(E)
-            self.carry[j] = take(self.carry.shape[1])
             X[j + 1] = take(12 * K).reshape(K, 12)
-        if s.lam == "shared":
-            self.lam[:, :] = self.lam_global[0]
-        elif s.lam == "level":
-            self.lam[:, :] = self.lam_global[None, :]
+        for v in s.variables:
+            if v.levels and s.lam != "segment":
+                self.var[v.name][:, :] = self.lam_global[0] if s.lam == "shared" else self.lam_global[None, :]
+        self.theta, self.lam, self.dl = self.var["theta"], self.var["lam"], self.var["length"]
         self.X = X  # (M+1, K, 12)
         self.pose_of_level = np.zeros(K, int) if s.poses == 1 else np.arange(K)
         self.size = i
+
+    def routing_at(self, j: int, k: int = 0, variables=ROUTING) -> np.ndarray:
+        """Entries of segment j's ``variables`` (level k) in order: by default the routing's (after X_j,
+        ``variables.POINT``'s; the blocks of the model); ``layout.variables``: every declared one."""
+        return np.r_[tuple(self.var[v.name][j, k] if v.levels else self.var[v.name][j] for v in variables)]

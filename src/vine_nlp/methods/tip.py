@@ -1,23 +1,23 @@
 """Tip targets: reach a tip position (and optionally a tip direction) with the least actuation (paper, Conclusion).
 
 The robot grows from a FIXED base pose T^0_w with a given tube length L cut into M segments (sum_j dl_j = L,
-dl_j >= MIN_LENGTH_FACTOR L/M). Among the routings that put the tip at ``position`` (and its tangent along
+dl_j >= settings.MIN_LENGTH_FACTOR L/M). Among the routings that put the tip at ``position`` (and its tangent along
 ``direction``) it picks the one with the least actuation:
 
   "contraction" (default):  J = (1/L) sum_j (1 - lambda_j) dl_j
   "turns":                  J = (1/L) sum_j sqrt(tan^2 theta_j + eps) dl_j   (turning: (2/D) sum |tan theta_j| dl_j)
 
 Each leaves the other actuator parameter free (a degenerate optimum, slow for IPOPT): a tie-break of weight
-TIE_BREAK adds the least of the other measure (tan^2 theta_j dl_j, resp. (1 - lambda_j)^2 dl_j), plus the
+settings.TIE_BREAK adds the least of the other measure (tan^2 theta_j dl_j, resp. (1 - lambda_j)^2 dl_j), plus the
 smoothness terms of ``methods.nlp`` on the uniform spacing L/M. Rows: continuity, tip position, tip tangent
 (t . e1 = t . e2 = 0 with e1, e2 perpendicular to the direction, and t . direction >= 0: rank 2), sum dl = L;
-exact bounds (``Settings.exact_bounds``: no relaxation, no "acceptable" stop leaving the tip loosely met).
+exact bounds (``settings.Settings.exact_bounds``: no relaxation, no "acceptable" stop leaving the tip loosely met).
 
 Starts (``drive.multistart``), tried in order until one is optimal: the geometric guess of a guide curve (a
 cubic Bezier from the base along its tangent to the tip along the direction, stretched to about the actuated
 tube length), its mirrored side, then seeded uniform helices. The landscape is rugged (many local optima of
 bends at the shortest segments) and a start costs hundreds of iterations, so later starts are fallbacks.
-IPOPT's monotone barrier (``Settings.monotone``) takes fewer iterations and finds lower optima here than the
+IPOPT's monotone barrier (``settings.Settings.monotone``) takes fewer iterations and finds lower optima here than the
 adaptive one; the other changes tried (barrier, scaling, inertia correction, MUMPS, guide curves, a
 coarse-to-fine start) moved designs to other local optima, more often worse.
 
@@ -36,23 +36,17 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from vine_nlp.methods import drive
+from vine_nlp.methods import drive, settings
 from vine_nlp.methods.blocks import BlockType
 from vine_nlp.methods.common import _perpendicular, _unit, geometric_guess, pair_points
-from vine_nlp.methods.settings import Settings
 from vine_nlp.methods.structure import Structure, frames12
-from vine_nlp.methods.transcription import Chain, Smoothness, Spec, get_solver, routing_of
+from vine_nlp.methods.transcription import Chain, Smoothness, Solution, Spec, get_solver
+from vine_nlp.methods.variables import ROUTE, box
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.shape import forward_shape, routing_metrics
 from vine_nlp.problem import DesignProblem, Result, Routing, TipProblem
 
 RUN = "tip"
-MIN_LENGTH_FACTOR = 0.2  # dl_j >= 0.2 L / M
-TURNS_EPS = 1e-6
-TIE_BREAK = 1e-2  # weight of the secondary measure (see module doc)
-CLOSEST_ACTUATION = 1e-6  # weight of the actuation in the nearest-approach variant
-CLOSE_ENOUGH = 1e-3  # nearest approach within this many D of the tip: re-solve the design from it
-GUESS_POINTS = 4  # points per segment of the guide curve of the geometric guess
 
 
 @dataclass(frozen=True)
@@ -68,13 +62,13 @@ class TipTerms:
     def apply(self, c: Chain) -> None:
         P_tip, P_dir, P_L = c.param("tip_position", (3, 1)), c.param("tip_frame", (3, 3)), c.param("tube_length", (1, 1))
         tip, tangent = c.tip(0), c.frames(0)[0:3, -1]  # tangent: first column of the tip rotation
-        scale = CLOSEST_ACTUATION if self.closest else 1.0
+        scale = settings.CLOSEST_ACTUATION if self.closest else 1.0
         M, lay = c.s.M, c.lay
-        idx = np.vstack([lay.theta, lay.lam[:, 0], lay.dl])
+        idx = np.array([lay.routing_at(j) for j in range(M)]).T  # variables.ROUTE
         w = ca.repmat(scale / P_L, 1, M)
         main, tie = actuation_blocks(self.objective)
         c.add_block(main, idx, w, term="actuation")
-        c.add_block(tie, idx, TIE_BREAK * w, term="smooth")
+        c.add_block(tie, idx, settings.TIE_BREAK * w, term="smooth")
         c.add_rows("length", ca.sum2(c.dl) - P_L, 0.0, 0.0)
         if self.closest:
             # the nearest the tube can get: tip distance (and direction) as the objective, actuation as a tie-break
@@ -91,29 +85,29 @@ class TipTerms:
 
 @lru_cache(maxsize=None)
 def actuation_blocks(objective: str) -> tuple[BlockType, BlockType]:
-    """Per-segment actuation and its tie-break as blocks: v = (theta, lam, dl), d = weight (1/L, scaled).
+    """Per-segment actuation and its tie-break as blocks: v = ``variables.ROUTE`` (theta, lam, dl), d = weight (1/L, scaled).
 
     "contraction": (1 - lam) dl, tie-break tan^2 theta dl (least twist among least-contraction routings);
     "turns": sqrt(tan^2 theta + eps) dl, tie-break (1 - lam)^2 dl (least contraction among least-turning ones)."""
-    v, d = ca.SX.sym("v", 3), ca.SX.sym("d")
-    th, la, dl = v[0], v[1], v[2]
+    v, d = ca.SX.sym("v", ROUTE.size), ca.SX.sym("d")
+    th, la, dl = ROUTE.split(v)
     if objective == "contraction":
         main, tie = (1 - la) * dl, ca.tan(th) ** 2 * dl
     else:
-        main, tie = ca.sqrt(ca.tan(th) ** 2 + TURNS_EPS) * dl, (1 - la) ** 2 * dl
+        main, tie = ca.sqrt(ca.tan(th) ** 2 + settings.TURNS_EPS) * dl, (1 - la) ** 2 * dl
     empty = ca.SX(0, 1)
     return (BlockType(f"actuation_{objective}", ca.Function("actuation", [v, d], [d * main, empty])),
             BlockType(f"actuation_tie_{objective}", ca.Function("actuation_tie", [v, d], [d * tie, empty])))
 
 
-def tip_spec(M: int, shared: bool, direction: bool, objective: str, max_iter: int = 3000, tol: float = 1e-8, closest: bool = False,
+def tip_spec(M: int, shared: bool, direction: bool, objective: str, max_iter: int = settings.MAX_ITER, tol: float = settings.TOL, closest: bool = False,
              monotone: bool = False, hard: bool = False, extra: int = 0, terms: tuple = ()) -> Spec:
     """A fixed base, no points to fit (one empty slot per segment), the tip terms and rows, the smoothness, exact
     bounds; ``monotone``: IPOPT's monotone barrier (design_tip's own solves); ``terms`` (with ``extra`` stage
     variables, ``hard`` rows): a formulation built on it."""
     return Spec(Structure(M, 1, 1, "shared" if shared else "segment", "fixed", extra=extra),
                 (Smoothness(), TipTerms(direction, objective, closest)) + tuple(terms), "exact",
-                Settings(max_iter, tol, exact_bounds=True, monotone=monotone, hard=hard))
+                settings.Settings(max_iter, tol, exact_bounds=True, monotone=monotone, hard=hard))
 
 
 def _perpendicular_pair(d):
@@ -159,13 +153,13 @@ def start_guesses(problem: TipProblem, starts: int):
     (frames on the curve), its mirrored side, then uniform helices (frames on their chains)."""
     M, D, a, L = problem.segments, problem.diameter, problem.actuator, problem.length
     out = []
-    curve = guide_curve(problem, M * GUESS_POINTS + 1)
-    dp = DesignProblem(problem.name, D, curve, a, replace(problem.options, points_per_segment=GUESS_POINTS))
-    pairing = pair_points(curve, GUESS_POINTS)
+    curve = guide_curve(problem, M * settings.GUESS_POINTS + 1)
+    dp = DesignProblem(problem.name, D, curve, a, replace(problem.options, points_per_segment=settings.GUESS_POINTS))
+    pairing = pair_points(curve, settings.GUESS_POINTS)
     for flip in (1.0, -1.0):
         g = geometric_guess(dp, pairing, flip)
         lam = np.full(M, np.clip(np.mean(g.lam), a.lambda_min, 1.0)) if a.shared_lambda else g.lam
-        dl = np.maximum(g.length * L / g.length.sum(), MIN_LENGTH_FACTOR * L / M)
+        dl = np.maximum(g.length * L / g.length.sum(), settings.MIN_LENGTH_FACTOR * L / M)
         dl *= L / dl.sum()
         frames = g.frames.copy()
         frames[0] = problem.initial_pose
@@ -185,28 +179,28 @@ def tip_data(problem: TipProblem, closest: bool = False) -> dict:
     o, D, M, L = problem.options, problem.diameter, problem.segments, problem.length
     d = problem.direction if problem.direction is not None else np.array([1.0, 0.0, 0.0])
     e1, e2 = _perpendicular_pair(d)
-    scale = CLOSEST_ACTUATION if closest else 1.0
+    scale = settings.CLOSEST_ACTUATION if closest else 1.0
     return {"cells": np.zeros((5, M)), "smooth": [scale * o.smooth_theta, scale * o.smooth_lambda], "h": np.full(max(M - 1, 1), L / M / D),
             "L": L / D, "tip_position": problem.position / D, "tip_frame": np.column_stack([d, e1, e2]), "tube_length": L / D}
 
 
 def tip_bounds(solver, problem: TipProblem) -> tuple:
-    """Box bounds of the tip NLP: the design's theta and lambda, lengths from MIN_LENGTH_FACTOR L / M to L, the base fixed."""
+    """Box bounds of the tip NLP: the design's theta and lambda, lengths from settings.MIN_LENGTH_FACTOR L / M to L, the base fixed."""
     a, D, M, L = problem.actuator, problem.diameter, problem.segments, problem.length
     X0 = frames12(problem.initial_pose[None], D)[:, 0]
-    return solver.bounds((-a.theta_max, a.theta_max), (a.lambda_min, 1.0), (MIN_LENGTH_FACTOR * L / M / D, L / D), X0=X0)
+    return solver.bounds(X0=X0, **box(a, np.zeros(M), only=("theta", "lam")), length=(settings.MIN_LENGTH_FACTOR * L / M / D, L / D))
 
 
-def tip_result(problem: TipProblem, solver, x, status: str, st: dict, closest: bool = False) -> Result:
-    """The Result of a solution x of the tip NLP (or a formulation built on it)."""
-    o = problem.options
-    scale = CLOSEST_ACTUATION if closest else 1.0
+def tip_result(problem: TipProblem, sol: Solution, closest: bool = False) -> Result:
+    """The Result of a solution of the tip NLP (or a formulation built on it)."""
+    o, st = problem.options, sol.stats
+    scale = settings.CLOSEST_ACTUATION if closest else 1.0
     stats = st | {"objective_actuation": st["objective_actuation"] / scale, "objective_miss": st.get("objective_miss", 0.0),
                   "objective_kind": problem.objective, "closest_approach": closest, "segments": problem.segments,
                   "tube_length": problem.length, "smooth_theta": o.smooth_theta, "smooth_lambda": o.smooth_lambda, "tol": o.tol,
                   "max_iter": o.max_iter}
     stats.pop("objective_fit", None)
-    return evaluate_tip(problem, routing_of(solver, x, problem.diameter, problem.initial_pose), status=status,
+    return evaluate_tip(problem, sol.routing(problem.diameter, problem.initial_pose), status=sol.status, objective=sol.objective,
                         solve_time_s=stats.pop("solve_time_s"), iterations=stats.pop("iterations"), stats=stats)
 
 
@@ -216,9 +210,8 @@ def solve_from(problem: TipProblem, theta, lam, dl, frames, closest: bool = Fals
     o, D = problem.options, problem.diameter
     solver = get_solver(tip_spec(problem.segments, problem.actuator.shared_lambda, problem.direction is not None, problem.objective,
                                  o.max_iter, o.tol, closest, monotone))
-    x0 = solver.pack_x(theta, lam, dl / D, frames12(frames, D)[None])
-    x, status, st = solver.solve(x0, solver.pack_params(tip_data(problem, closest)), *tip_bounds(solver, problem))
-    return tip_result(problem, solver, x, status, st, closest)
+    x0 = solver.pack_x(frames12(frames, D)[None], theta=theta, lam=lam, length=dl / D)
+    return tip_result(problem, solver.solve(x0, solver.pack_params(tip_data(problem, closest)), *tip_bounds(solver, problem)), closest)
 
 
 def actuation(routing: Routing, diameter: float) -> dict:
@@ -277,7 +270,7 @@ def design_tip(problem: TipProblem, starts: int | None = None, progress=None, th
     if best is None or not best.converged:
         near = solve_from(problem, *guesses[0], closest=True)
         retry = None
-        if reach and near.metrics["tip_error"] <= CLOSE_ENOUGH * problem.diameter:
+        if reach and near.metrics["tip_error"] <= settings.CLOSE_ENOUGH * problem.diameter:
             r = near.routing
             retry = solve_from(problem, r.theta, r.lam, r.length, chain_frames(r.theta, r.lam, r.length, problem.diameter, r.initial_pose))
             results.append(retry)

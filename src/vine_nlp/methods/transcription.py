@@ -22,7 +22,7 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp import interrupt
-from vine_nlp.methods import compiled
+from vine_nlp.methods import compiled, variables
 from vine_nlp.methods.blocks import (
     BlockType,
     _c_functions,
@@ -32,7 +32,6 @@ from vine_nlp.methods.blocks import (
     pose_block,
     scatter,
     segment_block,
-    stage_blocks,
 )
 from vine_nlp.methods.settings import Settings
 from vine_nlp.methods.structure import Layout, Structure
@@ -65,28 +64,6 @@ def ipopt_status(stats: dict, x=None) -> str:
     if x is not None and not np.all(np.isfinite(x)):
         return "invalid_number"
     return IPOPT_STATUS.get(raw, str(raw or "failed"))
-
-
-def fatrop_status(stats: dict, x, max_iter) -> str:
-    """Archived status of one Fatrop solve: "optimal" on success, "max_iter" at the limit, else "failed";
-    like ``ipopt_status``, a solution with anything non-finite is "invalid_number"."""
-    interrupt.check()
-    if not np.all(np.isfinite(x)):
-        return "invalid_number"
-    if stats.get("success"):
-        return "optimal"
-    return "max_iter" if max_iter is not None and int(stats.get("iter_count", 0)) >= int(max_iter) else "failed"
-
-
-def fatrop_safe(x0, p, lbx, ubx) -> bool:
-    """Whether a solve may go to Fatrop: it loops without end where an evaluation gives NaN or inf (IPOPT
-    reports those), so only finite data and starts and consistent bounds go to it."""
-    return bool(np.all(np.isfinite(x0)) and np.all(np.isfinite(p)) and np.all(lbx <= ubx))
-
-
-# Fatrop (the stage form's solver): its objective is the NLP's times this (its tolerances are absolute, and
-# a close fit's objective is orders of magnitude below one)
-FATROP_SCALE = 100.0
 
 
 # ---------------------------------------------------------------- the chain a formulation builds on
@@ -126,30 +103,13 @@ class Chain:
         M, K, n = s.M, s.K, s.n
         # the always-present blocks: base poses and the segment cells (continuity + point fit)
         self.cells = self.param("cells", (5 * n, M * K))  # per cell (j, k), j-major: u, target slots, w
-        if s.stages:
-            self._stage_blocks()
-            return
         if s.pose != "fixed":
             self.R0g = self.param("R0g", (9, s.poses))
             idx = np.vstack([lay.pose[lay.pose_of_level].T, lay.X[0].T])  # (18, K)
             self.add_block(pose_block(), idx, self.R0g[:, lay.pose_of_level.tolist()])
         cells = [(j, k) for j in range(M) for k in range(K)]
-        idx = np.array([np.r_[lay.X[j, k], lay.theta[j], lay.lam[j, k], lay.dl[j], lay.X[j + 1, k]] for j, k in cells]).T
+        idx = np.array([np.r_[lay.X[j, k], lay.routing_at(j, k), lay.X[j + 1, k]] for j, k in cells]).T  # variables.CELL
         self.add_block(segment_block(n), idx, self.cells)
-
-    def _stage_blocks(self) -> None:
-        """The stage form's blocks; rows stage by stage: pose, then segment j = 0 .. M-1. Smoothness's
-        parameters are declared here (its penalty is a block of every stage j >= 1)."""
-        lay, M, X = self.lay, self.s.M, self.lay.X[:, 0, :]
-        self.R0g = self.param("R0g", (9, 1))
-        w, h, L = self.param("smooth", (2, 1)), self.param("h", (max(M - 1, 1), 1)), self.param("L", (1, 1))
-        pose, segment, smooth = stage_blocks(self.s.n)
-        self.add_block(pose, np.r_[lay.pose[0], X[0]], self.R0g)
-        self.add_block(segment, np.array([np.r_[X[j], lay.theta[j], lay.lam[j, 0], lay.dl[j], lay.carry[j], X[j + 1]]
-                                          for j in range(M)]).T, self.cells)
-        if M > 1:
-            idx = np.array([np.r_[lay.carry[j - 1], lay.theta[j], lay.lam[j, 0]] for j in range(1, M)]).T
-            self.add_block(smooth, idx, ca.mtimes(w / L, 1 / h[: M - 1].T), term="smooth")
 
     # views
     def frames(self, k: int = 0) -> ca.MX:
@@ -202,8 +162,6 @@ class Smoothness:
 
     def apply(self, c: Chain) -> None:
         M = c.s.M
-        if c.s.stages:
-            return  # a stage cost of the stage form (Chain._stage_blocks)
         w, h, L = c.param("smooth", (2, 1)), c.param("h", (max(M - 1, 1), 1)), c.param("L", (1, 1))
         if M == 1:
             return
@@ -223,16 +181,14 @@ class SoftTip:
 
 
 def segment_point_index(c: Chain, j: int, k: int = 0) -> np.ndarray:
-    """Local variables (X_j (12), theta, lam, dl) of segment j of level k, for blocks on its points."""
-    lay = c.lay
-    return np.r_[lay.X[j, k], lay.theta[j], lay.lam[j, k], lay.dl[j]]
+    """Local variables of segment j of level k for blocks on its points (``variables.POINT``: X_j, then the routing's)."""
+    return np.r_[c.lay.X[j, k], c.lay.routing_at(j, k)]
 
 
 @dataclass(frozen=True)
 class Spec:
     """A cache key for one built solver: structure, terms (frozen dataclasses with ``apply(chain)``),
-    Hessian ("exact" | "gauss-newton") and how it is solved (``methods.settings.Settings``: IPOPT's or
-    Fatrop's options; Fatrop solves the stage form, compiled only: ``compiled.fatrop_nlpsol``)."""
+    Hessian ("exact" | "gauss-newton") and how it is solved (``methods.settings.Settings``: IPOPT's options)."""
 
     structure: Structure
     terms: tuple = ()
@@ -243,10 +199,6 @@ class Spec:
     def options(self) -> tuple:
         """The solver's options as sorted items."""
         return tuple(sorted(self.settings.options().items()))
-
-    @property
-    def backend(self) -> str:
-        return self.settings.backend
 
 
 @lru_cache(maxsize=32)
@@ -268,7 +220,7 @@ def clear_caches() -> None:
 
 class _Assembled:
     """The NLP of a chain: objective f and rows g (blocks, mapped SX, first; then global rows), their bounds,
-    the objective per term, and the derivatives IPOPT and Fatrop take (per block type SX, mapped and
+    the objective per term, and the derivatives IPOPT takes (per block type SX, mapped and
     scattered; global parts automatic)."""
 
     def __init__(self, c: Chain, fns: dict, hessian: str):
@@ -294,11 +246,11 @@ class _Assembled:
         self.lbg = np.concatenate([np.zeros(0)] + lbg + [r[2] for r in c.rows])
         self.ubg = np.concatenate([np.zeros(0)] + ubg + [r[3] for r in c.rows])
 
-    def derivatives(self, scale: float = 1.0):
-        """(lam_f, lam_g, J, triu H) of the objective scale * f."""
+    def derivatives(self):
+        """(lam_f, lam_g, J, triu H) of the objective f."""
         c, x = self.c, self.c.x
         lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", self.g.size1())
-        sigma = lam_f if scale == 1.0 else scale * lam_f
+        sigma = lam_f
         jac_blocks, hess_blocks, row = [], [], 0
         for b, (V, count) in zip(c.blocks, self.gathered):
             _, _, jac, hess, gn = self.fns[b.bt]
@@ -339,24 +291,9 @@ class _Assembled:
             opts |= {"no_nlp_grad": True, "calc_lam_p": False, "calc_lam_x": False, "calc_f": False, "calc_g": False}
         return {"x": x, "p": p, "f": f, "g": g}, opts
 
-    def fatrop(self, p) -> list:
-        """The functions Fatrop's interface imports, of the objective FATROP_SCALE * f; the full Hessian."""
-        x, g = self.c.x, self.g
-        lam_f, lam_g, J, H = self.derivatives(FATROP_SCALE)
-        fs = FATROP_SCALE * self.f
-        ell = lam_f * fs + ca.dot(lam_g, g)
-        gl = ca.gradient(ell, x)
-        xp, lag = ["x", "p"], ["x", "p", "lam_f", "lam_g"]
-        return [ca.Function("nlp", [x, p], [fs, g], xp, ["f", "g"]), ca.Function("nlp_f", [x, p], [fs], xp, ["f"]),
-                ca.Function("nlp_g", [x, p], [g], xp, ["g"]),
-                ca.Function("nlp_grad_f", [x, p], [ca.gradient(fs, x)], xp, ["grad_f_x"]),
-                ca.Function("nlp_jac_g", [x, p], [g, J], xp, ["g", "jac_g_x"]),
-                ca.Function("nlp_grad", [x, p, lam_f, lam_g], [fs, g, gl, ca.gradient(ell, p)], lag, ["f", "g", "grad_gamma_x", "grad_gamma_p"]),
-                ca.Function("nlp_hess_l", [x, p, lam_f, lam_g], [gl, H + ca.triu(H, False).T], lag, ["grad_gamma_x", "hess_gamma_x_x"])]
-
 
 class Solver:
-    """One NLP built from a Spec: ``solve(x0, values, lbx, ubx)`` runs IPOPT (or Fatrop)."""
+    """One NLP built from a Spec: ``solve(x0, values, lbx, ubx)`` runs IPOPT."""
 
     def __init__(self, spec: Spec):
         t0 = time.perf_counter()
@@ -374,18 +311,13 @@ class Solver:
         # block type compiled on its own (cached per block type); or interpreted (compile = False)
         kinds = {getattr(t, "compile", True) for t in spec.terms}
         whole = kinds <= {True}
-        per_block = not whole and kinds <= {True, "blocks"} and spec.backend != "fatrop"
+        per_block = not whole and kinds <= {True, "blocks"}
         nlp = _Assembled(c, {b.bt: block_functions(b.bt, per_block) for b in c.blocks}, spec.hessian)
         self.lbg, self.ubg = nlp.lbg, nlp.ubg
         self.problem = {"x": x, "p": p, "f": nlp.f, "g": nlp.g}  # symbolic, for derivative checks and benchmarks
-        code = repr((spec.structure, spec.terms, spec.hessian, spec.backend))  # the generated code's: not the options
-        if spec.backend == "fatrop":
-            if not spec.structure.stages:
-                raise ValueError("Fatrop solves the stage form only (Structure(stages=True))")
-            self.nlpsol = compiled.fatrop_nlpsol("vine_nlp_fatrop", code, lambda: nlp.fatrop(p), dict(spec.options), self.lbg == self.ubg)
-        else:
-            # compiled C where a compiler is found (cached on disk per spec), else interpreted
-            self.nlpsol = compiled.nlpsol("vine_nlp", code, lambda: nlp.ipopt(p, per_block), dict(spec.options), enabled=whole)
+        code = repr((spec.structure, spec.terms, spec.hessian, "ipopt"))  # the generated code's: not the options
+        # compiled C where a compiler is found (cached on disk per spec), else interpreted
+        self.nlpsol = compiled.nlpsol("vine_nlp", code, lambda: nlp.ipopt(p, per_block), dict(spec.options), enabled=whole)
         self.term_names = list(nlp.reported)
         self._terms = ca.Function("terms", [x, p], [ca.MX(0) + v for v in nlp.reported.values()])
         self._g = ca.Function("g", [x, p], [nlp.g])
@@ -417,18 +349,22 @@ class Solver:
         """Where parameter ``name`` sits in the packed parameter vector."""
         return self._param_slices[name]
 
-    def pack_x(self, theta, lam, dl, frames, poses=None, lam_global=None, extra=None, globals_=None) -> np.ndarray:
-        """x from per-segment theta, dl (M,), lam (M,) or (M, K), frames (K, 12, M+1), poses (P, 6),
-        global lambdas (shared or level), extra (E, M), extra globals (G,)."""
+    def pack_x(self, frames, poses=None, lam_global=None, extra=None, globals_=None, **values) -> np.ndarray:
+        """x from the declared variables by name (``values``: theta (M,), lam (M,) or (M, K), length (M,), in
+        units of D), frames (K, 12, M+1), poses (P, 6), global lambdas (shared or level), extra (E, M), extra
+        globals (G,)."""
         s, lay = self.structure, self.layout
         x = np.zeros(lay.size)
-        x[lay.theta], x[lay.dl] = theta, dl
-        if s.lam == "segment":
-            x[lay.lam[:, 0]] = np.asarray(lam, float).reshape(s.M, -1)[:, 0]
-        elif lam_global is not None:
-            x[lay.lam_global] = lam_global
-        else:
-            x[lay.lam_global] = np.mean(lam) if s.lam == "shared" else np.asarray(lam, float).reshape(s.M, s.K)[0]
+        for v in s.variables:
+            val = values[v.name]
+            if not v.levels:
+                x[lay.var[v.name]] = val
+            elif s.lam == "segment":
+                x[lay.var[v.name][:, 0]] = np.asarray(val, float).reshape(s.M, -1)[:, 0]
+            elif lam_global is not None:
+                x[lay.lam_global] = lam_global
+            else:
+                x[lay.lam_global] = np.mean(val) if s.lam == "shared" else np.asarray(val, float).reshape(s.M, s.K)[0]
         frames = np.asarray(frames, float).reshape(s.K, 12, s.M + 1)
         for k in range(s.K):
             x[lay.X[:, k, :].T] = frames[k]
@@ -438,17 +374,12 @@ class Solver:
             x[lay.extra.T] = np.asarray(extra, float).reshape(s.extra, s.M)
         if globals_ is not None and s.globals:
             x[lay.globals] = globals_
-        if s.stages:  # the carried copies hold their rows at the start
-            x[lay.carry[:, 0]], x[lay.carry[:, 1]] = x[lay.theta], x[lay.lam[:, 0]]
         return x
 
     def unpack(self, x) -> dict:
         s, lay = self.structure, self.layout
         x = np.asarray(x, float)
-        return {
-            "theta": x[lay.theta].copy(),
-            "lam": x[lay.lam].copy(),  # (M, K)
-            "dl": x[lay.dl].copy(),
+        return {v.name: x[lay.var[v.name]].copy() for v in s.variables} | {  # lam: (M, K); length in units of D
             "poses": x[lay.pose].copy(),
             "lam_global": x[lay.lam_global].copy(),
             "frames": np.stack([x[lay.X[:, k, :].T] for k in range(s.K)]),  # (K, 12, M+1)
@@ -456,22 +387,25 @@ class Solver:
             "globals": x[lay.globals].copy(),
         }
 
-    def bounds(self, theta, lam, dl, X0=None) -> tuple[np.ndarray, np.ndarray]:
-        """Box bounds from (lo, hi) pairs: theta, lam (per segment (M,) or per level (K,) or scalars), dl;
-        ``X0``: (K, 12) fixed base frames for a fixed pose. Extra and global variables are free: set
-        their entries of the returned arrays (``layout.extra``, ``layout.globals``) to bound them."""
+    def bounds(self, X0=None, **boxes) -> tuple[np.ndarray, np.ndarray]:
+        """Box bounds of the declared variables by name from (lo, hi) pairs (``variables.box``'s; per segment
+        or scalars; lam per level (K,) for lambda per level; length in units of D); ``X0``: (K, 12) fixed base
+        frames for a fixed pose. Extra and global variables are free: set their entries of the returned arrays
+        (``layout.extra``, ``layout.globals``) to bound them."""
         s, lay = self.structure, self.layout
         lbx, ubx = np.full(lay.size, -np.inf), np.full(lay.size, np.inf)
-        lbx[lay.theta], ubx[lay.theta] = theta
-        lbx[lay.dl], ubx[lay.dl] = dl
-        if s.lam == "level":
-            lbx[lay.lam_global], ubx[lay.lam_global] = lam
-        else:
-            lo, hi = (np.broadcast_to(np.asarray(v, float), (s.M,)) for v in lam)
-            if s.lam == "shared":
-                lbx[lay.lam_global], ubx[lay.lam_global] = lo[0], hi[0]
+        for v in s.variables:
+            b = boxes[v.name]
+            if not v.levels:
+                lbx[lay.var[v.name]], ubx[lay.var[v.name]] = b
+            elif s.lam == "level":
+                lbx[lay.lam_global], ubx[lay.lam_global] = b
             else:
-                lbx[lay.lam[:, 0]], ubx[lay.lam[:, 0]] = lo, hi
+                lo, hi = (np.broadcast_to(np.asarray(e, float), (s.M,)) for e in b)
+                if s.lam == "shared":
+                    lbx[lay.lam_global], ubx[lay.lam_global] = lo[0], hi[0]
+                else:
+                    lbx[lay.var[v.name][:, 0]], ubx[lay.var[v.name][:, 0]] = lo, hi
         if s.pose == "fixed":
             if X0 is None:
                 raise ValueError("a fixed pose needs its base frames X0")
@@ -483,51 +417,78 @@ class Solver:
     def terms(self, x, p) -> dict:
         return {k: float(v) for k, v in zip(self.term_names, self._terms(x, p))}
 
-    def solve(self, x0, p, lbx, ubx, lbg=None, ubg=None, multipliers: bool = False, duals: tuple | None = None) -> tuple:
-        """One solve, IPOPT's or Fatrop's (``spec.backend``), from x0 clipped into the bounds: (x, status, stats);
-        ``multipliers``: also the bound multipliers lam_x (> 0 at an active upper bound, < 0 at a lower one: minus
-        the objective's gradient where a variable is fixed); ``duals``: (lam_x, lam_g) to start from (a warm
-        start), and stats["duals"] holds the answer's. Fatrop loops without end on non-finite data: callers
-        check ``fatrop_safe`` first."""
+    def solve(self, x0, p, lbx, ubx, lbg=None, ubg=None, multipliers: bool = False, duals: tuple | None = None) -> "Solution":
+        """One IPOPT solve from x0 clipped into the bounds: its :class:`Solution` (which unpacks as (x, status,
+        stats)); ``multipliers``: also the bound multipliers lam_x (> 0 at an active upper bound, < 0 at a lower
+        one: minus the objective's gradient where a variable is fixed; unpacked fourth); ``duals``: (lam_x, lam_g)
+        to start from (a warm start), and stats["duals"] holds the answer's."""
         build = 0.0 if self._built else self.build_time_s
         self._built = True
         x0 = np.clip(np.asarray(x0, float), lbx, ubx)
         lbg = self.lbg if lbg is None else lbg
         ubg = self.ubg if ubg is None else ubg
         t0 = time.perf_counter()
-        try:
-            start = {} if duals is None else {"lam_x0": duals[0], "lam_g0": duals[1]}
-            sol = interrupt.call(self.nlpsol, x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, **start)
-            st = self.nlpsol.stats()
-        except RuntimeError:
-            if self.spec.backend != "fatrop":
-                raise
-            # Fatrop raises where IPOPT returns a status (a failed factorization, say): a failed solve
-            sol, st = {"x": x0, "f": np.nan, "g": np.full(lbg.shape, np.nan)}, {}
+        start = {} if duals is None else {"lam_x0": duals[0], "lam_g0": duals[1]}
+        sol = interrupt.call(self.nlpsol, x0=x0, p=p, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, **start)
+        st = self.nlpsol.stats()
         elapsed = time.perf_counter() - t0
         x = np.array(sol["x"]).ravel()
         f = float(sol["f"])
-        if self.spec.backend == "fatrop":
-            status = fatrop_status(st, x, self.spec.settings.max_iter)
-            x, f = np.clip(x, lbx, ubx), f / FATROP_SCALE  # its answers may sit at rounding outside a bound
-        else:
-            status = ipopt_status(st, x)
+        status = ipopt_status(st, x)
         gv = np.array(sol["g"]).ravel()
         viol = float(np.max(np.maximum(lbg - gv, 0) + np.maximum(gv - ubg, 0))) if gv.size else 0.0
         stats = {
-            "solver": self.spec.backend,
+            "solver": "ipopt",
             "return_status": st.get("return_status", ""),
             "build_time_s": build,
             "objective": f,
             "iterations": int(st.get("iter_count", 0)),
             "solve_time_s": elapsed,
-            "ipopt_time_s": elapsed,  # the solver's alone, IPOPT's or Fatrop's (solve_time_s may grow to cover a whole method)
+            "ipopt_time_s": elapsed,  # the solver's alone (solve_time_s may grow to cover a whole method)
             "max_constraint_violation": viol,
             "hessian": self.spec.hessian,
         } | {f"objective_{k}": v for k, v in self.terms(x, p).items()}
         if duals is not None and "lam_g" in sol:
             stats["duals"] = (np.array(sol["lam_x"]).ravel(), np.array(sol["lam_g"]).ravel())
-        return (x, status, stats, np.array(sol.get("lam_x", np.zeros(x.size))).ravel()) if multipliers else (x, status, stats)
+        lam_x = np.array(sol.get("lam_x", np.zeros(x.size))).ravel() if multipliers else None
+        return Solution(self, x, np.asarray(p, float), status, stats, lam_x)
+
+
+@dataclass
+class Solution:
+    """One solve's answer (rockit's ``sol``): ``value(expr)`` evaluates any expression of the chain (its views
+    ``x``, ``theta``, ``frames(k)``, ``tip(k)``, ``extra``, parameters, terms) at the solution; ``routing(D, base,
+    k)`` builds level k's routing by name from the declarations; ``unpack()`` gives every declared variable by
+    name. ``stats`` is the solve's record, archived by the methods' results (``objective`` is read from it here,
+    once). Unpacks as (x, status, stats), with lam_x fourth where the solve was asked for the multipliers."""
+
+    solver: Solver
+    x: np.ndarray
+    p: np.ndarray
+    status: str
+    stats: dict
+    lam_x: np.ndarray | None = None
+
+    @property
+    def objective(self) -> float:
+        return float(self.stats["objective"])
+
+    def value(self, expr) -> np.ndarray:
+        s, params = self.solver, self.solver.chain.params
+        args = [np.reshape(self.p[s.param_slice(n)], s._param_shapes[n], order="F") for n, _ in params]
+        return np.array(ca.Function("value", [s.chain.x, *[q for _, q in params]], [ca.MX(expr)])(self.x, *args)).squeeze()
+
+    def unpack(self) -> dict:
+        return self.solver.unpack(self.x)
+
+    def routing(self, D: float, base: np.ndarray, k: int = 0) -> Routing:
+        return routing_of(self.solver, self.x, D, base, k)
+
+    def __iter__(self):
+        yield from (self.x, self.status, self.stats) + (() if self.lam_x is None else (self.lam_x,))
+
+    def __getitem__(self, i):
+        return tuple(self)[i]
 
 
 def routing_of(solver: Solver, x, D: float, base: np.ndarray, k: int = 0) -> Routing:
@@ -541,7 +502,8 @@ def routing_of(solver: Solver, x, D: float, base: np.ndarray, k: int = 0) -> Rou
         T0 = np.eye(4)
         T0[:3, :3] = base @ so3_exp(v["poses"][q, :3])
         T0[:3, 3] = v["poses"][q, 3:] * D
-    return Routing(v["theta"], v["lam"][:, k], v["dl"] * D, T0)
+    declared = solver.structure.variables
+    return variables.routing({d.name: v[d.name][:, k] if d.levels else v[d.name] for d in declared}, T0, D, declared)
 
 
 # ---------------------------------------------------------------- data of the plain chain

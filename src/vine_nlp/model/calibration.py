@@ -62,10 +62,10 @@ def nominal_of(realized: Routing, cal: Calibration, theta_max: float, lambda_min
     act, lam = actuated(realized.lam), realized.lam - cal.lambda_offset
     l2 = np.where(act, np.minimum(lam, TOP), 1.0)
     clipped = int(np.sum(t2 != theta) + np.sum(act & (l2 != lam)))
-    return Routing(t2, l2, realized.length / cal.length_scale, realized.initial_pose), clipped
+    return Routing(theta=t2, lam=l2, length=realized.length / cal.length_scale, initial_pose=realized.initial_pose), clipped
 
 
 def realized_of(nominal: Routing, cal: Calibration, lambda_min: float = 0.0) -> Routing:
     """What a nominal realizes under ``cal`` (the physical rule, model.routing.built_lambda)."""
-    return Routing(nominal.theta + cal.theta_offset, built_lambda(nominal.lam, cal.lambda_offset, lambda_min),
-                   nominal.length * cal.length_scale, nominal.initial_pose)
+    return Routing(theta=nominal.theta + cal.theta_offset, lam=built_lambda(nominal.lam, cal.lambda_offset, lambda_min),
+                   length=nominal.length * cal.length_scale, initial_pose=nominal.initial_pose)

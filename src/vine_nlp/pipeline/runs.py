@@ -282,7 +282,7 @@ def judge(problem, result: Result) -> None:
         if not rep["clear"]:
             worst = min(rep["min_gap"], rep["min_gap_intermediate"])
             short.append(f"obstacle margin not kept: min gap {worst:.4g} {problem.units} < margin {problem.obstacle_margin:g}")
-    if "clearance_met" in result.stats and not result.stats["clearance_met"]:
+    if result.met.get("clearance") is False:
         need = problem.diameter + result.stats.get("min_gap", 0.0)
         short.append(f"clearance not kept: min {result.stats['min_clearance']:.4g} {problem.units} < D + min_gap = {need:.4g}")
     result.shortfall = tuple(short)

@@ -26,12 +26,12 @@ import numpy as np
 from vine_nlp.methods import drive, settings
 from vine_nlp.methods.common import evaluate, pair_points
 from vine_nlp.methods.correct.deviations import TOP, Deviations, apply_deviations, remove_deviations
-from vine_nlp.methods.correct.estimate import DEFAULT_SYSTEMATIC_SIGMAS, Estimate, estimate_as_built
+from vine_nlp.methods.correct.estimate import Estimate, estimate_as_built
 from vine_nlp.methods.correct.pairing import in_frame
 from vine_nlp.methods.nlp import nlp_parameters
-from vine_nlp.methods.settings import Settings
+from vine_nlp.methods.settings import REACH_TOL, ROUTE_GAIN, THETA_TRUST, Settings
 from vine_nlp.methods.structure import Structure, frames12
-from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, get_solver, routing_of
+from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, get_solver
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.routing import Routing, Sigmas, actuated, built_lambda
 from vine_nlp.model.shape import routing_metrics
@@ -40,9 +40,6 @@ from vine_nlp.problem import DesignProblem, Result
 _log = logging.getLogger(__name__)
 
 ADJUST = (("lambda",), ("lambda", "theta"))
-THETA_TRUST = 2.0  # with theta adjusted, the corrected theta stays within this many sigma_theta of the as-built one
-ROUTE_GAIN = 2.0  # lambda and theta (a new tube) is recommended where it predicts this many times less error
-REACH_TOL = 0.1  # the bounds cost accuracy where the unbounded prediction is this fraction (and 0.1 sigma_m) better
 
 
 def correction_spec(M: int, n: int, shared: bool, max_iter: int, tol: float, hessian: str) -> Spec:
@@ -91,18 +88,19 @@ def correct_routing(problem: DesignProblem, as_built: Routing, dev: Deviations, 
     def step(hessian, cap, previous):
         solver = get_solver(correction_spec(M, pairing.n, a.shared_lambda, min(cap or o.max_iter, o.max_iter), o.tol, hessian))
         p = solver.pack_params(nlp_parameters(problem, pairing, as_built.initial_pose[:3, :3]))
-        x0 = solver.pack_x(as_built.theta, as_built.lam, dl, f12[None], lam_global=float(np.mean(as_built.lam)))
-        x, status, st = solver.solve(x0, p, *solver.bounds(th, lam_b, (dl, dl), X0=f12[:, 0][None]))
-        _log.debug("correction %s: %s, %d iterations, %.2f s", hessian, status, st["iterations"], st["solve_time_s"])
-        realized = dataclasses.replace(routing_of(solver, x, D, as_built.initial_pose), length=as_built.length)
-        return Result("corrected", realized, None, status, iterations=st.pop("iterations"), stats=st)
+        x0 = solver.pack_x(f12[None], lam_global=float(np.mean(as_built.lam)), theta=as_built.theta, lam=as_built.lam, length=dl)
+        sol = solver.solve(x0, p, *solver.bounds(X0=f12[:, 0][None], theta=th, lam=lam_b, length=(dl, dl)))
+        st = sol.stats
+        _log.debug("correction %s: %s, %d iterations, %.2f s", hessian, sol.status, st["iterations"], st["solve_time_s"])
+        realized = dataclasses.replace(sol.routing(D, as_built.initial_pose), length=as_built.length)
+        return Result("corrected", realized, None, sol.status, iterations=st.pop("iterations"), stats=st, objective=sol.objective)
 
     best = drive.schedule(step, settings.CORRECTION_SCHEDULE)
     if unbounded:
         return best.routing, best.routing, best.status, best.stats | {"iterations": best.iterations}
     nominal = remove_deviations(best.routing, dev, actuated(built.lam))
     # what the builder does not change stays exactly what was built
-    nominal = Routing(nominal.theta if "theta" in adjust else built.theta, nominal.lam, built.length, built.initial_pose)
+    nominal = Routing(theta=nominal.theta if "theta" in adjust else built.theta, lam=nominal.lam, length=built.length, initial_pose=built.initial_pose)
     return nominal, apply_deviations(nominal, dev), best.status, best.stats | {"iterations": best.iterations}
 
 
@@ -141,7 +139,7 @@ class CorrectionResult:
 
 
 def correct(problem: DesignProblem, nominals: list, measurements: list, *, adjust=None, sigmas: Sigmas | None = None,
-            measurement_sigma: float | None = None, systematic_sigmas=DEFAULT_SYSTEMATIC_SIGMAS, units_per_mm: float = 0.1,
+            measurement_sigma: float | None = None, systematic_sigmas=settings.DEFAULT_SYSTEMATIC_SIGMAS, units_per_mm: float = 0.1,
             theta_trust: float | None = None, start: Deviations | None = None, start_systematic=None) -> CorrectionResult:
     """Estimate the built robot and correct it on both routes (module docstring), no file I/O. ``nominals``: of
     each build measured so far, oldest first; ``measurements``: their points (``build`` indexes ``nominals``);

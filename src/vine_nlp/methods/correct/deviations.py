@@ -39,12 +39,12 @@ def deviations_of(nominal: Routing, as_built: Routing, lambda_min: float = 0.0) 
 
 def apply_deviations(nominal: Routing, dev: Deviations) -> Routing:
     """What a robot with deviations ``dev`` realizes when built from ``nominal`` (the physical rule)."""
-    return Routing(nominal.theta + dev.theta, built_lambda(nominal.lam, dev.lam, dev.lambda_min), nominal.length * dev.length_ratio,
-                   nominal.initial_pose)
+    return Routing(theta=nominal.theta + dev.theta, lam=built_lambda(nominal.lam, dev.lam, dev.lambda_min), length=nominal.length * dev.length_ratio,
+                   initial_pose=nominal.initial_pose)
 
 
 def remove_deviations(as_built: Routing, dev: Deviations, act) -> Routing:
     """The nominal that realizes ``as_built`` on a robot with deviations ``dev``: an actuator where ``act`` (its
     nominal at most TOP), lambda 1 (none) elsewhere."""
     lam = np.where(act, np.minimum(as_built.lam - dev.lam, TOP), 1.0)
-    return Routing(as_built.theta - dev.theta, lam, as_built.length / dev.length_ratio, as_built.initial_pose)
+    return Routing(theta=as_built.theta - dev.theta, lam=lam, length=as_built.length / dev.length_ratio, initial_pose=as_built.initial_pose)

@@ -21,7 +21,7 @@ started from a rigid ICP alignment. A warm start (the previous round's estimate)
 
 The ICP loop (:class:`_ICP`, a rule of ``drive.refine``): pair, solve warm, pair again until the pairs stop
 moving; coarse to fine, the fit's noise sigma shrinking by settings.STAGE_FACTOR from D/2 to sigma_m, pairs
-beyond TRIM sigmas left out. Each segment of each build has S slots (rounded up to SLOT_STEP), each an instance
+beyond settings.TRIM sigmas left out. Each segment of each build has S slots (rounded up to settings.SLOT_STEP), each an instance
 of the one-point block :func:`measure_block` with its point, fraction, tangent and weight as data: re-pairing
 changes data only, and one structure per (M, S, builds, free pose) serves every round, compiled once.
 """
@@ -38,13 +38,14 @@ from typing import ClassVar
 import casadi as ca
 import numpy as np
 
-from vine_nlp.methods import drive, settings
+from vine_nlp.methods import drive, settings, variables
 from vine_nlp.methods.blocks import BlockType
 from vine_nlp.methods.correct.deviations import Deviations, apply_deviations, deviations_of
 from vine_nlp.methods.correct.laplace import laplace
-from vine_nlp.methods.correct.pairing import LINE_SIDE, SLIDE, in_frame, pair_with_line, rigid_start
+from vine_nlp.methods.correct.pairing import LINE_SIDE, in_frame, pair_with_line, rigid_start
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Chain, Spec, get_solver
+from vine_nlp.methods.variables import CELL, POINT
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.helix import center_rates
 from vine_nlp.model.routing import Routing, Sigmas, actuated
@@ -53,12 +54,6 @@ from vine_nlp.problem import Result
 
 _log = logging.getLogger(__name__)
 
-# weak priors on the systematic parts: wide against any construction method seen
-DEFAULT_SYSTEMATIC_SIGMAS = (math.radians(10.0), 0.2, 0.2)
-DEFAULT_MEASUREMENT_SIGMA_MM = 1.0
-TRIM = 4.0  # pairs farther than this many sigmas of the stage are left out of it
-SLOT_STEP = 8  # slots per segment are rounded up to a multiple of this (cached structures)
-HELD_SIGMAS = 2.0  # an actuator estimated within this many standard deviations of lambda 1 may be clipped: held
 
 
 # data rows of one measurement slot (measure_block): shift (3), u, m (3), tangent (3), sqrt weight, side
@@ -66,11 +61,10 @@ HELD_SIGMAS = 2.0  # an actuator estimated within this many standard deviations 
 SLOT_DATA = 13
 SLOT_DATA_FREE = 17
 NO_CAP = 10.0  # no lambda cap (min(NO_CAP, lam + shift) = lam + shift)
-CAP_ROUND = 1e-3  # lambda units: the cap's rounding (at most CAP_ROUND / 2 off min, at the kink)
 
 
-def _cap(cap, lam):  # min(cap, lam) rounded over CAP_ROUND: a kink at the solution stalls IPOPT (a build clipped near 1)
-    return 0.5 * (cap + lam - ca.sqrt((cap - lam) ** 2 + CAP_ROUND**2))
+def _cap(cap, lam):  # min(cap, lam) rounded over settings.CAP_ROUND: a kink at the solution stalls IPOPT (a build clipped near 1)
+    return 0.5 * (cap + lam - ca.sqrt((cap - lam) ** 2 + settings.CAP_ROUND**2))
 
 
 @lru_cache(maxsize=2)
@@ -84,23 +78,24 @@ def measure_block(free: bool) -> BlockType:
     d = (shift (3): theta and lambda added, length factor (the build's nominal against the latest),
     u, m (3), t (3) tangent, w square root of the weight, side [, c (3) centroid, flag], cap: lambda is
     min(cap, lam + shift): 1 where the shift may pass 1 (the physical rule), NO_CAP elsewhere).
-    Residual w (I - (1 - SLIDE) t t^T)(P - m) (the square root as data: a zero-weight slot has finite derivatives);
+    Residual w (I - (1 - settings.SLIDE) t t^T)(P - m) (the square root as data: a zero-weight slot has finite derivatives);
     a free-frame point (flag 1) is moved by exp(w) (m - c) + c + t first (m stored as given, c their centroid)."""
-    nv = 21 if free else 15
+    slots = POINT + ((("w", 3), ("p", 3)) if free else ())  # variables.POINT, then the free frame's rotation and shift
     nd = SLOT_DATA_FREE if free else SLOT_DATA
-    v, d = ca.SX.sym("v", nv), ca.SX.sym("d", nd)
-    th, la, dl = v[12] + d[0], _cap(d[nd - 1], v[13] + d[1]), v[14] * d[2]
+    v, d = ca.SX.sym("v", slots.size), ca.SX.sym("d", nd)
+    X, th, la, dl = POINT.split(v)
+    th, la, dl = th + d[0], _cap(d[nd - 1], la + d[1]), dl * d[2]
     u, mi, tg, w, side = d[3], d[4:7], d[7:10], d[10], d[11]
-    R, p = ca.reshape(v[:9], 3, 3), v[9:12]
+    R, p = ca.reshape(X[:9], 3, 3), X[9:12]
     kappa, tau, lc = center_rates(th, la, 1.0)
     Rs, q = twist_parts(kappa, tau, u * dl * lc)
     local = ca.vertcat(q[0] + side * Rs[0][1], q[1] + side * Rs[1][1], q[2] + side * Rs[2][1])
     P = p + ca.mtimes(R, local)
     if free:
         c, flag = d[12:15], d[15]
-        mi = mi + flag * (ca.mtimes(so3_exp(v[15:18]), mi - c) + c + v[18:21] - mi)
+        mi = mi + flag * (ca.mtimes(so3_exp(v[slots["w"]]), mi - c) + c + v[slots["p"]] - mi)
     e = P - mi
-    res = w * (e - (1.0 - SLIDE) * tg * ca.dot(tg, e))
+    res = w * (e - (1.0 - settings.SLIDE) * tg * ca.dot(tg, e))
     return BlockType(f"measure{'f' if free else ''}", ca.Function("measure_block", [v, d], [ca.sumsqr(res), ca.SX(0, 1)]),
                      ca.Function("measure_res", [v, d], [res]))
 
@@ -108,10 +103,11 @@ def measure_block(free: bool) -> BlockType:
 @lru_cache(maxsize=1)
 def shifted_segment_block() -> BlockType:
     """Continuity of an earlier build's chain: X'_{j+1} = X'_j T(theta + d_theta, min(cap, lam + d_lam), dl f).
-    v = (X'_j (12), theta, lam, dl, X'_{j+1} (12)); d = (d_theta, d_lam, f, cap)."""
-    v, d = ca.SX.sym("v", 27), ca.SX.sym("d", 4)
-    Xn, _ = segment_function(1)(v[:12], v[12] + d[0], _cap(d[3], v[13] + d[1]), v[14] * d[2], 0.0)
-    return BlockType("shifted_segment", ca.Function("shifted_block", [v, d], [ca.SX(0), Xn - v[15:]]),
+    v = ``variables.CELL`` (X'_j (12), theta, lam, dl, X'_{j+1} (12)); d = (d_theta, d_lam, f, cap)."""
+    v, d = ca.SX.sym("v", CELL.size), ca.SX.sym("d", 4)
+    X, th, la, dl, _ = CELL.split(v)
+    Xn, _ = segment_function(1)(X, th + d[0], _cap(d[3], la + d[1]), dl * d[2], 0.0)
+    return BlockType("shifted_segment", ca.Function("shifted_block", [v, d], [ca.SX(0), Xn - v[CELL["next"]]]),
                      ca.Function("shifted_res", [v, d], [ca.SX(0, 1)]))
 
 
@@ -145,10 +141,10 @@ class AsBuiltTerm:
             return lay.extra[j - 1, 12 * b : 12 * b + 12]
 
         glob = lay.globals[3:9] if self.free else np.zeros(0, int)
-        cols = [np.r_[frame(b, j), lay.theta[j], lay.lam[j, 0], lay.dl[j], glob] for b in range(B) for j in range(M)]
+        cols = [np.r_[frame(b, j), lay.routing_at(j), glob] for b in range(B) for j in range(M)]
         c.add_block(bt, np.hstack([np.repeat(col[:, None], S, axis=1) for col in cols]), meas, term="fit")
         if B > 1:
-            idx = [np.r_[frame(b, j), lay.theta[j], lay.lam[j, 0], lay.dl[j], lay.extra[j, 12 * b : 12 * b + 12]]
+            idx = [np.r_[frame(b, j), lay.routing_at(j), lay.extra[j, 12 * b : 12 * b + 12]]
                    for b in range(B - 1) for j in range(M)]
             c.add_block(shifted_segment_block(), np.array(idx).T, shift)
         g = c.globals
@@ -187,16 +183,16 @@ class Estimate:
 
 
 def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigmas, shared_lambda: bool = False,
-                      measurement_sigma: float | None = None, systematic_sigmas=DEFAULT_SYSTEMATIC_SIGMAS,
+                      measurement_sigma: float | None = None, systematic_sigmas=settings.DEFAULT_SYSTEMATIC_SIGMAS,
                       hessian: str | None = None, rounds: int = settings.ICP_ROUNDS, units_per_mm: float = 0.1,
                       lambda_min: float = 0.0, start: Deviations | None = None, start_systematic=None) -> Estimate:
     """MAP estimate of the as-built robot (module docstring). ``nominals``: of each build, oldest first (the
     estimate is of the last); ``measurements``: of any build (``build`` indexes ``nominals``); ``sigmas``: the
-    prior; ``measurement_sigma``: default DEFAULT_MEASUREMENT_SIGMA_MM; ``systematic_sigmas``: the prior of
+    prior; ``measurement_sigma``: default settings.DEFAULT_MEASUREMENT_SIGMA_MM; ``systematic_sigmas``: the prior of
     (theta offset rad, lambda offset, log length scale); ``rounds``: of the last stage; ``start``,
     ``start_systematic``: a warm start (an earlier round's deviations and systematic parts). ValueError: sigmas <= 0."""
     stats, cpu = drive.Stats(), time.process_time()
-    sig_m = (DEFAULT_MEASUREMENT_SIGMA_MM * units_per_mm) if measurement_sigma is None else float(measurement_sigma)
+    sig_m = (settings.DEFAULT_MEASUREMENT_SIGMA_MM * units_per_mm) if measurement_sigma is None else float(measurement_sigma)
     icp = _ICP(nominals, measurements, D, sigmas, shared_lambda, sig_m, systematic_sigmas, hessian or settings.ESTIMATE_HESSIAN, rounds,
                lambda_min, start, start_systematic)
     found = drive.refine(icp, sum(icp.caps), stats=stats)
@@ -206,14 +202,14 @@ def estimate_as_built(nominals: list, measurements: list, D: float, sigmas: Sigm
                                       icp.prior, shared_lambda, icp.free, icp.centroid, icp.Tcorr)
     latest = nominals[-1]
     # the clip at 1 hides how far beyond it an actuator's error goes: hold what may be clipped
-    held = actuated(latest.lam) & (icp.ab.lam >= 1.0 - HELD_SIGMAS * std[:, 1]) if not shared_lambda else None
+    held = actuated(latest.lam) & (icp.ab.lam >= 1.0 - settings.HELD_SIGMAS * std[:, 1]) if not shared_lambda else None
     dev = replace(deviations_of(latest, icp.ab, lambda_min), held=held)
     return Estimate(
         routing=icp.ab, deviations=dev, systematic=np.array([g[0], g[1], math.exp(g[2])]),
         systematic_std=sys_std, std=std, transform=icp.Tcorr @ icp.T_free, residuals=residuals, status=found.best.status,
         iterations=stats.iterations, solve_time_s=time.perf_counter() - stats.started, rounds=found.rounds,
         stats={"measurement_sigma": sig_m, "slots_per_segment": icp.S, "points": icp.N, "builds": icp.B, "hessian": icp.hessian,
-               "objective": found.best.stats.get("objective", float("nan")), "free_pose": icp.free, "cpu_time_s": time.process_time() - cpu, "warm_start": start is not None},
+               "objective": float("nan") if found.best.objective is None else found.best.objective, "free_pose": icp.free, "cpu_time_s": time.process_time() - cpu, "warm_start": start is not None},
     )
 
 
@@ -249,7 +245,7 @@ class _ICP:
         self.g0 = np.zeros(3) if start_sys is None else np.r_[start_sys[:2], math.log(start_sys[2])]
         self.Tcorr, self.g_free = np.eye(4), np.zeros(6)
         self.pairs = self._pairs()
-        self.S = int(math.ceil(1.25 * self._slots_needed() / SLOT_STEP) * SLOT_STEP)
+        self.S = int(math.ceil(1.25 * self._slots_needed() / settings.SLOT_STEP) * settings.SLOT_STEP)
         self.solver = None
         # coarse to fine: the fit's noise sigma from D/2 down to the measurement's
         self.stages, s_k = [], 0.5 * D
@@ -262,7 +258,7 @@ class _ICP:
 
     def _routings(self) -> list:
         """Every build's as-built routing: the estimate shifted by the build's known differences."""
-        return [Routing(self.ab.theta + a, np.minimum(1.0, self.ab.lam + b), self.ab.length * c, self.T0) for a, b, c in self.shifts]
+        return [Routing(theta=self.ab.theta + a, lam=np.minimum(1.0, self.ab.lam + b), length=self.ab.length * c, initial_pose=self.T0) for a, b, c in self.shifts]
 
     def _pairs(self):
         rs = self._routings()
@@ -277,12 +273,12 @@ class _ICP:
     def solve(self, x, round, last):
         M, D, need = self.M, self.D, self._slots_needed()
         if need > self.S:
-            self.S, self.solver = int(math.ceil(need / SLOT_STEP) * SLOT_STEP), None
+            self.S, self.solver = int(math.ceil(need / settings.SLOT_STEP) * settings.SLOT_STEP), None
         if self.solver is None:  # a new structure: its own start
             st = Structure(M, 1, 1, "shared" if self.shared else "segment", "fixed", extra=12 * (self.B - 1), globals=9 if self.free else 3)
             self.solver, x = get_solver(Spec(st, (AsBuiltTerm(self.S, self.B, self.free),), self.hessian, settings.ESTIMATE)), None
         solver, lay, s_stage = self.solver, self.solver.layout, self.stages[self.stage]
-        data = self._data(s_stage, TRIM * max(s_stage, self.sig_m))
+        data = self._data(s_stage, settings.TRIM * max(s_stage, self.sig_m))
         self.prior[4] = self.act & (self.ab.lam >= 1.0 - 1e-6)  # clipped in the round before (module docstring)
         self.prior[3] = self.act & ~(self.prior[4] > 0)
         p = solver.pack_params({"cells": np.zeros((5, M)), "meas": data, "shift": self.shift_data, "prior": self.prior,
@@ -294,16 +290,17 @@ class _ICP:
                 x[lay.globals[3:9]] = self.g_free
         lbx, ubx = np.full(lay.size, -np.inf), np.full(lay.size, np.inf)
         lbx[lay.X[0, 0]] = ubx[lay.X[0, 0]] = np.r_[self.T0[:3, :3].ravel(order="F"), self.T0[:3, 3] / D]
-        lbx[lay.dl], ubx[lay.dl] = 0.2 * self.latest.length / D, 5.0 * self.latest.length / D
+        lbx[lay.dl], ubx[lay.dl] = settings.LENGTH_FACTOR[0] * self.latest.length / D, settings.LENGTH_FACTOR[1] * self.latest.length / D
         lam = lay.lam_global if self.shared else lay.lam[:, 0]
         lbx[lam], ubx[lam] = np.where(self.act, self.lambda_min, 1.0)[: np.size(lam)], 1.0
         lbx[lay.theta], ubx[lay.theta] = -1.45, 1.45
-        self.x, status, st = solver.solve(x, p, lbx, ubx)
-        v = solver.unpack(self.x)
-        self.ab = Routing(v["theta"], v["lam"][:, 0], v["dl"] * D, self.T0)
+        sol = solver.solve(x, p, lbx, ubx)
+        self.x, st = sol.x, sol.stats
+        v = sol.unpack()
+        self.ab = variables.routing(v | {"lam": v["lam"][:, 0]}, self.T0, D)
         if self.free:
             self.g_free, self.Tcorr = v["globals"][3:9].copy(), _free_transform(v["globals"], self.centroid, D)
-        return self.x, Result("as_built", self.ab, None, status, iterations=st.pop("iterations"), stats=st)
+        return self.x, Result("as_built", self.ab, None, sol.status, iterations=st.pop("iterations"), stats=st, objective=sol.objective)
 
     def judge(self, res):
         new = self._pairs()
@@ -360,8 +357,8 @@ def _free_transform(g, centroid, D):
 
 def _start_x(solver, ab, D, routings, B, lay):
     frames = chain_frames(ab.theta, ab.lam, ab.length, D, ab.initial_pose)
-    x = solver.pack_x(ab.theta, ab.lam, ab.length / D, frames12(frames, D)[None], lam_global=np.mean(ab.lam),
-                      globals_=np.zeros(lay.globals.size))
+    x = solver.pack_x(frames12(frames, D)[None], lam_global=np.mean(ab.lam), globals_=np.zeros(lay.globals.size), theta=ab.theta,
+                      lam=ab.lam, length=ab.length / D)
     for b in range(B - 1):
         r = routings[b]
         fb = frames12(chain_frames(r.theta, r.lam, r.length, D, r.initial_pose), D)

@@ -12,7 +12,8 @@ import math
 
 import numpy as np
 
-from vine_nlp.methods.correct.pairing import LINE_SIDE, SLIDE, in_frame
+from vine_nlp.methods.correct.pairing import LINE_SIDE, in_frame
+from vine_nlp.methods.settings import SLIDE
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.routing import Routing
 from vine_nlp.model.segment import segment_transform, so3_exp
@@ -92,7 +93,7 @@ def laplace(ab, g, shifts, ms, pts, pairs, D, sig_m, sigmas, sys_sig, prior, sha
     rows, dists = [], []
     for p, m, pr in zip(pts, ms, pairs):
         a, b, c = shifts[m.build]
-        r = Routing(ab.theta + a, np.minimum(1.0, ab.lam + b), ab.length * c, T0)
+        r = Routing(theta=ab.theta + a, lam=np.minimum(1.0, ab.lam + b), length=ab.length * c, initial_pose=T0)
         P, JP = line_jacobian(r, D, pr.seg, pr.frac, LINE_SIDE[m.line])
         JP[:, :, M : 2 * M] *= ab.lam + b < 1.0  # the physical rule: no lambda change beyond 1
         t = pr.tangent

@@ -16,15 +16,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from vine_nlp.methods.fit.align import PointSet, Polyline, fit_pose, polish_pose, pose_starts
+from vine_nlp.methods.settings import SAMPLES_PER_SEGMENT
 from vine_nlp.model.chain import chain_frames, chain_points, segment_end_samples
 from vine_nlp.model.routing import MEASURED_LINES, Routing
 
 # offset of each line from the center line along the frame's normal, in units of D
 LINE_SIDE = {"center": 0.0, "inner": 0.5, "outer": -0.5}
-SAMPLES_PER_SEGMENT = 24  # pieces per segment of the model lines the pairing projects onto
-# the share of a pair's along-line difference kept in its residual: zero at a closest point, it damps sliding along the
-# line between pairings (pure point-to-line let a hook's straight part slide: a shorter tube, a later bend)
-SLIDE = 0.1
 
 
 @dataclass(frozen=True)

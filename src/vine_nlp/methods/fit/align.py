@@ -17,12 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-GLOBAL_POINTS = 300  # measured points used by the ICP of the global stage (all points are used for the polish)
-
-ICP_GLOBAL_ITER = 60
-
-POLISH_TOP = 3
-
+from vine_nlp.methods.settings import GLOBAL_POINTS, ICP_GLOBAL_ITER, POLISH_TOP
 
 # ---------------------------------------------------------------- rigid transforms
 

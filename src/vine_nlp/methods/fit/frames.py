@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from vine_nlp.methods.fit.model_fit import LAMBDA_BOUNDS, SPACING, LineFitter, finish_fit
+from vine_nlp.methods.fit.model_fit import FIT_SPACING, LAMBDA_BOUNDS, LineFitter, finish_fit
 from vine_nlp.problem import FitProblem
 
 
@@ -71,7 +71,7 @@ def fit_frames(
                 lam_g, fit_g = None, fitter.pose(None, warm=warm, full=True)
             if fit is None or fit_g.mse < fit.mse:
                 lam, fit = lam_g, fit_g
-        result, extras = finish_fit(fitter, lam, fit.T, free, SPACING)
+        result, extras = finish_fit(fitter, lam, fit.T, free, FIT_SPACING)
         m = result.metrics
         prev = (m["lambda"], fit.T, m["rmse"])
         out.append(FrameFit(m["lambda"], m["rmse"], ok=True, r2=m["r2"], max_error=m["max_error"], transform=fit.T,

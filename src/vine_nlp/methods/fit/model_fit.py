@@ -6,7 +6,7 @@ or outer line (:func:`fit_problem`, :func:`fit_lines`): only the rigid pose (see
 of an sPAM are estimated: an outer 1-D search over lambda (coarse grid, then
 bounded Brent) re-runs the pose fit.
 
-The model line is sampled with spacing <= ``SPACING * D`` and treated as a polyline;
+The model line is sampled with spacing <= ``FIT_SPACING * D`` and treated as a polyline;
 distances are to the polyline (the chord error of that spacing is about
 ``(D/10)^2 kappa / 8``, far below tracker noise). The archived shape is the model
 moved onto the measurement: the routing's initial pose becomes ``inv(T) @ initial_pose``.
@@ -34,26 +34,17 @@ from vine_nlp.methods.fit.align import (
     stack_points,
     subsample,
 )
+from vine_nlp.methods.settings import FIT_SPACING, GRID_POINTS, GRID_POLISH_ITER, LAMBDA_BOUNDS, LAMBDA_GRID_STEP
 from vine_nlp.model import shape_lines
 from vine_nlp.model.chain import segment_end_samples
 from vine_nlp.model.routing import MEASURED_LINES, Routing
 from vine_nlp.model.shape import Shape
 from vine_nlp.problem import FitProblem, Result
 
-SPACING = 0.1  # model lines are sampled at <= SPACING * D
-
-LAMBDA_BOUNDS = (0.3, 1.0)
-
-LAMBDA_GRID_STEP = 0.05
-
-GRID_POLISH_ITER = 12  # the lambda grid only ranks values; the refinement polishes fully
-
-GRID_POINTS = 1000  # measured points used while ranking the lambda grid
-
 LINE_CODE = {name: k for k, name in enumerate(MEASURED_LINES)}  # center 0, inner 1, outer 2
 
 
-def model_lines(routing: Routing, diameter: float, spacing: float = SPACING):
+def model_lines(routing: Routing, diameter: float, spacing: float = FIT_SPACING):
     """Center, inner and outer lines of ``routing`` sampled at <= spacing * D.
 
     Returns (dict line -> (P, 3), s_tube (P,), per_segment (M,)): s_tube is the
@@ -73,13 +64,13 @@ def model_lines(routing: Routing, diameter: float, spacing: float = SPACING):
 def _with_lambda(routing: Routing, lam) -> Routing:
     if lam is None:
         return routing
-    return Routing(routing.theta, np.full(routing.segments, float(lam)), routing.length, routing.initial_pose)
+    return Routing(theta=routing.theta, lam=np.full(routing.segments, float(lam)), length=routing.length, initial_pose=routing.initial_pose)
 
 
 class LineFitter:
     """Pose (and lambda) fit of measured lines to the model of one routing."""
 
-    def __init__(self, routing, diameter, measured: dict, starts=24, seed=0, spacing=SPACING):
+    def __init__(self, routing, diameter, measured: dict, starts=24, seed=0, spacing=FIT_SPACING):
         self.routing = routing
         self.D = float(diameter)
         self.measured = {line: clean_points(pts, f"measured {line} line") for line, pts in measured.items()}
@@ -168,7 +159,7 @@ class LineFitter:
 
 
 def fit_lines(routing: Routing, diameter: float, measured: dict, free=(), starts: int = 24, seed: int = 0,
-              spacing: float = SPACING, lambda_bounds=LAMBDA_BOUNDS, warm_start=None):
+              spacing: float = FIT_SPACING, lambda_bounds=LAMBDA_BOUNDS, warm_start=None):
     """Fit the model of ``routing`` to measured lines sharing one rigid pose.
 
     ``measured``: {"center" | "inner" | "outer": (K, 3) points in any order}; several
@@ -208,7 +199,7 @@ def finish_fit(fitter: LineFitter, lam_fit, T, free, spacing):
     lines, s_tube, _ = model_lines(routing, D, spacing)
     polylines = {name: Polyline(pts, s_tube) for name, pts in lines.items()}
     Tinv = invert_transform(T)
-    fitted = Routing(routing.theta, routing.lam, routing.length, Tinv @ routing.initial_pose)
+    fitted = Routing(theta=routing.theta, lam=routing.lam, length=routing.length, initial_pose=Tinv @ routing.initial_pose)
     shape = Shape(*(apply_transform(Tinv, lines[name]) for name in ("center", "inner", "outer")))
 
     pts, closest, err, s, s_tube_pts, code = [], [], [], [], [], []

@@ -31,17 +31,15 @@ from vine_nlp.analysis.obstacles import min_gap
 from vine_nlp.methods import drive, settings
 from vine_nlp.methods.common import pair_points
 from vine_nlp.methods.nlp import chain_guess, design_bounds, design_nlp, extended_solver, nlp_parameters, result_of, start_x
-from vine_nlp.methods.obstacles.plan import LENGTH_SLACK, SPACING, Plan, obstacle_stats
+from vine_nlp.methods.obstacles.plan import Plan, obstacle_stats
 from vine_nlp.methods.obstacles.push import pushed_start
 from vine_nlp.methods.obstacles.rows import MESH_K
+from vine_nlp.methods.settings import BLOCKED_WEIGHT, MESH_BLOCKED_WEIGHT, MESH_WEIGHT_RAMP
 from vine_nlp.problem import DesignProblem, Result
 
 RUN = "nlp"  # the obstacle design is the problem's design (archived as run "nlp"); the obstacle-free start: FREE_RUN
 FREE_RUN = "nlp_free"
 METHOD = "nlp_obstacles"
-BLOCKED_WEIGHT = 0.1  # weight of the target points closer than the margin to an obstacle (their fit cannot be exact)
-MESH_BLOCKED_WEIGHT = 0.01  # the same where the scene has a mesh (module docstring, "Weights")
-MESH_WEIGHT_RAMP = 1.0  # units of D: with a mesh, weights rise from MESH_BLOCKED_WEIGHT at the margin to 1 at margin + this
 
 
 class Rounds:
@@ -70,21 +68,21 @@ class Rounds:
         zero = (np.zeros(len(x)), np.zeros(len(solver.lbg)))
         p, bounds = solver.pack_params(self.params | self.data), self.plan.trust(solver, x, *self.bounds)
         if not self.warm:
-            x1, status, st = solver.solve(x, p, *bounds)
-            return x1, self.result(solver, x1, status, st)
-        x1, status, st = solver.solve(x, p, *bounds, duals=duals if duals is not None else zero)
-        if duals is not None and status not in ("optimal", "max_iter"):
+            sol = solver.solve(x, p, *bounds)
+            return sol.x, self.result(sol)
+        sol = solver.solve(x, p, *bounds, duals=duals if duals is not None else zero)
+        if duals is not None and sol.status not in ("optimal", "max_iter"):
             # the warm start failed (rows the raise or the new active set violate at the start): cold, from the same x
             solver = self.built = self.solver(round, last, False)
-            x1, status, st1 = solver.solve(x, p, *bounds, duals=zero)
+            cold = solver.solve(x, p, *bounds, duals=zero)
             for key in ("iterations", "solve_time_s", "ipopt_time_s"):
-                st1[key] += st[key]
-            st = st1
+                cold.stats[key] += sol.stats[key]
+            sol = cold
         # only a converged answer's multipliers start the next round (from a capped solve's, the warm re-solves
         # wandered off: a box scene's RMSE 0.4 -> 94 cm)
-        duals = st.pop("duals", zero)
-        self.duals = duals if status == "optimal" else (zero[0], np.zeros(0))
-        return x1, self.result(solver, x1, status, st)
+        duals = sol.stats.pop("duals", zero)
+        self.duals = duals if sol.status == "optimal" else (zero[0], np.zeros(0))
+        return sol.x, self.result(sol)
 
     def judge(self, res):
         rep = self.plan.report(res.routing)
@@ -99,7 +97,7 @@ class Rounds:
 
 
 def design_with_obstacles(problem: DesignProblem, start: Result | None = None, rounds: int = settings.ROUNDS, ts=None,
-                          k: int = MESH_K, spacing: float = SPACING, **kw) -> Result:
+                          k: int = MESH_K, spacing: float = settings.SAMPLE_SPACING, **kw) -> Result:
     """Inverse design that keeps the tube ``problem.obstacle_margin`` clear of ``problem.obstacles``.
 
     ``start``: the obstacle-free design (default design_nlp(problem, **kw)), returned (with the obstacle
@@ -120,9 +118,10 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
     stats0 = {"obstacle_margin": plan.margin, "growth": plan.growth, "start_rmse": float(start.metrics["rmse"]),
               "start_min_obstacle_gap": float(first["min_gap"])}
     if not problem.obstacles or first["clear"]:
-        best = dataclasses.replace(start, metrics=dict(start.metrics), stats=dict(start.stats))
+        best = dataclasses.replace(start, metrics=dict(start.metrics), stats=dict(start.stats), met=dict(start.met))
         best.metrics.update(obstacle_stats(first))
         best.stats.update(stats0 | {"obstacle_rounds": 0, "obstacle_clear": bool(first["clear"])})
+        best.met["obstacles"] = bool(first["clear"])
         return best
     pairing = pair_points(problem.target, problem.options.points_per_segment)
     plan.choose_levels(first)
@@ -138,20 +137,22 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
         return extended_solver(problem, pairing, (plan.term,), plan.extra, settings.ROUND_MAX_ITER if 0 < round and not last else None,
                                warm=warm)
 
-    def result(solver, x, status, st):
-        return result_of(problem, pairing, solver, x, status, st, R0g, METHOD)
+    def result(sol):
+        return result_of(problem, pairing, sol, R0g, METHOD)
 
     data = plan.data(routing)  # the first round's: it fixes the first solver's slots
     first_solver = solver(0, rounds == 1)
-    theta_b, lam_b, (dl_lo, dl_hi) = design_bounds(problem, pairing)
+    box = design_bounds(problem, pairing)
+    dl_hi = box["length"][1]
     # the pushed start's detour may lengthen a segment past LENGTH_FACTOR of its chord on the target: there the
     # bound makes room for it (module docstring)
     dl0 = routing.length / D
-    bounds = first_solver.bounds(theta_b, lam_b, (dl_lo, np.where(dl0 > dl_hi, LENGTH_SLACK * dl0, dl_hi)))
+    bounds = first_solver.bounds(**box | {"length": (box["length"][0], np.where(dl0 > dl_hi, settings.LENGTH_SLACK * dl0, dl_hi))})
     x = plan.fill_extra(first_solver, start_x(first_solver, chain_guess(problem, routing), D, "chain"), routing)
     found = drive.refine(Rounds(plan, routing, data, solver, params, bounds, result, warm=True), rounds, x, stats)
     best, rep = stats.stamp(found.best), found.verdict.report
     best.metrics.update(obstacle_stats(rep))
+    best.met["obstacles"] = bool(rep["clear"])
     best.stats.update(stats0 | {"obstacle_rounds": found.rounds, "obstacle_clear": bool(rep["clear"]),
                                 "obstacle_samples_per_segment": plan.S, "obstacle_raise": plan.raised * D, "obstacle_slots": plan.P,
                                 "obstacle_after_t": list(plan.ts)})

@@ -1,25 +1,25 @@
 """What the obstacle rows need, round by round: samples, requirements, active sets, the shapes with rows.
 
-Samples. S per segment, from the longest segment (``SPACING``, ``LENGTH_SLACK``, ``MAX_SAMPLES``); each
+Samples. S per segment, from the longest segment (``settings.SAMPLE_SPACING``, ``settings.LENGTH_SLACK``, ``settings.MAX_SAMPLES``); each
 sample's requirement is D/2 + margin + dip(h_j) + the loop's raise (``Plan.need``), from the current
-segment lengths times LENGTH_SLACK (dl moves during a solve).
+segment lengths times settings.LENGTH_SLACK (dl moves during a solve).
 
 Active sets, refreshed between solves (``Plan.data``; data only: a solver serves every round with the
 same slot counts):
-  primitives: a column's primitives whose slack (distance - need) at its samples is below ACTIVE_REACH
-      + REACH_DL dl_j, nearest first; a column never has fewer slots than it had (the solver stays
+  primitives: a column's primitives whose slack (distance - need) at its samples is below settings.ACTIVE_REACH
+      + settings.REACH_DL dl_j, nearest first; a column never has fewer slots than it had (the solver stays
       within a design), and a primitive the tube reaches in a solve is caught by the report and gets
       rows in the next round.
   meshes: the ``k`` nearest triangles of every sample (exact, nearest_triangles), on the columns whose
-      slack is below MESH_REACH + REACH_DL dl_j. A sample the exact (trimesh) sign finds *inside* the
+      slack is below settings.MESH_REACH + settings.REACH_DL dl_j. A sample the exact (trimesh) sign finds *inside* the
       mesh gets one linear row instead, the signed distance to the plane of a face (``_exit_planes``:
       one face for a run of samples inside), pushing it out through that face; its triangle rows would
-      push it deeper. An outside sample closer than its requirement plus TANGENT_REACH keeps its
+      push it deeper. An outside sample closer than its requirement plus settings.TANGENT_REACH keeps its
       triangle rows and gets the tangent plane at its nearest point too (a half-space the few triangles
       of a fine mesh's active set do not make: the tube slipped past them). Every frame moves at most
-      MESH_TRUST per solve (``Plan.trust``): a tube that moved farther could pass triangles no row sees.
+      settings.MESH_TRUST per solve (``Plan.trust``): a tube that moved farther could pass triangles no row sees.
 
-Growth "after": the report's grid t = 0, 1/20, ..., 19/20 must clear too; AFTER_SLOTS of its shapes
+Growth "after": the report's grid t = 0, 1/20, ..., 19/20 must clear too; settings.AFTER_SLOTS of its shapes
 carry rows at a time (``Plan.choose_levels``): first the worst of the start, then, round by round, a
 shape that does not clear replaces the one with rows that clears by the most (t is data).
 
@@ -45,34 +45,18 @@ from vine_nlp.analysis.obstacles import (
     dip,
     obstacle_report,
 )
+from vine_nlp.methods import settings
 from vine_nlp.methods.obstacles.rows import MESH_K, PRIM_DATA, ObstacleRows, prim_data_size, primitive_slot
-from vine_nlp.methods.settings import RAISE_FACTOR
 from vine_nlp.methods.structure import frames12
 from vine_nlp.model.chain import chain_frames, chain_points
 from vine_nlp.model.obstacles import Mesh, mesh_signed_distance, nearest_triangles, point_triangle_distance, sharpness_radius
 from vine_nlp.problem import Routing
 
-SPACING = 0.25  # target sample spacing h0, units of D: dip(D/4) ~ 0.03 D for a sharp obstacle
-LENGTH_SLACK = 1.25  # segment lengths may grow this much during a solve before the rows' dip is too small
-MAX_SAMPLES = 40  # samples per segment, at most (long segments: their rows' dip grows instead)
-AFTER_SLOTS = 5  # growth "after": intermediate shapes with rows at a time (rows on all at once: a first solve of many minutes)
-# units of D: a primitive gets rows on a segment when its slack is below ACTIVE_REACH plus REACH_DL times the
-# segment's length (within reach of one solve)
-ACTIVE_REACH = 1.0
-REACH_DL = 0.5
-MESH_TRUST = 1.5  # units of D: a frame moves at most this far per solve with a mesh (its nearest triangles stay valid)
-# units of D: a column carries a mesh's rows when its slack is below this plus REACH_DL dl_j: far fewer rows than
-# every column; a reach as short as the primitives' sent obstacle-mesh round a far wider detour ("Obstacles")
-MESH_REACH = 8.0
-# units of D: an outside sample closer than its requirement plus this also gets the tangent plane's row at its
-# nearest point on the mesh (fewer rounds on obstacle-mesh and the torus scene: "Obstacles")
-TANGENT_REACH = 0.5
-
 
 class Plan:
     """What the rows of one problem need: samples per segment, shapes (t), the data of every block."""
 
-    def __init__(self, obstacles, D, margin, growth, lengths, actuator, ts=None, k=MESH_K, spacing=SPACING):
+    def __init__(self, obstacles, D, margin, growth, lengths, actuator, ts=None, k=MESH_K, spacing=settings.SAMPLE_SPACING):
         self.obstacles, self.D, self.margin, self.growth = tuple(obstacles), float(D), float(margin), growth
         if growth == "after":
             grid = np.linspace(0.0, 1.0, DEFAULT_AFTER_STEPS + 1) if ts is None else np.asarray(ts, float)
@@ -80,10 +64,10 @@ class Plan:
             self.report_ts = sorted(set(self.grid) | {1.0})
         else:
             self.grid, self.report_ts = [], None
-        self.levels = min(AFTER_SLOTS, len(self.grid))
+        self.levels = min(settings.AFTER_SLOTS, len(self.grid))
         self.k = int(min([k] + [len(o.faces) for o in obstacles if isinstance(o, Mesh)]))
         longest = float(np.max(lengths)) / D
-        self.S = int(min(MAX_SAMPLES, max(2, math.ceil(LENGTH_SLACK * longest / spacing))))
+        self.S = int(min(settings.MAX_SAMPLES, max(2, math.ceil(settings.LENGTH_SLACK * longest / spacing))))
         self.kappa = curvature_bound(1.0, actuator.theta_max, actuator.lambda_min)
         self.scaled = tuple(o.scaled(1.0 / D) for o in self.obstacles)
         self.prims = [q for q, o in enumerate(self.obstacles) if not isinstance(o, Mesh)]
@@ -109,7 +93,7 @@ class Plan:
         dips between samples and the requirement is raised; where one did not, it passed a mesh beside
         its active set and the faces there get rows from now on; then the shapes with rows are chosen."""
         if converged and self.samples_hold(routing):
-            self.raised += RAISE_FACTOR * _shortfall(self, rep)
+            self.raised += settings.RAISE_FACTOR * _shortfall(self, rep)
         elif converged:
             self.remember()
         self.choose_levels(rep)
@@ -135,15 +119,15 @@ class Plan:
         return any(isinstance(o, Mesh) for o in self.obstacles)
 
     def trust(self, solver, x, lbx, ubx):
-        """Bounds of one solve: with a mesh, every frame position within MESH_TRUST of where it is (the
+        """Bounds of one solve: with a mesh, every frame position within settings.MESH_TRUST of where it is (the
         active sets are the nearest triangles of the current samples: a tube that moved farther could
         pass through triangles no row sees)."""
         if not self.has_mesh:
             return lbx, ubx
         lbx, ubx = lbx.copy(), ubx.copy()
         idx = solver.layout.X[:, :, 9:].ravel()
-        lbx[idx] = np.maximum(lbx[idx], x[idx] - MESH_TRUST)
-        ubx[idx] = np.minimum(ubx[idx], x[idx] + MESH_TRUST)
+        lbx[idx] = np.maximum(lbx[idx], x[idx] - settings.MESH_TRUST)
+        ubx[idx] = np.minimum(ubx[idx], x[idx] + settings.MESH_TRUST)
         return lbx, ubx
 
     @property
@@ -186,7 +170,7 @@ class Plan:
         M = dl.size
         gaps = np.full(M, self.S, float)
         gaps[-1] = self.S - 1
-        h = LENGTH_SLACK * dl / gaps
+        h = settings.LENGTH_SLACK * dl / gaps
         m = self.margin / self.D
         sharp = sharpness_radius(ob)
         dips = np.array([dip(hj, 1.0, m, self.kappa, sharp) for hj in h])
@@ -205,7 +189,7 @@ class Plan:
 
     def data(self, routing: Routing) -> dict:
         """Every block's data for the current design (``routing``, problem units): fractions, t,
-        requirements from its segment lengths, the primitives near every segment (``ACTIVE_REACH``)
+        requirements from its segment lengths, the primitives near every segment (``settings.ACTIVE_REACH``)
         and the mesh active sets at its sample points. May raise ``P`` (then ``term`` changes)."""
         M, D = routing.segments, self.D
         u = self.fractions(M)
@@ -223,9 +207,9 @@ class Plan:
         return out
 
     def _mesh_data(self, m: int, q: int, points, levels, need, u, dl) -> np.ndarray:
-        """Mesh q's block data (its m-th): per column near it (slack below MESH_REACH + REACH_DL dl_j: the tube
+        """Mesh q's block data (its m-th): per column near it (slack below settings.MESH_REACH + settings.REACH_DL dl_j: the tube
         can reach the mesh within one solve), per sample its triangles, the plane row of a sample inside (or
-        closer than its requirement plus TANGENT_REACH: the tangent plane) and the switches."""
+        closer than its requirement plus settings.TANGENT_REACH: the tangent plane) and the switches."""
         ob, sc, M, S, k, D = self.obstacles[q], self.scaled[q], dl.size, self.S, self.k, self.D
         cols, near = [], []
         for t in levels:
@@ -238,10 +222,10 @@ class Plan:
             rows = _with_memory(ob, p, faces, self.memory.get((m, t)), nearest_triangles(ob, p, 2 * k)[0]) if self.k_mem else faces
             kr = rows.shape[1]
             slack = (np.where(inside, -dist[:, 0], dist[:, 0]) / D).reshape(M, S).min(axis=1) - need
-            near.append(slack < MESH_REACH + REACH_DL * dl)
+            near.append(slack < settings.MESH_REACH + settings.REACH_DL * dl)
             T = sc.triangles[rows].reshape(M, S, kr * 9)  # per sample: kr triangles, a b c each (units of D)
             nrm, off = _exit_planes(sc, faces, p / D, inside, np.repeat(need, S))
-            close = ~inside & (dist[:, 0] / D < np.repeat(need, S) + TANGENT_REACH)
+            close = ~inside & (dist[:, 0] / D < np.repeat(need, S) + settings.TANGENT_REACH)
             if close.any():
                 c, _, _ = ob.trimesh.nearest.on_surface(p[close])
                 n = (p[close] - c) / np.maximum(np.linalg.norm(p[close] - c, axis=1, keepdims=True), 1e-300)
@@ -254,7 +238,7 @@ class Plan:
         return np.hstack(cols)[:, chosen]
 
     def _prim_data(self, points, levels, needs, u, dl) -> dict:
-        """The primitive slots of every (shape, segment) column: the primitives within ACTIVE_REACH + REACH_DL dl_j
+        """The primitive slots of every (shape, segment) column: the primitives within settings.ACTIVE_REACH + settings.REACH_DL dl_j
         of the segment's samples (beyond their requirement), nearest first. A column keeps at least the
         slots it had (the solver stays), filled with the next nearest primitives; a column with none has
         no rows. Returns the data of each group of columns with P slots (``obstacle_prims_<P>``)."""
@@ -265,7 +249,7 @@ class Plan:
             p = points[t].reshape(-1, 3)
             dist = np.array([np.asarray(self.obstacles[q].distance(p), float).reshape(M, S).min(axis=1) for q in self.prims]) / D
             slack = dist - need  # (Q, M)
-            near = slack < ACTIVE_REACH + REACH_DL * dl[None, :]
+            near = slack < settings.ACTIVE_REACH + settings.REACH_DL * dl[None, :]
             order += [np.argsort(slack[:, j], kind="stable") for j in range(M)]
             counts += [int(near[:, j].sum()) for j in range(M)]
         counts = np.array(counts)

@@ -3,11 +3,11 @@
 A design through an obstacle is a poor start for the rows: IPOPT spends most of its iterations pushing
 the tube out. The target is pushed out of the obstacles across itself (:func:`pushed_target`): past a
 primitive along the distance gradient, a run of points through one obstacle to one side; through a
-mesh, a run along ONE direction across its chord, of PUSH_DIRECTIONS the one with the least total push
+mesh, a run along ONE direction across its chord, of settings.PUSH_DIRECTIONS the one with the least total push
 (sphere tracing on the exact signed distance: the shortest way round; a gradient push sent the tube
 round the long way). The plain NLP designs that from its own geometric guess, and the rows start from
 its chain. Without a mesh, where that chain still does not clear (it cannot follow the pushed target's
-corners), its own points are pushed out the same way and designed once more (REPUSH): a curve the model
+corners), its own points are pushed out the same way and designed once more (settings.REPUSH): a curve the model
 can follow, pushed. The start is a function of the problem alone, and so is the design (the obstacle-free
 design decides only whether there is anything to do, the samples per segment and which primitives get
 slots: discrete choices that a tiny change of it leaves alone). Started from the obstacle-free design,
@@ -22,30 +22,17 @@ import dataclasses
 import numpy as np
 
 from vine_nlp.analysis.obstacles import sample_chain
+from vine_nlp.methods import settings
 from vine_nlp.methods.common import pair_points
 from vine_nlp.methods.nlp import solve_from
 from vine_nlp.methods.obstacles.plan import Plan
 from vine_nlp.model.obstacles import Mesh
 from vine_nlp.problem import DesignOptions, DesignProblem, Routing, TipProblem
 
-# units of D: the pushed target clears by this much more than the rows ask; less with a mesh (its exact pushes
-# already go the shortest way round, "Obstacles")
-PUSH_EXTRA = 0.25
-MESH_PUSH_EXTRA = 0.05
-PUSH_PASSES = 8  # passes over the obstacles (a point pushed out of one may land in another)
-REPUSH = 1  # primitives: times the designed chain of the pushed target is pushed and designed again where it does not clear
-PUSH_DIRECTIONS = 16  # meshes: directions tried around a run's chord
-PUSH_PROBES = 9  # meshes: points of a run that choose its direction
-MARCH_STEPS = 80  # sphere-tracing steps of a push, at most
-# IPOPT's tolerance for the designs of the pushed target: a start, which the rows' solve takes to the problem's
-# own tolerance; at the problem's 1e-8 these designs crawled through their last digits on the pushed target's
-# corners and took half of a typical scene's time ("Obstacle scenes")
-PUSH_TOL = 1e-4
-
 
 def push_need(plan: Plan) -> float:
-    """Center distance (units) a pushed start clears by: D/2 + margin + PUSH_EXTRA D (MESH_PUSH_EXTRA with a mesh)."""
-    return plan.D * (0.5 + (MESH_PUSH_EXTRA if plan.has_mesh else PUSH_EXTRA)) + plan.margin
+    """Center distance (units) a pushed start clears by: D/2 + margin + settings.PUSH_EXTRA D (settings.MESH_PUSH_EXTRA with a mesh)."""
+    return plan.D * (0.5 + (settings.MESH_PUSH_EXTRA if plan.has_mesh else settings.PUSH_EXTRA)) + plan.margin
 
 
 def _march(obstacle, p, w, need: float, tmax: float) -> np.ndarray:
@@ -55,7 +42,7 @@ def _march(obstacle, p, w, need: float, tmax: float) -> np.ndarray:
     t = np.zeros(len(p))
     act = np.ones(len(p), bool)
     tol = 1e-6 * tmax
-    for _ in range(MARCH_STEPS):
+    for _ in range(settings.MARCH_STEPS):
         idx = np.flatnonzero(act)
         if not idx.size:
             break
@@ -68,13 +55,13 @@ def _march(obstacle, p, w, need: float, tmax: float) -> np.ndarray:
 
 
 def _across(p: np.ndarray, i0: int, i1: int) -> np.ndarray:
-    """PUSH_DIRECTIONS unit directions across the chord of the run p[i0:i1] (from the point before it to the
+    """settings.PUSH_DIRECTIONS unit directions across the chord of the run p[i0:i1] (from the point before it to the
     point after it), evenly round it: a set that a mirror image of the run maps onto itself."""
     c = p[min(i1, len(p) - 1)] - p[max(i0 - 1, 0)]
     c /= max(float(np.linalg.norm(c)), 1e-300)
     e1 = np.cross(c, [1.0, 0.0, 0.0] if abs(c[0]) < 0.9 else [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
-    ang = 2 * np.pi * np.arange(PUSH_DIRECTIONS) / PUSH_DIRECTIONS
+    ang = 2 * np.pi * np.arange(settings.PUSH_DIRECTIONS) / settings.PUSH_DIRECTIONS
     return np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * np.cross(c, e1)
 
 
@@ -86,7 +73,7 @@ def _fewer_push(obstacle, q: np.ndarray, own: np.ndarray, need: float, tmax: flo
     faces, the target's tangent taken out) goes back into the slot as its middle does, not 20 cm round."""
     n = len(q)
     W = _across(np.vstack([q[:1], q, q[-1:]]), 1, n + 1)
-    t = _march(obstacle, np.tile(q, (PUSH_DIRECTIONS, 1)), np.repeat(W, n, axis=0), need, tmax).reshape(PUSH_DIRECTIONS, n)
+    t = _march(obstacle, np.tile(q, (settings.PUSH_DIRECTIONS, 1)), np.repeat(W, n, axis=0), need, tmax).reshape(settings.PUSH_DIRECTIONS, n)
     k = int(np.argmin(t.sum(axis=1)))
     if t[k].sum() < _march(obstacle, q, np.ascontiguousarray(own), need, tmax).sum():
         return np.broadcast_to(W[k], q.shape)
@@ -95,8 +82,8 @@ def _fewer_push(obstacle, q: np.ndarray, own: np.ndarray, need: float, tmax: flo
 
 def _push_mesh(p: np.ndarray, mesh: Mesh, d: np.ndarray, need: float) -> np.ndarray:
     """Every run of points closer than ``need`` to ``mesh`` (``d``: their signed distances) moved out along
-    ONE direction across the run's chord: of PUSH_DIRECTIONS directions around it, the one whose pushes
-    (each point the least that clears it, :func:`_march`) sum least over PUSH_PROBES points of the run,
+    ONE direction across the run's chord: of settings.PUSH_DIRECTIONS directions around it, the one whose pushes
+    (each point the least that clears it, :func:`_march`) sum least over settings.PUSH_PROBES points of the run,
     the shortest way round the mesh. It depends on the target and the mesh alone, never on a design."""
     p = p.copy()
     lo, hi = mesh.bounds()
@@ -104,16 +91,16 @@ def _push_mesh(p: np.ndarray, mesh: Mesh, d: np.ndarray, need: float) -> np.ndar
     m = np.concatenate([[False], d < need, [False]]).astype(int)
     for i0, i1 in zip(np.flatnonzero(np.diff(m) == 1), np.flatnonzero(np.diff(m) == -1)):
         W = _across(p, i0, i1)
-        probe = p[np.unique(np.linspace(i0, i1 - 1, PUSH_PROBES).round().astype(int))]
+        probe = p[np.unique(np.linspace(i0, i1 - 1, settings.PUSH_PROBES).round().astype(int))]
         n = len(probe)
-        t = _march(mesh, np.tile(probe, (PUSH_DIRECTIONS, 1)), np.repeat(W, n, axis=0), need, tmax).reshape(PUSH_DIRECTIONS, n)
+        t = _march(mesh, np.tile(probe, (settings.PUSH_DIRECTIONS, 1)), np.repeat(W, n, axis=0), need, tmax).reshape(settings.PUSH_DIRECTIONS, n)
         w = W[int(np.argmin(t.sum(axis=1)))]
         q = p[i0:i1]
         p[i0:i1] = q + _march(mesh, q, np.broadcast_to(w, q.shape), need, tmax)[:, None] * w
     return p
 
 
-def pushed_target(target: np.ndarray, obstacles, need: float, passes: int = PUSH_PASSES) -> np.ndarray:
+def pushed_target(target: np.ndarray, obstacles, need: float, passes: int = settings.PUSH_PASSES) -> np.ndarray:
     """The target with every point closer than ``need`` (center distance, units) to an obstacle moved out
     across the target: along the distance gradient with its component along the target's tangent taken
     out (a target through an obstacle is pushed to one side of it, not back along itself), a run of
@@ -174,20 +161,21 @@ def pushed_target(target: np.ndarray, obstacles, need: float, passes: int = PUSH
 
 def pushed_start(problem: DesignProblem, plan: Plan) -> Routing:
     """A start around the obstacles: the plain design of the pushed target (:func:`pushed_target`, center
-    distance D/2 + margin + PUSH_EXTRA D, MESH_PUSH_EXTRA with a mesh) from its own geometric guess, to
-    PUSH_TOL; without
-    a mesh, where it does not clear, the plain design of its own chain pushed out (REPUSH times); a
+    distance D/2 + margin + settings.PUSH_EXTRA D, settings.MESH_PUSH_EXTRA with a mesh) from its own geometric guess, to
+    settings.PUSH_TOL; without
+    a mesh, where it does not clear, the plain design of its own chain pushed out (settings.REPUSH times); a
     function of the problem alone (module docstring, "Start")."""
     need = push_need(plan)
-    tg, passes = problem.target, 0 if plan.has_mesh else REPUSH
+    tg, passes = problem.target, 0 if plan.has_mesh else settings.REPUSH
     # the exact Hessian from the start: Gauss-Newton does not converge on a pushed target's corners, and
     # "auto" then solves the same start again with it (the same design, ~100 Gauss-Newton iterations later)
-    options = dataclasses.replace(problem.options, hessian="exact") if problem.options.hessian == "auto" else problem.options
-    options = dataclasses.replace(options, tol=max(options.tol, PUSH_TOL))
+    method = settings.Method.of(problem.options)
+    method = method.with_(hessian="exact") if method.hessian == "auto" else method
+    method = method.with_(tol=max(method.tol, settings.PUSH_TOL))
     for k in range(passes + 1):
         tg = pushed_target(tg, problem.obstacles, need)
-        res = solve_from(dataclasses.replace(problem, target=tg, obstacles=(), options=options), None,
-                         pair_points(tg, problem.options.points_per_segment), frames="target")
+        res = solve_from(dataclasses.replace(problem, target=tg, obstacles=()), None,
+                         pair_points(tg, problem.options.points_per_segment), frames="target", method=method)
         if k == passes or plan.report(res.routing)["min_gap"] >= plan.margin:
             break
         # the chain cuts an obstacle where it could not follow the pushed target's corners: push the
@@ -205,4 +193,4 @@ def pushed_chain(problem: TipProblem, plan: Plan, routing: Routing) -> Routing:
     tg = pushed_target(sample_chain(routing, D, n)["points"], problem.obstacles, push_need(plan))
     fit = DesignProblem(problem.name, D, tg, problem.actuator, DesignOptions(points_per_segment=n, hessian="exact"), problem.units)
     r = solve_from(fit, None, pair_points(tg, n), frames="target").routing
-    return Routing(r.theta, r.lam, r.length, routing.initial_pose)
+    return Routing(theta=r.theta, lam=r.lam, length=r.length, initial_pose=routing.initial_pose)

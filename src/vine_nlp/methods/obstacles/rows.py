@@ -36,13 +36,13 @@ import casadi as ca
 import numpy as np
 
 from vine_nlp.methods.blocks import BlockType, Samples
+from vine_nlp.methods.settings import MESH_K, TRI_EPS
 from vine_nlp.methods.transcription import Chain
+from vine_nlp.methods.variables import CELL, POINT
 from vine_nlp.model.obstacles import point_triangle_distance, rounded_box_distance
 from vine_nlp.model.segment import segment_function
 
 PRIM_DATA = 19  # per slot: center (3), R (9, world from local, column-major), half sizes (3), radius, eps, need, a
-MESH_K = 6  # nearest triangles per mesh sample (the plan's default)
-TRI_EPS = 1e-9  # sqrt(d2 + eps^2) (units of D): finite gradients at distance 0
 
 
 def primitive_slot(ob) -> np.ndarray:
@@ -67,8 +67,9 @@ def primitive_block(S: int, P: int) -> BlockType:
     primitive as a rounded box), need, a): points of the shape lambda_t = 1 - t (1 - lam); a slot switched
     off (a = 0) gives the constant rows 1. The obstacles are data: one built solver serves every scene with P slots or fewer
     obstacles near a segment."""
-    v, d = ca.SX.sym("v", 15), ca.SX.sym("d", prim_data_size(S, P))
-    _, pts = segment_function(S)(v[:12], v[12], _lam_t(v[13], d[S]), v[14], d[:S])
+    v, d = ca.SX.sym("v", POINT.size), ca.SX.sym("d", prim_data_size(S, P))
+    X, th, la, dl = POINT.split(v)
+    _, pts = segment_function(S)(X, th, _lam_t(la, d[S]), dl, d[:S])
     rows = []
     for q in range(P):
         sl = d[S + 1 + PRIM_DATA * q : S + 1 + PRIM_DATA * (q + 1)]
@@ -91,8 +92,9 @@ def mesh_block(S: int, k: int) -> BlockType:
 
     d = (u (S), t, need, triangles (9 k per sample: a, b, c of each), a_tri (S), plane (4 per
     sample: unit normal, offset), a_plane (S)); per sample: the plane row, then k triangle rows."""
-    v, d = ca.SX.sym("v", 15), ca.SX.sym("d", mesh_data_size(S, k))
-    _, pts = segment_function(S)(v[:12], v[12], _lam_t(v[13], d[S]), v[14], d[:S])
+    v, d = ca.SX.sym("v", POINT.size), ca.SX.sym("d", mesh_data_size(S, k))
+    X, th, la, dl = POINT.split(v)
+    _, pts = segment_function(S)(X, th, _lam_t(la, d[S]), dl, d[:S])
     need = d[S + 1]
     o = S + 2
     tri = d[o : o + 9 * k * S]
@@ -119,9 +121,10 @@ def mesh_block(S: int, k: int) -> BlockType:
 @lru_cache(maxsize=1)
 def after_block() -> BlockType:
     """Continuity of an intermediate chain: v = (E_j (12), theta, lam, dl, E_{j+1} (12)); d = t."""
-    v, d = ca.SX.sym("v", 27), ca.SX.sym("d", 1)
-    Xn, _ = segment_function(1)(v[:12], v[12], _lam_t(v[13], d[0]), v[14], ca.SX(0))
-    return BlockType("after_growth", ca.Function("after_block", [v, d], [ca.SX(0), Xn - v[15:]]))
+    v, d = ca.SX.sym("v", CELL.size), ca.SX.sym("d", 1)
+    X, th, la, dl, _ = CELL.split(v)
+    Xn, _ = segment_function(1)(X, th, _lam_t(la, d[0]), dl, ca.SX(0))
+    return BlockType("after_growth", ca.Function("after_block", [v, d], [ca.SX(0), Xn - v[CELL["next"]]]))
 
 
 @dataclass(frozen=True)
@@ -153,13 +156,13 @@ class ObstacleRows:
             E = lay.extra[:, 12 * a : 12 * a + 12]
             c.add_rows(f"after_base_{a}", x[lay.X[0, 0].tolist()] - x[E[0].tolist()], 0.0, 0.0)
             if M > 1:
-                idx = np.array([np.r_[E[j], lay.theta[j], lay.lam[j, 0], lay.dl[j], E[j + 1]] for j in range(M - 1)]).T
+                idx = np.array([np.r_[E[j], lay.routing_at(j), E[j + 1]] for j in range(M - 1)]).T
                 c.add_block(after_block(), idx, ca.repmat(ts[0, a], 1, M - 1))
         cols = []
         for a in range(self.levels + 1):
             for j in range(M):
                 frame = lay.X[j, 0] if a == 0 else lay.extra[j, 12 * (a - 1) : 12 * a]
-                cols.append(np.r_[frame, lay.theta[j], lay.lam[j, 0], lay.dl[j]])
+                cols.append(np.r_[frame, lay.routing_at(j)])
         idx = np.array(cols).T
         slots = np.asarray(self.slots, int)
         for P in sorted(set(self.slots) - {0}):

@@ -14,7 +14,7 @@ import numpy as np
 
 from vine_nlp.methods import drive, settings
 from vine_nlp.methods.obstacles.design import Rounds
-from vine_nlp.methods.obstacles.plan import SPACING, Plan, obstacle_stats
+from vine_nlp.methods.obstacles.plan import Plan, obstacle_stats
 from vine_nlp.methods.obstacles.push import pushed_chain
 from vine_nlp.methods.obstacles.rows import MESH_K
 from vine_nlp.methods.structure import frames12
@@ -34,7 +34,7 @@ def tip_design(problem: TipProblem, starts: int | None = None, progress=None) ->
 
 
 def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, rounds: int = settings.ROUNDS, ts=None,
-                              k: int = MESH_K, spacing: float = SPACING, progress=None, thorough: bool = False) -> Result:
+                              k: int = MESH_K, spacing: float = settings.SAMPLE_SPACING, progress=None, thorough: bool = False) -> Result:
     """Least-actuation tip design that keeps the tube ``problem.obstacle_margin`` clear of ``problem.obstacles``.
 
     ``starts``: the tip design's (default options.starts), after the obstacle-free tip design and its chain
@@ -54,13 +54,14 @@ def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, ro
     if not problem.obstacles or (first["clear"] and free.converged):
         free.metrics.update(obstacle_stats(first))
         free.stats.update(stats0 | {"obstacle_rounds": 0, "obstacle_clear": bool(first["clear"])})
+        free.met["obstacles"] = bool(first["clear"])
         return free
     n = max(1, problem.options.starts if starts is None else starts)
     # each made when it is tried: the pushed chain costs a design solve
     guesses = [lambda: free.routing, lambda: pushed_chain(problem, plan, free.routing)]
-    guesses += [lambda g=g: Routing(g[0], g[1], g[2], problem.initial_pose) for g in start_guesses(problem, n)]
+    guesses += [lambda g=g: Routing(theta=g[0], lam=g[1], length=g[2], initial_pose=problem.initial_pose) for g in start_guesses(problem, n)]
     found = drive.multistart(lambda routing: _tip_start(problem, plan, routing, rounds), guesses, key=rank,
-                             accept=None if thorough else (lambda r: r.status == "optimal" and r.stats["obstacle_clear"]), progress=progress)
+                             accept=None if thorough else (lambda r: r.status == "optimal" and r.met["obstacles"]), progress=progress)
     best = drive.record_starts(found, stats, always=True)
     best.method = "tip"
     best.metrics["reachable"] = float(best.converged)
@@ -71,8 +72,8 @@ def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, ro
 def rank(result: Result) -> tuple:
     """The drive's ranking of tip starts among obstacles: converged and clear by the objective, then converged
     by the objective, then the rest by their tip error."""
-    clear = result.converged and result.stats["obstacle_clear"]
-    return drive.rank(result, clear, result.stats["objective"] if result.converged else result.metrics["tip_error"])
+    clear = result.converged and result.met["obstacles"]
+    return drive.rank(result, clear, result.objective if result.converged else result.metrics["tip_error"])
 
 
 def _tip_start(problem: TipProblem, plan: Plan, routing: Routing, rounds: int) -> Result:
@@ -89,11 +90,12 @@ def _tip_start(problem: TipProblem, plan: Plan, routing: Routing, rounds: int) -
 
     first = solver(0, False)
     fr = chain_frames(routing.theta, routing.lam, routing.length, D, problem.initial_pose)
-    x = plan.fill_extra(first, first.pack_x(routing.theta, routing.lam, routing.length / D, frames12(fr, D)[None]), routing)
+    x = plan.fill_extra(first, first.pack_x(frames12(fr, D)[None], theta=routing.theta, lam=routing.lam, length=routing.length / D), routing)
     rule = Rounds(plan, routing, data, solver, tip_data(problem), tip_bounds(first, problem),
-                  lambda solver, x, status, st: tip_result(problem, solver, x, status, st), stop_at_cap=True)
+                  lambda sol: tip_result(problem, sol), stop_at_cap=True)
     found = drive.refine(rule, rounds, x, stats)
     best, rep = stats.stamp(found.best), found.verdict.report
     best.metrics.update(obstacle_stats(rep))
     best.stats.update(obstacle_rounds=found.rounds, obstacle_clear=bool(rep["clear"]), obstacle_after_t=list(plan.ts))
+    best.met["obstacles"] = bool(rep["clear"])
     return best
