@@ -24,7 +24,7 @@ def _tilted(alpha_deg: float, L: float, M: int = 8) -> Routing:
     a = math.radians(alpha_deg)
     T = np.eye(4)
     T[:3, :3] = [[math.cos(a), 0, -math.sin(a)], [0, 1, 0], [math.sin(a), 0, math.cos(a)]]
-    return Routing(np.zeros(M), np.ones(M), np.full(M, L / M), T)
+    return Routing(theta=np.zeros(M), lam=np.ones(M), length=np.full(M, L / M), initial_pose=T)
 
 
 @pytest.mark.parametrize("alpha,w,m", [(0.0, 0.03, 0.0), (30.0, 0.05, 0.02), (-45.0, 0.0, 0.1), (70.0, 0.2, 0.05), (0.0, 0.04, 0.01)])
@@ -54,7 +54,7 @@ def _curved() -> Routing:
     M = 6
     T = np.eye(4)
     T[:3, :3] = [[0.8, 0, -0.6], [0, 1, 0], [0.6, 0, 0.8]]
-    return Routing(rng.uniform(-0.6, 0.6, M), np.array([1, 0.7, 0.9, 1, 0.5, 0.8]), rng.uniform(8, 15, M), T)
+    return Routing(theta=rng.uniform(-0.6, 0.6, M), lam=np.array([1, 0.7, 0.9, 1, 0.5, 0.8]), length=rng.uniform(8, 15, M), initial_pose=T)
 
 
 def test_moment_along_a_curved_shape_matches_an_independent_sum():
@@ -89,7 +89,7 @@ def test_growth_prefix_loads_more_than_the_final_shape():
     lam = np.r_[np.ones(5), np.full(5, 0.55)]
     T = np.eye(4)
     T[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]  # the actuator on top: the second half curls up and back
-    r = Routing(theta, lam, np.full(M, 10.0), T)
+    r = Routing(theta=theta, lam=lam, length=np.full(M, 10.0), initial_pose=T)
     load = Load(pressure=3.0, mass_per_length=0.01, tip_mass=0.2, safety=1.0)
     rep = load_report(r, 4.0, "cm", load)
     after = load_report(r, 4.0, "cm", load, growth="after")
@@ -269,7 +269,7 @@ def test_the_design_rows_recursion_matches_the_analysis():
     full = load_report(r, D, "cm", load, growth="after")["moment"][::20]
     assert [bend(E[:3, j], j) for j in range(r.segments)] == pytest.approx(full[:-1], rel=5e-3)
     for k in (2, 4):
-        grown = Routing(r.theta[:k], r.lam[:k], r.length[:k], r.initial_pose)
+        grown = Routing(theta=r.theta[:k], lam=r.lam[:k], length=r.length[:k], initial_pose=r.initial_pose)
         want = load_report(grown, D, "cm", load, growth="after")["moment"][::20][:k]
         got = [bend(E[:3, j] - E[:3, k] - np.cross(p[k] - p[j], g) * a * E[3, k], j) for j in range(k)]
         assert got == pytest.approx(want, rel=5e-3)

@@ -33,10 +33,10 @@ def markers(routing, D, line, count, seed):
 def main():
     # the paper's sinusoidal sPAM routing (Sec. V-B) at lambda = 0.85, 15 outer-line markers
     s = np.arange(100) * 1.0
-    r = Routing(np.pi / 12 * np.sin(0.1 * s), 0.85, np.ones(100))
+    r = Routing(theta=np.pi / 12 * np.sin(0.1 * s), lam=0.85, length=np.ones(100))
     np.savetxt("sinusoidal-frame.csv", markers(r, 3.31, "outer", 15, 7), delimiter=",", header="x,y,z", comments="", fmt="%.4f")
     # the active sPAM helix (Sec. V-A): theta 4 deg, D 3.23 cm, lambda 0.91, 60 cm, 15 outer markers
-    r = Routing(np.full(60, np.radians(4.0)), 0.91, np.ones(60))
+    r = Routing(theta=np.full(60, np.radians(4.0)), lam=0.91, length=np.ones(60))
     np.savetxt("active-helix-frame.csv", markers(r, 3.23, "outer", 15, 12), delimiter=",", header="x,y,z", comments="", fmt="%.4f")
 
 
@@ -47,7 +47,7 @@ def frames():
     s = np.arange(100) * 1.0
     Path("sinusoidal-frames").mkdir(exist_ok=True)
     for k, lam in enumerate([0.98, 0.93, 0.87, 0.81, 0.76]):
-        r = Routing(np.pi / 12 * np.sin(0.1 * s), lam, np.ones(100))
+        r = Routing(theta=np.pi / 12 * np.sin(0.1 * s), lam=lam, length=np.ones(100))
         pts = markers(r, 3.31, "outer", 15, 100 + k)
         np.savetxt(f"sinusoidal-frames/frame-{k}.csv", pts, delimiter=",", header="x,y,z", comments="", fmt="%.4f")
 

@@ -137,7 +137,7 @@ def load_report(routing: Routing, D: float, units: str, load, growth: str = "whi
     if growth == "while-actuated":
         worst, end = prefix_bending(pts, l_m, t, w, m, g)
     else:  # grown straight along the base tangent, then actuated: the straight tube's moments count too
-        straight = Routing(np.zeros(routing.segments), np.ones(routing.segments), routing.length, routing.initial_pose)
+        straight = Routing(theta=np.zeros(routing.segments), lam=np.ones(routing.segments), length=routing.length, initial_pose=routing.initial_pose)
         sp, st, _, _, _ = _samples(straight, D, per_segment)
         worst, end = np.maximum(final, bending(moments(sp * k, l_m, w, m, g), st)), np.full(s.size, s.size - 1)
     cap = collapse_moment(load.pressure, 0.5 * D * k, actuated)

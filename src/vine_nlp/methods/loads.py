@@ -41,34 +41,44 @@ from vine_nlp.methods.blocks import BlockType
 from vine_nlp.methods.buildable import inherited_bounds
 from vine_nlp.methods.common import pair_points
 from vine_nlp.methods.nlp import chain_guess, nlp_parameters, result_of, start_x
+from vine_nlp.methods.settings import LOAD_BUDGET as BUDGET
+from vine_nlp.methods.settings import LOAD_POINTS as S
+from vine_nlp.methods.settings import LOAD_ROUNDS as ROUNDS
+from vine_nlp.methods.settings import LOAD_TIGHTEN as TIGHTEN
 from vine_nlp.methods.settings import Settings
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Smoothness, SoftTip, Spec, get_solver
+from vine_nlp.methods.variables import POINT, Slots
 from vine_nlp.model.chain import chain_frames, chain_points
 from vine_nlp.model.segment import segment_function
 from vine_nlp.problem import DesignProblem, Result
 
-S = 4  # points per segment carrying its weight
-ROUNDS = 4  # solves at most (the first, then tightened)
-TIGHTEN = 1.002  # past the shortfall, a tightened round asks this much more
-BUDGET = 0.1  # units of D: the RMSE a design may give up to stand; beyond it the design on the target is kept
 RUN = "nlp_load"  # the design that stands, kept beside the design on the target where it gives up more
+
+
+# a block's local variables by name (variables.Slots): segment j's point block, the next frame's position, E_j
+LOAD = POINT + (("p_next", 3), ("E", 4))
+LOAD_NEXT = LOAD + (("E_next", 4),)  # and E_{j+1}, but for the last segment
+PREFIX = Slots(("X", 12), ("mu", 3), ("p_k", 3), ("E_k", 4))  # section j's frame and mu_j; the prefix end's p_k, E_k
 
 
 @lru_cache(maxsize=2)
 def load_block(last: bool) -> BlockType:
-    """The recursion (4 equality rows) and the section's row (1) of one segment. v = (X_j (12), theta, lam, dl,
-    p_{j+1} (3), E_j (4)[, E_{j+1} (4) unless ``last``]); d = (a, b, g^ (3), c / tau, u (S))."""
-    v, d = ca.SX.sym("v", 22 if last else 26), ca.SX.sym("d", 6 + S)
-    X, p0, p1, E = v[:12], v[9:12], v[15:18], v[18:22]
-    _, q = segment_function(S)(X, v[12], v[13], v[14], d[6:])
+    """The recursion (4 equality rows) and the section's row (1) of one segment. v = ``LOAD`` (X_j, theta, lam,
+    length, p_{j+1} (3), E_j (4)) or ``LOAD_NEXT`` (and E_{j+1} (4), unless ``last``); d = (a, b, g^ (3), c / tau, u (S))."""
+    sl = LOAD if last else LOAD_NEXT
+    v, d = ca.SX.sym("v", sl.size), ca.SX.sym("d", 6 + S)
+    X, dl, p1, E = v[sl["X"]], v[sl["length"]], v[sl["p_next"]], v[sl["E"]]
+    p0 = X[9:12]  # the frame's position (model.segment: X = (vec R, p))
+    _, q = segment_function(S)(*POINT.split(v), d[6:])
     a, b, g, cap = d[0], d[1], d[2:5], d[5]
-    mu_next, lam_next = (ca.SX.zeros(3), 0) if last else (v[22:25], v[25])
-    own = ca.cross(ca.sum2(q) - S * p0, g) * a * v[14] / S
+    E_next = ca.SX.zeros(4) if last else v[sl["E_next"]]
+    mu_next, lam_next = E_next[:3], E_next[3]
+    own = ca.cross(ca.sum2(q) - S * p0, g) * a * dl / S
     mu = mu_next + ca.cross(p1 - p0, g) * (a * lam_next + b) + own
     t = X[:3]
     bend2 = ca.sumsqr(E[:3]) - ca.dot(E[:3], t) ** 2
-    r = ca.vertcat(E[:3] - mu, E[3] - lam_next - v[14], cap**2 - bend2)
+    r = ca.vertcat(E[:3] - mu, E[3] - lam_next - dl, cap**2 - bend2)
     return BlockType(f"load{'_last' if last else ''}", ca.Function("load_block", [v, d], [ca.SX(0), r]))
 
 
@@ -76,11 +86,11 @@ def load_block(last: bool) -> BlockType:
 def prefix_block() -> BlockType:
     """A grown prefix's row: the section at segment j's start with the tube grown to segment k's start (k > j),
     the payload there. By the recursion's linearity its moment is mu_j - mu_k - (p_k - p_j) x g^ a Lambda_k (the
-    weight beyond k taken off, the payload moved to p_k). v = (X_j (12), mu_j (3), p_k (3), mu_k (3), Lambda_k);
+    weight beyond k taken off, the payload moved to p_k). v = ``PREFIX`` (X_j, mu_j, p_k, E_k = (mu_k, Lambda_k));
     d = (a, g^ (3), c / tau)."""
-    v, d = ca.SX.sym("v", 22), ca.SX.sym("d", 5)
-    X, mu_j, p_k, mu_k = v[:12], v[12:15], v[15:18], v[18:21]
-    mu = mu_j - mu_k - ca.cross(p_k - X[9:12], d[1:4]) * d[0] * v[21]
+    v, d = ca.SX.sym("v", PREFIX.size), ca.SX.sym("d", 5)
+    X, mu_j, p_k, E_k = (v[PREFIX[k]] for k in ("X", "mu", "p_k", "E_k"))
+    mu = mu_j - E_k[:3] - ca.cross(p_k - X[9:12], d[1:4]) * d[0] * E_k[3]
     r = d[4] ** 2 - (ca.sumsqr(mu) - ca.dot(mu, X[:3]) ** 2)
     return BlockType("load_prefix", ca.Function("prefix_block", [v, d], [ca.SX(0), r]))
 
@@ -103,8 +113,7 @@ class LoadRows:
         rows = (np.zeros(5), np.r_[np.zeros(4), np.inf])
 
         def index(j, last):
-            return np.r_[lay.X[j, 0], lay.theta[j], lay.lam[j, 0], lay.dl[j], lay.X[j + 1, 0, 9:], lay.extra[j, :4],
-                         [] if last else lay.extra[j + 1, :4]]
+            return np.r_[lay.X[j, 0], lay.routing_at(j), lay.X[j + 1, 0, 9:], lay.extra[j, :4], [] if last else lay.extra[j + 1, :4]]
 
         if M > 1:
             c.add_block(load_block(False), np.array([index(j, False) for j in range(M - 1)]).T, data[:, : M - 1], *rows, term="load")
@@ -204,15 +213,16 @@ def design_with_load(problem: DesignProblem, start: Result, rounds: int = ROUNDS
     for k in range(rounds):
         solver = get_solver(load_spec(problem, pairing, tuple(sorted(pairs))))
         if x is None:  # the prefixes' rows add no variables: one start, one set of bounds (a buildable start's classes kept)
-            bounds = solver.bounds(*inherited_bounds(problem, pairing, start), X0=frames12(base[None], D).T if fixed else None)
+            bounds = solver.bounds(X0=frames12(base[None], D).T if fixed else None, **inherited_bounds(problem, pairing, start))
             x = start_x(solver, chain_guess(problem, start.routing), D, "chain")
             x[solver.layout.extra.T] = load_extra(problem, start.routing)
         # the capacities of the latest design's sections
         data = {"load": load_data(problem, res.routing.lam, tau)}
         if pairs:
             data["load_prefix"] = prefix_data(problem, res.routing.lam, tau, sorted(pairs))
-        x, status, st = solver.solve(x, solver.pack_params(params | data), *bounds)
-        res, done = stats.absorb(result_of(problem, pairing, solver, x, status, st, base, "nlp_load")), k + 1
+        sol = solver.solve(x, solver.pack_params(params | data), *bounds)
+        x = sol.x
+        res, done = stats.absorb(result_of(problem, pairing, sol, base, "nlp_load")), k + 1
         rep = load_report(res.routing, D, problem.units, problem.load, growth)
         key = drive.rank(res, rep["holds"], problem.load.safety - rep["margin"])
         if best is None or key < drive.rank(best, best_rep["holds"], problem.load.safety - best_rep["margin"]):

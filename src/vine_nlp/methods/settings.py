@@ -260,6 +260,11 @@ TIE_BREAK = 1e-2  # weight of the secondary measure (see module doc)
 CLOSEST_ACTUATION = 1e-6  # weight of the actuation in the nearest-approach variant
 CLOSE_ENOUGH = 1e-3  # nearest approach within this many D of the tip: re-solve the design from it
 GUESS_POINTS = 4  # points per segment of the guide curve of the geometric guess
+# loads (design under self-weight and payload)
+LOAD_POINTS = 4  # points per segment carrying its weight in the moment recursion (the dense check tightens the rest)
+LOAD_ROUNDS = 4  # solves at most: the first, then tightened by the dense check's shortfall
+LOAD_TIGHTEN = 1.002  # past the shortfall, a tightened round asks this much more
+LOAD_BUDGET = 0.1  # units of D: the RMSE a design may give up to stand; beyond it the design on the target is kept
 # correct.pairing
 SAMPLES_PER_SEGMENT = 24  # pieces per segment of the model lines the pairing projects onto
 # the share of a pair's along-line difference kept in its residual: zero at a closest point, it damps sliding along the
