@@ -322,7 +322,9 @@ def cmd_animate(args) -> int:
     run = archive_run(archive, args.archive, args.run)
     info = animate.write_movie(archive, out, mode=args.mode, run=run, frames=args.frames, fps=args.fps)
     print(f"{info['frames']} frames ({info['mode']}), run {run}, self-contacts: {info['contacts_grow']} of the final shape, "
-          f"up to {info['contacts_after']} at once when actuated after growth -> {out}")
+          f"up to {info['contacts_after']} at once when actuated after growth"
+          + (f" (t = {min(info['contacts_after_t']):.3g} to {max(info['contacts_after_t']):.3g})" if info.get("contacts_after_t") else "")
+          + f" -> {out}")
     return EXIT_OK
 
 
@@ -484,7 +486,7 @@ def build_parser() -> argparse.ArgumentParser:
     am.add_argument("-o", "--output", required=True, metavar="MOVIE.gif|MOVIE.mp4")
     am.add_argument("--mode", choices=("grow", "after", "both"), default="both")
     am.add_argument("--run", help="which run (default: nlp, greedy, forward, ...)")
-    am.add_argument("--frames", type=_at_least(2), default=40, metavar="N", help="frames (default 40)")
+    am.add_argument("--frames", type=_at_least(2), default=41, metavar="N", help="frames (default 41: a frame at every t analyze looks at)")
     am.add_argument("--fps", type=_at_least(1), default=10, metavar="N", help="frames per second (default 10)")
     am.add_argument("--force", action="store_true", help="overwrite an existing file")
     am.set_defaults(func=cmd_animate)
