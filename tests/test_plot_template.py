@@ -7,8 +7,10 @@ import warnings
 
 import numpy as np
 import pytest
+from matplotlib.colors import to_rgb
 from matplotlib.text import Text
 
+from vine_nlp.front import palette
 from vine_nlp.front import template as tpl
 from vine_nlp.front.plot import plot_archive, plot_archive_file, point_s, tube_surface
 from vine_nlp.front.show import summarize
@@ -128,8 +130,18 @@ def test_the_design_figure_shows_what_it_says(archives):
         (target,) = [line for line in ax.get_lines() if line.get_label() == "target"]
         assert target.get_zorder() > max(c.get_zorder() for c in ax.collections)  # drawn last: never under the wall
         assert len(ax.collections) == len(without.collections) + 1  # the sphere, in every view
-    legend = [t.get_text() for t in views[0].get_legend().get_texts()]
-    assert legend == ["target", "actuator line", "opposite line", "segment ends"]
+    legend = views[0].get_legend()
+    assert [t.get_text() for t in legend.get_texts()] == ["target", "tube (true D)", "actuator line", "opposite line (twist)",
+                                                           "center line (colour: error)", "segment ends", "obstacle"]
+    # one colour per thing, the same in view, animate and the template (front/palette.py)
+    handles = dict(zip([t.get_text() for t in legend.get_texts()], legend.legend_handles))
+    for label, colour in (("target", palette.TARGET), ("tube (true D)", palette.TUBE), ("actuator line", palette.ACTUATOR),
+                          ("opposite line (twist)", palette.OPPOSITE), ("obstacle", palette.OBSTACLE)):
+        h = handles[label]
+        assert to_rgb(h.get_color() if hasattr(h, "get_xdata") else h.get_facecolor()[:3]) == to_rgb(colour), label
+    assert (tpl.STOPPER_COLOR, tpl.GAP_COLOR) == (palette.ACTUATOR, palette.REMOVED)
+    assert len({palette.ACTUATOR, palette.OPPOSITE, palette.TARGET, palette.TUBE, palette.OBSTACLE, palette.CONTACT,
+                palette.REMOVED, palette.CHANGE, *palette.RUNS}) == 8 + len(palette.RUNS)  # no colour for two things
 
 
 def test_forward_figure_has_no_error_panel(archives):
