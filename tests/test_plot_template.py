@@ -326,6 +326,48 @@ def test_summary(archives):
     assert "wave (forward)" in fwd and "run forward" in fwd and "rmse" not in fwd
 
 
+def test_show_judges_as_the_design_does_and_rounds_to_what_numbers_mean():
+    """Issue 46/47: a gap a hair below min_feature is printed to the digit that tells them apart, and counted below;
+    lambda just below 1 is an actuator (only exactly 1 is none), said with the line's turning there; theta 1e-7 deg is 0."""
+    from vine_nlp.front.show import _beside
+
+    assert _beside(0.199107, 0.2) == "0.199107" and _beside(0.2 - 1e-9, 0.2) == "0.199999999" and _beside(0.2, 0.2) == "0.2"
+    lam = np.array([1.0, 1.0 - 1e-8, 1.0 - 4e-7, 0.8, 0.8, 1.0])
+    theta = np.array([1e-9, np.radians(60), np.radians(-60), 0.1, 0.1, -2e-9])
+    r = run_forward(ForwardProblem("n", D, Routing(theta, lam, np.full(6, 5.0))))
+    text = summarize(Archive("n", "forward", SOURCE.format(units="cm", D=D, kind="tendon"), D, runs={"forward": r}))
+    assert "  actuated    1 piece(s) (segments 1-4), 2 segment(s) without an actuator (lambda = 1)" in text
+    turn = 2 * (2 / D) * math.tan(math.radians(60)) * 5.0 / (2 * math.pi)
+    assert f"  near 1      2 segment(s) with lambda in (1 - margin, 1), not 1: an actuator that barely contracts; the line turns {turn:.3g} there" in text
+    gap = re.search(r"smallest    (\S+) cm stopper gap \((\d+) below min_feature 0.2 cm\)", text)
+    assert float(gap[1]) < 0.2 and int(gap[2]) >= 1
+    zero = run_forward(ForwardProblem("z", D, Routing(np.array([1.3e-9, -2.3e-9]), np.array([1.0, 1.0]), np.full(2, 5.0))))
+    text = summarize(Archive("z", "forward", "", D, runs={"forward": zero}))
+    assert "  theta       0 to 0 deg" in text and "-0" not in text.split("theta")[1].splitlines()[0]
+
+
+def test_show_lists_every_level_of_a_multishape_archive(tmp_path):
+    from vine_nlp.io.formulations import write_multishape_archive
+    from vine_nlp.methods.multishape import MultiShapeResult
+
+    r = run_forward(ForwardProblem("m", D, Routing(np.full(4, 0.05), np.full(4, 0.87), np.full(4, 5.0))))
+    ms = MultiShapeResult(method="multishape", routing=r.routing, shape=r.shape, status="optimal", solve_time_s=0.1, iterations=5,
+                          metrics={"rmse": 0.0}, stats={}, diameter=D, levels=np.array([0.87, 0.92, 0.97]), fixed=(True, False, False),
+                          poses=np.array([np.eye(4)] * 3), shapes=[r.shape] * 3, level_metrics=[{"rmse": 0.0, "max_error": 0.0}] * 3,
+                          shared_pose=True)
+
+    class PF:  # what write_multishape_archive reads of a ProblemFile
+        name, units = "m", "cm"
+        source = SOURCE.format(units="cm", D=D, kind="spam")
+        problem = type("P", (), {"targets": [r.shape.center] * 3, "diameter": D})()
+
+    path = tmp_path / "m.h5"
+    write_multishape_archive(path, PF, ms)
+    text = summarize(path)
+    assert "  level 0     lambda 0.87 (fixed), rmse 0 cm" in text and "  level 1     lambda 0.92 (designed), rmse 0 cm" in text
+    assert "  level 2     lambda 0.97 (designed), rmse 0 cm; outside [" in text and "0.95]: no room to correct" in text
+
+
 # ------------------------------------------------------------------ SVG and DXF templates
 
 
