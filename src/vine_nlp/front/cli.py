@@ -528,6 +528,13 @@ def _show_notes() -> None:
         log.propagate = False
 
 
+def _commands(parser) -> str:
+    """The list of commands with their one-line help, for ``vine-nlp`` run alone."""
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    rows = [f"  {c.dest:<10s} {c.help}" for c in sub._choices_actions]
+    return "\n".join(["usage: vine-nlp COMMAND [options]   (vine-nlp --help; vine-nlp COMMAND --help: its options)", "commands:", *rows])
+
+
 def main(argv=None) -> int:
     from vine_nlp import interrupt
 
@@ -538,6 +545,9 @@ def main(argv=None) -> int:
     restore = interrupt.install()
     try:
         compiled.mode()  # a bad VINE_NLP_CODEGEN is one error line before any work
+        if not (sys.argv[1:] if argv is None else argv):  # no command: what the commands are, and where to read more
+            print(_commands(parser))
+            return EXIT_BAD_INPUT
         args = parser.parse_args(argv)
         with outputs.run():  # the outputs check_output reserved: all written when the command ends, or none
             return args.func(args)
