@@ -151,10 +151,14 @@ def rewrite(line: str, got) -> str:
     """``line`` with its numbers replaced by the printed ones (``about`` kept but before a count), word by word as
     compared."""
     values = iter(g[3] for g in got)
+    about = [a for _, a, _, _ in _skeleton(line)[1]]
+    k = 0
 
     def number(m):
-        v = next(values, m[2])
-        return ("" if is_count(v) else m[1] or "") + v  # a count is exact: no 'about'
+        nonlocal k
+        v, rough = next(values, m[2]), about[k] if k < len(about) else False
+        k += 1
+        return f"{float(v):.2g}" if rough and not is_count(v) else v  # 'about': two digits
 
     parts = re.split(r"(\s+)", line)
     for i, w in enumerate(parts):
@@ -162,7 +166,8 @@ def rewrite(line: str, got) -> str:
             continue
         head, tail = (w.rstrip("/").rsplit("/", 1)[0] + "/", w[len(w.rstrip("/").rsplit("/", 1)[0]) + 1:]) if _word(w) != w else ("", w)
         parts[i] = head + NUMBER.sub(number, tail)
-    return "".join(parts)
+    return re.sub(r"\babout ([-+]?\d+)(?![\w.])", r"\1", "".join(parts))  # a count is exact: no 'about'
+
 
 
 def run(command: str, cwd: Path) -> tuple[str, str]:
