@@ -15,7 +15,7 @@ OBSTACLE = "#8c6d46"  # brown: obstacles
 CONTACT = "#e7298a"  # magenta: self-contacts (animate)
 REMOVED = "#d62728"  # red, templates only: removed or pinched
 CHANGE = "#ff7f0e"  # orange, templates only: a segment that changes against the robot built last
-RUNS = ("#6a3d9a", "#e6ab02", "#17becf", "#e377c2", "#7f7f7f", "#b15928")
+RUNS = ("#6a3d9a", "#e6ab02", "#e377c2", "#17becf", "#7f7f7f", "#b15928")  # purple, gold, pink first: far from every thing's colour
 ERROR_CMAP = "plasma"  # the center line coloured by its distance to the target (with a colour bar)
 
 LABELS = {"actuator": "actuator line", "opposite": "opposite line (twist)", "target": "target", "tube": "tube (true D)",
