@@ -122,7 +122,8 @@ def test_figure_traces_frames_and_sliders():
     inner = np.column_stack([fig.data[1].x, fig.data[1].y, fig.data[1].z])
     np.testing.assert_allclose(np.linalg.norm(inner - c, axis=1), D / 2, rtol=1e-5)
     outer = np.column_stack([fig.data[2].x, fig.data[2].y, fig.data[2].z])  # the opposite line: across the tube
-    np.testing.assert_allclose(outer, 2 * c - inner, atol=1e-4 * D)
+    thin = np.unique(np.r_[np.arange(0, len(c), 2), len(c) - 1])  # every other point (half the page's bytes)
+    np.testing.assert_allclose(outer, 2 * c[thin] - inner[thin], atol=1e-4 * D)
 
 
 def test_obstacles_round_trip_through_the_archive(tmp_path):

@@ -250,17 +250,22 @@ def _run_traces(go, name, shape, D, color, units, visible=True):
                   lighting={"ambient": 0.6, "diffuse": 0.6, "specular": 0.2}),
         go.Scatter3d(**_xyz(shape["inner"]), mode="lines", line={"color": palette.ACTUATOR, "width": 5}, name=f"{name}: {palette.LABELS['actuator']}",
                      legendgroup=group, showlegend=True, hovertemplate=f"actuator line, run {name}<extra></extra>", visible=visible),
-        go.Scatter3d(**_xyz(shape["outer"]), mode="lines", line={"color": palette.OPPOSITE, "width": 2}, name=f"{name}: {palette.LABELS['opposite']}",
+        go.Scatter3d(**_xyz(_thin(shape["outer"])), mode="lines", line={"color": palette.OPPOSITE, "width": 2}, name=f"{name}: {palette.LABELS['opposite']}",
                      legendgroup=group, showlegend=True, hovertemplate=f"opposite line, run {name}<extra></extra>", visible=visible),
         go.Scatter3d(**_xyz(shape["center"]), mode="lines", line={"color": color, "width": 2}, name=f"{name}: center line",
                      legendgroup=group, showlegend=True, customdata=_hover_data(shape), hovertemplate=hover, visible=visible),
     ]
 
 
+def _thin(line):
+    """Every other point of a thin line and its last (points 2D/3 apart: smooth at its width, half the bytes)."""
+    return line[np.unique(np.r_[np.arange(0, len(line), 2), len(line) - 1])]
+
+
 def _frame_data(go, shape, D, count):
     """The data of one run's four traces in a frame (same order as :func:`_run_traces`)."""
     V = tube_vertices(shape, D, count)
-    return [go.Mesh3d(**_xyz(V)), go.Scatter3d(**_xyz(shape["inner"])), go.Scatter3d(**_xyz(shape["outer"])),
+    return [go.Mesh3d(**_xyz(V)), go.Scatter3d(**_xyz(shape["inner"])), go.Scatter3d(**_xyz(_thin(shape["outer"]))),
             go.Scatter3d(**_xyz(shape["center"]), customdata=_hover_data(shape))]
 
 
@@ -299,6 +304,7 @@ def view_figure(archive: Archive, run: str | None = None):
         if mesh is None:
             continue
         V, F = mesh
+        pts.append(V)
         fig.add_trace(go.Mesh3d(**_xyz(V), i=F[:, 0], j=F[:, 1], k=F[:, 2], color=palette.OBSTACLE, opacity=0.35, showlegend=True,
                                 name=f"obstacle {k} {o['name']} ({o['shape']})" if o.get("name") else f"obstacle {k} ({o['shape']})",
                                 hovertemplate=f"obstacle {k}: {o['shape']}<extra></extra>"))
@@ -326,7 +332,8 @@ def view_figure(archive: Archive, run: str | None = None):
     title = f"{archive.name} ({archive.kind}), D = {D:.4g} {u}"
     fig.update_layout(
         title={"text": title, "x": 0.02},
-        scene={"aspectmode": "data", "xaxis_title": f"x [{u}]", "yaxis_title": f"y [{u}]", "zaxis_title": f"z [{u}]"},
+        scene={"aspectmode": "data", "xaxis_title": f"x [{u}]", "yaxis_title": f"y [{u}]", "zaxis_title": f"z [{u}]",
+               "camera": {"eye": camera_eye(np.concatenate(pts), D)}},
         legend={"title": {"text": "click to toggle"}, "itemclick": "toggle"},
         margin={"l": 0, "r": 0, "t": 40, "b": 0},
         sliders=[
@@ -338,6 +345,14 @@ def view_figure(archive: Archive, run: str | None = None):
         uirevision="keep",  # slider moves keep the camera
     )
     return fig
+
+
+def camera_eye(points, D: float) -> dict:
+    """plotly's default camera (1.25, 1.25, 1.25), moved back so a long shape fits: aspectmode "data" scales the
+    axes to their ranges over the ranges' geometric mean, so the longest axis may reach beyond the default view."""
+    r = np.maximum(np.ptp(np.asarray(points, float), axis=0), D)
+    k = max(1.0, float(r.max() / np.exp(np.mean(np.log(r))))) ** 0.6  # (measured on the bundled problems: fits, not tiny)
+    return {"x": 1.25 * k, "y": 1.25 * k, "z": 1.25 * k}
 
 
 def view_html(archive: Archive, run: str | None = None, full_html: bool = True, include_plotlyjs=True) -> str:
