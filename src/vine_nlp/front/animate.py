@@ -129,14 +129,15 @@ def _draw(ax, frame, D):
     ax.set_title(frame["title"], fontsize=13)
 
 
-def _legend(fig, obstacles: bool):
+def _legend(fig, obstacles: bool, contacts: bool):
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
     L = palette.LABELS
     handles = [Patch(color=palette.TUBE, alpha=0.6, label=L["tube"]), Line2D([], [], color=palette.ACTUATOR, lw=2.0, label=L["actuator"]),
                Line2D([], [], color=palette.OPPOSITE, lw=1.0, label=L["opposite"]),
-               Line2D([], [], color=palette.CONTACT, marker="X", ls="none", markersize=9, label=L["contact"])]
+               Line2D([], [], color=palette.CONTACT, marker="X", ls="none", markersize=9,
+                      label=L["contact"] + ("" if contacts else " (none in this movie)"))]
     if obstacles:
         handles.append(Patch(color=palette.OBSTACLE, alpha=0.5, label=L["obstacle"]))
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=12, frameon=False)
@@ -160,7 +161,7 @@ def movie_figure(archive: Archive, run: str, panels: list, dpi: int = DPI):
         ax.tick_params(labelsize=10)
         for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
             axis.label.set_size(11)
-    _legend(fig, bool(archive.obstacles))
+    _legend(fig, bool(archive.obstacles), any(len(f["contacts"]) for frames in panels for f in frames))
     fig.suptitle(f"{archive.name}, run {run}: D = {D:.4g} {u}", fontsize=15)
     return fig, axes
 
