@@ -346,6 +346,22 @@ def test_show_judges_as_the_design_does_and_rounds_to_what_numbers_mean():
     assert "  theta       0 to 0 deg" in text and "-0" not in text.split("theta")[1].splitlines()[0]
 
 
+def test_template_warns_where_the_design_rules_refuse_what_it_draws(tmp_path, capsys):
+    from vine_nlp.front.cli import main
+
+    src = SOURCE.format(units="cm", D=D, kind="tendon")
+    for name, lam in (("near", [1.0, 1.0 - 1e-8, 1.0, 0.8, 0.8]), ("fine", [1.0, 0.8, 0.8, 0.8, 1.0])):
+        r = run_forward(ForwardProblem(name, D, Routing(np.full(5, 0.05), np.array(lam), np.full(5, 5.0))))
+        write_archive(tmp_path / f"{name}.h5", Archive(name, "forward", src, D, runs={"forward": r}))
+        assert main(["template", str(tmp_path / f"{name}.h5"), "-o", str(tmp_path / f"{name}.pdf")]) == 0
+        err = capsys.readouterr().err
+        if name == "fine":
+            assert err == ""
+        else:
+            assert err.startswith(f"warning: {tmp_path / 'near.h5'}: run forward: not buildable as drawn: 1 feature(s) below min_feature 0.2 cm")
+            assert err.rstrip().endswith("; 1 segment(s) with lambda neither 1 nor in [0.45, 0.95]") and err.count("\n") == 1
+
+
 def test_show_lists_every_level_of_a_multishape_archive(tmp_path):
     from vine_nlp.io.formulations import write_multishape_archive
     from vine_nlp.methods.multishape import MultiShapeResult

@@ -276,6 +276,10 @@ def cmd_template(args) -> int:
         )
     if csv:
         print(f"cuts -> {csv}")
+    from vine_nlp.front.show import build_warnings
+
+    for line in build_warnings(archive, info["run"]):  # judged as show and the design judge it
+        print(f"warning: {args.archive}: {line}", file=sys.stderr)
     print("print at 100 % (no 'fit to page') and check the 10 cm scale bar" if fmt == ".pdf"
           else "the 10 cm scale bar is 100 mm in the file: check it after import")
     return EXIT_OK

@@ -82,6 +82,23 @@ def _build_lines(a: Archive, routing) -> list[str]:
     return lines
 
 
+def build_warnings(a: Archive, run: str) -> list[str]:
+    """What a template of ``run`` draws that the design's own rules refuse (analysis.buildability, judged as ``show``
+    judges it): features below min_feature, lambda outside the margin band; one line, or none."""
+    b = build_settings(a)
+    with np.errstate(all="ignore"):
+        rep = buildability(a.runs[run].routing, a.diameter, **b)
+    out = []
+    if rep.below:
+        length, name, _ = rep.smallest
+        out.append(f"{len(rep.below)} feature(s) below min_feature {_beside(rep.min_feature, length)} {a.units} "
+                   f"(smallest: {_beside(length, rep.min_feature)} {a.units} {name})")
+    if rep.violations:
+        out.append(f"{len(rep.violations)} segment(s) with lambda neither 1 nor in [{_num(b['lambda_min'] + b['margin'])}, "
+                   f"{_num(1 - b['margin'])}]")
+    return [f"run {run}: not buildable as drawn: " + "; ".join(out)] if out else []
+
+
 def _beside(v: float, other: float) -> str:
     """``v`` to 6 digits, or to as many more as it takes to tell it from ``other`` (0.199999 is not 0.2)."""
     for p in range(6, 17):
