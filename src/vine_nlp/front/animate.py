@@ -32,10 +32,8 @@ from vine_nlp.analysis.collision import growth_contacts, routing_clearance
 from vine_nlp.analysis.obstacles import ModelLine, after_growth_routing
 from vine_nlp.front import palette
 from vine_nlp.front.plot import equal_view_3d, label_3d_axes
-from vine_nlp.front.view import tube_rings
+from vine_nlp.front.view import run_shape, tube_rings
 from vine_nlp.io.archive import Archive, write_atomic
-from vine_nlp.model import shape_lines
-from vine_nlp.model.chain import segment_end_samples
 from vine_nlp.problem import Routing
 
 MODES = ("grow", "after", "both")
@@ -56,21 +54,6 @@ def ffmpeg_available() -> bool:
     from matplotlib import rcParams
 
     return shutil.which(rcParams["animation.ffmpeg_path"]) is not None
-
-
-def _lines(routing: Routing, D: float, lam=None, upto=None):
-    """Center, actuator and opposite lines (points at most D/4 apart), grown to material length ``upto``."""
-    lam = routing.lam if lam is None else lam
-    per = np.maximum(1, np.ceil(routing.length / (D / 4))).astype(int)
-    seg, frac = segment_end_samples(routing.length, per)
-    S = np.concatenate([[0.0], np.cumsum(routing.length)])
-    if upto is not None and upto < S[-1]:
-        l = S[seg] + frac * routing.length[seg]
-        j = int(min(np.searchsorted(S, upto, side="right") - 1, routing.segments - 1))
-        keep = l < upto
-        seg = np.append(seg[keep], j)
-        frac = np.append(frac[keep], (upto - S[j]) / routing.length[j])
-    return shape_lines(routing.theta, lam, routing.length, D, seg, frac, routing.initial_pose)
 
 
 def frame_contacts(routing: Routing, D: float, mode: str, value: float, growth=None) -> np.ndarray:
@@ -99,14 +82,14 @@ def panel_frames(routing: Routing, D: float, panel: str, frames: int, units: str
     for k in range(frames):
         x = k / (frames - 1)
         if panel == "grow":
-            center, inner, outer = _lines(routing, D, upto=x * total)
+            sh = run_shape(routing, D, upto=x * total)
             contacts = frame_contacts(routing, D, "grow", x * total, growth)
             title = f"grown while actuated: {x * total:.3g} of {total:.3g} {units}"
         else:
-            center, inner, outer = _lines(routing, D, lam=1.0 - x * (1.0 - routing.lam))
+            sh = run_shape(routing, D, lam=1.0 - x * (1.0 - routing.lam))
             contacts = frame_contacts(routing, D, "after", x)
             title = f"actuated after growth: t = {x:.3g}"
-        out.append({"center": center, "inner": inner, "outer": outer, "contacts": contacts, "title": title, "x": x})
+        out.append({"center": sh["center"], "inner": sh["inner"], "outer": sh["outer"], "contacts": contacts, "title": title, "x": x})
     return out
 
 
