@@ -24,9 +24,11 @@ Regenerate every block from the commands (after a change to what they print, or 
 
     python3 tests/printed.py --update [PATTERN]   # rewrites the numbers of each block (of files matching PATTERN)
 
-It runs each command as the tests do and writes the printed numbers into the block's lines (keeping ``about``);
-a line no longer printed is listed for a person to fix. Prose numbers that quote a block are not touched: the
-script lists the blocks it changed so their pages can be re-read.
+It runs each command as the tests do and writes the printed numbers into the block's lines (keeping ``about``,
+to two digits); a line no longer printed is listed for a person to fix. Prose numbers that quote a block are not
+touched: the script lists the blocks it changed so their pages can be re-read. An ``about`` figure is what this
+machine printed at the time: on a machine whose load varies (the suite itself runs one process per core), set it
+between an idle and a busy run, so that the 2x window holds both.
 """
 
 from __future__ import annotations
