@@ -278,7 +278,8 @@ def plot_shape_3d(ax, archive: Archive, name: str, norm=None, cmap=ERROR_CMAP, l
         axis.pane.set_alpha(0.0)
         axis._axinfo["grid"]["linewidth"] = 0.3
     if legend:
-        ax.legend(handles=handles, loc="upper left", fontsize=7, frameon=False, handlelength=1.2, borderaxespad=0.0, labelspacing=0.25)
+        ax.legend(handles=handles, loc="upper left", fontsize=7, frameon=False, handlelength=1.2, borderaxespad=0.0, labelspacing=0.25,
+                  bbox_to_anchor=(-0.1, 1.0))  # into the margin left of the 3-D box: off the tube
     return ax
 
 
