@@ -648,10 +648,11 @@ def template_sheet(a: Archive, run: str, table: dict, lay: Layout, spam: bool) -
             f"D = {D:.4g} {u}, tube length {L:.4g} {u}, {len(table['segment'])} segments ({_none_count(table)} without an actuator), "
             f"circumference \u03c0D = {C:.4g} {u}", 3.0)
     for i, reason in enumerate(table["refused"][:1]):  # the title has room for one
-        sh.text("text", MARGIN, H - MARGIN - 11.0 - 3.0 * i, f"refused: {reason}", 2.2)
-    sh.text("text", MARGIN, H - MARGIN - 8.0, f"Drawn 1:1 (one unit of the file = 1 mm on the sheet); lengths, strips and the s ruler in {u}. "
-            "s: length along the unactuated tube; c = (D/2) \u03c6: position around the tube, wrapped at \u03c0D (both band "
-            "edges are the same line on the tube).", 2.2)
+        sh.text("text", MARGIN, H - MARGIN - 14.0 - 3.0 * i, f"refused: {reason}", 2.2)
+    sh.text("text", MARGIN, H - MARGIN - 8.0, f"Drawn 1:1 (one unit of the file = 1 mm on the sheet); lengths, strips and the s ruler in {u}; "
+            "s: length along the unactuated tube.", 2.2)
+    sh.text("text", MARGIN, H - MARGIN - 11.0, "c = (D/2) \u03c6: position around the tube, wrapped at \u03c0D (both band edges are the "
+            "same line on the tube).", 2.2)
     top = H - MARGIN - TITLE_H
     x0 = MARGIN + LEFT_LABELS
     for tile, ax_h in zip(lay.tiles, heights):
