@@ -380,8 +380,8 @@ def test_show_lists_every_level_of_a_multishape_archive(tmp_path):
     path = tmp_path / "m.h5"
     write_multishape_archive(path, PF, ms)
     text = summarize(path)
-    assert "  level 0     lambda 0.87 (fixed), rmse 0 cm" in text and "  level 1     lambda 0.92 (designed), rmse 0 cm" in text
-    assert "  level 2     lambda 0.97 (designed), rmse 0 cm; outside [" in text and "0.95]: no room to correct" in text
+    assert "  level 0     lambda 0.87 (fixed), rmse 0 cm" in text and "  level 1     lambda 0.92 (free), rmse 0 cm" in text
+    assert "  level 2     lambda 0.97 (free), rmse 0 cm; outside [" in text and "0.95]: no room to correct" in text
 
 
 # ------------------------------------------------------------------ SVG and DXF templates

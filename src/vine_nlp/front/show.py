@@ -118,7 +118,7 @@ def _levels(path) -> list[str]:
     out = []
     for k, (lam, fixed, m) in enumerate(zip(r.levels, r.fixed, r.level_metrics)):
         room = "" if lo - 1e-9 <= lam <= hi + 1e-9 else f"; outside [{_num(lo)}, {_num(hi)}]: no room to correct"
-        out.append(f"  level {k:<5d} lambda {_num(float(lam))} ({'fixed' if fixed else 'designed'}), "
+        out.append(f"  level {k:<5d} lambda {_num(float(lam))} ({'fixed' if fixed else 'free'}), "
                    f"rmse {_num(m.get('rmse', math.nan))} {a.units}{room}")
     return out
 
