@@ -90,3 +90,18 @@ def test_vine_nlp_alone_lists_the_commands(capsys):
     assert out.startswith("usage: vine-nlp COMMAND") and "--help" in out.splitlines()[0]
     for command in ("forward", "design", "analyze", "plot", "template", "view", "animate", "show"):
         assert f"\n  {command} " in out
+
+
+def test_ci_says_each_long_step_before_it_starts():
+    """No minutes of silence in .ci/run: a `step` line (printed with the time) before every install, the lint,
+    the tests and the docs build; and it runs the README's test command as written there."""
+    lines = [line.strip() for line in (ROOT / ".ci" / "run").read_text().splitlines()]
+    long = [i for i, line in enumerate(lines)
+            if not line.startswith("step ") and re.search(r"pip install|apt-get update|lint-imports \|\||pytest -q|mkdocs build", line)]
+    assert len(long) >= 6
+    for i in long:
+        before = [line for line in lines[:i] if line and not line.startswith("#")]
+        assert before and before[-1].startswith("step "), lines[i]
+    readme = (ROOT / "README.md").read_text()
+    test_command = "python3 -m pip install -e '.[test]' && python3 -m pytest -q"
+    assert test_command in readme and test_command in lines
