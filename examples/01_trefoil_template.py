@@ -12,6 +12,7 @@ cuts.csv (one row per segment), template.svg (one sheet, mm), summary.json.
 import csv
 
 import h5py
+import numpy as np
 from _common import PROBLEMS, arguments, vine_nlp, write_summary
 
 args = arguments("01_trefoil_template", __doc__.splitlines()[0])
@@ -29,8 +30,12 @@ with h5py.File(archive, "r") as h5:
     run = h5["runs/nlp"]
     metrics = dict(run["metrics"].attrs)
     lengths = run["design/length"][()]
+    theta_deg = np.degrees(run["design/theta"][()])
+    lam = run["design/lambda"][()]
     status = run.attrs["status"]
     units = h5.attrs["units"]
+print(f"routing: {len(lengths)} segments of {lengths.mean():.2f} cm; theta {theta_deg.min():.1f} to {theta_deg.max():.1f} deg, "
+      f"lambda {lam.min():.2f} to {lam.max():.2f}")
 with open(out / "cuts.csv", newline="") as f:
     cuts = list(csv.DictReader(f))
 
@@ -43,6 +48,7 @@ write_summary(
         "max_error_mm": float(metrics["max_error"]) * 10.0,
         "segments": int(len(lengths)),
         "tube_length_cm": float(lengths.sum()),
+        "theta_deg_range": [float(theta_deg.min()), float(theta_deg.max())],
         "cut_rows": len(cuts),
         "cut_length_cm": float(cuts[-1]["s_end"]),
         "files": ["trefoil-m4.h5", "trefoil-m4.png", "template.pdf", "template.svg", "cuts.csv"],

@@ -31,7 +31,7 @@ d = vn.design(
 )
 print(d)
 print(f"{d.status}: RMSE {d.rmse * 10:.3f} mm, max error {d.max_error * 10:.3f} mm, {d.segments} segments")
-print("theta [deg]:", np.round(np.degrees(d.routing.theta), 1))
+print("theta [deg]:", np.round(np.degrees(d.routing.theta), 1) + 0.0)  # + 0.0: a rounded -0.04 prints 0., not -0.
 print("lambda:     ", np.round(d.routing.lam, 3))
 
 d.save(out / "hand-drawn.h5", overwrite=True)  # an archive every command reads

@@ -14,7 +14,7 @@ import pytest
 from PIL import Image
 
 from vine_nlp.analysis.collision import growth_contacts
-from vine_nlp.front import animate
+from vine_nlp.front import animate, palette
 from vine_nlp.front.cli import main
 from vine_nlp.io.archive import Archive, write_archive
 from vine_nlp.methods.common import run_forward
@@ -58,9 +58,10 @@ def test_contacts_appear_when_the_loop_closes():
 
 
 def orange(frame) -> int:
-    """Pixels of the contact marker's colour (#ff7f0e, after GIF quantization)."""
-    a = np.asarray(frame.convert("RGB")).astype(int)
-    return int(((a[..., 0] > 220) & (abs(a[..., 1] - 127) < 40) & (a[..., 2] < 70)).sum())
+    """Pixels of the contact marker's colour (palette.CONTACT, magenta #e7298a, after GIF quantization), below
+    the legend's row (which shows the marker in every frame)."""
+    a = np.asarray(frame.convert("RGB")).astype(int)[: int(0.88 * frame.size[1])]
+    return int(((a[..., 0] > 190) & (a[..., 1] < 100) & (abs(a[..., 2] - 138) < 50)).sum())
 
 
 def test_gif_grows_and_marks_the_contact(loop_file, tmp_path, capsys):
@@ -85,22 +86,31 @@ def brown(frame) -> int:
     return int(((a[..., 0] - a[..., 2] > 30) & (a[..., 0] - a[..., 1] > 10) & (a[..., 0] < 200)).sum())
 
 
-def test_both_panels_share_one_cube_of_equal_axes_and_draw_the_obstacles(tmp_path):
+def test_each_panel_holds_its_whole_motion_in_equal_axes_with_the_legend_and_the_obstacles(tmp_path):
     from vine_nlp.model.obstacles import Sphere
 
     r, R, _ = loop_routing()
     ball = Sphere((3 * D, 3 * R, 0.0), D)  # beside the loop, in its plane
     archive = Archive("loop", "forward", "", D, runs={"forward": run_forward(ForwardProblem("loop", D, r))}, obstacles=[ball])
-    fig, axes = animate.movie_figure(archive, "forward", 2)
-    ranges = [np.array([ax.get_xlim(), ax.get_ylim(), ax.get_zlim()]) for ax in axes]
-    np.testing.assert_array_equal(ranges[0], ranges[1])  # the same ranges in both panels
-    np.testing.assert_allclose(np.ptp(ranges[0], axis=1), np.ptp(ranges[0][0]), rtol=1e-12)  # equal axes
-    for ax in axes:
+    panels = [animate.panel_frames(r, D, name, 5, "cm", growth_contacts(r, D, actuation_steps=0)) for name in ("grow", "after")]
+    fig, axes = animate.movie_figure(archive, "forward", panels)
+    assert fig.get_size_inches()[0] * fig.dpi >= 1280  # legible at its own size
+    for ax, frames in zip(axes, panels):
+        lim = np.array([ax.get_xlim(), ax.get_ylim(), ax.get_zlim()])
+        np.testing.assert_allclose(np.ptp(lim, axis=1), np.ptp(lim[0]), rtol=1e-12)  # equal axes
         np.testing.assert_allclose(ax.get_box_aspect(), ax.get_box_aspect()[0], rtol=1e-12)
         assert len(ax.collections) == 1  # the sphere, before any frame
-        lo, hi = ranges[0][:, 0], ranges[0][:, 1]
-        shape = archive.runs["forward"].shape.center
-        assert (shape.min(0) >= lo).all() and (shape.max(0) <= hi).all() and (np.r_[3 * D, 3 * R, 0] + D <= hi).all()
+        for f in frames:  # the whole tube (its surface D/2 around the center line) at every frame, never cut
+            assert (f["center"].min(0) - D / 2 >= lim[:, 0]).all() and (f["center"].max(0) + D / 2 <= lim[:, 1]).all()
+        assert (np.r_[3 * D, 3 * R, 0] + D <= lim[:, 1]).all()
+    # after growth the straight tube at t = 0 (as long as the whole robot) is inside too
+    assert np.ptp(panels[1][0]["center"][:, 0]) == pytest.approx(r.length.sum())
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert labels == ["tube (true D)", "actuator line", "opposite line (twist)", "self-contact", "obstacle"]
+    colours = [h.get_facecolor()[:3] if hasattr(h, "get_facecolor") and not hasattr(h, "get_xdata") else h.get_color()
+               for h in fig.legends[0].legend_handles]
+    from matplotlib.colors import to_rgb
+    assert [to_rgb(c) for c in colours] == [to_rgb(c) for c in (palette.TUBE, palette.ACTUATOR, palette.OPPOSITE, palette.CONTACT, palette.OBSTACLE)]
     out = tmp_path / "ball.gif"
     write_archive(tmp_path / "ball.h5", archive)
     assert main(["animate", str(tmp_path / "ball.h5"), "-o", str(out), "--frames", "3"]) == 0
@@ -153,3 +163,15 @@ def test_movie_format():
     assert animate.movie_format(Path("a.GIF")) == ".gif"
     with pytest.raises(ValueError, match="unknown movie format '.webm'"):
         animate.movie_format("a.webm")
+
+
+def test_after_growth_contacts_are_marked_on_the_frames_analyze_names():
+    # analyze looks at t = 0.05, 0.10, ..., 1 (growth_contacts' 20 steps); the default 41 frames include each of them
+    # and mark what the same call finds there: the first of them with a mark is analyze's "from t = ..."
+    r, _, _ = loop_routing()
+    first = growth_contacts(r, D)[0]["actuation_fraction"]
+    frames = animate.panel_frames(r, D, "after", animate.FRAMES, "cm")
+    marked = [f["x"] for f in frames if len(f["contacts"])]
+    on_grid = [x for x in marked if abs(20 * x - round(20 * x)) < 1e-9]
+    assert on_grid and on_grid[0] == pytest.approx(first) and 0 < first < 1
+    assert all(x >= first - 0.05 + 1e-9 for x in marked)  # nothing marked a step of analyze's before it

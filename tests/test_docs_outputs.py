@@ -65,3 +65,43 @@ def test_the_first_pages_write_into_results_not_the_repository_root(page):
     written = _written(ROOT / page)
     assert written  # the page has commands that write
     assert [w for w in written if not w.startswith(("results/", "/tmp/"))] == []
+
+
+def test_the_commands_pages_write_are_ignored_by_git():
+    """What a newcomer's documented commands leave behind (results/..., the site of `mkdocs build`) is not
+    untracked clutter: git ignores it (tracked reports in results/ stay tracked)."""
+    import shutil
+    import subprocess
+
+    if shutil.which("git") is None or not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout")
+    pages = ["README.md", "docs/getting-started.md", "docs/index.md", *(f"docs/tutorials/{p.name}" for p in (ROOT / "docs" / "tutorials").glob("*.md"))]
+    written = sorted({w for page in pages for w in _written(ROOT / page) if not w.startswith("/tmp/")})
+    assert "results/trefoil-m4-cuts.csv" in written  # docs/index.md's template command
+    paths = [*written, "site/index.html", "results/08_model_explained.ipynb"]
+    ignored = subprocess.run(["git", "check-ignore", "--no-index", *paths], cwd=ROOT, capture_output=True, text=True).stdout.split()
+    assert sorted(ignored) == sorted(paths)
+    assert subprocess.run(["git", "check-ignore", "-q", "--no-index", "results/BENCHMARKS.md"], cwd=ROOT).returncode == 1
+
+
+def test_vine_nlp_alone_lists_the_commands(capsys):
+    assert main([]) == 2
+    out = capsys.readouterr().out
+    assert out.startswith("usage: vine-nlp COMMAND") and "--help" in out.splitlines()[0]
+    for command in ("forward", "design", "analyze", "plot", "template", "view", "animate", "show"):
+        assert f"\n  {command} " in out
+
+
+def test_ci_says_each_long_step_before_it_starts():
+    """No minutes of silence in .ci/run: a `step` line (printed with the time) before every install, the lint,
+    the tests and the docs build; and it runs the README's test command as written there."""
+    lines = [line.strip() for line in (ROOT / ".ci" / "run").read_text().splitlines()]
+    long = [i for i, line in enumerate(lines)
+            if not line.startswith("step ") and re.search(r"pip install|apt-get update|lint-imports \|\||pytest -q|mkdocs build", line)]
+    assert len(long) >= 6
+    for i in long:
+        before = [line for line in lines[:i] if line and not line.startswith("#")]
+        assert before and before[-1].startswith("step "), lines[i]
+    readme = (ROOT / "README.md").read_text()
+    test_command = "python3 -m pip install -e '.[test]' && python3 -m pytest -q"
+    assert test_command in readme and test_command in lines

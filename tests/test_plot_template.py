@@ -7,8 +7,10 @@ import warnings
 
 import numpy as np
 import pytest
+from matplotlib.colors import to_rgb
 from matplotlib.text import Text
 
+from vine_nlp.front import palette
 from vine_nlp.front import template as tpl
 from vine_nlp.front.figures import draw
 from vine_nlp.front.plot import plot_archive, point_s, tube_surface
@@ -129,8 +131,18 @@ def test_the_design_figure_shows_what_it_says(archives):
         (target,) = [line for line in ax.get_lines() if line.get_label() == "target"]
         assert target.get_zorder() > max(c.get_zorder() for c in ax.collections)  # drawn last: never under the wall
         assert len(ax.collections) == len(without.collections) + 1  # the sphere, in every view
-    legend = [t.get_text() for t in views[0].get_legend().get_texts()]
-    assert legend == ["target", "actuator line", "opposite line", "segment ends"]
+    legend = views[0].get_legend()
+    assert [t.get_text() for t in legend.get_texts()] == ["target", "tube (true D)", "actuator line", "opposite line (twist)",
+                                                           "center line (colour: error)", "segment ends", "obstacle"]
+    # one colour per thing, the same in view, animate and the template (front/palette.py)
+    handles = dict(zip([t.get_text() for t in legend.get_texts()], legend.legend_handles))
+    for label, colour in (("target", palette.TARGET), ("tube (true D)", palette.TUBE), ("actuator line", palette.ACTUATOR),
+                          ("opposite line (twist)", palette.OPPOSITE), ("obstacle", palette.OBSTACLE)):
+        h = handles[label]
+        assert to_rgb(h.get_color() if hasattr(h, "get_xdata") else h.get_facecolor()[:3]) == to_rgb(colour), label
+    assert (tpl.STOPPER_COLOR, tpl.GAP_COLOR) == (palette.ACTUATOR, palette.REMOVED)
+    assert len({palette.ACTUATOR, palette.OPPOSITE, palette.TARGET, palette.TUBE, palette.OBSTACLE, palette.CONTACT,
+                palette.REMOVED, palette.CHANGE, *palette.RUNS}) == 8 + len(palette.RUNS)  # no colour for two things
 
 
 def test_forward_figure_has_no_error_panel(archives):
@@ -313,6 +325,64 @@ def test_summary(archives):
     assert text.index("run nlp") < text.index("run greedy")
     fwd = summarize(load_archive(archives["forward"]))
     assert "wave (forward)" in fwd and "run forward" in fwd and "rmse" not in fwd
+
+
+def test_show_judges_as_the_design_does_and_rounds_to_what_numbers_mean():
+    """Issue 46/47: a gap a hair below min_feature is printed to the digit that tells them apart, and counted below;
+    lambda just below 1 is an actuator (only exactly 1 is none), said with the line's turning there; theta 1e-7 deg is 0."""
+    from vine_nlp.front.show import _beside
+
+    assert _beside(0.199107, 0.2) == "0.199107" and _beside(0.2 - 1e-9, 0.2) == "0.199999999" and _beside(0.2, 0.2) == "0.2"
+    lam = np.array([1.0, 1.0 - 1e-8, 1.0 - 4e-7, 0.8, 0.8, 1.0])
+    theta = np.array([1e-9, np.radians(60), np.radians(-60), 0.1, 0.1, -2e-9])
+    r = run_forward(ForwardProblem("n", D, Routing(theta, lam, np.full(6, 5.0))))
+    text = summarize(Archive("n", "forward", SOURCE.format(units="cm", D=D, kind="tendon"), D, runs={"forward": r}))
+    assert "  actuated    1 piece(s) (segments 1-4), 2 segment(s) without an actuator (lambda = 1)" in text
+    turn = 2 * (2 / D) * math.tan(math.radians(60)) * 5.0 / (2 * math.pi)
+    assert f"  near 1      2 segment(s) with lambda in (1 - margin, 1), not 1: an actuator that barely contracts; the line turns {turn:.3g} there" in text
+    gap = re.search(r"smallest    (\S+) cm stopper gap \((\d+) below min_feature 0.2 cm\)", text)
+    assert float(gap[1]) < 0.2 and int(gap[2]) >= 1
+    zero = run_forward(ForwardProblem("z", D, Routing(np.array([1.3e-9, -2.3e-9]), np.array([1.0, 1.0]), np.full(2, 5.0))))
+    text = summarize(Archive("z", "forward", "", D, runs={"forward": zero}))
+    assert "  theta       0 to 0 deg" in text and "-0" not in text.split("theta")[1].splitlines()[0]
+
+
+def test_template_warns_where_the_design_rules_refuse_what_it_draws(tmp_path, capsys):
+    from vine_nlp.front.cli import main
+
+    src = SOURCE.format(units="cm", D=D, kind="tendon")
+    for name, lam in (("near", [1.0, 1.0 - 1e-8, 1.0, 0.8, 0.8]), ("fine", [1.0, 0.8, 0.8, 0.8, 1.0])):
+        r = run_forward(ForwardProblem(name, D, Routing(np.full(5, 0.05), np.array(lam), np.full(5, 5.0))))
+        write_archive(tmp_path / f"{name}.h5", Archive(name, "forward", src, D, runs={"forward": r}))
+        assert main(["template", str(tmp_path / f"{name}.h5"), "-o", str(tmp_path / f"{name}.pdf")]) == 0
+        err = capsys.readouterr().err
+        if name == "fine":
+            assert err == ""
+        else:
+            assert err.startswith(f"warning: {tmp_path / 'near.h5'}: run forward: not buildable as drawn: 1 feature(s) below min_feature 0.2 cm")
+            assert err.rstrip().endswith("; 1 segment(s) with lambda neither 1 nor in [0.45, 0.95]") and err.count("\n") == 1
+
+
+def test_show_lists_every_level_of_a_multishape_archive(tmp_path):
+    from vine_nlp.io.formulations import write_multishape_archive
+    from vine_nlp.methods.multishape import MultiShapeResult
+
+    r = run_forward(ForwardProblem("m", D, Routing(np.full(4, 0.05), np.full(4, 0.87), np.full(4, 5.0))))
+    ms = MultiShapeResult(method="multishape", routing=r.routing, shape=r.shape, status="optimal", solve_time_s=0.1, iterations=5,
+                          metrics={"rmse": 0.0}, stats={}, diameter=D, levels=np.array([0.87, 0.92, 0.97]), fixed=(True, False, False),
+                          poses=np.array([np.eye(4)] * 3), shapes=[r.shape] * 3, level_metrics=[{"rmse": 0.0, "max_error": 0.0}] * 3,
+                          shared_pose=True)
+
+    class PF:  # what write_multishape_archive reads of a ProblemFile
+        name, units = "m", "cm"
+        source = SOURCE.format(units="cm", D=D, kind="spam")
+        problem = type("P", (), {"targets": [r.shape.center] * 3, "diameter": D})()
+
+    path = tmp_path / "m.h5"
+    write_multishape_archive(path, PF, ms)
+    text = summarize(path)
+    assert "  level 0     lambda 0.87 (fixed), rmse 0 cm" in text and "  level 1     lambda 0.92 (free), rmse 0 cm" in text
+    assert "  level 2     lambda 0.97 (free), rmse 0 cm; outside [" in text and "0.95]: no room to correct" in text
 
 
 # ------------------------------------------------------------------ SVG and DXF templates

@@ -25,7 +25,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from vine_nlp.front import view
+from vine_nlp.front import palette, view
 from vine_nlp.front.cli import main
 from vine_nlp.io.archive import Archive, load_archive, write_archive
 from vine_nlp.methods.common import run_forward
@@ -84,20 +84,27 @@ def test_figure_traces_frames_and_sliders():
                         {"vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], "faces": [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]}])
     fig = view.view_figure(a)
     names = [t.name for t in fig.data]
-    assert names[:6] == ["nlp tube", "nlp actuator", "nlp center", "greedy tube", "greedy actuator", "greedy center"]
-    assert names[6] == "target"
-    assert names[7:] == ["obstacle 0 (sphere)", "obstacle 1 (box)", "obstacle 2 (mesh)"]
-    assert [t.legendgroup for t in fig.data[:6]] == ["run nlp"] * 3 + ["run greedy"] * 3  # one legend click toggles a run
-    assert fig.data[0].visible is True and fig.data[3].visible == "legendonly"
-    assert len(fig.data[9].i) == 4  # the mesh's own faces
+    per_run = ["tube (true D)", "actuator line", "opposite line (twist)", "center line"]
+    assert names[:8] == [f"{run}: {thing}" for run in ("nlp", "greedy") for thing in per_run]
+    assert names[8] == "target"
+    assert names[9:] == ["obstacle 0 (sphere)", "obstacle 1 (box)", "obstacle 2 (mesh)"]
+    assert [t.legendgroup for t in fig.data[:8]] == ["run nlp"] * 4 + ["run greedy"] * 4  # one legend click toggles a run
+    assert all(t.showlegend for t in fig.data)  # every thing drawn is named in the legend
+    # one colour per thing, the same as the figure's and the movie's (front/palette.py)
+    colours = [fig.data[0].color, fig.data[1].line.color, fig.data[2].line.color, fig.data[8].line.color, fig.data[9].color]
+    assert colours == [palette.TUBE, palette.ACTUATOR, palette.OPPOSITE, palette.TARGET, palette.OBSTACLE]
+    assert fig.data[4].color == palette.TUBE and fig.data[5].line.color == palette.ACTUATOR
+    assert fig.data[3].line.color not in colours and fig.data[7].line.color not in colours  # the runs' center lines
+    assert fig.data[0].visible is True and fig.data[4].visible == "legendonly"
+    assert len(fig.data[11].i) == 4  # the mesh's own faces
     sliders = fig.layout.sliders
     assert [s.name for s in sliders] == ["growth", "actuation"]
     assert len(sliders[0].steps) == view.GROWTH_STEPS + 1 and len(sliders[1].steps) == view.ACTUATION_STEPS + 1
     frames = {f.name: f for f in fig.frames}
     assert set(frames) == {f"grow-{k}" for k in range(view.GROWTH_STEPS + 1)} | {f"after-{k}" for k in range(view.ACTUATION_STEPS + 1)}
-    assert list(frames["grow-3"].traces) == list(range(6))
+    assert list(frames["grow-3"].traces) == list(range(8))
     # the tube is at the true diameter: every ring point D/2 from its center point, and closed by caps
-    c = np.column_stack([fig.data[2].x, fig.data[2].y, fig.data[2].z])
+    c = np.column_stack([fig.data[3].x, fig.data[3].y, fig.data[3].z])
     V = np.column_stack([fig.data[0].x, fig.data[0].y, fig.data[0].z])
     rings = V[:-2].reshape(len(c), view.RING, 3)
     np.testing.assert_allclose(np.linalg.norm(rings - c[:, None, :], axis=2), D / 2, rtol=1e-5)
@@ -114,6 +121,9 @@ def test_figure_traces_frames_and_sliders():
     # the actuator line is on the surface
     inner = np.column_stack([fig.data[1].x, fig.data[1].y, fig.data[1].z])
     np.testing.assert_allclose(np.linalg.norm(inner - c, axis=1), D / 2, rtol=1e-5)
+    outer = np.column_stack([fig.data[2].x, fig.data[2].y, fig.data[2].z])  # the opposite line: across the tube
+    thin = np.unique(np.r_[np.arange(0, len(c), 2), len(c) - 1])  # every other point (half the page's bytes)
+    np.testing.assert_allclose(outer, 2 * c[thin] - inner[thin], atol=1e-4 * D)
 
 
 def test_obstacles_round_trip_through_the_archive(tmp_path):
@@ -176,8 +186,8 @@ def test_actuation_after_growth_starts_straight_and_ends_designed():
 def test_hover_shows_s_theta_lambda_error():
     a = design_archive()
     fig = view.view_figure(a, run="greedy")
-    assert [t.name for t in fig.data[:3]] == ["greedy tube", "greedy actuator", "greedy center"]
-    center = fig.data[2]
+    assert [t.name for t in fig.data[:4]] == ["greedy: tube (true D)", "greedy: actuator line", "greedy: opposite line (twist)", "greedy: center line"]
+    center = fig.data[3]
     for word in ("s = ", "theta = ", "lambda = ", "error = "):
         assert word in center.hovertemplate
     cd = np.asarray(center.customdata, float)
@@ -186,7 +196,7 @@ def test_hover_shows_s_theta_lambda_error():
     assert set(np.round(cd[:, 2], 5)) <= set(np.round(r.lam, 5))
     # the error is the distance to the nearest target point (the nlp shape): nonzero for greedy
     assert 0 < np.nanmax(cd[:, 3]) < 10 * D
-    nlp_cd = np.asarray(view.view_figure(a, run="nlp").data[2].customdata, float)
+    nlp_cd = np.asarray(view.view_figure(a, run="nlp").data[3].customdata, float)
     assert np.nanmax(nlp_cd[:, 3]) < 0.6 * D  # nlp's own shape: within a sample spacing of the target
 
 
@@ -386,27 +396,27 @@ def test_view_draws_offline_and_sliders_move_the_shape(browser, archive_file, tm
     assert errors(log) == []
     assert browser.execute_script(f"return {PLOT}.querySelectorAll('.gl-container canvas').length") >= 1
     before = screenshot(browser)
-    # not blank: many colours, and the tube's blue among them
+    # not blank: many colours, and the actuator line's blue among them
     assert len(np.unique(before.reshape(-1, 3), axis=0)) > 50
     blue = (before[..., 2].astype(int) - before[..., 0] > 40).sum()
     assert blue > 500
     a = load_archive(archive_file)
     r = a.runs["nlp"].routing
-    final = trace_xyz(browser, 2)
+    final = trace_xyz(browser, 3)
     np.testing.assert_allclose(final, view.run_shape(r, D)["center"], atol=1e-4)
     # growth slider, step 5 of 20: the grown prefix, up to a quarter of the length
     slide(browser, 0, 5)
-    grown = trace_xyz(browser, 2)
+    grown = trace_xyz(browser, 3)
     want = view.run_shape(r, D, upto=0.25 * r.length.sum())["center"]
     assert len(grown) == len(want) < len(final)
     np.testing.assert_allclose(grown, want, atol=1e-4)
     assert not np.array_equal(screenshot(browser), before)
     # actuation slider at t = 0: the straight tube
     slide(browser, 1, 0)
-    straight = trace_xyz(browser, 2)
+    straight = trace_xyz(browser, 3)
     np.testing.assert_allclose(straight, view.run_shape(r, D, lam=np.ones_like(r.lam))["center"], atol=1e-4)
     slide(browser, 1, view.ACTUATION_STEPS)
-    np.testing.assert_allclose(trace_xyz(browser, 2), final, atol=1e-4)
+    np.testing.assert_allclose(trace_xyz(browser, 3), final, atol=1e-4)
     assert errors(browser.get_log("browser")) == []
 
 

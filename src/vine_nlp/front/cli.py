@@ -276,6 +276,10 @@ def cmd_template(args) -> int:
         )
     if csv:
         print(f"cuts -> {csv}")
+    from vine_nlp.front.show import build_warnings
+
+    for line in build_warnings(archive, info["run"]):  # judged as show and the design judge it
+        print(f"warning: {args.archive}: {line}", file=sys.stderr)
     print("print at 100 % (no 'fit to page') and check the 10 cm scale bar" if fmt == ".pdf"
           else "the 10 cm scale bar is 100 mm in the file: check it after import")
     return EXIT_OK
@@ -322,7 +326,9 @@ def cmd_animate(args) -> int:
     run = archive_run(archive, args.archive, args.run)
     info = animate.write_movie(archive, out, mode=args.mode, run=run, frames=args.frames, fps=args.fps)
     print(f"{info['frames']} frames ({info['mode']}), run {run}, self-contacts: {info['contacts_grow']} of the final shape, "
-          f"up to {info['contacts_after']} at once when actuated after growth -> {out}")
+          f"up to {info['contacts_after']} at once when actuated after growth"
+          + (f" (t = {min(info['contacts_after_t']):.3g} to {max(info['contacts_after_t']):.3g})" if info.get("contacts_after_t") else "")
+          + f" -> {out}")
     return EXIT_OK
 
 
@@ -348,7 +354,7 @@ def cmd_export(args) -> int:
 def cmd_show(args) -> int:
     from vine_nlp.front.show import summarize
 
-    print(summarize(read_archive(args.archive)))
+    print(summarize(read_archive(args.archive), path=args.archive))
     return EXIT_OK
 
 
@@ -485,7 +491,7 @@ def build_parser() -> argparse.ArgumentParser:
     am.add_argument("-o", "--output", required=True, metavar="MOVIE.gif|MOVIE.mp4")
     am.add_argument("--mode", choices=("grow", "after", "both"), default="both")
     am.add_argument("--run", help="which run (default: nlp, greedy, forward, ...)")
-    am.add_argument("--frames", type=_at_least(2), default=40, metavar="N", help="frames (default 40)")
+    am.add_argument("--frames", type=_at_least(2), default=41, metavar="N", help="frames (default 41: a frame at every t analyze looks at)")
     am.add_argument("--fps", type=_at_least(1), default=10, metavar="N", help="frames per second (default 10)")
     am.add_argument("--force", action="store_true", help="overwrite an existing file")
     am.set_defaults(func=cmd_animate)
@@ -527,6 +533,13 @@ def _show_notes() -> None:
         log.propagate = False
 
 
+def _commands(parser) -> str:
+    """The list of commands with their one-line help, for ``vine-nlp`` run alone."""
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    rows = [f"  {c.dest:<10s} {c.help}" for c in sub._choices_actions]
+    return "\n".join(["usage: vine-nlp COMMAND [options]   (vine-nlp --help; vine-nlp COMMAND --help: its options)", "commands:", *rows])
+
+
 def main(argv=None) -> int:
     from vine_nlp import interrupt
 
@@ -537,6 +550,9 @@ def main(argv=None) -> int:
     restore = interrupt.install()
     try:
         compiled.mode()  # a bad VINE_NLP_CODEGEN is one error line before any work
+        if not (sys.argv[1:] if argv is None else argv):  # no command: what the commands are, and where to read more
+            print(_commands(parser))
+            return EXIT_BAD_INPUT
         args = parser.parse_args(argv)
         with outputs.run():  # the outputs check_output reserved: all written when the command ends, or none
             return args.func(args)

@@ -1,8 +1,9 @@
 """Figure of a multi-shape archive: the family of shapes of ONE sPAM routing at its K levels.
 
-(a) 3-D: every level's modeled center line (solid, one color per level, lambda in the
-    legend) and actuator line (thin), every target dashed in the same color, the base
-    marked; equal axis scaling, units on every axis.
+(a) 3-D: every level's modeled center line (solid, one colour per level, as the runs of
+    ``vine_nlp.front.plot``: lambda in panel (c)'s legend), its actuator line (the actuator
+    line's colour of every figure, thin) and its target (dashed black), the base marked;
+    equal axis scaling, units on every axis (colours: front/palette.py).
 (b) the shared routing theta(s) [deg] against length along the unactuated tube;
 (c) each level's error to its target against that length.
 
@@ -17,6 +18,7 @@ import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
 
+from vine_nlp.front import palette
 from vine_nlp.front.plot import PAGE_IN, STYLE, label_3d_axes, set_equal_3d
 from vine_nlp.io.formulations import read_multishape_archive
 from vine_nlp.model.pairing import pair_points
@@ -52,7 +54,7 @@ def multishape_figure(a, r, targets) -> Figure:
     the K target point arrays (N, 3). Reads nothing."""
     u = a.units
     K = r.count
-    colors = matplotlib.colormaps["viridis"](np.linspace(0.0, 0.85, max(K, 2)))[:K]
+    colors = [palette.RUNS[k % len(palette.RUNS)] for k in range(K)]
     with matplotlib.rc_context(STYLE):
         fig = Figure(figsize=(PAGE_IN, 3.6), layout="constrained")
         gs = fig.add_gridspec(2, 2, width_ratios=[1.25, 1.0])
@@ -61,13 +63,13 @@ def multishape_figure(a, r, targets) -> Figure:
         for k in range(K):
             sh, tg = r.shapes[k], targets[k]
             ax.plot(*sh.center.T, color=colors[k], lw=1.3)
-            ax.plot(*sh.inner.T, color=colors[k], lw=0.5, alpha=0.6)
-            ax.plot(*tg.T, "--", color=colors[k], lw=0.9, dashes=(3, 2))
+            ax.plot(*sh.inner.T, color=palette.ACTUATOR, lw=0.6)
+            ax.plot(*tg.T, "--", color=palette.TARGET, lw=0.7, dashes=(3, 3))
             ax.scatter(*sh.center[0], s=10, color=colors[k], marker="s", depthshade=False)
             everything += [sh.center, sh.inner, tg]
-        ax.plot([], [], "k-", lw=1.3, label="center lines")
-        ax.plot([], [], "k-", lw=0.5, alpha=0.6, label="actuator lines")
-        ax.plot([], [], "k--", lw=0.9, dashes=(3, 2), label="targets")
+        ax.plot([], [], "-", color=colors[0], lw=1.3, label="center lines (colour: level)")
+        ax.plot([], [], "-", color=palette.ACTUATOR, lw=0.6, label="actuator lines")
+        ax.plot([], [], "--", color=palette.TARGET, lw=0.7, dashes=(3, 3), label="targets")
         label_3d_axes(ax, u)
         for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
             axis.pane.set_alpha(0.0)

@@ -4,9 +4,10 @@ One figure per archive, laid out like the paper's Figs. 9 and 11:
 
 (a) 3-D view, one panel per run: the target (dashed black, drawn over the tube), the tube
     drawn at its true diameter D (a translucent surface of circles around the center line,
-    built from the archived inner/outer lines), the actuator line (blue), the
-    opposite line (red, thin), the segment ends (dots) and, for design runs, the
-    center line colored by its distance to the paired target point; obstacles;
+    built from the archived inner/outer lines), the actuator line, the opposite line
+    (thin: diametrically opposite the actuator, it shows the twist), the segment ends
+    (dots) and, for design runs, the center line inside the tube colored by its distance
+    to the paired target point; obstacles (colours: front/palette.py, each in the legend);
 (b) design archives: error against length along the unactuated tube, one line per run;
 (c)-(e) theta(s) [deg] and lambda(s) (per segment, steps) and phi(s) [deg]
     against length along the unactuated tube, every run overlaid, legend with
@@ -26,9 +27,12 @@ import numpy as np
 from matplotlib.cm import ScalarMappable
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
 from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
+from vine_nlp.front import palette
 from vine_nlp.front.files import figure_format
 from vine_nlp.front.show import ordered_runs, source_table
 from vine_nlp.front.view import tube_rings
@@ -37,11 +41,8 @@ from vine_nlp.model import chain_frames, chain_points
 from vine_nlp.model.obstacles import Box, Capsule, Mesh, Plane, Sphere
 from vine_nlp.model.pairing import pair_points
 
-ERROR_CMAP = "plasma"
-ACTUATOR_COLOR = "tab:blue"
-OPPOSITE_COLOR = "tab:red"
-TUBE_COLOR = "0.72"
-RUN_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink")
+ERROR_CMAP = palette.ERROR_CMAP
+RUN_COLORS = palette.RUNS
 RUN_STYLES = ("-", "--", ":", "-.")
 STYLE = {
     "font.size": 8, "axes.titlesize": 8, "axes.labelsize": 8, "xtick.labelsize": 7, "ytick.labelsize": 7,
@@ -152,9 +153,6 @@ def fmt_len(value: float, units: str) -> str:
 # ------------------------------------------------------------------ panels
 
 
-OBSTACLE_COLOR = "#8c6d46"
-
-
 def _halfspace_polytope(A, b):
     """Vertices and hull triangles of {x: A x <= b} (bounded), or None when it is empty or flat."""
     from scipy.optimize import linprog
@@ -173,7 +171,7 @@ def _halfspace_polytope(A, b):
     return hull.points, hull.simplices
 
 
-def draw_obstacles(ax, obstacles, view=None, color=OBSTACLE_COLOR, alpha: float = 0.3):
+def draw_obstacles(ax, obstacles, view=None, color=palette.OBSTACLE, alpha: float = 0.3):
     """Draw obstacles (``vine_nlp.analysis.obstacles`` shapes) into a 3-D axis.
 
     Spheres, capsules and meshes are drawn whole; boxes and planes (the solid half-space
@@ -244,38 +242,44 @@ def plot_shape_3d(ax, archive: Archive, name: str, norm=None, cmap=ERROR_CMAP, l
     handles = []
     if archive.target is not None:
         # mplot3d sorts collections (the wall, obstacles) by depth and gives them zorders from about 2 up, one each;
-        # lines keep their own: above every collection, the target is never hidden under the wall
-        handles += ax.plot(*archive.target.T, "k--", lw=0.9, label="target", zorder=100)
+        # lines keep their own: above every collection, the target is never hidden under the wall (dashes with
+        # gaps: the coloured center line shows between them)
+        handles += ax.plot(*archive.target.T, color=palette.TARGET, ls=(0, (3, 3)), lw=0.8, label=palette.LABELS["target"], zorder=100)
         everything.append(archive.target)
     measured = archive.extra.get("measured/points")
     if measured is not None:
         handles.append(ax.scatter(*np.asarray(measured).T, s=2, color="0.35", depthshade=False, label="measured"))
         everything.append(measured)
     X, Y, Z = tube_surface(r.shape, D)
-    wall = ax.plot_surface(X, Y, Z, color=TUBE_COLOR, alpha=0.22, linewidth=0, edgecolor="none", antialiased=False,
+    wall = ax.plot_surface(X, Y, Z, color=palette.TUBE, alpha=0.22, linewidth=0, edgecolor="none", antialiased=False,
                            shade=True, rstride=1, cstride=1)
     wall.set_rasterized(True)  # thousands of facets: an image inside vector (pdf) output
-    handles += ax.plot(*r.shape.inner.T, color=ACTUATOR_COLOR, lw=1.1, label="actuator line")
-    handles += ax.plot(*r.shape.outer.T, color=OPPOSITE_COLOR, lw=0.5, alpha=0.7, label="opposite line")
+    handles.append(Patch(color=palette.TUBE, alpha=0.5, label=palette.LABELS["tube"]))
+    handles += ax.plot(*r.shape.inner.T, color=palette.ACTUATOR, lw=1.1, label=palette.LABELS["actuator"])
+    handles += ax.plot(*r.shape.outer.T, color=palette.OPPOSITE, lw=0.6, label=palette.LABELS["opposite"])
     center = r.shape.center
     if norm is not None and is_paired(archive, r):
         err = error_along(archive, r)
         segs = np.stack([center[:-1], center[1:]], axis=1)
-        lc = Line3DCollection(segs, cmap=cmap, norm=norm, linewidths=1.6)
+        lc = Line3DCollection(segs, cmap=cmap, norm=norm, linewidths=1.6, label=palette.LABELS["center"])
         lc.set_array(0.5 * (err[:-1] + err[1:]))
         ax.add_collection3d(lc)
+        handles.append(Line2D([], [], color=matplotlib.colormaps[cmap](0.6), lw=1.6, label=palette.LABELS["center"]))
     else:
-        ax.plot(*center.T, color="0.25", lw=0.8, label="center line")
+        handles += ax.plot(*center.T, color="0.25", lw=0.8, label="center line")
     ends = chain_frames(r.routing.theta, r.routing.lam, r.routing.length, D, r.routing.initial_pose)[:, :3, 3]
     handles.append(ax.scatter(*ends.T, s=3, color="k", depthshade=False, label="segment ends"))
     ax.scatter(*center[0], s=14, color="k", marker="s", depthshade=False)
+    if obstacles:
+        handles.append(Patch(color=palette.OBSTACLE, alpha=0.5, label=palette.LABELS["obstacle"]))
     label_3d_axes(ax, u)
     equal_view_3d(ax, everything, obstacles, zoom=zoom)
     for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
         axis.pane.set_alpha(0.0)
         axis._axinfo["grid"]["linewidth"] = 0.3
     if legend:
-        ax.legend(handles=handles, loc="upper left", fontsize=7, frameon=False, handlelength=1.5, borderaxespad=0.0)
+        ax.legend(handles=handles, loc="upper left", fontsize=7, frameon=False, handlelength=1.2, borderaxespad=0.0, labelspacing=0.25,
+                  bbox_to_anchor=(-0.1, 1.0))  # into the margin left of the 3-D box: off the tube
     return ax
 
 

@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from vine_nlp.analysis.buildability import buildability, default_min_feature
+from vine_nlp.analysis.buildability import POUCH_LAMBDA_MIN, buildability, default_min_feature
 from vine_nlp.errors import InputError
 from vine_nlp.io.archive import Archive, load_archive
 from vine_nlp.io.validate import parse_toml
@@ -68,11 +68,59 @@ def _build_lines(a: Archive, routing) -> list[str]:
     turns = [v / (2 * math.pi) for v in (rep.turning, rep.turning_unactuated, rep.turning_needed)]
     lines.append(f"  line turns  {turns[0]:.3g} in all, {turns[1]:.3g} where lambda = 1 (the routing needs {turns[2]:.3g} there)")
     if rep.smallest:
-        lines.append(f"  smallest    {_num(rep.smallest[0])} {u} {rep.smallest[1]} ({len(rep.below)} below min_feature {_num(rep.min_feature)} {u})")
+        v, mf = rep.smallest[0], rep.min_feature
+        lines.append(f"  smallest    {_beside(v, mf)} {u} {rep.smallest[1]} ({len(rep.below)} below min_feature {_beside(mf, v)} {u})")
     if rep.violations:
         lines.append(f"  margin      {len(rep.violations)} segment(s) with lambda neither 1 nor in "
                      f"[{_num(b['lambda_min'] + b['margin'])}, {_num(1 - b['margin'])}]")
+    lam = np.asarray(routing.lam, float)
+    near = (lam != 1.0) & (lam > 1.0 - b["margin"])  # exactly 1 is no actuator (the design's rule); just below is one
+    if near.any():
+        turn = float(np.abs(2.0 / a.diameter * np.tan(routing.theta) * routing.length)[near].sum()) / (2 * math.pi)
+        lines.append(f"  near 1      {int(near.sum())} segment(s) with lambda in (1 - margin, 1), not 1: an actuator that "
+                     f"barely contracts; the line turns {turn:.3g} there")
     return lines
+
+
+def build_warnings(a: Archive, run: str) -> list[str]:
+    """What a template of ``run`` draws that the design's own rules refuse (analysis.buildability, judged as ``show``
+    judges it): features below min_feature, lambda outside the margin band; one line, or none."""
+    b = build_settings(a)
+    with np.errstate(all="ignore"):
+        rep = buildability(a.runs[run].routing, a.diameter, **b)
+    out = []
+    if rep.below:
+        length, name, _ = rep.smallest
+        out.append(f"{len(rep.below)} feature(s) below min_feature {_beside(rep.min_feature, length)} {a.units} "
+                   f"(smallest: {_beside(length, rep.min_feature)} {a.units} {name})")
+    if rep.violations:
+        out.append(f"{len(rep.violations)} segment(s) with lambda neither 1 nor in [{_num(b['lambda_min'] + b['margin'])}, "
+                   f"{_num(1 - b['margin'])}]")
+    return [f"run {run}: not buildable as drawn: " + "; ".join(out)] if out else []
+
+
+def _beside(v: float, other: float) -> str:
+    """``v`` to 6 digits, or to as many more as it takes to tell it from ``other`` (0.199999 is not 0.2)."""
+    for p in range(6, 17):
+        if v == other or f"{v:.{p}g}" != f"{other:.{p}g}":
+            return f"{v:.{p}g}"
+    return repr(v)
+
+
+def _levels(path) -> list[str]:
+    """One line per level of a multi-shape archive: its lambda, fixed or designed, its RMSE, and whether an sPAM
+    can hold it with room to correct (inside [max(lambda_min, 2/pi) + margin, 1 - margin])."""
+    from vine_nlp.io.formulations import read_multishape_archive
+
+    a, r, _ = read_multishape_archive(path)
+    b = build_settings(a)
+    lo, hi = max(b["lambda_min"], POUCH_LAMBDA_MIN) + b["margin"], 1.0 - b["margin"]
+    out = []
+    for k, (lam, fixed, m) in enumerate(zip(r.levels, r.fixed, r.level_metrics)):
+        room = "" if lo - 1e-9 <= lam <= hi + 1e-9 else f"; outside [{_num(lo)}, {_num(hi)}]: no room to correct"
+        out.append(f"  level {k:<5d} lambda {_num(float(lam))} ({'fixed' if fixed else 'free'}), "
+                   f"rmse {_num(m.get('rmse', math.nan))} {a.units}{room}")
+    return out
 
 
 def _num(v: float) -> str:
@@ -84,13 +132,15 @@ def _range(values: np.ndarray) -> str:
     bad = int(np.count_nonzero(~np.isfinite(values)))
     if bad:
         return f"{bad} of {values.size} values not finite"
-    return f"{_num(values.min())} to {_num(values.max())}"
+    return f"{_num(values.min() + 0.0)} to {_num(values.max() + 0.0)}"  # + 0.0: no -0
 
 
-def summarize(archive) -> str:
+def summarize(archive, path=None) -> str:
     """Multi-line summary of an archive (an Archive, or a path loaded and so validated by ``load_archive``: an
-    InputError when missing or invalid): problem, software, target, and every run."""
+    InputError when missing or invalid): problem, software, target, and every run; a multi-shape run's every level
+    (read from the file: ``path``, or ``archive`` given as a path)."""
     a = archive if isinstance(archive, Archive) else load_archive(archive)
+    path = archive if path is None and not isinstance(archive, Archive) else path
     u = a.units
     lines = [f"problem   {a.name} ({a.kind})"]
     kind = source_table(a, "actuator").get("kind")
@@ -110,9 +160,11 @@ def summarize(archive) -> str:
         lines += ["", f"run {name}", f"  method      {r.method}", f"  status      {r.status}", f"  iterations  {r.iterations}",
                   f"  solve time  {r.solve_time_s:.3f} s", f"  segments    {ro.segments}",
                   f"  tube length {_num(float(ro.length.sum()))} {u}"]
+        if name == "multishape" and path is not None:
+            lines += _levels(path)
         if ro.segments:
-            lines.append(f"  theta       {_range(np.degrees(ro.theta))} deg")
-            lines.append(f"  lambda      {_range(ro.lam)}")
+            lines.append(f"  theta       {_range(np.round(np.degrees(ro.theta), 4))} deg")  # 1e-4 deg: below any build
+            lines.append(f"  lambda      {_range(np.round(ro.lam, 6))}")
             lines += _build_lines(a, ro)
         for m in METRICS:
             if m in r.metrics:

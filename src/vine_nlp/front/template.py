@@ -41,6 +41,7 @@ from matplotlib.patches import Rectangle
 from matplotlib.ticker import MultipleLocator
 
 from vine_nlp.analysis.buildability import buildability, gap_fractions
+from vine_nlp.front import palette
 from vine_nlp.front.show import build_settings, source_table
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
 from vine_nlp.model.chain import phi_from_theta
@@ -48,10 +49,10 @@ from vine_nlp.model.units import MM_PER_UNIT
 
 PAPERS_MM = {"A4": (210.0, 297.0), "Letter": (215.9, 279.4)}
 CM_PER_UNIT = {u: MM_PER_UNIT[u] / 10 for u in ("cm", "mm")}  # the units a template takes
-STOPPER_COLOR = "#1f5fbf"  # blue: stays (stopper / unpinched)
-GAP_COLOR = "#d62728"  # red: removed or pinched
-SPAM_COLOR = "#6a3d9a"
-CHANGE_COLOR = "#ff7f0e"  # orange: a segment that changes against the robot built last (--changes)
+STOPPER_COLOR = palette.ACTUATOR  # the actuator line's colour (plot, view, animate): stays (stopper / unpinched)
+GAP_COLOR = palette.REMOVED  # red: removed or pinched
+SPAM_COLOR = palette.ACTUATOR  # an sPAM's path: the actuator, all of it
+CHANGE_COLOR = palette.CHANGE  # orange: a segment that changes against the robot built last (--changes)
 CSV_COLUMNS = (
     "segment", "s_start", "s_end", "theta_deg", "lambda", "phi_start_rad", "phi_end_rad",
     "c_start", "c_end", "actuator_length", "stopper_length", "gap_length",
@@ -683,9 +684,11 @@ def template_sheet(a: Archive, run: str, table: dict, lay: Layout, spam: bool) -
             f"D = {D:.4g} {u}, tube length {L:.4g} {u}, {len(table['segment'])} segments ({_none_count(table)} without an actuator), "
             f"circumference \u03c0D = {C:.4g} {u}", 3.0)
     for i, reason in enumerate(table["refused"][:1]):  # the title has room for one
-        sh.text("text", MARGIN, H - MARGIN - 11.0 - 3.0 * i, f"refused: {reason}", 2.2)
-    sh.text("text", MARGIN, H - MARGIN - 8.0, "1:1 in millimetres. s: length along the unactuated tube; c = (D/2) \u03c6: "
-            "position around the tube, wrapped at \u03c0D (both band edges are the same line on the tube).", 2.2)
+        sh.text("text", MARGIN, H - MARGIN - 14.0 - 3.0 * i, f"refused: {reason}", 2.2)
+    sh.text("text", MARGIN, H - MARGIN - 8.0, f"Drawn 1:1, true size at 100 % (the sheet's own unit is 1 mm); lengths, strips and the s ruler in {u}; "
+            "s: length along the unactuated tube.", 2.2)
+    sh.text("text", MARGIN, H - MARGIN - 11.0, "c = (D/2) \u03c6: position around the tube, wrapped at \u03c0D (both band edges are the "
+            "same line on the tube).", 2.2)
     top = H - MARGIN - TITLE_H
     x0 = MARGIN + LEFT_LABELS
     for tile, ax_h in zip(lay.tiles, heights):
@@ -699,6 +702,7 @@ def template_sheet(a: Archive, run: str, table: dict, lay: Layout, spam: bool) -
             sh.line("marks", [(x, y_ax), (x, y_ax - (3.0 if n % 5 == 0 else 1.5))])
             if n % 5 == 0:
                 sh.text("text", x, y_ax - 5.5, f"{n / k:.4g}", 2.0, "middle")
+        sh.text("text", x0 - 2.0, y_ax - 5.5, f"s [{u}]", 2.0, "end")
         top = y_ax - TICKS_H - STRIP_GAP
     # scale bar and legend
     bx, by = MARGIN, MARGIN + 9.0

@@ -1,7 +1,7 @@
 """Interactive 3-D views (``vine-nlp view``): one self-contained HTML file made with plotly.
 
-An archive's view shows every run (legend entries toggle a run's tube, actuator
-line and center line together), the target and any obstacles (``/obstacles/<k>``),
+An archive's view shows every run (legend entries toggle a run's tube, actuator line, opposite line and
+center line together; colours and words from front/palette.py), the target and any obstacles (``/obstacles/<k>``),
 with two sliders:
 
 * growth while actuated: everted length l from 0 to the full length. A robot grown
@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from vine_nlp.errors import InputError
+from vine_nlp.front import palette
 from vine_nlp.front.sweep.summary import SUMMARY_CSV, read_summary
 from vine_nlp.io import files, limits
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
@@ -48,9 +49,8 @@ from vine_nlp.problem import Routing
 GROWTH_STEPS = 20  # slider steps of growth (21 positions, 0 to full length)
 ACTUATION_STEPS = 10  # slider steps of actuation after growth
 RING = 8  # points around the tube (smooth-shaded; the page of a 40-segment design stays under 6 MB)
-RUN_COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22")
-OBSTACLE_COLOR = "#7f7f7f"
-TRACES_PER_RUN = 3  # tube surface, actuator line, center line (hover)
+RUN_COLORS = palette.RUNS  # the center lines (hover); every other thing has its colour in front/palette.py
+TRACES_PER_RUN = 4  # tube surface, actuator line, opposite line, center line (hover)
 
 
 # ------------------------------------------------------------------ geometry
@@ -97,13 +97,13 @@ def tube_rings(center, inner, D: float, ring: int = RING) -> np.ndarray:
 
 
 def run_shape(routing: Routing, D: float, lam=None, upto: float | None = None, target_tree=None) -> dict:
-    """Center and actuator lines of ``routing`` (with ``lam`` instead of its lambda if given),
+    """Center, actuator and opposite lines of ``routing`` (with ``lam`` instead of its lambda if given),
     grown to material length ``upto``; with per-point s, theta, lambda and error (nan without target)."""
     lam = routing.lam if lam is None else np.asarray(lam, float)
     seg, frac, l = _samples(routing, D, upto)
-    center, inner, _ = shape_lines(routing.theta, lam, routing.length, D, seg, frac, routing.initial_pose)
+    center, inner, outer = shape_lines(routing.theta, lam, routing.length, D, seg, frac, routing.initial_pose)
     err = target_tree.query(center)[0] if target_tree is not None else np.full(len(l), np.nan)
-    return {"center": center, "inner": inner, "s": l, "theta": routing.theta[seg], "lam": lam[seg], "error": err}
+    return {"center": center, "inner": inner, "outer": outer, "s": l, "theta": routing.theta[seg], "lam": lam[seg], "error": err}
 
 
 def obstacles(archive: Archive) -> list[dict]:
@@ -245,19 +245,27 @@ def _run_traces(go, name, shape, D, color, units, visible=True):
              f"<br>lambda = %{{customdata[2]:.3g}}<br>error = %{{customdata[3]:.3g}} {units}<extra></extra>")
     return [
         # a triangle mesh, not a Surface: plotly draws it faster, and fixed faces let frames send coordinates only
-        go.Mesh3d(**_xyz(V), i=F[:, 0], j=F[:, 1], k=F[:, 2], name=f"{name} tube", legendgroup=group, showlegend=True,
-                  color=color, opacity=0.45, hoverinfo="skip", visible=visible, lighting={"ambient": 0.6, "diffuse": 0.6, "specular": 0.2}),
-        go.Scatter3d(**_xyz(shape["inner"]), mode="lines", line={"color": "#d62728", "width": 5}, name=f"{name} actuator",
-                     legendgroup=group, showlegend=False, hovertemplate=f"actuator line, run {name}<extra></extra>", visible=visible),
-        go.Scatter3d(**_xyz(shape["center"]), mode="lines", line={"color": color, "width": 2}, name=f"{name} center",
-                     legendgroup=group, showlegend=False, customdata=_hover_data(shape), hovertemplate=hover, visible=visible),
+        go.Mesh3d(**_xyz(V), i=F[:, 0], j=F[:, 1], k=F[:, 2], name=f"{name}: {palette.LABELS['tube']}", legendgroup=group,
+                  showlegend=True, color=palette.TUBE, opacity=0.4, hoverinfo="skip", visible=visible,
+                  lighting={"ambient": 0.6, "diffuse": 0.6, "specular": 0.2}),
+        go.Scatter3d(**_xyz(shape["inner"]), mode="lines", line={"color": palette.ACTUATOR, "width": 5}, name=f"{name}: {palette.LABELS['actuator']}",
+                     legendgroup=group, showlegend=True, hovertemplate=f"actuator line, run {name}<extra></extra>", visible=visible),
+        go.Scatter3d(**_xyz(_thin(shape["outer"])), mode="lines", line={"color": palette.OPPOSITE, "width": 2}, name=f"{name}: {palette.LABELS['opposite']}",
+                     legendgroup=group, showlegend=True, hovertemplate=f"opposite line, run {name}<extra></extra>", visible=visible),
+        go.Scatter3d(**_xyz(shape["center"]), mode="lines", line={"color": color, "width": 2}, name=f"{name}: center line",
+                     legendgroup=group, showlegend=True, customdata=_hover_data(shape), hovertemplate=hover, visible=visible),
     ]
 
 
+def _thin(line):
+    """Every other point of a thin line and its last (points 2D/3 apart: smooth at its width, half the bytes)."""
+    return line[np.unique(np.r_[np.arange(0, len(line), 2), len(line) - 1])]
+
+
 def _frame_data(go, shape, D, count):
-    """The data of one run's three traces in a frame (same order as :func:`_run_traces`)."""
+    """The data of one run's four traces in a frame (same order as :func:`_run_traces`)."""
     V = tube_vertices(shape, D, count)
-    return [go.Mesh3d(**_xyz(V)), go.Scatter3d(**_xyz(shape["inner"])),
+    return [go.Mesh3d(**_xyz(V)), go.Scatter3d(**_xyz(shape["inner"])), go.Scatter3d(**_xyz(_thin(shape["outer"]))),
             go.Scatter3d(**_xyz(shape["center"]), customdata=_hover_data(shape))]
 
 
@@ -265,7 +273,7 @@ def view_figure(archive: Archive, run: str | None = None):
     """The 3-D view of an archive as a plotly Figure (module docstring): only ``run`` if given, else every run,
     each toggled by its legend entry (the archive's default run first and shown, the others hidden until clicked).
 
-    Traces: the runs (tube mesh, actuator line, center line each), then the target and the obstacles. Frames
+    Traces: the runs (tube mesh, actuator line, opposite line, center line each), then the target and the obstacles. Frames
     ``grow-<k>`` and ``after-<k>`` drive the two sliders (growth first). ValueError (``Archive.pick_run``) for a
     run not in the archive or an archive without runs.
     """
@@ -287,7 +295,7 @@ def view_figure(archive: Archive, run: str | None = None):
     if archive.target is not None:
         t = np.asarray(archive.target, float)
         pts.append(t)
-        fig.add_trace(go.Scatter3d(**_xyz(t), mode="lines", line={"color": "black", "width": 3, "dash": "dash"}, name="target",
+        fig.add_trace(go.Scatter3d(**_xyz(t), mode="lines", line={"color": palette.TARGET, "width": 3, "dash": "dash"}, name=palette.LABELS["target"], showlegend=True,
                                    hovertemplate="target<extra></extra>"))
     allp = np.concatenate(pts)
     extent = float(np.ptp(allp, axis=0).max()) or 10 * D
@@ -296,7 +304,8 @@ def view_figure(archive: Archive, run: str | None = None):
         if mesh is None:
             continue
         V, F = mesh
-        fig.add_trace(go.Mesh3d(**_xyz(V), i=F[:, 0], j=F[:, 1], k=F[:, 2], color=OBSTACLE_COLOR, opacity=0.35, showlegend=True,
+        pts.append(V)
+        fig.add_trace(go.Mesh3d(**_xyz(V), i=F[:, 0], j=F[:, 1], k=F[:, 2], color=palette.OBSTACLE, opacity=0.35, showlegend=True,
                                 name=f"obstacle {k} {o['name']} ({o['shape']})" if o.get("name") else f"obstacle {k} ({o['shape']})",
                                 hovertemplate=f"obstacle {k}: {o['shape']}<extra></extra>"))
     run_traces = list(range(TRACES_PER_RUN * len(names)))
@@ -323,7 +332,8 @@ def view_figure(archive: Archive, run: str | None = None):
     title = f"{archive.name} ({archive.kind}), D = {D:.4g} {u}"
     fig.update_layout(
         title={"text": title, "x": 0.02},
-        scene={"aspectmode": "data", "xaxis_title": f"x [{u}]", "yaxis_title": f"y [{u}]", "zaxis_title": f"z [{u}]"},
+        scene={"aspectmode": "data", "xaxis_title": f"x [{u}]", "yaxis_title": f"y [{u}]", "zaxis_title": f"z [{u}]",
+               "camera": {"eye": camera_eye(np.concatenate(pts), D)}},
         legend={"title": {"text": "click to toggle"}, "itemclick": "toggle"},
         margin={"l": 0, "r": 0, "t": 40, "b": 0},
         sliders=[
@@ -335,6 +345,14 @@ def view_figure(archive: Archive, run: str | None = None):
         uirevision="keep",  # slider moves keep the camera
     )
     return fig
+
+
+def camera_eye(points, D: float) -> dict:
+    """plotly's default camera (1.25, 1.25, 1.25), moved back so a long shape fits: aspectmode "data" scales the
+    axes to their ranges over the ranges' geometric mean, so the longest axis may reach beyond the default view."""
+    r = np.maximum(np.ptp(np.asarray(points, float), axis=0), D)
+    k = max(1.0, float(r.max() / np.exp(np.mean(np.log(r))))) ** 0.6  # (measured on the bundled problems: fits, not tiny)
+    return {"x": 1.25 * k, "y": 1.25 * k, "z": 1.25 * k}
 
 
 def view_html(archive: Archive, run: str | None = None, full_html: bool = True, include_plotlyjs=True) -> str:
@@ -411,14 +429,14 @@ def sweep_figure(directory):
     fr = shapes[first]
     first_run = next(iter(fr["runs"]))
     line = fr["runs"][first_run]
-    for key, color, width in (("center", "#1f77b4", 6), ("inner", "#d62728", 3)):
+    for key, color, width in (("center", RUN_COLORS[0], 6), ("inner", palette.ACTUATOR, 3)):
         p = np.asarray(line[key])
         fig.add_trace(go.Scatter3d(x=p[:, 0], y=p[:, 1], z=p[:, 2], mode="lines", line={"color": color, "width": width},
                                    name=f"{'center line' if key == 'center' else 'actuator'} ({first} {first_run})",
                                    showlegend=True), row=1, col=2)
     t = np.asarray(fr["target"]) if fr["target"] is not None else np.zeros((0, 3))
-    fig.add_trace(go.Scatter3d(x=t[:, 0], y=t[:, 1], z=t[:, 2], mode="lines", line={"color": "black", "dash": "dash", "width": 2},
-                               name="target"), row=1, col=2)
+    fig.add_trace(go.Scatter3d(x=t[:, 0], y=t[:, 1], z=t[:, 2], mode="lines", line={"color": palette.TARGET, "dash": "dash", "width": 2},
+                               name=palette.LABELS["target"]), row=1, col=2)
     fig.update_xaxes(title_text="item", tickmode="array", tickvals=list(range(len(items))), ticktext=items, row=1, col=1)
     fig.update_yaxes(title_text=f"RMSE [{units}]", type="log", row=1, col=1)
     fig.update_layout(title={"text": f"sweep {d.name}: {len(items)} items, {len(rows)} runs", "x": 0.02},
