@@ -335,14 +335,14 @@ def test_show_judges_as_the_design_does_and_rounds_to_what_numbers_mean():
     assert _beside(0.199107, 0.2) == "0.199107" and _beside(0.2 - 1e-9, 0.2) == "0.199999999" and _beside(0.2, 0.2) == "0.2"
     lam = np.array([1.0, 1.0 - 1e-8, 1.0 - 4e-7, 0.8, 0.8, 1.0])
     theta = np.array([1e-9, np.radians(60), np.radians(-60), 0.1, 0.1, -2e-9])
-    r = run_forward(ForwardProblem("n", D, Routing(theta, lam, np.full(6, 5.0))))
+    r = run_forward(ForwardProblem("n", D, Routing(theta=theta, lam=lam, length=np.full(6, 5.0))))
     text = summarize(Archive("n", "forward", SOURCE.format(units="cm", D=D, kind="tendon"), D, runs={"forward": r}))
     assert "  actuated    1 piece(s) (segments 1-4), 2 segment(s) without an actuator (lambda = 1)" in text
     turn = 2 * (2 / D) * math.tan(math.radians(60)) * 5.0 / (2 * math.pi)
     assert f"  near 1      2 segment(s) with lambda in (1 - margin, 1), not 1: an actuator that barely contracts; the line turns {turn:.3g} there" in text
     gap = re.search(r"smallest    (\S+) cm stopper gap \((\d+) below min_feature 0.2 cm\)", text)
     assert float(gap[1]) < 0.2 and int(gap[2]) >= 1
-    zero = run_forward(ForwardProblem("z", D, Routing(np.array([1.3e-9, -2.3e-9]), np.array([1.0, 1.0]), np.full(2, 5.0))))
+    zero = run_forward(ForwardProblem("z", D, Routing(theta=np.array([1.3e-9, -2.3e-9]), lam=np.array([1.0, 1.0]), length=np.full(2, 5.0))))
     text = summarize(Archive("z", "forward", "", D, runs={"forward": zero}))
     assert "  theta       0 to 0 deg" in text and "-0" not in text.split("theta")[1].splitlines()[0]
 
@@ -352,7 +352,7 @@ def test_template_warns_where_the_design_rules_refuse_what_it_draws(tmp_path, ca
 
     src = SOURCE.format(units="cm", D=D, kind="tendon")
     for name, lam in (("near", [1.0, 1.0 - 1e-8, 1.0, 0.8, 0.8]), ("fine", [1.0, 0.8, 0.8, 0.8, 1.0])):
-        r = run_forward(ForwardProblem(name, D, Routing(np.full(5, 0.05), np.array(lam), np.full(5, 5.0))))
+        r = run_forward(ForwardProblem(name, D, Routing(theta=np.full(5, 0.05), lam=np.array(lam), length=np.full(5, 5.0))))
         write_archive(tmp_path / f"{name}.h5", Archive(name, "forward", src, D, runs={"forward": r}))
         assert main(["template", str(tmp_path / f"{name}.h5"), "-o", str(tmp_path / f"{name}.pdf")]) == 0
         err = capsys.readouterr().err
@@ -367,7 +367,7 @@ def test_show_lists_every_level_of_a_multishape_archive(tmp_path):
     from vine_nlp.io.formulations import write_multishape_archive
     from vine_nlp.methods.multishape import MultiShapeResult
 
-    r = run_forward(ForwardProblem("m", D, Routing(np.full(4, 0.05), np.full(4, 0.87), np.full(4, 5.0))))
+    r = run_forward(ForwardProblem("m", D, Routing(theta=np.full(4, 0.05), lam=np.full(4, 0.87), length=np.full(4, 5.0))))
     ms = MultiShapeResult(method="multishape", routing=r.routing, shape=r.shape, status="optimal", solve_time_s=0.1, iterations=5,
                           metrics={"rmse": 0.0}, stats={}, diameter=D, levels=np.array([0.87, 0.92, 0.97]), fixed=(True, False, False),
                           poses=np.array([np.eye(4)] * 3), shapes=[r.shape] * 3, level_metrics=[{"rmse": 0.0, "max_error": 0.0}] * 3,
