@@ -30,17 +30,7 @@ from vine_nlp.model.calibration import Calibration
 from vine_nlp.model.routing import MEASURED_LINES, Routing, Sigmas
 from vine_nlp.pipeline import Request
 from vine_nlp.pipeline.correct import correct_files, correct_to_file
-from vine_nlp.problem import (
-    Actuator,
-    DesignOptions,
-    DesignProblem,
-    FitProblem,
-    ForwardProblem,
-    Load,  # noqa: F401 (re-exported: vine_nlp.Load)
-    MultiShapeProblem,
-    Result,
-    TipProblem,
-)
+from vine_nlp.problem import Actuator, DesignOptions, DesignProblem, FitProblem, ForwardProblem, Load, MultiShapeProblem, Result, TipProblem  # noqa: F401, E501 (Load: re-exported)
 
 # the API's names, listed once: the package exports them lazily (vine_nlp.__init__)
 __all__ = [n for n in _API_NAMES if n != "__version__"]
