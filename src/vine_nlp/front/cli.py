@@ -25,8 +25,8 @@ EXIT_OK, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
 FLAGS = {"method": "--method", "warm": "--warm", "hops": "--hops", "budget": "--budget", "robust": "--robust",
          "clearance": "--clearance", "starts": "--starts"}
 # what each solving command takes: the problem kinds, and the design runs (None: the problem's method)
-SOLVES = {"design": (("design", "tip", "multishape"), None), "compare": (("design",), COMPARE),
-          "forward": (("forward",), None), "fit": (("fit",), None)}
+SOLVES = {"design": (("design", "tip", "multishape", "actuators"), None), "compare": (("design",), COMPARE),
+          "forward": (("forward", "actuators-forward"), None), "fit": (("fit",), None)}
 KIND_KEY = {"design": "target", "forward": "routing", "fit": "measured"}
 
 

@@ -69,6 +69,7 @@ _TOP_KEYS = {
     "fit": ("name", "units", "tube", "measured", "routing", "fit"),
     "multishape": ("name", "units", "tube", "targets", "actuator", "design"),
     "tip": ("name", "units", "tube", "tip", "actuator", "design", "obstacles"),
+    "actuators": ("name", "units", "tube", "actuators", "states", "routing", "design"),
 }
 
 _ALL_TOP_KEYS = tuple(dict.fromkeys(k for keys in _TOP_KEYS.values() for k in keys))
@@ -158,7 +159,11 @@ def parse_problem(data: dict, path: str, source: str) -> ProblemFile:
     check(f, "tube.diameter", diameter > 0, "must be > 0")
     check(f, "tube.diameter", diameter <= limits.MAX_COORDINATE, f"must be <= {limits.MAX_COORDINATE:g} (vine_nlp.io.limits.MAX_COORDINATE)")
 
-    if kind == "design":
+    if kind == "actuators":
+        from vine_nlp.io.actuators import parse_actuators
+
+        kind, problem = parse_actuators(f, data, name, units, diameter)
+    elif kind == "design":
         problem = _design(f, data, name, units, diameter)
     elif kind == "forward":
         routing = _routing(f, sub_table(f, data, "routing", _ROUTING_KEYS, required=True), diameter)
@@ -176,6 +181,8 @@ def parse_problem(data: dict, path: str, source: str) -> ProblemFile:
 
 
 def _kind(f: SourceFile, data: dict) -> str:
+    if "actuators" in data or "states" in data:  # several actuators on one tube (io.actuators)
+        return "actuators"
     if "target" in data and "measured" in data:
         raise f.error("target", "a problem has [target] (design) or [measured] (fit), not both")
     if "targets" in data or "tip" in data:

@@ -1,0 +1,109 @@
+"""Problem files and archives of several actuators on one tube (io.actuators): forward shapes, the archive's
+layout read back, and every bad input as one error line, exit 2, nothing written."""
+
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+from vine_nlp.io.actuators import read_actuators_archive
+from vine_nlp.io.problems import load_problem
+from vine_nlp.model import forward_shape
+
+LAM_A = "[" + ", ".join(["0.6"] * 10 + ["1.0"] * 10) + "]"
+LAM_B = "[" + ", ".join(["1.0"] * 10 + ["0.7"] * 10) + "]"
+FORWARD = f"""name = "two"
+[tube]
+diameter = 2.4
+[routing]
+length = 20.0
+segment_length = 1.0
+[[actuators]]
+name = "A"
+theta_deg = 5.0
+lambda = {LAM_A}
+[[actuators]]
+name = "B"
+theta_deg = -3.0
+lambda = {LAM_B}
+phi0_deg = 180
+[[states]]
+name = "a"
+active = ["A"]
+[[states]]
+name = "ab"
+active = ["A", "B"]
+"""
+DESIGN = """name = "d"
+[tube]
+diameter = 2.4
+[[actuators]]
+name = "A"
+[[actuators]]
+name = "B"
+[[states]]
+name = "a"
+active = ["A"]
+[states.target]
+curve = "bezier"
+control_points = [[0, 0, 0], [20, 0, 0], [30, 10, 0]]
+samples = 41
+[[states]]
+name = "b"
+active = ["B"]
+[states.target]
+curve = "bezier"
+control_points = [[0, 0, 0], [20, 0, 0], [30, -10, 0]]
+samples = 41
+"""
+
+
+def _run(tmp_path, text, command="forward"):
+    p = tmp_path / "p.toml"
+    p.write_text(text)
+    out = tmp_path / "o.h5"
+    r = subprocess.run([sys.executable, "-m", "vine_nlp", command, str(p), "-o", str(out)], capture_output=True, text=True)
+    return r, out, p
+
+
+def test_forward_archive_round_trip(tmp_path):
+    r, out, p = _run(tmp_path, FORWARD)
+    assert r.returncode == 0, r.stderr
+    assert "state ab (A, B): tip at" in r.stdout
+    a, res, targets = read_actuators_archive(out)
+    assert a.kind == "actuators-forward" and targets == {}
+    pf = load_problem(p).problem
+    assert res.lines.names == ("A", "B") and np.allclose(res.lines.theta, pf.lines.theta) and np.allclose(res.lines.phi0, [0, np.pi])
+    with h5py.File(out) as h5:
+        g = h5["runs/forward"]
+        assert g["actuators/B/design/phi"].shape == (21,) and g["design/length"].shape == (20,)
+        assert np.allclose(g["states/a/shape/center"][()], forward_shape(pf.lines.routing(0), 2.4).center)
+    # state ab: A shapes the first half as in state a (2 pieces per segment: rows 0..20), B the second
+    assert np.allclose(res.shapes["ab"].center[:21], res.shapes["a"].center[:21], atol=1e-12)
+    assert np.linalg.norm(res.shapes["ab"].center[-1] - res.shapes["a"].center[-1]) > 1.0
+    assert res.stats["states"] == {"a": ["A"], "ab": ["A", "B"]}
+
+
+BAD = [
+    (FORWARD.replace('active = ["A", "B"]', 'active = ["A", "C"]'), "states.1.active: unknown actuator 'C' (actuators: A, B)"),
+    (FORWARD.replace('name = "B"', 'name = "A"'), "actuators.1.name: 'A' is used twice"),
+    (FORWARD.replace('name = "ab"', 'name = "a"'), "states.1.name: 'a' is used twice"),
+    (FORWARD.replace('phi0_deg = 180', 'width = 7.6'), "actuators.1.width: 7.6 is wider than the tube's circumference pi D = 7.53982"),
+    (FORWARD.replace(LAM_B, "0.8"), "states.1.active: state 'ab': segment 1 has 2 active lines (A, B); the model allows one per segment"),
+    (DESIGN.replace('name = "b"\n', 'name = "b"\nunits = "mm"\n'), "states.1.units: 'mm' differs from the problem's units 'cm' (one tube, one unit)"),
+    (DESIGN.replace('[states.target]\ncurve = "bezier"\ncontrol_points = [[0, 0, 0], [20, 0, 0], [30, -10, 0]]\nsamples = 41\n', ""),
+     "states.1.target: missing: every state of a design problem needs a target"),
+    (DESIGN.replace("samples = 41\n[[states]]", "samples = 51\n[[states]]"), "states.1.target: has 41 points; every state needs as many as states.0 (51)"),
+    (DESIGN.replace('curve = "bezier"', 'curve = "spiral"', 1), "states.0.target.curve: must be one of"),
+    (FORWARD.replace("lambda = " + LAM_A, "lambda = 1.5"), "actuators.0.lambda: must be in (0, 1]"),
+]
+
+
+@pytest.mark.parametrize("text,message", BAD, ids=range(len(BAD)))
+def test_bad_input(tmp_path, text, message):
+    command = "forward" if "[routing]" in text else "design"
+    r, out, p = _run(tmp_path, text, command)
+    assert r.returncode == 2 and not out.exists()
+    assert r.stderr.startswith(f"error: {p}: {message}") and r.stderr.count("\n") == 1, r.stderr
