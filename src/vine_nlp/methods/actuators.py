@@ -98,13 +98,30 @@ def state_arcs(lines: Lines, D: float, active) -> np.ndarray:
     return lines.length * np.where(own >= 0, lam_c, 1.0)
 
 
-def evaluate(problem: ActuatorsProblem, lines: Lines, method: str = "nlp", **kw) -> ActuatorsResult:
-    """Every state's shape paired with its target (target row i with the model point at the same fraction of
-    the length), per-state RMSE and max error; the run's rmse/max_error over all points of all states."""
+def sample_states(lines: Lines, D: float, states: dict, N: int) -> dict:
+    """{state: (N, 3)} every state's center line at N points equally spaced in its own length (targets that
+    the design's pairing matches exactly)."""
+    out = {}
+    for name, active in states.items():
+        arcs = state_arcs(lines, D, active)
+        A = np.r_[0.0, np.cumsum(arcs)]
+        x = np.linspace(0.0, A[-1], N)
+        seg = np.clip(np.searchsorted(A, x, side="right") - 1, 0, arcs.size - 1)
+        out[name] = state_shape(lines, D, active, seg, np.clip((x - A[seg]) / arcs[seg], 0, 1), name).center
+    return out
+
+
+def evaluate(problem: ActuatorsProblem, lines: Lines, method: str = "nlp", bounds=None, **kw) -> ActuatorsResult:
+    """Every state's shape paired with its target, per-state RMSE and max error; the run's rmse/max_error over all
+    points of all states. Target row i pairs with the model point at the same fraction of the length, or with
+    ``bounds`` (S, M+1): each segment's ends as fractions of each state's target chord (the design's pairing)."""
     D, shapes, sm, d2 = problem.diameter, {}, {}, []
-    for name, active in problem.states.items():
+    for s, (name, active) in enumerate(problem.states.items()):
         tgt = problem.targets[name]
-        seg, frac = arc_pairing(tgt, state_arcs(lines, D, active))
+        if bounds is None:
+            seg, frac = arc_pairing(tgt, state_arcs(lines, D, active))
+        else:
+            seg, frac = arc_pairing(tgt, np.diff(bounds[s]))
         shapes[name] = state_shape(lines, D, active, seg, frac, name)
         sm[name] = error_metrics(shapes[name].center, tgt)
         d2.append(np.sum((shapes[name].center - tgt) ** 2, axis=1))
