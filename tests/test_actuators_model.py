@@ -8,7 +8,7 @@ import pytest
 
 from vine_nlp.io.problems import load_problem
 from vine_nlp.model import chain_frames, forward_shape, paper_segment_transform, phi_from_theta
-from vine_nlp.model.actuators import Lines, TwoLines, forward_states, owners, roll, state_shape, too_close
+from vine_nlp.model.actuators import Lines, TwoLines, actuator_lines, forward_states, owners, roll, state_shape, too_close
 from vine_nlp.model.chain import segment_end_samples
 
 PROBLEMS = Path(__file__).resolve().parents[1] / "problems"
@@ -100,3 +100,19 @@ def test_widths_apart():
     # 0.5 rad apart = 0.5 length units around the circumference (D/2 = 1)
     assert too_close(lines, D, [0.4, 0.4]) == []
     assert too_close(lines, D, [0.6, 0.6]) == [(0, 0, 1)]
+
+
+def test_actuator_lines_are_on_the_tube_and_the_shaping_line_is_inner():
+    rng = np.random.default_rng(3)
+    M, D = 10, 2.0
+    lam = np.ones((2, M))
+    lam[0, :5], lam[1, 6:] = 0.7, 0.8
+    lines = Lines(("A", "B"), rng.uniform(-0.4, 0.4, (2, M)), lam, [0.0, 2.0], np.ones(M))
+    seg, frac = segment_end_samples(lines.length, 4)
+    shape = state_shape(lines, D, ["A", "B"], seg, frac)
+    got = actuator_lines(lines, D, ["A", "B"], seg, frac)
+    for pts in got.values():  # D/2 from the center line
+        assert np.allclose(np.linalg.norm(pts - shape.center, axis=1), D / 2)
+    shaped_by = np.where(seg < 5, "A", np.where(seg >= 6, "B", "A"))  # segment 5: none shapes it; A is the state's first
+    for name in ("A", "B"):
+        assert np.allclose(got[name][shaped_by == name], shape.inner[shaped_by == name], atol=1e-12)

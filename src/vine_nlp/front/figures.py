@@ -15,6 +15,10 @@ def figure(archive: Archive, path=None):
     from its file ``path`` (its levels are groups the generic reader leaves out)."""
     if archive.kind == "multishape":
         return plot_multishape_figure(path)
+    if archive.kind in ("actuators", "actuators-forward"):
+        from vine_nlp.front.actuators_plot import plot_actuators_figure
+
+        return plot_actuators_figure(path)
     return plot_archive(archive, obstacles=archive.obstacles)
 
 

@@ -141,6 +141,28 @@ def state_shape(lines: Lines, D: float, active, seg, frac, state: str = "") -> S
     return Shape(center, center + 0.5 * D * normal, center - 0.5 * D * normal)
 
 
+def actuator_lines(lines: Lines, D: float, active, seg, frac, state: str = "") -> dict:
+    """{actuator: (P, 3)} where every actuator's line lies on the tube in a state, at the points of
+    :func:`state_shape` (the material frame there turned to the line's angle around the tube)."""
+    own = owners(lines, active, state)
+    G = material_frames(lines, D, own)
+    seg, frac = np.asarray(seg, int), np.asarray(frac, float)
+    phi, l = lines.phi(D), frac * lines.length[seg]
+    k = np.maximum(own[seg], 0)
+    shaped = own[seg] >= 0
+    lam = np.where(shaped, lines.lam[k, seg], 1.0)
+    moved = phi[k, seg] + 2.0 / D * np.tan(lines.theta[k, seg]) * l  # the shaping line's angle at the point
+    local = roll(phi[k, seg]) @ segment_transform(lines.theta[k, seg], lam, l, D) @ roll(-moved)
+    straight = np.tile(np.eye(4), (seg.size, 1, 1))
+    straight[:, 0, 3] = l
+    world = G[seg] @ np.where(shaped[:, None, None], local, straight)  # the material frame at each point
+    out = {}
+    for i, name in enumerate(lines.names):
+        a = phi[i, seg] + 2.0 / D * np.tan(lines.theta[i, seg]) * l
+        out[name] = world[:, :3, 3] + 0.5 * D * (world[:, :3, 1] * np.cos(a)[:, None] + world[:, :3, 2] * np.sin(a)[:, None])
+    return out
+
+
 def forward_states(lines: Lines, D: float, states: dict, per_segment=None) -> dict:
     """{state: Shape} at every segment end and ``per_segment`` pieces inside (default: pieces <= D/4)."""
     if per_segment is None:
