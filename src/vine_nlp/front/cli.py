@@ -348,7 +348,7 @@ def cmd_export(args) -> int:
 def cmd_show(args) -> int:
     from vine_nlp.front.show import summarize
 
-    print(summarize(read_archive(args.archive)))
+    print(summarize(read_archive(args.archive), args.archive))
     return EXIT_OK
 
 

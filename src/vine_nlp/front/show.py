@@ -75,6 +75,23 @@ def _build_lines(a: Archive, routing) -> list[str]:
     return lines
 
 
+def _actuator_lines(path, run: str, a: Archive) -> list[str]:
+    """Several actuators on one tube (io.actuators): per actuator its angles, pieces, stoppers and turning (the
+    line alone, as one actuator's routing); per state its active actuators and RMSE."""
+    from vine_nlp.io.actuators import read_actuators_archive
+
+    _, r, _ = read_actuators_archive(path, run)
+    ls, out = r.lines, []
+    for k, name in enumerate(ls.names):
+        out += [f"  actuator {name}: starts at phi = {_num(math.degrees(ls.phi0[k]))} deg around the tube",
+                f"  theta       {_range(np.degrees(ls.theta[k]))} deg", f"  lambda      {_range(ls.lam[k])}"]
+        out += _build_lines(a, ls.routing(k))
+    for s, active in r.stats["states"].items():
+        m = r.state_metrics.get(s)
+        out.append(f"  state {s} ({', '.join(active)})" + (f": RMSE {_num(m['rmse'])} {a.units}, max error {_num(m['max_error'])} {a.units}" if m else ""))
+    return out
+
+
 def _num(v: float) -> str:
     return f"{v:.6g}"
 
@@ -87,10 +104,12 @@ def _range(values: np.ndarray) -> str:
     return f"{_num(values.min())} to {_num(values.max())}"
 
 
-def summarize(archive) -> str:
+def summarize(archive, path=None) -> str:
     """Multi-line summary of an archive (an Archive, or a path loaded and so validated by ``load_archive``: an
-    InputError when missing or invalid): problem, software, target, and every run."""
+    InputError when missing or invalid): problem, software, target, and every run. ``path``: the archive's file
+    (an archive of several actuators names its lines and states from there)."""
     a = archive if isinstance(archive, Archive) else load_archive(archive)
+    path = path if isinstance(archive, Archive) else archive
     u = a.units
     lines = [f"problem   {a.name} ({a.kind})"]
     kind = source_table(a, "actuator").get("kind")
@@ -110,7 +129,9 @@ def summarize(archive) -> str:
         lines += ["", f"run {name}", f"  method      {r.method}", f"  status      {r.status}", f"  iterations  {r.iterations}",
                   f"  solve time  {r.solve_time_s:.3f} s", f"  segments    {ro.segments}",
                   f"  tube length {_num(float(ro.length.sum()))} {u}"]
-        if ro.segments:
+        if a.kind.startswith("actuators") and path is not None:
+            lines += _actuator_lines(path, name, a)
+        elif ro.segments:
             lines.append(f"  theta       {_range(np.degrees(ro.theta))} deg")
             lines.append(f"  lambda      {_range(ro.lam)}")
             lines += _build_lines(a, ro)

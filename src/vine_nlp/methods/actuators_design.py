@@ -235,16 +235,23 @@ def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> Ac
         rows = slice(first + r * (M + 1), first + (r + 1) * (M + 1))
         lbg[rows], ubg[rows] = 1 - math.cos(min(math.pi, (w[a] + w[b]) / D)), np.inf
     iters, status, rounds, duals = 0, "optimal", 0, None
-    stages = [PENALTY] + ([0.0] if nlp.exclusive else [])
+    stages = ["relaxed"] + (["assigned"] if nlp.exclusive else []) + (["margin"] if o.correction_margin > 0 else [])
     lines = guess
-    for stage, mu in enumerate(stages):
-        if stage:
-            lam = x0[sl["lam"]].reshape(K, M, order="F")
-            keep = assign(lam, nlp.exclusive)
-            fix = np.zeros(x0.size, bool)
-            fix[sl["lam"]] = (~keep).ravel(order="F")
-            x0[fix] = 1.0
-            lbx[fix] = ubx[fix] = 1.0
+    for stage in stages:
+        mu = PENALTY if stage == "relaxed" else 0.0
+        lam = x0[sl["lam"]].reshape(K, M, order="F")
+        fix = np.zeros(x0.size, bool)
+        if stage == "assigned":
+            fix[sl["lam"]] = (~assign(lam, nlp.exclusive)).ravel(order="F")
+        elif stage == "margin":  # buildable: lambda exactly 1, or inside [lambda_min + margin, 1 - margin]
+            margin = np.minimum(o.correction_margin, (1 - lmin) / 2)
+            fix[sl["lam"]] = (lam > 1 - margin / 2).ravel(order="F")
+            free = sl["lam"].start + np.flatnonzero((lbx[sl["lam"]] < ubx[sl["lam"]]) & ~fix[sl["lam"]])
+            lbx[free] = (lmin + margin).ravel(order="F")[free - sl["lam"].start]
+            ubx[free] = (1 - margin).ravel(order="F")[free - sl["lam"].start]
+            x0[free] = np.clip(x0[free], lbx[free], ubx[free])
+        x0[fix] = 1.0
+        lbx[fix] = ubx[fix] = 1.0
         f = np.inf
         for _ in range(ROUNDS):  # the target re-linearized at the pairing of the round before until it holds
             c = _pairing_fractions(x0[sl["b"]].reshape(M + 1, S, order="F"), n)
