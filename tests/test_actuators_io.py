@@ -107,3 +107,30 @@ def test_bad_input(tmp_path, text, message):
     r, out, p = _run(tmp_path, text, command)
     assert r.returncode == 2 and not out.exists()
     assert r.stderr.startswith(f"error: {p}: {message}") and r.stderr.count("\n") == 1, r.stderr
+
+
+def test_a_design_short_of_its_tolerance_is_written_with_its_status_and_rerun_forward(tmp_path):
+    lam_a = "[" + ", ".join(["0.7"] * 5 + ["1.0"] * 5) + "]"
+    src = (FORWARD.replace("length = 20.0", "length = 10.0").replace(LAM_A, lam_a)
+           .replace(LAM_B, "[" + ", ".join(["1.0"] * 5 + ["0.8"] * 5) + "]"))
+    r, out, _ = _run(tmp_path, src)
+    assert r.returncode == 0
+    out = out.rename(tmp_path / "fwd.h5")
+    # the forward shapes as targets of a design capped at 2 iterations: written, status max_iter, exit 1
+    a, fwd, _ = read_actuators_archive(out)
+    for s, shape in fwd.shapes.items():
+        np.savetxt(tmp_path / f"{s}.csv", shape.center[:: max(1, (len(shape.center) - 1) // 20)][:21], delimiter=",")
+    design = DESIGN.replace('name = "b"', 'name = "ab"').replace('active = ["B"]', 'active = ["A", "B"]')
+    for s in ("a", "ab"):
+        design = design.replace('curve = "bezier"', f'curve = "points"\nfile = "{s}.csv"', 1)
+    design = design.replace("control_points = [[0, 0, 0], [20, 0, 0], [30, 10, 0]]\nsamples = 41\n", "")
+    design = design.replace("control_points = [[0, 0, 0], [20, 0, 0], [30, -10, 0]]\nsamples = 41\n", "")
+    r, out2, _ = _run(tmp_path, design + "[design]\npoints_per_segment = 2\nmax_iter = 2\n", "design")
+    assert r.returncode == 1 and out2.exists(), r.stderr
+    assert read_actuators_archive(out2)[1].status == "max_iter" and "nlp: max_iter" in r.stderr
+    # forward ARCHIVE --run: every state's shape of the stored lines
+    again = tmp_path / "again.h5"
+    assert subprocess.run([sys.executable, "-m", "vine_nlp", "forward", str(out), "--run", "forward", "-o", str(again)]).returncode == 0
+    _, back, _ = read_actuators_archive(again)
+    for s in fwd.shapes:
+        assert np.allclose(back.shapes[s].center, fwd.shapes[s].center, atol=1e-12)

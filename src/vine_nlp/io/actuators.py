@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -227,3 +228,15 @@ def read_actuators_archive(path, run: str | None = None):
                         shortfall=base.shortfall, lines=lines, shapes={s: Shape(*(v.center, v.inner, v.outer)) for s, v in shapes.items()},
                         state_metrics={s: m for s, m in sm.items() if m})
     return a, r, targets
+
+
+def stored_forward(path, run: str):
+    """``forward ARCHIVE.h5 --run RUN`` of an archive of several actuators: its lines and states as a forward
+    problem (a ProblemFile; the source text says where the routing is)."""
+    from vine_nlp.io.problems import ProblemFile
+
+    a, r, _ = read_actuators_archive(path, run)
+    states = {s: tuple(v) for s, v in r.stats["states"].items()}
+    problem = ActuatorsProblem(f"{a.name}-{run}", a.diameter, tuple(Line(n) for n in r.lines.names), states, lines=r.lines, units=a.units)
+    source = f"# written by vine_nlp: forward {Path(path).name} --run {run}\n# the routing: the archive's /runs/{run}/actuators\n"
+    return ProblemFile(str(path), source, "actuators-forward", problem.name, a.units, problem)
