@@ -44,7 +44,7 @@ from vine_nlp.model.segment import so3_exp, twist_parts
 from vine_nlp.problem import DesignProblem
 
 PENALTY = 1e-4  # stage 1: weight of (1 - lambda_a)(1 - lambda_b) of exclusive pairs, against the mean squared error / D^2
-ROUNDS = 4  # pairing rounds per stage at most
+ROUNDS = 3  # pairing rounds of the last stage at most (the others: one)
 GAIN = 0.05  # ... and while a round lowers the objective by this fraction at least
 REPAIR_TOL = 1e-5  # the linearized target holds where no paired fraction of a target's chord moved more than this
 MIN_PIECE = 0.05  # a segment pairs with at least this fraction of 1/M of every target
@@ -234,7 +234,7 @@ def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> Ac
     for r, (a, b) in enumerate(nlp.width_rows):
         rows = slice(first + r * (M + 1), first + (r + 1) * (M + 1))
         lbg[rows], ubg[rows] = 1 - math.cos(min(math.pi, (w[a] + w[b]) / D)), np.inf
-    iters, status, rounds, duals = 0, "optimal", 0, None
+    iters, status, rounds = 0, "optimal", 0
     stages = ["relaxed"] + (["assigned"] if nlp.exclusive else []) + (["margin"] if o.correction_margin > 0 else [])
     lines = guess
     for stage in stages:
@@ -252,8 +252,8 @@ def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> Ac
             x0[free] = np.clip(x0[free], lbx[free], ubx[free])
         x0[fix] = 1.0
         lbx[fix] = ubx[fix] = 1.0
-        f = np.inf
-        for _ in range(ROUNDS):  # the target re-linearized at the pairing of the round before until it holds
+        f, duals = np.inf, None  # a new stage starts cold (its bounds changed); only its last is re-paired to the end
+        for _ in range(ROUNDS if stage == stages[-1] else 1):  # the target re-linearized at the pairing before
             c = _pairing_fractions(x0[sl["b"]].reshape(M + 1, S, order="F"), n)
             solver = nlp.solver if duals is None else nlp.warm
             sol = solver(x0=x0, p=np.r_[mu, _paired(problem, c)], lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, **(duals or {}))
