@@ -126,7 +126,8 @@ def _stored_routing(args):
     if archive.kind.startswith("actuators"):  # several actuators: every line and state of the run (io.actuators)
         from vine_nlp.io.actuators import stored_forward
 
-        return stored_forward(args.problem, run)
+        problem, source = stored_forward(args.problem, run)
+        return ProblemFile(str(args.problem), source, "actuators-forward", problem.name, archive.units, problem)
     problem = ForwardProblem(f"{archive.name}-{run}", archive.diameter, archive.runs[run].routing, units=archive.units)
     source = problem_source(problem, call_text("forward", archive=Path(args.problem).name, run=run))
     return ProblemFile(str(args.problem), source, "forward", problem.name, archive.units, problem)

@@ -67,10 +67,10 @@ def _names(f, items, key):
     return names
 
 
-def parse_actuators(f: SourceFile, data: dict, name: str, units: str, diameter: float):
-    """(kind, ActuatorsProblem): kind "actuators" (design) or "actuators-forward" ([routing] present)."""
-    from vine_nlp.io import problems as P
-
+def parse_actuators(f: SourceFile, data: dict, name: str, units: str, diameter: float, P):
+    """(kind, ActuatorsProblem): kind "actuators" (design) or "actuators-forward" ([routing] present). ``P``: the
+    module ``vine_nlp.io.problems``, whose readers of [actuator], [target], [routing] and [design] this borrows
+    (passed in: it imports this module)."""
     forward = "routing" in data and any(k in data["routing"] for k in ("length", "segment_length")) if isinstance(data.get("routing"), dict) else False
     items, states = _list(f, data, "actuators"), _list(f, data, "states")
     names = _names(f, items, "actuators")
@@ -110,13 +110,11 @@ def parse_actuators(f: SourceFile, data: dict, name: str, units: str, diameter: 
             targets[snames[k]] = P._target(_Item(f, f"states.{k}.target", "target"), {"target": item["target"]}, diameter)
     if forward:
         check(f, "design", "design" not in data, "not used in a forward problem")
-        return "actuators-forward", _forward(f, data, items, name, units, diameter, lines, active)
-    return "actuators", _design(f, data, design, name, units, diameter, lines, active, targets)
+        return "actuators-forward", _forward(f, data, items, name, units, diameter, lines, active, P)
+    return "actuators", _design(f, data, design, name, units, diameter, lines, active, targets, P)
 
 
-def _forward(f, data, items, name, units, diameter, lines, active):
-    from vine_nlp.io import problems as P
-
+def _forward(f, data, items, name, units, diameter, lines, active, P):
     shared = sub_table(f, data, "routing", ("length", "segment_length", "initial_pose"))
     theta, lam, phi0 = [], [], []
     for k, item in enumerate(items):
@@ -143,9 +141,7 @@ def _forward(f, data, items, name, units, diameter, lines, active):
     return problem
 
 
-def _design(f, data, design, name, units, diameter, lines, active, targets):
-    from vine_nlp.io import problems as P
-
+def _design(f, data, design, name, units, diameter, lines, active, targets, P):
     opts = {k: v for k, v in design.items() if k not in P._BUILD_KEYS}
     for key in opts:
         if key not in P._OTHER_DESIGN_KEYS:
@@ -232,11 +228,9 @@ def read_actuators_archive(path, run: str | None = None):
 
 def stored_forward(path, run: str):
     """``forward ARCHIVE.h5 --run RUN`` of an archive of several actuators: its lines and states as a forward
-    problem (a ProblemFile; the source text says where the routing is)."""
-    from vine_nlp.io.problems import ProblemFile
-
+    problem, and a source text that says where the routing is."""
     a, r, _ = read_actuators_archive(path, run)
     states = {s: tuple(v) for s, v in r.stats["states"].items()}
     problem = ActuatorsProblem(f"{a.name}-{run}", a.diameter, tuple(Line(n) for n in r.lines.names), states, lines=r.lines, units=a.units)
     source = f"# written by vine_nlp: forward {Path(path).name} --run {run}\n# the routing: the archive's /runs/{run}/actuators\n"
-    return ProblemFile(str(path), source, "actuators-forward", problem.name, a.units, problem)
+    return problem, source

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,6 +19,7 @@ import numpy as np
 
 from vine_nlp import targets
 from vine_nlp.errors import InputError
+from vine_nlp.io import actuators as several
 from vine_nlp.io import limits
 from vine_nlp.io.calibration import calibration_of
 from vine_nlp.io.data_files import check_spread, data_points
@@ -160,9 +162,7 @@ def parse_problem(data: dict, path: str, source: str) -> ProblemFile:
     check(f, "tube.diameter", diameter <= limits.MAX_COORDINATE, f"must be <= {limits.MAX_COORDINATE:g} (vine_nlp.io.limits.MAX_COORDINATE)")
 
     if kind == "actuators":
-        from vine_nlp.io.actuators import parse_actuators
-
-        kind, problem = parse_actuators(f, data, name, units, diameter)
+        kind, problem = several.parse_actuators(f, data, name, units, diameter, sys.modules[__name__])
     elif kind == "design":
         problem = _design(f, data, name, units, diameter)
     elif kind == "forward":
