@@ -5,7 +5,7 @@ widths apart."""
 import numpy as np
 
 from vine_nlp.methods.actuators import ActuatorsProblem, Line, sample_states
-from vine_nlp.methods.actuators_design import assign, design_actuators, exclusive_pairs
+from vine_nlp.methods.actuators_design import assign, design_actuators, dither, exclusive_pairs
 from vine_nlp.model.actuators import Lines, owners, too_close
 from vine_nlp.model.routing import actuated
 from vine_nlp.problem import DesignOptions
@@ -59,3 +59,9 @@ def test_lines_that_share_segments_keep_their_widths():
     assert r.ok, r.shortfall
     assert too_close(r.lines, D, p.widths) == []
     assert max(m["rmse"] for m in r.state_metrics.values()) < 0.01
+
+
+def test_dither_keeps_the_running_contraction():
+    lam = np.array([[0.99, 0.99, 0.99, 0.99, 0.9, 1.0]])
+    # 1 - lambda accumulates 0.01 per segment; at 0.025 (half the margin) one segment is kept at 1 - margin
+    assert dither(lam, np.array([0.05])).tolist() == [[False, False, True, False, True, False]]

@@ -9,16 +9,18 @@ with lambda_k = 1 is a translation l_j, so the product is the model exactly wher
 lambda < 1 (and a smooth stand-in where several do, used only on the way). phi_k are variables with
 phi_k[j+1] = phi_k[j] + 2 tan(theta_k[j]) l_j / D.
 
-Pairing: a state's model points sit at n equal fractions of each segment; each is paired with the point of its
-target at the same fraction of the total length (the target a B-spline of its normalized chord, the model's
-length that of the state's segments), so the lengths of the segments can be shared by shapes whose actuated
-parts differ: no fixed pairing of target points with segments has to hold for every state.
+Pairing: a state's model points sit at n equal fractions of each segment; where each segment's ends fall on the
+state's target (fractions of its chord) are variables too, so the shared segment lengths can serve shapes whose
+actuated parts differ (no fixed pairing of target points with segments has to hold for every state). The target
+is linearized around the pairing of the solve before (a parameter) and re-linearized between solves.
 
 No two active lines on one segment (the method): lines that are active together in some state are *exclusive*.
 1. A relaxed solve with the exclusive pairs' lambdas free, a small penalty on (1 - lambda_a)(1 - lambda_b).
 2. Each segment is assigned, line by line in order of how much it contracts there, to lines not exclusive with one
    already assigned; every other line's lambda is fixed to exactly 1 by its bounds, and the design is polished
-   (same NLP, warm). The polished design has at most one active line per segment in every state by construction.
+   (same NLP). The polished design has at most one active line per segment in every state by construction.
+3. Buildable: each lambda near 1 (within half the correction margin) is fixed to exactly 1, the others kept
+   inside [lambda_min + margin, 1 - margin], and the design is polished again.
 Chosen over a complementarity constraint because IPOPT handles fixed bounds exactly and an MPCC poorly (no
 constraint qualification at the solution); the assignment is what a builder decides anyway (which tendon runs
 where). Lines not exclusive keep (w_a + w_b)/2 apart around the circumference on every segment where both may
@@ -38,7 +40,7 @@ import numpy as np
 from vine_nlp.methods.actuators import ActuatorsProblem, ActuatorsResult, evaluate
 from vine_nlp.methods.common import geometric_guess, pair_points
 from vine_nlp.methods.settings import CHAIN, EXACT_BOUNDS, WARM, quiet
-from vine_nlp.model.actuators import Lines, roll
+from vine_nlp.model.actuators import Lines
 from vine_nlp.model.helix import center_rates
 from vine_nlp.model.segment import so3_exp, twist_parts
 from vine_nlp.problem import DesignProblem
@@ -85,8 +87,9 @@ def _functions(a: int, n: int):
 
 
 class _NLP:
-    """The NLP of one problem (built once, in SX; the stages and pairing rounds change only bounds and
-    parameters: the target points paired with the model points are parameters, re-paired between solves)."""
+    """The NLP of one problem, built once (MX: every segment's motion and points one call of an SX function
+    per number of active lines, mapped over the segments); the stages and pairing rounds change only bounds and
+    parameters."""
 
     def __init__(self, problem: ActuatorsProblem, M: int, R0g: np.ndarray, h: np.ndarray):
         D, o = problem.diameter, problem.options
@@ -191,7 +194,8 @@ def _rollout(nlp: _NLP, problem, lines: Lines, base12):
 
 
 def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> ActuatorsResult:
-    """One design of every line for every state (module docstring); the run ``nlp``."""
+    """One design of every line for every state (module docstring); the run ``nlp``. One start (``starts`` is
+    accepted for the pipeline and not used yet)."""
     t0 = time.perf_counter()
     D, o = problem.diameter, problem.options
     n = o.points_per_segment
@@ -236,7 +240,6 @@ def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> Ac
         lbg[rows], ubg[rows] = 1 - math.cos(min(math.pi, (w[a] + w[b]) / D)), np.inf
     iters, status, rounds = 0, "optimal", 0
     stages = ["relaxed"] + (["assigned"] if nlp.exclusive else []) + (["margin"] if o.correction_margin > 0 else [])
-    lines = guess
     for stage in stages:
         mu = PENALTY if stage == "relaxed" else 0.0
         lam = x0[sl["lam"]].reshape(K, M, order="F")
@@ -245,32 +248,46 @@ def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> Ac
             fix[sl["lam"]] = (~assign(lam, nlp.exclusive)).ravel(order="F")
         elif stage == "margin":  # buildable: lambda exactly 1, or inside [lambda_min + margin, 1 - margin]
             margin = np.minimum(o.correction_margin, (1 - lmin) / 2)
-            fix[sl["lam"]] = (lam > 1 - margin / 2).ravel(order="F")
+            fix[sl["lam"]] = (~dither(lam, margin[:, 0])).ravel(order="F")
             free = sl["lam"].start + np.flatnonzero((lbx[sl["lam"]] < ubx[sl["lam"]]) & ~fix[sl["lam"]])
             lbx[free] = (lmin + margin).ravel(order="F")[free - sl["lam"].start]
             ubx[free] = (1 - margin).ravel(order="F")[free - sl["lam"].start]
             x0[free] = np.clip(x0[free], lbx[free], ubx[free])
         x0[fix] = 1.0
         lbx[fix] = ubx[fix] = 1.0
-        f, duals = np.inf, None  # a new stage starts cold (its bounds changed); only its last is re-paired to the end
-        for _ in range(ROUNDS if stage == stages[-1] else 1):  # the target re-linearized at the pairing before
-            c = _pairing_fractions(x0[sl["b"]].reshape(M + 1, S, order="F"), n)
-            solver = nlp.solver if duals is None else nlp.warm
-            sol = solver(x0=x0, p=np.r_[mu, _paired(problem, c)], lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, **(duals or {}))
-            st = solver.stats()
-            duals = {"lam_x0": sol["lam_x"], "lam_g0": sol["lam_g"]} if st.get("success") else None
-            x0 = np.asarray(sol["x"]).ravel()
-            iters, rounds = iters + int(st.get("iter_count", 0)), rounds + 1
-            status = {"Solve_Succeeded": "optimal", "Solved_To_Acceptable_Level": "acceptable",
-                      "Maximum_Iterations_Exceeded": "max_iter"}.get(st.get("return_status"), "failed")
-            lines = _lines(nlp, problem, x0, B)
-            moved = max(np.abs(a - b).max() for a, b in zip(c, _pairing_fractions(x0[sl["b"]].reshape(M + 1, S, order="F"), n)))
-            f, f_prev = float(sol["f"]), f
-            if moved < REPAIR_TOL or f > (1 - GAIN) * f_prev:
-                break
+        x0, status, n_it, n_r = _stage(nlp, problem, x0, (lbx, ubx, lbg, ubg), mu, B, ROUNDS if stage == stages[-1] else 1)
+        iters, rounds = iters + n_it, rounds + n_r
+    lines = _lines(nlp, problem, x0, B)
     stats = {"segments": M, "points_per_segment": o.points_per_segment, "stages": len(stages), "rounds": rounds, "exclusive_pairs": len(nlp.exclusive),
              "base": o.base, "states": {s: list(a) for s, a in problem.states.items()}}
     return evaluate(problem, lines, "nlp", bounds=x0[sl["b"]].reshape(M + 1, S, order="F").T, status=status, solve_time_s=time.perf_counter() - t0, iterations=iters, stats=stats)
+
+
+def _stage(nlp: _NLP, problem, x0, box, mu, B, rounds: int):
+    """One stage: solves from ``x0`` (cold, then warm), the target re-linearized at the pairing of the solve before,
+    while a round lowers the objective; the round whose design meets the targets best (evaluate) is kept.
+    Returns (x, status, iterations, solves)."""
+    sl, M, S, n = nlp.sl, nlp.M, len(problem.states), problem.options.points_per_segment
+    lbx, ubx, lbg, ubg = box
+    f, duals, best, iters, solves = np.inf, None, None, 0, 0
+    for _ in range(rounds):
+        c = _pairing_fractions(x0[sl["b"]].reshape(M + 1, S, order="F"), n)
+        solver = nlp.solver if duals is None else nlp.warm
+        sol = solver(x0=x0, p=np.r_[mu, _paired(problem, c)], lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, **(duals or {}))
+        st = solver.stats()
+        duals = {"lam_x0": sol["lam_x"], "lam_g0": sol["lam_g"]} if st.get("success") else None
+        x0, iters, solves = np.asarray(sol["x"]).ravel(), iters + int(st.get("iter_count", 0)), solves + 1
+        status = {"Solve_Succeeded": "optimal", "Solved_To_Acceptable_Level": "acceptable",
+                  "Maximum_Iterations_Exceeded": "max_iter"}.get(st.get("return_status"), "failed")
+        b = x0[sl["b"]].reshape(M + 1, S, order="F")
+        err = evaluate(problem, _lines(nlp, problem, x0, B), bounds=b.T).metrics["rmse"] if rounds > 1 else 0.0
+        if best is None or err < best[0]:
+            best = (err, x0.copy(), status)
+        moved = max(np.abs(a - q).max() for a, q in zip(c, _pairing_fractions(b, n)))
+        f, f_prev = float(sol["f"]), f
+        if moved < REPAIR_TOL or f > (1 - GAIN) * f_prev:
+            break
+    return best[1], best[2], iters, solves
 
 
 def _lines(nlp: _NLP, problem, x, B) -> Lines:
@@ -312,6 +329,20 @@ def _paired(problem: ActuatorsProblem, fractions) -> np.ndarray:
     return np.concatenate(out)
 
 
+def dither(lam: np.ndarray, margin: np.ndarray) -> np.ndarray:
+    """(K, M) which lambdas stay free (inside [lambda_min + margin, 1 - margin]) rather than exactly 1: those at or
+    below 1 - margin, and of those above, along each line, as many as keep its running contraction sum(1 - lambda)
+    (error diffusion: a run of slight contraction becomes a few segments at 1 - margin among segments at 1)."""
+    keep = lam <= 1 - margin[:, None]
+    for k in range(lam.shape[0]):
+        acc = 0.0
+        for j in np.flatnonzero(~keep[k]):
+            acc += 1 - lam[k, j]
+            if acc >= margin[k] / 2:
+                keep[k, j], acc = True, acc - margin[k]
+    return keep
+
+
 def assign(lam: np.ndarray, exclusive) -> np.ndarray:
     """(K, M) which lines keep a free lambda: per segment, lines in order of contraction, each unless it is
     exclusive with one already kept; lines that do not contract keep theirs where no exclusive line is kept."""
@@ -325,4 +356,4 @@ def assign(lam: np.ndarray, exclusive) -> np.ndarray:
     return keep
 
 
-__all__ = ["design_actuators", "exclusive_pairs", "initial_lines", "assign", "roll"]
+__all__ = ["design_actuators", "exclusive_pairs", "initial_lines", "assign"]
