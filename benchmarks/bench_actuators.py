@@ -86,7 +86,9 @@ def main():
     write_report("actuators", "Several actuators on one tube (issue 44)",
                  "Every design in this run; times are wall-clock on a machine shared with other work (ratios measured "
                  "in the same run). Single designs: `vine_nlp.design` of each state's target alone (buildable, as a user "
-                 "gets it).", table(["case", "worst state RMSE", "time ratio (one tube / singles)", "goals met"], summary), *blocks)
+                 "gets it). The one-tube RMSE pairs each target point with the model by the design's own pairing (where "
+                 "each segment's ends fall on the target is designed too); a single design pairs by equal chord per "
+                 "segment: the two RMSEs are not measured with the same pairing.", table(["case", "worst state RMSE", "time ratio (one tube / singles)", "goals met"], summary), *blocks)
 
 
 if __name__ == "__main__":

@@ -50,6 +50,7 @@ ROUNDS = 3  # pairing rounds of the last stage at most (the others: one)
 GAIN = 0.05  # ... and while a round lowers the objective by this fraction at least
 REPAIR_TOL = 1e-5  # the linearized target holds where no paired fraction of a target's chord moved more than this
 MIN_PIECE = 0.05  # a segment pairs with at least this fraction of 1/M of every target
+EXPAND = True  # the NLP expanded to SX: slower to build, each iteration faster
 ON = 1e-3  # a line contracts on a segment (for the assignment) where 1 - lambda exceeds this
 
 
@@ -140,10 +141,10 @@ class _NLP:
         for a, b in self.pairs:
             g.append((1 - ca.cos(ph[a, :] - ph[b, :])).T)
         self.g = ca.vertcat(*g)
-        opts = quiet(o.max_iter, o.tol) | CHAIN | EXACT_BOUNDS
+        opts = quiet(o.max_iter, o.tol) | CHAIN | EXACT_BOUNDS | {"expand": EXPAND}
         nlp = {"x": self.x, "f": J, "g": self.g, "p": par}
         self.solver = ca.nlpsol("actuators", "ipopt", nlp, opts)
-        self.warm = ca.nlpsol("actuators_warm", "ipopt", nlp, opts | WARM)
+        self.warm = self.solver if EXPAND else ca.nlpsol("actuators_warm", "ipopt", nlp, opts | WARM)  # one expansion only
         self.D = D
 
     def slices(self):
