@@ -9,8 +9,8 @@ python make_synthetic.py
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from vine_nlp.model import shape_lines
 from vine_nlp.problem import Routing
+from vine_nlp.model import shape_lines
 
 NOISE_RMS = 0.14  # cm, 3-D RMS
 
