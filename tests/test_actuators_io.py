@@ -84,6 +84,9 @@ def test_forward_archive_round_trip(tmp_path):
     assert np.allclose(res.shapes["ab"].center[:21], res.shapes["a"].center[:21], atol=1e-12)
     assert np.linalg.norm(res.shapes["ab"].center[-1] - res.shapes["a"].center[-1]) > 1.0
     assert res.stats["states"] == {"a": ["A"], "ab": ["A", "B"]}
+    shown = subprocess.run([sys.executable, "-m", "vine_nlp", "show", str(out)], capture_output=True, text=True).stdout
+    assert "  actuator B: starts at phi = 180 deg around the tube" in shown and "  state ab (A, B)" in shown
+    assert "  actuated    1 piece(s) (segments 10-19)" in shown  # B's line alone: its one piece
 
 
 BAD = [
