@@ -137,3 +137,19 @@ def test_a_design_short_of_its_tolerance_is_written_with_its_status_and_rerun_fo
     _, back, _ = read_actuators_archive(again)
     for s in fwd.shapes:
         assert np.allclose(back.shapes[s].center, fwd.shapes[s].center, atol=1e-12)
+
+
+@pytest.mark.parametrize("command", [["template", "-o", "t.pdf"], ["view", "-o", "v.html"], ["animate", "-o", "m.gif"],
+                                     ["export", "-o", "t.stl"], ["analyze"], ["correct", "m.csv", "-o", "c.h5"], ["calibrate", "-o", "c.toml"]],
+                         ids=lambda c: c[0])
+def test_commands_of_one_actuator_refuse_an_archive_of_several(tmp_path, command, capsys):
+    from vine_nlp.front.cli import main
+
+    r, out, _ = _run(tmp_path, FORWARD)
+    assert r.returncode == 0
+    argv = [command[0], str(out), *[str(tmp_path / a) if "." in a else a for a in command[1:]]]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err == (f"error: {out}: kind: an archive of several actuators: `{command[0]}` reads one actuator's routing and "
+                   "does not take it yet (show, plot and forward --run do)\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.h5", "p.toml"]

@@ -531,6 +531,22 @@ def _show_notes() -> None:
         log.propagate = False
 
 
+# commands that read one actuator's routing from an archive: not yet for archives of several actuators (io.actuators)
+ONE_ACTUATOR = ("template", "view", "animate", "export", "analyze", "correct", "calibrate")
+
+
+def _one_actuator_only(args) -> None:
+    """One error line, before any work, for a command that cannot read an archive of several actuators yet."""
+    if args.command not in ONE_ACTUATOR:
+        return
+    for path in [getattr(args, "archive", None), getattr(args, "source", None), *(getattr(args, "archives", None) or [])]:
+        if path and Path(path).suffix.lower() in (".h5", ".hdf5") and Path(path).is_file():
+            kind = read_archive(path).kind
+            if kind.startswith("actuators"):
+                raise InputError(path, "kind", f"an archive of several actuators: `{args.command}` reads one actuator's "
+                                 "routing and does not take it yet (show, plot and forward --run do)")
+
+
 def main(argv=None) -> int:
     from vine_nlp import interrupt
 
@@ -542,6 +558,7 @@ def main(argv=None) -> int:
     try:
         compiled.mode()  # a bad VINE_NLP_CODEGEN is one error line before any work
         args = parser.parse_args(argv)
+        _one_actuator_only(args)
         with outputs.run():  # the outputs check_output reserved: all written when the command ends, or none
             return args.func(args)
     except InputError as e:
