@@ -63,6 +63,8 @@ DESCRIPTIONS = {
         "tube": "Table `[tube]`: the tube.",
         "target": "Table `[target]`: the curve to design for (a **design** problem).",
         "targets": "Array of tables `[[targets]]`: one target per pressure level (a **multishape** sPAM problem).",
+        "actuators": "Array of tables `[[actuators]]`: several actuators on one tube (with `[[states]]`; tutorial 10).",
+        "states": "Array of tables `[[states]]`: the states of a tube with `[[actuators]]`: the actuators pulled, a target each.",
         "actuator": "Table `[actuator]`: kind of actuator and its bounds.",
         "design": "Table `[design]`: solver options.",
         "routing": "Table `[routing]`: a given routing (a **forward** problem, or the known routing of a **fit**); in a **design** problem only `initial_pose`, the base of `[design] base = \"fixed\"`.",
@@ -341,6 +343,7 @@ def formats_page(archives: bool = True) -> str:
         "fit": "`[measured]`",
         "multishape": "`[[targets]]`",
         "tip": "`[tip]`",
+        "actuators": "`[[actuators]]`, `[[states]]` (forward: with `[routing]`)",
     }
     for kind, keys in top.items():
         if kind not in decided:

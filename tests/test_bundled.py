@@ -14,7 +14,8 @@ from vine_nlp.io.problems import load_problem
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = sorted((ROOT / "problems").glob("*.toml"))
-COMMAND = {"forward": "forward", "design": "design", "multishape": "design", "tip": "design", "fit": "fit"}
+COMMAND = {"forward": "forward", "design": "design", "multishape": "design", "tip": "design", "fit": "fit", "actuators": "design",
+           "actuators-forward": "forward"}
 
 
 def assert_same_runs(a, b):

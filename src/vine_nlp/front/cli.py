@@ -25,8 +25,8 @@ EXIT_OK, EXIT_NOT_CONVERGED, EXIT_BAD_INPUT = 0, 1, 2
 FLAGS = {"method": "--method", "warm": "--warm", "hops": "--hops", "budget": "--budget", "robust": "--robust",
          "clearance": "--clearance", "starts": "--starts"}
 # what each solving command takes: the problem kinds, and the design runs (None: the problem's method)
-SOLVES = {"design": (("design", "tip", "multishape"), None), "compare": (("design",), COMPARE),
-          "forward": (("forward",), None), "fit": (("fit",), None)}
+SOLVES = {"design": (("design", "tip", "multishape", "actuators"), None), "compare": (("design",), COMPARE),
+          "forward": (("forward", "actuators-forward"), None), "fit": (("fit",), None)}
 KIND_KEY = {"design": "target", "forward": "routing", "fit": "measured"}
 
 
@@ -123,6 +123,11 @@ def _stored_routing(args):
 
     archive = read_archive(args.problem, "PROBLEM")
     run = archive_run(archive, args.problem, args.run)
+    if archive.kind.startswith("actuators"):  # several actuators: every line and state of the run (io.actuators)
+        from vine_nlp.io.actuators import stored_forward
+
+        problem, source = stored_forward(args.problem, run)
+        return ProblemFile(str(args.problem), source, "actuators-forward", problem.name, archive.units, problem)
     problem = ForwardProblem(f"{archive.name}-{run}", archive.diameter, archive.runs[run].routing, units=archive.units)
     source = problem_source(problem, call_text("forward", archive=Path(args.problem).name, run=run))
     return ProblemFile(str(args.problem), source, "forward", problem.name, archive.units, problem)
@@ -540,6 +545,22 @@ def _commands(parser) -> str:
     return "\n".join(["usage: vine-nlp COMMAND [options]   (vine-nlp --help; vine-nlp COMMAND --help: its options)", "commands:", *rows])
 
 
+# commands that read one actuator's routing from an archive: not yet for archives of several actuators (io.actuators)
+ONE_ACTUATOR = ("template", "view", "animate", "export", "analyze", "correct", "calibrate")
+
+
+def _one_actuator_only(args) -> None:
+    """One error line, before any work, for a command that cannot read an archive of several actuators yet."""
+    if args.command not in ONE_ACTUATOR:
+        return
+    for path in [getattr(args, "archive", None), getattr(args, "source", None), *(getattr(args, "archives", None) or [])]:
+        if path and Path(path).suffix.lower() in (".h5", ".hdf5") and Path(path).is_file():
+            kind = read_archive(path).kind
+            if kind.startswith("actuators"):
+                raise InputError(path, "kind", f"an archive of several actuators: `{args.command}` reads one actuator's "
+                                 "routing and does not take it yet (show, plot and forward --run do)")
+
+
 def main(argv=None) -> int:
     from vine_nlp import interrupt
 
@@ -554,6 +575,7 @@ def main(argv=None) -> int:
             print(_commands(parser))
             return EXIT_BAD_INPUT
         args = parser.parse_args(argv)
+        _one_actuator_only(args)
         with outputs.run():  # the outputs check_output reserved: all written when the command ends, or none
             return args.func(args)
     except InputError as e:

@@ -18,6 +18,10 @@ def figure(archive: Archive, path=None):
         return plot_multishape_figure(path)
     if archive.kind == "fit":
         return plot_fit(archive)
+    if archive.kind in ("actuators", "actuators-forward"):
+        from vine_nlp.front.actuators_plot import plot_actuators_figure
+
+        return plot_actuators_figure(path)
     return plot_archive(archive, obstacles=archive.obstacles)
 
 

@@ -20,6 +20,8 @@ def _solved(r) -> str:
 def run_lines(name: str, r, problem, units: str) -> list[str]:
     """The lines of one run, by its method."""
     m = r.metrics
+    if getattr(r, "lines", None) is not None:  # several actuators (methods.actuators)
+        return actuator_lines(name, r, units)
     if r.method == "forward":
         rt, tip = r.routing, ", ".join(f"{v:.4g}" for v in r.shape.center[-1])
         return [f"{name}: {rt.segments} segments, tube length {_len(float(rt.length.sum()), units)}, tip at ({tip}) {units}"]
@@ -38,6 +40,20 @@ def run_lines(name: str, r, problem, units: str) -> list[str]:
     if "min_obstacle_gap" in m:
         lines.append(f"  min obstacle gap {_len(m['min_obstacle_gap'], units)} (margin {problem.obstacle_margin:g})"
                      + (f", {_len(m['min_obstacle_gap_after'], units)} actuated after growth" if "min_obstacle_gap_after" in m else ""))
+    return lines
+
+
+def actuator_lines(name: str, r, units: str) -> list[str]:
+    """A run of several actuators: the run, then one line per state (its active actuators; RMSE or tip)."""
+    ls, m = r.lines, r.metrics
+    head = f"{name}: {ls.count} actuators, {ls.segments} segments, tube length {_len(float(ls.length.sum()), units)}"
+    lines = [head if r.method == "forward" else f"{head}; {r.status}, RMSE {_len(m['rmse'], units)}, {_solved(r)}"]
+    states = r.stats.get("states") or {}
+    for s, shape in r.shapes.items():
+        sm, act = r.state_metrics.get(s), ", ".join(states.get(s, ()))
+        what = (f"RMSE {_len(sm['rmse'], units)}, max error {_len(sm['max_error'], units)}" if sm else
+                "tip at (" + ", ".join(f"{v:.4g}" for v in shape.center[-1]) + f") {units}")
+        lines.append(f"  state {s}" + (f" ({act})" if act else "") + f": {what}")
     return lines
 
 

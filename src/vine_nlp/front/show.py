@@ -120,6 +120,22 @@ def _levels(path) -> list[str]:
         room = "" if lo - 1e-9 <= lam <= hi + 1e-9 else f"; outside [{_num(lo)}, {_num(hi)}]: no room to correct"
         out.append(f"  level {k:<5d} lambda {_num(float(lam))} ({'fixed' if fixed else 'free'}), "
                    f"rmse {_num(m.get('rmse', math.nan))} {a.units}{room}")
+
+
+def _actuator_lines(path, run: str, a: Archive) -> list[str]:
+    """Several actuators on one tube (io.actuators): per actuator its angles, pieces, stoppers and turning (the
+    line alone, as one actuator's routing); per state its active actuators and RMSE."""
+    from vine_nlp.io.actuators import read_actuators_archive
+
+    _, r, _ = read_actuators_archive(path, run)
+    ls, out = r.lines, []
+    for k, name in enumerate(ls.names):
+        out += [f"  actuator {name}: starts at phi = {_num(math.degrees(ls.phi0[k]))} deg around the tube",
+                f"  theta       {_range(np.degrees(ls.theta[k]))} deg", f"  lambda      {_range(ls.lam[k])}"]
+        out += _build_lines(a, ls.routing(k))
+    for s, active in r.stats["states"].items():
+        m = r.state_metrics.get(s)
+        out.append(f"  state {s} ({', '.join(active)})" + (f": RMSE {_num(m['rmse'])} {a.units}, max error {_num(m['max_error'])} {a.units}" if m else ""))
     return out
 
 
@@ -138,7 +154,7 @@ def _range(values: np.ndarray) -> str:
 def summarize(archive, path=None) -> str:
     """Multi-line summary of an archive (an Archive, or a path loaded and so validated by ``load_archive``: an
     InputError when missing or invalid): problem, software, target, and every run; a multi-shape run's every level
-    (read from the file: ``path``, or ``archive`` given as a path)."""
+    and an archive of several actuators' lines and states (read from the file: ``path``, or ``archive`` given as a path)."""
     a = archive if isinstance(archive, Archive) else load_archive(archive)
     path = archive if path is None and not isinstance(archive, Archive) else path
     u = a.units
@@ -162,7 +178,9 @@ def summarize(archive, path=None) -> str:
                   f"  tube length {_num(float(ro.length.sum()))} {u}"]
         if name == "multishape" and path is not None:
             lines += _levels(path)
-        if ro.segments:
+        if a.kind.startswith("actuators") and path is not None:
+            lines += _actuator_lines(path, name, a)
+        elif ro.segments:
             lines.append(f"  theta       {_range(np.round(np.degrees(ro.theta), 4))} deg")  # 1e-4 deg: below any build
             lines.append(f"  lambda      {_range(np.round(ro.lam, 6))}")
             lines += _build_lines(a, ro)

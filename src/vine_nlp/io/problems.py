@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,6 +19,7 @@ import numpy as np
 
 from vine_nlp import targets
 from vine_nlp.errors import InputError
+from vine_nlp.io import actuators as several
 from vine_nlp.io import limits
 from vine_nlp.io.calibration import calibration_of
 from vine_nlp.io.data_files import check_spread, data_points
@@ -71,6 +73,7 @@ _TOP_KEYS = {
     "fit": ("name", "units", "tube", "measured", "routing", "fit"),
     "multishape": ("name", "units", "tube", "targets", "actuator", "design"),
     "tip": ("name", "units", "tube", "tip", "actuator", "design", "obstacles"),
+    "actuators": ("name", "units", "tube", "actuators", "states", "routing", "design"),
 }
 
 _ALL_TOP_KEYS = tuple(dict.fromkeys(k for keys in _TOP_KEYS.values() for k in keys))
@@ -160,7 +163,9 @@ def parse_problem(data: dict, path: str, source: str) -> ProblemFile:
     check(f, "tube.diameter", diameter > 0, "must be > 0")
     check(f, "tube.diameter", diameter <= limits.MAX_COORDINATE, f"must be <= {limits.MAX_COORDINATE:g} (vine_nlp.io.limits.MAX_COORDINATE)")
 
-    if kind == "design":
+    if kind == "actuators":
+        kind, problem = several.parse_actuators(f, data, name, units, diameter, sys.modules[__name__])
+    elif kind == "design":
         problem = _design(f, data, name, units, diameter)
     elif kind == "forward":
         routing = _routing(f, sub_table(f, data, "routing", _ROUTING_KEYS, required=True), diameter)
@@ -178,6 +183,8 @@ def parse_problem(data: dict, path: str, source: str) -> ProblemFile:
 
 
 def _kind(f: SourceFile, data: dict) -> str:
+    if "actuators" in data or "states" in data:  # several actuators on one tube (io.actuators)
+        return "actuators"
     if "target" in data and "measured" in data:
         raise f.error("target", "a problem has [target] (design) or [measured] (fit), not both")
     if "targets" in data or "tip" in data:

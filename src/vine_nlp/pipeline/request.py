@@ -59,7 +59,8 @@ class Request:
 
 
 # what each kind can be asked beyond its problem (design problems: everything)
-KIND_OPTIONS = {"tip": {"starts"}, "multishape": {"starts"}, "forward": set(), "fit": set()}
+KIND_OPTIONS = {"tip": {"starts"}, "multishape": {"starts"}, "forward": set(), "fit": set(), "actuators": {"starts"},
+                "actuators-forward": set()}
 
 
 def check_request(pf: ProblemFile, rq: Request) -> None:

@@ -29,10 +29,12 @@ import numpy as np
 
 from vine_nlp.analysis.loads import fold_line, load_metrics, load_report
 from vine_nlp.analysis.obstacles import obstacle_metrics, obstacle_report
+from vine_nlp.io.actuators import write_actuators_archive
 from vine_nlp.io.archive import Archive, write_archive
 from vine_nlp.io.formulations import write_multishape_archive, write_tip_archive
 from vine_nlp.io.problems import ProblemFile
-from vine_nlp.methods import blas, mirror
+from vine_nlp.methods import actuators, blas, mirror
+from vine_nlp.methods.actuators_design import design_actuators
 from vine_nlp.methods.buildable import design_buildable
 from vine_nlp.methods.clearance import design_with_clearance
 from vine_nlp.methods.common import evaluate, pair_points, run_forward
@@ -111,6 +113,8 @@ class Outcome:
         """Write the archive atomically (the layout of the problem's kind)."""
         if self.problem_file.kind == "multishape":
             write_multishape_archive(path, self.problem_file, self.runs["multishape"])
+        elif self.problem_file.kind in ("actuators", "actuators-forward"):
+            write_actuators_archive(path, self.problem_file, self.last, self.runs[self.last])
         elif self.problem_file.kind == "tip":
             write_tip_archive(path, self.problem_file, self.runs["tip"])
         else:
@@ -211,6 +215,8 @@ KINDS = {
     "tip": lambda problem, rq: ({"tip": tip_design(problem, starts=rq.starts, progress=rq.progress)}, ("tip",), {}, {}),
     "multishape": lambda problem, rq: (
         {"multishape": design_multishape(problem, starts=rq.starts, progress=rq.progress)}, ("multishape",), {}, {}),
+    "actuators": lambda problem, rq: ({"nlp": design_actuators(problem, starts=rq.starts)}, ("nlp",), {}, {}),
+    "actuators-forward": lambda problem, rq: ({"forward": actuators.run_forward(problem)}, ("forward",), {}, {}),
 }
 
 

@@ -1,0 +1,360 @@
+"""Design of a tube with several actuators: one NLP over every line's theta_k, lambda_k and phi_k, the shared
+segment lengths and the one base pose, every state's shape paired with its own target (spec "Several actuators
+on one tube"; the model is ``vine_nlp.model.actuators``).
+
+Transcription (its own, multiple shooting; in units of D): each state's material frames G_j are variables, tied
+by one segment's motion. A segment of a state moves G by the product of its active lines' motions
+G_k = Rx(phi_k[j]) H(theta_k, lambda_k, l_j) Rx(-phi_k[j+1]), separated by translations -l_j along x: every G_k
+with lambda_k = 1 is a translation l_j, so the product is the model exactly wherever at most one active line has
+lambda < 1 (and a smooth stand-in where several do, used only on the way). phi_k are variables with
+phi_k[j+1] = phi_k[j] + 2 tan(theta_k[j]) l_j / D.
+
+Pairing: a state's model points sit at n equal fractions of each segment; where each segment's ends fall on the
+state's target (fractions of its chord) are variables too, so the shared segment lengths can serve shapes whose
+actuated parts differ (no fixed pairing of target points with segments has to hold for every state). The target
+is linearized around the pairing of the solve before (a parameter) and re-linearized between solves.
+
+No two active lines on one segment (the method): lines that are active together in some state are *exclusive*.
+1. A relaxed solve with the exclusive pairs' lambdas free, a small penalty on (1 - lambda_a)(1 - lambda_b).
+2. Each segment is assigned, line by line in order of how much it contracts there, to lines not exclusive with one
+   already assigned; every other line's lambda is fixed to exactly 1 by its bounds, and the design is polished
+   (same NLP). The polished design has at most one active line per segment in every state by construction.
+3. Buildable: each lambda near 1 (within half the correction margin) is fixed to exactly 1, the others kept
+   inside [lambda_min + margin, 1 - margin], and the design is polished again.
+Chosen over a complementarity constraint because IPOPT handles fixed bounds exactly and an MPCC poorly (no
+constraint qualification at the solution); the assignment is what a builder decides anyway (which tendon runs
+where). Lines not exclusive keep (w_a + w_b)/2 apart around the circumference on every segment where both may
+carry an actuator (1 - cos(phi_a - phi_b) >= 1 - cos((w_a + w_b)/D), at both ends); a pair that cannot ever be
+that far apart ((w_a + w_b)/2 > pi D/2) is made exclusive.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+
+import casadi as ca
+import numpy as np
+
+from vine_nlp.methods.actuators import ActuatorsProblem, ActuatorsResult, evaluate
+from vine_nlp.methods.common import geometric_guess, pair_points
+from vine_nlp.methods.settings import CHAIN, EXACT_BOUNDS, WARM, quiet
+from vine_nlp.model.actuators import Lines
+from vine_nlp.model.helix import center_rates
+from vine_nlp.model.segment import so3_exp, twist_parts
+from vine_nlp.problem import DesignProblem
+
+PENALTY = 1e-4  # stage 1: weight of (1 - lambda_a)(1 - lambda_b) of exclusive pairs, against the mean squared error / D^2
+ROUNDS = 3  # pairing rounds of the last stage at most (the others: one)
+GAIN = 0.05  # ... and while a round lowers the objective by this fraction at least
+REPAIR_TOL = 1e-5  # the linearized target holds where no paired fraction of a target's chord moved more than this
+MIN_PIECE = 0.05  # a segment pairs with at least this fraction of 1/M of every target
+EXPAND = True  # the NLP expanded to SX: slower to build, each iteration faster
+ON = 1e-3  # a line contracts on a segment (for the assignment) where 1 - lambda exceeds this
+
+
+def _rx(a):
+    c, s = ca.cos(a), ca.sin(a)
+    return ca.vertcat(ca.horzcat(1, 0, 0), ca.horzcat(0, c, -s), ca.horzcat(0, s, c))
+
+
+def local_motion(th, lam, ph, dl, u):
+    """(R, p) of a state's segment in its material frame at fraction u (SX): the product of the active lines'
+    motions with translations -u dl between (module docstring). th, lam, ph: one entry per active line."""
+    R, p = ca.SX.eye(3), ca.SX.zeros(3)
+    for i in range(len(th)):
+        kc, tc, lc = center_rates(th[i], lam[i], 1.0)
+        Rs, ps = twist_parts(kc, tc, u * dl * lc)
+        if i:
+            p = p + ca.mtimes(R, ca.vertcat(-u * dl, 0, 0))
+        Rin = _rx(ph[i])
+        out = ph[i] + 2 * ca.tan(th[i]) * u * dl
+        p = p + ca.mtimes(R, ca.mtimes(Rin, ca.vertcat(*ps)))
+        R = ca.mtimes(R, ca.mtimes(ca.mtimes(Rin, ca.vertcat(*[ca.horzcat(*r) for r in Rs])), _rx(-out)))
+    return R, p
+
+
+def _functions(a: int, n: int):
+    """SX functions of ``a`` active lines: step (X, th, lam, ph, dl) -> X', points (X, th, lam, ph, dl) -> 3 x n
+    at u = 0, 1/n, ..., (n-1)/n, and the tip (u = 1)."""
+    X, th, lam, ph, dl = ca.SX.sym("X", 12), ca.SX.sym("th", a), ca.SX.sym("lam", a), ca.SX.sym("ph", a), ca.SX.sym("dl")
+    R0, p0 = ca.reshape(X[:9], 3, 3), X[9:]
+    Rl, pl = local_motion([th[i] for i in range(a)], [lam[i] for i in range(a)], [ph[i] for i in range(a)], dl, 1.0)
+    step = ca.Function("step", [X, th, lam, ph, dl], [ca.vertcat(ca.vec(ca.mtimes(R0, Rl)), p0 + ca.mtimes(R0, pl))])
+    pts = [p0 + ca.mtimes(R0, local_motion([th[i] for i in range(a)], [lam[i] for i in range(a)], [ph[i] for i in range(a)], dl, i_ / n)[1])
+           for i_ in range(n)]
+    return step, ca.Function("pts", [X, th, lam, ph, dl], [ca.horzcat(*pts)])
+
+
+class _NLP:
+    """The NLP of one problem, built once (MX: every segment's motion and points one call of an SX function
+    per number of active lines, mapped over the segments); the stages and pairing rounds change only bounds and
+    parameters."""
+
+    def __init__(self, problem: ActuatorsProblem, M: int, R0g: np.ndarray, h: np.ndarray):
+        D, o = problem.diameter, problem.options
+        self.K, self.M, self.S = len(problem.actuators), M, len(problem.states)
+        K, S, n = self.K, self.S, o.points_per_segment
+        idx = {nm: k for k, nm in enumerate(problem.names)}
+        sizes = {"th": (K, M), "lam": (K, M), "ph": (K, M + 1), "dl": (M, 1), "w": (3, 1), "p0": (3, 1), "X": (12, M * S),
+                 "b": (M + 1, S)}
+        self.x = ca.MX.sym("x", sum(a * b for a, b in sizes.values()))
+        v, i, self.sl = {}, 0, {}
+        for key, (a, b) in sizes.items():
+            self.sl[key] = slice(i, i + a * b)
+            v[key] = ca.reshape(self.x[i: i + a * b], a, b)
+            i += a * b
+        self.P = n * M + 1  # model points per state: n per segment and the tip
+        # the stage-1 penalty weight, then per state the model points' fractions c0 of the state's length at the
+        # pairing, the target there and its derivative in c (the pairing linearized: exact where c = c0)
+        par = ca.MX.sym("p", 1 + 7 * self.P * S)
+        mu = par[0]
+        base = ca.vertcat(ca.vec(ca.mtimes(ca.DM(R0g), so3_exp(v["w"]))), v["p0"])
+        th, lam, ph, dl = v["th"], v["lam"], v["ph"], v["dl"]
+        g = [ca.vec(ph[:, 1:] - ph[:, :-1] - 2 * ca.tan(th) * ca.repmat(dl.T, K, 1))]
+        J, fns = 0, {}
+        for s, active in enumerate(problem.states.values()):
+            ks = [idx[a] for a in active]
+            step, pts = fns.setdefault(len(ks), _functions(len(ks), n))
+            Xs = v["X"][:, s * M: (s + 1) * M]
+            q = ca.reshape(par[1 + 7 * self.P * s: 1 + 7 * self.P * (s + 1)], 7, self.P)
+            b = v["b"][:, s].T  # the target's segment ends, fractions of its chord (variables: the pairing is designed too)
+            c = ca.horzcat(ca.vec(ca.repmat(b[:, :M], n, 1) + ca.mtimes(ca.DM(np.arange(n) / n), ca.diff(b, 1, 1))).T, 1)
+            T = q[1:4, :] + q[4:7, :] * ca.repmat(c - q[0, :], 3, 1)
+            args = [ca.horzcat(base, Xs[:, :-1]), th[ks, :], lam[ks, :], ph[ks, :-1], dl.T]
+            g.append(ca.vec(Xs - step.map(M)(*args)))
+            J += ca.sumsqr(pts.map(M)(*args) - T[:, :-1]) + ca.sumsqr(Xs[9:, -1] - T[:, -1])
+        J = J / (S * self.P)
+        # smoothness of theta and lambda along the tube (h: the guess's segment lengths, L their sum)
+        if M > 1:
+            hm = ca.DM(0.5 * (h[1:] + h[:-1])).T
+            J += o.smooth_theta / h.sum() * ca.sum2(ca.sum1(ca.diff(th, 1, 1) ** 2) / hm)
+            J += o.smooth_lambda / h.sum() * ca.sum2(ca.sum1(ca.diff(lam, 1, 1) ** 2) / hm)
+        # exclusive pairs (stage 1 penalty) and widths (1 - cos(phi_a - phi_b) at every segment end)
+        self.exclusive, self.pairs = exclusive_pairs(problem)
+        for a, b in self.exclusive:
+            J += mu * ca.sum2((1 - lam[a, :]) * (1 - lam[b, :])) / M
+        self.n_eq = sum(e.numel() for e in g)
+        g.append(ca.vec(ca.diff(v["b"], 1, 0)))  # the pairing keeps the order: b_{j+1} - b_j >= a fraction of 1/M
+        self.width_rows = list(self.pairs)
+        for a, b in self.pairs:
+            g.append((1 - ca.cos(ph[a, :] - ph[b, :])).T)
+        self.g = ca.vertcat(*g)
+        opts = quiet(o.max_iter, o.tol) | CHAIN | EXACT_BOUNDS | {"expand": EXPAND}
+        nlp = {"x": self.x, "f": J, "g": self.g, "p": par}
+        self.solver = ca.nlpsol("actuators", "ipopt", nlp, opts)
+        self.warm = self.solver if EXPAND else ca.nlpsol("actuators_warm", "ipopt", nlp, opts | WARM)  # one expansion only
+        self.D = D
+
+    def slices(self):
+        return self.sl
+
+
+def exclusive_pairs(problem: ActuatorsProblem):
+    """(exclusive, spaced): pairs of lines active together in some state (or too wide to ever share a segment),
+    and the other pairs, which keep their widths apart."""
+    K, idx = len(problem.actuators), {nm: k for k, nm in enumerate(problem.names)}
+    together = {tuple(sorted((idx[a], idx[b]))) for act in problem.states.values() for a, b in itertools.combinations(act, 2)}
+    w = problem.widths
+    too_wide = {(a, b) for a, b in itertools.combinations(range(K), 2) if (w[a] + w[b]) / 2 > math.pi * problem.diameter / 2}
+    ex = sorted(together | too_wide)
+    return ex, [p for p in itertools.combinations(range(K), 2) if p not in ex]
+
+
+def initial_lines(problem: ActuatorsProblem, M: int) -> Lines:
+    """Each line from the geometric guess of its first state (a state where it acts alone first); the shared
+    lengths the mean of those guesses'; the base the first line's guess; each phi_k[0] the roll of its guess."""
+    D, n = problem.diameter, problem.options.points_per_segment
+    order = sorted(problem.states.items(), key=lambda s: len(s[1]))
+    guesses = []
+    for nm in problem.names:
+        state = next(s for s, act in order if nm in act)
+        one = DesignProblem(problem.name, D, problem.targets[state], problem.actuators[problem.names.index(nm)].actuator, problem.options)
+        guesses.append(geometric_guess(one, pair_points(problem.targets[state], n)))
+    B = guesses[0].initial_pose
+    phi0 = [0.0] + [math.atan2(g.initial_pose[:3, 1] @ B[:3, 2], g.initial_pose[:3, 1] @ B[:3, 1]) for g in guesses[1:]]
+    th = np.array([g.theta for g in guesses])
+    lam = np.array([g.lam for g in guesses])
+    return Lines(problem.names, th, lam, phi0, np.mean([g.length for g in guesses], axis=0), B)
+
+
+def _rollout(nlp: _NLP, problem, lines: Lines, base12):
+    """The frames of every state from a design (the step functions evaluated)."""
+    idx = {nm: k for k, nm in enumerate(problem.names)}
+    phi, dl = lines.phi(nlp.D), lines.length / nlp.D
+    X = []
+    for active in problem.states.values():
+        ks = [idx[a] for a in active]
+        step, _ = _functions(len(ks), 1)
+        x = ca.DM(base12)
+        for j in range(nlp.M):
+            x = step(x, lines.theta[ks, j], lines.lam[ks, j], phi[ks, j], dl[j])
+            X.append(np.asarray(x).ravel())
+    return np.concatenate(X)
+
+
+def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> ActuatorsResult:
+    """One design of every line for every state (module docstring); the run ``nlp``. One start (``starts`` is
+    accepted for the pipeline and not used yet)."""
+    t0 = time.perf_counter()
+    D, o = problem.diameter, problem.options
+    n = o.points_per_segment
+    M = math.ceil((next(iter(problem.targets.values())).shape[0] - 1) / o.points_per_segment)
+    guess = initial_lines(problem, M)
+    fixed = o.base == "fixed"
+    B = np.asarray(o.base_pose, float) if fixed else guess.initial_pose
+    guess = Lines(guess.names, guess.theta, guess.lam, guess.phi0, guess.length, B)
+    nlp = _NLP(problem, M, B[:3, :3], guess.length / D)
+    sl = nlp.slices()
+    x0 = np.zeros(nlp.x.numel())
+    x0[sl["th"]], x0[sl["lam"]] = guess.theta.ravel(order="F"), guess.lam.ravel(order="F")
+    x0[sl["ph"]], x0[sl["dl"]] = guess.phi(D).ravel(order="F"), guess.length / D
+    x0[sl["p0"]] = B[:3, 3] / D
+    lbx, ubx = np.full(x0.size, -np.inf), np.full(x0.size, np.inf)
+    S = len(problem.states)
+    bounds = [c[::n] for c in _fractions(problem, guess, n)]
+    x0[sl["b"]] = np.concatenate(bounds)
+    ends = np.zeros((M + 1, S), bool)
+    ends[[0, -1]] = True
+    lbx[sl["b"]] = np.where(ends.ravel(order="F"), x0[sl["b"]], 0.0)
+    ubx[sl["b"]] = np.where(ends.ravel(order="F"), x0[sl["b"]], 1.0)
+    x0[sl["X"]] = _rollout(nlp, problem, guess, np.r_[B[:3, :3].ravel(order="F"), B[:3, 3] / D])
+    K = len(problem.actuators)
+    tmax = np.array([a.actuator.theta_max for a in problem.actuators])[:, None] * np.ones((K, M))
+    lmin = np.array([a.actuator.lambda_min for a in problem.actuators])[:, None] * np.ones((K, M))
+    lbx[sl["th"]], ubx[sl["th"]] = -tmax.ravel(order="F"), tmax.ravel(order="F")
+    lbx[sl["lam"]], ubx[sl["lam"]] = lmin.ravel(order="F"), 1.0
+    chord = guess.length.mean() / D
+    lbx[sl["dl"]], ubx[sl["dl"]] = 0.2 * chord, 5.0 * chord
+    first_phi = sl["ph"].start  # ph is K x (M+1) column-major: entry (0, 0) first
+    lbx[first_phi] = ubx[first_phi] = 0.0
+    if fixed:
+        lbx[sl["w"]] = ubx[sl["w"]] = 0.0
+        lbx[sl["p0"]] = ubx[sl["p0"]] = B[:3, 3] / D
+    lbg, ubg = np.zeros(nlp.g.numel()), np.zeros(nlp.g.numel())
+    w, S = problem.widths, len(problem.states)
+    lbg[nlp.n_eq: nlp.n_eq + M * S], ubg[nlp.n_eq: nlp.n_eq + M * S] = MIN_PIECE / M, np.inf
+    first = nlp.n_eq + M * S
+    for r, (a, b) in enumerate(nlp.width_rows):
+        rows = slice(first + r * (M + 1), first + (r + 1) * (M + 1))
+        lbg[rows], ubg[rows] = 1 - math.cos(min(math.pi, (w[a] + w[b]) / D)), np.inf
+    iters, status, rounds = 0, "optimal", 0
+    stages = ["relaxed"] + (["assigned"] if nlp.exclusive else []) + (["margin"] if o.correction_margin > 0 else [])
+    for stage in stages:
+        mu = PENALTY if stage == "relaxed" else 0.0
+        lam = x0[sl["lam"]].reshape(K, M, order="F")
+        fix = np.zeros(x0.size, bool)
+        if stage == "assigned":
+            fix[sl["lam"]] = (~assign(lam, nlp.exclusive)).ravel(order="F")
+        elif stage == "margin":  # buildable: lambda exactly 1, or inside [lambda_min + margin, 1 - margin]
+            margin = np.minimum(o.correction_margin, (1 - lmin) / 2)
+            fix[sl["lam"]] = (~dither(lam, margin[:, 0])).ravel(order="F")
+            free = sl["lam"].start + np.flatnonzero((lbx[sl["lam"]] < ubx[sl["lam"]]) & ~fix[sl["lam"]])
+            lbx[free] = (lmin + margin).ravel(order="F")[free - sl["lam"].start]
+            ubx[free] = (1 - margin).ravel(order="F")[free - sl["lam"].start]
+            x0[free] = np.clip(x0[free], lbx[free], ubx[free])
+        x0[fix] = 1.0
+        lbx[fix] = ubx[fix] = 1.0
+        x0, status, n_it, n_r = _stage(nlp, problem, x0, (lbx, ubx, lbg, ubg), mu, B, ROUNDS if stage == stages[-1] else 1)
+        iters, rounds = iters + n_it, rounds + n_r
+    lines = _lines(nlp, problem, x0, B)
+    stats = {"segments": M, "points_per_segment": o.points_per_segment, "stages": len(stages), "rounds": rounds, "exclusive_pairs": len(nlp.exclusive),
+             "base": o.base, "states": {s: list(a) for s, a in problem.states.items()}}
+    return evaluate(problem, lines, "nlp", bounds=x0[sl["b"]].reshape(M + 1, S, order="F").T, status=status, solve_time_s=time.perf_counter() - t0, iterations=iters, stats=stats)
+
+
+def _stage(nlp: _NLP, problem, x0, box, mu, B, rounds: int):
+    """One stage: solves from ``x0`` (cold, then warm), the target re-linearized at the pairing of the solve before,
+    while a round lowers the objective; the round whose design meets the targets best (evaluate) is kept.
+    Returns (x, status, iterations, solves)."""
+    sl, M, S, n = nlp.sl, nlp.M, len(problem.states), problem.options.points_per_segment
+    lbx, ubx, lbg, ubg = box
+    f, duals, best, iters, solves = np.inf, None, None, 0, 0
+    for _ in range(rounds):
+        c = _pairing_fractions(x0[sl["b"]].reshape(M + 1, S, order="F"), n)
+        solver = nlp.solver if duals is None else nlp.warm
+        sol = solver(x0=x0, p=np.r_[mu, _paired(problem, c)], lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, **(duals or {}))
+        st = solver.stats()
+        duals = {"lam_x0": sol["lam_x"], "lam_g0": sol["lam_g"]} if st.get("success") else None
+        x0, iters, solves = np.asarray(sol["x"]).ravel(), iters + int(st.get("iter_count", 0)), solves + 1
+        status = {"Solve_Succeeded": "optimal", "Solved_To_Acceptable_Level": "acceptable",
+                  "Maximum_Iterations_Exceeded": "max_iter"}.get(st.get("return_status"), "failed")
+        b = x0[sl["b"]].reshape(M + 1, S, order="F")
+        err = evaluate(problem, _lines(nlp, problem, x0, B), bounds=b.T).metrics["rmse"] if rounds > 1 else 0.0
+        if best is None or err < best[0]:
+            best = (err, x0.copy(), status)
+        moved = max(np.abs(a - q).max() for a, q in zip(c, _pairing_fractions(b, n)))
+        f, f_prev = float(sol["f"]), f
+        if moved < REPAIR_TOL or f > (1 - GAIN) * f_prev:
+            break
+    return best[1], best[2], iters, solves
+
+
+def _lines(nlp: _NLP, problem, x, B) -> Lines:
+    sl, K, M, D = nlp.sl, nlp.K, nlp.M, nlp.D
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = B[:3, :3] @ so3_exp(x[sl["w"]]), x[sl["p0"]] * D
+    th, lam = x[sl["th"]].reshape(K, M, order="F"), np.minimum(x[sl["lam"]].reshape(K, M, order="F"), 1.0)
+    return Lines(problem.names, th, lam, x[sl["ph"]].reshape(K, M + 1, order="F")[:, 0], x[sl["dl"]] * D, pose)
+
+
+def _fractions(problem: ActuatorsProblem, lines: Lines, n: int) -> list:
+    """Per state, the fraction of the state's length at each model point (n per segment, then the tip); where
+    several active lines contract on one segment (on the way only) the segment's length is the smooth stand-in's."""
+    idx, out = {nm: k for k, nm in enumerate(problem.names)}, []
+    lc = center_rates(lines.theta, lines.lam, problem.diameter)[2]
+    for active in problem.states.values():
+        arc = lines.length * np.maximum(0.05, 1 + (lc[[idx[a] for a in active]] - 1).sum(axis=0))
+        A = np.r_[0.0, np.cumsum(arc)]
+        out.append(np.r_[(A[:-1, None] + arc[:, None] * np.arange(n)[None] / n).ravel(), A[-1]] / A[-1])
+    return out
+
+
+def _pairing_fractions(b: np.ndarray, n: int) -> list:
+    """Per state, the fraction of the target's chord paired with each model point (n per segment, then the tip)."""
+    return [np.r_[(bs[:-1, None] + np.diff(bs)[:, None] * np.arange(n)[None] / n).ravel(), 1.0] for bs in b.T]
+
+
+def _paired(problem: ActuatorsProblem, fractions) -> np.ndarray:
+    """Per state (stacked, 7 rows of P columns, column-major): the fractions c, the target there (linear on its
+    chord) and its derivative in c, in units of D."""
+    out = []
+    for tgt, c in zip(problem.targets.values(), fractions):
+        chord = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(tgt, axis=0), axis=1))]
+        x = c * chord[-1]
+        k = np.clip(np.searchsorted(chord, x, side="right") - 1, 0, len(chord) - 2)
+        slope = (tgt[k + 1] - tgt[k]) / np.maximum(chord[k + 1] - chord[k], 1e-300)[:, None] * chord[-1]
+        at = np.column_stack([np.interp(x, chord, tgt[:, i]) for i in range(3)])
+        out.append(np.column_stack([c, at / problem.diameter, slope / problem.diameter]).ravel())
+    return np.concatenate(out)
+
+
+def dither(lam: np.ndarray, margin: np.ndarray) -> np.ndarray:
+    """(K, M) which lambdas stay free (inside [lambda_min + margin, 1 - margin]) rather than exactly 1: those at or
+    below 1 - margin, and of those above, along each line, as many as keep its running contraction sum(1 - lambda)
+    (error diffusion: a run of slight contraction becomes a few segments at 1 - margin among segments at 1)."""
+    keep = lam <= 1 - margin[:, None]
+    for k in range(lam.shape[0]):
+        acc = 0.0
+        for j in np.flatnonzero(~keep[k]):
+            acc += 1 - lam[k, j]
+            if acc >= margin[k] / 2:
+                keep[k, j], acc = True, acc - margin[k]
+    return keep
+
+
+def assign(lam: np.ndarray, exclusive) -> np.ndarray:
+    """(K, M) which lines keep a free lambda: per segment, lines in order of contraction, each unless it is
+    exclusive with one already kept; lines that do not contract keep theirs where no exclusive line is kept."""
+    K, M = lam.shape
+    ex = {(a, b) for a, b in exclusive} | {(b, a) for a, b in exclusive}
+    keep = np.zeros((K, M), bool)
+    for j in range(M):
+        for k in np.argsort(lam[:, j], kind="stable"):
+            if not any(keep[i, j] and (i, k) in ex for i in range(K)) and (1 - lam[k, j] > ON or not any((i, k) in ex for i in range(K))):
+                keep[k, j] = True
+    return keep
+
+
+__all__ = ["design_actuators", "exclusive_pairs", "initial_lines", "assign"]

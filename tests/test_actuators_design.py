@@ -1,0 +1,67 @@
+"""Design of a tube with several actuators (methods.actuators_design): targets made by the model from known
+routings are met; no state ever has two active lines on a segment; lines that may share a segment keep their
+widths apart."""
+
+import numpy as np
+
+from vine_nlp.methods.actuators import ActuatorsProblem, Line, sample_states
+from vine_nlp.methods.actuators_design import assign, design_actuators, dither, exclusive_pairs
+from vine_nlp.model.actuators import Lines, owners, too_close
+from vine_nlp.model.routing import actuated
+from vine_nlp.problem import DesignOptions
+
+D, M, N_PER = 2.4, 8, 5
+
+
+def _problem(lines, states, widths=(0.3, 0.3)):
+    T = sample_states(lines, D, states, M * N_PER + 1)
+    acts = tuple(Line(nm, width=w) for nm, w in zip(lines.names, widths))
+    return ActuatorsProblem("t", D, acts, states, targets=T, options=DesignOptions(points_per_segment=N_PER))
+
+
+def test_assign_keeps_one_line_of_each_exclusive_pair():
+    lam = np.array([[0.6, 0.9, 1.0, 0.8], [0.7, 0.5, 1.0, 1.0], [0.9, 0.9, 0.9, 0.9]])
+    keep = assign(lam, [(0, 1)])
+    assert keep.tolist() == [[True, False, False, True], [False, True, False, False], [True, True, True, True]]
+
+
+def test_exclusive_pairs():
+    acts = (Line("A", width=0.1), Line("B", width=0.1), Line("C", width=7.5))
+    p = ActuatorsProblem("t", 2.4, acts, {"s": ("A", "B"), "t": ("C",)})
+    # A, B pulled together; C too wide to share a segment with anything ((0.1 + 7.5) / 2 > pi D / 2)
+    assert exclusive_pairs(p) == ([(0, 1), (0, 2), (1, 2)], [])
+
+
+def test_base_tip_pair_three_states():
+    th = np.array([np.full(M, 0.1), np.full(M, -0.05)])
+    lam = np.ones((2, M))
+    lam[0, : M // 2], lam[1, M // 2:] = 0.7, 0.75
+    truth = Lines(("A", "B"), th, lam, [0, 1.9], np.full(M, 2.5))
+    states = {"a": ("A",), "b": ("B",), "ab": ("A", "B")}
+    p = _problem(truth, states)
+    r = design_actuators(p)
+    assert r.converged and r.ok, (r.status, r.shortfall)
+    for s in states:
+        assert r.state_metrics[s]["rmse"] < 0.01  # cm: 0.1 mm
+        owners(r.lines, states[s], s)  # never two active lines on a segment
+    # the assignment is exact: where A contracts, B's lambda is exactly 1 and the other way round
+    on = actuated(r.lines.lam)
+    assert not np.any(on[0] & on[1])
+    assert np.all(r.lines.lam[~on] == 1.0)
+
+
+def test_lines_that_share_segments_keep_their_widths():
+    th = np.array([np.full(M, 0.05), np.full(M, -0.05)])
+    lam = np.array([np.full(M, 0.8), np.full(M, 0.85)])
+    truth = Lines(("L", "R"), th, lam, [0, 2.5], np.full(M, 2.5))
+    p = _problem(truth, {"left": ("L",), "right": ("R",)}, widths=(0.5, 0.5))
+    r = design_actuators(p)
+    assert r.ok, r.shortfall
+    assert too_close(r.lines, D, p.widths) == []
+    assert max(m["rmse"] for m in r.state_metrics.values()) < 0.01
+
+
+def test_dither_keeps_the_running_contraction():
+    lam = np.array([[0.99, 0.99, 0.99, 0.99, 0.9, 1.0]])
+    # 1 - lambda accumulates 0.01 per segment; at 0.025 (half the margin) one segment is kept at 1 - margin
+    assert dither(lam, np.array([0.05])).tolist() == [[False, False, True, False, True, False]]
