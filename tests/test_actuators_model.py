@@ -24,7 +24,7 @@ def test_one_actuator_is_todays_chain(path):
     r = load_problem(path).problem.routing
     D = load_problem(path).problem.diameter
     for lam in (r.lam, np.where(np.arange(r.segments) % 5 < 2, 1.0, r.lam)):  # as given; with unactuated runs
-        rr = type(r)(r.theta, lam, r.length, r.initial_pose)
+        rr = type(r)(theta=r.theta, lam=lam, length=r.length, initial_pose=r.initial_pose)
         want = forward_shape(rr, D)
         got = forward_states(_one(rr), D, {"s": ["a"]})["s"]
         scale = np.abs(want.center).max() + D

@@ -120,6 +120,7 @@ def _levels(path) -> list[str]:
         room = "" if lo - 1e-9 <= lam <= hi + 1e-9 else f"; outside [{_num(lo)}, {_num(hi)}]: no room to correct"
         out.append(f"  level {k:<5d} lambda {_num(float(lam))} ({'fixed' if fixed else 'free'}), "
                    f"rmse {_num(m.get('rmse', math.nan))} {a.units}{room}")
+    return out
 
 
 def _actuator_lines(path, run: str, a: Archive) -> list[str]:
@@ -131,7 +132,7 @@ def _actuator_lines(path, run: str, a: Archive) -> list[str]:
     ls, out = r.lines, []
     for k, name in enumerate(ls.names):
         out += [f"  actuator {name}: starts at phi = {_num(math.degrees(ls.phi0[k]))} deg around the tube",
-                f"  theta       {_range(np.degrees(ls.theta[k]))} deg", f"  lambda      {_range(ls.lam[k])}"]
+                f"  theta       {_range(np.round(np.degrees(ls.theta[k]), 4))} deg", f"  lambda      {_range(np.round(ls.lam[k], 6))}"]
         out += _build_lines(a, ls.routing(k))
     for s, active in r.stats["states"].items():
         m = r.state_metrics.get(s)
