@@ -36,7 +36,7 @@ from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Chain, Smoothness, SoftTip, Spec, get_solver
 from vine_nlp.model.chain import phi_from_theta
 from vine_nlp.model.helix import center_rates
-from vine_nlp.problem import DesignProblem, Result, Routing
+from vine_nlp.problem import DesignProblem, Result, Routing, TipProblem
 
 
 @dataclass(frozen=True)
@@ -55,7 +55,9 @@ class Build:
     def of(cls, problem: DesignProblem) -> Build:
         o, a = problem.options, problem.actuator
         mf = default_min_feature(problem.units) if o.min_feature is None else o.min_feature
-        pose = None if o.base != "fixed" else np.array(o.base_pose, float)
+        pose = np.array(o.base_pose, float) if o.base == "fixed" else None
+        if isinstance(problem, TipProblem):  # a tip problem grows from its fixed base
+            pose = np.array(problem.initial_pose, float)
         return cls(problem.diameter, a.theta_max, a.kind, a.lambda_min, o.correction_margin, mf, pose)
 
     shared = property(lambda self: self.kind == "spam")  # one lambda: pouches along the whole tube
@@ -288,3 +290,28 @@ def inherited_bounds(problem: DesignProblem, pairing, start: Result | None):
         return box
     build, r = Build.of(problem), start.routing
     return box | {"lam": lambda_bounds(np.ones(r.segments, bool) if build.shared else r.lam != 1.0, r.length, build)}
+
+
+JUDGED = ("nlp", "nlp_obstacles", "tip", "multishape", "nlp_robust", "nlp_clearance", "corrected")
+
+
+def missed(problem, result: Result) -> list[str]:
+    """The buildable rules (analysis.buildability.Report.missed) a design of ``problem`` misses, one line each, judged
+    with the problem's own margin, min_feature and base; every level of a multi-shape design ("level k: ..."). Runs
+    of other methods (the greedy, forward, fit) are not judged: [] for them."""
+    if result.method not in JUDGED or getattr(problem, "actuator", None) is None:
+        return []
+    b, r = Build.of(problem), result.routing
+    hi = max(b.lo, 1 - b.margin)
+    levels = getattr(result, "levels", None)
+    if levels is None or not np.size(levels):
+        return buildability(r, b.D, b.kind, b.lambda_min, b.margin, b.min_feature, b.pose is None).missed(b.lo, hi, problem.units)
+    out = []
+    for k, lam in enumerate(np.asarray(levels, float)):
+        level = Routing(theta=r.theta, lam=np.full(r.segments, lam), length=r.length, initial_pose=r.initial_pose)
+        rep = buildability(level, b.D, b.kind, b.lambda_min, b.margin, b.min_feature, b.pose is None)
+        if not b.lo - 1e-9 <= lam <= hi + 1e-9:  # one lambda along the whole line: the band is the sPAM's
+            rep.violations = []
+            out.append(f"level {k}: lambda {lam:.6g} outside [{b.lo:.6g}, {hi:.6g}] (correction margin)")
+        out += [f"level {k}: {line}" for line in rep.missed(b.lo, hi, problem.units)]
+    return out

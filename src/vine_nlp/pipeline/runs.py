@@ -30,7 +30,7 @@ from vine_nlp.io.archive import Archive, write_archive
 from vine_nlp.io.formulations import write_multishape_archive, write_tip_archive
 from vine_nlp.io.problems import ProblemFile
 from vine_nlp.methods import blas, mirror
-from vine_nlp.methods.buildable import design_buildable
+from vine_nlp.methods.buildable import design_buildable, missed
 from vine_nlp.methods.clearance import design_with_clearance
 from vine_nlp.methods.common import evaluate, pair_points, run_forward
 from vine_nlp.methods.fit import fit_frames, fit_problem
@@ -276,6 +276,7 @@ def judge(problem, result: Result) -> None:
         if not rep["clear"]:
             worst = min(rep["min_gap"], rep["min_gap_intermediate"])
             short.append(f"obstacle margin not kept: min gap {worst:.4g} {problem.units} < margin {problem.obstacle_margin:g}")
+    short += [f"not buildable: {line}" for line in missed(problem, result)]  # the buildable rules, one line each
     if result.met.get("clearance") is False:
         need = problem.diameter + result.stats.get("min_gap", 0.0)
         short.append(f"clearance not kept: min {result.stats['min_clearance']:.4g} {problem.units} < D + min_gap = {need:.4g}")
