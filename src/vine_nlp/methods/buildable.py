@@ -89,6 +89,13 @@ def target_bends(problem: DesignProblem, pairing) -> np.ndarray:
     return np.arccos(np.clip(np.sum(t[b[:-1]] * t[b[1:]], axis=1), -1.0, 1.0))
 
 
+def chain_bends(routing: Routing, D: float) -> np.ndarray:
+    """A chain's turning angle over each segment (rad): kappa l_c of its helix (a start's bends where the target's
+    are not the shape to follow: a detour around obstacles)."""
+    kappa, _, lc = center_rates(routing.theta, routing.lam, D)
+    return np.asarray(kappa * lc * routing.length, float)
+
+
 def classify(bends, length, build: Build) -> np.ndarray:
     """Where an actuator goes (module docstring): ``bends`` the target's turning per segment, ``length`` the
     segment lengths. An actuated segment bends at least its bend at 1 - m_j (theta 0): in a piece with a partner
@@ -315,3 +322,30 @@ def missed(problem, result: Result) -> list[str]:
             out.append(f"level {k}: lambda {lam:.6g} outside [{b.lo:.6g}, {hi:.6g}] (correction margin)")
         out += [f"level {k}: {line}" for line in rep.missed(b.lo, hi, problem.units)]
     return out
+
+
+def made_buildable(result: Result, build: Build, solve: Callable, finish: Callable) -> Result:
+    """A design of another formulation (tip targets, obstacles) made buildable by one solve more: lambda exactly 1
+    where it is within margin / 2 of 1, the classes' bounds (:func:`lambda_bounds`) elsewhere, from the design
+    unwound; again while the lengths moved a feature below min_feature (settings.BUILDABLE_REPAIRS at most).
+    ``solve(start: Routing, lam: (lo, hi)) -> Result``; ``finish(result, routing) -> Result``: the result with the
+    same shape's unwound routing. The design as it was where no solve converges (the judge then says why)."""
+    r, best, solves, time = result.routing, None, 0, 0.0
+    act = merge_short(r.lam < 1 - 0.5 * build.margin, r.length, build.min_feature) if not build.shared else np.ones(r.segments, bool)
+    for _ in range(1 + settings.BUILDABLE_REPAIRS):
+        lo, hi = lambda_bounds(act, r.length, build)
+        start = unwind(r, act, build)
+        res = solve(Routing(theta=start.theta, lam=np.clip(r.lam, lo, hi), length=r.length, initial_pose=start.initial_pose), (lo, hi))
+        solves, time = solves + 1, time + float(res.stats.get("ipopt_time_s", res.solve_time_s))
+        if not res.converged:
+            break
+        best, r = res, res.routing
+        if not buildability(r, build.D, build.kind, build.lambda_min, build.margin, build.min_feature, build.pose is None).below:
+            break
+    if best is None:
+        return result
+    best.stats |= {"solves": solves, "ipopt_time_s": time}
+    best = finish(best, unwind(best.routing, act, build))
+    best.buildable = True
+    best.stats |= {"buildable": True, "buildable_actuated": int(act.sum()), "correction_margin": build.margin, "min_feature": build.min_feature}
+    return best

@@ -5,7 +5,7 @@ The one place that decides which runs a problem makes, in which order, from whic
 - design problems: the design method(s) (``nlp``, a buildable design made from the free one:
   methods.buildable; ``greedy``, as the paper has it; ``compare``: nlp, greedy and the paper's
   low-pass-filtered greedy); among ``[[obstacles]]`` the obstacle design as run ``nlp``
-  with the obstacle-free design it started from as ``nlp_free``; then, if asked, the robust
+  with the buildable design of the target without the obstacles it started from as ``nlp_no_obstacles``; then, if asked, the robust
   (``nlp_robust``) and self-clearing (``nlp_clearance``) designs, started from ``nlp`` (keeping its
   actuated segments and margins). Every run is designed for what the robot should realize; with a
   ``[calibration]`` every run then becomes the nominal to build (the systematic errors taken out,
@@ -37,7 +37,7 @@ from vine_nlp.methods.fit import fit_frames, fit_problem
 from vine_nlp.methods.greedy import design_greedy, lowpass
 from vine_nlp.methods.multishape import design_multishape
 from vine_nlp.methods.nlp import design_nlp
-from vine_nlp.methods.obstacles import FREE_RUN, design_with_obstacles, tip_design
+from vine_nlp.methods.obstacles import START_RUN, design_with_obstacles, tip_design
 from vine_nlp.methods.robust import design_robust
 from vine_nlp.model.calibration import nominal_of, realized_of
 from vine_nlp.model.shape import routing_metrics
@@ -166,16 +166,15 @@ def _design_as_given(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, 
         if m == "nlp":
             runs[m] = design_nlp(problem, starts=rq.starts, workers=rq.workers, warm=rq.warm, progress=rq.progress, hops=rq.hops,
                                  budget=rq.budget, note=rq.note)
-            if not problem.obstacles:  # buildable design (issue 31) from the free one; robust and clearance keep its classes
-                runs[m] = design_buildable(problem, runs[m])
+            runs[m] = design_buildable(problem, runs[m])  # from the free one (issue 31); robust and clearance keep its classes
         elif m == "greedy":
             runs[m] = design_greedy(problem, progress=rq.progress)
         else:
             runs[m] = lowpass(runs["greedy"], problem)
     decisive = tuple(runs)
-    if problem.obstacles:  # the obstacle design is run nlp; the obstacle-free design it started from is kept beside it
-        free = runs.pop("nlp")
-        runs = {"nlp": design_with_obstacles(problem, start=free), FREE_RUN: free} | runs
+    if problem.obstacles:  # the obstacle design is run nlp; the design without obstacles it started from is kept beside it
+        start = runs.pop("nlp")
+        runs = {"nlp": design_with_obstacles(problem, start=start), START_RUN: start} | runs
     if rq.robust is not None:
         runs["nlp_robust"] = design_robust(problem, rq.robust, start=runs["nlp"], weight=rq.robust_weight)
     if rq.clearance is not None:
