@@ -80,15 +80,15 @@ def cpu_clock(cpu: bool) -> None:
 
     def timed(self, *a, **kw):
         t = time.process_time()
-        x, status, st = solve(self, *a, **kw)
+        sol = solve(self, *a, **kw)
         if cpu:
-            st["ipopt_time_s"] = time.process_time() - t
+            sol.stats["ipopt_time_s"] = time.process_time() - t
         stats = self.nlpsol.stats()
         if ONLY_TERM[0] is None or ONLY_TERM[0] in self.term_names:
             FUNCTIONS[0] += sum(v for k, v in stats.items() if k.startswith("t_proc_nlp_"))
             REGULARIZED[0] += sum(1 for v in stats.get("iterations", {}).get("regularization_size", []) if v > 0)
             LAST[0] = self
-        return x, status, st
+        return sol
 
     transcription.Solver.solve = timed
 

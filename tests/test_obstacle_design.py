@@ -492,12 +492,12 @@ def rows_solves(monkeypatch):
     seen, solve = [], transcription.Solver.solve
 
     def recorded(self, x0, p, lbx, ubx, *a, **kw):
-        x, status, st = solve(self, x0, p, lbx, ubx, *a, **kw)
+        sol = solve(self, x0, p, lbx, ubx, *a, **kw)
         if any(isinstance(t, ObstacleRows) for t in self.spec.terms):
             dl = self.layout.dl
-            seen.append({"dl": x0[dl], "lo": lbx[dl], "hi": ubx[dl], "status": status, "iterations": st["iterations"],
-                         "time": st["ipopt_time_s"], "max_iter": dict(self.spec.options)["ipopt.max_iter"]})
-        return x, status, st
+            seen.append({"dl": x0[dl], "lo": lbx[dl], "hi": ubx[dl], "status": sol.status, "iterations": sol.stats["iterations"],
+                         "time": sol.stats["ipopt_time_s"], "max_iter": dict(self.spec.options)["ipopt.max_iter"]})
+        return sol
 
     monkeypatch.setattr(transcription.Solver, "solve", recorded)
     return seen

@@ -14,10 +14,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-# IPOPT's iteration limit and tolerance unless a problem or a method says otherwise (the problem file's
-# [design] max_iter and tol default to the same): converged designs end in tens to a few hundred iterations
-MAX_ITER = 3000
-TOL = 1e-8
+from vine_nlp.problem import DesignOptions
+
+# IPOPT's iteration limit and tolerance unless a problem or a method says otherwise: the problem file's [design]
+# defaults (the file contract; converged designs end in tens to a few hundred iterations)
+MAX_ITER = DesignOptions.max_iter
+TOL = DesignOptions.tol
 
 
 def quiet(max_iter: int, tol: float) -> dict:
@@ -107,15 +109,16 @@ class Method:
 
     ``starts``: multi-start; ``hops``: basin-hopping rounds; ``max_iter``, ``tol``: IPOPT's; ``hessian``: "auto"
     (the drive's schedule), "exact" or "gauss-newton"; ``budget``: seconds of the corner search (0: none);
-    ``seed``: every random choice; ``rounds``: active-set solves at most."""
+    ``seed``: every random choice; ``rounds``: active-set solves at most. The defaults of what a problem file may
+    set are its ``[design]`` table's (``DesignOptions``): one default each."""
 
-    starts: int = 1
-    hops: int = 0
+    starts: int = DesignOptions.starts
+    hops: int = DesignOptions.hops
     max_iter: int = MAX_ITER
     tol: float = TOL
-    hessian: str = "auto"
-    budget: float = 20.0  # a safety stop: the polyline (d)'s corner search ends well within it
-    seed: int = 0
+    hessian: str = DesignOptions.hessian
+    budget: float = DesignOptions.budget  # a safety stop: the polyline (d)'s corner search ends well within it
+    seed: int = DesignOptions.seed
     rounds: int = 6  # active sets (clearance pairs, obstacle rows): the bundled problems end in 1-3 ("Obstacles")
 
     @classmethod
