@@ -65,11 +65,12 @@ class Build:
 
 
 def upper(length, act, build: Build) -> np.ndarray:
-    """1 - m_j: an actuated segment's largest lambda, its gap (alone or with its partner's in ``act``) >= min_feature."""
+    """1 - m_j: an actuated segment's largest lambda, its gap (alone or with its partner's in ``act``) >= min_feature
+    (times settings.FEATURE_SLACK: the lengths move in the solve that these bounds are for)."""
     length = np.asarray(length, float)
     mate = partners(act)
     together = length + np.where(mate >= 0, length[np.maximum(mate, 0)], 0.0)
-    return 1.0 - np.maximum(build.margin, build.min_feature / together)
+    return 1.0 - np.maximum(build.margin, settings.FEATURE_SLACK * build.min_feature / together)
 
 
 def lambda_bounds(act, length, build: Build) -> tuple[np.ndarray, np.ndarray]:
