@@ -21,6 +21,7 @@ sPAM (one lambda, pouches along the whole tube): no classes; the lambda in [max(
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Callable
@@ -306,10 +307,13 @@ JUDGED = ("nlp", "nlp_obstacles", "tip", "multishape", "nlp_robust", "nlp_cleara
 def missed(problem, result: Result) -> list[str]:
     """The buildable rules (analysis.buildability.Report.missed) a design of ``problem`` misses, one line each, judged
     with the problem's own margin, min_feature and base; every level of a multi-shape design ("level k: ..."). Runs
-    of other methods (the greedy, forward, fit) are not judged: [] for them."""
+    of other methods (the greedy, forward, fit) are not judged: [] for them. A correction's new nominal spends the
+    margin (lambda anywhere in [lambda_min, 1]); its other rules hold."""
     if result.method not in JUDGED or getattr(problem, "actuator", None) is None:
         return []
     b, r = Build.of(problem), result.routing
+    if result.method == "corrected":  # a correction spends the margin: lambda anywhere in [lambda_min, 1]
+        b = dataclasses.replace(b, margin=0.0)
     hi = max(b.lo, 1 - b.margin)
     levels = getattr(result, "levels", None)
     if levels is None or not np.size(levels):

@@ -29,7 +29,7 @@ from vine_nlp.analysis.obstacles import obstacle_report
 from vine_nlp.io.archive import Archive, write_archive
 from vine_nlp.io.formulations import write_multishape_archive, write_tip_archive
 from vine_nlp.io.problems import ProblemFile
-from vine_nlp.methods import blas, mirror
+from vine_nlp.methods import blas, mirror, settings
 from vine_nlp.methods.buildable import design_buildable, missed
 from vine_nlp.methods.clearance import design_with_clearance
 from vine_nlp.methods.common import evaluate, pair_points, run_forward
@@ -176,13 +176,28 @@ def _design_as_given(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, 
         start = runs.pop("nlp")
         runs = {"nlp": design_with_obstacles(problem, start=start), START_RUN: start} | runs
     if rq.robust is not None:
-        runs["nlp_robust"] = design_robust(problem, rq.robust, start=runs["nlp"], weight=rq.robust_weight)
+        runs["nlp_robust"] = _kept(problem, lambda s: design_robust(problem, rq.robust, start=s, weight=rq.robust_weight), runs["nlp"])
     if rq.clearance is not None:
-        runs["nlp_clearance"] = design_with_clearance(problem, min_gap=rq.clearance, start=runs["nlp"])
+        runs["nlp_clearance"] = _kept(problem, lambda s: design_with_clearance(problem, min_gap=rq.clearance, start=s), runs["nlp"])
     decisive += tuple(r for r in ("nlp_robust", "nlp_clearance") if r in runs)
     if problem.calibration is not None:
         runs = {name: calibrated(problem, r) for name, r in runs.items()}
     return runs, decisive, {}, {}
+
+
+def _kept(problem: DesignProblem, design, start: Result) -> Result:
+    """``design(start)`` keeping a buildable start's classes (methods.buildable.inherited_bounds); again from its own
+    answer (its lengths: the gaps' lambda bounds follow them) while the lengths it moved leave a feature below
+    min_feature (settings.BUILDABLE_REPAIRS at most)."""
+    res = design(start)
+    for _ in range(settings.BUILDABLE_REPAIRS):
+        if not (start.buildable and res.converged and any("min_feature" in line for line in missed(problem, res))):
+            break
+        res.buildable = True
+        again = design(res)
+        res = again if again.converged else res
+    res.buildable = start.buildable
+    return res
 
 
 def _fit(problem, rq: Request):
