@@ -27,6 +27,7 @@ import dataclasses
 
 import numpy as np
 
+from vine_nlp.analysis.buildability import buildability
 from vine_nlp.analysis.obstacles import min_gap
 from vine_nlp.methods import drive, settings
 from vine_nlp.methods.buildable import Build, chain_bends, classify, lambda_bounds, made_buildable, unwind
@@ -139,20 +140,24 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
     lam = lambda_bounds(act, routing.length, build)
     r0 = unwind(dataclasses.replace(routing, lam=np.clip(routing.lam, *lam)), act, build)
     best, found = _rounds(problem, plan, pairing, r0, rounds, stats, lam)
+    how = "classes of the pushed start"
     if best.converged and found.verdict.report["clear"]:
         best = finish(best, unwind(best.routing, act, build))
         best.buildable = True
     else:  # the free loop from the pushed start, then made buildable from its answer
+        how = "free loop, then its classes"
         plan.reset_rounds()
         plan.choose_levels(first)
         plan.data(start.routing)
         best, found = _rounds(problem, plan, pairing, routing, rounds, stats)
-        if best.converged and found.verdict.report["clear"]:
-            built = made_buildable(best, build, lambda r, lam: _again(problem, plan, pairing, r, rounds, lam), finish)
-            if built is not best:
-                stats.absorb(built)
-                best, found = built, dataclasses.replace(found, verdict=drive.Verdict(True, (), plan.report(built.routing)))
+    rep = buildability(best.routing, build.D, build.kind, build.lambda_min, build.margin, build.min_feature, build.pose is None)
+    if best.converged and found.verdict.report["clear"] and (not best.buildable or rep.below):  # (again: the lengths moved)
+        built = made_buildable(best, build, lambda r, lam: _again(problem, plan, pairing, r, rounds, lam), finish)
+        if built is not best:
+            stats.absorb(built)
+            best, found = built, dataclasses.replace(found, verdict=drive.Verdict(True, (), plan.report(built.routing)))
     best, rep = stats.stamp(best), found.verdict.report
+    best.stats["obstacle_buildable"] = how if best.buildable else "not buildable"
     best.metrics.update(obstacle_stats(rep))
     best.met["obstacles"] = bool(rep["clear"])
     best.stats.update(stats0 | {"obstacle_rounds": found.rounds, "obstacle_clear": bool(rep["clear"]),
