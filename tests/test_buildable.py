@@ -289,3 +289,38 @@ def test_the_pole_design_is_buildable_and_clear(tmp_path):
     assert d.ok and r.metrics["min_obstacle_gap"] >= 0.5 - 1e-6 and B.missed(pb, r) == []
     assert (r.routing.lam == 1.0).sum() >= 5
     assert set(d.runs) == {"nlp", "nlp_no_obstacles"} and d.runs["nlp_no_obstacles"].result.buildable
+
+
+# one of each kind, the quicker bundled problems (every bundled problem: benchmarks, results/benchmarks/buildable.md)
+SAME_DESIGN = ("trefoil-m4", "spam-helix", "tip-target", "multishape-spam", "obstacle-pipe-bend", "obstacle-tip-wall",
+               "obstacle-wrap-cylinder")
+
+
+def _runs(name: str) -> dict:
+    from vine_nlp.io.problems import load_problem as load
+    from vine_nlp.methods.transcription import clear_caches
+    from vine_nlp.pipeline.runs import run
+
+    clear_caches()  # the built solvers are kept per structure, whatever the setting they were built under
+    return {n: r.routing for n, r in run(load(f"problems/{name}.toml")).runs.items()}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", SAME_DESIGN)
+def test_a_first_run_and_a_later_run_give_one_design(name, monkeypatch, tmp_path):
+    # the first run solves on the interpreted functions (the compiler works in the background), later runs on the
+    # compiled ones: the same design (issue 46)
+    from vine_nlp.methods import compiled
+
+    if compiled.compiler() is None:
+        pytest.skip("no C compiler on this machine")
+    monkeypatch.setenv("VINE_NLP_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("VINE_NLP_CFLAGS", "-O0")  # quicker to compile; neither flag reorders arithmetic
+    monkeypatch.setenv("VINE_NLP_CODEGEN", "off")
+    first = _runs(name)
+    monkeypatch.setenv("VINE_NLP_CODEGEN", "on")
+    later = _runs(name)
+    assert first.keys() == later.keys()
+    for run, r in first.items():
+        for key in ("theta", "lam", "length"):
+            np.testing.assert_allclose(getattr(later[run], key), getattr(r, key), rtol=0, atol=1e-6, err_msg=f"{run} {key}")
