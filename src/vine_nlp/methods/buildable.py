@@ -21,7 +21,6 @@ sPAM (one lambda, pouches along the whole tube): no classes; the lambda in [max(
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Callable
@@ -301,19 +300,16 @@ def inherited_bounds(problem: DesignProblem, pairing, start: Result | None):
     return box | {"lam": lambda_bounds(np.ones(r.segments, bool) if build.shared else r.lam != 1.0, r.length, build)}
 
 
-JUDGED = ("nlp", "nlp_obstacles", "tip", "multishape", "nlp_robust", "nlp_clearance", "corrected")
+JUDGED = ("nlp", "nlp_obstacles", "tip", "multishape", "nlp_robust", "nlp_clearance")
 
 
 def missed(problem, result: Result) -> list[str]:
     """The buildable rules (analysis.buildability.Report.missed) a design of ``problem`` misses, one line each, judged
     with the problem's own margin, min_feature and base; every level of a multi-shape design ("level k: ..."). Runs
-    of other methods (the greedy, forward, fit) are not judged: [] for them. A correction's new nominal spends the
-    margin (lambda anywhere in [lambda_min, 1]); its other rules hold."""
+    of other methods (the greedy, forward, fit, a correction's nominal) are not judged: [] for them."""
     if result.method not in JUDGED or getattr(problem, "actuator", None) is None:
         return []
     b, r = Build.of(problem), result.routing
-    if result.method == "corrected":  # a correction spends the margin: lambda anywhere in [lambda_min, 1]
-        b = dataclasses.replace(b, margin=0.0)
     hi = max(b.lo, 1 - b.margin)
     levels = getattr(result, "levels", None)
     if levels is None or not np.size(levels):

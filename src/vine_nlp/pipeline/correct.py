@@ -15,7 +15,6 @@ from vine_nlp.io.calibration import Calibration
 from vine_nlp.io.correction import MAX_MEASURED_POINTS, MIN_MEASURED_POINTS, read_correction, read_measured, write_correction_archive
 from vine_nlp.io.data_files import check_spread
 from vine_nlp.io.problems import design_problem_of
-from vine_nlp.methods.buildable import missed
 from vine_nlp.methods.correct import ADJUST, Deviations, Measurement, combine_systematic, correct
 from vine_nlp.model.pairing import pair_points
 from vine_nlp.model.routing import MEASURED_LINES, Sigmas
@@ -86,7 +85,6 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
     result = correct(problem, builds, ms, adjust=adjust, sigmas=sigmas, measurement_sigma=measurement_sigma,
                      units_per_mm=units_per_mm or 0.1, start=start, start_systematic=state.systematic if start else None)
     _check_plausible(result, new, problem.diameter, archive.units)
-    result.corrected.shortfall = tuple(result.corrected.shortfall) + tuple(f"not buildable: {line}" for line in missed(problem, result.corrected))
     settings = {"built_run": run, "adjust": ",".join(result.adjust), "recommended": result.recommended, "free_pose": bool(free_pose), "sigma_theta_rad": sigmas.theta,
                 "sigma_lambda": sigmas.lam, "sigma_length": sigmas.length, "relative_length": bool(sigmas.relative_length),
                 "sigma_measurement": result.estimate.stats["measurement_sigma"]}
