@@ -288,7 +288,7 @@ def test_the_pole_design_is_buildable_and_clear(tmp_path):
     r = d.runs["nlp"].result
     assert d.ok and r.metrics["min_obstacle_gap"] >= 0.5 - 1e-6 and B.missed(pb, r) == []
     assert (r.routing.lam == 1.0).sum() >= 5
-    assert set(d.runs) == {"nlp", "nlp_no_obstacles"} and d.runs["nlp_no_obstacles"].result.buildable
+    assert set(d.runs) == {"nlp", "nlp_no_obstacles"} and d.runs["nlp_no_obstacles"].result.metrics["min_obstacle_gap"] < 0
 
 
 # one of each kind, the quicker bundled problems (every bundled problem: benchmarks, results/benchmarks/buildable.md)

@@ -5,7 +5,8 @@ The one place that decides which runs a problem makes, in which order, from whic
 - design problems: the design method(s) (``nlp``, a buildable design made from the free one:
   methods.buildable; ``greedy``, as the paper has it; ``compare``: nlp, greedy and the paper's
   low-pass-filtered greedy); among ``[[obstacles]]`` the obstacle design as run ``nlp``
-  with the buildable design of the target without the obstacles it started from as ``nlp_no_obstacles``; then, if asked, the robust
+  with the design of the target without the obstacles it started from as ``nlp_no_obstacles`` (buildable where
+  the free design clears the obstacles, else the free design: the obstacle design starts from a pushed target); then, if asked, the robust
   (``nlp_robust``) and self-clearing (``nlp_clearance``) designs, started from ``nlp`` (keeping its
   actuated segments and margins). Every run is designed for what the robot should realize; with a
   ``[calibration]`` every run then becomes the nominal to build (the systematic errors taken out,
@@ -166,7 +167,8 @@ def _design_as_given(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, 
         if m == "nlp":
             runs[m] = design_nlp(problem, starts=rq.starts, workers=rq.workers, warm=rq.warm, progress=rq.progress, hops=rq.hops,
                                  budget=rq.budget, note=rq.note)
-            runs[m] = design_buildable(problem, runs[m])  # from the free one (issue 31); robust and clearance keep its classes
+            if not problem.obstacles or _clears(problem, runs[m]):  # among obstacles a design that cuts one only starts theirs
+                runs[m] = design_buildable(problem, runs[m])  # from the free one (issue 31); robust and clearance keep its classes
         elif m == "greedy":
             runs[m] = design_greedy(problem, progress=rq.progress)
         else:
@@ -183,6 +185,10 @@ def _design_as_given(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, 
     if problem.calibration is not None:
         runs = {name: calibrated(problem, r) for name, r in runs.items()}
     return runs, decisive, {}, {}
+
+
+def _clears(problem: DesignProblem, result: Result) -> bool:
+    return bool(obstacle_report(result.routing, problem.diameter, problem.obstacles, problem.growth, problem.obstacle_margin)["clear"])
 
 
 def _kept(problem: DesignProblem, design, start: Result) -> Result:
