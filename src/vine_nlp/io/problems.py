@@ -109,7 +109,7 @@ _FREE_CHOICES = ("lambda",)
 # basin hopping (hops) and the corner search (budget) are strategies of the design NLP only
 _OTHER_DESIGN_KEYS = tuple(k for k in _DESIGN_KEYS if k not in ("hops", "budget"))
 
-_MULTISHAPE_DESIGN_KEYS = (*_OTHER_DESIGN_KEYS, "shared_pose")
+_MULTISHAPE_DESIGN_KEYS = (*_OTHER_DESIGN_KEYS, "shared_pose", "correction_margin", "min_feature")  # the levels' band, the pouches
 
 _TIP_KEYS = ("position", "direction", "length", "segments", "objective", "initial_pose")
 
@@ -382,7 +382,8 @@ def _multishape(f: SourceFile, data: dict, name: str, units: str, diameter: floa
     design = sub_table(f, data, "design", _MULTISHAPE_DESIGN_KEYS)
     shared_pose = design.get("shared_pose", True)
     check(f, "design.shared_pose", isinstance(shared_pose, bool), "must be true or false")
-    options = _options(f, {k: v for k, v in design.items() if k != "shared_pose"})
+    options = _options(f, {k: v for k, v in design.items() if k not in ("shared_pose", *_BUILD_KEYS)})
+    options = _build_options(f, data, design, actuator, options)
     check(f, "design.method", options.method == "nlp", "must be 'nlp' in a multishape problem (the one formulation)")
     options = _starts_default(design, options, "multishape")
     need = options.points_per_segment + 1
