@@ -326,3 +326,11 @@ def test_a_first_run_and_a_later_run_give_one_design(name, monkeypatch, tmp_path
     for run, r in first.items():
         for key in ("theta", "lam", "length"):
             np.testing.assert_allclose(getattr(later[run], key), getattr(r, key), rtol=0, atol=1e-6, err_msg=f"{run} {key}")
+
+
+def test_a_tip_problem_takes_its_own_margin(tmp_path):
+    # the default design's actuated segments sit near 0.53-0.57 (lambda_min 0.4): a margin of 0.2 moves them into [0.6, 0.8]
+    text = open("problems/tip-target.toml").read().replace("[design]\n", "[design]\ncorrection_margin = 0.2\n")
+    (tmp_path / "tip.toml").write_text(text)
+    d = vn.solve(tmp_path / "tip.toml")
+    assert d.ok and within_margins(d.result.routing.lam, 0.6, 0.8) and np.any(d.result.routing.lam < 1.0)

@@ -111,6 +111,8 @@ _OTHER_DESIGN_KEYS = tuple(k for k in _DESIGN_KEYS if k not in ("hops", "budget"
 
 _MULTISHAPE_DESIGN_KEYS = (*_OTHER_DESIGN_KEYS, "shared_pose", "correction_margin", "min_feature")  # the levels' band, the pouches
 
+_TIP_DESIGN_KEYS = (*_OTHER_DESIGN_KEYS, "correction_margin", "min_feature")  # buildable: its base is [tip] initial_pose
+
 _TIP_KEYS = ("position", "direction", "length", "segments", "objective", "initial_pose")
 
 MAX_TIP_SEGMENTS = 10_000
@@ -423,8 +425,9 @@ def _tip(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> T
     objective = choice(f, "tip.objective", table.get("objective", "contraction"), TIP_OBJECTIVES)
     pose = rigid_pose(f, "tip.initial_pose", table["initial_pose"]) if "initial_pose" in table else np.eye(4)
     actuator = _actuator(f, sub_table(f, data, "actuator", _ACTUATOR_KEYS))
-    design = sub_table(f, data, "design", (*_OTHER_DESIGN_KEYS, *OBSTACLE_DESIGN_KEYS))
-    options = _starts_default(design, _options(f, design), "tip")
+    design = sub_table(f, data, "design", (*_TIP_DESIGN_KEYS, *OBSTACLE_DESIGN_KEYS))
+    options = _build_options(f, data, design, actuator, _options(f, {k: v for k, v in design.items() if k not in _BUILD_KEYS}))
+    options = _starts_default(design, options, "tip")
     return TipProblem(**_obstacles_of(f, data), name=name, diameter=diameter, position=position, length=length, segments=segments,
                       direction=direction, objective=objective, initial_pose=pose, actuator=actuator, options=options, units=units)
 
