@@ -2,14 +2,14 @@
 
 Every scene is run the way a user meets it: ``vine_nlp.pipeline.run(load_problem(path))`` (what
 ``vine-nlp design`` runs; exit status = ``Outcome.exit_code``), all scenes in this one process, one after
-another (CPU time by ``time.process_time`` around each run: the obstacle-free design ``nlp_free``, the
+another (CPU time by ``time.process_time`` around each run: the obstacle-free design ``nlp_no_obstacles``, the
 planning and the obstacle design ``nlp`` together; wall time too). Goals:
 
 1. No false success: every exit 0 is converged and clear, clear checked again here on the run's routing
    (``obstacle_report``, 40 points per segment, every obstacle's minimum refined; growth as the problem).
 2. Clear designs (exit 0: converged and clear) on >= 98 % of scenes.
 3. Away from obstacles (target points more than 3 D from every obstacle surface) the median scene's design
-   RMSE within 2x the obstacle-free design's RMSE on the same target (run ``nlp_free``), or 0.5 mm.
+   RMSE within 2x the obstacle-free design's RMSE on the same target (run ``nlp_no_obstacles``), or 0.5 mm.
 4. Mirror-image scenes give mirror designs: RMSE within 1 % (relative to the larger of the pair).
 5. Speed with planning included: median scene <= 2 s CPU, slowest <= 20 s.
 
@@ -64,7 +64,7 @@ def measure(path: Path) -> dict:
         outcome = run(pf)
         rec["cpu_s"], rec["wall_s"] = time.process_time() - c0, time.perf_counter() - w0
         rec["exit"] = outcome.exit_code
-        r, free = outcome.runs["nlp"], outcome.runs.get("nlp_free")
+        r, free = outcome.runs["nlp"], outcome.runs.get("nlp_no_obstacles")
         D, obs = pr.diameter, pr.obstacles
         rec.update(status=r.status, converged=bool(r.converged), shortfall=list(r.shortfall), rmse=float(r.metrics["rmse"]),
                    max_error=float(r.metrics["max_error"]), min_gap_pipeline=float(r.metrics.get("min_obstacle_gap", math.nan)),
@@ -289,7 +289,7 @@ def report(recs: dict, scene_dir: Path, loads: tuple, seconds: float, measured: 
           f"{_f(med([r['rmse_away'] for r, _ in aw]))} cm vs free {_f(med([r['free_rmse_away'] for r, _ in aw]))} cm; median ratio {_f(med(ratios) if ratios else None, '{:.3g}')}")
          if aw else "no scene", ("met" if aw and med(excess) <= 0 else "NOT met")],
         ["4 mirror designs", "RMSE within 1 %", (f"{len(pairs)} pairs; difference median {100 * med([d for _, d in pairs]):.3g} %, max {100 * max(d for _, d in pairs):.3g} %; "
-                                                 f"{sum(d <= GOALS['mirror'] for _, d in pairs)}/{len(pairs)} within 1 %; the obstacle-free designs (nlp_free) of the same pairs: "
+                                                 f"{sum(d <= GOALS['mirror'] for _, d in pairs)}/{len(pairs)} within 1 %; the obstacle-free designs (nlp_no_obstacles) of the same pairs: "
                                                  f"median {100 * med([d for _, d in free_pairs]):.3g} %, max {100 * max(d for _, d in free_pairs):.3g} %, "
                                                  f"{sum(d <= GOALS['mirror'] for _, d in free_pairs)}/{len(free_pairs)} within 1 %") if pairs else "no pairs",
          ("met" if pairs and max(d for _, d in pairs) <= GOALS["mirror"] else "NOT met")],
@@ -318,7 +318,7 @@ def report(recs: dict, scene_dir: Path, loads: tuple, seconds: float, measured: 
         "Each scene through `vine_nlp.pipeline.run(load_problem(path))`, as `vine-nlp design` runs it (the default request), all in one process "
         f"(`nice -n 5`, solver structures built on first use and reused: the first scene of each size pays the build). Load average (1, 5, 15 min) before/after the run that measured "
         f"{measured if measured is not None else 'them'} of them{f' (at commit {commit}; the header names the commit that wrote this report)' if commit else ''}: {loads[0]} / {loads[1]}, {seconds / 60:.1f} min (the machine is shared: wall times are inflated, CPU times less so). Clear = `obstacle_report` on the run's routing with 40 points per segment (minima refined), gap >= margin - 1e-3 D. "
-        "Away points: target points more than 3 D from every obstacle surface; the free design is the run `nlp_free` the pipeline archives beside `nlp`. "
+        "Away points: target points more than 3 D from every obstacle surface; the free design is the run `nlp_no_obstacles` the pipeline archives beside `nlp`. "
         "CPU = `time.process_time` around the whole run (free design, planning, obstacle design, judgement); wall in parentheses."
     )
     blocks = [b for b in [cold_block(recs, cold or {})] if b]

@@ -211,6 +211,7 @@ KEY_TABLES = {
     "_DESIGN_KEYS": ("design", "design"),
     "_MULTISHAPE_DESIGN_KEYS": ("design", "multishape"),
     "_OTHER_DESIGN_KEYS": ("design", "tip"),
+    "_TIP_DESIGN_KEYS": ("design", "tip"),
     "_SMOOTHNESS_FIELDS": ("design.smoothness", None),
     "_ROUTING_KEYS": ("routing", None),
     "_MEASURED_KEYS": ("measured", None),

@@ -3,7 +3,7 @@
 ``problems/obstacle-pipe-bend.toml``: the target crosses a pipe (2 cm radius) right where
 it bends up from the floor; the pipe is drawn as capsules. The tube must pass beside it,
 ``obstacle_margin = 0.3`` cm clear of its surface, and come back to the target behind it.
-The design command also solves the same target without the obstacles (run ``nlp_free``),
+The design command also solves the same target without the obstacles (run ``nlp_no_obstacles``),
 to show what staying clear costs.
 
 Run:  python3 examples/06_obstacles.py [--out DIR]
@@ -27,7 +27,7 @@ with h5py.File(archive, "r") as h5:
     shapes = sorted({str(g.attrs["shape"]) for g in h5["obstacles"].values()})
     obstacles = len(h5["obstacles"])
 status, kept = runs["nlp"]
-_, free = runs["nlp_free"]
+_, free = runs["nlp_no_obstacles"]
 margin = tomllib.loads(problem.read_text())["design"]["obstacle_margin"]
 print(f"with the obstacles:    RMSE {kept['rmse'] * 10:.2f} mm, tube surface {kept['min_obstacle_gap']:.3f} cm from the pipe")
 print(f"without the obstacles: RMSE {free['rmse'] * 10:.4f} mm, tube surface {free['min_obstacle_gap']:.3f} cm from the pipe")

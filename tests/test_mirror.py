@@ -79,4 +79,4 @@ def test_obstacle_designs_of_mirror_images_are_mirror_images():
     a, b = da.result, db.result
     assert a.stats["obstacle_rounds"] > 0 and a.ok and b.ok
     _same_design(a, b)
-    _same_design(da.runs["nlp_free"].result, db.runs["nlp_free"].result)
+    _same_design(da.runs["nlp_no_obstacles"].result, db.runs["nlp_no_obstacles"].result)

@@ -54,7 +54,8 @@ def _problem(targets, levels=(), shared_pose=True, starts=1, **opts):
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_known_answer_free_levels_recovered(seed):
-    truth = (0.95, 0.6, 0.8)  # out of order on purpose: the most actuated target is not the first
+    # out of order on purpose: the most actuated target is not the first; inside the buildable band [2/pi + 0.05, 0.95]
+    truth = (0.93, 0.7, 0.8)
     targets, theta, length, T0 = family(truth, seed)
     r = design_multishape(_problem(targets))
     assert isinstance(r, MultiShapeResult) and r.status == "optimal"

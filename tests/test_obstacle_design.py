@@ -256,9 +256,9 @@ def test_cli_design_analyze_plot(tmp_path, capsys):
     assert main(["design", str(path), "-o", str(out)]) == 0
     assert "  min obstacle gap " in capsys.readouterr().out
     a = load_archive(out)
-    assert [o.kind for o in a.obstacles] == ["sphere"] and set(a.runs) == {"nlp", "nlp_free"}
+    assert [o.kind for o in a.obstacles] == ["sphere"] and set(a.runs) == {"nlp", "nlp_no_obstacles"}
     assert a.runs["nlp"].metrics["min_obstacle_gap"] >= 0.2 - 1e-3
-    assert a.runs["nlp_free"].metrics["min_obstacle_gap"] < 0
+    assert a.runs["nlp_no_obstacles"].metrics["min_obstacle_gap"] < 0
     fig = tmp_path / "f.png"
     assert main(["plot", str(out), "-o", str(fig)]) == 0 and fig.stat().st_size > 0
     capsys.readouterr()

@@ -107,6 +107,17 @@ def turning(theta, length, D: float, actuated, base_free: bool = True) -> tuple[
     return float(np.abs(dphi).sum()), float(np.abs(dphi[~act]).sum()), needed
 
 
+TURN_TOL = 1e-3  # rad: turning where lambda is 1 beyond what the routing needs there (rounding of the shortest way)
+
+
+def digits(v: float, other: float) -> str:
+    """``v`` to 6 digits, or to as many more as it takes to tell it from ``other`` (0.199999 is not 0.2)."""
+    for p in range(6, 18):
+        if v == other or f"{v:.{p}g}" != f"{other:.{p}g}":
+            return f"{v:.{p}g}"
+    return repr(v)
+
+
 @dataclass
 class Report:
     """A routing's buildability (lengths in the routing's units, angles in rad); see ``buildability``."""
@@ -131,6 +142,26 @@ class Report:
     def below(self) -> list:
         """Features shorter than ``min_feature``."""
         return [f for f in self.features if f[0] < self.min_feature - 1e-12]
+
+    def missed(self, lambda_lo: float, lambda_hi: float, units: str = "") -> list[str]:
+        """The buildable rules this report misses, one line each: lambda exactly 1 or inside [lambda_lo, lambda_hi] (an
+        actuator that barely contracts is not exactly 1), the smallest feature at least min_feature (to the last digit),
+        no turning of the line where lambda is 1 beyond what the routing needs there, pouches that can be made."""
+        out, u = [], f" {units}" if units else ""
+        if self.violations:
+            v = self.violations
+            out.append(f"{len(v)} segment(s) with lambda neither 1 nor in [{lambda_lo:.6g}, {lambda_hi:.6g}] (correction margin; "
+                       f"segments {', '.join(map(str, v[:8]))}{', ...' if len(v) > 8 else ''})")
+        if self.below:
+            length, name, _ = self.smallest
+            out.append(f"{len(self.below)} feature(s) below min_feature {digits(self.min_feature, length)}{u} "
+                       f"(smallest: {digits(length, self.min_feature)}{u} {name})")
+        extra = self.turning_unactuated - self.turning_needed
+        if extra > TURN_TOL:
+            out.append(f"the actuator line turns {self.turning_unactuated / (2 * math.pi):.3g} turn(s) where lambda = 1, "
+                       f"the routing needs {self.turning_needed / (2 * math.pi):.3g} there (pointless turning)")
+        out += [f"pouch refused: {r}" for r in self.refused]
+        return out
 
 
 def buildability(routing, D: float, kind: str = "tendon", lambda_min: float = 0.4, margin: float = 0.05,

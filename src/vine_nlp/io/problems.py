@@ -114,7 +114,9 @@ FREE_CHOICES = ("lambda",)
 # basin hopping (hops) and the corner search (budget) are strategies of the design NLP only
 _OTHER_DESIGN_KEYS = tuple(k for k in _DESIGN_KEYS if k not in ("hops", "budget"))
 
-_MULTISHAPE_DESIGN_KEYS = (*_OTHER_DESIGN_KEYS, "shared_pose")
+_MULTISHAPE_DESIGN_KEYS = (*_OTHER_DESIGN_KEYS, "shared_pose", "correction_margin", "min_feature")  # the levels' band, the pouches
+
+_TIP_DESIGN_KEYS = (*_OTHER_DESIGN_KEYS, "correction_margin", "min_feature")  # buildable: its base is [tip] initial_pose
 
 _TIP_KEYS = ("position", "direction", "length", "segments", "objective", "initial_pose")
 
@@ -396,7 +398,8 @@ def _multishape(f: SourceFile, data: dict, name: str, units: str, diameter: floa
     design = sub_table(f, data, "design", _MULTISHAPE_DESIGN_KEYS)
     shared_pose = design.get("shared_pose", True)
     check(f, "design.shared_pose", isinstance(shared_pose, bool), "must be true or false")
-    options = _options(f, {k: v for k, v in design.items() if k != "shared_pose"})
+    options = _options(f, {k: v for k, v in design.items() if k not in ("shared_pose", *_BUILD_KEYS)})
+    options = _build_options(f, data, design, actuator, options)
     check(f, "design.method", options.method == "nlp", "must be 'nlp' in a multishape problem (the one formulation)")
     options = _starts_default(design, options, "multishape")
     need = options.points_per_segment + 1
@@ -436,8 +439,9 @@ def _tip(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> T
     objective = choice(f, "tip.objective", table.get("objective", "contraction"), TIP_OBJECTIVES)
     pose = rigid_pose(f, "tip.initial_pose", table["initial_pose"]) if "initial_pose" in table else np.eye(4)
     actuator = _actuator(f, sub_table(f, data, "actuator", _ACTUATOR_KEYS))
-    design = sub_table(f, data, "design", (*_OTHER_DESIGN_KEYS, *OBSTACLE_DESIGN_KEYS))
-    options = _starts_default(design, _options(f, design), "tip")
+    design = sub_table(f, data, "design", (*_TIP_DESIGN_KEYS, *OBSTACLE_DESIGN_KEYS))
+    options = _build_options(f, data, design, actuator, _options(f, {k: v for k, v in design.items() if k not in _BUILD_KEYS}))
+    options = _starts_default(design, options, "tip")
     return TipProblem(**_obstacles_of(f, data), name=name, diameter=diameter, position=position, length=length, segments=segments,
                       direction=direction, objective=objective, initial_pose=pose, actuator=actuator, options=options, units=units)
 

@@ -96,9 +96,9 @@ def _c_functions(bt: BlockType, *setting) -> tuple:
     # ``setting``: codegen mode, cache directory and compiler, so a changed environment finds the right copy
     if bt.samples is not None:
         # the one-sample block, compiled once for every sample count (no library, and no derivatives of the
-        # whole block, per sample count)
-        sub = _c_functions(bt.samples.sub, *setting)
-        return _sampled(bt, sub) if sub is not _sx_functions(bt.samples.sub) else _sx_functions(bt)
+        # whole block, per sample count); interpreted, the same map of it: the same sums in the same order, so
+        # a first run (interpreted while the compiler works) and later runs take the same steps (issue 46)
+        return _sampled(bt, _c_functions(bt.samples.sub, *setting))
     fn, grad, jac, hess, gn = sx = _sx_functions(bt)
     v, d = ca.SX.sym("v", bt.nv), ca.SX.sym("d", bt.fn.size1_in(1))
     own = [ca.Function(f"{bt.name}_f", [v, d], bt.fn(v, d)), grad, jac, hess] + ([gn] if gn is not hess else [])

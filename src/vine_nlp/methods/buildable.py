@@ -36,7 +36,7 @@ from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Chain, Smoothness, SoftTip, Spec, get_solver
 from vine_nlp.model.chain import phi_from_theta
 from vine_nlp.model.helix import center_rates
-from vine_nlp.problem import DesignProblem, Result, Routing
+from vine_nlp.problem import DesignProblem, Result, Routing, TipProblem
 
 
 @dataclass(frozen=True)
@@ -55,7 +55,9 @@ class Build:
     def of(cls, problem: DesignProblem) -> Build:
         o, a = problem.options, problem.actuator
         mf = default_min_feature(problem.units) if o.min_feature is None else o.min_feature
-        pose = None if o.base != "fixed" else np.array(o.base_pose, float)
+        pose = np.array(o.base_pose, float) if o.base == "fixed" else None
+        if isinstance(problem, TipProblem):  # a tip problem grows from its fixed base
+            pose = np.array(problem.initial_pose, float)
         return cls(problem.diameter, a.theta_max, a.kind, a.lambda_min, o.correction_margin, mf, pose)
 
     shared = property(lambda self: self.kind == "spam")  # one lambda: pouches along the whole tube
@@ -63,11 +65,12 @@ class Build:
 
 
 def upper(length, act, build: Build) -> np.ndarray:
-    """1 - m_j: an actuated segment's largest lambda, its gap (alone or with its partner's in ``act``) >= min_feature."""
+    """1 - m_j: an actuated segment's largest lambda, its gap (alone or with its partner's in ``act``) >= min_feature
+    (times settings.FEATURE_SLACK: the lengths move in the solve that these bounds are for)."""
     length = np.asarray(length, float)
     mate = partners(act)
     together = length + np.where(mate >= 0, length[np.maximum(mate, 0)], 0.0)
-    return 1.0 - np.maximum(build.margin, build.min_feature / together)
+    return 1.0 - np.maximum(build.margin, settings.FEATURE_SLACK * build.min_feature / together)
 
 
 def lambda_bounds(act, length, build: Build) -> tuple[np.ndarray, np.ndarray]:
@@ -85,6 +88,13 @@ def target_bends(problem: DesignProblem, pairing) -> np.ndarray:
     t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-300)
     b = pairing.bounds
     return np.arccos(np.clip(np.sum(t[b[:-1]] * t[b[1:]], axis=1), -1.0, 1.0))
+
+
+def chain_bends(routing: Routing, D: float) -> np.ndarray:
+    """A chain's turning angle over each segment (rad): kappa l_c of its helix (a start's bends where the target's
+    are not the shape to follow: a detour around obstacles)."""
+    kappa, _, lc = center_rates(routing.theta, routing.lam, D)
+    return np.asarray(kappa * lc * routing.length, float)
 
 
 def classify(bends, length, build: Build) -> np.ndarray:
@@ -288,3 +298,55 @@ def inherited_bounds(problem: DesignProblem, pairing, start: Result | None):
         return box
     build, r = Build.of(problem), start.routing
     return box | {"lam": lambda_bounds(np.ones(r.segments, bool) if build.shared else r.lam != 1.0, r.length, build)}
+
+
+JUDGED = ("nlp", "nlp_obstacles", "tip", "multishape", "nlp_robust", "nlp_clearance")
+
+
+def missed(problem, result: Result) -> list[str]:
+    """The buildable rules (analysis.buildability.Report.missed) a design of ``problem`` misses, one line each, judged
+    with the problem's own margin, min_feature and base; every level of a multi-shape design ("level k: ..."). Runs
+    of other methods (the greedy, forward, fit, a correction's nominal) are not judged: [] for them."""
+    if result.method not in JUDGED or getattr(problem, "actuator", None) is None:
+        return []
+    b, r = Build.of(problem), result.routing
+    hi = max(b.lo, 1 - b.margin)
+    levels = getattr(result, "levels", None)
+    if levels is None or not np.size(levels):
+        return buildability(r, b.D, b.kind, b.lambda_min, b.margin, b.min_feature, b.pose is None).missed(b.lo, hi, problem.units)
+    out = []
+    for k, lam in enumerate(np.asarray(levels, float)):
+        level = Routing(theta=r.theta, lam=np.full(r.segments, lam), length=r.length, initial_pose=r.initial_pose)
+        rep = buildability(level, b.D, b.kind, b.lambda_min, b.margin, b.min_feature, b.pose is None)
+        if not b.lo - 1e-9 <= lam <= hi + 1e-9:  # one lambda along the whole line: the band is the sPAM's
+            rep.violations = []
+            out.append(f"level {k}: lambda {lam:.6g} outside [{b.lo:.6g}, {hi:.6g}] (correction margin)")
+        out += [f"level {k}: {line}" for line in rep.missed(b.lo, hi, problem.units)]
+    return out
+
+
+def made_buildable(result: Result, build: Build, solve: Callable, finish: Callable) -> Result:
+    """A design of another formulation (tip targets, obstacles) made buildable by one solve more: lambda exactly 1
+    where it is within margin / 2 of 1, the classes' bounds (:func:`lambda_bounds`) elsewhere, from the design
+    unwound; again while the lengths moved a feature below min_feature (settings.BUILDABLE_REPAIRS at most).
+    ``solve(start: Routing, lam: (lo, hi)) -> Result``; ``finish(result, routing) -> Result``: the result with the
+    same shape's unwound routing. The design as it was where no solve converges (the judge then says why)."""
+    r, best, solves, time = result.routing, None, 0, 0.0
+    act = merge_short(r.lam < 1 - 0.5 * build.margin, r.length, build.min_feature) if not build.shared else np.ones(r.segments, bool)
+    for _ in range(1 + settings.BUILDABLE_REPAIRS):
+        lo, hi = lambda_bounds(act, r.length, build)
+        start = unwind(r, act, build)
+        res = solve(Routing(theta=start.theta, lam=np.clip(r.lam, lo, hi), length=r.length, initial_pose=start.initial_pose), (lo, hi))
+        solves, time = solves + 1, time + float(res.stats.get("ipopt_time_s", res.solve_time_s))
+        if not res.converged:
+            break
+        best, r = res, res.routing
+        if not buildability(r, build.D, build.kind, build.lambda_min, build.margin, build.min_feature, build.pose is None).below:
+            break
+    if best is None:
+        return result
+    best.stats |= {"solves": solves, "ipopt_time_s": time}
+    best = finish(best, unwind(best.routing, act, build))
+    best.buildable = True
+    best.stats |= {"buildable": True, "buildable_actuated": int(act.sum()), "correction_margin": build.margin, "min_feature": build.min_feature}
+    return best

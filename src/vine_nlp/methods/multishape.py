@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vine_nlp.analysis.buildability import POUCH_LAMBDA_MIN
 from vine_nlp.methods import drive, variables
 from vine_nlp.methods.common import evaluate, geometric_guess, pair_points
 from vine_nlp.methods.settings import MAX_ITER, TOL, Settings
@@ -136,6 +137,11 @@ def initial_guess(problem: MultiShapeProblem, pairings, flip: float = 1.0) -> Mu
     return MultiGuess(theta, length, levels, poses, frames)
 
 
+def _in_band(problem: MultiShapeProblem, levels) -> np.ndarray:
+    lo, hi = level_band(problem)
+    return np.array([np.clip(v, lo, hi) if f is None else v for v, f in zip(levels, problem.levels)])
+
+
 def start_guesses(problem: MultiShapeProblem, pairings, starts: int) -> list[MultiGuess]:
     """Start 0: the initial guess; start 1: its mirrored side; further starts: seeded perturbations
     (theta perturbed, free lambdas spread between lambda_min and 1 in the order of the targets' chord lengths)."""
@@ -153,10 +159,17 @@ def start_guesses(problem: MultiShapeProblem, pairings, starts: int) -> list[Mul
         spread = a.lambda_min + (1.0 - a.lambda_min) * (rank + rng.uniform(0.2, 0.8, problem.count)) / problem.count
         levels = np.array([v if v is not None else spread[k] for k, v in enumerate(problem.levels)])
         guesses.append(MultiGuess(theta, base.length.copy(), levels, [p.copy() for p in base.poses], [f.copy() for f in base.frames]))
-    return guesses
+    return [MultiGuess(g.theta, g.length, _in_band(problem, g.levels), g.poses, g.frames) for g in guesses]
 
 
 # ---------------------------------------------------------------- solve
+
+
+def level_band(problem: MultiShapeProblem) -> tuple[float, float]:
+    """A designed level's bounds: an sPAM's buildable band [max(lambda_min, 2/pi) + margin, 1 - margin] (methods.buildable)."""
+    m = problem.options.correction_margin
+    lo = max(problem.actuator.lambda_min, POUCH_LAMBDA_MIN) + m
+    return lo, max(lo, 1.0 - m)
 
 
 def solve_from(problem: MultiShapeProblem, guess: MultiGuess, pairings=None) -> MultiShapeResult:
@@ -179,7 +192,8 @@ def solve_from(problem: MultiShapeProblem, guess: MultiGuess, pairings=None) -> 
     x0 = solver.pack_x(np.array(fr), poses=poses, lam_global=guess.levels, theta=guess.theta, lam=None, length=guess.length / D)
     seg_chord = np.max([pr.segment_chord for pr in pairings], axis=0) / D
     a = problem.actuator
-    levels = ([a.lambda_min if v is None else v for v in problem.levels], [1.0 if v is None else v for v in problem.levels])
+    lo, hi = level_band(problem)  # a free level buildable, with room to correct; a fixed one as the problem fixes it
+    levels = ([lo if v is None else v for v in problem.levels], [hi if v is None else v for v in problem.levels])
     lbx, ubx = solver.bounds(**variables.box(a, seg_chord) | {"lam": levels})  # lambda: one per level
     sol = solver.solve(x0, p, lbx, ubx)
     v, st = sol.unpack(), sol.stats

@@ -253,6 +253,7 @@ EFFORT, EFFORT_ACTUATED, EFFORT_INNER = 1e-3, 1e-4, 1e-6
 ACCURACY_SLACK, ACCURACY_FLOOR_MM = 0.10, 0.05  # what the reclassification may give up: the budget
 BUILDABLE_ROUNDS, BUILDABLE_REPAIRS = 8, 2  # solves at most; of them, re-solves while a gap is below min_feature (the lengths moved)
 BEND_TOL = 1e-6  # rad: a segment of the target bending less is straight
+FEATURE_SLACK = 1.1  # a gap's lambda bound asks this much more than min_feature: a solve moves the lengths by up to ~10 %
 # tip
 MIN_LENGTH_FACTOR = 0.2  # dl_j >= 0.2 L / M
 TURNS_EPS = 1e-6  # sqrt(tan^2 theta + eps): the "turns" measure smooth at theta 0

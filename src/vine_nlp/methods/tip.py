@@ -38,6 +38,7 @@ import numpy as np
 
 from vine_nlp.methods import drive, settings
 from vine_nlp.methods.blocks import BlockType
+from vine_nlp.methods.buildable import Build, made_buildable
 from vine_nlp.methods.common import _perpendicular, _unit, geometric_guess, pair_points
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Chain, Smoothness, Solution, Spec, get_solver
@@ -184,11 +185,13 @@ def tip_data(problem: TipProblem, closest: bool = False) -> dict:
             "L": L / D, "tip_position": problem.position / D, "tip_frame": np.column_stack([d, e1, e2]), "tube_length": L / D}
 
 
-def tip_bounds(solver, problem: TipProblem) -> tuple:
-    """Box bounds of the tip NLP: the design's theta and lambda, lengths from settings.MIN_LENGTH_FACTOR L / M to L, the base fixed."""
+def tip_bounds(solver, problem: TipProblem, lam=None) -> tuple:
+    """Box bounds of the tip NLP: the design's theta and lambda (``lam``: these lambda bounds, a buildable design's
+    classes), lengths from settings.MIN_LENGTH_FACTOR L / M to L, the base fixed."""
     a, D, M, L = problem.actuator, problem.diameter, problem.segments, problem.length
     X0 = frames12(problem.initial_pose[None], D)[:, 0]
-    return solver.bounds(X0=X0, **box(a, np.zeros(M), only=("theta", "lam")), length=(settings.MIN_LENGTH_FACTOR * L / M / D, L / D))
+    b = box(a, np.zeros(M), only=("theta", "lam")) | ({} if lam is None else {"lam": lam})
+    return solver.bounds(X0=X0, **b, length=(settings.MIN_LENGTH_FACTOR * L / M / D, L / D))
 
 
 def tip_result(problem: TipProblem, sol: Solution, closest: bool = False) -> Result:
@@ -204,14 +207,14 @@ def tip_result(problem: TipProblem, sol: Solution, closest: bool = False) -> Res
                         solve_time_s=stats.pop("solve_time_s"), iterations=stats.pop("iterations"), stats=stats)
 
 
-def solve_from(problem: TipProblem, theta, lam, dl, frames, closest: bool = False, monotone: bool = True) -> Result:
+def solve_from(problem: TipProblem, theta, lam, dl, frames, closest: bool = False, monotone: bool = True, bounds=None) -> Result:
     """One IPOPT solve of the tip NLP from a guess; ``closest``: the nearest approach instead (no tip constraints);
-    ``monotone``: IPOPT's monotone barrier, else the adaptive one."""
+    ``monotone``: IPOPT's monotone barrier, else the adaptive one; ``bounds``: lambda's (a buildable design's classes)."""
     o, D = problem.options, problem.diameter
     solver = get_solver(tip_spec(problem.segments, problem.actuator.shared_lambda, problem.direction is not None, problem.objective,
                                  o.max_iter, o.tol, closest, monotone))
     x0 = solver.pack_x(frames12(frames, D)[None], theta=theta, lam=lam, length=dl / D)
-    return tip_result(problem, solver.solve(x0, solver.pack_params(tip_data(problem, closest)), *tip_bounds(solver, problem)), closest)
+    return tip_result(problem, solver.solve(x0, solver.pack_params(tip_data(problem, closest)), *tip_bounds(solver, problem, bounds)), closest)
 
 
 def actuation(routing: Routing, diameter: float) -> dict:
@@ -288,7 +291,28 @@ def design_tip(problem: TipProblem, starts: int | None = None, progress=None, th
     if reason:
         best.stats["infeasible_reason"] = reason
     best.metrics["reachable"] = float(best.converged)
-    return stats.stamp(best)
+    built = buildable_tip(problem, best) if best.converged else best
+    if built is not best:  # its solves counted, the starts' record kept
+        stats.absorb(built)
+        built.stats, built.metrics["reachable"] = best.stats | built.stats, 1.0
+    return stats.stamp(built)
+
+
+def buildable_tip(problem: TipProblem, result: Result, solve=None) -> Result:
+    """A converged tip design made buildable (methods.buildable.made_buildable): one solve more with the classes'
+    lambda bounds, from it (``solve(start, lam)``, default the tip NLP's own; a formulation built on it passes its own)."""
+    D = problem.diameter
+
+    def own(r: Routing, lam):
+        return solve_from(problem, r.theta, r.lam, r.length, chain_frames(r.theta, r.lam, r.length, D, r.initial_pose), bounds=lam)
+
+    def finish(res: Result, routing: Routing) -> Result:
+        out = evaluate_tip(problem, routing, status=res.status, objective=res.objective, solve_time_s=res.solve_time_s,
+                           iterations=res.iterations, stats=res.stats)
+        out.metrics = res.metrics | out.metrics
+        return out
+
+    return made_buildable(result, Build.of(problem), solve or own, finish)
 
 
 def rank(result: Result) -> tuple:

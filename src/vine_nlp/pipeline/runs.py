@@ -5,9 +5,10 @@ The one place that decides which runs a problem makes, in which order, from whic
 - design problems: the design method(s) (``nlp``, a buildable design made from the free one:
   methods.buildable; ``greedy``, as the paper has it; ``compare``: nlp, greedy and the paper's
   low-pass-filtered greedy); among ``[[obstacles]]`` the obstacle design as run ``nlp``
-  with the obstacle-free design it started from as ``nlp_free``; with a ``[load]`` (no obstacles) the design
-  that stands under it (methods.loads; ``nlp_load`` beside the design on the target where it stands only far
-  off it); then, if asked, the robust
+  with the design of the target without the obstacles it started from as ``nlp_no_obstacles`` (buildable where
+  the free design clears the obstacles, else the free design: the obstacle design starts from a pushed target);
+  with a ``[load]`` (no obstacles) the design that stands under it (methods.loads; ``nlp_load`` beside the design
+  on the target where it stands only far off it); then, if asked, the robust
   (``nlp_robust``) and self-clearing (``nlp_clearance``) designs, started from ``nlp`` (keeping its
   actuated segments and margins). Every run is designed for what the robot should realize; with a
   ``[calibration]`` every run then becomes the nominal to build (the systematic errors taken out,
@@ -33,9 +34,9 @@ from vine_nlp.io.actuators import write_actuators_archive
 from vine_nlp.io.archive import Archive, write_archive
 from vine_nlp.io.formulations import write_multishape_archive, write_tip_archive
 from vine_nlp.io.problems import ProblemFile
-from vine_nlp.methods import actuators, blas, mirror
+from vine_nlp.methods import actuators, blas, mirror, settings
 from vine_nlp.methods.actuators_design import design_actuators
-from vine_nlp.methods.buildable import design_buildable
+from vine_nlp.methods.buildable import design_buildable, missed
 from vine_nlp.methods.clearance import design_with_clearance
 from vine_nlp.methods.common import evaluate, pair_points, run_forward
 from vine_nlp.methods.fit import fit_frames, fit_problem
@@ -43,7 +44,7 @@ from vine_nlp.methods.greedy import design_greedy, lowpass
 from vine_nlp.methods.loads import load_runs
 from vine_nlp.methods.multishape import design_multishape
 from vine_nlp.methods.nlp import design_nlp
-from vine_nlp.methods.obstacles import FREE_RUN, design_with_obstacles, tip_design
+from vine_nlp.methods.obstacles import START_RUN, design_with_obstacles, tip_design
 from vine_nlp.methods.robust import design_robust
 from vine_nlp.model.calibration import nominal_of, realized_of
 from vine_nlp.model.shape import routing_metrics
@@ -174,26 +175,45 @@ def _design_as_given(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, 
         if m == "nlp":
             runs[m] = design_nlp(problem, starts=rq.starts, workers=rq.workers, warm=rq.warm, progress=rq.progress, hops=rq.hops,
                                  budget=rq.budget, note=rq.note)
-            if not problem.obstacles:  # buildable design (issue 31) from the free one; robust and clearance keep its classes
-                runs[m] = design_buildable(problem, runs[m])
+            if not problem.obstacles or _clears(problem, runs[m]):  # among obstacles a design that cuts one only starts theirs
+                runs[m] = design_buildable(problem, runs[m])  # from the free one (issue 31); robust and clearance keep its classes
         elif m == "greedy":
             runs[m] = design_greedy(problem, progress=rq.progress)
         else:
             runs[m] = lowpass(runs["greedy"], problem)
     decisive = tuple(runs)
-    if problem.obstacles:  # the obstacle design is run nlp; the obstacle-free design it started from is kept beside it
-        free = runs.pop("nlp")
-        runs = {"nlp": design_with_obstacles(problem, start=free), FREE_RUN: free} | runs
+    if problem.obstacles:  # the obstacle design is run nlp; the design without obstacles it started from is kept beside it
+        start = runs.pop("nlp")
+        runs = {"nlp": design_with_obstacles(problem, start=start), START_RUN: start} | runs
     if problem.load is not None and "nlp" in runs and not problem.obstacles:  # among obstacles the load is judged only
         runs = load_runs(problem, runs.pop("nlp")) | runs
     if rq.robust is not None:
-        runs["nlp_robust"] = design_robust(problem, rq.robust, start=runs["nlp"], weight=rq.robust_weight)
+        runs["nlp_robust"] = _kept(problem, lambda s: design_robust(problem, rq.robust, start=s, weight=rq.robust_weight), runs["nlp"])
     if rq.clearance is not None:
-        runs["nlp_clearance"] = design_with_clearance(problem, min_gap=rq.clearance, start=runs["nlp"])
+        runs["nlp_clearance"] = _kept(problem, lambda s: design_with_clearance(problem, min_gap=rq.clearance, start=s), runs["nlp"])
     decisive += tuple(r for r in ("nlp_robust", "nlp_clearance") if r in runs)
     if problem.calibration is not None:
         runs = {name: calibrated(problem, r) for name, r in runs.items()}
     return runs, decisive, {}, {}
+
+
+def _clears(problem: DesignProblem, result: Result) -> bool:
+    return bool(obstacle_report(result.routing, problem.diameter, problem.obstacles, problem.growth, problem.obstacle_margin)["clear"])
+
+
+def _kept(problem: DesignProblem, design, start: Result) -> Result:
+    """``design(start)`` keeping a buildable start's classes (methods.buildable.inherited_bounds); again from its own
+    answer (its lengths: the gaps' lambda bounds follow them) while the lengths it moved leave a feature below
+    min_feature (settings.BUILDABLE_REPAIRS at most)."""
+    res = design(start)
+    for _ in range(settings.BUILDABLE_REPAIRS):
+        if not (start.buildable and res.converged and any("min_feature" in line for line in missed(problem, res))):
+            break
+        res.buildable = True
+        again = design(res)
+        res = again if again.converged else res
+    res.buildable = start.buildable
+    return res
 
 
 def _fit(problem, rq: Request):
@@ -288,6 +308,7 @@ def judge(problem, result: Result) -> None:
         if not rep["clear"]:
             worst = min(rep["min_gap"], rep["min_gap_intermediate"])
             short.append(f"obstacle margin not kept: min gap {worst:.4g} {problem.units} < margin {problem.obstacle_margin:g}")
+    short += [f"not buildable: {line}" for line in missed(problem, result)]  # the buildable rules, one line each
     if result.met.get("clearance") is False:
         need = problem.diameter + result.stats.get("min_gap", 0.0)
         short.append(f"clearance not kept: min {result.stats['min_clearance']:.4g} {problem.units} < D + min_gap = {need:.4g}")

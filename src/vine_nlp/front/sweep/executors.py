@@ -39,7 +39,7 @@ def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]
 
     Each method is one request to the pipeline, as `vine-nlp design --method M` makes it (obstacles,
     calibration and the judgement of every hard requirement included). ``runs``: run name -> Result of
-    each method that finished, with the runs it brings along (an obstacle design's ``nlp_free``);
+    each method that finished, with the runs it brings along (an obstacle design's ``nlp_no_obstacles``);
     ``timings``: ``total_s``, ``cpu_s`` and ``errors`` (method -> "Type: message": a method that raises
     fails alone). KeyboardInterrupt propagates unless ``remote`` (a worker ignores Ctrl-C: there it
     comes from inside IPOPT and fails that run).
@@ -110,7 +110,7 @@ def solve_chunk(chunk, out_dir=None, token=None, remote: bool = False) -> list[d
         with _ONE_SOLVE:  # a dask worker's threads share its solvers, which are not thread-safe (two crashed)
             solved, timings = solve_item(problem_file, [m for m in methods if m not in previous], remote=remote)
         runs = {m: solved.get(m) or previous[m] for m in methods if m in solved or m in previous}
-        runs |= {name: r for name, r in solved.items() if name not in runs}  # brought along: nlp_free
+        runs |= {name: r for name, r in solved.items() if name not in runs}  # brought along: nlp_no_obstacles
         record = {"runs": runs, "errors": timings["errors"], "total_s": timings["total_s"], "cpu_s": timings["cpu_s"]}
         records.append(archive_outcome(out_dir, item, problem_file, record) if here else record)
         if "stop" in record:

@@ -8,7 +8,7 @@
 - ``tip``: tip problems among obstacles, starts on the drive, each an active-set loop.
 """
 
-from vine_nlp.methods.obstacles.design import FREE_RUN, METHOD, RUN, design_with_obstacles
+from vine_nlp.methods.obstacles.design import METHOD, RUN, START_RUN, design_with_obstacles
 from vine_nlp.methods.obstacles.tip import design_tip_with_obstacles, tip_design
 
-__all__ = ["FREE_RUN", "METHOD", "RUN", "design_with_obstacles", "design_tip_with_obstacles", "tip_design"]
+__all__ = ["START_RUN", "METHOD", "RUN", "design_with_obstacles", "design_tip_with_obstacles", "tip_design"]

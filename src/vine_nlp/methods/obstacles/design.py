@@ -27,9 +27,11 @@ import dataclasses
 
 import numpy as np
 
+from vine_nlp.analysis.buildability import buildability
 from vine_nlp.analysis.obstacles import min_gap
 from vine_nlp.methods import drive, settings
-from vine_nlp.methods.common import pair_points
+from vine_nlp.methods.buildable import Build, chain_bends, classify, lambda_bounds, made_buildable, unwind
+from vine_nlp.methods.common import evaluate, pair_points
 from vine_nlp.methods.nlp import chain_guess, design_bounds, design_nlp, extended_solver, nlp_parameters, result_of, start_x
 from vine_nlp.methods.obstacles.plan import Plan, obstacle_stats
 from vine_nlp.methods.obstacles.push import pushed_start
@@ -37,8 +39,8 @@ from vine_nlp.methods.obstacles.rows import MESH_K
 from vine_nlp.methods.settings import BLOCKED_WEIGHT, MESH_BLOCKED_WEIGHT, MESH_WEIGHT_RAMP
 from vine_nlp.problem import DesignProblem, Result
 
-RUN = "nlp"  # the obstacle design is the problem's design (archived as run "nlp"); the obstacle-free start: FREE_RUN
-FREE_RUN = "nlp_free"
+RUN = "nlp"  # the obstacle design is the problem's design (archived as run "nlp"); the obstacle-free start: START_RUN
+START_RUN = "nlp_no_obstacles"  # archives before round 4 named it "nlp_free"
 METHOD = "nlp_obstacles"
 
 
@@ -126,12 +128,59 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
     pairing = pair_points(problem.target, problem.options.points_per_segment)
     plan.choose_levels(first)
     plan.data(start.routing)  # the slots near the obstacle-free design stay
-    routing = pushed_start(problem, plan)
+    rounds = max(rounds, settings.MESH_ROUNDS) if plan.has_mesh else rounds
+    build, routing = Build.of(problem), pushed_start(problem, plan)
+
+    def finish(res, routing):  # the same shape, its unactuated runs unwound
+        return evaluate(problem, routing, pairing, METHOD, status=res.status, iterations=res.iterations, stats=res.stats,
+                        objective=res.objective, hessian=res.hessian, solve_time_s=res.solve_time_s, met=res.met)
+
+    # one loop of the buildable problem: the classes of the pushed start's own bends, their lambda bounds
+    act = classify(chain_bends(routing, problem.diameter), routing.length, build)
+    lam = lambda_bounds(act, routing.length, build)
+    r0 = unwind(dataclasses.replace(routing, lam=np.clip(routing.lam, *lam)), act, build)
+    best, found = _rounds(problem, plan, pairing, r0, rounds, stats, lam)
+    how = "classes of the pushed start"
+    if best.converged and found.verdict.report["clear"]:
+        best = finish(best, unwind(best.routing, act, build))
+        best.buildable = True
+    else:  # the free loop from the pushed start, then made buildable from its answer
+        how = "free loop, then its classes"
+        plan.reset_rounds()
+        plan.choose_levels(first)
+        plan.data(start.routing)
+        best, found = _rounds(problem, plan, pairing, routing, rounds, stats)
+    rep = buildability(best.routing, build.D, build.kind, build.lambda_min, build.margin, build.min_feature, build.pose is None)
+    if best.converged and found.verdict.report["clear"] and (not best.buildable or rep.below):  # (again: the lengths moved)
+        built = made_buildable(best, build, lambda r, lam: _again(problem, plan, pairing, r, rounds, lam), finish)
+        if built is not best:
+            stats.absorb(built)
+            best, found = built, dataclasses.replace(found, verdict=drive.Verdict(True, (), plan.report(built.routing)))
+    best, rep = stats.stamp(best), found.verdict.report
+    best.stats["obstacle_buildable"] = how if best.buildable else "not buildable"
+    best.metrics.update(obstacle_stats(rep))
+    best.met["obstacles"] = bool(rep["clear"])
+    best.stats.update(stats0 | {"obstacle_rounds": found.rounds, "obstacle_clear": bool(rep["clear"]),
+                                "obstacle_samples_per_segment": plan.S, "obstacle_raise": plan.raised * problem.diameter, "obstacle_slots": plan.P,
+                                "obstacle_after_t": list(plan.ts)})
+    return best
+
+
+def _again(problem: DesignProblem, plan: Plan, pairing, routing, rounds: int, lam) -> Result:
+    """The loop from a design with lambda's bounds ``lam``: its best round, status "not clear" where it does not clear."""
+    res, found = _rounds(problem, plan, pairing, routing, rounds, drive.Stats(), lam)
+    res.stats["obstacle_rounds"], res.met["obstacles"] = found.rounds, bool(found.verdict.report["clear"])
+    return res if res.met["obstacles"] else dataclasses.replace(res, status="not clear")
+
+
+def _rounds(problem: DesignProblem, plan: Plan, pairing, routing, rounds: int, stats: drive.Stats, lam=None):
+    """The active-set loop from ``routing`` (its frames on its chain): (the best round, drive.refine's answer);
+    ``lam``: lambda's bounds (a buildable design's classes)."""
+    D = problem.diameter
     R0g = routing.initial_pose[:3, :3].copy()
     params = nlp_parameters(problem, pairing, R0g)
     factor, ramp = (MESH_BLOCKED_WEIGHT, MESH_WEIGHT_RAMP) if plan.has_mesh else (BLOCKED_WEIGHT, 0.0)
     params["cells"] = _weigh_blocked(problem, pairing, params["cells"], factor, ramp)
-    rounds = max(rounds, settings.MESH_ROUNDS) if plan.has_mesh else rounds
 
     def solver(round, last, warm=False):  # cached per spec: new only when the slots grew; a re-solve before the last is cut
         return extended_solver(problem, pairing, (plan.term,), plan.extra, settings.ROUND_MAX_ITER if 0 < round and not last else None,
@@ -142,7 +191,7 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
 
     data = plan.data(routing)  # the first round's: it fixes the first solver's slots
     first_solver = solver(0, rounds == 1)
-    box = design_bounds(problem, pairing)
+    box = design_bounds(problem, pairing) | ({} if lam is None else {"lam": lam})
     dl_hi = box["length"][1]
     # the pushed start's detour may lengthen a segment past LENGTH_FACTOR of its chord on the target: there the
     # bound makes room for it (module docstring)
@@ -150,14 +199,7 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
     bounds = first_solver.bounds(**box | {"length": (box["length"][0], np.where(dl0 > dl_hi, settings.LENGTH_SLACK * dl0, dl_hi))})
     x = plan.fill_extra(first_solver, start_x(first_solver, chain_guess(problem, routing), D, "chain"), routing)
     found = drive.refine(Rounds(plan, routing, data, solver, params, bounds, result, warm=True), rounds, x, stats)
-    best, rep = stats.stamp(found.best), found.verdict.report
-    best.metrics.update(obstacle_stats(rep))
-    best.met["obstacles"] = bool(rep["clear"])
-    best.stats.update(stats0 | {"obstacle_rounds": found.rounds, "obstacle_clear": bool(rep["clear"]),
-                                "obstacle_samples_per_segment": plan.S, "obstacle_raise": plan.raised * D, "obstacle_slots": plan.P,
-                                "obstacle_after_t": list(plan.ts)})
-    return best
-
+    return found.best, found
 
 def _weigh_blocked(problem: DesignProblem, pairing, cells: np.ndarray, factor: float, ramp: float = 0.0) -> np.ndarray:
     """The cells with the weights of the blocked target points (where the tube cannot be: closer than

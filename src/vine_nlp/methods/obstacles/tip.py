@@ -18,7 +18,7 @@ from vine_nlp.methods.obstacles.plan import Plan, obstacle_stats
 from vine_nlp.methods.obstacles.push import pushed_chain
 from vine_nlp.methods.obstacles.rows import MESH_K
 from vine_nlp.methods.structure import frames12
-from vine_nlp.methods.tip import design_tip, start_guesses, tip_bounds, tip_data, tip_result, tip_spec
+from vine_nlp.methods.tip import buildable_tip, design_tip, start_guesses, tip_bounds, tip_data, tip_result, tip_spec
 from vine_nlp.methods.transcription import get_solver
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.problem import Result, Routing, TipProblem
@@ -63,6 +63,10 @@ def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, ro
     found = drive.multistart(lambda routing: _tip_start(problem, plan, routing, rounds), guesses, key=rank,
                              accept=None if thorough else (lambda r: r.status == "optimal" and r.met["obstacles"]), progress=progress)
     best = drive.record_starts(found, stats, always=True)
+    if best.converged and best.met["obstacles"]:  # buildable: the classes' lambda bounds, the rows' loop again
+        built = buildable_tip(problem, best, lambda r, lam: _tip_start(problem, plan, r, rounds, lam))
+        if built is not best and built.met.get("obstacles"):
+            built.stats, best = best.stats | built.stats, stats.absorb(built)
     best.method = "tip"
     best.metrics["reachable"] = float(best.converged)
     best.stats.update(stats0 | {"obstacle_samples_per_segment": plan.S, "start_status": [r.status for r in found.results]})
@@ -76,8 +80,9 @@ def rank(result: Result) -> tuple:
     return drive.rank(result, clear, result.objective if result.converged else result.metrics["tip_error"])
 
 
-def _tip_start(problem: TipProblem, plan: Plan, routing: Routing, rounds: int) -> Result:
-    """One start: the tip NLP with obstacle rows from ``routing`` (its frames on its chain), the active-set loop."""
+def _tip_start(problem: TipProblem, plan: Plan, routing: Routing, rounds: int, lam=None) -> Result:
+    """One start: the tip NLP with obstacle rows from ``routing`` (its frames on its chain), the active-set loop;
+    ``lam``: lambda's bounds (a buildable design's classes)."""
     o, D = problem.options, problem.diameter
     stats = drive.Stats()
     plan.reset_rounds()
@@ -91,7 +96,7 @@ def _tip_start(problem: TipProblem, plan: Plan, routing: Routing, rounds: int) -
     first = solver(0, False)
     fr = chain_frames(routing.theta, routing.lam, routing.length, D, problem.initial_pose)
     x = plan.fill_extra(first, first.pack_x(frames12(fr, D)[None], theta=routing.theta, lam=routing.lam, length=routing.length / D), routing)
-    rule = Rounds(plan, routing, data, solver, tip_data(problem), tip_bounds(first, problem),
+    rule = Rounds(plan, routing, data, solver, tip_data(problem), tip_bounds(first, problem, lam),
                   lambda sol: tip_result(problem, sol), stop_at_cap=True)
     found = drive.refine(rule, rounds, x, stats)
     best, rep = stats.stamp(found.best), found.verdict.report
