@@ -641,3 +641,56 @@ def test_fuzz_archives(forward_archive, tmp_path, edits):
     path = hostile(forward_archive, tmp_path, edit)
     with pytest.raises(ArchiveError):  # every edit is one the reader refuses, reading none of the data
         load_archive(path)
+
+
+# ---------------------------------------------------------------- round 2 (issue 48): commands that add to an archive keep the rest
+
+def _contents(path) -> dict:
+    """Every attribute and dataset of an archive: path -> bytes or repr."""
+    out = {}
+
+    def visit(name, obj):
+        if isinstance(obj, h5py.Dataset):
+            out[name] = obj[()].tobytes()
+        out.update({f"{name}@{k}": repr(v) for k, v in obj.attrs.items()})
+
+    with h5py.File(path, "r") as h5:
+        visit("", h5)
+        h5.visititems(visit)
+    return out
+
+
+@pytest.fixture(scope="module")
+def archive_kinds(tmp_path_factory, design_archive):
+    """One archive of each kind a command makes: kind -> path."""
+    d = tmp_path_factory.mktemp("kinds")
+    (d / "f.toml").write_text(FORWARD)
+    (d / "cal.toml").write_text(TINY_TREFOIL + "[calibration]\nlambda_offset = 0.01\ntheta_offset_deg = 0.2\n")
+    np.savetxt(d / "m.csv", load_archive(design_archive).runs["nlp"].shape.outer + 0.05, delimiter=",")
+    commands = {"forward": ["forward", d / "f.toml"], "calibrated": ["design", d / "cal.toml"],
+                "correction": ["correct", design_archive, d / "m.csv"], "multishape": ["design", ROOT / "problems/multishape-spam.toml"],
+                "tip": ["design", ROOT / "problems/tip-target.toml"], "obstacle": ["design", ROOT / "problems/obstacle-gap.toml"],
+                "fit": ["fit", ROOT / "problems/fit-sinusoidal.toml"]}
+    kinds = {"design": design_archive}
+    for kind, args in commands.items():
+        assert main([*map(str, args), "-o", str(d / f"{kind}.h5")]) == 0
+        kinds[kind] = d / f"{kind}.h5"
+    return kinds
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["design", "forward", "calibrated", "correction", "multishape", "tip", "obstacle", "fit"])
+def test_write_metrics_keeps_everything_it_does_not_own(archive_kinds, tmp_path, capsys, kind):
+    path = tmp_path / "a.h5"
+    path.write_bytes(archive_kinds[kind].read_bytes())
+    before = _contents(path)
+    run = load_archive(path).default_run()
+    assert main(["analyze", str(path), "--write-metrics", "--samples", "20"]) == 0
+    after = _contents(path)
+    assert {k: v for k, v in after.items() if k in before} == before  # nothing lost, nothing changed
+    added = set(after) - set(before)
+    assert added and all(k.startswith(f"runs/{run}/metrics@") for k in added)
+    load_archive(path)
+    if kind == "correction":  # what the issue found broken afterwards: the next correction and calibrate
+        out = capsys.readouterr().out
+        assert main(["calibrate", str(path), "-o", str(tmp_path / "cal.toml")]) == 0, out

@@ -10,7 +10,7 @@ from vine_nlp.analysis.tolerance import tolerance_metrics, tolerance_report
 from vine_nlp.errors import InputError
 from vine_nlp.front.analysis_plots import clearance_figure, tolerance_figure
 from vine_nlp.front.files import archive_run, check_figure, read_archive, sigmas
-from vine_nlp.io.archive import write_archive
+from vine_nlp.io.archive import add_metrics
 from vine_nlp.io.obstacles import DEFAULT_GROWTH, parse_obstacle_design
 from vine_nlp.io.problems import design_problem_of
 from vine_nlp.io.validate import parse_toml
@@ -67,8 +67,7 @@ def cmd_analyze(args) -> int:
     if args.write_metrics:
         # archived metrics are finite (archives are validated on read): one that does not apply is left
         # out (first_contact_growth_length of a tube that never touches itself)
-        r.metrics.update({k: float(v) for k, v in metrics.items() if math.isfinite(float(v))})
-        write_archive(args.archive, archive)
+        add_metrics(args.archive, run, {k: float(v) for k, v in metrics.items() if math.isfinite(float(v))})
         print(f"metrics -> {args.archive} (/runs/{run}/metrics)")
     return 0
 

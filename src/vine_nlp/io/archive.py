@@ -34,7 +34,7 @@ import numpy as np
 
 from vine_nlp import __version__
 from vine_nlp.errors import InputError
-from vine_nlp.io import limits, outputs
+from vine_nlp.io import files, limits, outputs
 from vine_nlp.io.h5read import ArchiveError, open_archive
 from vine_nlp.io.obstacles import read_obstacles, write_obstacles
 from vine_nlp.io.outputs import OutputError, output_error, temp_file
@@ -118,8 +118,10 @@ def write_h5_atomic(path, fill) -> None:
     buf = io.BytesIO()
     with h5py.File(buf, "w") as h5:
         fill(h5)
-    data = buf.getbuffer()
+    _write_bytes(path, buf.getbuffer())
 
+
+def _write_bytes(path, data) -> None:
     def write(tmp):
         with open(tmp, "wb") as fh:
             fh.write(data)
@@ -210,6 +212,20 @@ def write_archive(path, archive: Archive, extend=None) -> None:
             extend(h5)
 
     write_h5_atomic(path, fill)
+
+
+def add_metrics(path, run: str, metrics: dict) -> None:
+    """Set the attributes ``metrics`` of ``/runs/<run>/metrics`` of the archive at ``path`` (``analyze
+    --write-metrics``): the archive's bytes copied and changed there, every group, dataset and attribute
+    this does not name kept as it was (a correction's, a multi-shape run's levels, groups of later
+    versions); written atomically like every archive."""
+    data = files.read_text(path, limit=limits.MAX_FILE_BYTES, limit_name="MAX_FILE_BYTES", binary=True)
+    buf = io.BytesIO(data)
+    with h5py.File(buf, "r+") as h5:
+        g = h5[f"runs/{run}"].require_group("metrics")
+        for k, v in metrics.items():
+            g.attrs[k] = float(v)
+    _write_bytes(path, buf.getbuffer())
 
 
 # ---------------------------------------------------------------- reading and validation
