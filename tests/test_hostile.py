@@ -694,3 +694,52 @@ def test_write_metrics_keeps_everything_it_does_not_own(archive_kinds, tmp_path,
     if kind == "correction":  # what the issue found broken afterwards: the next correction and calibrate
         out = capsys.readouterr().out
         assert main(["calibrate", str(path), "-o", str(tmp_path / "cal.toml")]) == 0, out
+
+
+# ---------------------------------------------------------------- round 2: every number of an archive checked by the problem files' rules
+
+def _fill(path, value):
+    def edit(h5):
+        h5[path][...] = np.full(h5[path].shape, value)
+    return edit
+
+
+def _zero_segments(h5):
+    for name in ("theta", "lambda", "length", "phi"):
+        del h5[f"runs/nlp/design/{name}"]
+        h5[f"runs/nlp/design/{name}"] = np.zeros(1 if name == "phi" else 0)
+
+
+RANGES = {
+    "theta-90-deg": (_fill("runs/nlp/design/theta", np.pi / 2), "/runs/nlp/design/theta", "|theta| must be < 90 deg (segment 1: 90 deg)"),
+    "theta-1e6-deg": (_fill("runs/nlp/design/theta", -np.radians(1e6)), "/runs/nlp/design/theta", "|theta| must be < 90 deg"),
+    "lambda-1.5": (_fill("runs/nlp/design/lambda", 1.5), "/runs/nlp/design/lambda", "must be in (0, 1] (segment 1: 1.5)"),
+    "lambda-1e300": (_fill("runs/nlp/design/lambda", 1e300), "/runs/nlp/design/lambda", "must be in (0, 1]"),
+    "length-1e300": (_fill("runs/nlp/design/length", 1e300), "/runs/nlp/design/length", "MAX_COORDINATE"),
+    "length-1e-300": (_fill("runs/nlp/design/length", 1e-300), "/runs/nlp/design/length", "MIN_DIAMETERS"),
+    "diameter-1e300": (lambda h5: h5["tube"].attrs.__setitem__("diameter", 1e300), "/tube@diameter", "MAX_COORDINATE"),
+    "diameter-1e-300": (lambda h5: h5["tube"].attrs.__setitem__("diameter", 1e-300), "/runs/nlp/design/length", "MAX_DIAMETERS"),
+    "zero-segments": (_zero_segments, "/runs/nlp/design/theta", "at least one segment"),
+    "shape-1e300": (_fill("runs/nlp/shape/center", 1e300), "/runs/nlp/shape/center", "MAX_COORDINATE"),
+    "pose-far-away": (lambda h5: h5["runs/nlp/design/initial_pose"].__setitem__((0, 3), 1e300), "/runs/nlp/design/initial_pose", "MAX_COORDINATE"),
+    "target-1e300": (_fill("target/points", 1e300), "/target/points", "MAX_COORDINATE"),
+}
+ARCHIVE_COMMANDS = {
+    "show": [], "plot": ["-o", "{out}/o.png"], "template": ["-o", "{out}/o.pdf"], "view": ["-o", "{out}/o.html"],
+    "animate": ["-o", "{out}/o.gif"], "export": ["-o", "{out}/o.stl"], "analyze": [], "correct": ["{out}/m.csv", "-o", "{out}/c.h5"],
+    "forward": ["-o", "{out}/f.h5"], "calibrate": ["-o", "{out}/cal.toml"],
+}
+
+
+@pytest.mark.parametrize("case", list(RANGES))
+def test_archive_values_out_of_range_are_one_line_in_every_command(design_archive, tmp_path, capsys, case):
+    edit, key, reason = RANGES[case]
+    path = hostile(design_archive, tmp_path, edit)
+    out = tmp_path / "out"
+    out.mkdir()
+    np.savetxt(out / "m.csv", load_archive(design_archive).runs["nlp"].shape.outer, delimiter=",")
+    for command, rest in ARCHIVE_COMMANDS.items():
+        assert reason in refused(capsys, [command, path, *(a.format(out=out) for a in rest)], path, key), command
+    assert sorted(p.name for p in out.iterdir()) == ["m.csv"]
+    (tmp_path / "p.toml").write_text(TINY_TREFOIL)
+    assert reason in refused(capsys, ["design", tmp_path / "p.toml", "--warm", path, "-o", out / "d.h5"], path, key)

@@ -341,7 +341,14 @@ class _Checker:
             self.fail(key, f"rotation part is not orthonormal (|R^T R - I| = {err:.3g})")
         if np.linalg.det(R) < 0:
             self.fail(key, "rotation part has det -1 (a reflection, not a rotation)")
-        return T
+        return self.coordinates(key, T)
+
+    def coordinates(self, key, data):
+        """``data`` (points, a pose) with no coordinate beyond MAX_COORDINATE: the problem files' rule."""
+        big = float(np.abs(data).max(initial=0.0))
+        if big > limits.MAX_COORDINATE:
+            self.fail(key, f"coordinates up to {big:.4g}: at most {limits.MAX_COORDINATE:g} (vine_nlp.io.limits.MAX_COORDINATE)")
+        return data
 
     def shape_lines(self, parent, key_prefix, rows=None):
         g = self.group(parent, "shape")
@@ -350,6 +357,7 @@ class _Checker:
             arr = self.array(g, line, (rows, 3), 3 * limits.MAX_SHAPE_POINTS, limit_name="MAX_SHAPE_POINTS")
             if arr.shape[0] < 1:
                 self.fail(f"{_path(g)}/{line}", "no rows")
+            self.coordinates(f"{_path(g)}/{line}", arr)
             rows = arr.shape[0]
             lines.append(arr)
         return Shape(*lines)
@@ -381,10 +389,9 @@ def _run(c: _Checker, name: str, g, a: Archive) -> Result:
     lam = c.array(d, "lambda", (M,), limits.MAX_SEGMENTS, limit_name="MAX_SEGMENTS")
     length = c.array(d, "length", (M,), limits.MAX_SEGMENTS, limit_name="MAX_SEGMENTS")
     c.array(d, "phi", (M + 1,), limits.MAX_SEGMENTS + 1, limit_name="MAX_SEGMENTS")  # derived from theta: checked, not kept
-    if M and np.any(length <= 0):
-        c.fail(f"{_path(d)}/length", f"segment lengths must be > 0, got {float(length.min())!r}")
-    if M and np.any(lam <= 0):
-        c.fail(f"{_path(d)}/lambda", f"must be > 0, got {float(lam.min())!r}")
+    broken = limits.routing_rule(theta, lam, length, a.diameter)
+    if broken:
+        c.fail(f"{_path(d)}/{broken[0]}", broken[1])
     pose = c.pose(d, "initial_pose")
     # design runs pair shape row i with target row i (the spec), so P = N
     rows = a.target.shape[0] if a.target is not None and a.kind in ("design", "multishape") else None
@@ -414,8 +421,8 @@ def _levels(c: _Checker, g, d, M, a: Archive) -> None:
     """Multi-shape extension: design/levels (K,), levels/<k>/{initial_pose, shape/*, metrics}, /targets/<k>."""
     levels = c.array(d, "levels", (None,), limits.MAX_LEVELS, limit_name="MAX_LEVELS")
     K = levels.size
-    if np.any(levels <= 0):
-        c.fail(f"{_path(d)}/levels", "contraction levels must be > 0")
+    if K < 1 or not np.all((levels > 0) & (levels <= 1)):
+        c.fail(f"{_path(d)}/levels", "contraction levels must be in (0, 1], at least one")
     lv = c.group(g, "levels")
     for k in range(K):
         one = c.group(lv, str(k))
@@ -454,6 +461,8 @@ def _extras(c: _Checker, h5, a: Archive) -> None:
                 c.fail(key, f"shape {data.shape}, expected (n, 3) with n <= {limits.MAX_TARGET_POINTS} (vine_nlp.io.limits.MAX_TARGET_POINTS)")
         if parts[0] == "tip" and data.shape != (3,):
             c.fail(key, f"shape {data.shape}, expected (3,)")
+        if parts[0] in ("targets", "measured", "tip") and parts[-1] in ("points", "closest", "position"):
+            c.coordinates(key, data.astype(float))
         if name == "tip/direction" and not np.linalg.norm(data.astype(float)) > 0:
             c.fail(key, "direction must not be zero")
         a.extra[name] = data
@@ -472,14 +481,15 @@ def _load(c: _Checker, h5) -> Archive:
     if not units or len(units) > limits.MAX_UNITS_CHARS:
         c.fail("/@units", f"must be a unit name, got {units[:40]!r}")
     diameter = c.number(tube, "diameter")
-    if diameter <= 0:
-        c.fail("/tube@diameter", f"must be > 0, got {diameter!r}")
+    if not 0 < diameter <= limits.MAX_COORDINATE:
+        c.fail("/tube@diameter", f"must be > 0 and <= {limits.MAX_COORDINATE:g} (vine_nlp.io.limits.MAX_COORDINATE), got {diameter!r}")
     target = None
     if "target" in h5:
         tg = c.group(h5, "target")
         target = c.array(tg, "points", (None, 3), 3 * limits.MAX_TARGET_POINTS, limit_name="MAX_TARGET_POINTS")
         if target.shape[0] < 2:
             c.fail("/target/points", f"needs at least 2 points, got {target.shape[0]}")
+        c.coordinates("/target/points", target)
     a = Archive(name=c.text(p, "name"), kind=c.text(p, "kind"), source=c.text(p, "source", lines=True), diameter=diameter,
                 units=units, target=target, software_version=c.text(h5, "software_version"),
                 created=c.text(h5, "created", required=False), format_version=version)

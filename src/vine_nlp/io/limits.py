@@ -41,3 +41,32 @@ MAX_UNITS_CHARS = 32
 MAX_COORDINATE = 1e9
 MAX_DIAMETERS = 1e6
 MIN_DIAMETERS = 1e-6
+# Angles of a routing: |theta| below 90 deg (at 90 deg the actuator line winds around the tube without end).
+MAX_THETA_DEG = 90.0
+
+
+def routing_rule(theta, lam, length, diameter: float) -> tuple[str, str] | None:
+    """The first rule a routing (per-segment theta in rad, lambda, length; the tube's diameter) breaks, as
+    (``theta`` | ``lambda`` | ``length``, reason), or None: at least one segment, every value finite,
+    |theta| < MAX_THETA_DEG, lambda in (0, 1], lengths > 0 and a whole length within MAX_COORDINATE and
+    MIN_DIAMETERS..MAX_DIAMETERS tube diameters. The one set of rules of problem files and archives."""
+    import numpy as np
+
+    if len(theta) < 1:
+        return "theta", "a routing needs at least one segment"
+    checks = (("theta", theta, lambda t: np.abs(t) < np.radians(MAX_THETA_DEG), f"|theta| must be < {MAX_THETA_DEG:g} deg", np.degrees, " deg"),
+              ("lambda", lam, lambda v: (v > 0) & (v <= 1), "must be in (0, 1]", None, ""),
+              ("length", length, lambda v: v > 0, "segment lengths must be > 0", None, ""))
+    for name, values, ok, rule, shown, unit in checks:
+        values = np.asarray(values, float)
+        good = np.isfinite(values) & ok(np.where(np.isfinite(values), values, 0.0))
+        if not good.all():
+            j = int(np.argmin(good))
+            return name, f"{rule} (segment {j + 1}: {(shown or float)(values[j]):.6g}{unit})"
+    total = float(np.sum(length))
+    if total > MAX_COORDINATE:
+        return "length", f"the tube is {total:.4g} long: at most {MAX_COORDINATE:g} (vine_nlp.io.limits.MAX_COORDINATE)"
+    if not MIN_DIAMETERS * diameter <= total <= MAX_DIAMETERS * diameter:
+        return "length", (f"the tube is {total:.4g} long, {total / diameter:.4g} tube diameters: must be {MIN_DIAMETERS:g} to "
+                          f"{MAX_DIAMETERS:g} (vine_nlp.io.limits.MIN_DIAMETERS, MAX_DIAMETERS)")
+    return None
