@@ -743,3 +743,54 @@ def test_archive_values_out_of_range_are_one_line_in_every_command(design_archiv
     assert sorted(p.name for p in out.iterdir()) == ["m.csv"]
     (tmp_path / "p.toml").write_text(TINY_TREFOIL)
     assert reason in refused(capsys, ["design", tmp_path / "p.toml", "--warm", path, "-o", out / "d.h5"], path, key)
+
+
+# ---------------------------------------------------------------- round 2: an archive is self-contained
+
+POINTS_PROBLEM = 'name = "pts"\nunits = "cm"\ncalibration = "cal.toml"\n[tube]\ndiameter = 2.0\n[target]\ncurve = "points"\nfile = "t.csv"\n' \
+                 '[design]\npoints_per_segment = 4\n'
+
+
+def test_analyze_and_correct_open_no_file_an_archive_names(tmp_path, capsys):
+    made, moved = tmp_path / "made", tmp_path / "moved"
+    made.mkdir(), moved.mkdir()
+    (made / "p.toml").write_text(POINTS_PROBLEM)
+    (made / "cal.toml").write_text("[calibration]\nlambda_offset = 0.01\n")
+    t = np.linspace(0.0, 1.0, 33)[:, None]
+    np.savetxt(made / "t.csv", np.hstack([30 * t, 5 * np.sin(3 * t), 3 * t * t]), delimiter=",")
+    assert main(["design", str(made / "p.toml"), "-o", str(moved / "d.h5")]) == 0
+    for name in ("p.toml", "cal.toml", "t.csv"):  # what the archive names, beside it and where it was made: unreadable
+        (made / name).unlink()
+        os.mkfifo(moved / name)
+    os.mkfifo(made / "t.csv")
+    np.savetxt(tmp_path / "m.csv", load_archive(moved / "d.h5").runs["nlp"].shape.outer + 0.02, delimiter=",")
+    capsys.readouterr()
+    assert main(["analyze", str(moved / "d.h5"), "--samples", "20"]) == 0
+    assert "Monte Carlo" in capsys.readouterr().out
+    assert main(["correct", str(moved / "d.h5"), str(tmp_path / "m.csv"), "-o", str(tmp_path / "c.h5")]) == 0
+
+
+def test_a_run_that_cannot_pair_with_the_archived_target_is_one_line(design_archive, tmp_path, capsys):
+    def two_points(h5):
+        del h5["target/points"]
+        h5["target/points"] = np.array([[0.0, 0, 0], [1.0, 0, 0]])
+        for line in ("center", "inner", "outer"):
+            del h5[f"runs/nlp/shape/{line}"]
+            h5[f"runs/nlp/shape/{line}"] = np.array([[0.0, 0, 0], [1.0, 0, 0]])
+
+    path = hostile(design_archive, tmp_path, two_points)
+    np.savetxt(tmp_path / "m.csv", load_archive(design_archive).runs["nlp"].shape.outer, delimiter=",")
+    reason = "8 segments cannot pair with the 2 points of /target/points"
+    assert reason in refused(capsys, ["analyze", path], path, "/runs/nlp/design/theta")
+    assert reason in refused(capsys, ["correct", path, tmp_path / "m.csv", "-o", tmp_path / "c.h5"], path, "/runs/nlp/design/theta")
+    assert not (tmp_path / "c.h5").exists()
+
+
+@pytest.mark.slow
+def test_one_segment_designs_a_uniform_helix(tmp_path, capsys):
+    # a helix of 6 samples, 5 per segment: one segment (CasADi's "matrices are not iterable" before)
+    (tmp_path / "p.toml").write_text('[tube]\ndiameter = 2.0\n[target]\ncurve = "helix"\nradius = 3.0\npitch = 1.2\nlength = 10.0\n'
+                                     'samples = 6\n[design]\npoints_per_segment = 5\n')
+    assert main(["design", str(tmp_path / "p.toml"), "-o", str(tmp_path / "d.h5")]) == 0
+    r = load_archive(tmp_path / "d.h5").runs["nlp"]
+    assert r.routing.segments == 1 and r.metrics["rmse"] < 1e-3  # a helix is what one segment makes

@@ -11,8 +11,8 @@ from vine_nlp.errors import InputError
 from vine_nlp.front.analysis_plots import clearance_figure, tolerance_figure
 from vine_nlp.front.files import archive_run, check_figure, read_archive, sigmas
 from vine_nlp.io.archive import add_metrics
+from vine_nlp.io.archived import archived_problem
 from vine_nlp.io.obstacles import DEFAULT_GROWTH, parse_obstacle_design
-from vine_nlp.io.problems import design_problem_of
 from vine_nlp.io.validate import parse_toml
 
 
@@ -43,7 +43,7 @@ def cmd_analyze(args) -> int:
         metrics |= _analyze_obstacles(archive, r, u)
     figures = []
     if archive.kind == "design" and archive.target is not None:
-        problem = design_problem_of(archive, args.archive)
+        problem = archived_problem(archive, args.archive, run)
         sig = sigmas(args)
         rep = tolerance_report(problem, r, sig, samples=args.samples, seed=args.seed)
         fo, mc, nom = rep["first_order"], rep["monte_carlo"], rep["nominal"]
