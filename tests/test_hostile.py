@@ -794,3 +794,48 @@ def test_one_segment_designs_a_uniform_helix(tmp_path, capsys):
     assert main(["design", str(tmp_path / "p.toml"), "-o", str(tmp_path / "d.h5")]) == 0
     r = load_archive(tmp_path / "d.h5").runs["nlp"]
     assert r.routing.segments == 1 and r.metrics["rmse"] < 1e-3  # a helix is what one segment makes
+
+
+# ---------------------------------------------------------------- round 2: what the tool writes, it reads
+
+def test_a_shortfall_of_several_lines_reads_back(forward_archive, tmp_path):
+    from vine_nlp.io.archive import write_archive
+
+    a = load_archive(forward_archive)
+    r = a.runs["forward"]
+    r.shortfall = ("obstacle margin: 0.1 short", "clearance:\nmin gap 0.2 short")
+    write_archive(tmp_path / "s.h5", a)
+    assert load_archive(tmp_path / "s.h5").runs["forward"].shortfall == ("obstacle margin: 0.1 short", "clearance:; min gap 0.2 short")
+
+
+@pytest.mark.parametrize("value, key, reason", [(1e300, "/correction/systematic", "lambda_offset must be a finite number of magnitude <= 1e+06"),
+                                                (0.7, "/correction/systematic", "lambda_offset must be within +-0.5, got 0.7")])
+def test_calibrate_writes_only_what_a_design_reads(archive_kinds, tmp_path, capsys, value, key, reason):
+    path = hostile(archive_kinds["correction"], tmp_path, lambda h5: h5["correction/systematic"].__setitem__(1, value))
+    for args in (["calibrate", path, "-o", tmp_path / "cal.toml"], ["correct", path, tmp_path / "m.csv", "-o", tmp_path / "c.h5"]):
+        assert reason in refused(capsys, args, path, key)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["h.h5"]
+
+
+def test_write_calibration_refuses_what_the_reader_refuses(tmp_path):
+    from vine_nlp.io.calibration import write_calibration
+    from vine_nlp.model.calibration import Calibration
+
+    with pytest.raises(InputError, match="calibration.length_scale: must be > 0 and <= 10, got 20.0"):
+        write_calibration(tmp_path / "cal.toml", Calibration(length_scale=20.0))
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_each_written_file_feeds_the_next_command(archive_kinds, tmp_path, capsys):
+    # correct -> correct (a second round) -> calibrate -> a design naming the calibration -> analyze, forward
+    c = archive_kinds["correction"]
+    np.savetxt(tmp_path / "m2.csv", load_archive(c).runs["corrected"].shape.outer + 0.03, delimiter=",")
+    assert main(["correct", str(c), str(tmp_path / "m2.csv"), "-o", str(tmp_path / "c2.h5")]) == 0
+    assert main(["calibrate", str(tmp_path / "c2.h5"), "-o", str(tmp_path / "cal.toml")]) == 0
+    (tmp_path / "p.toml").write_text(TINY_TREFOIL.replace('units = "cm"', 'units = "cm"\ncalibration = "cal.toml"'))
+    assert load_problem(tmp_path / "p.toml").problem.calibration.prototypes == 1
+    assert main(["design", str(tmp_path / "p.toml"), "-o", str(tmp_path / "d.h5")]) == 0
+    assert main(["analyze", str(tmp_path / "d.h5"), "--samples", "20", "--write-metrics"]) == 0
+    assert main(["forward", str(tmp_path / "d.h5"), "-o", str(tmp_path / "f.h5")]) == 0
+    assert main(["show", str(tmp_path / "f.h5")]) == 0

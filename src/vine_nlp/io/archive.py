@@ -187,7 +187,7 @@ def _write(h5: h5py.File, a: Archive):
     for name, r in a.runs.items():
         g = runs.create_group(name)
         _attrs(g, dict(method=r.method, status=r.status, solve_time_s=float(r.solve_time_s), iterations=int(r.iterations),
-                       shortfall="\n".join(r.shortfall)))
+                       shortfall="\n".join("; ".join(str(s).splitlines()) for s in r.shortfall)))  # one line each
         g.attrs["clear"] = bool(r.clear)
         d = g.create_group("design")
         for key, data in (("theta", r.routing.theta), ("lambda", r.routing.lam), ("length", r.routing.length),
@@ -414,7 +414,7 @@ def _run(c: _Checker, name: str, g, a: Archive) -> Result:
     return Result(method=c.text(g, "method"), routing=Routing(theta, lam, length, pose), shape=shape, status=c.text(g, "status"),
                   solve_time_s=c.number(g, "solve_time_s", minimum=0), iterations=c.number(g, "iterations", integer=True, minimum=0),
                   metrics=c.metrics(g), stats=stats, diameter=a.diameter,
-                  shortfall=tuple(s for s in c.text(g, "shortfall", required=False).split("\n") if s))
+                  shortfall=tuple(s for s in c.text(g, "shortfall", required=False, lines=True).split("\n") if s))
 
 
 def _levels(c: _Checker, g, d, M, a: Archive) -> None:

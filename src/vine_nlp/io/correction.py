@@ -33,6 +33,7 @@ import numpy as np
 from vine_nlp.errors import InputError
 from vine_nlp.io import limits
 from vine_nlp.io.archive import Archive, ArchiveError, load_archive, write_archive
+from vine_nlp.io.calibration import check_calibration
 from vine_nlp.io.data_files import read_csv
 from vine_nlp.io.h5read import open_archive
 from vine_nlp.io.validate import SourceFile
@@ -159,6 +160,12 @@ def _state(file, h5, a: Archive) -> CorrectionState:
             raise ArchiveError(file, f"/correction/{key}", "missing or not 3 values")
     if not sysv[2] > 0 or np.any(sys_sd < 0):
         raise ArchiveError(file, "/correction/systematic", "length scale must be > 0 and standard deviations >= 0")
+    for key, table in (("systematic", dict(theta_offset_deg=np.degrees(sysv[0]), lambda_offset=sysv[1], length_scale=sysv[2])),
+                       ("systematic_std", dict(theta_offset_deg_se=np.degrees(sys_sd[0]), lambda_offset_se=sys_sd[1], length_scale_se=sys_sd[2]))):
+        try:  # the calibration table's rules: what calibrate makes of these, a design reads
+            check_calibration(table, "")
+        except InputError as e:
+            raise ArchiveError(file, f"/correction/{key}", e.reason.replace("must", f"{e.key.split('.')[-1]} must", 1)) from None
     unc, dev = _as_built_spread(file, h5, builds[0].theta.size)
     return CorrectionState(builds, ms, attrs, np.asarray(sysv, float), np.asarray(sys_sd, float), unc, dev)
 
