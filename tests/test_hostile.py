@@ -839,3 +839,66 @@ def test_each_written_file_feeds_the_next_command(archive_kinds, tmp_path, capsy
     assert main(["analyze", str(tmp_path / "d.h5"), "--samples", "20", "--write-metrics"]) == 0
     assert main(["forward", str(tmp_path / "d.h5"), "-o", str(tmp_path / "f.h5")]) == 0
     assert main(["show", str(tmp_path / "f.h5")]) == 0
+
+
+# ---------------------------------------------------------------- round 2: signals end in one line and exit 130
+
+def _interrupting(monkeypatch, raiser):
+    import vine_nlp.front.cli as cli
+
+    monkeypatch.setattr(cli, "cmd_show", lambda args: raiser())
+
+
+def test_a_signal_that_h5py_turns_into_a_system_error_is_the_interrupt(forward_archive, monkeypatch, capsys):
+    from vine_nlp import interrupt
+
+    def fast_rlock():
+        interrupt._requested.set()  # what the signal's handler did before h5py's lock swallowed its KeyboardInterrupt
+        raise SystemError("<cyfunction FastRLock.__exit__> returned a result with an exception set")
+
+    _interrupting(monkeypatch, fast_rlock)
+    assert main(["show", str(forward_archive)]) == 130
+    assert capsys.readouterr().err == "interrupted: nothing partial was written\n"
+
+
+def test_a_keyboard_interrupt_in_a_weakref_callback_ends_the_command(forward_archive, monkeypatch, capsys):
+    import weakref
+
+    def callback_raises():
+        def stop(_):
+            raise KeyboardInterrupt
+
+        class Thing:
+            pass
+
+        thing = Thing()
+        ref = weakref.ref(thing, stop)
+        del thing  # the callback's KeyboardInterrupt cannot propagate: Python reports it as unraisable
+        for _ in range(10**6):  # the command goes on: the interrupt comes back to it in the main thread
+            pass
+        return ref
+
+    _interrupting(monkeypatch, callback_raises)
+    assert main(["show", str(forward_archive)]) == 130
+    assert capsys.readouterr().err == "interrupted: nothing partial was written\n"  # no "Exception ignored in" traceback
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("command", ["show", "plot", "view", "template", "export", "analyze", "correct"])
+def test_a_signal_while_an_archive_is_open_is_one_line(design_archive, tmp_path, command, sig):
+    out = tmp_path / "out"
+    out.mkdir()
+    np.savetxt(tmp_path / "m.csv", load_archive(design_archive).runs["nlp"].shape.outer, delimiter=",")
+    rest = {"plot": ["-o", out / "o.png"], "view": ["-o", out / "o.html"], "template": ["-o", out / "o.pdf"], "export": ["-o", out / "o.stl"],
+            "analyze": ["--write-metrics"], "correct": [tmp_path / "m.csv", "-o", out / "c.h5"]}.get(command, [])
+    archive = tmp_path / "d.h5"
+    archive.write_bytes(design_archive.read_bytes())
+    env, fifo = hold_env(tmp_path / "hold", "archive")
+    proc = spawn([command, archive, *rest], env)
+    _, marker = wait_for_marker(proc, "archive")
+    proc.send_signal(sig)
+    rc, err = finish(proc, marker)
+    err = [line for line in err.splitlines() if not line.startswith("vine-nlp: test hold")]
+    assert rc == 130 and err == ["interrupted: nothing partial was written"], (err, marker)
+    assert list(out.iterdir()) == [] and archive.read_bytes() == design_archive.read_bytes()

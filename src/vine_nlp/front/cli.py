@@ -538,22 +538,35 @@ def main(argv=None) -> int:
         compiled.mode()  # a bad VINE_NLP_CODEGEN is one error line before any work
         args = parser.parse_args(argv)
         with outputs.run():  # the outputs check_output reserved: all written when the command ends, or none
-            return args.func(args)
-    except InputError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
+            code = args.func(args)
+            if interrupt.requested():  # a signal whose KeyboardInterrupt a library swallowed: nothing is committed
+                raise KeyboardInterrupt
+            return code
+    except BaseException as e:  # noqa: BLE001  each kind is one line and an exit code, or raised again
+        return _ending(e)
+    finally:
+        restore()
+
+
+def _ending(e: BaseException) -> int:
+    """The exit code (and the one line) of a command that raised ``e``; ``e`` again when it is a bug."""
+    from vine_nlp import interrupt
+
+    # whatever a signal became on its way out of a library (h5py's lock: a SystemError) is the interrupt
+    if isinstance(e, KeyboardInterrupt) or (interrupt.requested() and not isinstance(e, SystemExit)):
         print("interrupted: nothing partial was written", file=sys.stderr)
         return 130
-    except BrokenPipeError:  # output piped into head & co.
+    if isinstance(e, InputError):
+        print(f"error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if isinstance(e, BrokenPipeError):  # output piped into head & co.
         sys.stderr.close()
         return EXIT_OK
-    except OSError as e:
+    if isinstance(e, OSError):
         # a file error no reader or atomic writer turned into an InputError: still one line, exit 2
         print(f"error: {e.filename or '-'}: file: {e.strerror or e}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    finally:
-        restore()
+    raise e
 
 
 if __name__ == "__main__":

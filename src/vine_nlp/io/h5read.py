@@ -16,6 +16,7 @@ import math
 
 import h5py
 
+from vine_nlp import interrupt
 from vine_nlp.errors import InputError
 from vine_nlp.io import files, limits
 
@@ -52,6 +53,7 @@ def open_archive(path):
                 raise
             raise ArchiveError(path, "file", f"cannot read the archive ({' '.join(str(exc).split())[:200]})") from None
         with h5:
+            interrupt.hold("archive")  # tests: a signal while an archive is open in h5py
             yield h5
 
 
