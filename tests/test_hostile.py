@@ -902,3 +902,40 @@ def test_a_signal_while_an_archive_is_open_is_one_line(design_archive, tmp_path,
     err = [line for line in err.splitlines() if not line.startswith("vine-nlp: test hold")]
     assert rc == 130 and err == ["interrupted: nothing partial was written"], (err, marker)
     assert list(out.iterdir()) == [] and archive.read_bytes() == design_archive.read_bytes()
+
+
+# ---------------------------------------------------------------- round 2: a full disk is one line, whatever the output
+
+def _full_disk(*args, size=200):
+    """``python -m vine_nlp ARGS`` able to write at most ``size`` bytes to any file (RLIMIT_FSIZE; SIGXFSZ ignored: EFBIG)."""
+    def preexec():
+        import resource
+
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (size, size))
+
+    return subprocess.run([sys.executable, "-m", "vine_nlp", *map(str, args)], capture_output=True, text=True, timeout=120, preexec_fn=preexec)
+
+
+FULL_DISK = {"pdf": ("template", "o.pdf"), "svg": ("template", "o.svg"), "dxf": ("template", "o.dxf"), "png": ("plot", "o.png"),
+             "plot-pdf": ("plot", "o.pdf"), "gif": ("animate", "o.gif"), "mp4": ("animate", "o.mp4"), "stl": ("export", "o.stl"),
+             "glb": ("export", "o.glb"), "html": ("view", "o.html"), "hdf5": ("forward", "o.h5"), "toml": ("calibrate", "cal.toml"),
+             "tolerance-pdf": ("analyze", "t.pdf")}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", list(FULL_DISK))
+def test_a_full_disk_is_one_line_and_nothing_written(archive_kinds, tmp_path, case):
+    command, name = FULL_DISK[case]
+    if case == "mp4":
+        from vine_nlp.front.animate import ffmpeg_available
+
+        if not ffmpeg_available():
+            pytest.skip("no ffmpeg")
+    out = tmp_path / "out"
+    out.mkdir()
+    archive = archive_kinds["correction" if command == "calibrate" else "design"]
+    args = [command, archive, "--samples", "10", "--tolerance-figure", out / name] if command == "analyze" else [command, archive, "-o", out / name]
+    r = _full_disk(*args, *(["--frames", "3"] if command == "animate" else []))
+    assert r.returncode == 2 and "nothing was written" in one_line(r.stderr, out / name, "write")
+    assert list(out.iterdir()) == []

@@ -101,12 +101,22 @@ def write_atomic(path, write):
     except OutputError:
         tmp.unlink(missing_ok=True)
         raise
-    except OSError as exc:
+    except BaseException as exc:
         tmp.unlink(missing_ok=True)
-        raise output_error(path, exc) from None
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+        cause = _os_error(exc)
+        if cause is None:
+            raise
+        raise output_error(path, cause) from None
+
+
+def _os_error(exc: BaseException) -> OSError | None:
+    """The OSError behind ``exc`` (a writer that failed on a full disk and then on its own broken state:
+    matplotlib's PDF writer raises zlib.error or AttributeError), or None (a signal: None)."""
+    for _ in range(8):
+        if isinstance(exc, OSError) or not isinstance(exc, Exception):
+            return exc if isinstance(exc, OSError) else None
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 def write_h5_atomic(path, fill) -> None:
