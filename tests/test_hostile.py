@@ -939,3 +939,46 @@ def test_a_full_disk_is_one_line_and_nothing_written(archive_kinds, tmp_path, ca
     r = _full_disk(*args, *(["--frames", "3"] if command == "animate" else []))
     assert r.returncode == 2 and "nothing was written" in one_line(r.stderr, out / name, "write")
     assert list(out.iterdir()) == []
+
+
+# ---------------------------------------------------------------- round 2: command-line numbers are checked like a file's
+
+COMMAND_LINE = [
+    (["analyze", "{a}", "--samples", "-5"], "--samples: must be an integer >= 1 and <= 100000, got -5"),
+    (["analyze", "{a}", "--samples", "1000000000"], "--samples: must be an integer >= 1 and <= 100000"),
+    (["analyze", "{a}", "--seed", "-1"], "--seed: must be an integer >= 0 and <= 4294967295, got -1"),
+    (["analyze", "{a}", "--margin", "nan"], "--margin: must be a finite number >= 0 and <= 1e+09, got nan"),
+    (["analyze", "{a}", "--margin", "1000"], "--margin: 1000 is more than the tube's length"),
+    (["analyze", "{a}", "--sigma-lambda", "nan"], "--sigma-lambda: must be a finite number >= 0 and <= 1, got nan"),
+    (["design", "{p}", "-o", "{o}", "--clearance", "--min-gap", "nan"], "--min-gap: must be a finite number >= 0"),
+    (["design", "{p}", "-o", "{o}", "--clearance", "--min-gap", "1e308"], "--min-gap: must be a finite number >= 0 and <= 1e+09, got 1e308"),
+    (["design", "{p}", "-o", "{o}", "--clearance", "--min-gap", "1e6"], "--min-gap: 1e+06 is wider than the target"),
+    (["design", "{p}", "-o", "{o}", "--starts", "1000000", "--budget", "0"], "--starts: must be an integer >= 1 and <= 1000"),
+    (["design", "{p}", "-o", "{o}", "--hops", "1000000"], "--hops: must be an integer >= 0 and <= 1000"),
+    (["design", "{p}", "-o", "{o}", "--budget", "inf"], "--budget: must be a finite number >= 0"),
+    (["animate", "{a}", "-o", "{o}.gif", "--frames", "100000"], "--frames: must be an integer >= 2 and <= 200, got 100000"),
+    (["template", "{a}", "-o", "{o}.pdf", "--run", ""], "--run: must be the name of a run"),
+    (["export", "{a}", "-o", "{o}.stl", "--run", "\x1b[31m"], "--run: must be the name of a run"),
+    (["correct", "{a}", "{a}", "-o", "{o}", "--sigma-measurement", "inf"], "--sigma-measurement: must be a finite number > 0"),
+]
+
+
+@pytest.mark.parametrize("args, reason", COMMAND_LINE, ids=[" ".join(a[:1] + a[3:]) for a, _ in COMMAND_LINE])
+def test_command_line_numbers_are_one_line(design_archive, tmp_path, capsys, args, reason):
+    (tmp_path / "p.toml").write_text(TINY_TREFOIL)
+    fill = dict(a=design_archive, p=tmp_path / "p.toml", o=tmp_path / "o")
+    args = [a.format(**fill) for a in args]
+    err = capsys.readouterr() and main(args)
+    line = capsys.readouterr().err.strip()
+    assert err == 2 and reason in line and line.count("\n") == 0 and line.startswith("error: command line: "), line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.toml"]
+
+
+def test_a_warm_start_that_cannot_be_read_names_the_archive(design_archive, tmp_path, capsys):
+    (tmp_path / "p.toml").write_text(TINY_TREFOIL)
+    (tmp_path / "EMPTY.h5").write_bytes(b"")
+    line = refused(capsys, ["design", tmp_path / "p.toml", "--warm", tmp_path / "EMPTY.h5", "-o", tmp_path / "o.h5"], tmp_path / "EMPTY.h5", "file")
+    assert "not an HDF5 file" in line
+    empty = hostile(design_archive, tmp_path, _zero_segments, "no-segments.h5")
+    line = refused(capsys, ["design", tmp_path / "p.toml", "--warm", empty, "-o", tmp_path / "o.h5"], empty, "/runs/nlp/design/theta")
+    assert "at least one segment" in line and not (tmp_path / "o.h5").exists()

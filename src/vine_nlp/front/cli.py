@@ -14,8 +14,8 @@ from pathlib import Path
 
 from vine_nlp import __version__
 from vine_nlp.errors import InputError
-from vine_nlp.front.files import add_sigma_args, archive_run, check_figure, check_output, read_archive, sigmas
-from vine_nlp.io import outputs
+from vine_nlp.front.files import add_sigma_args, archive_run, bounded, check_figure, check_output, read_archive, run_name, sigmas
+from vine_nlp.io import limits, outputs
 from vine_nlp.methods import blas, compiled
 from vine_nlp.pipeline.request import COMPARE
 from vine_nlp.problem import METHODS
@@ -35,32 +35,6 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message):
         raise InputError("command line", self.prog, message)
-
-
-def _at_least(least: int):
-    """argparse type: an integer >= ``least`` (a usage error otherwise)."""
-
-    def convert(text):
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"invalid integer: {text!r}") from None
-        if value < least:
-            raise argparse.ArgumentTypeError(f"must be >= {least}, got {value}")
-        return value
-
-    return convert
-
-
-def _seconds(text):
-    """argparse type: a finite number of seconds >= 0 (a usage error otherwise)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid number: {text!r}") from None
-    if not (value >= 0 and value != float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return value
 
 
 def _progress_bar(desc, unit):
@@ -138,6 +112,13 @@ def _request(args, pf, methods):
         if not a.runs:
             raise InputError(args.warm, "--warm", "the archive has no design run")
         warm = a.runs[a.default_run()].routing
+    if get("clearance") and getattr(pf.problem, "target", None) is not None:
+        import numpy as np
+
+        span = float(np.linalg.norm(np.ptp(pf.problem.target, axis=0)))
+        if args.min_gap > span:
+            raise InputError("command line", "--min-gap", f"{args.min_gap:g} is wider than the target, which spans {span:.4g} {pf.units}: "
+                             "a tube that keeps that far from itself cannot follow it")
     frames = ()
     if get("frames"):
         from vine_nlp.io.data_files import read_points
@@ -166,6 +147,8 @@ def cmd_solve(args) -> int:
     except InputError as e:
         raise InputError(e.file, FLAGS.get(e.key, e.key), e.reason) from None
     except ValueError as e:  # a fit with too few usable points after the reader's checks
+        if pf.kind != "fit":
+            raise
         raise InputError(args.problem, "measured.file", str(e)) from None
     finally:
         close()
@@ -374,12 +357,12 @@ def _add_correct_arguments(p) -> None:
     p.add_argument("archive", metavar="ARCHIVE.h5")
     p.add_argument("measured", nargs="+", metavar="MEASURED.csv", help="points measured on the built robot (rows x y z, any order)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.h5")
-    p.add_argument("--run", help="the nominal that was built (default: corrected in a correction archive, else the design run)")
+    p.add_argument("--run", type=run_name, help="the nominal that was built (default: corrected in a correction archive, else the design run)")
     p.add_argument("--line", default="outer", metavar="LINE[,LINE...]", help="measured line: center, inner or outer; one per file or one for all (default outer)")
     p.add_argument("--adjust", choices=("lambda", "lambda,theta"), metavar="lambda|lambda,theta", help="the route taken as /runs/corrected: lambda (stoppers or pouches on this robot) or lambda,theta (the line drawn anew on a new tube); default: the recommended one (both are predicted)")
     p.add_argument("--free-pose", action="store_true", help="the measurement is in an unknown frame: estimate its rigid pose")
     add_sigma_args(p)
-    p.add_argument("--sigma-measurement", type=float, metavar="S", help="measurement noise, in units (default 1 mm)")
+    p.add_argument("--sigma-measurement", type=bounded(0, limits.MAX_COORDINATE, above=True), metavar="S", help="measurement noise, in units (default 1 mm)")
     p.add_argument("--plot", metavar="FIG.png", help="measured, estimated and corrected shapes; deviations per segment")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
 
@@ -397,7 +380,7 @@ def build_parser() -> argparse.ArgumentParser:
     f = sub.add_parser("forward", help="shape of a given routing -> result archive")
     f.add_argument("problem", metavar="PROBLEM.toml|ARCHIVE.h5", help="a forward problem, or an archive whose stored routing is re-run")
     f.add_argument("-o", "--output", required=True, metavar="OUT.h5")
-    f.add_argument("--run", help="with an archive: which run's routing (default: its default run)")
+    f.add_argument("--run", type=run_name, help="with an archive: which run's routing (default: its default run)")
     f.add_argument("--plot", metavar="FIG.png", help="also draw the shape (png or pdf)")
     f.add_argument("--force", action="store_true", help="overwrite existing output files")
     f.set_defaults(func=cmd_solve)
@@ -413,25 +396,25 @@ def build_parser() -> argparse.ArgumentParser:
             d.add_argument("--method", choices=METHODS, help="default: the problem's [design] method (nlp)")
             d.add_argument("--warm", metavar="ARCHIVE.h5", help="nlp: start from the design in an earlier archive")
             d.add_argument("--robust", action="store_true", help="also a design minimizing the expected error under construction errors (run nlp_robust)")
-            d.add_argument("--robust-weight", type=float, default=1.0, metavar="W", help="weight of the expected error increase")
+            d.add_argument("--robust-weight", type=bounded(0, 1e6), default=1.0, metavar="W", help="weight of the expected error increase")
             add_sigma_args(d)
             d.add_argument("--clearance", action="store_true", help="also a design keeping the tube clear of itself (run nlp_clearance)")
-            d.add_argument("--min-gap", type=float, default=0.0, metavar="G", help="clearance beyond D, in units")
-        d.add_argument("--starts", type=_at_least(1), metavar="N", help="nlp: number of starts of the multi-start (default: the problem's)")
-        d.add_argument("--hops", type=_at_least(0), metavar="N", help="nlp: rounds of basin hopping after the starts, for targets with corners (default: the problem's)")
-        d.add_argument("--budget", type=_seconds, metavar="S", help="nlp: seconds for the corner search where the first solve shows a corner-like target (default: the problem's [design] budget, 20; 0: off)")
-        d.add_argument("--workers", type=_at_least(1), default=1, metavar="N", help="nlp: run the starts in N processes")
+            d.add_argument("--min-gap", type=bounded(0, limits.MAX_COORDINATE), default=0.0, metavar="G", help="clearance beyond D, in units")
+        d.add_argument("--starts", type=bounded(1, limits.MAX_STARTS, True), metavar="N", help="nlp: number of starts of the multi-start (default: the problem's)")
+        d.add_argument("--hops", type=bounded(0, limits.MAX_HOPS, True), metavar="N", help="nlp: rounds of basin hopping after the starts, for targets with corners (default: the problem's)")
+        d.add_argument("--budget", type=bounded(0, limits.MAX_SECONDS), metavar="S", help="nlp: seconds for the corner search where the first solve shows a corner-like target (default: the problem's [design] budget, 20; 0: off)")
+        d.add_argument("--workers", type=bounded(1, limits.MAX_WORKERS, True), default=1, metavar="N", help="nlp: run the starts in N processes")
         d.add_argument("--plot", metavar="FIG.png", help="also draw the result (png or pdf)")
         d.add_argument("--force", action="store_true", help="overwrite existing output files")
         d.set_defaults(func=cmd_solve)
 
     an = sub.add_parser("analyze", help="self-collision, growth order and manufacturing tolerance of a design")
     an.add_argument("archive", metavar="OUT.h5")
-    an.add_argument("--run", help="which run (default: nlp, greedy, forward, ...)")
+    an.add_argument("--run", type=run_name, help="which run (default: nlp, greedy, forward, ...)")
     add_sigma_args(an)
-    an.add_argument("--samples", type=int, default=2000, help="Monte Carlo samples (default 2000)")
-    an.add_argument("--seed", type=int, default=0)
-    an.add_argument("--margin", type=float, default=0.0, metavar="G", help="count approaches closer than D + G as contacts")
+    an.add_argument("--samples", type=bounded(1, limits.MAX_SAMPLES, True), default=2000, help="Monte Carlo samples (default 2000)")
+    an.add_argument("--seed", type=bounded(0, limits.MAX_SEED, True), default=0)
+    an.add_argument("--margin", type=bounded(0, limits.MAX_COORDINATE), default=0.0, metavar="G", help="count approaches closer than D + G as contacts")
     an.add_argument("--tolerance-figure", metavar="FIG.png", help="where along the tube errors matter most")
     an.add_argument("--clearance-figure", metavar="FIG.png", help="clearance along the tube")
     an.add_argument("--write-metrics", action="store_true", help="store the figures as metrics of the run in the archive")
@@ -440,7 +423,7 @@ def build_parser() -> argparse.ArgumentParser:
     sw = sub.add_parser("sweep", help="many design problems: one archive per item, summary.csv and a summary figure")
     sw.add_argument("sweep", metavar="SWEEP.toml")
     sw.add_argument("-o", "--output", required=True, metavar="DIR")
-    sw.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: all cores)")
+    sw.add_argument("--workers", type=bounded(1, limits.MAX_WORKERS, True), metavar="N", help="local worker processes (default: all cores)")
     sw.add_argument("--scheduler", metavar="ADDRESS", help="run on a Dask distributed cluster (e.g. tcp://host:8786)")
     sw.add_argument("--force", action="store_true", help="redo items whose archives exist")
     sw.set_defaults(func=cmd_sweep)
@@ -448,8 +431,8 @@ def build_parser() -> argparse.ArgumentParser:
     ft = sub.add_parser("fit", help="fit the model of a known routing to measured points (pose, optionally lambda)")
     ft.add_argument("problem", metavar="PROBLEM.toml")
     ft.add_argument("-o", "--output", required=True, metavar="OUT.h5")
-    ft.add_argument("--starts", dest="fit_starts", type=int, default=24, metavar="N", help="starting orientations of the global pose search")
-    ft.add_argument("--seed", type=int, default=0)
+    ft.add_argument("--starts", dest="fit_starts", type=bounded(1, limits.MAX_STARTS, True), default=24, metavar="N", help="starting orientations of the global pose search")
+    ft.add_argument("--seed", type=bounded(0, limits.MAX_SEED, True), default=0)
     ft.add_argument("--plot", metavar="FIG.png", help="measured points against the fitted model, error against length")
     ft.add_argument("--frames", nargs="+", metavar="FRAME.csv", help="also fit these frames of the same actuator in order")
     ft.add_argument("--frames-plot", metavar="FIG.png", help="with --frames: lambda over frames and error against length")
@@ -467,7 +450,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("-o", "--output", required=True, metavar="TEMPLATE.pdf|.svg|.dxf")
     t.add_argument("--csv", metavar="CUTS.csv", help="also write one row per segment")
     t.add_argument("--paper", choices=("A4", "Letter"), default="A4")
-    t.add_argument("--run", help="which run of the archive (default: nlp, greedy or forward)")
+    t.add_argument("--run", type=run_name, help="which run of the archive (default: nlp, greedy or forward)")
     t.add_argument("--changes", action="store_true", help="correction archives: also list, and frame on the template, the segments whose stoppers change against the robot built last")
     t.add_argument("--force", action="store_true", help="overwrite existing output files")
     t.set_defaults(func=cmd_template)
@@ -475,7 +458,7 @@ def build_parser() -> argparse.ArgumentParser:
     vw = sub.add_parser("view", help="interactive 3-D view (one HTML file, offline) of an archive or a sweep directory")
     vw.add_argument("source", metavar="ARCHIVE.h5|SWEEPDIR")
     vw.add_argument("-o", "--output", required=True, metavar="VIEW.html")
-    vw.add_argument("--run", help="show only this run (default: every run, toggled in the legend)")
+    vw.add_argument("--run", type=run_name, help="show only this run (default: every run, toggled in the legend)")
     vw.add_argument("--force", action="store_true", help="overwrite an existing file")
     vw.set_defaults(func=cmd_view)
 
@@ -483,16 +466,16 @@ def build_parser() -> argparse.ArgumentParser:
     am.add_argument("archive", metavar="ARCHIVE.h5")
     am.add_argument("-o", "--output", required=True, metavar="MOVIE.gif|MOVIE.mp4")
     am.add_argument("--mode", choices=("grow", "after", "both"), default="both")
-    am.add_argument("--run", help="which run (default: nlp, greedy, forward, ...)")
-    am.add_argument("--frames", type=_at_least(2), default=40, metavar="N", help="frames (default 40)")
-    am.add_argument("--fps", type=_at_least(1), default=10, metavar="N", help="frames per second (default 10)")
+    am.add_argument("--run", type=run_name, help="which run (default: nlp, greedy, forward, ...)")
+    am.add_argument("--frames", type=bounded(2, limits.MAX_FRAMES, True), default=40, metavar="N", help="frames (default 40)")
+    am.add_argument("--fps", type=bounded(1, limits.MAX_FPS, True), default=10, metavar="N", help="frames per second (default 10)")
     am.add_argument("--force", action="store_true", help="overwrite an existing file")
     am.set_defaults(func=cmd_animate)
 
     ex = sub.add_parser("export", help="the tube as a closed triangle mesh (STL, OBJ, PLY, glTF .glb)")
     ex.add_argument("archive", metavar="ARCHIVE.h5")
     ex.add_argument("-o", "--output", required=True, metavar="TUBE.stl|.obj|.ply|.glb")
-    ex.add_argument("--run", help="which run (default: nlp, greedy, forward, ...)")
+    ex.add_argument("--run", type=run_name, help="which run (default: nlp, greedy, forward, ...)")
     ex.add_argument("--force", action="store_true", help="overwrite existing files")
     ex.set_defaults(func=cmd_export)
 

@@ -70,3 +70,14 @@ def routing_rule(theta, lam, length, diameter: float) -> tuple[str, str] | None:
         return "length", (f"the tube is {total:.4g} long, {total / diameter:.4g} tube diameters: must be {MIN_DIAMETERS:g} to "
                           f"{MAX_DIAMETERS:g} (vine_nlp.io.limits.MIN_DIAMETERS, MAX_DIAMETERS)")
     return None
+# Command-line numbers (front/cli.py), each bounding what it costs: Monte Carlo samples of analyze (and
+# samples x segments <= MAX_DATASET_ELEMENTS), starts and basin-hopping rounds of a design, frames of a
+# movie (about 0.3 s each on a shared 2-core machine), processes, seconds of a budget (a week).
+MAX_SAMPLES = 100_000
+MAX_STARTS = 1_000
+MAX_HOPS = 1_000
+MAX_FRAMES = 200
+MAX_FPS = 120
+MAX_WORKERS = 1_024
+MAX_SEED = 2**32 - 1
+MAX_SECONDS = 604_800.0
