@@ -9,7 +9,7 @@ from vine_nlp.analysis.obstacles import obstacle_report, report_rows
 from vine_nlp.analysis.tolerance import tolerance_metrics, tolerance_report
 from vine_nlp.errors import InputError
 from vine_nlp.front.analysis_plots import clearance_figure, tolerance_figure
-from vine_nlp.front.files import archive_run, check_figure, read_archive, sigmas
+from vine_nlp.front.files import archive_run, check_figure, read_archive, sigmas, within_limits
 from vine_nlp.io import limits
 from vine_nlp.io.archive import add_metrics
 from vine_nlp.io.archived import archived_problem
@@ -25,6 +25,7 @@ def cmd_analyze(args) -> int:
         check_figure(getattr(args, flag), True)
     r = archive.runs[run]
     D, u = archive.diameter, archive.units
+    within_limits("analyze", archive, args.archive, [run])
     _check_costs(args, archive, r)
     cl = routing_clearance(r.routing, D, margin=args.margin)
     if math.isfinite(cl["clearance"]):

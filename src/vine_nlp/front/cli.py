@@ -14,7 +14,17 @@ from pathlib import Path
 
 from vine_nlp import __version__
 from vine_nlp.errors import InputError
-from vine_nlp.front.files import add_sigma_args, archive_run, bounded, check_figure, check_output, read_archive, run_name, sigmas
+from vine_nlp.front.files import (
+    add_sigma_args,
+    archive_run,
+    bounded,
+    check_figure,
+    check_output,
+    read_archive,
+    run_name,
+    sigmas,
+    within_limits,
+)
 from vine_nlp.io import limits, outputs
 from vine_nlp.methods import blas, compiled
 from vine_nlp.pipeline.request import COMPARE
@@ -112,6 +122,10 @@ def _request(args, pf, methods):
         if not a.runs:
             raise InputError(args.warm, "--warm", "the archive has no design run")
         warm = a.runs[a.default_run()].routing
+    if pf.kind == "design":
+        from vine_nlp.io.obstacles import check_start
+
+        check_start(pf.problem, args.problem)
     if get("clearance") and getattr(pf.problem, "target", None) is not None:
         import numpy as np
 
@@ -218,7 +232,8 @@ def cmd_calibrate(args) -> int:
 def cmd_plot(args) -> int:
     from vine_nlp.front.figures import draw
 
-    read_archive(args.archive)
+    archive = read_archive(args.archive)
+    within_limits("plot", archive, args.archive, list(archive.runs))
     out = check_figure(args.output, args.force, "-o")
     draw(args.archive, out)
     print(f"figure -> {out}")
@@ -232,6 +247,7 @@ def cmd_template(args) -> int:
     fmt = _output_format(out, "template", "template_format")
     archive = read_archive(args.archive)
     csv = check_output(args.csv, args.force, "--csv") if args.csv else None
+    _template_limits(archive, args, fmt)
     rows = None
     if getattr(args, "changes", False):
         from vine_nlp.front.changes import change_rows, changes_text
@@ -264,6 +280,22 @@ def cmd_template(args) -> int:
     return EXIT_OK
 
 
+def _template_limits(archive, args, fmt) -> None:
+    """A template's run within the command's limits; a PDF (1:1, paged) of at most MAX_TEMPLATE_MM of tube."""
+    run = args.run or ("corrected" if getattr(args, "changes", False) else None)
+    if run is not None and run not in archive.runs:
+        return  # the template names the missing run itself
+    run = run or archive.default_run()
+    if run is None:
+        return
+    within_limits("template", archive, args.archive, [run])
+    mm = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4, "inch": 25.4}.get(archive.units.lower())
+    length = float(archive.runs[run].routing.length.sum()) * (mm or 0.0)
+    if fmt == ".pdf" and length > limits.MAX_TEMPLATE_MM:
+        raise InputError(args.archive, "runs", f"run {run}: {length / 1000:.4g} m of tube; a 1:1 PDF template takes at most "
+                         f"{limits.MAX_TEMPLATE_MM / 1000:g} m (vine_nlp.io.limits.MAX_TEMPLATE_MM): write an .svg or .dxf")
+
+
 def cmd_view(args) -> int:
     """One self-contained HTML view of an archive or of a sweep directory."""
     view = _front("view")
@@ -287,6 +319,7 @@ def cmd_view(args) -> int:
             archive_run(archive, src, args.run)
         elif not archive.runs:
             raise InputError(src, "runs", "the archive has no runs")
+        within_limits("view", archive, src, [args.run] if args.run else list(archive.runs))
         html = view.view_html(archive, run=args.run)
         what = ", ".join([args.run] if args.run else archive.runs)
     view.write_html(out, html)
@@ -303,6 +336,7 @@ def cmd_animate(args) -> int:
         raise InputError(out, "-o", "MP4 needs ffmpeg, which is not installed (apt-get install ffmpeg); write a .gif instead")
     archive = read_archive(args.archive)
     run = archive_run(archive, args.archive, args.run)
+    within_limits("animate", archive, args.archive, [run])
     info = animate.write_movie(archive, out, mode=args.mode, run=run, frames=args.frames, fps=args.fps)
     print(f"{info['frames']} frames ({info['mode']}), run {run}, self-contacts: {info['contacts_grow']} of the final shape, "
           f"up to {info['contacts_after']} at once when actuated after growth -> {out}")
@@ -318,6 +352,7 @@ def cmd_export(args) -> int:
         check_output(out.with_name(f"{out.stem}.actuator{out.suffix}"), args.force)
     archive = read_archive(args.archive)
     run = archive_run(archive, args.archive, args.run)
+    within_limits("export", archive, args.archive, [run])
     try:
         info = export.write_mesh(archive, out, run=run)
     except ValueError as e:

@@ -63,7 +63,9 @@ def inspect(h5: h5py.File, path: str) -> None:
     found = [("/", _attributes(h5, count))]  # the first refusal: h5py's visit cannot carry an exception out
 
     def visit(name, link):
-        if not _good_name(name.rsplit("/", 1)[-1]):
+        if name.count("/") >= limits.MAX_ARCHIVE_DEPTH:
+            reason = f"nested more than {limits.MAX_ARCHIVE_DEPTH} groups deep (vine_nlp.io.limits.MAX_ARCHIVE_DEPTH)"
+        elif not _good_name(name.rsplit("/", 1)[-1]):
             reason = _BAD_NAME
         elif not isinstance(link, h5py.HardLink):
             reason = f"a {type(link).__name__} (an archive is one file: links are not followed)"
