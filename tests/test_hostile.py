@@ -982,3 +982,105 @@ def test_a_warm_start_that_cannot_be_read_names_the_archive(design_archive, tmp_
     empty = hostile(design_archive, tmp_path, _zero_segments, "no-segments.h5")
     line = refused(capsys, ["design", tmp_path / "p.toml", "--warm", empty, "-o", tmp_path / "o.h5"], empty, "/runs/nlp/design/theta")
     assert "at least one segment" in line and not (tmp_path / "o.h5").exists()
+
+
+# ---------------------------------------------------------------- round 2: every limit costs at most its time and memory
+
+def _long_tube(tmp_path, length, step, name="long"):
+    (tmp_path / f"{name}.toml").write_text(FORWARD.replace("length = 12.0", f"length = {length}").replace("segment_length = 1.0", f"segment_length = {step}")
+                                           .replace("theta_deg = 5", 'theta_deg = "10 * sin(0.01 * s)"'))
+    assert main(["forward", str(tmp_path / f"{name}.toml"), "-o", str(tmp_path / f"{name}.h5")]) == 0
+    return tmp_path / f"{name}.h5"
+
+
+DRAWING = {"plot": ["-o", "o.png"], "view": ["-o", "o.html"], "animate": ["-o", "o.gif", "--frames", "3"], "export": ["-o", "o.stl"],
+           "template": ["-o", "o.svg"], "analyze": ["--samples", "20"]}
+
+
+def test_commands_say_what_they_cannot_afford(tmp_path, capsys):
+    path = _long_tube(tmp_path, 600.0, 0.1)  # 6000 segments, 300 tube diameters
+    out = tmp_path / "out"
+    out.mkdir()
+    for command, rest in DRAWING.items():
+        most = limits.COMMAND_LIMITS[command][0]
+        line = refused(capsys, [command, path, *(str(out / a) if a.startswith("o.") else a for a in rest)], path, "runs")
+        assert f"run forward: 6000 segments; {command} handles at most {most}" in line
+    short = _long_tube(tmp_path, 580.0, 1.0, "short")  # 580 segments, 290 diameters: 5.8 m of tube
+    line = refused(capsys, ["template", short, "-o", out / "o.pdf"], short, "runs")
+    assert "5.8 m of tube; a 1:1 PDF template takes at most 5 m" in line
+    assert list(out.iterdir()) == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("command", list(DRAWING))
+def test_each_command_at_its_limits_within_time_and_memory(tmp_path_factory, tmp_path, command):
+    most_segments, most_diameters = limits.COMMAND_LIMITS[command]
+    d = tmp_path_factory.mktemp("corner")
+    path = _long_tube(d, 2.0 * most_diameters, 2.0 * most_diameters / most_segments)  # D = 2: both limits at once
+    r = limited(command, path, *(str(tmp_path / a) if a.startswith("o.") else a for a in DRAWING[command]), timeout=3 * TIME_LIMIT)
+    assert r.returncode == 0, r.stderr  # 3 x 10 s: the machine these were measured on was shared (idle: 3 to 6 s)
+
+
+def _many_runs(h5):
+    for k in range(limits.MAX_RUNS):
+        h5.copy(h5["runs/forward"], f"runs/r{k}")
+
+
+ARCHIVE_SIZES = {
+    "101-runs": (_many_runs, "/runs", "101 runs, more than the limit of 100"),
+    "2000-nested-groups": (lambda h5: h5.create_group("deep/" + "/".join(["a"] * 2000)), "/deep/" + "/".join(["a"] * 16), "nested more than 16"),
+    "20000-groups": (lambda h5: [h5.create_group(f"junk/{k}") for k in range(20000)], None, "more than 5000 objects"),
+    "a-mesh-of-40000-faces": (lambda h5: (h5.create_group("obstacles/0").attrs.__setitem__("shape", "mesh"),
+                                          h5.create_dataset("obstacles/0/vertices", data=np.zeros((4, 3))),
+                                          h5.create_dataset("obstacles/0/faces", data=np.zeros((40000, 3), int))),
+                              "/obstacles/0/faces", "has 40000 rows; at most 20000"),
+}
+
+
+@pytest.mark.parametrize("case", list(ARCHIVE_SIZES))
+def test_archive_sizes_are_refused_within_time(forward_archive, tmp_path, case):
+    edit, key, reason = ARCHIVE_SIZES[case]
+    path = hostile(forward_archive, tmp_path, edit)
+    r = limited("view", path, "-o", tmp_path / "v.html")
+    assert r.returncode == 2 and reason in r.stderr and r.stderr.count("\n") == 1, r.stderr
+    if key:
+        one_line(r.stderr, path, key)
+    assert not (tmp_path / "v.html").exists()
+
+
+@pytest.mark.slow
+def test_analyze_of_a_mesh_at_the_face_limit_within_time_and_memory(design_archive, tmp_path):
+    trimesh = pytest.importorskip("trimesh")
+    mesh = trimesh.creation.uv_sphere(radius=3.0, count=[70, 72])  # 19 584 faces, closed
+    assert len(mesh.faces) <= 20_000 and mesh.is_watertight
+
+    def edit(h5):
+        g = h5.create_group("obstacles/0")
+        g.attrs["shape"] = "mesh"
+        g["vertices"], g["faces"] = np.asarray(mesh.vertices) + [0.0, 0.0, 30.0], np.asarray(mesh.faces)
+
+    r = limited("analyze", hostile(design_archive, tmp_path, edit), "--samples", "20", timeout=3 * TIME_LIMIT)
+    assert r.returncode == 0 and "obstacles   1" in r.stdout, r.stderr
+
+
+@pytest.mark.parametrize("obstacle, design, key, reason", [
+    ('shape = "sphere"\ncenter = [0.0, 0.0, 0.0]\nradius = 100.0', "", "obstacles[0]", "the whole target lies inside the obstacles"),
+    ('shape = "sphere"\ncenter = [0.0, 0.0, 100.0]\nradius = 3.0', "obstacle_margin = 1e9\n", "design.obstacle_margin",
+     "1e+09 is wider than the room around the target"),
+], ids=["target-inside", "margin-1e9"])
+def test_a_design_that_cannot_start_is_one_line_before_it_solves(tmp_path, obstacle, design, key, reason):
+    (tmp_path / "p.toml").write_text(TINY_TREFOIL + design + f"[[obstacles]]\n{obstacle}\n")
+    r = limited("design", tmp_path / "p.toml", "-o", tmp_path / "o.h5")
+    assert r.returncode == 2 and reason in one_line(r.stderr, tmp_path / "p.toml", key)
+    assert not (tmp_path / "o.h5").exists()
+
+
+def test_an_archived_measurement_of_1e5_copies_of_one_point(archive_kinds, tmp_path, capsys):
+    def edit(h5):
+        del h5["measured/0/points"]
+        h5["measured/0/points"] = np.tile([[1.0, 2.0, 3.0]], (10**5, 1))
+
+    path = hostile(archive_kinds["correction"], tmp_path, edit)
+    np.savetxt(tmp_path / "m.csv", load_archive(archive_kinds["correction"]).runs["corrected"].shape.outer, delimiter=",")
+    line = refused(capsys, ["correct", path, tmp_path / "m.csv", "-o", tmp_path / "c.h5"], path, "/measured/0/points")
+    assert "1 distinct points" in line and not (tmp_path / "c.h5").exists()

@@ -34,7 +34,7 @@ from vine_nlp.errors import InputError
 from vine_nlp.io import limits
 from vine_nlp.io.archive import Archive, ArchiveError, load_archive, write_archive
 from vine_nlp.io.calibration import check_calibration
-from vine_nlp.io.data_files import read_csv
+from vine_nlp.io.data_files import check_spread, read_csv
 from vine_nlp.io.h5read import open_archive
 from vine_nlp.io.validate import SourceFile
 from vine_nlp.methods.correct import CorrectionResult, Measurement
@@ -204,8 +204,14 @@ def _measurements(file, h5, a: Archive, B: int) -> list:
         build = _attr(file, node, "build", (int,))
         if not 0 <= build < B:
             raise ArchiveError(file, f"/measured/{k}@build", f"must be 0..{B - 1}, got {build}")
+        try:  # the rule of a measurement read from a file: archived, it was one
+            check_spread(file, pts.astype(float), a.diameter, MIN_MEASURED_POINTS)
+        except InputError as e:
+            raise ArchiveError(file, f"/measured/{k}/points", e.reason) from None
         ms.append(Measurement(pts.astype(float), line, build, "archive", _attr(file, node, "file", (str,), False, "")))
         k += 1
+    if sum(len(m.points) for m in ms) > MAX_MEASURED_POINTS:
+        raise ArchiveError(file, "/measured", f"{sum(len(m.points) for m in ms)} measured points in all: at most {MAX_MEASURED_POINTS}")
     if not ms:
         raise ArchiveError(file, "/measured/0/points", "missing: a correction archive holds its measurements")
     return ms
