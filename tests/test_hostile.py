@@ -1084,3 +1084,16 @@ def test_an_archived_measurement_of_1e5_copies_of_one_point(archive_kinds, tmp_p
     np.savetxt(tmp_path / "m.csv", load_archive(archive_kinds["correction"]).runs["corrected"].shape.outer, delimiter=",")
     line = refused(capsys, ["correct", path, tmp_path / "m.csv", "-o", tmp_path / "c.h5"], path, "/measured/0/points")
     assert "1 distinct points" in line and not (tmp_path / "c.h5").exists()
+
+
+@pytest.mark.parametrize("rows, reason, key", [(10**6, "more than 200 items", "rows"), (1, "longer than 10000 characters", "line 2")],
+                         ids=["1e6-rows", "a-field-of-200000-characters"])
+def test_a_sweep_view_of_a_summary_beyond_its_limits(forward_archive, tmp_path, rows, reason, key):
+    sweep = tmp_path / "sweep"
+    sweep.mkdir()
+    (sweep / "i-0001.h5").write_bytes(forward_archive.read_bytes())
+    row = "i-0001,nlp,optimal,0.1,0.2,1.0,10," + ("x" * 200_000 if rows == 1 else "") + "\n"
+    (sweep / "summary.csv").write_text("item,method,status,rmse,max_error,solve_time_s,iterations,error\n" + row * rows)
+    r = limited("view", sweep, "-o", tmp_path / "v.html")
+    assert r.returncode == 2 and reason in one_line(r.stderr, sweep / "summary.csv", key)
+    assert not (tmp_path / "v.html").exists()

@@ -8,6 +8,7 @@ as one line ``error: <file>: <key>: <reason>``, nothing written; 130 interrupted
 from __future__ import annotations
 
 import argparse
+import csv
 import logging
 import sys
 from pathlib import Path
@@ -296,6 +297,17 @@ def _template_limits(archive, args, fmt) -> None:
                          f"{limits.MAX_TEMPLATE_MM / 1000:g} m (vine_nlp.io.limits.MAX_TEMPLATE_MM): write an .svg or .dxf")
 
 
+def _sweep_view_limits(src) -> None:
+    """A sweep view loads every item's archive: at most limits.MAX_VIEW_ITEMS rows of summary.csv (counted first)."""
+    from vine_nlp.io.files import text_lines
+
+    summary = Path(src) / "summary.csv"
+    for number, _ in text_lines(summary):  # a line over MAX_LINE_CHARS is one line too (the csv module's limit is 131072)
+        if number > limits.MAX_VIEW_ITEMS + 1:
+            raise InputError(summary, "rows", f"more than {limits.MAX_VIEW_ITEMS} items: a view shows at most that many "
+                             "(vine_nlp.io.limits.MAX_VIEW_ITEMS); view the items' archives one by one")
+
+
 def cmd_view(args) -> int:
     """One self-contained HTML view of an archive or of a sweep directory."""
     view = _front("view")
@@ -308,9 +320,10 @@ def cmd_view(args) -> int:
             raise InputError(src, "--run", "a sweep view shows every run")
         if not view.is_sweep_dir(src):
             raise InputError(src, "SWEEPDIR", "no summary.csv: not a sweep directory")
+        _sweep_view_limits(src)
         try:
             html = view.sweep_html(src)
-        except (ValueError, OSError, KeyError) as e:
+        except (ValueError, OSError, KeyError, csv.Error) as e:  # csv.Error: a field over the csv module's limit
             raise InputError(src, "SWEEPDIR", str(e)) from None
         what = "sweep"
     else:

@@ -92,3 +92,5 @@ MAX_SECONDS = 604_800.0
 COMMAND_LIMITS = {"plot": (5_000, 300), "view": (5_000, 300), "animate": (5_000, 300), "export": (5_000, 300),
                   "template": (5_000, 300), "analyze": (2_000, 200)}
 MAX_TEMPLATE_MM = 5_000.0
+# Items of a sweep one view shows (each item's archive is loaded and drawn: about 50 ms each).
+MAX_VIEW_ITEMS = 200
