@@ -1097,3 +1097,65 @@ def test_a_sweep_view_of_a_summary_beyond_its_limits(forward_archive, tmp_path, 
     r = limited("view", sweep, "-o", tmp_path / "v.html")
     assert r.returncode == 2 and reason in one_line(r.stderr, sweep / "summary.csv", key)
     assert not (tmp_path / "v.html").exists()
+
+
+# ---------------------------------------------------------------- round 2: a fuzzer over archive values
+
+EDGE_VALUES = [0.0, -1.0, 1e-300, -1e-300, 1e300, -1e300, float("nan"), float("inf"), float("-inf"), np.pi / 2, 90.0, 2**63]
+FUZZ_COMMANDS = {"show": [], "plot": ["-o", "o.png"], "template": ["-o", "o.svg"], "view": ["-o", "o.html"], "export": ["-o", "o.stl"],
+                 "animate": ["-o", "o.gif", "--frames", "2"], "analyze": ["--samples", "10", "--write-metrics"], "forward": ["-o", "o.h5"],
+                 "correct": ["m.csv", "-o", "o.h5"], "calibrate": ["-o", "o.toml"]}
+
+
+def _places(path) -> list:
+    """Every dataset and attribute of an archive: ("ds", path) or ("attr", node path, name)."""
+    out = []
+
+    def visit(name, obj):
+        out.extend(("attr", name, k) for k in obj.attrs)
+        if isinstance(obj, h5py.Dataset):
+            out.append(("ds", name, None))
+
+    with h5py.File(path, "r") as h5:
+        visit("/", h5)
+        h5.visititems(visit)
+    return sorted(out)
+
+
+def _put(h5, place, value, whole):
+    kind, name, attr = place
+    if kind == "attr":
+        h5[name].attrs[attr] = value
+        return
+    data = np.array(h5[name][()], dtype=float)
+    if whole or data.ndim == 0:
+        data[...] = value
+    else:
+        data.flat[len(data.flat) // 2] = value
+    del h5[name]
+    h5[name] = data
+
+
+@pytest.mark.slow
+@settings(max_examples=int(os.environ.get("VINE_NLP_FUZZ_EXAMPLES", "40")), deadline=None, derandomize=not os.environ.get("VINE_NLP_FUZZ_RANDOM"),
+          database=None, suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(data=st.data())
+def test_fuzz_archive_values_through_every_command(archive_kinds, tmp_path, capsys, data):
+    source = data.draw(st.sampled_from(["design", "correction", "obstacle", "multishape"]))
+    place = data.draw(st.sampled_from(_places(archive_kinds[source])))
+    value = data.draw(st.sampled_from(EDGE_VALUES))
+    command = data.draw(st.sampled_from(sorted(FUZZ_COMMANDS)))
+    work = tmp_path / f"x{len(list(tmp_path.iterdir()))}"
+    work.mkdir()
+    path = work / "a.h5"
+    path.write_bytes(archive_kinds[source].read_bytes())
+    with h5py.File(path, "a") as h5:
+        _put(h5, place, value, data.draw(st.booleans()))
+    np.savetxt(work / "m.csv", load_archive(archive_kinds["design"]).runs["nlp"].shape.outer + 0.02, delimiter=",")
+    capsys.readouterr()
+    code = main([command, str(path), *(str(work / a) if a[:2] in ("o.", "m.") else a for a in FUZZ_COMMANDS[command])])
+    err = capsys.readouterr().err
+    lines = [x for x in err.splitlines() if not x.startswith("note: ")]
+    assert code in (0, 1, 2), (place, value, command, err)
+    if code == 2:
+        assert len(lines) == 1 and lines[0].startswith("error: ") and lines[0].isprintable(), (place, value, command, err)
