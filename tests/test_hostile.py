@@ -1159,3 +1159,14 @@ def test_fuzz_archive_values_through_every_command(archive_kinds, tmp_path, caps
     assert code in (0, 1, 2), (place, value, command, err)
     if code == 2:
         assert len(lines) == 1 and lines[0].startswith("error: ") and lines[0].isprintable(), (place, value, command, err)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_before_the_command_line_is_imported(design_archive, tmp_path, sig):
+    env, fifo = hold_env(tmp_path / "hold", "start")
+    proc = spawn(["template", design_archive, "-o", tmp_path / "t.pdf"], env)
+    _, marker = wait_for_marker(proc, "start")
+    proc.send_signal(sig)
+    rc, err = finish(proc, marker)
+    assert rc == 130 and [x for x in err.splitlines() if not x.startswith("vine-nlp: test hold")] == ["interrupted: nothing partial was written"]
+    assert not (tmp_path / "t.pdf").exists()

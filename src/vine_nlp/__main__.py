@@ -10,6 +10,7 @@ def run() -> int:
     interrupt.install()
     code = None
     try:
+        interrupt.hold("start")  # tests: a signal before the command line is even imported
         from vine_nlp.front.cli import main
 
         code = main()
