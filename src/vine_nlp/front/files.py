@@ -49,17 +49,12 @@ def read_archive(path, key="ARCHIVE"):
 def within_limits(command: str, archive, path, runs) -> None:
     """InputError unless ``runs`` of ``archive`` are within what ``command`` handles (io.limits.COMMAND_LIMITS):
     their segments and their tube lengths in diameters, added up."""
-    most_segments, most_diameters = limits.COMMAND_LIMITS[command]
     routings = [archive.runs[r].routing for r in runs]
-    M = sum(r.segments for r in routings)
-    span = sum(float(r.length.sum()) for r in routings) / archive.diameter
-    what = f"run {runs[0]}" if len(runs) == 1 else f"{len(runs)} runs"
-    if M > most_segments:
-        raise InputError(path, "runs", f"{what}: {M} segments; {command} handles at most {most_segments} "
-                         "(vine_nlp.io.limits.COMMAND_LIMITS)" + ("; choose one with --run" if len(runs) > 1 and command == "view" else ""))
-    if span > most_diameters:
-        raise InputError(path, "runs", f"{what}: {span:.4g} tube diameters of tube; {command} handles at most {most_diameters} "
-                         "(vine_nlp.io.limits.COMMAND_LIMITS)" + ("; choose one with --run" if len(runs) > 1 and command == "view" else ""))
+    sizes = (sum(r.segments for r in routings), sum(float(r.length.sum()) for r in routings) / archive.diameter)
+    for size, most, what in zip(sizes, limits.COMMAND_LIMITS[command], ("segments", "tube diameters of tube")):
+        if size > most:
+            raise InputError(path, "runs", f"{f'run {runs[0]}' if len(runs) == 1 else f'{len(runs)} runs'}: {size:.6g} {what}; {command} handles "
+                             f"at most {most} (vine_nlp.io.limits.COMMAND_LIMITS)" + ("; choose one with --run" if len(runs) > 1 and command == "view" else ""))
 
 
 def archive_run(archive, path, run):
