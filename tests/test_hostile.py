@@ -170,8 +170,9 @@ def test_an_archived_source_is_read_with_the_problem_checks(design_archive, tmp_
     source = load_archive(design_archive).source.replace("samples = 41", "samples = " + "9" * 5000)
     path = hostile(design_archive, tmp_path, lambda h5: h5["problem"].attrs.__setitem__("source", source))
     np.savetxt(tmp_path / "m.csv", load_archive(design_archive).runs["nlp"].shape.outer, delimiter=",")
-    # the source cannot be read: the archive's own data stands in, and what it lacks is one line, not a traceback
-    refused(capsys, ["correct", path, tmp_path / "m.csv", "-o", tmp_path / "c.h5"], path, "/runs/nlp/design/theta")
+    # the source cannot be read: the archive's own data stands in (its target, the run's own pairing)
+    assert main(["correct", str(path), str(tmp_path / "m.csv"), "-o", str(tmp_path / "c.h5")]) == 0
+    assert load_archive(tmp_path / "c.h5").runs["as_built"].routing.segments == load_archive(path).runs["nlp"].routing.segments
 
 
 def test_calibrate_refuses_a_compressed_bomb(forward_archive, tmp_path):
