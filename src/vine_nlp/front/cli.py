@@ -462,7 +462,7 @@ def build_parser() -> argparse.ArgumentParser:
     sw = sub.add_parser("sweep", help="many design problems: one archive per item, summary.csv and a summary figure")
     sw.add_argument("sweep", metavar="SWEEP.toml")
     sw.add_argument("-o", "--output", required=True, metavar="DIR")
-    sw.add_argument("--workers", type=ff.bounded(1, limits.MAX_WORKERS, True), metavar="N", help="local worker processes (default: all cores)")
+    sw.add_argument("--workers", type=ff.bounded(0, limits.MAX_WORKERS, True), metavar="N", help="local worker processes (default: all cores)")
     sw.add_argument("--scheduler", metavar="ADDRESS", help="run on a Dask distributed cluster (e.g. tcp://host:8786)")
     sw.add_argument("--force", action="store_true", help="redo items whose archives exist")
     sw.set_defaults(func=cmd_sweep)
@@ -561,7 +561,7 @@ def main(argv=None) -> int:
         args = parser.parse_args(argv)
         with outputs.run():  # the outputs check_output reserved: all written when the command ends, or none
             code = args.func(args)
-            if interrupt.requested():  # a signal whose KeyboardInterrupt a library swallowed: nothing is committed
+            if interrupt.requested() and code != 130:  # a signal whose KeyboardInterrupt a library swallowed: nothing is committed
                 raise KeyboardInterrupt
             return code
     except BaseException as e:  # noqa: BLE001  each kind is one line and an exit code, or raised again
