@@ -146,7 +146,7 @@ def test_mp4_without_ffmpeg_is_refused(loop_file, tmp_path):
     (["{a}", "-o", "{d}/m.avi"], "error: {d}/m.avi: -o: unknown movie format '.avi': use .gif, .mp4"),
     (["{a}", "-o", "{d}/m.gif", "--run", "nlp"], "error: {a}: --run: no run 'nlp' (runs: forward)"),
     (["{a}", "-o", "{d}/m.gif", "--mode", "sideways"], "error: command line: vine-nlp animate: argument --mode: invalid choice"),
-    (["{a}", "-o", "{d}/m.gif", "--frames", "1"], "error: command line: vine-nlp animate: argument --frames: must be >= 2"),
+    (["{a}", "-o", "{d}/m.gif", "--frames", "1"], "error: command line: vine-nlp animate: argument --frames: must be an integer >= 2 and <= 200"),
     (["{bad}", "-o", "{d}/m.gif"], "error: {bad}: "),
 ])
 def test_animate_bad_input(loop_file, tmp_path, capsys, args, prefix):

@@ -95,8 +95,8 @@ def test_bad_input_one_line_exit_2_nothing_written(tmp_path):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--hops", "-1"], "error: command line: vine-nlp design: argument --hops: must be >= 0, got -1"),
-        (["--starts", "0"], "error: command line: vine-nlp design: argument --starts: must be >= 1, got 0"),
+        (["--hops", "-1"], "error: command line: vine-nlp design: argument --hops: must be an integer >= 0 and <= 1000, got -1"),
+        (["--starts", "0"], "error: command line: vine-nlp design: argument --starts: must be an integer >= 1 and <= 1000, got 0"),
         (["--workers", "two"], "error: command line: vine-nlp design: argument --workers: invalid integer: 'two'"),
     ],
 )

@@ -17,18 +17,20 @@ it). The test waits for the line (or the claim file), then signals or kills the
 process: it is then certainly mid-run at that point. Every other process, and
 later visits, pass through. Hold points: ``solve`` (:func:`check`, after each
 solver call, so a run is inside its solve loop), ``sweep-item`` (a sweep wrote
-an item's archive and its summary). Without the variable the points cost one
+an item's archive and its summary), ``archive`` (an archive open in h5py), ``start`` (``python -m vine_nlp`` before its imports). Without the variable the points cost one
 dictionary lookup.
 """
 
 from __future__ import annotations
 
+import _thread
 import os
 import signal
 import sys
 import threading
 
 _requested = threading.Event()
+_raised = {"once": False, "again": False}  # a KeyboardInterrupt was raised; one more is owed (the first was lost)
 INTERRUPTED_STATUS = "NonIpopt_Exception_Thrown"  # no callbacks of ours can throw: only an interrupt
 HOLD_ENV = "VINE_NLP_TEST_HOLD"
 _passed: set = set()  # hold points this process went past (each holds at most once)
@@ -36,17 +38,54 @@ _passed: set = set()  # hold points this process went past (each holds at most o
 
 def _handler(signum, frame):
     _requested.set()
+    if (_raised["once"] and not _raised["again"]) or _raised.get("hook"):
+        return  # unwinding already: a second signal does not break the cleanup (requested() stays true)
+    _raised.update(once=True, again=False)
     raise KeyboardInterrupt
 
 
+def _unraisable(info, previous=sys.unraisablehook):
+    """A KeyboardInterrupt raised where Python cannot pass it on (a weakref callback, ``__del__``): no
+    traceback; it is raised again in the main thread, where the command ends on it."""
+    if not isinstance(info.exc_value, KeyboardInterrupt):
+        return previous(info)
+    _requested.set()
+    if _raised["again"]:
+        return None
+    # raised in the hook itself, the KeyboardInterrupt would be lost again: a thread raises it once the hook is done
+    _raised.update(again=True, hook=True)
+    done = threading.Event()
+    try:
+        threading.Thread(target=lambda: (done.wait(), _thread.interrupt_main()), daemon=True).start()
+    finally:
+        _raised["hook"] = False
+        done.set()
+    return None
+
+
+def requested() -> bool:
+    """A signal arrived since :func:`install` (whatever became of the KeyboardInterrupt it raised)."""
+    return _requested.is_set()
+
+
+def quiet() -> None:
+    """From here on a signal only sets :func:`requested` (the end of a command: nothing left to interrupt)."""
+    for s in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(s, lambda *_: _requested.set())
+
+
 def install():
-    """Route SIGINT and SIGTERM to KeyboardInterrupt (main thread only); returns a restore function."""
+    """Route SIGINT and SIGTERM to KeyboardInterrupt (main thread only): the first signal raises, later ones
+    only keep :func:`requested` true; returns a restore function."""
     if threading.current_thread() is not threading.main_thread():
         return lambda: None
     _requested.clear()
+    _raised.update(once=False, again=False)
     old = {s: signal.signal(s, _handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    hook, sys.unraisablehook = sys.unraisablehook, _unraisable
 
     def restore():
+        sys.unraisablehook = hook
         for s, h in old.items():
             signal.signal(s, h)
 
@@ -93,7 +132,8 @@ def hold(point: str) -> None:
     _passed.add(point)
     if not _claim(fifo):
         return
-    print(f"vine-nlp: test hold at {point} (pid {os.getpid()})", file=sys.stderr, flush=True)
+    sys.stderr.flush()
+    os.write(2, f"vine-nlp: test hold at {point} (pid {os.getpid()})\n".encode())  # one write: a signal cannot split the line
     # Blocks until the test opens the pipe for writing; a signal handler that raises ends the wait.
     with open(fifo, "rb") as fh:
         fh.read()

@@ -9,11 +9,12 @@ from vine_nlp.analysis.obstacles import obstacle_report, report_rows
 from vine_nlp.analysis.tolerance import tolerance_metrics, tolerance_report
 from vine_nlp.errors import InputError
 from vine_nlp.front.analysis_plots import clearance_figure, tolerance_figure
-from vine_nlp.front.files import archive_run, check_figure, read_archive, sigmas
+from vine_nlp.front.files import archive_run, check_figure, read_archive, sigmas, within_limits
 from vine_nlp.front.load_plots import analyze_load
-from vine_nlp.io.archive import write_archive
+from vine_nlp.io import limits
+from vine_nlp.io.archive import add_metrics
+from vine_nlp.io.archived import archived_problem
 from vine_nlp.io.obstacles import DEFAULT_GROWTH, parse_obstacle_design
-from vine_nlp.io.problems import design_problem_of
 from vine_nlp.io.validate import parse_toml
 
 
@@ -25,6 +26,8 @@ def cmd_analyze(args) -> int:
         check_figure(getattr(args, flag), True)
     r = archive.runs[run]
     D, u = archive.diameter, archive.units
+    within_limits("analyze", archive, args.archive, [run])
+    _check_costs(args, archive, r)
     cl = routing_clearance(r.routing, D, margin=args.margin)
     if math.isfinite(cl["clearance"]):
         print(f"clearance   min {cl['clearance']:.4g} {u} ({cl['clearance'] / D:.2f} D) at {cl['l_i']:.4g} / {cl['l_j']:.4g} {u} of tube; "
@@ -45,7 +48,7 @@ def cmd_analyze(args) -> int:
     metrics |= analyze_load(archive, args.archive, r.routing, getattr(args, "load_figure", None), f"{archive.name}: {run}")
     figures = []
     if archive.kind == "design" and archive.target is not None:
-        problem = design_problem_of(archive, args.archive)
+        problem = archived_problem(archive, args.archive, run)
         sig = sigmas(args)
         rep = tolerance_report(problem, r, sig, samples=args.samples, seed=args.seed)
         fo, mc, nom = rep["first_order"], rep["monte_carlo"], rep["nominal"]
@@ -69,10 +72,20 @@ def cmd_analyze(args) -> int:
     if args.write_metrics:
         # archived metrics are finite (archives are validated on read): one that does not apply is left
         # out (first_contact_growth_length of a tube that never touches itself)
-        r.metrics.update({k: float(v) for k, v in metrics.items() if math.isfinite(float(v))})
-        write_archive(args.archive, archive)
+        add_metrics(args.archive, run, {k: float(v) for k, v in metrics.items() if math.isfinite(float(v))})
         print(f"metrics -> {args.archive} (/runs/{run}/metrics)")
     return 0
+
+
+def _check_costs(args, archive, r) -> None:
+    """The numbers of the command line against what they cost on this design (one line each)."""
+    M, total = r.routing.segments, float(r.routing.length.sum())
+    if args.samples * M > limits.MAX_DATASET_ELEMENTS:
+        raise InputError("command line", "--samples", f"{args.samples} samples of {M} segments: at most {limits.MAX_DATASET_ELEMENTS // M} "
+                         f"for this design (samples x segments <= vine_nlp.io.limits.MAX_DATASET_ELEMENTS)")
+    if args.margin > total:
+        raise InputError("command line", "--margin", f"{args.margin:g} is more than the tube's length {total:.4g} {archive.units}: "
+                         "every part of the tube would be in contact with every other")
 
 
 def _analyze_obstacles(archive, r, u) -> dict:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +34,7 @@ from vine_nlp.analysis.obstacles import ModelLine, after_growth_routing
 from vine_nlp.front import palette
 from vine_nlp.front.plot import equal_view_3d, label_3d_axes
 from vine_nlp.front.view import run_shape, tube_rings
-from vine_nlp.io.archive import Archive, write_atomic
+from vine_nlp.io.archive import Archive, OutputError, write_atomic
 from vine_nlp.problem import Routing
 
 MODES = ("grow", "after", "both")
@@ -190,9 +191,16 @@ def write_movie(archive: Archive, path, mode: str = "both", run: str | None = No
     # the writer needs a real file name with the right extension: a temporary one beside the target
     target = Path(path)
     tmp_name = target.with_name(f".{target.name}.vine-nlp-{os.getpid()}-partial.tmp{ext}")  # swept if killed (io/outputs.py)
+    def write(t):
+        try:
+            record(tmp_name)
+        except subprocess.CalledProcessError as e:  # ffmpeg: a full disk ends its pipe, or it fails writing
+            last = (e.stderr or b"").decode(errors="replace").strip().splitlines()[-1:] or [f"exit status {e.returncode}"]
+            raise OutputError(target, "write", f"cannot write (ffmpeg: {last[0][:200]}); nothing was written") from None
+        Path(t).write_bytes(tmp_name.read_bytes())
+
     try:
-        record(tmp_name)
-        write_atomic(target, lambda t: Path(t).write_bytes(tmp_name.read_bytes()))
+        write_atomic(target, write)
     finally:
         tmp_name.unlink(missing_ok=True)
     return {"run": run, "mode": mode, "frames": frames, "format": ext[1:],

@@ -8,14 +8,16 @@ as one line ``error: <file>: <key>: <reason>``, nothing written; 130 interrupted
 from __future__ import annotations
 
 import argparse
+import csv
 import logging
 import sys
 from pathlib import Path
 
 from vine_nlp import __version__
 from vine_nlp.errors import InputError
+from vine_nlp.front import files as ff
 from vine_nlp.front.files import add_sigma_args, archive_run, check_figure, check_output, read_archive, sigmas
-from vine_nlp.io import outputs
+from vine_nlp.io import limits, outputs
 from vine_nlp.methods import blas, compiled
 from vine_nlp.pipeline.request import COMPARE
 from vine_nlp.problem import METHODS
@@ -35,32 +37,6 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message):
         raise InputError("command line", self.prog, message)
-
-
-def _at_least(least: int):
-    """argparse type: an integer >= ``least`` (a usage error otherwise)."""
-
-    def convert(text):
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"invalid integer: {text!r}") from None
-        if value < least:
-            raise argparse.ArgumentTypeError(f"must be >= {least}, got {value}")
-        return value
-
-    return convert
-
-
-def _seconds(text):
-    """argparse type: a finite number of seconds >= 0 (a usage error otherwise)."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"invalid number: {text!r}") from None
-    if not (value >= 0 and value != float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return value
 
 
 def _progress_bar(desc, unit):
@@ -143,6 +119,17 @@ def _request(args, pf, methods):
         if not a.runs:
             raise InputError(args.warm, "--warm", "the archive has no design run")
         warm = a.runs[a.default_run()].routing
+    if pf.kind == "design":
+        from vine_nlp.io.obstacles import check_start
+
+        check_start(pf.problem, args.problem)
+    if get("clearance") and getattr(pf.problem, "target", None) is not None:
+        import numpy as np
+
+        span = float(np.linalg.norm(np.ptp(pf.problem.target, axis=0)))
+        if args.min_gap > span:
+            raise InputError("command line", "--min-gap", f"{args.min_gap:g} is wider than the target, which spans {span:.4g} {pf.units}: "
+                             "a tube that keeps that far from itself cannot follow it")
     frames = ()
     if get("frames"):
         from vine_nlp.io.data_files import read_points
@@ -171,6 +158,8 @@ def cmd_solve(args) -> int:
     except InputError as e:
         raise InputError(e.file, FLAGS.get(e.key, e.key), e.reason) from None
     except ValueError as e:  # a fit with too few usable points after the reader's checks
+        if pf.kind != "fit":
+            raise
         raise InputError(args.problem, "measured.file", str(e)) from None
     finally:
         close()
@@ -240,7 +229,8 @@ def cmd_calibrate(args) -> int:
 def cmd_plot(args) -> int:
     from vine_nlp.front.figures import draw
 
-    read_archive(args.archive)
+    archive = read_archive(args.archive)
+    ff.within_limits("plot", archive, args.archive, list(archive.runs))
     out = check_figure(args.output, args.force, "-o")
     draw(args.archive, out)
     print(f"figure -> {out}")
@@ -254,6 +244,7 @@ def cmd_template(args) -> int:
     fmt = _output_format(out, "template", "template_format")
     archive = read_archive(args.archive)
     csv = check_output(args.csv, args.force, "--csv") if args.csv else None
+    _template_limits(archive, args, fmt)
     rows = None
     if getattr(args, "changes", False):
         from vine_nlp.front.changes import change_rows, changes_text
@@ -290,6 +281,33 @@ def cmd_template(args) -> int:
     return EXIT_OK
 
 
+def _template_limits(archive, args, fmt) -> None:
+    """A template's run within the command's limits; a PDF (1:1, paged) of at most MAX_TEMPLATE_MM of tube."""
+    run = args.run or ("corrected" if getattr(args, "changes", False) else None)
+    if run is not None and run not in archive.runs:
+        return  # the template names the missing run itself
+    run = run or archive.default_run()
+    if run is None:
+        return
+    ff.within_limits("template", archive, args.archive, [run])
+    mm = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4, "inch": 25.4}.get(archive.units.lower())
+    length = float(archive.runs[run].routing.length.sum()) * (mm or 0.0)
+    if fmt == ".pdf" and length > limits.MAX_TEMPLATE_MM:
+        raise InputError(args.archive, "runs", f"run {run}: {length / 1000:.4g} m of tube; a 1:1 PDF template takes at most "
+                         f"{limits.MAX_TEMPLATE_MM / 1000:g} m (vine_nlp.io.limits.MAX_TEMPLATE_MM): write an .svg or .dxf")
+
+
+def _sweep_view_limits(src) -> None:
+    """A sweep view loads every item's archive: at most limits.MAX_VIEW_ITEMS rows of summary.csv (counted first)."""
+    from vine_nlp.io.files import text_lines
+
+    summary = Path(src) / "summary.csv"
+    for number, _ in text_lines(summary):  # a line over MAX_LINE_CHARS is one line too (the csv module's limit is 131072)
+        if number > limits.MAX_VIEW_ITEMS + 1:
+            raise InputError(summary, "rows", f"more than {limits.MAX_VIEW_ITEMS} items: a view shows at most that many "
+                             "(vine_nlp.io.limits.MAX_VIEW_ITEMS); view the items' archives one by one")
+
+
 def cmd_view(args) -> int:
     """One self-contained HTML view of an archive or of a sweep directory."""
     view = _front("view")
@@ -302,9 +320,10 @@ def cmd_view(args) -> int:
             raise InputError(src, "--run", "a sweep view shows every run")
         if not view.is_sweep_dir(src):
             raise InputError(src, "SWEEPDIR", "no summary.csv: not a sweep directory")
+        _sweep_view_limits(src)
         try:
             html = view.sweep_html(src)
-        except (ValueError, OSError, KeyError) as e:
+        except (ValueError, OSError, KeyError, csv.Error) as e:  # csv.Error: a field over the csv module's limit
             raise InputError(src, "SWEEPDIR", str(e)) from None
         what = "sweep"
     else:
@@ -313,6 +332,7 @@ def cmd_view(args) -> int:
             archive_run(archive, src, args.run)
         elif not archive.runs:
             raise InputError(src, "runs", "the archive has no runs")
+        ff.within_limits("view", archive, src, [args.run] if args.run else list(archive.runs))
         html = view.view_html(archive, run=args.run)
         what = ", ".join([args.run] if args.run else archive.runs)
     view.write_html(out, html)
@@ -329,6 +349,7 @@ def cmd_animate(args) -> int:
         raise InputError(out, "-o", "MP4 needs ffmpeg, which is not installed (apt-get install ffmpeg); write a .gif instead")
     archive = read_archive(args.archive)
     run = archive_run(archive, args.archive, args.run)
+    ff.within_limits("animate", archive, args.archive, [run])
     info = animate.write_movie(archive, out, mode=args.mode, run=run, frames=args.frames, fps=args.fps)
     print(f"{info['frames']} frames ({info['mode']}), run {run}, self-contacts: {info['contacts_grow']} of the final shape, "
           f"up to {info['contacts_after']} at once when actuated after growth"
@@ -346,6 +367,7 @@ def cmd_export(args) -> int:
         check_output(out.with_name(f"{out.stem}.actuator{out.suffix}"), args.force)
     archive = read_archive(args.archive)
     run = archive_run(archive, args.archive, args.run)
+    ff.within_limits("export", archive, args.archive, [run])
     try:
         info = export.write_mesh(archive, out, run=run)
     except ValueError as e:
@@ -385,12 +407,12 @@ def _add_correct_arguments(p) -> None:
     p.add_argument("archive", metavar="ARCHIVE.h5")
     p.add_argument("measured", nargs="+", metavar="MEASURED.csv", help="points measured on the built robot (rows x y z, any order)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.h5")
-    p.add_argument("--run", help="the nominal that was built (default: corrected in a correction archive, else the design run)")
+    p.add_argument("--run", type=ff.run_name, help="the nominal that was built (default: corrected in a correction archive, else the design run)")
     p.add_argument("--line", default="outer", metavar="LINE[,LINE...]", help="measured line: center, inner or outer; one per file or one for all (default outer)")
     p.add_argument("--adjust", choices=("lambda", "lambda,theta"), metavar="lambda|lambda,theta", help="the route taken as /runs/corrected: lambda (stoppers or pouches on this robot) or lambda,theta (the line drawn anew on a new tube); default: the recommended one (both are predicted)")
     p.add_argument("--free-pose", action="store_true", help="the measurement is in an unknown frame: estimate its rigid pose")
     add_sigma_args(p)
-    p.add_argument("--sigma-measurement", type=float, metavar="S", help="measurement noise, in units (default 1 mm)")
+    p.add_argument("--sigma-measurement", type=ff.bounded(0, limits.MAX_COORDINATE, above=True), metavar="S", help="measurement noise, in units (default 1 mm)")
     p.add_argument("--plot", metavar="FIG.png", help="measured, estimated and corrected shapes; deviations per segment")
     p.add_argument("--force", action="store_true", help="overwrite existing output files")
 
@@ -408,7 +430,7 @@ def build_parser() -> argparse.ArgumentParser:
     f = sub.add_parser("forward", help="shape of a given routing -> result archive")
     f.add_argument("problem", metavar="PROBLEM.toml|ARCHIVE.h5", help="a forward problem, or an archive whose stored routing is re-run")
     f.add_argument("-o", "--output", required=True, metavar="OUT.h5")
-    f.add_argument("--run", help="with an archive: which run's routing (default: its default run)")
+    f.add_argument("--run", type=ff.run_name, help="with an archive: which run's routing (default: its default run)")
     f.add_argument("--plot", metavar="FIG.png", help="also draw the shape (png or pdf)")
     f.add_argument("--force", action="store_true", help="overwrite existing output files")
     f.set_defaults(func=cmd_solve)
@@ -424,25 +446,25 @@ def build_parser() -> argparse.ArgumentParser:
             d.add_argument("--method", choices=METHODS, help="default: the problem's [design] method (nlp)")
             d.add_argument("--warm", metavar="ARCHIVE.h5", help="nlp: start from the design in an earlier archive")
             d.add_argument("--robust", action="store_true", help="also a design minimizing the expected error under construction errors (run nlp_robust)")
-            d.add_argument("--robust-weight", type=float, default=1.0, metavar="W", help="weight of the expected error increase")
+            d.add_argument("--robust-weight", type=ff.bounded(0, 1e6), default=1.0, metavar="W", help="weight of the expected error increase")
             add_sigma_args(d)
             d.add_argument("--clearance", action="store_true", help="also a design keeping the tube clear of itself (run nlp_clearance)")
-            d.add_argument("--min-gap", type=float, default=0.0, metavar="G", help="clearance beyond D, in units")
-        d.add_argument("--starts", type=_at_least(1), metavar="N", help="nlp: number of starts of the multi-start (default: the problem's)")
-        d.add_argument("--hops", type=_at_least(0), metavar="N", help="nlp: rounds of basin hopping after the starts, for targets with corners (default: the problem's)")
-        d.add_argument("--budget", type=_seconds, metavar="S", help="nlp: seconds for the corner search where the first solve shows a corner-like target (default: the problem's [design] budget, 20; 0: off)")
-        d.add_argument("--workers", type=_at_least(1), default=1, metavar="N", help="nlp: run the starts in N processes")
+            d.add_argument("--min-gap", type=ff.bounded(0, limits.MAX_COORDINATE), default=0.0, metavar="G", help="clearance beyond D, in units")
+        d.add_argument("--starts", type=ff.bounded(1, limits.MAX_STARTS, True), metavar="N", help="nlp: number of starts of the multi-start (default: the problem's)")
+        d.add_argument("--hops", type=ff.bounded(0, limits.MAX_HOPS, True), metavar="N", help="nlp: rounds of basin hopping after the starts, for targets with corners (default: the problem's)")
+        d.add_argument("--budget", type=ff.bounded(0, limits.MAX_SECONDS), metavar="S", help="nlp: seconds for the corner search where the first solve shows a corner-like target (default: the problem's [design] budget, 20; 0: off)")
+        d.add_argument("--workers", type=ff.bounded(1, limits.MAX_WORKERS, True), default=1, metavar="N", help="nlp: run the starts in N processes")
         d.add_argument("--plot", metavar="FIG.png", help="also draw the result (png or pdf)")
         d.add_argument("--force", action="store_true", help="overwrite existing output files")
         d.set_defaults(func=cmd_solve)
 
     an = sub.add_parser("analyze", help="self-collision, growth order and manufacturing tolerance of a design")
     an.add_argument("archive", metavar="OUT.h5")
-    an.add_argument("--run", help="which run (default: nlp, greedy, forward, ...)")
+    an.add_argument("--run", type=ff.run_name, help="which run (default: nlp, greedy, forward, ...)")
     add_sigma_args(an)
-    an.add_argument("--samples", type=int, default=2000, help="Monte Carlo samples (default 2000)")
-    an.add_argument("--seed", type=int, default=0)
-    an.add_argument("--margin", type=float, default=0.0, metavar="G", help="count approaches closer than D + G as contacts")
+    an.add_argument("--samples", type=ff.bounded(1, limits.MAX_SAMPLES, True), default=2000, help="Monte Carlo samples (default 2000)")
+    an.add_argument("--seed", type=ff.bounded(0, limits.MAX_SEED, True), default=0)
+    an.add_argument("--margin", type=ff.bounded(0, limits.MAX_COORDINATE), default=0.0, metavar="G", help="count approaches closer than D + G as contacts")
     an.add_argument("--tolerance-figure", metavar="FIG.png", help="where along the tube errors matter most")
     an.add_argument("--clearance-figure", metavar="FIG.png", help="clearance along the tube")
     an.add_argument("--load-figure", metavar="FIG.png", help="[load]: bending moment and capacity along the tube and over growth")
@@ -452,7 +474,7 @@ def build_parser() -> argparse.ArgumentParser:
     sw = sub.add_parser("sweep", help="many design problems: one archive per item, summary.csv and a summary figure")
     sw.add_argument("sweep", metavar="SWEEP.toml")
     sw.add_argument("-o", "--output", required=True, metavar="DIR")
-    sw.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: all cores)")
+    sw.add_argument("--workers", type=ff.bounded(0, limits.MAX_WORKERS, True), metavar="N", help="local worker processes (default: all cores)")
     sw.add_argument("--scheduler", metavar="ADDRESS", help="run on a Dask distributed cluster (e.g. tcp://host:8786)")
     sw.add_argument("--force", action="store_true", help="redo items whose archives exist")
     sw.set_defaults(func=cmd_sweep)
@@ -460,8 +482,8 @@ def build_parser() -> argparse.ArgumentParser:
     ft = sub.add_parser("fit", help="fit the model of a known routing to measured points (pose, optionally lambda)")
     ft.add_argument("problem", metavar="PROBLEM.toml")
     ft.add_argument("-o", "--output", required=True, metavar="OUT.h5")
-    ft.add_argument("--starts", dest="fit_starts", type=int, default=24, metavar="N", help="starting orientations of the global pose search")
-    ft.add_argument("--seed", type=int, default=0)
+    ft.add_argument("--starts", dest="fit_starts", type=ff.bounded(1, limits.MAX_STARTS, True), default=24, metavar="N", help="starting orientations of the global pose search")
+    ft.add_argument("--seed", type=ff.bounded(0, limits.MAX_SEED, True), default=0)
     ft.add_argument("--plot", metavar="FIG.png", help="measured points against the fitted model, error against length")
     ft.add_argument("--frames", nargs="+", metavar="FRAME.csv", help="also fit these frames of the same actuator in order")
     ft.add_argument("--frames-plot", metavar="FIG.png", help="with --frames: lambda over frames and error against length")
@@ -479,7 +501,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("-o", "--output", required=True, metavar="TEMPLATE.pdf|.svg|.dxf")
     t.add_argument("--csv", metavar="CUTS.csv", help="also write one row per segment")
     t.add_argument("--paper", choices=("A4", "Letter"), default="A4")
-    t.add_argument("--run", help="which run of the archive (default: nlp, greedy or forward)")
+    t.add_argument("--run", type=ff.run_name, help="which run of the archive (default: nlp, greedy or forward)")
     t.add_argument("--changes", action="store_true", help="correction archives: also list, and frame on the template, the segments whose stoppers change against the robot built last")
     t.add_argument("--force", action="store_true", help="overwrite existing output files")
     t.set_defaults(func=cmd_template)
@@ -487,7 +509,7 @@ def build_parser() -> argparse.ArgumentParser:
     vw = sub.add_parser("view", help="interactive 3-D view (one HTML file, offline) of an archive or a sweep directory")
     vw.add_argument("source", metavar="ARCHIVE.h5|SWEEPDIR")
     vw.add_argument("-o", "--output", required=True, metavar="VIEW.html")
-    vw.add_argument("--run", help="show only this run (default: every run, toggled in the legend)")
+    vw.add_argument("--run", type=ff.run_name, help="show only this run (default: every run, toggled in the legend)")
     vw.add_argument("--force", action="store_true", help="overwrite an existing file")
     vw.set_defaults(func=cmd_view)
 
@@ -495,16 +517,17 @@ def build_parser() -> argparse.ArgumentParser:
     am.add_argument("archive", metavar="ARCHIVE.h5")
     am.add_argument("-o", "--output", required=True, metavar="MOVIE.gif|MOVIE.mp4")
     am.add_argument("--mode", choices=("grow", "after", "both"), default="both")
-    am.add_argument("--run", help="which run (default: nlp, greedy, forward, ...)")
-    am.add_argument("--frames", type=_at_least(2), default=41, metavar="N", help="frames (default 41: a frame at every t analyze looks at)")
-    am.add_argument("--fps", type=_at_least(1), default=10, metavar="N", help="frames per second (default 10)")
+    am.add_argument("--run", type=ff.run_name, help="which run (default: nlp, greedy, forward, ...)")
+    am.add_argument("--frames", type=ff.bounded(2, limits.MAX_FRAMES, True), default=41, metavar="N",
+                    help="frames (default 41: a frame at every t analyze looks at)")
+    am.add_argument("--fps", type=ff.bounded(1, limits.MAX_FPS, True), default=10, metavar="N", help="frames per second (default 10)")
     am.add_argument("--force", action="store_true", help="overwrite an existing file")
     am.set_defaults(func=cmd_animate)
 
     ex = sub.add_parser("export", help="the tube as a closed triangle mesh (STL, OBJ, PLY, glTF .glb)")
     ex.add_argument("archive", metavar="ARCHIVE.h5")
     ex.add_argument("-o", "--output", required=True, metavar="TUBE.stl|.obj|.ply|.glb")
-    ex.add_argument("--run", help="which run (default: nlp, greedy, forward, ...)")
+    ex.add_argument("--run", type=ff.run_name, help="which run (default: nlp, greedy, forward, ...)")
     ex.add_argument("--force", action="store_true", help="overwrite existing files")
     ex.set_defaults(func=cmd_export)
 
@@ -577,22 +600,35 @@ def main(argv=None) -> int:
         args = parser.parse_args(argv)
         _one_actuator_only(args)
         with outputs.run():  # the outputs check_output reserved: all written when the command ends, or none
-            return args.func(args)
-    except InputError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
+            code = args.func(args)
+            if interrupt.requested() and code != 130:  # a signal whose KeyboardInterrupt a library swallowed: nothing is committed
+                raise KeyboardInterrupt
+            return code
+    except BaseException as e:  # noqa: BLE001  each kind is one line and an exit code, or raised again
+        return _ending(e)
+    finally:
+        restore()
+
+
+def _ending(e: BaseException) -> int:
+    """The exit code (and the one line) of a command that raised ``e``; ``e`` again when it is a bug."""
+    from vine_nlp import interrupt
+
+    # whatever a signal became on its way out of a library (h5py's lock: a SystemError) is the interrupt
+    if isinstance(e, KeyboardInterrupt) or (interrupt.requested() and not isinstance(e, SystemExit)):
         print("interrupted: nothing partial was written", file=sys.stderr)
         return 130
-    except BrokenPipeError:  # output piped into head & co.
+    if isinstance(e, InputError):
+        print(f"error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    if isinstance(e, BrokenPipeError):  # output piped into head & co.
         sys.stderr.close()
         return EXIT_OK
-    except OSError as e:
+    if isinstance(e, OSError):
         # a file error no reader or atomic writer turned into an InputError: still one line, exit 2
         print(f"error: {e.filename or '-'}: file: {e.strerror or e}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    finally:
-        restore()
+    raise e
 
 
 if __name__ == "__main__":

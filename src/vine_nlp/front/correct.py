@@ -11,9 +11,9 @@ import numpy as np
 from vine_nlp.errors import InputError
 from vine_nlp.front.files import check_figure, check_output, sigmas
 from vine_nlp.front.plot import equal_view_3d, label_3d_axes, save_figure
+from vine_nlp.io.archived import archived_problem
 from vine_nlp.io.calibration import write_calibration
 from vine_nlp.io.correction import write_correction_archive
-from vine_nlp.io.problems import design_problem_of
 from vine_nlp.pipeline.correct import calibrate, correct_files, shortfall
 
 ROUTES = {"lambda": "stoppers or pouches on this robot", "lambda,theta": "the line drawn anew on a new tube"}
@@ -104,7 +104,7 @@ def cmd_correct(args) -> int:
     if short:
         print(f"correct: corrected ({','.join(result.adjust)}): {short}; the best correction found is written", file=sys.stderr)
     if fig:
-        save_figure(correction_figure(result, design_problem_of(archive, args.archive), archive.units), fig)
+        save_figure(correction_figure(result, archived_problem(archive, args.archive, settings["built_run"]), archive.units), fig)
         print(f"figure -> {fig}")
     return 1 if short else 0
 

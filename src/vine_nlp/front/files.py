@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from vine_nlp.errors import InputError
-from vine_nlp.io import outputs
+from vine_nlp.io import limits, outputs
 from vine_nlp.io.archive import load_archive
 from vine_nlp.model.routing import Sigmas
 
@@ -46,6 +46,17 @@ def read_archive(path, key="ARCHIVE"):
     return load_archive(path)
 
 
+def within_limits(command: str, archive, path, runs) -> None:
+    """InputError unless ``runs`` of ``archive`` are within what ``command`` handles (io.limits.COMMAND_LIMITS):
+    their segments and their tube lengths in diameters, added up."""
+    routings = [archive.runs[r].routing for r in runs]
+    sizes = (sum(r.segments for r in routings), sum(float(r.length.sum()) for r in routings) / archive.diameter)
+    for size, most, what in zip(sizes, limits.COMMAND_LIMITS[command], ("segments", "tube diameters of tube")):
+        if size > most:
+            raise InputError(path, "runs", f"{f'run {runs[0]}' if len(runs) == 1 else f'{len(runs)} runs'}: {size:.6g} {what}; {command} handles "
+                             f"at most {most} (vine_nlp.io.limits.COMMAND_LIMITS)" + ("; choose one with --run" if len(runs) > 1 and command == "view" else ""))
+
+
 def archive_run(archive, path, run):
     """``run`` (default: the archive's default run), which must be in the archive."""
     if run is None:
@@ -64,9 +75,37 @@ def sigmas(args) -> Sigmas:
     return Sigmas.from_degrees(args.sigma_theta_deg, args.sigma_lambda, args.sigma_length, relative_length=True)
 
 
+def bounded(least, most, integer=False, above=False):
+    """argparse type: a finite number (an integer) in [least, most] (``above``: > least) as a file's numbers are;
+    anything else a usage error (one line, exit 2)."""
+    import argparse
+    import math
+
+    def convert(text):
+        try:
+            value = int(text) if integer else float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid {'integer' if integer else 'number'}: {text!r}") from None
+        what, low = ("an integer", f">= {least}") if integer else ("a finite number", f"{'>' if above else '>='} {least:g}")
+        if not (math.isfinite(value) and (value > least if above else value >= least) and value <= most):
+            raise argparse.ArgumentTypeError(f"must be {what} {low} and <= {most if integer else format(most, 'g')}, got {text}")
+        return value
+
+    return convert
+
+
+def run_name(text):
+    """argparse type of --run: a run's name (non-empty printable text)."""
+    import argparse
+
+    if not text.strip() or not text.isprintable() or len(text) > limits.MAX_NAME_CHARS:
+        raise argparse.ArgumentTypeError(f"must be the name of a run (printable, 1 to {limits.MAX_NAME_CHARS} characters), got {text!r}")
+    return text
+
+
 def add_sigma_args(p) -> None:
     """The --sigma-* options (analyze, design --robust, correct)."""
-    p.add_argument("--sigma-theta-deg", type=float, default=1.0, metavar="DEG", help="construction error of theta (default 1)")
-    p.add_argument("--sigma-lambda", type=float, default=0.02, metavar="S", help="construction error of lambda (default 0.02)")
-    p.add_argument("--sigma-length", type=float, default=0.02, metavar="F", help="relative error of segment lengths (default 0.02)")
-    p.add_argument("--sigma-length-abs", type=float, metavar="L", help="absolute error of segment lengths instead, in units")
+    p.add_argument("--sigma-theta-deg", type=bounded(0, 90), default=1.0, metavar="DEG", help="construction error of theta (default 1)")
+    p.add_argument("--sigma-lambda", type=bounded(0, 1), default=0.02, metavar="S", help="construction error of lambda (default 0.02)")
+    p.add_argument("--sigma-length", type=bounded(0, 1), default=0.02, metavar="F", help="relative error of segment lengths (default 0.02)")
+    p.add_argument("--sigma-length-abs", type=bounded(0, limits.MAX_COORDINATE), metavar="L", help="absolute error of segment lengths instead, in units")

@@ -34,7 +34,7 @@ import numpy as np
 
 from vine_nlp import __version__
 from vine_nlp.errors import InputError
-from vine_nlp.io import limits, outputs
+from vine_nlp.io import files, limits, outputs
 from vine_nlp.io.h5read import ArchiveError, open_archive
 from vine_nlp.io.obstacles import read_obstacles, write_obstacles
 from vine_nlp.io.outputs import OutputError, output_error, temp_file
@@ -101,12 +101,22 @@ def write_atomic(path, write):
     except OutputError:
         tmp.unlink(missing_ok=True)
         raise
-    except OSError as exc:
+    except BaseException as exc:
         tmp.unlink(missing_ok=True)
-        raise output_error(path, exc) from None
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+        cause = _os_error(exc)
+        if cause is None:
+            raise
+        raise output_error(path, cause) from None
+
+
+def _os_error(exc: BaseException) -> OSError | None:
+    """The OSError behind ``exc`` (a writer that failed on a full disk and then on its own broken state:
+    matplotlib's PDF writer raises zlib.error or AttributeError), or None (a signal: None)."""
+    for _ in range(8):
+        if isinstance(exc, OSError) or not isinstance(exc, Exception):
+            return exc if isinstance(exc, OSError) else None
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 def write_h5_atomic(path, fill) -> None:
@@ -118,8 +128,10 @@ def write_h5_atomic(path, fill) -> None:
     buf = io.BytesIO()
     with h5py.File(buf, "w") as h5:
         fill(h5)
-    data = buf.getbuffer()
+    _write_bytes(path, buf.getbuffer())
 
+
+def _write_bytes(path, data) -> None:
     def write(tmp):
         with open(tmp, "wb") as fh:
             fh.write(data)
@@ -210,6 +222,20 @@ def write_archive(path, archive: Archive, extend=None) -> None:
             extend(h5)
 
     write_h5_atomic(path, fill)
+
+
+def add_metrics(path, run: str, metrics: dict) -> None:
+    """Set the attributes ``metrics`` of ``/runs/<run>/metrics`` of the archive at ``path`` (``analyze
+    --write-metrics``): the archive's bytes copied and changed there, every group, dataset and attribute
+    this does not name kept as it was (a correction's, a multi-shape run's levels, groups of later
+    versions); written atomically like every archive."""
+    data = files.read_text(path, limit=limits.MAX_FILE_BYTES, limit_name="MAX_FILE_BYTES", binary=True)
+    buf = io.BytesIO(data)
+    with h5py.File(buf, "r+") as h5:
+        g = h5[f"runs/{run}"].require_group("metrics")
+        for k, v in metrics.items():
+            g.attrs[k] = float(v)
+    _write_bytes(path, buf.getbuffer())
 
 
 # ---------------------------------------------------------------- reading and validation
@@ -320,12 +346,20 @@ class _Checker:
         R = T[:3, :3]
         if not np.allclose(T[3], (0.0, 0.0, 0.0, 1.0), atol=POSE_TOLERANCE, rtol=0):
             self.fail(key, f"last row must be 0 0 0 1, got {T[3].tolist()}")
-        err = float(np.abs(R.T @ R - np.eye(3)).max())
+        with np.errstate(all="ignore"):  # 1e300: an overflow is a refusal below, not a warning
+            err = float(np.abs(R.T @ R - np.eye(3)).max())
         if err > POSE_TOLERANCE:
             self.fail(key, f"rotation part is not orthonormal (|R^T R - I| = {err:.3g})")
         if np.linalg.det(R) < 0:
             self.fail(key, "rotation part has det -1 (a reflection, not a rotation)")
-        return T
+        return self.coordinates(key, T)
+
+    def coordinates(self, key, data):
+        """``data`` (points, a pose) with no coordinate beyond MAX_COORDINATE: the problem files' rule."""
+        big = float(np.abs(data).max(initial=0.0))
+        if big > limits.MAX_COORDINATE:
+            self.fail(key, f"coordinates up to {big:.4g}: at most {limits.MAX_COORDINATE:g} (vine_nlp.io.limits.MAX_COORDINATE)")
+        return data
 
     def shape_lines(self, parent, key_prefix, rows=None):
         g = self.group(parent, "shape")
@@ -334,6 +368,7 @@ class _Checker:
             arr = self.array(g, line, (rows, 3), 3 * limits.MAX_SHAPE_POINTS, limit_name="MAX_SHAPE_POINTS")
             if arr.shape[0] < 1:
                 self.fail(f"{_path(g)}/{line}", "no rows")
+            self.coordinates(f"{_path(g)}/{line}", arr)
             rows = arr.shape[0]
             lines.append(arr)
         return Shape(*lines)
@@ -365,10 +400,9 @@ def _run(c: _Checker, name: str, g, a: Archive) -> Result:
     lam = c.array(d, "lambda", (M,), limits.MAX_SEGMENTS, limit_name="MAX_SEGMENTS")
     length = c.array(d, "length", (M,), limits.MAX_SEGMENTS, limit_name="MAX_SEGMENTS")
     c.array(d, "phi", (M + 1,), limits.MAX_SEGMENTS + 1, limit_name="MAX_SEGMENTS")  # derived from theta: checked, not kept
-    if M and np.any(length <= 0):
-        c.fail(f"{_path(d)}/length", f"segment lengths must be > 0, got {float(length.min())!r}")
-    if M and np.any(lam <= 0):
-        c.fail(f"{_path(d)}/lambda", f"must be > 0, got {float(lam.min())!r}")
+    broken = limits.routing_rule(theta, lam, length, a.diameter)
+    if broken:
+        c.fail(f"{_path(d)}/{broken[0]}", broken[1])
     pose = c.pose(d, "initial_pose")
     # design runs pair shape row i with target row i (the spec), so P = N
     rows = a.target.shape[0] if a.target is not None and a.kind in ("design", "multishape") else None
@@ -399,8 +433,8 @@ def _levels(c: _Checker, g, d, M, a: Archive) -> None:
     """Multi-shape extension: design/levels (K,), levels/<k>/{initial_pose, shape/*, metrics}, /targets/<k>."""
     levels = c.array(d, "levels", (None,), limits.MAX_LEVELS, limit_name="MAX_LEVELS")
     K = levels.size
-    if np.any(levels <= 0):
-        c.fail(f"{_path(d)}/levels", "contraction levels must be > 0")
+    if K < 1 or not np.all((levels > 0) & (levels <= 1)):
+        c.fail(f"{_path(d)}/levels", "contraction levels must be in (0, 1], at least one")
     lv = c.group(g, "levels")
     for k in range(K):
         one = c.group(lv, str(k))
@@ -439,6 +473,8 @@ def _extras(c: _Checker, h5, a: Archive) -> None:
                 c.fail(key, f"shape {data.shape}, expected (n, 3) with n <= {limits.MAX_TARGET_POINTS} (vine_nlp.io.limits.MAX_TARGET_POINTS)")
         if parts[0] == "tip" and data.shape != (3,):
             c.fail(key, f"shape {data.shape}, expected (3,)")
+        if parts[0] in ("targets", "measured", "tip") and parts[-1] in ("points", "closest", "position"):
+            c.coordinates(key, data.astype(float))
         if name == "tip/direction" and not np.linalg.norm(data.astype(float)) > 0:
             c.fail(key, "direction must not be zero")
         a.extra[name] = data
@@ -457,14 +493,15 @@ def _load(c: _Checker, h5) -> Archive:
     if not units or len(units) > limits.MAX_UNITS_CHARS:
         c.fail("/@units", f"must be a unit name, got {units[:40]!r}")
     diameter = c.number(tube, "diameter")
-    if diameter <= 0:
-        c.fail("/tube@diameter", f"must be > 0, got {diameter!r}")
+    if not 0 < diameter <= limits.MAX_COORDINATE:
+        c.fail("/tube@diameter", f"must be > 0 and <= {limits.MAX_COORDINATE:g} (vine_nlp.io.limits.MAX_COORDINATE), got {diameter!r}")
     target = None
     if "target" in h5:
         tg = c.group(h5, "target")
         target = c.array(tg, "points", (None, 3), 3 * limits.MAX_TARGET_POINTS, limit_name="MAX_TARGET_POINTS")
         if target.shape[0] < 2:
             c.fail("/target/points", f"needs at least 2 points, got {target.shape[0]}")
+        c.coordinates("/target/points", target)
     a = Archive(name=c.text(p, "name"), kind=c.text(p, "kind"), source=c.text(p, "source", lines=True), diameter=diameter,
                 units=units, target=target, software_version=c.text(h5, "software_version"),
                 created=c.text(h5, "created", required=False), format_version=version)

@@ -49,6 +49,11 @@ def _table(f: SourceFile, t: dict, prefix: str) -> Calibration:
     return Calibration(**vals)
 
 
+def check_calibration(values: dict, path) -> Calibration:
+    """``values`` (keys of KEYS) by the rules of a [calibration] table; InputError ``(path, calibration.<key>, reason)``."""
+    return _table(SourceFile(str(path)), {k: float(v) if k != "prototypes" else v for k, v in values.items()}, "calibration")
+
+
 def calibration_toml(cal: Calibration) -> str:
     """The [calibration] table as TOML text."""
     lines = ["# made by vine-nlp calibrate: built = nominal + offsets, lengths times length_scale", "[calibration]"]
@@ -59,8 +64,10 @@ def calibration_toml(cal: Calibration) -> str:
 
 
 def write_calibration(path, cal: Calibration) -> None:
-    """Write the table atomically (it reads back with :func:`read_calibration`)."""
+    """Write the table atomically (it reads back with :func:`read_calibration`: values it would refuse are an
+    InputError naming ``path`` and the key, and nothing is written)."""
     text = calibration_toml(cal)
+    check_calibration(parse_toml(str(path), text)["calibration"], path)
     write_atomic(path, lambda t: Path(t).write_text(text, encoding="utf-8"))
 
 

@@ -33,7 +33,8 @@ import numpy as np
 from vine_nlp.errors import InputError
 from vine_nlp.io import limits
 from vine_nlp.io.archive import Archive, ArchiveError, load_archive, write_archive
-from vine_nlp.io.data_files import read_csv
+from vine_nlp.io.calibration import check_calibration
+from vine_nlp.io.data_files import check_spread, read_csv
 from vine_nlp.io.h5read import open_archive
 from vine_nlp.io.validate import SourceFile
 from vine_nlp.methods.correct import CorrectionResult, Measurement
@@ -159,6 +160,12 @@ def _state(file, h5, a: Archive) -> CorrectionState:
             raise ArchiveError(file, f"/correction/{key}", "missing or not 3 values")
     if not sysv[2] > 0 or np.any(sys_sd < 0):
         raise ArchiveError(file, "/correction/systematic", "length scale must be > 0 and standard deviations >= 0")
+    for key, table in (("systematic", dict(theta_offset_deg=np.degrees(sysv[0]), lambda_offset=sysv[1], length_scale=sysv[2])),
+                       ("systematic_std", dict(theta_offset_deg_se=np.degrees(sys_sd[0]), lambda_offset_se=sys_sd[1], length_scale_se=sys_sd[2]))):
+        try:  # the calibration table's rules: what calibrate makes of these, a design reads
+            check_calibration(table, "")
+        except InputError as e:
+            raise ArchiveError(file, f"/correction/{key}", e.reason.replace("must", f"{e.key.split('.')[-1]} must", 1)) from None
     unc, dev = _as_built_spread(file, h5, builds[0].theta.size)
     return CorrectionState(builds, ms, attrs, np.asarray(sysv, float), np.asarray(sys_sd, float), unc, dev)
 
@@ -197,8 +204,14 @@ def _measurements(file, h5, a: Archive, B: int) -> list:
         build = _attr(file, node, "build", (int,))
         if not 0 <= build < B:
             raise ArchiveError(file, f"/measured/{k}@build", f"must be 0..{B - 1}, got {build}")
+        try:  # the rule of a measurement read from a file: archived, it was one
+            check_spread(file, pts.astype(float), a.diameter, MIN_MEASURED_POINTS)
+        except InputError as e:
+            raise ArchiveError(file, f"/measured/{k}/points", e.reason) from None
         ms.append(Measurement(pts.astype(float), line, build, "archive", _attr(file, node, "file", (str,), False, "")))
         k += 1
+    if sum(len(m.points) for m in ms) > MAX_MEASURED_POINTS:
+        raise ArchiveError(file, "/measured", f"{sum(len(m.points) for m in ms)} measured points in all: at most {MAX_MEASURED_POINTS}")
     if not ms:
         raise ArchiveError(file, "/measured/0/points", "missing: a correction archive holds its measurements")
     return ms

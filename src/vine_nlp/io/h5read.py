@@ -16,6 +16,7 @@ import math
 
 import h5py
 
+from vine_nlp import interrupt
 from vine_nlp.errors import InputError
 from vine_nlp.io import files, limits
 
@@ -52,6 +53,7 @@ def open_archive(path):
                 raise
             raise ArchiveError(path, "file", f"cannot read the archive ({' '.join(str(exc).split())[:200]})") from None
         with h5:
+            interrupt.hold("archive")  # tests: a signal while an archive is open in h5py
             yield h5
 
 
@@ -61,7 +63,9 @@ def inspect(h5: h5py.File, path: str) -> None:
     found = [("/", _attributes(h5, count))]  # the first refusal: h5py's visit cannot carry an exception out
 
     def visit(name, link):
-        if not _good_name(name.rsplit("/", 1)[-1]):
+        if name.count("/") >= limits.MAX_ARCHIVE_DEPTH:
+            reason = f"nested more than {limits.MAX_ARCHIVE_DEPTH} groups deep (vine_nlp.io.limits.MAX_ARCHIVE_DEPTH)"
+        elif not _good_name(name.rsplit("/", 1)[-1]):
             reason = _BAD_NAME
         elif not isinstance(link, h5py.HardLink):
             reason = f"a {type(link).__name__} (an archive is one file: links are not followed)"

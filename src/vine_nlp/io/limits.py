@@ -15,9 +15,10 @@ MAX_TARGET_POINTS = 100_000
 MAX_SEGMENTS = 100_000
 # Rows of one modelled line in an archive (/runs/<run>/shape/*): forward runs sample each segment.
 MAX_SHAPE_POINTS = 2_000_000
-# Runs in one archive, levels of one multi-shape run ([[targets]]).
-MAX_RUNS = 1_000
-MAX_LEVELS = 1_000
+# Runs in one archive, levels of one multi-shape run ([[targets]]): reading one costs about 15 ms on a shared
+# machine (h5py looks each name up), so 100 of them about 2 s.
+MAX_RUNS = 100
+MAX_LEVELS = 100
 # Elements of any other dataset of an archive (measured points, frames, future groups).
 MAX_DATASET_ELEMENTS = 10_000_000
 # Characters of a text attribute (the archived problem file's source, solver options).
@@ -32,8 +33,11 @@ MAX_LINE_CHARS = 10_000
 # Bytes of a mesh file (.stl, .obj, .ply): one of MAX_MESH_FACES faces (io/obstacles.py) takes under 8 MB in any of them.
 MAX_MESH_BYTES = 16 << 20
 # An archive as a whole (declared sizes, checked before reading): values of all datasets, objects.
+# Objects and attributes cost about 1 ms each to check (5 000: a few seconds); groups nest at most
+# MAX_ARCHIVE_DEPTH deep (a name is looked up part by part: 2 000 nested groups took minutes).
 MAX_ARCHIVE_VALUES = 40_000_000
-MAX_ARCHIVE_OBJECTS = 200_000
+MAX_ARCHIVE_OBJECTS = 5_000
+MAX_ARCHIVE_DEPTH = 16
 # Names and one-line texts (names, units, keys, obstacle names): printable characters only.
 MAX_NAME_CHARS = 255
 MAX_UNITS_CHARS = 32
@@ -41,3 +45,52 @@ MAX_UNITS_CHARS = 32
 MAX_COORDINATE = 1e9
 MAX_DIAMETERS = 1e6
 MIN_DIAMETERS = 1e-6
+# Angles of a routing: |theta| below 90 deg (at 90 deg the actuator line winds around the tube without end).
+MAX_THETA_DEG = 90.0
+
+
+def routing_rule(theta, lam, length, diameter: float) -> tuple[str, str] | None:
+    """The first rule a routing (per-segment theta in rad, lambda, length; the tube's diameter) breaks, as
+    (``theta`` | ``lambda`` | ``length``, reason), or None: at least one segment, every value finite,
+    |theta| < MAX_THETA_DEG, lambda in (0, 1], lengths > 0 and a whole length within MAX_COORDINATE and
+    MIN_DIAMETERS..MAX_DIAMETERS tube diameters. The one set of rules of problem files and archives."""
+    import numpy as np
+
+    if len(theta) < 1:
+        return "theta", "a routing needs at least one segment"
+    checks = (("theta", theta, lambda t: np.abs(t) < np.radians(MAX_THETA_DEG), f"|theta| must be < {MAX_THETA_DEG:g} deg", np.degrees, " deg"),
+              ("lambda", lam, lambda v: (v > 0) & (v <= 1), "must be in (0, 1]", None, ""),
+              ("length", length, lambda v: v > 0, "segment lengths must be > 0", None, ""))
+    for name, values, ok, rule, shown, unit in checks:
+        values = np.asarray(values, float)
+        good = np.isfinite(values) & ok(np.where(np.isfinite(values), values, 0.0))
+        if not good.all():
+            j = int(np.argmin(good))
+            return name, f"{rule} (segment {j + 1}: {(shown or float)(values[j]):.6g}{unit})"
+    total = float(np.sum(length))
+    if total > MAX_COORDINATE:
+        return "length", f"the tube is {total:.4g} long: at most {MAX_COORDINATE:g} (vine_nlp.io.limits.MAX_COORDINATE)"
+    if not MIN_DIAMETERS * diameter <= total <= MAX_DIAMETERS * diameter:
+        return "length", (f"the tube is {total:.4g} long, {total / diameter:.4g} tube diameters: must be {MIN_DIAMETERS:g} to "
+                          f"{MAX_DIAMETERS:g} (vine_nlp.io.limits.MIN_DIAMETERS, MAX_DIAMETERS)")
+    return None
+# Command-line numbers (front/cli.py), each bounding what it costs: Monte Carlo samples of analyze (and
+# samples x segments <= MAX_DATASET_ELEMENTS), starts and basin-hopping rounds of a design, frames of a
+# movie (about 0.3 s each on a shared 2-core machine), processes, seconds of a budget (a week).
+MAX_SAMPLES = 100_000
+MAX_STARTS = 1_000
+MAX_HOPS = 1_000
+MAX_FRAMES = 200
+MAX_FPS = 120
+MAX_WORKERS = 1_024
+MAX_SEED = 2**32 - 1
+MAX_SECONDS = 604_800.0
+# What one command draws, meshes or analyzes within about 10 s and 1 GB (measured on a shared 2-core machine,
+# a tube at both limits at once): segments and tube length in diameters of the runs it uses (plot and view: all
+# runs together), lower than MAX_SEGMENTS and MAX_DIAMETERS, which only the reader and forward reach. PDF templates
+# are 1:1: at most MAX_TEMPLATE_MM of tube (pages). Beyond them the command says so in one line.
+COMMAND_LIMITS = {"plot": (5_000, 300), "view": (5_000, 300), "animate": (5_000, 300), "export": (5_000, 300),
+                  "template": (5_000, 300), "analyze": (2_000, 200)}
+MAX_TEMPLATE_MM = 5_000.0
+# Items of a sweep one view shows (each item's archive is loaded and drawn: about 50 ms each).
+MAX_VIEW_ITEMS = 200

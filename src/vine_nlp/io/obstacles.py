@@ -290,18 +290,24 @@ def _text_attr(v):
 
 
 def _obstacle_dataset(g, key: str, want: tuple, file: str, path: str) -> np.ndarray:
-    """Dataset ``key`` of obstacle group ``g``: numbers of shape ``want`` (None: any size), finite."""
+    """Dataset ``key`` of obstacle group ``g``: numbers of shape ``want`` (None: any size), finite, coordinates within
+    MAX_COORDINATE, a mesh of at most MAX_MESH_FACES faces (read before a byte of it is: the declared shape)."""
     if key not in g or not isinstance(g[key], h5py.Dataset):
         raise InputError(file, path, "missing")
     ds = g[key]
     if ds.dtype.kind not in "iuf":
         raise InputError(file, path, "must hold numbers")
+    most = {"faces": MAX_MESH_FACES, "vertices": 3 * MAX_MESH_FACES}.get(key)
+    if most is not None and len(ds.shape) == 2 and ds.shape[0] > most:
+        raise InputError(file, path, f"has {ds.shape[0]} rows; at most {most} (a mesh of vine_nlp.io.obstacles.MAX_MESH_FACES faces)")
     a = ds[()]
     if not (np.ndim(a) == len(want) and all(w is None or w == s for w, s in zip(want, np.shape(a)))):
         shown = "(" + ", ".join("N" if w is None else str(w) for w in want) + (",)" if len(want) == 1 else ")")
         raise InputError(file, path, f"must have shape {shown if want else '() (a scalar)'}, got {np.shape(a)}")
     if not np.all(np.isfinite(a)):
         raise InputError(file, path, "must be finite")
+    if key != "faces" and np.abs(a).max(initial=0.0) > limits.MAX_COORDINATE:
+        raise InputError(file, path, f"must be of magnitude <= {limits.MAX_COORDINATE:g} (vine_nlp.io.limits.MAX_COORDINATE)")
     return a
 
 
@@ -315,6 +321,8 @@ def read_obstacles(h5group, file) -> list:
         if not n.isdigit() or not isinstance(h5group[n], h5py.Group):
             raise InputError(file, f"{base}/{n}", "must be a group named by its index 0, 1, ...")
     order = sorted(int(n) for n in names)
+    if len(order) > MAX_OBSTACLES:
+        raise InputError(file, base, f"has {len(order)} obstacles; at most {MAX_OBSTACLES}")
     if order != list(range(len(order))):
         raise InputError(file, base, f"groups must be numbered 0 to {len(order) - 1}")
     out = []
@@ -345,3 +353,22 @@ def read_obstacles(h5group, file) -> list:
             raise InputError(file, where, str(exc)) from None
         out.append(ob)
     return out
+
+
+def check_start(problem, file) -> None:
+    """InputError ``(file, key, reason)`` for a design that cannot start: no point of the target clears the
+    obstacles by the tube's radius and ``obstacle_margin`` (the whole target inside an obstacle, or a margin wider
+    than the space around it). Cheap: one distance per target point and obstacle."""
+    obstacles = getattr(problem, "obstacles", ())
+    target = getattr(problem, "target", None)
+    if not obstacles or target is None:
+        return
+    each = np.array([np.asarray(ob.distance(np.asarray(target, float)), float).reshape(-1) for ob in obstacles])
+    gaps = each.min(axis=0) - problem.diameter / 2
+    if np.all(gaps < 0):
+        k = int(np.argmin(each.min(axis=1)))
+        raise InputError(file, f"obstacles[{k}]", "the whole target lies inside the obstacles (no point of it leaves room for the tube): "
+                         "no design can follow it")
+    if np.all(gaps < problem.obstacle_margin):
+        raise InputError(file, "design.obstacle_margin", f"{problem.obstacle_margin:g} is wider than the room around the target: its points are at "
+                         f"most {float(gaps.max()):.4g} from the obstacles (less the tube's radius)")

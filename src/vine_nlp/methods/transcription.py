@@ -415,7 +415,7 @@ class Solver:
         return lbx, ubx
 
     def terms(self, x, p) -> dict:
-        return {k: float(v) for k, v in zip(self.term_names, self._terms(x, p))}
+        return {k: float(v) for k, v in zip(self.term_names, self._terms.call([x, p]))}  # a list for any number of terms
 
     def solve(self, x0, p, lbx, ubx, lbg=None, ubg=None, multipliers: bool = False, duals: tuple | None = None) -> "Solution":
         """One IPOPT solve from x0 clipped into the bounds: its :class:`Solution` (which unpacks as (x, status,

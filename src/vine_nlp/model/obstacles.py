@@ -435,9 +435,11 @@ def mesh_signed_distance(mesh: Mesh, points) -> np.ndarray:
 
     p = np.asarray(points, float)
     flat = p.reshape(-1, 3)
-    # trimesh: positive inside, negative outside
-    d = -trimesh.proximity.signed_distance(mesh.trimesh, flat)
-    return np.asarray(d, float).reshape(p.shape[:-1])
+    # trimesh: positive inside, negative outside; in chunks: its candidate pairs (up to points x faces) stay below ~2e5
+    step = max(1, 200_000 // max(1, len(mesh.faces)))
+    d = np.concatenate([-np.asarray(trimesh.proximity.signed_distance(mesh.trimesh, flat[i:i + step]), float)
+                        for i in range(0, len(flat), step)] or [np.empty(0)])
+    return d.reshape(p.shape[:-1])
 
 
 def nearest_triangles(mesh: Mesh, points, k: int = 4) -> tuple[np.ndarray, np.ndarray]:

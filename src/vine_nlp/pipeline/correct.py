@@ -11,10 +11,10 @@ import numpy as np
 
 from vine_nlp.errors import InputError
 from vine_nlp.io.archive import Archive
+from vine_nlp.io.archived import archived_problem
 from vine_nlp.io.calibration import Calibration
 from vine_nlp.io.correction import MAX_MEASURED_POINTS, MIN_MEASURED_POINTS, read_correction, read_measured, write_correction_archive
 from vine_nlp.io.data_files import check_spread
-from vine_nlp.io.problems import design_problem_of
 from vine_nlp.methods.correct import ADJUST, Deviations, Measurement, combine_systematic, correct
 from vine_nlp.model.pairing import pair_points
 from vine_nlp.model.routing import MEASURED_LINES, Sigmas
@@ -44,7 +44,7 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
     pts = [_points(p, k) for k, p in enumerate(measured)]
     for k, (p, f) in enumerate(zip(pts, measured)):
         check_spread(f if isinstance(f, (str, Path)) else f"measured[{k}]", p, archive.diameter, MIN_MEASURED_POINTS)
-    problem = design_problem_of(archive, archive_path)
+    problem = archived_problem(archive, archive_path, run)
     mm = mm_per_unit(archive.units)  # for the default measurement sigma of 1 mm
     if measurement_sigma is None and mm is None:
         raise InputError("command line", "--sigma-measurement", f"archive units {archive.units!r}: give the measurement sigma in them")
