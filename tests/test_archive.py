@@ -294,7 +294,7 @@ BAD_ARCHIVES = [
     (_set("runs/nlp/design/theta", 3, np.nan), "/runs/nlp/design/theta", "non-finite value nan at [3]"),
     (_set("runs/nlp/shape/inner", (5, 1), np.inf), "/runs/nlp/shape/inner", "non-finite value inf at [5, 1]"),
     (_set("target/points", (0, 0), -np.inf), "/target/points", "non-finite value -inf at [0, 0]"),
-    (_set("runs/nlp/design/length", 0, 0.0), "/runs/nlp/design/length", "segment lengths must be > 0 (segment 1: 0)"),
+    (_set("runs/nlp/design/length", 0, 0.0), "/runs/nlp/design/length", "must be > 0 (segment 1: 0)"),
     (_set("runs/nlp/design/lambda", 1, -0.5), "/runs/nlp/design/lambda", "must be in (0, 1] (segment 2: -0.5)"),
     (_replace("runs/nlp/design/lambda", np.full(9, 0.7)), "/runs/nlp/design/lambda", "shape (9,), expected (10,)"),
     (_replace("runs/nlp/design/phi", np.zeros(10)), "/runs/nlp/design/phi", "shape (10,), expected (11,)"),

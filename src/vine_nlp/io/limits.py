@@ -47,26 +47,32 @@ MAX_DIAMETERS = 1e6
 MIN_DIAMETERS = 1e-6
 # Angles of a routing: |theta| below 90 deg (at 90 deg the actuator line winds around the tube without end).
 MAX_THETA_DEG = 90.0
+_RAD = 0.017453292519943295  # pi / 180
+
+
+# The one set of per-segment rules of a routing, wherever it is read (problem files, the Python API, archives:
+# io.validate.validate_routing, routing_rule): (name, the values that keep it, the rule, the value as shown, unit).
+ROUTING_RULES = (
+    ("theta", lambda t: abs(t) < MAX_THETA_DEG * _RAD, f"|theta| must be < {MAX_THETA_DEG:g} deg", lambda t: t / _RAD, " deg"),
+    ("lambda", lambda v: (v > 0) & (v <= 1), "must be in (0, 1]", float, ""),
+    ("length", lambda v: v > 0, "must be > 0", float, ""),
+)
 
 
 def routing_rule(theta, lam, length, diameter: float) -> tuple[str, str] | None:
     """The first rule a routing (per-segment theta in rad, lambda, length; the tube's diameter) breaks, as
     (``theta`` | ``lambda`` | ``length``, reason), or None: at least one segment, every value finite,
-    |theta| < MAX_THETA_DEG, lambda in (0, 1], lengths > 0 and a whole length within MAX_COORDINATE and
-    MIN_DIAMETERS..MAX_DIAMETERS tube diameters. The one set of rules of problem files and archives."""
+    ROUTING_RULES, and a whole length within MAX_COORDINATE and MIN_DIAMETERS..MAX_DIAMETERS tube diameters."""
     import numpy as np
 
     if len(theta) < 1:
         return "theta", "a routing needs at least one segment"
-    checks = (("theta", theta, lambda t: np.abs(t) < np.radians(MAX_THETA_DEG), f"|theta| must be < {MAX_THETA_DEG:g} deg", np.degrees, " deg"),
-              ("lambda", lam, lambda v: (v > 0) & (v <= 1), "must be in (0, 1]", None, ""),
-              ("length", length, lambda v: v > 0, "segment lengths must be > 0", None, ""))
-    for name, values, ok, rule, shown, unit in checks:
+    for (name, ok, rule, shown, unit), values in zip(ROUTING_RULES, (theta, lam, length)):
         values = np.asarray(values, float)
         good = np.isfinite(values) & ok(np.where(np.isfinite(values), values, 0.0))
         if not good.all():
             j = int(np.argmin(good))
-            return name, f"{rule} (segment {j + 1}: {(shown or float)(values[j]):.6g}{unit})"
+            return name, f"{rule} (segment {j + 1}: {shown(values[j]):.6g}{unit})"
     total = float(np.sum(length))
     if total > MAX_COORDINATE:
         return "length", f"the tube is {total:.4g} long: at most {MAX_COORDINATE:g} (vine_nlp.io.limits.MAX_COORDINATE)"
@@ -74,6 +80,8 @@ def routing_rule(theta, lam, length, diameter: float) -> tuple[str, str] | None:
         return "length", (f"the tube is {total:.4g} long, {total / diameter:.4g} tube diameters: must be {MIN_DIAMETERS:g} to "
                           f"{MAX_DIAMETERS:g} (vine_nlp.io.limits.MIN_DIAMETERS, MAX_DIAMETERS)")
     return None
+
+
 # Command-line numbers (front/cli.py), each bounding what it costs: Monte Carlo samples of analyze (and
 # samples x segments <= MAX_DATASET_ELEMENTS), starts and basin-hopping rounds of a design, frames of a
 # movie (about 0.3 s each on a shared 2-core machine), processes, seconds of a budget (a week).

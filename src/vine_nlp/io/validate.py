@@ -249,12 +249,11 @@ def validate_routing(f: SourceFile, theta, lam, length, initial_pose=None, keys:
         bad = ~np.isfinite(np.atleast_1d(v))
         check(f, keys[k], not bad.any(), "must be finite" if v.ndim == 0 else f"must be finite (segment {int(np.argmax(bad)) + 1})")
     th, la, dl = (np.broadcast_to(values[k], (m,)).copy() for k in ("theta", "lam", "length"))
-    for k, ok, rule, shown, unit in (("theta", np.abs(th) < math.pi / 2, "|theta| must be < 90 deg", np.degrees(th), " deg"),
-                                     ("lam", (la > 0) & (la <= 1), "must be in (0, 1]", la, ""),
-                                     ("length", dl > 0, "must be > 0", dl, "")):
-        if not ok.all():
-            j = int(np.argmin(ok))
-            raise f.error(keys[k], rule if values[k].ndim == 0 else f"{rule} (segment {j + 1}: {shown[j]:.6g}{unit})")
+    for (_, ok, rule, shown, unit), k, v in zip(limits.ROUTING_RULES, ("theta", "lam", "length"), (th, la, dl)):
+        good = ok(v)
+        if not good.all():
+            j = int(np.argmin(good))
+            raise f.error(keys[k], rule if values[k].ndim == 0 else f"{rule} (segment {j + 1}: {shown(v[j]):.6g}{unit})")
     if diameter is not None:  # the forward shape: pieces of at most D/4 (model.shape.forward_shape)
         rows = int(np.maximum(1, np.ceil(dl / (0.25 * diameter))).sum()) + 1
         check(f, keys["length"], rows <= limits.MAX_SHAPE_POINTS, f"a tube {float(dl.sum()) / diameter:.4g} diameters long has a "
