@@ -244,12 +244,12 @@ def test_template_draws_the_changes(setup, tmp_path, capsys):
 def test_correction_figure_has_equal_axes_and_the_obstacles(setup):
     """An out-of-plane error must look as large as it is: one scale on x, y and z (issue 35); obstacles drawn."""
     from vine_nlp.front.correct import correction_figure
-    from vine_nlp.io.problems import design_problem_of
+    from vine_nlp.io.archived import archived_problem
     from vine_nlp.model.obstacles import Sphere
     from vine_nlp.pipeline.correct import correct_files
 
     result, archive, _, _ = correct_files(setup["dir"] / "design.h5", [setup["dir"] / "m1.csv"], sigmas=SIGMAS)
-    problem = design_problem_of(archive, setup["dir"] / "design.h5")
+    problem = archived_problem(archive, setup["dir"] / "design.h5", "nlp")
     figures = [correction_figure(result, problem)]
     figures.append(correction_figure(result, dataclasses.replace(problem, obstacles=(Sphere(tuple(problem.target[0]), 1.0),))))
     (ax, ax_ob) = [[a for a in fig.axes if a.name == "3d"][0] for fig in figures]

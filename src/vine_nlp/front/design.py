@@ -19,8 +19,9 @@ import numpy as np
 
 from vine_nlp.errors import ArgumentError
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
+from vine_nlp.io.archived import problem_of_archive
 from vine_nlp.io.formulations import read_multishape_archive
-from vine_nlp.io.problems import ProblemFile, problem_of_archive
+from vine_nlp.io.problems import ProblemFile
 from vine_nlp.pipeline import Outcome
 from vine_nlp.problem import Result
 

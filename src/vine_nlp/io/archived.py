@@ -12,10 +12,13 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
+
 from vine_nlp.errors import InputError
-from vine_nlp.io.problems import parse_problem
+from vine_nlp.io.problems import LoadedProblem, parse_problem
 from vine_nlp.io.validate import parse_toml
-from vine_nlp.problem import DesignOptions, DesignProblem
+from vine_nlp.model.routing import MEASURED_LINES
+from vine_nlp.problem import DesignOptions, DesignProblem, FitProblem, ForwardProblem
 
 
 def archived_problem(archive, path, run: str) -> DesignProblem:
@@ -41,3 +44,18 @@ def archived_problem(archive, path, run: str) -> DesignProblem:
                              f"{M} segments cannot pair with the {N} points of /target/points (ceil((N - 1) / n) segments for no n)")
     options = dataclasses.replace(problem.options, points_per_segment=n) if isinstance(problem.options, DesignOptions) else problem.options
     return dataclasses.replace(problem, target=archive.target, obstacles=tuple(archive.obstacles), options=options, calibration=None)
+
+
+def problem_of_archive(archive, runs: dict, path):
+    """A problem object for a read archive: what the archive holds of it (solver settings stay in ``source``); no file
+    is opened because the archive names it (a design problem: :func:`archived_problem`)."""
+    first = next(iter(runs.values()), None)
+    if archive.kind == "design" and archive.target is not None and first is not None:
+        return archived_problem(archive, path, next(iter(runs)))
+    if archive.kind == "forward" and first is not None:
+        return ForwardProblem(archive.name, archive.diameter, first.routing, units=archive.units)
+    if archive.kind == "fit" and first is not None and "measured/points" in archive.extra:
+        line = first.stats.get("line")
+        return FitProblem(archive.name, archive.diameter, np.asarray(archive.extra["measured/points"]),
+                          line if line in MEASURED_LINES else "outer", first.routing, units=archive.units)
+    return LoadedProblem(name=archive.name, diameter=archive.diameter, units=archive.units, target=archive.target)

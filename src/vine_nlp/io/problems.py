@@ -516,19 +516,6 @@ def _per_point(f: SourceFile, key: str, value, s: np.ndarray, what: str) -> np.n
     return np.array(real_number(f, key, value))
 
 
-def design_problem_of(archive, path) -> DesignProblem:
-    """The design problem of an archive (``vine-nlp analyze``, ``correct``): its stored source parsed again,
-    the archived target standing in for target files that are not where the source says; the archive's
-    name, diameter, target and units where the source is no design problem."""
-    try:
-        pf = parse_problem(parse_toml(str(path), archive.source), str(path), archive.source)
-        if pf.kind == "design":
-            return dataclasses.replace(pf.problem, target=archive.target)
-    except InputError:
-        pass
-    return DesignProblem(archive.name, archive.diameter, archive.target, units=archive.units)
-
-
 @dataclass(frozen=True)
 class LoadedProblem:
     """The problem of an archive whose problem type is not rebuilt (multishape, tip, unknown kinds)."""
@@ -537,17 +524,3 @@ class LoadedProblem:
     diameter: float
     units: str
     target: np.ndarray | None = None
-
-
-def problem_of_archive(archive, runs: dict, path):
-    """A problem object for a read archive: what the archive holds of it (solver settings stay in ``source``)."""
-    first = next(iter(runs.values()), None)
-    if archive.kind == "design" and archive.target is not None:
-        return design_problem_of(archive, path)
-    if archive.kind == "forward" and first is not None:
-        return ForwardProblem(archive.name, archive.diameter, first.routing, units=archive.units)
-    if archive.kind == "fit" and first is not None and "measured/points" in archive.extra:
-        line = first.stats.get("line")
-        return FitProblem(archive.name, archive.diameter, np.asarray(archive.extra["measured/points"]),
-                          line if line in MEASURED_LINES else "outer", first.routing, units=archive.units)
-    return LoadedProblem(name=archive.name, diameter=archive.diameter, units=archive.units, target=archive.target)
