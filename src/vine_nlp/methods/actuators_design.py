@@ -37,6 +37,7 @@ import time
 import casadi as ca
 import numpy as np
 
+from vine_nlp.methods import settings
 from vine_nlp.methods.actuators import ActuatorsProblem, ActuatorsResult, evaluate
 from vine_nlp.methods.common import geometric_guess, pair_points
 from vine_nlp.methods.settings import CHAIN, EXACT_BOUNDS, WARM, quiet
@@ -45,13 +46,7 @@ from vine_nlp.model.helix import center_rates
 from vine_nlp.model.segment import so3_exp, twist_parts
 from vine_nlp.problem import DesignProblem
 
-PENALTY = 1e-4  # stage 1: weight of (1 - lambda_a)(1 - lambda_b) of exclusive pairs, against the mean squared error / D^2
-ROUNDS = 3  # pairing rounds of the last stage at most (the others: one)
-GAIN = 0.05  # ... and while a round lowers the objective by this fraction at least
-REPAIR_TOL = 1e-5  # the linearized target holds where no paired fraction of a target's chord moved more than this
-MIN_PIECE = 0.05  # a segment pairs with at least this fraction of 1/M of every target
 EXPAND = True  # the NLP expanded to SX: slower to build, each iteration faster
-ON = 1e-3  # a line contracts on a segment (for the assignment) where 1 - lambda exceeds this
 
 
 def _rx(a):
@@ -234,7 +229,7 @@ def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> Ac
         lbx[sl["p0"]] = ubx[sl["p0"]] = B[:3, 3] / D
     lbg, ubg = np.zeros(nlp.g.numel()), np.zeros(nlp.g.numel())
     w, S = problem.widths, len(problem.states)
-    lbg[nlp.n_eq: nlp.n_eq + M * S], ubg[nlp.n_eq: nlp.n_eq + M * S] = MIN_PIECE / M, np.inf
+    lbg[nlp.n_eq: nlp.n_eq + M * S], ubg[nlp.n_eq: nlp.n_eq + M * S] = settings.ACTUATORS_MIN_PIECE / M, np.inf
     first = nlp.n_eq + M * S
     for r, (a, b) in enumerate(nlp.width_rows):
         rows = slice(first + r * (M + 1), first + (r + 1) * (M + 1))
@@ -242,7 +237,7 @@ def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> Ac
     iters, status, rounds = 0, "optimal", 0
     stages = ["relaxed"] + (["assigned"] if nlp.exclusive else []) + (["margin"] if o.correction_margin > 0 else [])
     for stage in stages:
-        mu = PENALTY if stage == "relaxed" else 0.0
+        mu = settings.ACTUATORS_PENALTY if stage == "relaxed" else 0.0
         lam = x0[sl["lam"]].reshape(K, M, order="F")
         fix = np.zeros(x0.size, bool)
         if stage == "assigned":
@@ -256,7 +251,7 @@ def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> Ac
             x0[free] = np.clip(x0[free], lbx[free], ubx[free])
         x0[fix] = 1.0
         lbx[fix] = ubx[fix] = 1.0
-        x0, status, n_it, n_r = _stage(nlp, problem, x0, (lbx, ubx, lbg, ubg), mu, B, ROUNDS if stage == stages[-1] else 1)
+        x0, status, n_it, n_r = _stage(nlp, problem, x0, (lbx, ubx, lbg, ubg), mu, B, settings.ACTUATORS_ROUNDS if stage == stages[-1] else 1)
         iters, rounds = iters + n_it, rounds + n_r
     lines = _lines(nlp, problem, x0, B)
     stats = {"segments": M, "points_per_segment": o.points_per_segment, "stages": len(stages), "rounds": rounds, "exclusive_pairs": len(nlp.exclusive),
@@ -286,7 +281,7 @@ def _stage(nlp: _NLP, problem, x0, box, mu, B, rounds: int):
             best = (err, x0.copy(), status)
         moved = max(np.abs(a - q).max() for a, q in zip(c, _pairing_fractions(b, n)))
         f, f_prev = float(sol["f"]), f
-        if moved < REPAIR_TOL or f > (1 - GAIN) * f_prev:
+        if moved < settings.ACTUATORS_REPAIR_TOL or f > (1 - settings.ACTUATORS_GAIN) * f_prev:
             break
     return best[1], best[2], iters, solves
 
@@ -352,7 +347,7 @@ def assign(lam: np.ndarray, exclusive) -> np.ndarray:
     keep = np.zeros((K, M), bool)
     for j in range(M):
         for k in np.argsort(lam[:, j], kind="stable"):
-            if not any(keep[i, j] and (i, k) in ex for i in range(K)) and (1 - lam[k, j] > ON or not any((i, k) in ex for i in range(K))):
+            if not any(keep[i, j] and (i, k) in ex for i in range(K)) and (1 - lam[k, j] > settings.ACTUATORS_ON or not any((i, k) in ex for i in range(K))):
                 keep[k, j] = True
     return keep
 

@@ -261,6 +261,13 @@ TIE_BREAK = 1e-2  # weight of the secondary measure (see module doc)
 CLOSEST_ACTUATION = 1e-6  # weight of the actuation in the nearest-approach variant
 CLOSE_ENOUGH = 1e-3  # nearest approach within this many D of the tip: re-solve the design from it
 GUESS_POINTS = 4  # points per segment of the guide curve of the geometric guess
+# actuators_design (several actuators on one tube)
+ACTUATORS_PENALTY = 1e-4  # stage 1: weight of (1 - lambda_a)(1 - lambda_b) of exclusive pairs, against the mean squared error / D^2
+ACTUATORS_ROUNDS = 3  # pairing rounds of the last stage at most (the others: one)
+ACTUATORS_GAIN = 0.05  # ... and while a round lowers the objective by this fraction at least
+ACTUATORS_REPAIR_TOL = 1e-5  # the linearized target holds where no paired fraction of a target's chord moved more than this
+ACTUATORS_MIN_PIECE = 0.05  # a segment pairs with at least this fraction of 1/M of every target
+ACTUATORS_ON = 1e-3  # a line contracts on a segment (for the assignment) where 1 - lambda exceeds this
 # loads (design under self-weight and payload)
 LOAD_POINTS = 4  # points per segment carrying its weight in the moment recursion (the dense check tightens the rest)
 LOAD_ROUNDS = 4  # solves at most: the first, then tightened by the dense check's shortfall
