@@ -145,7 +145,7 @@ def test_budget_in_problem_files_and_on_the_command_line(tmp_path, capsys):
     path.write_text(text)
     assert main(["design", str(path), "-o", str(out), "--budget", "-2"]) == 2
     assert capsys.readouterr().err.strip().splitlines() == [
-        "error: command line: vine-nlp design: argument --budget: must be a finite number >= 0, got -2"]
+        "error: command line: vine-nlp design: argument --budget: must be a finite number >= 0 and <= 604800, got -2"]
     assert not out.exists()
     # --budget 0: no search, the first solve's design is archived
     assert main(["design", str(path), "-o", str(out), "--budget", "0"]) == 0
