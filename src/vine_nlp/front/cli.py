@@ -18,6 +18,7 @@ from vine_nlp.errors import InputError
 from vine_nlp.front import files as ff
 from vine_nlp.front.files import add_sigma_args, archive_run, check_figure, check_output, read_archive, sigmas
 from vine_nlp.io import limits, outputs
+from vine_nlp.io.h5read import open_archive
 from vine_nlp.methods import blas, compiled
 from vine_nlp.pipeline.request import COMPARE
 from vine_nlp.problem import METHODS
@@ -578,8 +579,10 @@ def _one_actuator_only(args) -> None:
         return
     for path in [getattr(args, "archive", None), getattr(args, "source", None), *(getattr(args, "archives", None) or [])]:
         if path and Path(path).suffix.lower() in (".h5", ".hdf5") and Path(path).is_file():
-            kind = read_archive(path).kind
-            if kind.startswith("actuators"):
+            with open_archive(path) as h5:  # the kind attribute alone: the command reads and checks the whole archive next
+                kind = h5["problem"].attrs.get("kind") if "problem" in h5 else None
+            kind = kind.decode(errors="replace") if isinstance(kind, bytes) else kind
+            if isinstance(kind, str) and kind.startswith("actuators"):
                 raise InputError(path, "kind", f"an archive of several actuators: `{args.command}` reads one actuator's "
                                  "routing and does not take it yet (show, plot and forward --run do)")
 
