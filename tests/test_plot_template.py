@@ -330,9 +330,9 @@ def test_summary(archives):
 def test_show_judges_as_the_design_does_and_rounds_to_what_numbers_mean():
     """Issue 46/47: a gap a hair below min_feature is printed to the digit that tells them apart, and counted below;
     lambda just below 1 is an actuator (only exactly 1 is none), said with the line's turning there; theta 1e-7 deg is 0."""
-    from vine_nlp.front.show import _beside
+    from vine_nlp.analysis.buildability import digits
 
-    assert _beside(0.199107, 0.2) == "0.199107" and _beside(0.2 - 1e-9, 0.2) == "0.199999999" and _beside(0.2, 0.2) == "0.2"
+    assert digits(0.199107, 0.2) == "0.199107" and digits(0.2 - 1e-9, 0.2) == "0.199999999" and digits(0.2, 0.2) == "0.2"
     lam = np.array([1.0, 1.0 - 1e-8, 1.0 - 4e-7, 0.8, 0.8, 1.0])
     theta = np.array([1e-9, np.radians(60), np.radians(-60), 0.1, 0.1, -2e-9])
     r = run_forward(ForwardProblem("n", D, Routing(theta=theta, lam=lam, length=np.full(6, 5.0))))

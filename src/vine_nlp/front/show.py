@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from vine_nlp.analysis.buildability import POUCH_LAMBDA_MIN, buildability, default_min_feature
+from vine_nlp.analysis.buildability import POUCH_LAMBDA_MIN, buildability, default_min_feature, digits
 from vine_nlp.errors import InputError
 from vine_nlp.io.archive import Archive, load_archive
 from vine_nlp.io.validate import parse_toml
@@ -69,7 +69,7 @@ def _build_lines(a: Archive, routing) -> list[str]:
     lines.append(f"  line turns  {turns[0]:.3g} in all, {turns[1]:.3g} where lambda = 1 (the routing needs {turns[2]:.3g} there)")
     if rep.smallest:
         v, mf = rep.smallest[0], rep.min_feature
-        lines.append(f"  smallest    {_beside(v, mf)} {u} {rep.smallest[1]} ({len(rep.below)} below min_feature {_beside(mf, v)} {u})")
+        lines.append(f"  smallest    {digits(v, mf)} {u} {rep.smallest[1]} ({len(rep.below)} below min_feature {digits(mf, v)} {u})")
     if rep.violations:
         lines.append(f"  margin      {len(rep.violations)} segment(s) with lambda neither 1 nor in "
                      f"[{_num(b['lambda_min'] + b['margin'])}, {_num(1 - b['margin'])}]")
@@ -91,20 +91,12 @@ def build_warnings(a: Archive, run: str) -> list[str]:
     out = []
     if rep.below:
         length, name, _ = rep.smallest
-        out.append(f"{len(rep.below)} feature(s) below min_feature {_beside(rep.min_feature, length)} {a.units} "
-                   f"(smallest: {_beside(length, rep.min_feature)} {a.units} {name})")
+        out.append(f"{len(rep.below)} feature(s) below min_feature {digits(rep.min_feature, length)} {a.units} "
+                   f"(smallest: {digits(length, rep.min_feature)} {a.units} {name})")
     if rep.violations:
         out.append(f"{len(rep.violations)} segment(s) with lambda neither 1 nor in [{_num(b['lambda_min'] + b['margin'])}, "
                    f"{_num(1 - b['margin'])}]")
     return [f"run {run}: not buildable as drawn: " + "; ".join(out)] if out else []
-
-
-def _beside(v: float, other: float) -> str:
-    """``v`` to 6 digits, or to as many more as it takes to tell it from ``other`` (0.199999 is not 0.2)."""
-    for p in range(6, 17):
-        if v == other or f"{v:.{p}g}" != f"{other:.{p}g}":
-            return f"{v:.{p}g}"
-    return repr(v)
 
 
 def _levels(path) -> list[str]:
