@@ -243,7 +243,8 @@ def load_runs(problem: DesignProblem, start: Result) -> dict:
     ``start``'s fit, else {"nlp": ``start``, RUN: the design that stands (or tried to)}."""
     loaded = design_with_load(problem, start)
     rmse, rmse0 = loaded.metrics["rmse"], start.metrics["rmse"]
-    if loaded.stats["load_rounds"] == 0 or (loaded.converged and loaded.metrics["load_margin"] >= problem.load.safety
+    stood = loaded.routing is start.routing  # the start stood as it was (design_with_load solved nothing): no stats read
+    if stood or (loaded.converged and loaded.metrics["load_margin"] >= problem.load.safety
                                             and rmse <= rmse0 + BUDGET * problem.diameter):
         return {"nlp": loaded}
     start.stats["load_design"] = f"kept on the target: the design that stands ({RUN}) is {rmse:.4g} {problem.units} RMSE off it"
