@@ -165,7 +165,7 @@ def cmd_solve(args) -> int:
     finally:
         close()
     outcome.write(out)
-    print(comparison_table(outcome.runs, pf.units) if methods else "\n".join(outcome_lines(outcome)))
+    print(comparison_table(outcome.runs, pf.units, pf.problem) if methods else "\n".join(outcome_lines(outcome)))
     print(f"archive -> {out}")
     for line in outcome.shortfalls():
         print(f"{pf.name}: {line}", file=sys.stderr)
