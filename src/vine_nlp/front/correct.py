@@ -101,8 +101,8 @@ def cmd_correct(args) -> int:
         print(line)
     print(f"archive -> {out}")
     short = shortfall(result)
-    if short:
-        print(f"correct: corrected ({','.join(result.adjust)}): {short}; the best correction found is written", file=sys.stderr)
+    for k, line in enumerate(short):  # one line each, the first saying what is written
+        print(f"correct: corrected ({','.join(result.adjust)}): {line}" + ("" if k else "; the best correction found is written"), file=sys.stderr)
     if fig:
         save_figure(correction_figure(result, archived_problem(archive, args.archive, settings["built_run"]), archive.units), fig)
         print(f"figure -> {fig}")
