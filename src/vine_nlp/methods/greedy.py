@@ -39,7 +39,7 @@ import numpy as np
 
 from vine_nlp.analysis.buildability import pieces
 from vine_nlp.methods import blas, settings, variables
-from vine_nlp.methods.buildable import Build, classify, lambda_bounds, target_bends, unwind
+from vine_nlp.methods.buildable import Build, chain_bends, classify, lambda_bounds, unwind
 from vine_nlp.methods.common import Pairing, clip_to_bounds, design_bounds, evaluate, geometric_guess, pair_points, path_error
 from vine_nlp.methods.transcription import ipopt_status
 from vine_nlp.model.chain import chain_points
@@ -394,24 +394,30 @@ def _carriers(act, base_free: bool) -> np.ndarray:
     return out
 
 
-def design_greedy_buildable(problem: DesignProblem, pairing: Pairing | None = None, progress: Callable[[int, int], None] | None = None) -> Result:
-    """The greedy under the buildable rules (method "greedy_buildable"): Algorithm 1 with the lambda bounds of
-    the classes the nlp's buildable design starts from (methods.buildable: ``classify`` on the target's bends,
-    ``lambda_bounds``: exactly 1 without an actuator, the correction margin and min_feature with one), then each
-    unactuated run's turning the shortest way round (``unwind``: the same shape). stats buildable_actuated."""
+def design_greedy_buildable(problem: DesignProblem, pairing: Pairing | None = None, progress: Callable[[int, int], None] | None = None,
+                            start: Result | None = None) -> Result:
+    """The greedy under the buildable rules (method "greedy_buildable"): Algorithm 1 again, with the lambda bounds
+    (methods.buildable.lambda_bounds: exactly 1 without an actuator, the correction margin and min_feature with one)
+    of the classes its free design ``start`` (default: run here; its time counted either way) bends for (``classify`` on its
+    ``chain_bends``: the greedy has no reclassification, and at a corner the target bends within one segment where
+    a tube spreads it over several); then each unactuated run's turning the shortest way round (``unwind``: the
+    same shape). stats buildable_actuated, buildable_free_rmse."""
     t0 = time.perf_counter()
     pairing = pairing or pair_points(problem.target, problem.options.points_per_segment)
+    before = 0.0 if start is None else start.solve_time_s  # the free design's time, counted as the nlp's buildable design does
+    start = start or design_greedy(problem, pairing, progress)
     build = Build.of(problem)
-    act = classify(target_bends(problem, pairing), pairing.segment_chord, build)
+    act = classify(chain_bends(start.routing, problem.diameter), pairing.segment_chord, build)
     box = design_bounds(problem, pairing)
     turns = _carriers(act, build.pose is None)
     theta = (np.where(turns, box["theta"][0], 0.0), np.where(turns, box["theta"][1], 0.0))
     res = design_greedy(problem, pairing, progress, bounds={"lam": lambda_bounds(act, pairing.segment_chord, build), "theta": theta})
     # the greedy fits its own base pose, a fixed one too: its pose is the one kept
     r = unwind(res.routing, act, build if build.pose is None else dataclasses.replace(build, pose=res.routing.initial_pose))
-    stats = res.stats | {"buildable": True, "buildable_actuated": int(act.sum()), "correction_margin": build.margin, "min_feature": build.min_feature}
-    out = evaluate(problem, r, pairing, "greedy_buildable", status=res.status, solve_time_s=time.perf_counter() - t0,
-                   iterations=res.iterations, stats=stats)
+    stats = res.stats | {"buildable": True, "buildable_actuated": int(act.sum()), "buildable_free_rmse": float(start.metrics["rmse"]),
+                         "correction_margin": build.margin, "min_feature": build.min_feature}
+    out = evaluate(problem, r, pairing, "greedy_buildable", status=res.status, iterations=res.iterations, stats=stats,
+                   solve_time_s=before + time.perf_counter() - t0)
     out.buildable = True
     return out
 

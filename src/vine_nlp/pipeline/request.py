@@ -15,7 +15,7 @@ from vine_nlp.problem import METHODS
 # greedy_filtered: the paper's low-pass filter of the greedy design; nlp_free: the free design the buildable nlp
 # starts from, kept as its own run; greedy_buildable: the greedy under the buildable rules (methods.greedy)
 DESIGN_METHODS = (*METHODS, "greedy_filtered", "nlp_free", "greedy_buildable")
-COMPARE = ("nlp", "nlp_free", "greedy_buildable", "greedy", "greedy_filtered")  # buildable and free, both methods
+COMPARE = ("nlp", "nlp_free", "greedy", "greedy_buildable", "greedy_filtered")  # free and buildable, both methods
 
 
 @dataclass(frozen=True)

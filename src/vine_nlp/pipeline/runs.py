@@ -173,16 +173,17 @@ def _design_as_given(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, 
     runs = {}
     for m in methods:
         if m == "nlp":
-            runs[m] = free = design_nlp(problem, starts=rq.starts, workers=rq.workers, warm=rq.warm, progress=rq.progress, hops=rq.hops,
-                                        budget=rq.budget, note=rq.note)
-            if not problem.obstacles or _clears(problem, runs[m]):  # among obstacles a design that cuts one only starts theirs
-                runs[m] = design_buildable(problem, runs[m])  # from the free one (issue 31); robust and clearance keep its classes
-            if "nlp_free" in methods:  # compare: the free design kept beside it, a figure only (not decisive)
+            free = design_nlp(problem, starts=rq.starts, workers=rq.workers, warm=rq.warm, progress=rq.progress, hops=rq.hops,
+                              budget=rq.budget, note=rq.note)
+            if "nlp_free" in methods:  # compare: the free design kept before it, a figure only (not decisive)
                 runs["nlp_free"] = free
+            # the buildable design from the free one (issue 31; robust and clearance keep its classes); among obstacles a
+            # design that cuts one only starts theirs
+            runs[m] = design_buildable(problem, free) if not problem.obstacles or _clears(problem, free) else free
         elif m == "greedy":
             runs[m] = design_greedy(problem, progress=rq.progress)
-        elif m == "greedy_buildable":
-            runs[m] = design_greedy_buildable(problem, progress=rq.progress)
+        elif m == "greedy_buildable":  # from the greedy's own design where it was made
+            runs[m] = design_greedy_buildable(problem, progress=rq.progress, start=runs.get("greedy"))
         elif m == "greedy_filtered":
             runs[m] = lowpass(runs["greedy"], problem)
     decisive = tuple(r for r in runs if r != "nlp_free")
