@@ -438,7 +438,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     for name, text in (
         ("design", "inverse design of a routing for a target curve -> result archive"),
-        ("compare", "run nlp and greedy on one problem: one archive, a table on stdout"),
+        ("compare", "nlp and the greedy, each free and buildable, on one problem: one archive, a table on stdout"),
     ):
         d = sub.add_parser(name, help=text)
         d.add_argument("problem", metavar="PROBLEM.toml")
