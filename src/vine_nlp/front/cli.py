@@ -362,6 +362,8 @@ def cmd_animate(args) -> int:
 def cmd_export(args) -> int:
     """The tube as a closed triangle mesh (STL, OBJ, PLY, glTF binary)."""
     export = _front("export")
+    if several_actuators(args.archive):
+        return export.cmd_export_states(args)
     out = check_output(args.output, args.force)
     fmt = _output_format(out, "export", "mesh_format")
     if fmt in (".stl", ".ply"):
@@ -529,6 +531,7 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("archive", metavar="ARCHIVE.h5")
     ex.add_argument("-o", "--output", required=True, metavar="TUBE.stl|.obj|.ply|.glb")
     ex.add_argument("--run", type=ff.run_name, help="which run (default: nlp, greedy, forward, ...)")
+    ex.add_argument("--state", type=ff.run_name, help="several actuators: this state alone, in OUT (default: every state, OUT.<state>.ext each)")
     ex.add_argument("--force", action="store_true", help="overwrite existing files")
     ex.set_defaults(func=cmd_export)
 
@@ -570,21 +573,30 @@ def _commands(parser) -> str:
 
 
 # commands that read one actuator's routing from an archive: not yet for archives of several actuators (io.actuators)
-ONE_ACTUATOR = ("template", "view", "animate", "export", "analyze", "correct", "calibrate")
+ONE_ACTUATOR = ("correct", "calibrate")
+
+
+def several_actuators(path) -> bool:
+    """Whether ``path`` is an archive of several actuators: its kind attribute alone (the command reads and checks
+    the whole archive next)."""
+    if not (path and Path(path).suffix.lower() in (".h5", ".hdf5") and Path(path).is_file()):
+        return False
+    with open_archive(path) as h5:
+        kind = h5["problem"].attrs.get("kind") if "problem" in h5 else None
+    kind = kind.decode(errors="replace") if isinstance(kind, bytes) else kind
+    return isinstance(kind, str) and kind.startswith("actuators")
 
 
 def _one_actuator_only(args) -> None:
-    """One error line, before any work, for a command that cannot read an archive of several actuators yet."""
-    if args.command not in ONE_ACTUATOR:
-        return
-    for path in [getattr(args, "archive", None), getattr(args, "source", None), *(getattr(args, "archives", None) or [])]:
-        if path and Path(path).suffix.lower() in (".h5", ".hdf5") and Path(path).is_file():
-            with open_archive(path) as h5:  # the kind attribute alone: the command reads and checks the whole archive next
-                kind = h5["problem"].attrs.get("kind") if "problem" in h5 else None
-            kind = kind.decode(errors="replace") if isinstance(kind, bytes) else kind
-            if isinstance(kind, str) and kind.startswith("actuators"):
-                raise InputError(path, "kind", f"an archive of several actuators: `{args.command}` reads one actuator's "
-                                 "routing and does not take it yet (show, plot and forward --run do)")
+    """One error line, before any work, for a command that cannot read an archive of several actuators yet, and
+    for --state on an archive of one actuator."""
+    for path in [getattr(args, "archive", None), *(getattr(args, "archives", None) or [])] if args.command in ONE_ACTUATOR else ():
+        if several_actuators(path):
+            raise InputError(path, "kind", f"an archive of several actuators: `{args.command}` reads one actuator's routing and does "
+                             "not take it yet (show, plot, template, view, animate, export, analyze and forward --run do)")
+    path = getattr(args, "archive", None) or getattr(args, "source", None)
+    if getattr(args, "state", None) is not None and Path(path).is_file() and not several_actuators(path):
+        raise InputError(path, "--state", "an archive of one actuator has no states (--state is for archives of several actuators)")
 
 
 def main(argv=None) -> int:
