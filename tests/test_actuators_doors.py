@@ -3,17 +3,27 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
+import h5py
 import numpy as np
 import pytest
 import trimesh
 
+from vine_nlp.analysis.collision import growth_contacts, routing_clearance
+from vine_nlp.analysis.tolerance import tolerance_report
 from vine_nlp.front import export
+from vine_nlp.front.analyze import state_collision, state_tolerance
 from vine_nlp.front.cli import main
 from vine_nlp.front.states import state_lines
 from vine_nlp.io.actuators import read_actuators_archive, write_actuators_archive
 from vine_nlp.io.problems import ProblemFile
 from vine_nlp.methods.actuators import ActuatorsProblem, Line, evaluate, sample_states
 from vine_nlp.model.actuators import Lines, state_shape
+from vine_nlp.model.chain import shape_lines
+from vine_nlp.model.pairing import pair_points
+from vine_nlp.model.routing import Routing, Sigmas
+from vine_nlp.problem import Actuator
 
 D = 2.4
 LAM_A = [0.6] * 10 + [1.0] * 10
@@ -142,3 +152,81 @@ def test_state_of_a_one_actuator_archive_is_refused(tmp_path, capsys):
     assert main(["export", str(tmp_path / "one.h5"), "-o", str(tmp_path / "t.stl"), "--state", "a"]) == 2
     assert capsys.readouterr().err == (f"error: {tmp_path / 'one.h5'}: --state: an archive of one actuator has no states "
                                        "(--state is for archives of several actuators)\n")
+
+
+# ---------------------------------------------------------------- analyze
+
+
+def contents(path) -> dict:
+    """Every attribute and dataset of an archive: path -> bytes or repr."""
+    out = {}
+
+    def visit(name, obj):
+        if isinstance(obj, h5py.Dataset):
+            out[name] = obj[()].tobytes()
+        out.update({f"{name}@{k}": repr(v) for k, v in obj.attrs.items()})
+
+    with h5py.File(path, "r") as h5:
+        visit("", h5)
+        h5.visititems(visit)
+    return out
+
+
+def test_state_tolerance_of_one_line_is_the_one_actuator_report():
+    """One line: the state's tolerance (central differences, the same draws) is tolerance_report's."""
+    M, pps = 8, 3
+    r = Routing(theta=np.radians(np.linspace(-20, 30, M)), lam=[0.6, 0.7, 1.0, 0.5, 0.8, 1.0, 0.9, 0.55], length=np.linspace(1.0, 2.0, M))
+    pairing = pair_points(np.column_stack([np.linspace(0, 12, M * pps + 1), np.zeros(M * pps + 1), np.zeros(M * pps + 1)]), pps)
+    target = shape_lines(r.theta, r.lam, r.length, D, pairing.seg, pairing.frac)[0] + 0.05
+    sig = Sigmas.from_degrees(1.0, 0.02, 0.02)
+    problem = SimpleNamespace(diameter=D, target=target, options=SimpleNamespace(points_per_segment=pps), actuator=Actuator(lambda_min=0.4))
+    want = tolerance_report(problem, SimpleNamespace(routing=r), sig, samples=50, seed=3)
+    ls = Lines(("A",), [r.theta], [r.lam], [0.0], r.length)
+    got = state_tolerance(ls, D, ("A",), "s", target, pairing.seg, pairing.frac, sig, [0.4], samples=50, seed=3)
+    assert got["nominal"]["rmse"] == pytest.approx(want["nominal"]["rmse"], abs=1e-12)
+    np.testing.assert_allclose(got["monte_carlo"]["rmse"], want["monte_carlo"]["rmse"], rtol=1e-10)
+    for key in ("rmse", "tip_std"):
+        assert got["first_order"][key] == pytest.approx(want["first_order"][key], rel=1e-6)
+    np.testing.assert_allclose(got["per_segment"]["tip_var_by_param"], want["per_segment"]["tip_var_by_param"], rtol=1e-5, atol=1e-12)
+
+
+def test_state_collision_of_a_coil_is_the_routing_clearance():
+    """A state whose one line shapes every segment: its contacts are those of the one-actuator routing."""
+    ls = Lines(("A", "B"), np.zeros((2, 40)), [[0.4] * 40, [1.0] * 40], [0.0, 2.0], np.ones(40))
+    got = state_collision(ls, D, ("A",), "coil", u="cm")
+    want = routing_clearance(ls.routing(0), D)
+    assert got["contacts"] == len(want["regions"]) >= 1
+    assert got["min_clearance"] == pytest.approx(want["clearance"], rel=2e-3)
+    first = min(g["growth_length"] for g in growth_contacts(ls.routing(0), D, actuation_steps=0))
+    assert abs(got["first_contact_growth_length"] - first) <= D / 8
+
+
+def test_analyze_every_state_and_write_metrics_keeping_the_archive(design, tmp_path, capsys):
+    path = tmp_path / "d.h5"
+    path.write_bytes(design.read_bytes())
+    before = contents(path)
+    assert main(["analyze", str(path), "--samples", "20", "--write-metrics"]) == 0
+    out = capsys.readouterr().out
+    assert [x for x in out.splitlines() if x.startswith("state ")] == ["state a (A)", "state b (B)", "state ab (A, B)"]
+    assert out.count("  tolerance   sigma theta 1 deg, lambda 0.02, length 2 % (per segment, independent)") == 3
+    assert out.endswith(f"metrics -> {path} (/runs/nlp/states/<state>/metrics)\n")
+    after = contents(path)
+    assert {k: v for k, v in after.items() if k in before} == before  # nothing lost, nothing changed
+    added = set(after) - set(before)
+    assert {k.split("@")[0] for k in added} == {f"runs/nlp/states/{s}/metrics" for s in STATES}
+    _, r, _ = read_actuators_archive(path)
+    assert r.state_metrics["ab"]["contacts"] == 0 and r.state_metrics["ab"]["tolerance_rmse_mc_mean"] > 0
+    assert main(["show", str(path)]) == 0
+
+
+def test_analyze_one_state_of_a_forward_archive(forward, tmp_path, capsys):
+    path = tmp_path / "f.h5"
+    path.write_bytes(forward.read_bytes())
+    assert main(["analyze", str(path), "--state", "ab", "--write-metrics"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("state ab (A, B)\n  clearance   ") and "tolerance" not in out
+    _, r, _ = read_actuators_archive(path)
+    assert set(r.state_metrics) == {"ab"} and r.state_metrics["ab"]["contacts"] == 0
+    assert main(["show", str(path)]) == 0 and main(["plot", str(path), "-o", str(tmp_path / "f.png")]) == 0
+    assert main(["analyze", str(path), "--tolerance-figure", str(tmp_path / "t.png")]) == 2
+    assert capsys.readouterr().err.endswith("error: command line: --tolerance-figure: not drawn for an archive of several actuators\n")

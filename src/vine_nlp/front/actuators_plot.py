@@ -42,7 +42,7 @@ def plot_actuators_figure(path) -> Figure:
             label_3d_axes(ax, u)
             set_equal_3d(ax, drawn)
             m = r.state_metrics.get(s)
-            ax.set_title(f"{s} ({', '.join(active)})" + (f": RMSE {m['rmse']:.3g} {u}" if m else ""), pad=0)
+            ax.set_title(f"{s} ({', '.join(active)})" + (f": RMSE {m['rmse']:.3g} {u}" if "rmse" in (m or {}) else ""), pad=0)
         ax_l = fig.add_subplot(gs[rows, :])
         edges = np.r_[0.0, np.cumsum(ls.length)]
         for k, name in enumerate(ls.names):

@@ -212,7 +212,7 @@ def cmd_sweep(args) -> int:
 def cmd_analyze(args) -> int:
     from vine_nlp.front import analyze  # matplotlib and SciPy load when the command runs
 
-    return analyze.cmd_analyze(args)
+    return analyze.cmd_analyze_states(args) if several_actuators(args.archive) else analyze.cmd_analyze(args)
 
 
 def cmd_correct(args) -> int:
@@ -464,6 +464,7 @@ def build_parser() -> argparse.ArgumentParser:
     an = sub.add_parser("analyze", help="self-collision, growth order and manufacturing tolerance of a design")
     an.add_argument("archive", metavar="OUT.h5")
     an.add_argument("--run", type=ff.run_name, help="which run (default: nlp, greedy, forward, ...)")
+    an.add_argument("--state", type=ff.run_name, help="several actuators: this state alone (default: every state)")
     add_sigma_args(an)
     an.add_argument("--samples", type=ff.bounded(1, limits.MAX_SAMPLES, True), default=2000, help="Monte Carlo samples (default 2000)")
     an.add_argument("--seed", type=ff.bounded(0, limits.MAX_SEED, True), default=0)
