@@ -230,3 +230,65 @@ def test_analyze_one_state_of_a_forward_archive(forward, tmp_path, capsys):
     assert main(["show", str(path)]) == 0 and main(["plot", str(path), "-o", str(tmp_path / "f.png")]) == 0
     assert main(["analyze", str(path), "--tolerance-figure", str(tmp_path / "t.png")]) == 2
     assert capsys.readouterr().err.endswith("error: command line: --tolerance-figure: not drawn for an archive of several actuators\n")
+
+
+# ---------------------------------------------------------------- template
+
+
+def _dxf_lines(doc, layer):
+    return [np.array([tuple(e.dxf.start)[:2], tuple(e.dxf.end)[:2]]) for e in doc.modelspace().query(f'LINE[layer=="{layer}"]')]
+
+
+def test_template_dxf_draws_every_line_from_its_start_in_its_own_layers(forward, tmp_path, capsys):
+    import ezdxf
+
+    from vine_nlp.front import palette
+    from vine_nlp.front import template as tpl
+
+    out = tmp_path / "t.dxf"
+    assert main(["template", str(forward), "-o", str(out), "--csv", str(tmp_path / "c.csv")]) == 0
+    assert "1 strip(s) cut for A4, run forward, 20 segments, tube 20 cm" in capsys.readouterr().out
+    doc = ezdxf.readfile(out)
+    ls, mm, C = lines(), 10.0, np.pi * D
+    (outline,) = doc.modelspace().query('LWPOLYLINE[layer=="outline"]')
+    origin = np.array(outline.get_points("xy"))[:, :2].min(axis=0)  # (s, c) = (0, 0)
+    phi = ls.phi(D)
+    for k, name in enumerate(("A", "B")):
+        layer = doc.layers.get(f"stoppers-{name}")
+        assert layer.rgb == tuple(int(palette.LINES[k][i:i + 2], 16) for i in (1, 3, 5))
+        path = _dxf_lines(doc, f"actuator_path-{name}")
+        # the line drawn: every segment dl / cos(theta) long, each point where phi_k puts it around the tube
+        assert sum(np.linalg.norm(p[1] - p[0]) for p in path) == pytest.approx((ls.length / np.cos(ls.theta[k])).sum() * mm, rel=1e-9)
+        sc = (np.concatenate(path) - origin) / mm
+        want = 0.5 * D * np.interp(sc[:, 0], np.r_[0.0, np.cumsum(ls.length)], phi[k])
+        gap = np.abs(np.mod(sc[:, 1] - want + C / 2, C) - C / 2)
+        assert gap.max() < 1e-9
+        on = ls.lam[k] < 1
+        stoppers = sum(np.linalg.norm(p[1] - p[0]) for p in _dxf_lines(doc, f"stoppers-{name}"))
+        assert stoppers == pytest.approx((ls.lam[k] * ls.length / np.cos(ls.theta[k]))[on].sum() * mm, rel=1e-9)
+        # where it starts around the tube: a triangle at the base, at c = (D/2) phi_k[0], and its angle
+        (start,) = doc.modelspace().query(f'LWPOLYLINE[layer=="actuator_path-{name}"]')
+        tip = np.array(start.get_points("xy"))[:, :2]
+        assert ((tip - origin) / mm)[:, 1].mean() == pytest.approx(0.5 * D * ls.phi0[k], abs=1e-9)
+        texts = [t.dxf.text for t in doc.modelspace().query(f'TEXT[layer=="actuator_path-{name}"]')]
+        assert texts == [f"{name}: \u03c6 = {np.degrees(ls.phi0[k]):.4g}\u00b0"]
+    assert set(tpl.LAYERS) <= {layer.dxf.name for layer in doc.layers}
+    rows = (tmp_path / "c.csv").read_text().splitlines()
+    assert rows[0].startswith("actuator,segment,s_start") and len(rows) == 41
+    assert rows[21].startswith("B,0,0,1,-3,1,3.14159265") and rows[1].startswith("A,0,0,1,5,0.6,0,")
+
+
+def test_template_pdf_and_svg_of_several_lines(design, tmp_path):
+    import xml.etree.ElementTree as ET
+
+    from vine_nlp.front import palette
+    from vine_nlp.front.template import write_actuators_template
+
+    info = write_actuators_template(design, tmp_path / "t.pdf")
+    assert (info["pages"], info["strips"], info["run"]) == (1, 1, "nlp") and (tmp_path / "t.pdf").read_bytes()[:5] == b"%PDF-"
+    assert info["actuators"]["A"]["unactuated"] == 10 and info["actuators"]["B"]["stoppers"] == 10
+    write_actuators_template(design, tmp_path / "t.svg")
+    ink = "{http://www.inkscape.org/namespaces/inkscape}label"
+    layers = {g.get(ink): g for g in ET.parse(tmp_path / "t.svg").getroot() if g.get(ink)}
+    assert {"stoppers-A", "removed-B", "actuator_path-B"} <= set(layers)
+    assert layers["stoppers-B"].get("stroke") == palette.LINES[1] and layers["removed-B"].get("stroke") == palette.REMOVED

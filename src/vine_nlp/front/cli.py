@@ -239,7 +239,7 @@ def cmd_plot(args) -> int:
 
 
 def cmd_template(args) -> int:
-    from vine_nlp.front.template import write_template
+    from vine_nlp.front.template import write_actuators_template, write_template
 
     out = check_output(args.output, args.force)
     fmt = _output_format(out, "template", "template_format")
@@ -255,9 +255,12 @@ def cmd_template(args) -> int:
         except (ValueError, KeyError) as e:
             raise InputError(args.archive, "--changes", str(e).strip("'")) from None
         print(changes_text(rows, archive.units))
+    several = several_actuators(args.archive)
     try:
-        info = write_template(archive, out, csv_path=csv, paper=args.paper, run=args.run or ("corrected" if rows is not None else None),
-                              changes=rows)
+        info = write_actuators_template(args.archive, out, csv, args.paper, args.run) if several else \
+            write_template(archive, out, csv_path=csv, paper=args.paper, run=args.run or ("corrected" if rows is not None else None), changes=rows)
+    except InputError:
+        raise
     except ValueError as e:
         raise InputError(args.archive, "--run" if args.run and args.run in str(e) else "template", str(e)) from None
     if fmt == ".pdf":
@@ -275,7 +278,7 @@ def cmd_template(args) -> int:
         print(f"cuts -> {csv}")
     from vine_nlp.front.show import build_warnings
 
-    for line in build_warnings(archive, info["run"]):  # judged as show and the design judge it
+    for line in [] if several else build_warnings(archive, info["run"]):  # judged as show and the design judge it
         print(f"warning: {args.archive}: {line}", file=sys.stderr)
     print("print at 100 % (no 'fit to page') and check the 10 cm scale bar" if fmt == ".pdf"
           else "the 10 cm scale bar is 100 mm in the file: check it after import")
