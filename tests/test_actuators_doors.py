@@ -292,3 +292,33 @@ def test_template_pdf_and_svg_of_several_lines(design, tmp_path):
     layers = {g.get(ink): g for g in ET.parse(tmp_path / "t.svg").getroot() if g.get(ink)}
     assert {"stoppers-A", "removed-B", "actuator_path-B"} <= set(layers)
     assert layers["stoppers-B"].get("stroke") == palette.LINES[1] and layers["removed-B"].get("stroke") == palette.REMOVED
+
+
+# ---------------------------------------------------------------- view
+
+
+def test_view_has_a_menu_of_states_each_drawing_its_shape(design, tmp_path, capsys):
+    from vine_nlp.front.view import states_figure
+
+    fig = states_figure(design)
+    ls, K = lines(), 2
+    per_state = 1 + K + 1 + 1  # tube, every line, center line, target
+    assert len(fig.data) == 3 * per_state
+    (menu,) = fig.layout.updatemenus
+    assert [b.label for b in menu.buttons] == ["a (A)", "b (B)", "ab (A, B)"]
+    for i, (s, active) in enumerate(STATES.items()):
+        shown = menu.buttons[i].args[0]["visible"]
+        assert shown == [i * per_state <= j < (i + 1) * per_state for j in range(len(fig.data))]
+        center = fig.data[i * per_state + 1 + K]
+        assert center.name == f"state {s}: center line"
+        xyz = np.column_stack([center.x, center.y, center.z])
+        seg, frac, shape, _ = state_lines(ls, D, active, s, spacing=D / 3)
+        np.testing.assert_allclose(xyz, shape.center, atol=1e-5)  # the page's float32 of the model's state shape
+        ends = np.flatnonzero(frac == 0)
+        np.testing.assert_allclose(xyz[np.r_[ends, -1]], segment_ends(ls, active, s), atol=1e-5)
+        widths = [fig.data[i * per_state + 1 + k].line.width for k in range(K)]
+        assert widths == [5 if n in active else 2 for n in ("A", "B")]
+        assert fig.data[i * per_state].visible == (i == 0)
+    out = tmp_path / "v.html"
+    assert main(["view", str(design), "-o", str(out)]) == 0
+    assert "view of every state of run nlp" in capsys.readouterr().out and out.read_text().count("ab (A, B)") >= 1

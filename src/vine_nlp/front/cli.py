@@ -336,9 +336,10 @@ def cmd_view(args) -> int:
             archive_run(archive, src, args.run)
         elif not archive.runs:
             raise InputError(src, "runs", "the archive has no runs")
-        ff.within_limits("view", archive, src, [args.run] if args.run else list(archive.runs))
-        html = view.view_html(archive, run=args.run)
-        what = ", ".join([args.run] if args.run else archive.runs)
+        several = several_actuators(src)  # one page, a menu of its states (of the run named, or the default run)
+        ff.within_limits("view", archive, src, [archive.pick_run(args.run)] if args.run or several else list(archive.runs))
+        html = view.view_html(src if several else archive, run=args.run)
+        what = ", ".join([args.run] if args.run else archive.runs) if not several else f"every state of run {archive.pick_run(args.run)}"
     view.write_html(out, html)
     print(f"view of {what} ({len(html) / 1e6:.2f} MB, opens offline) -> {out}")
     return EXIT_OK
