@@ -322,3 +322,35 @@ def test_view_has_a_menu_of_states_each_drawing_its_shape(design, tmp_path, caps
     out = tmp_path / "v.html"
     assert main(["view", str(design), "-o", str(out)]) == 0
     assert "view of every state of run nlp" in capsys.readouterr().out and out.read_text().count("ab (A, B)") >= 1
+
+
+# ---------------------------------------------------------------- animate
+
+
+def test_state_to_state_frames_pass_through_every_state_and_release_before_pulling():
+    from vine_nlp.front.animate import state_frames
+
+    ls = lines()
+    frames = state_frames(ls, D, STATES, 9)  # a -> b -> ab: a frame at every state and halfway between
+    assert [f["title"] for f in frames[::4]] == ["state a: pulled A 100%", "state b: pulled B 100%", "state ab: pulled A 100%, B 100%"]
+    for f, (s, active) in zip(frames[::4], STATES.items()):
+        seg, frac, shape, paths = state_lines(ls, D, active, s)
+        np.testing.assert_allclose(f["center"], shape.center, atol=1e-12, rtol=0)
+        assert [w for _, _, w in f["lines"]] == [2.5 if n in active else 0.8 for n in ("A", "B")]
+    # halfway from a to b: A released, B not yet pulled: the straight tube along the base's x axis
+    assert frames[2]["title"] == "a \u2192 b: pulled none"
+    np.testing.assert_allclose(frames[2]["center"][:, 1:], 0.0, atol=1e-12)
+    assert frames[2]["center"][-1, 0] == pytest.approx(ls.length.sum(), abs=1e-12)
+    # from b to ab: B stays pulled throughout, A is pulled up to its full lambda
+    assert frames[6]["title"] == "b \u2192 ab: pulled A 50%, B 100%"
+    assert [f["x"] for f in frames] == pytest.approx(np.linspace(0, 1, 9))
+
+
+def test_animate_state_to_state(forward, tmp_path, capsys):
+    from PIL import Image
+
+    out = tmp_path / "m.gif"
+    assert main(["animate", str(forward), "-o", str(out), "--frames", "5"]) == 0
+    assert capsys.readouterr().out == f"5 frames, run forward, state to state: a -> ab -> {out}\n"
+    with Image.open(out) as im:
+        assert im.n_frames == 5 and im.size == (1280, 768)

@@ -355,6 +355,10 @@ def cmd_animate(args) -> int:
     archive = read_archive(args.archive)
     run = archive_run(archive, args.archive, args.run)
     ff.within_limits("animate", archive, args.archive, [run])
+    if several_actuators(args.archive):  # state to state (--mode is for one actuator)
+        info = animate.write_states_movie(args.archive, out, run=run, frames=args.frames, fps=args.fps)
+        print(f"{info['frames']} frames, run {run}, state to state: {' -> '.join(info['states'])} -> {out}")
+        return EXIT_OK
     info = animate.write_movie(archive, out, mode=args.mode, run=run, frames=args.frames, fps=args.fps)
     print(f"{info['frames']} frames ({info['mode']}), run {run}, self-contacts: {info['contacts_grow']} of the final shape, "
           f"up to {info['contacts_after']} at once when actuated after growth"
