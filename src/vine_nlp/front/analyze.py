@@ -14,7 +14,7 @@ from vine_nlp.errors import InputError
 from vine_nlp.front.analysis_plots import clearance_figure, tolerance_figure
 from vine_nlp.front.files import archive_run, check_figure, read_archive, sigmas, within_limits
 from vine_nlp.front.load_plots import analyze_load
-from vine_nlp.front.states import picked_states, state_lines, state_rates
+from vine_nlp.front.states import line_kinds, picked_states, state_lines, state_rates
 from vine_nlp.io import limits
 from vine_nlp.io.archive import add_metrics
 from vine_nlp.io.archived import archived_problem
@@ -24,7 +24,6 @@ from vine_nlp.methods.actuators import arc_pairing, state_arcs
 from vine_nlp.model.actuators import Lines, owners, state_shape
 from vine_nlp.model.helix import center_rates
 from vine_nlp.model.routing import Routing, Sigmas, actuated, built_lambda
-from vine_nlp.problem import Actuator
 
 
 def cmd_analyze(args) -> int:
@@ -152,7 +151,8 @@ def cmd_analyze_states(args) -> int:
         written[s] = state_collision(ls, D, active, s, args.margin, u)
         if s in targets:
             seg, frac = arc_pairing(targets[s], state_arcs(ls, D, active))
-            rep = state_tolerance(ls, D, active, s, targets[s], seg, frac, sigmas(args), _lambda_min(a), args.samples, args.seed)
+            lmin = [m for _, m in line_kinds(a, ls.count)]
+            rep = state_tolerance(ls, D, active, s, targets[s], seg, frac, sigmas(args), lmin, args.samples, args.seed)
             _print_tolerance(rep, args, u, "  ")
             written[s] |= tolerance_metrics(rep)
     if args.write_metrics:
@@ -207,13 +207,3 @@ def state_tolerance(ls: Lines, D: float, active, state: str, target, seg, frac, 
     built[..., K:2 * K] = built_lambda(ls.lam.T, dq[..., K:2 * K], np.asarray(lambda_min, float))
     P = np.stack([at(q) for q in built])
     return tolerance_summary(pts, J * sd.ravel(), target, P, ls.length, sig, "", seed, kinds=[0] * K + [1] * K + [2])
-
-
-def _lambda_min(a) -> np.ndarray:
-    """Each line's lambda_min from the archived problem's [[actuators]] (the reader's default where none is given)."""
-    try:
-        items = parse_toml("archive", a.source).get("actuators", [])
-    except InputError:
-        items = []
-    default = Actuator().lambda_min
-    return np.array([float(t.get("lambda_min", default)) if isinstance(t, dict) else default for t in items] or [default])

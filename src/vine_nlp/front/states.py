@@ -10,9 +10,11 @@ import numpy as np
 
 from vine_nlp.errors import InputError
 from vine_nlp.io.actuators import read_actuators_archive
+from vine_nlp.io.validate import parse_toml
 from vine_nlp.model.actuators import Lines, actuator_lines, owners, state_shape
 from vine_nlp.model.chain import segment_end_samples
 from vine_nlp.model.helix import center_rates
+from vine_nlp.problem import ACTUATOR_KINDS, Actuator
 
 # the faces between two rings run straight: where the center line turns by a between them, the tube loses about
 # a^2 / 8 of its volume there (a tight bend sampled at D/8 only: 0.3 %); 2 deg keeps that below 0.02 %
@@ -40,6 +42,19 @@ def state_lines(lines: Lines, D: float, active, state: str = "", spacing: float 
     shapes it, straight where none does): (seg, frac, Shape (model.actuators.state_shape), {actuator: its line})."""
     seg, frac = samples(*state_rates(lines, owners(lines, active, state)), lines.length, D, spacing)
     return seg, frac, state_shape(lines, D, active, seg, frac, state), actuator_lines(lines, D, active, seg, frac, state)
+
+
+def line_kinds(a, count: int) -> list:
+    """(kind, lambda_min) of each of ``count`` lines from the archived problem's [[actuators]] (the reader's
+    defaults where a value is absent or not valid)."""
+    try:
+        items = parse_toml("archive", a.source or "").get("actuators", [])
+    except InputError:
+        items = []
+    items = [t if isinstance(t, dict) else {} for t in (items if isinstance(items, list) else [])] + [{}] * count
+    kinds = [t.get("kind") if t.get("kind") in ACTUATOR_KINDS else Actuator.kind for t in items[:count]]
+    return [(kind, float(t["lambda_min"]) if isinstance(t.get("lambda_min"), (int, float)) else 0.5 if kind == "spam" else Actuator.lambda_min)
+            for kind, t in zip(kinds, items)]
 
 
 def picked_states(path, run: str | None = None, state: str | None = None):

@@ -46,15 +46,13 @@ from matplotlib.patches import Rectangle
 from matplotlib.ticker import MultipleLocator
 
 from vine_nlp.analysis.buildability import buildability, gap_fractions
-from vine_nlp.errors import InputError
 from vine_nlp.front import palette
 from vine_nlp.front.show import build_settings, source_table
-from vine_nlp.front.states import picked_states
+from vine_nlp.front.states import line_kinds, picked_states
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
-from vine_nlp.io.validate import parse_toml
 from vine_nlp.model.chain import phi_from_theta
 from vine_nlp.model.units import MM_PER_UNIT
-from vine_nlp.problem import ACTUATOR_KINDS, Actuator, Routing
+from vine_nlp.problem import Routing
 
 PAPERS_MM = {"A4": (210.0, 297.0), "Letter": (215.9, 279.4)}
 CM_PER_UNIT = {u: MM_PER_UNIT[u] / 10 for u in ("cm", "mm")}  # the units a template takes
@@ -293,27 +291,14 @@ def write_actuators_template(path, out, csv_path=None, paper: str = "A4", run: s
     by its own [[actuators]] kind and lambda_min. Returns write_template's keys but spam, changes and the counts,
     and "actuators" ({name: dict(spam, stoppers, gaps, unactuated, refused)})."""
     a, name, r, _, _ = picked_states(path, run)
-    items = _source_list(a, "actuators")
     base, ls, tables = build_settings(a), r.lines, []
-    for k, line in enumerate(ls.names):
-        item = items[k] if k < len(items) and isinstance(items[k], dict) else {}
-        kind = item.get("kind") if item.get("kind") in ACTUATOR_KINDS else Actuator.kind
-        lmin = item.get("lambda_min", 0.5 if kind == "spam" else Actuator.lambda_min)
-        settings = base | {"kind": kind, "lambda_min": float(lmin) if isinstance(lmin, (int, float)) else Actuator.lambda_min}
+    for k, (line, (kind, lmin)) in enumerate(zip(ls.names, line_kinds(a, ls.count))):
         routing = Routing(theta=ls.theta[k], lam=ls.lam[k], length=ls.length)
-        tables.append(cut_table(a, name, routing=routing, phi0=float(ls.phi0[k]), settings=settings)
+        tables.append(cut_table(a, name, routing=routing, phi0=float(ls.phi0[k]), settings=base | {"kind": kind, "lambda_min": lmin})
                       | {"name": line, "spam": kind == "spam", "style": line_style(k, line), "changes": {}})
     info = _write(a, name, tables, out, csv_path, paper, "auto")
     return info | {"actuators": {t["name"]: {"spam": t["spam"], **split_counts(t, t["spam"]), "unactuated": _none_count(t),
                                              "refused": t["refused"]} for t in tables}}
-
-
-def _source_list(a: Archive, key: str) -> list:
-    try:
-        value = parse_toml("archive", a.source or "").get(key, [])
-    except InputError:
-        return []
-    return value if isinstance(value, list) else []
 
 
 def _write(a: Archive, name: str, tables: list, path, csv_path, paper: str, orientation: str) -> dict:
