@@ -528,7 +528,7 @@ def build_parser() -> argparse.ArgumentParser:
     am = sub.add_parser("animate", help="movie: growth while actuated beside actuation after growth (GIF or MP4)")
     am.add_argument("archive", metavar="ARCHIVE.h5")
     am.add_argument("-o", "--output", required=True, metavar="MOVIE.gif|MOVIE.mp4")
-    am.add_argument("--mode", choices=("grow", "after", "both"), default="both")
+    am.add_argument("--mode", choices=("grow", "after", "both"), default="both", help="one actuator (several: state to state)")
     am.add_argument("--run", type=ff.run_name, help="which run (default: nlp, greedy, forward, ...)")
     am.add_argument("--frames", type=ff.bounded(2, limits.MAX_FRAMES, True), default=41, metavar="N",
                     help="frames (default 41: a frame at every t analyze looks at)")
