@@ -130,8 +130,6 @@ def _analyze_obstacles(archive, r, u) -> dict:
     return out
 
 
-
-
 # ---------------------------------------------------------------- several actuators on one tube: each state
 
 
