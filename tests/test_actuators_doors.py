@@ -116,7 +116,9 @@ def test_export_every_state(forward, tmp_path, capsys, ext):
         if centers is not None:
             np.testing.assert_allclose(centers, shape.center * scale, atol=1e-9)
             assert sorted(scene.geometry) == ["actuator-A", "actuator-B", "tube"]
-        else:
+        else:  # closed, pi (D/2)^2 times the state's center line long (up to the 64-gon's area and the sampling)
+            length = np.linalg.norm(np.diff(shape.center, axis=0), axis=1).sum()
+            assert tube.volume / (np.pi * (D / 2) ** 2 * length) == pytest.approx(1, abs=3e-3)
             for name in ("A", "B"):
                 assert trimesh.load(tmp_path / f"t.{s}.actuator-{name}{ext}").is_watertight
     assert not out.exists()
@@ -354,3 +356,12 @@ def test_animate_state_to_state(forward, tmp_path, capsys):
     assert capsys.readouterr().out == f"5 frames, run forward, state to state: a -> ab -> {out}\n"
     with Image.open(out) as im:
         assert im.n_frames == 5 and im.size == (1280, 768)
+
+
+def test_template_draws_an_spam_line_as_one_muscle(tmp_path):
+    from vine_nlp.front.template import write_actuators_template
+
+    (tmp_path / "p.toml").write_text(FORWARD.replace('name = "B"\n', 'name = "B"\nkind = "spam"\nlambda_min = 0.5\n'))
+    assert main(["forward", str(tmp_path / "p.toml"), "-o", str(tmp_path / "f.h5")]) == 0
+    drawn = write_actuators_template(tmp_path / "f.h5", tmp_path / "t.pdf")["actuators"]
+    assert drawn["B"]["spam"] and drawn["B"]["stoppers"] == 0 and not drawn["A"]["spam"] and drawn["A"]["stoppers"] == 10
