@@ -365,3 +365,20 @@ def test_template_draws_an_spam_line_as_one_muscle(tmp_path):
     assert main(["forward", str(tmp_path / "p.toml"), "-o", str(tmp_path / "f.h5")]) == 0
     drawn = write_actuators_template(tmp_path / "f.h5", tmp_path / "t.pdf")["actuators"]
     assert drawn["B"]["spam"] and drawn["B"]["stoppers"] == 0 and not drawn["A"]["spam"] and drawn["A"]["stoppers"] == 10
+
+
+def test_a_state_name_that_is_no_plain_name_is_refused(forward, tmp_path, capsys):
+    """State names go into file names: an archive whose states are no plain names is refused, nothing written."""
+    import json
+
+    path = tmp_path / "bad.h5"
+    path.write_bytes(forward.read_bytes())
+    with h5py.File(path, "r+") as h5:
+        g = h5["runs/forward"]
+        g.attrs["states"] = json.dumps({"a": ["A"], "x/y": ["A", "B"]})
+        g.create_group("states/x")
+        g.move("states/ab", "states/x/y")  # the reader finds the state's group at states/x/y
+    out = tmp_path / "t.stl"
+    assert main(["export", str(path), "-o", str(out)]) == 2
+    assert capsys.readouterr().err == f"error: {path}: /runs/forward@states: state name 'x/y' is not plain: letters, digits, '-', '_' or '.'\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.h5"]

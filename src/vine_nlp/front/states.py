@@ -5,10 +5,12 @@ tube")."""
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 
 from vine_nlp.errors import InputError
+from vine_nlp.io import limits
 from vine_nlp.io.actuators import read_actuators_archive
 from vine_nlp.io.validate import parse_toml
 from vine_nlp.model.actuators import Lines, actuator_lines, owners, state_shape
@@ -67,6 +69,9 @@ def picked_states(path, run: str | None = None, state: str | None = None):
             raise
         raise InputError(path, "--run", str(e)) from None
     states = {s: tuple(v) for s, v in r.stats["states"].items()}
+    for s in states:  # names go into file names (export): plain, as the problem reader wants them
+        if not (re.fullmatch(r"[A-Za-z0-9_-][A-Za-z0-9._-]*", s) and len(s) <= limits.MAX_NAME_CHARS):
+            raise InputError(path, f"/runs/{a.pick_run(run)}@states", f"state name {s[:40]!r} is not plain: letters, digits, '-', '_' or '.'")
     if state is not None:
         if state not in states:
             raise InputError(path, "--state", f"no state {state!r} (states: {', '.join(states)})")
