@@ -70,7 +70,7 @@ def picked_states(path, run: str | None = None, state: str | None = None):
         raise InputError(path, "--run", str(e)) from None
     states = {s: tuple(v) for s, v in r.stats["states"].items()}
     for s in states:  # names go into file names (export): plain, as the problem reader wants them
-        if not (re.fullmatch(r"[A-Za-z0-9_-][A-Za-z0-9._-]*", s) and len(s) <= limits.MAX_NAME_CHARS):
+        if not (re.fullmatch(r"[A-Za-z0-9._-]+", s) and len(s) <= limits.MAX_NAME_CHARS):
             raise InputError(path, f"/runs/{a.pick_run(run)}@states", f"state name {s[:40]!r} is not plain: letters, digits, '-', '_' or '.'")
     if state is not None:
         if state not in states:
