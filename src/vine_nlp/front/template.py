@@ -617,8 +617,9 @@ def _legend(tables: list) -> list[tuple[tuple, str]]:
         st, who = t["style"], f"{t['name']}: " if "name" in t else ""
         rows += ([((*st["muscle"][:3], st["path"]), f"{who}sPAM muscle path, one \u03bb = {_muscle_lambda(t):.3g}")] if t["spam"] else
                  [(st["stopper"], f"{who}stays: stopper / unpinched (\u03bb)")])
-        if not t["actuated"].all() and who:
-            rows.append((st["none"], f"{who}no actuator on this line (\u03bb = 1): drawn, no stopper, pouch or pinch"))
+    if any("name" in t and not t["actuated"].all() for t in tables):
+        rows.append((("#808080", 0.8, True, "removed-<line>"), "dashed, in a line's colour: no actuator on that line (\u03bb = 1): "
+                     "no stopper, pouch or pinch"))
     if not all(t["spam"] for t in tables):
         rows.append((tables[0]["style"]["gap"], "removed: gap / pinched (1 \u2212 \u03bb)"))
     if not tables[0]["actuated"].all() and "name" not in tables[0]:
