@@ -18,7 +18,7 @@ from vine_nlp.front.cli import main
 from vine_nlp.front.states import state_lines
 from vine_nlp.io.actuators import read_actuators_archive, write_actuators_archive
 from vine_nlp.io.problems import ProblemFile
-from vine_nlp.methods.actuators import ActuatorsProblem, Line, evaluate, sample_states
+from vine_nlp.methods.actuators import ActuatorsProblem, Line, arc_pairing, evaluate, sample_states, state_arcs
 from vine_nlp.model.actuators import Lines, state_shape
 from vine_nlp.model.chain import shape_lines
 from vine_nlp.model.pairing import pair_points
@@ -382,3 +382,18 @@ def test_a_state_name_that_is_no_plain_name_is_refused(forward, tmp_path, capsys
     assert main(["export", str(path), "-o", str(out)]) == 2
     assert capsys.readouterr().err == f"error: {path}: /runs/forward@states: state name 'x/y' is not plain: letters, digits, '-', '_' or '.'\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.h5"]
+
+
+def test_state_tolerance_first_order_is_the_monte_carlo_of_small_errors():
+    """Two lines, state ab: for small errors the first-order expected MSE increase and the tip covariance are the
+    Monte Carlo ones (each line's theta and lambda and the lengths mapped to the same columns in both)."""
+    ls = lines()
+    target = sample_states(ls, D, {"ab": ("A", "B")}, 41)["ab"] + 0.01
+    seg, frac = arc_pairing(target, state_arcs(ls, D, ("A", "B")))
+    rep = state_tolerance(ls, D, ("A", "B"), "ab", target, seg, frac, Sigmas.from_degrees(0.05, 0.002, 0.002), [0.4, 0.4], samples=1500, seed=1)
+    fo, mc = rep["first_order"], rep["monte_carlo"]
+    assert mc["mse_increase"] == pytest.approx(fo["mse_increase"], rel=0.1)
+    assert mc["tip_std"] == pytest.approx(fo["tip_std"], rel=0.05)
+    by = rep["per_segment"]["tip_var_by_param"]
+    assert by.shape == (20, 3) and by[:, 1][np.r_[0:10]].min() > 0  # lambda errors where A has an actuator
+    assert by.sum() == pytest.approx(fo["tip_std"] ** 2, rel=1e-9)
