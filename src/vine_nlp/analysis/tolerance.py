@@ -132,29 +132,34 @@ def tolerance_report(problem, result, sigmas: Sigmas, samples: int = 2000, seed:
     pairing = pair_points(problem.target, problem.options.points_per_segment)
     if pairing.segments != r.segments:
         raise ValueError(f"the design has {r.segments} segments, the problem's pairing {pairing.segments}")
-    target = np.asarray(problem.target, float)
-    N, M = target.shape[0], r.segments
+    M = r.segments
     pts, J = point_jacobian(r, D, pairing.seg, pairing.frac)
     sig = sigmas.per_segment(r.length) * np.c_[np.ones(M), actuated(r.lam), np.ones(M)]  # (M, 3): no lambda error without an actuator
-    Js = J * sig.reshape(-1)  # columns scaled by the standard deviations
+    dq = np.random.default_rng(seed).standard_normal((samples, M, 3)) * sig
+    lam = built_lambda(r.lam, dq[..., 1], problem.actuator.lambda_min)
+    P = batch_points(r.theta + dq[..., 0], lam, r.length + dq[..., 2], D, pairing.seg, pairing.frac, r.initial_pose)
+    return tolerance_summary(pts, J * sig.reshape(-1), problem.target, P, r.length, sigmas, getattr(problem, "units", ""), seed)
+
+
+def tolerance_summary(pts, Js, target, P, length, sigmas: Sigmas, units: str = "", seed: int = 0, kinds=(0, 1, 2)) -> dict:
+    """:func:`tolerance_report`'s figures from the nominal points (N, 3) paired with ``target``, their Jacobian
+    with its columns scaled by their standard deviations ``Js`` (N, 3, M n: segment by segment, n parameters each,
+    ``kinds`` saying which of theta 0, lambda 1, length 2 each is) and Monte Carlo points ``P`` (S, N, 3)."""
+    target = np.asarray(target, float)
+    N, M = target.shape[0], len(length)
     err0 = np.sum((pts - target) ** 2, axis=1)
     mse0 = float(err0.mean())
-    by = np.sum(Js**2, axis=1).reshape(N, M, 3)  # (N, M, 3): variance of point k from parameter (m, p)
+    by = np.sum(Js**2, axis=1).reshape(N, M, len(kinds)) @ np.eye(3)[list(kinds)]  # (N, M, 3): variance of point k from (m, p)
     mse_by = by.mean(axis=0)
     inc = float(mse_by.sum())
     tip_by = by[-1]
     tip_cov = Js[-1] @ Js[-1].T
-    cum = np.concatenate([[0.0], np.cumsum(r.length)])
-
-    rng = np.random.default_rng(seed)
-    dq = rng.standard_normal((samples, M, 3)) * sig
-    lam = built_lambda(r.lam, dq[..., 1], problem.actuator.lambda_min)
-    P = batch_points(r.theta + dq[..., 0], lam, r.length + dq[..., 2], D, pairing.seg, pairing.frac, r.initial_pose)
+    cum = np.concatenate([[0.0], np.cumsum(length)])
     mse = np.mean(np.sum((P - target) ** 2, axis=2), axis=1)
     tips = P[:, -1]
     mc_cov = np.cov(tips.T)
     return {
-        "sigmas": sigmas.as_dict(), "units": getattr(problem, "units", ""), "segments": M, "points": N,
+        "sigmas": sigmas.as_dict(), "units": units, "segments": M, "points": N,
         "nominal": {"rmse": math.sqrt(mse0), "mse": mse0, "tip": pts[-1]},
         "first_order": {
             "mse_increase": inc, "rmse": math.sqrt(mse0 + inc), "rmse_increase": math.sqrt(mse0 + inc) - math.sqrt(mse0),
@@ -166,7 +171,7 @@ def tolerance_report(problem, result, sigmas: Sigmas, samples: int = 2000, seed:
             "mse": mse_by.sum(axis=1), "mse_by_param": mse_by,
         },
         "monte_carlo": {
-            "samples": int(samples), "seed": int(seed), "rmse": np.sqrt(mse), "mean_rmse": float(np.sqrt(mse).mean()),
+            "samples": int(P.shape[0]), "seed": int(seed), "rmse": np.sqrt(mse), "mean_rmse": float(np.sqrt(mse).mean()),
             "rms_rmse": float(math.sqrt(mse.mean())), "mse_increase": float(mse.mean() - mse0), "tip_cov": mc_cov,
             "tip_std": float(math.sqrt(np.trace(mc_cov))), "tip_mean_shift": tips.mean(axis=0) - pts[-1],
         },

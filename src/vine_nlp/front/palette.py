@@ -16,6 +16,8 @@ CONTACT = "#e7298a"  # magenta: self-contacts (animate)
 REMOVED = "#d62728"  # red, templates only: removed or pinched
 CHANGE = "#ff7f0e"  # orange, templates only: a segment that changes against the robot built last
 RUNS = ("#6a3d9a", "#e6ab02", "#e377c2", "#17becf", "#7f7f7f", "#b15928")  # purple, gold, pink first: far from every thing's colour
+# several actuators on one tube: actuator k's line, stoppers and pouches take LINES[k] (the first: ACTUATOR)
+LINES = (ACTUATOR, "#9467bd", "#17becf", "#bcbd22", "#8c564b", "#e377c2")  # blue, violet, cyan, olive, brown, pink
 ERROR_CMAP = "plasma"  # the center line coloured by its distance to the target (with a colour bar)
 
 LABELS = {"actuator": "actuator line", "opposite": "opposite line (twist)", "target": "target", "tube": "tube (true D)",

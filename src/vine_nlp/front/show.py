@@ -128,7 +128,7 @@ def _actuator_lines(path, run: str, a: Archive) -> list[str]:
         out += _build_lines(a, ls.routing(k))
     for s, active in r.stats["states"].items():
         m = r.state_metrics.get(s)
-        out.append(f"  state {s} ({', '.join(active)})" + (f": RMSE {_num(m['rmse'])} {a.units}, max error {_num(m['max_error'])} {a.units}" if m else ""))
+        out.append(f"  state {s} ({', '.join(active)})" + (f": RMSE {_num(m['rmse'])} {a.units}, max error {_num(m['max_error'])} {a.units}" if "rmse" in (m or {}) else ""))
     return out
 
 
