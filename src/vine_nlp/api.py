@@ -4,8 +4,7 @@
 Every entry point is a thin adapter: its arguments read by the problem files' reader (``vine_nlp.io``: the same
 rules; bad input raises :class:`ArgumentError`, a ValueError whose message starts with the argument's name),
 ``vine_nlp.pipeline.run`` (the command line's), the outcome wrapped as a :class:`Design` (``vine_nlp.front.design``).
-Solvers report trouble through ``status``, not exceptions.
-"""
+Solvers report trouble through ``status``, not exceptions."""
 
 from __future__ import annotations
 

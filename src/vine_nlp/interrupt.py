@@ -18,8 +18,7 @@ process: it is then certainly mid-run at that point. Every other process, and
 later visits, pass through. Hold points: ``solve`` (:func:`check`, after each
 solver call, so a run is inside its solve loop), ``sweep-item`` (a sweep wrote
 an item's archive and its summary), ``archive`` (an archive open in h5py), ``start`` (``python -m vine_nlp`` before its imports). Without the variable the points cost one
-dictionary lookup.
-"""
+dictionary lookup."""
 
 from __future__ import annotations
 

@@ -2,8 +2,7 @@
 pipeline and what every method returns.
 
 Plain, validated-elsewhere containers: ``vine_nlp.io.problems`` builds them from TOML files, the API from
-its arguments, tests and scripts directly.
-"""
+its arguments, tests and scripts directly."""
 
 from __future__ import annotations
 

@@ -43,8 +43,7 @@ theta fixed), which can touch where the final shape does not.
 
 Coordinates: ``s`` is arc length along the actuated center line, ``l`` the
 material coordinate (unactuated tube length from the base, the length everted
-by growth). Both in the problem's length units.
-"""
+by growth). Both in the problem's length units."""
 
 from __future__ import annotations
 
@@ -64,8 +63,7 @@ def uniform_sections(routing, D: float, atol: float = 1e-9) -> list[dict]:
 
     Each run: dict(start, stop (segment indices, stop exclusive), theta, lam, length
     (unactuated), turns (around the helix axis), collides (the paper's condition,
-    one turn or more and 2 pi |b| < D: model.helix.helix_self_collides)).
-    """
+    one turn or more and 2 pi |b| < D: model.helix.helix_self_collides))."""
     th, lam, ln = (np.asarray(v, float) for v in (routing.theta, routing.lam, routing.length))
     out, start = [], 0
     for j in range(1, th.size + 1):
@@ -261,8 +259,7 @@ def min_clearance(center, D: float, s=None, exclude_arc: float | None = None, ma
     pairs (K, 2) all sampled pairs closer than D + margin, distances (K,), regions (list of
     dicts: clearance, i, j, s_i, s_j, point_i, point_j, s_i_range, s_j_range, pairs,
     ordered by where the later part starts), points, s (the line checked), exclude_arc,
-    threshold, spacing).
-    """
+    threshold, spacing)."""
     pts = np.asarray(center, float)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))]) if s is None else np.asarray(s, float)
     exclude_arc = 0.5 * math.pi * D if exclude_arc is None else float(exclude_arc)
@@ -283,8 +280,7 @@ def routing_clearance(routing, D: float, spacing: float | None = None, exclude_a
 
     Adds to every region and to the result the material coordinates l_i, l_j (and
     l_i_range, l_j_range for regions), and ``line`` (the sample_routing dict).
-    ``closest`` False: contacts only (clearance nan when there is none; faster).
-    """
+    ``closest`` False: contacts only (clearance nan when there is none; faster)."""
     smp = sample_routing(routing, D, spacing)
     pts, s, l = smp["points"], smp["s"], smp["l"]
     exclude_arc = 0.5 * math.pi * D if exclude_arc is None else float(exclude_arc)
@@ -355,8 +351,7 @@ def growth_contacts(routing, D: float, margin: float = 0.0, spacing: float | Non
     Returns a list of dicts (final-shape regions in growth order, then transient ones):
     region, transient, clearance (final shape; for transient ones the smallest seen on the
     way), l_early, l_late, s_early, s_late, growth_length, growth_arc, growth_fraction,
-    all_at_once_growth_length, actuation_fraction.
-    """
+    all_at_once_growth_length, actuation_fraction."""
     total = float(np.sum(routing.length))
     final = routing_clearance(routing, D, spacing, exclude_arc, margin, closest=False)
     tol = 2.5 * (D / 8 if spacing is None else spacing)

@@ -25,8 +25,7 @@ Mechanics (SI units throughout; lengths converted from the problem's units, :dat
   base tangent, then the final shape (the intermediate shapes of the actuation are not checked).
 
 Capacity is linear in P, so the least pressure at which every section holds with the safety factor is
-P * safety / margin.
-"""
+P * safety / margin."""
 
 from __future__ import annotations
 
@@ -127,8 +126,7 @@ def load_report(routing: Routing, D: float, units: str, load, growth: str = "whi
     capacity / moment, inf where nothing bends), collapse_at (s of that minimum, problem units; NaN where
     inf), min_pressure (kPa: every section holds with the safety factor), holds (margin >= safety),
     growth_length (the grown length, problem units, of the prefix that loads the weakest section most), l (the
-    samples' grown lengths), prefix_end (per sample, the grown length of the prefix that loads it most).
-    """
+    samples' grown lengths), prefix_end (per sample, the grown length of the prefix that loads it most)."""
     k = METRES_PER_UNIT[units]
     pts, t, s, l, actuated = _samples(routing, D, per_segment)
     pts, l_m = pts * k, l * k

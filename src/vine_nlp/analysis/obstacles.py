@@ -77,8 +77,7 @@ def dip(h: float, diameter: float, margin: float = 0.0, kappa: float | None = No
     """How far the gap can fall between center-line samples h apart (module docstring, "Sampling rule").
 
     kappa: largest center-line curvature (default 2/D); sharpness: the obstacle's smallest
-    radius of curvature (0 for edges and corners). inf if h >= 2 (D/2 + margin + sharpness).
-    """
+    radius of curvature (0 for edges and corners). inf if h >= 2 (D/2 + margin + sharpness)."""
     r = 0.5 * float(diameter) + float(margin) + float(sharpness)
     kappa = 2.0 / float(diameter) if kappa is None else float(kappa)
     if math.isinf(sharpness):
@@ -159,8 +158,7 @@ def grown_prefixes(routing: Routing, diameter: float, lengths, per_segment=DEFAU
 
     Each: dict(length, points, s, l): the final shape's samples with l < length plus the
     exact point at l = length. Every prefix is a subset of the final line, so its gap to
-    any obstacle is >= the final shape's (module docstring).
-    """
+    any obstacle is >= the final shape's (module docstring)."""
     D = float(diameter)
     full = sample_chain(routing, D, per_segment)
     model = ModelLine(routing, D)

@@ -24,8 +24,7 @@ variance is sum over its three parameters of |J_tip[:, (m, p)]|^2 sigma_(m, p)^2
 
 First order ignores the clips (a derivative of 1; of 0 without an actuator). Monte Carlo
 builds by the rule itself: the numpy chain evaluated for all samples at once (model
-functions broadcast over a (samples, segments) array), seeded RNG.
-"""
+functions broadcast over a (samples, segments) array), seeded RNG."""
 
 from __future__ import annotations
 
@@ -58,8 +57,7 @@ def point_jacobian(routing, D: float, seg, frac):
     1 lambda, 2 dl) of segment j, in problem units. The chain is the NLP's per-segment
     function (model.segment.segment_function, units of D) in a loop; its CasADi Jacobian
     (frame and points wrt frame and parameters) is chained forward, S_{j+1} = A_j S_j + B_j
-    with S_j = dX_j/dq: O(M) evaluations of one small function, exact derivatives.
-    """
+    with S_j = dX_j/dq: O(M) evaluations of one small function, exact derivatives."""
     M = routing.segments
     seg = np.asarray(seg, int)
     frac = np.asarray(frac, float)
@@ -125,8 +123,7 @@ def tolerance_report(problem, result, sigmas: Sigmas, samples: int = 2000, seed:
       rmse (= sqrt(MSE_0 + increase)), rmse_increase, tip_cov (3, 3), tip_std (= sqrt(trace)), point_std (N,);
       per_segment: l_start, l_end, l_mid (material coordinate), tip_var (M,), tip_var_by_param (M, 3), mse (M,),
       mse_by_param (M, 3) (columns theta, lambda, length; they add up to the totals above); monte_carlo: samples,
-      seed, rmse (S,), mean_rmse, rms_rmse (= sqrt(mean MSE)), mse_increase, tip_cov (3, 3), tip_std, tip_mean_shift.
-    """
+      seed, rmse (S,), mean_rmse, rms_rmse (= sqrt(mean MSE)), mse_increase, tip_cov (3, 3), tip_std, tip_mean_shift."""
     D = problem.diameter
     r = result.routing
     pairing = pair_points(problem.target, problem.options.points_per_segment)

@@ -9,8 +9,7 @@
   nearest non-neighbouring part against length along the tube, the tube diameter D
   (contact below it) and where each contact appears when grown while actuated.
 
-Same style and sizes as front.plot (IEEE column 3.5 in, fonts 7-8 pt).
-"""
+Same style and sizes as front.plot (IEEE column 3.5 in, fonts 7-8 pt)."""
 
 from __future__ import annotations
 
@@ -92,8 +91,7 @@ def nearest_distance_profile(points, s, exclude_arc, chunk: int = 512) -> np.nda
 def clearance_figure(routing, D: float, path=None, units: str = "", growth=None, title: str | None = None) -> Figure:
     """Nearest non-neighbour distance along the tube, the diameter D, and the growth order of contacts.
 
-    ``growth``: the list from analysis.collision.growth_contacts (computed if None).
-    """
+    ``growth``: the list from analysis.collision.growth_contacts (computed if None)."""
     res = routing_clearance(routing, D)
     line = res["line"]
     prof = nearest_distance_profile(line["points"], line["s"], res["exclude_arc"])

@@ -5,8 +5,7 @@ A correction archive (``vine_nlp.io.correction``) holds the nominal of every bui
 lambda (or theta) differs in the corrected run, one row: which stopper, longer or shorter, by how
 many millimetres. A stopper keeps a fraction lambda of the segment's actuator path (length / cos
 theta; front.template's cut table), so its length changes by lambda' l / cos theta' - lambda l / cos theta;
-the gap (or pinch) between stoppers takes the rest.
-"""
+the gap (or pinch) between stoppers takes the rest."""
 
 from __future__ import annotations
 

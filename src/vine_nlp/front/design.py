@@ -64,8 +64,7 @@ class Design:
     an archive, by :func:`load`. It has the attributes of a ``Result`` (``method``, ``routing``,
     ``shape``, ``status``, ``solve_time_s``, ``iterations``, ``metrics``, ``stats``, ``phi``,
     ``converged``, ``diameter``) and the context: ``name``, ``run``, ``kind``, ``units``,
-    ``target``, ``problem``, ``source``, ``runs`` (the runs made or read together, as Designs).
-    """
+    ``target``, ``problem``, ``source``, ``runs`` (the runs made or read together, as Designs)."""
 
     #: plotly.js in the notebook view (``_repr_html_``): True embeds it (about 4.5 MB per shown
     #: design, works offline), "cdn" links it, None shows the table of key numbers only

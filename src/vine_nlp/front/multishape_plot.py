@@ -7,8 +7,7 @@
 (b) the shared routing theta(s) [deg] against length along the unactuated tube;
 (c) each level's error to its target against that length.
 
-Sized like ``vine_nlp.front.plot`` (7.16 in wide, 7-8 pt fonts); png, pdf or svg by suffix.
-"""
+Sized like ``vine_nlp.front.plot`` (7.16 in wide, 7-8 pt fonts); png, pdf or svg by suffix."""
 
 from __future__ import annotations
 

@@ -14,8 +14,7 @@ One figure per archive, laid out like the paper's Figs. 9 and 11:
     each run's RMSE.
 
 Sized for a two-column paper (7.16 in wide; a single run fits one 3.5 in column),
-fonts 7-8 pt, equal axis scaling in 3-D, units on every axis.
-"""
+fonts 7-8 pt, equal axis scaling in 3-D, units on every axis."""
 
 from __future__ import annotations
 
@@ -77,8 +76,7 @@ def point_s(archive: Archive, result) -> np.ndarray:
     (model.pairing.pair_points); the pairing is rebuilt from the archived
     ``points_per_segment`` (or the n consistent with M and N) and accepted only
     if the model reproduces the archived center line there. Otherwise s is
-    estimated from the target's chord length (proportional to the tube length).
-    """
+    estimated from the target's chord length (proportional to the tube length)."""
     r = result.routing
     center = result.shape.center
     N, M = center.shape[0], r.segments
@@ -176,8 +174,7 @@ def draw_obstacles(ax, obstacles, view=None, color=palette.OBSTACLE, alpha: floa
 
     Spheres, capsules and meshes are drawn whole; boxes and planes (the solid half-space
     behind the plane) are cut to ``view`` = (lo, hi) corners (default: the axis limits), so a
-    large wall or floor does not swamp the tube. Returns the points drawn (for extents).
-    """
+    large wall or floor does not swamp the tube. Returns the points drawn (for extents)."""
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     if view is None:
@@ -370,8 +367,7 @@ def plot_archive(archive, obstacles=None) -> Figure:
     first row, theta, lambda, phi in the second. Several runs (``compare``): one
     3-D view per run (at most three) over error, theta, lambda, phi in a 2 x 2 grid.
     ``obstacles`` (``vine_nlp.io.obstacles.read_obstacles`` of the archive's /obstacles) are
-    drawn in every 3-D view.
-    """
+    drawn in every 3-D view."""
     if not isinstance(archive, Archive):
         archive = load_archive(archive)
     names = ordered_runs(archive)

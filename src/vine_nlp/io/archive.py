@@ -15,8 +15,7 @@ with det +1, last row 0 0 0 1), attribute types and the size limits of
 :mod:`vine_nlp.io.limits`. Anything else is an :class:`ArchiveError`
 ``(file, dataset path, reason)``; no other exception leaves the loader. Groups the
 spec does not name are allowed; their datasets come back in ``Archive.extra`` and are
-validated too (numeric, at least 1-D, within the limits, finite except ``/frames``).
-"""
+validated too (numeric, at least 1-D, within the limits, finite except ``/frames``)."""
 
 from __future__ import annotations
 
@@ -123,8 +122,7 @@ def write_h5_atomic(path, fill) -> None:
     """Write an HDF5 file made by ``fill(h5)`` (an in-memory h5py.File) atomically to ``path``.
 
     HDF5 never touches the disk: the finished image is written with plain file I/O, so a
-    failed write is one OutputError and nothing else (no HDF5 error at close or exit).
-    """
+    failed write is one OutputError and nothing else (no HDF5 error at close or exit)."""
     buf = io.BytesIO()
     with h5py.File(buf, "w") as h5:
         fill(h5)
@@ -213,8 +211,7 @@ def _write(h5: h5py.File, a: Archive):
 def write_archive(path, archive: Archive, extend=None) -> None:
     """Write ``archive`` (the spec's layout, ``extra`` as further datasets) to ``path`` atomically:
     built in memory, temporary file, fsync, rename. ``extend(h5)`` adds further groups (multi-shape
-    levels, ...) to the in-memory file. OutputError when it cannot be written: nothing is left.
-    """
+    levels, ...) to the in-memory file. OutputError when it cannot be written: nothing is left."""
 
     def fill(h5):
         _write(h5, archive)

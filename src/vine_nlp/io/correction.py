@@ -19,8 +19,7 @@ A correction archive is a result archive (every command reads it) with:
                              offset rad, lambda offset, length scale) and ``systematic_std`` (3,);
                              ``builds/<b>/{theta,lambda,length,initial_pose}`` the nominal of build b (oldest first)
 
-Bad files raise :class:`vine_nlp.errors.InputError` (archives: ``ArchiveError``) naming the file and the key.
-"""
+Bad files raise :class:`vine_nlp.errors.InputError` (archives: ``ArchiveError``) naming the file and the key."""
 
 from __future__ import annotations
 
@@ -76,8 +75,7 @@ def write_correction_archive(path, base: Archive, result: CorrectionResult, buil
 
     ``base``: the archive that was corrected (its target, problem and runs other than as_built and
     corrected are kept); ``builds``: the nominal of every build so far, oldest first (the last is
-    ``result.built``); ``settings``: attributes of /correction (adjust, free_pose, sigmas, built_run).
-    """
+    ``result.built``); ``settings``: attributes of /correction (adjust, free_pose, sigmas, built_run)."""
     runs = {k: v for k, v in base.runs.items() if k not in RUNS}
     runs["as_built"], runs["corrected"] = result.as_built, result.corrected
     for name, r in result.routes.items():

@@ -5,8 +5,7 @@ A routing value such as ``theta = "pi/12 * sin(0.1 * s)"`` is parsed with
 numbers, ``+ - * / **``, unary ``-``/``+``, the names ``s``, ``pi``, ``e`` and
 one-argument calls of ``sin cos tan exp log sqrt abs``. The accepted tree is
 turned into a chain of numpy calls; the text is never handed to ``eval`` or
-``exec``.
-"""
+``exec``."""
 
 from __future__ import annotations
 
@@ -72,8 +71,7 @@ class Expression:
     """A compiled expression; calling it evaluates it at s (any shape) and returns an array of that shape.
 
     Floating-point warnings are silenced: a log of a negative number is NaN, and the
-    caller decides whether non-finite values are acceptable.
-    """
+    caller decides whether non-finite values are acceptable."""
 
     def __init__(self, text: str, fn: Callable):
         self.text = text

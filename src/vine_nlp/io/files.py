@@ -7,8 +7,7 @@ failure is one :class:`InputError` ``(named_by, key, reason)``: the file or argu
 the path. Paths a problem file names may lead anywhere the user can read (``../``, absolute
 paths): like a script, a problem file is trusted to name its own data; its content is not.
 
-A file this run is writing (``vine_nlp.io.outputs``) is read from its staged copy.
-"""
+A file this run is writing (``vine_nlp.io.outputs``) is read from its staged copy."""
 
 from __future__ import annotations
 

@@ -25,8 +25,7 @@ def write_multishape_archive(path, problem_file, result: MultiShapeResult) -> No
     max_error are over all levels. Extension: /runs/multishape/design/levels (K,),
     /runs/multishape/levels/<k>/{shape/{center,inner,outer}, initial_pose} with attrs
     lambda, fixed and metrics attrs (rmse, max_error), /targets/<k>/points.
-    ``problem_file`` is a ProblemFile (name, source, units, problem) of a MultiShapeProblem.
-    """
+    ``problem_file`` is a ProblemFile (name, source, units, problem) of a MultiShapeProblem."""
     problem = problem_file.problem
     archive = Archive(
         name=problem_file.name,

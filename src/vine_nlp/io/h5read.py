@@ -6,8 +6,7 @@ refuses, as one :class:`ArchiveError` ``(file, path in the archive, reason)``: s
 links (nothing is read through a link: a link to a pipe cannot block, another file's data cannot
 be copied in), virtual datasets and external raw storage, datasets of anything but numbers,
 unprintable or overlong names, and declared sizes over the limits (one dataset or attribute, all
-datasets, objects, chunks): compressed data cannot expand beyond them.
-"""
+datasets, objects, chunks): compressed data cannot expand beyond them."""
 
 from __future__ import annotations
 

@@ -7,8 +7,7 @@ writes (docs/gen_reference.py). Shapes are given in the spec's symbols: ``N`` ta
 points, ``M`` segments, ``P`` shape points (``P = N`` for design runs).
 
 Groups outside this layout (``/measured``, ``/frames``, ``/targets``, ``/tip``,
-``/obstacles``, per-level groups of multishape runs) belong to the commands that add them.
-"""
+``/obstacles``, per-level groups of multishape runs) belong to the commands that add them."""
 
 from __future__ import annotations
 

@@ -9,8 +9,7 @@ consistent winding): inside and outside, and so the sign of the distance, mean
 nothing for an open surface. Vertices are merged and zero-area faces dropped on
 reading (an STL file stores every triangle's corners separately); a mesh wound
 inside-out (negative volume) is turned around. At most ``MAX_MESH_FACES`` faces:
-the design keeps rows for the nearest triangles of every tube sample.
-"""
+the design keeps rows for the nearest triangles of every tube sample."""
 
 from __future__ import annotations
 
@@ -62,8 +61,7 @@ def parse_obstacles(tables, file, base_dir=None) -> list:
     ``tables`` is ``data["obstacles"]`` of the parsed TOML document, ``file`` the problem file (named in errors),
     ``base_dir`` the directory mesh ``file`` paths are relative to (default: the problem file's). Returns the
     shapes in file order. InputError ``(file, "obstacles[k].key", reason)``; a bad mesh file's content:
-    ``(mesh file, "mesh", reason)``.
-    """
+    ``(mesh file, "mesh", reason)``."""
     file = str(file)
     base = Path(file).parent if base_dir is None else Path(base_dir)
     if not (isinstance(tables, list) and all(isinstance(t, dict) for t in tables)):
@@ -265,8 +263,7 @@ def write_obstacles(h5group, obstacles) -> None:
     """Write obstacles into ``h5group`` (the archive's ``/obstacles`` group): subgroups ``0``, ``1``, ...
 
     Each subgroup has attrs ``shape`` (and ``name``, and ``source`` for meshes read from a
-    file) and one dataset per parameter (formats.md "Obstacles").
-    """
+    file) and one dataset per parameter (formats.md "Obstacles")."""
     for k, ob in enumerate(obstacles):
         g = h5group.create_group(str(k))
         g.attrs["shape"] = ob.kind

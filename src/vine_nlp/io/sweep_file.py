@@ -1,8 +1,7 @@
 """Sweep files (spec/formats.md, "Sweep files"): a base design problem and a grid of overrides.
 
 Every item of the grid is validated when the file is read: a bad item is bad input
-before any work is done, reported against the sweep file with the item named.
-"""
+before any work is done, reported against the sweep file with the item named."""
 
 from __future__ import annotations
 
@@ -43,8 +42,7 @@ class Sweep:
     def items(self) -> list[tuple[str, dict, ProblemFile]]:
         """(item name, {dotted key: value}, problem) for the cartesian product of the grid, in grid order.
 
-        Item names are ``<sweep name>-<index:04d>``; each item's problem is named after it.
-        """
+        Item names are ``<sweep name>-<index:04d>``; each item's problem is named after it."""
         if self._items is None:
             self._items = _expand(self)
         return list(self._items)
@@ -98,8 +96,7 @@ def apply_override(data: dict, dotted_key: str, value, file: str = "<sweep>") ->
 
     Missing tables are created (a sweep may set a key the base leaves at its default);
     an index needs an existing array and must be in range. Bad paths raise
-    ``InputError(file, dotted_key, ...)``.
-    """
+    ``InputError(file, dotted_key, ...)``."""
     data = copy.deepcopy(data)
     _set(data, dotted_key, value, file)
     return data

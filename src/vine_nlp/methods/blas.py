@@ -6,8 +6,7 @@ and doubled the CPU time of the designs (results/BENCHMARKS.md, "Solver threads"
 sets OpenBLAS's thread count (ENV_VARS; the user's choice wins): ``one_thread`` sets CasADi's copy to one
 thread when the first solver is built; ``limited`` is a context in which NumPy's and SciPy's copies run one
 thread (threadpoolctl), around every solve; ``own_process``, for processes vine_nlp owns (the command line,
-sweep workers, benchmarks), sets the environment so copies loaded later read it too.
-"""
+sweep workers, benchmarks), sets the environment so copies loaded later read it too."""
 
 from __future__ import annotations
 

@@ -9,8 +9,7 @@ several times the cost per iteration (results/BENCHMARKS.md, "Derivatives").
 Blocks every chain has:
   pose      X_0(k) = [vec(R0g exp(w)); p]          (not for a fixed pose: bounds fix X_0)
   segment   X_{j+1}(k) = X_j(k) T^{j+1}_j(theta_j, lam_j(k), dl_j)   (continuity)
-            and the point fit sum_i w_i |r_c(u_i) - r_d,i|^2 of the slots of the cell
-"""
+            and the point fit sum_i w_i |r_c(u_i) - r_d,i|^2 of the slots of the cell"""
 
 from __future__ import annotations
 
@@ -172,8 +171,7 @@ def scatter(shape, blocks, symmetric: bool):
     concatenated block outputs of a mapped call, ``pattern`` one block's sparsity and
     ``rows``/``cols`` (local size x instances) the global index of each local row/column.
     Entries that land on the same place (a shared variable of several blocks) are summed;
-    ``symmetric`` stores each entry in the upper triangle.
-    """
+    ``symmetric`` stores each entry in the upper triangle."""
     R, C, V = [], [], []
     for values, pattern, rows, cols in blocks:
         r, c = (np.asarray(v) for v in pattern.get_triplet())

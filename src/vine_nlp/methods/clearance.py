@@ -11,8 +11,7 @@ the clearance can dip below the target: after a solve the rows' target rises by 
 times the shortfall, but only where every short region has a constrained pair near its minimum (a dip
 between rows that hold); a region without one is a new contact and gets its pairs instead (raising for it
 pushed tight coils ever farther open: the loop ran away). The pairs' segments are structure (a solver per
-active set, cached), their fractions and the required distance data.
-"""
+active set, cached), their fractions and the required distance data."""
 
 from __future__ import annotations
 
@@ -169,8 +168,7 @@ def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, pairs=No
     The loop stops when the continuous minimum clearance (analysis.collision.routing_clearance)
     is >= D + min_gap - tol_gap D and no region needs new rows, or after ``rounds`` solves.
     stats: clearance_rounds, clearance_pairs, min_clearance, start_rmse, start_min_clearance; iterations
-    and ipopt_time_s summed over the rounds.
-    """
+    and ipopt_time_s summed over the rounds."""
     D = problem.diameter
     # neighbours: half a turn of the tightest circle that keeps them D + min_gap apart (analysis.collision,
     # "Neighbours", with D + min_gap for D): nearer points of any tube bent more gently are farther apart

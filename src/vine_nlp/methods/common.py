@@ -1,8 +1,7 @@
 """What every design method shares: the fit error, bounds, initial guesses.
 
 The pairing of target points with model points (the paper's PathError) is
-``vine_nlp.model.pairing``, re-exported here for the methods.
-"""
+``vine_nlp.model.pairing``, re-exported here for the methods."""
 
 from __future__ import annotations
 
@@ -99,8 +98,7 @@ def geometric_guess(problem: DesignProblem, pairing: Pairing, flip_sign: float =
     theta and lambda, clipped to the bounds. A bending direction that flips (an
     inflection, where the actuator must move to the other side of the tube) is a
     rotation of +-pi about the tangent: ``flip_sign`` picks the side, which breaks
-    the theta -> -theta symmetry of planar targets (model notes, symmetry trap).
-    """
+    the theta -> -theta symmetry of planar targets (model notes, symmetry trap)."""
     D = problem.diameter
     tgt = problem.target
     M, b = pairing.segments, pairing.bounds

@@ -17,8 +17,7 @@ a C compiler is found, else interpreted, said once), ``on`` (compile before the 
 compiler is an error), ``off``; ``VINE_NLP_CACHE_DIR`` (default ``$XDG_CACHE_HOME/vine_nlp`` or
 ``~/.cache/vine_nlp``); ``CC``, ``VINE_NLP_CFLAGS`` (default gcc, then cc; ``-O1``). Notes go to the
 ``vine_nlp`` logger: compiling (INFO) and falling back to interpreted functions (WARNING, once per process).
-``wait(timeout)`` waits for this process's background compilers (tests, benchmarks).
-"""
+``wait(timeout)`` waits for this process's background compilers (tests, benchmarks)."""
 
 from __future__ import annotations
 

@@ -23,8 +23,7 @@ the first solve; ``search`` then improves that design window by window:
 
 Deterministic for a given ``options.seed``: a window's work does not depend on which thread ran it, and the
 budget is only a safety stop (stats ``search_budget_hit`` says when it cut the search). The constants are
-methods.settings'; what a round gains on the polyline (d) is in results/BENCHMARKS.md ("compare").
-"""
+methods.settings'; what a round gains on the polyline (d) is in results/BENCHMARKS.md ("compare")."""
 
 from __future__ import annotations
 
@@ -213,8 +212,7 @@ def search(problem: DesignProblem, result: Result, pairing: Pairing, polish: Cal
     Returns the best design found (``result`` itself if nothing was better), with stats search_rounds,
     search_windows, search_accepted, search_objectives (after each polish), search_time_s,
     search_budget_hit, search_workers, search_window_iterations; its iterations are the first solve's and
-    the polishes', its solve time includes the search.
-    """
+    the polishes', its solve time includes the search."""
     run = _Search(problem, result, pairing, budget, workers, progress, rounds)
     try:
         for rnd in range(max(1, rounds)):

@@ -23,8 +23,7 @@ The design starts from the design without the load (the buildable one: its class
 there is no actuator, are kept, so which sections are actuated is known: the capacities are data) and is
 kept as it is where it already stands. A design that stands only BUDGET D (RMSE) or more off the target is no
 design of that target: the design on it stays the problem's design (it folds, and the judge says where and
-the pressure it needs) and the one that stands is kept beside it as run RUN (:func:`load_runs`).
-"""
+the pressure it needs) and the one that stands is kept beside it as run RUN (:func:`load_runs`)."""
 
 from __future__ import annotations
 

@@ -16,8 +16,7 @@ the same numbers for the solver, and their designs are mirror images bit for bit
 products of consecutive chords: a property of its shape, unchanged by a rotation, so that a mirror in
 any plane is solved as a rotated copy); for a target planar to round-off, where the shape has no
 handedness, the side of the world's y = 0 plane the target lies on, then the obstacles; 0 (solved as
-given) where nothing decides, a problem that is its own mirror.
-"""
+given) where nothing decides, a problem that is its own mirror."""
 
 from __future__ import annotations
 

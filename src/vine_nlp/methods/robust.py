@@ -29,8 +29,7 @@ are extra stage variables S_j of the one transcription (methods.transcription), 
 by the banded recursion S_j = S_{j+1} + L_{j+1}(stage j+1), so the term and its rows
 are per-stage blocks with their own SX derivatives and the cost per iteration stays
 linear in M. Written directly in x they would couple every segment to everything
-downstream (a dense Hessian). Started from design_nlp's result.
-"""
+downstream (a dense Hessian). Started from design_nlp's result."""
 
 from __future__ import annotations
 
@@ -65,8 +64,7 @@ def robust_segment_function(n: int) -> ca.Function:
 
     (X (12), theta, lam, dl, u (n), w (n), sig (3)) -> (A (3x3), B (3x3): sigma-scaled world
     twist of the end frame per parameter; W, P1 (3), P2 (6): sums of w, w p, w p p^T
-    (xx, xy, xz, yy, yz, zz) over its points).
-    """
+    (xx, xy, xz, yy, yz, zz) over its points)."""
     X = ca.SX.sym("X", 12)
     th, la, dl = ca.SX.sym("theta"), ca.SX.sym("lam"), ca.SX.sym("dl")
     u, w, sig = ca.SX.sym("u", n), ca.SX.sym("w", n), ca.SX.sym("sig", 3)
@@ -137,8 +135,7 @@ def robust_blocks(n: int) -> tuple[BlockType, BlockType, BlockType]:
     direct: v = (theta, lam, dl); d = (u (n), w (n), sig (4), weight): weight times the segment's own points'
       term (it does not depend on the frame: a block of 3 variables keeps its Hessian cheap).
     recursion: v = (S_j (9), S_{j+1} (9), X_{j+1} (12), theta, lam, dl of stage j+1); d = (u (n), w (n)) of stage j+1:
-      r = S_j - S_{j+1} - (sum w p, sum w p p^T)(stage j+1).
-    """
+      r = S_j - S_{j+1} - (sum w p, sum w p p^T)(stage j+1)."""
     seg, down = robust_segment_function(n), _downstream_function()
     one = robust_segment_function(1)
     down_v = POINT + (("tip", 3), ("S", 9))  # variables.POINT, X_{j+1}'s position, S_j
@@ -250,8 +247,7 @@ def design_robust(problem: DesignProblem, sigmas: Sigmas, samples: int = 0, seed
     the start and the robust design are both checked by Monte Carlo on the same seeded samples
     (analysis.tolerance.tolerance_report). stats: robust_* entries (lengths in problem units):
     expected_mse_increase / _start (first order), expected_rmse / _start (sqrt(MSE_0 + increase)),
-    start_rmse, and with samples mc_mean_rmse / _start, mc_rms_rmse / _start.
-    """
+    start_rmse, and with samples mc_mean_rmse / _start, mc_rms_rmse / _start."""
     stats = drive.Stats()
     start = start or design_nlp(problem, **kw)
     D = problem.diameter

@@ -24,8 +24,7 @@ coarse-to-fine start) moved designs to other local optima, more often worse.
 Reachability: the center line is never longer than the tube, so a tip farther than L from the base is out of
 reach. That, or no converged start, gives status "infeasible" and the nearest approach (the tip distance as
 the objective instead of rows), so tip_error tells how far out of reach the target is; a nearest approach
-that does reach the tip (IPOPT's infeasibility is local) re-solves the design.
-"""
+that does reach the tip (IPOPT's infeasibility is local) re-solves the design."""
 
 from __future__ import annotations
 
@@ -255,8 +254,7 @@ def design_tip(problem: TipProblem, starts: int | None = None, progress=None, th
     says how far out of reach the target is. A tip farther from the base than the
     tube is long is not attempted (only the nearest approach is solved); when no
     start converges, the nearest approach is solved too and, if it does reach the
-    tip after all (IPOPT's infeasibility is local), the design is re-solved from it.
-    """
+    tip after all (IPOPT's infeasibility is local), the design is re-solved from it."""
     n = max(1, problem.options.starts if starts is None else starts)
     guesses = start_guesses(problem, n)
     stats = drive.Stats()

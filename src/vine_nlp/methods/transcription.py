@@ -9,8 +9,7 @@ keep CasADi's automatic derivatives.
 
 A solver is built once per ``Spec`` (structure, terms, Hessian, settings) and cached;
 the data (targets, weights, fractions, guess rotations, smoothing weights) are
-parameters, so starts, hops and sweep items reuse it.
-"""
+parameters, so starts, hops and sweep items reuse it."""
 
 from __future__ import annotations
 
@@ -57,8 +56,7 @@ IPOPT_STATUS = {
 def ipopt_status(stats: dict, x=None) -> str:
     """Archived status of one solve; an interrupted solve raises KeyboardInterrupt (vine_nlp.interrupt).
 
-    A solution ``x`` with anything non-finite is flagged "invalid_number" whatever IPOPT said.
-    """
+    A solution ``x`` with anything non-finite is flagged "invalid_number" whatever IPOPT said."""
     raw = stats.get("return_status", "")
     interrupt.check(raw)
     if x is not None and not np.all(np.isfinite(x)):
@@ -85,8 +83,7 @@ class Chain:
     Views (MX, units of D): ``x``, ``theta``, ``dl`` (1 x M), ``lam_of(k)`` (1 x M),
     ``frames(k)`` (12 x (M+1)), ``tip(k)`` (3), ``extra`` (E x M). ``param(name, shape)``
     declares data; ``add_block``, ``add_term`` and ``add_rows`` add per-stage blocks, global
-    objective terms and global rows. ``get_solver(spec)`` turns it into one solver.
-    """
+    objective terms and global rows. ``get_solver(spec)`` turns it into one solver."""
 
     def __init__(self, s: Structure):
         self.s, self.lay = s, Layout(s)

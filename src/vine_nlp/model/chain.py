@@ -2,8 +2,7 @@
 
 T^{j+1}_w = T^j_w T^{j+1}_j, with non-uniform segment lengths and any initial pose
 T^0_w. Numbers give numpy arrays; CasADi symbols give lists of 4x4 expressions
-(single shooting, for small windows; the NLP uses multiple shooting instead).
-"""
+(single shooting, for small windows; the NLP uses multiple shooting instead)."""
 
 from __future__ import annotations
 
@@ -18,8 +17,7 @@ def chain_frames(theta, lam, length, D, initial_pose=None):
     """Frames T^j_w at all segment ends, j = 0..M.
 
     numpy: returns (M+1, 4, 4). CasADi (any symbolic argument): a list of M+1 4x4
-    expressions.
-    """
+    expressions."""
     if is_symbolic(theta, lam, length, D, initial_pose):
         m = max(_length(theta), _length(lam), _length(length))
         T = ca.SX.eye(4) if initial_pose is None else initial_pose
@@ -50,8 +48,7 @@ def _at(v, j):
 def chain_points(theta, lam, length, D, segment, fraction, initial_pose=None, frames=None):
     """Center-line points at ``fraction`` (0..1) of segment ``segment`` (numpy, vectorized).
 
-    Returns (P, 3) points and (P, 3, 3) rotations of the center frames there.
-    """
+    Returns (P, 3) points and (P, 3, 3) rotations of the center frames there."""
     theta, lam, length = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, float)) for v in (theta, lam, length)))
     if frames is None:
         frames = chain_frames(theta, lam, length, D, initial_pose)
@@ -65,8 +62,7 @@ def chain_points(theta, lam, length, D, segment, fraction, initial_pose=None, fr
 def shape_lines(theta, lam, length, D, segment, fraction, initial_pose=None):
     """Center, inner (actuator) and outer lines at the given points: three (P, 3) arrays.
 
-    Inner = center + (D/2) N, outer = center - (D/2) N (paper T^c_i, T^c_o translations).
-    """
+    Inner = center + (D/2) N, outer = center - (D/2) N (paper T^c_i, T^c_o translations)."""
     center, rot = chain_points(theta, lam, length, D, segment, fraction, initial_pose)
     normal = rot[:, :, 1]
     return center, center + 0.5 * D * normal, center - 0.5 * D * normal
@@ -84,8 +80,7 @@ def segment_end_samples(length, per_segment):
 def phi_from_theta(theta, length, D):
     """Actuator angle around the tube at the segment ends, phi[0] = 0 (paper eq. phi(s_j)).
 
-    phi(s_{j+1}) = phi(s_j) + (2/D) tan(theta_j) dl_j.
-    """
+    phi(s_{j+1}) = phi(s_j) + (2/D) tan(theta_j) dl_j."""
     if is_symbolic(theta, length, D):
         steps = 2.0 / D * ca.tan(theta) * length
         return ca.vertcat(0, ca.cumsum(steps))

@@ -114,8 +114,7 @@ def rounded_box_distance(p, center, rotation, half, radius=0.0, eps=0.0):
     and a capsule (a segment along the box's first axis). Outside it is C^1 (distance to a convex set):
     where a local coordinate crosses 0 (|.| kink), that q is -half < 0 and clamped away; the max q kinks
     (medial axis) and the exterior/interior switch are inside or on the surface. Any argument may be CasADi
-    (the NLP's rows take the parameters as data); numpy points (..., 3), CasADi 3 x N.
-    """
+    (the NLP's rows take the parameters as data); numpy points (..., 3), CasADi 3 x N."""
     w = _sub(_xyz(p), _xyz(center))
     L = _lib(*w)
     local = [w[0] * rotation[0, i] + w[1] * rotation[1, i] + w[2] * rotation[2, i] for i in range(3)]
@@ -158,8 +157,7 @@ def point_triangle_distance(p, a, b, c, eps=None):
     and the three edge distances tie only where they share a vertex region.
     numpy: p (..., 3) with a, b, c (..., 3) broadcast against it; CasADi: any argument
     (the NLP's rows take the vertices as data). sqrt(d^2 + eps^2): ``eps`` default
-    EPS_REL times the longest edge (numpy). Triangles must not be degenerate (zero area).
-    """
+    EPS_REL times the longest edge (numpy). Triangles must not be degenerate (zero area)."""
     P, A, B, C = _xyz(p), _xyz(a), _xyz(b), _xyz(c)
     ab, ac, ap = _sub(B, A), _sub(C, A), _sub(P, A)
     L = _lib(*P, *A, *B, *C)
@@ -448,8 +446,7 @@ def nearest_triangles(mesh: Mesh, points, k: int = 4) -> tuple[np.ndarray, np.nd
     Returns (faces (P, k) face indices, nearest first; distances (P, k)). Exact: candidates
     come from a k-d tree on the centroids, and every triangle that could be nearer than the
     k-th candidate (centroid closer than that distance plus the largest centroid-to-vertex
-    radius) is measured too.
-    """
+    radius) is measured too."""
     p = np.atleast_2d(np.asarray(points, float))
     tri = mesh.triangles
     F = len(tri)

@@ -3,8 +3,7 @@
 Every model formula is written once against this tiny namespace. ``lib(*args)``
 returns the casadi module when any argument is a CasADi object and numpy
 otherwise, so the same function evaluates numbers (vectorized over arrays) and
-builds SX/MX expressions for the optimizer.
-"""
+builds SX/MX expressions for the optimizer."""
 
 from __future__ import annotations
 
@@ -61,8 +60,7 @@ def safe_series(x, exact, coeffs, threshold):
 
     Both branches are finite everywhere: the exact formula is evaluated at
     max(x, threshold), so neither values nor derivatives of the branch not taken
-    can be NaN (CasADi's if_else differentiates both).
-    """
+    can be NaN (CasADi's if_else differentiates both)."""
     L = lib(x)
     series = 0.0 * x
     power = 1.0 + 0.0 * x

@@ -5,8 +5,7 @@ The frame is the Frenet frame of the center helix: x = tangent T, y = normal N
 the frame by exp(sigma xi), sigma = dl lambda_c, twist xi = (v = (1, 0, 0),
 omega = (tau_c, 0, kappa_c)) (Frenet-Serret). Written with the SE(3)
 exponential so the straight tube needs no special case; the series branches
-keep values and derivatives finite at phi = 0 (model notes).
-"""
+keep values and derivatives finite at phi = 0 (model notes)."""
 
 from __future__ import annotations
 
@@ -50,8 +49,7 @@ def segment_parts(theta, lam, length, D):
     """Entries of T^{j+1}_j as a 3x3 nested list R and a 3-list p (numpy arrays or SX).
 
     See :func:`twist_parts`; against the paper this is its rotation matrix and its
-    position vector with the erratum corrected (y = R (1 - cos(dl/L)), model notes).
-    """
+    position vector with the erratum corrected (y = R (1 - cos(dl/L)), model notes)."""
     kappa_c, tau_c, lambda_c = center_rates(theta, lam, D)
     return twist_parts(kappa_c, tau_c, length * lambda_c)
 
@@ -63,8 +61,7 @@ def twist_parts(kappa_c, tau_c, sigma):
     A, B, C the exp coefficients:
     R = [[1 - B a^2, -A a, B a c], [A a, 1 - B x, -A c], [B a c, A c, 1 - B c^2]],
     p = sigma (1 - C a^2, B a, C a c).
-    Several points of one segment share kappa_c, tau_c: only sigma changes.
-    """
+    Several points of one segment share kappa_c, tau_c: only sigma changes."""
     a = sigma * kappa_c
     c = sigma * tau_c
     x = a * a + c * c
@@ -101,8 +98,7 @@ def segment_transform(theta, lam, length, D):
 def segment_point(theta, lam, length, D, u):
     """Center-line point at fraction u of the segment, in the segment's start frame.
 
-    Same as the translation of segment_transform(theta, lam, u * length, D).
-    """
+    Same as the translation of segment_transform(theta, lam, u * length, D)."""
     _, p = segment_parts(theta, lam, u * length, D)
     return p
 
@@ -111,8 +107,7 @@ def line_transform(theta, lam, D, line):
     """T^c_i (line="inner") or T^c_o (line="outer"): center frame to the inner/outer line frame.
 
     Paper eqs. transformationIC/OC: a shift of +-D/2 along the shared normal and a
-    rotation about it by the tangent offset angle (see helix.line_offset_angles).
-    """
+    rotation about it by the tangent offset angle (see helix.line_offset_angles)."""
     L = lib(theta, lam, D)
     a_ci, a_co = line_offset_angles(theta, lam)
     if line == "inner":
@@ -135,8 +130,7 @@ def line_transform(theta, lam, D, line):
 def paper_segment_transform(theta, lam, length, D):
     """The paper's printed T^{j+1}_j in R_c, b, L form, with the erratum corrected (numpy only).
 
-    Kept as an independent reference for tests; 0/0 on a straight tube (lam = 1, theta = 0).
-    """
+    Kept as an independent reference for tests; 0/0 on a straight tube (lam = 1, theta = 0)."""
     h = helix_forward(np.asarray(theta, float), np.asarray(lam, float), D)
     R, b = h.R_c, h.b
     Lh = np.sqrt(R**2 + b**2)
@@ -155,8 +149,7 @@ def paper_segment_transform(theta, lam, length, D):
 def so3_exp(w):
     """Rotation matrix exp([w]x) (Rodrigues), finite with finite derivatives at w = 0.
 
-    numpy: w of shape (3,) -> (3, 3); CasADi: 3-vector -> 3x3 SX/MX.
-    """
+    numpy: w of shape (3,) -> (3, 3); CasADi: 3-vector -> 3x3 SX/MX."""
     x = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
     A, B, _ = _exp_coefficients(x)
     K = [[0 * x, -w[2], w[1]], [w[2], 0 * x, -w[0]], [-w[1], w[0], 0 * x]]
@@ -173,8 +166,7 @@ def segment_function(n: int) -> ca.Function:
     ``(X (12), theta, lam, dl, u (n)) -> (Xn (12), pts (3 x n))``: the frame at the segment's start (rotation
     column-major, then position), the routing parameters and segment length dl (in D), the fractions u of the
     segment where points are wanted; the frame at its end and the center-line points at the fractions. Cached:
-    one function per n, shared by every formulation and analysis.
-    """
+    one function per n, shared by every formulation and analysis."""
     X = ca.SX.sym("X", 12)  # rotation column-major (9), then position (3)
     theta, lam, dl = ca.SX.sym("theta"), ca.SX.sym("lam"), ca.SX.sym("dl")
     u = ca.SX.sym("u", n)

@@ -24,8 +24,7 @@ some method keeps its runs; one that does not load or has another source is redo
 no finished run has no archive. One sweep per directory (``DIR/.sweep.lock``). A file that
 cannot be written stops the sweep (OutputError, exit 2), finished archives kept. Ctrl-C or
 SIGTERM: the workers are stopped, the summary of what is on disk is written, and the
-KeyboardInterrupt is re-raised with the partial :class:`SweepReport` as ``sweep_report``.
-"""
+KeyboardInterrupt is re-raised with the partial :class:`SweepReport` as ``sweep_report``."""
 
 from __future__ import annotations
 

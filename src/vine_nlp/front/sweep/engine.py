@@ -1,8 +1,7 @@
 """The sweep itself: resume, the directory lock, the run (see :mod:`vine_nlp.front.sweep`).
 
 The parent plans (what is finished), keeps the workers busy, keeps the summary rows and
-writes summary.csv and summary.png; the workers write the archives.
-"""
+writes summary.csv and summary.png; the workers write the archives."""
 
 from __future__ import annotations
 
@@ -130,8 +129,7 @@ def run_sweep(
     redo finished items; ``callback(item, rows)`` after each item this run finished. Raises
     InputError (bad arguments or output directory, a locked one, no scheduler, obstacles),
     OutputError (a file could not be written: the sweep stopped, the same command resumes) and
-    KeyboardInterrupt (Ctrl-C, SIGTERM; its ``sweep_report`` is the partial report).
-    """
+    KeyboardInterrupt (Ctrl-C, SIGTERM; its ``sweep_report`` is the partial report)."""
     t_start = time.perf_counter()
     out = Path(out_dir)
     if out.exists() and not out.is_dir():

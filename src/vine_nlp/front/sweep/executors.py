@@ -7,8 +7,7 @@ the lock file's token differs), it sends the Results and the parent writes them.
 :class:`InlinePool` (this process), :class:`LocalPool` (long-lived worker processes: each
 builds a solver once per problem structure; forked when this process is safe to fork, else
 from a forkserver) and :class:`DaskPool`. Items travel in chunks of up to MAX_CHUNK (a task
-costs more than a short item), single items at the end so that no worker waits for another.
-"""
+costs more than a short item), single items at the end so that no worker waits for another."""
 
 from __future__ import annotations
 
@@ -42,8 +41,7 @@ def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]
     each method that finished, with the runs it brings along (an obstacle design's ``nlp_no_obstacles``);
     ``timings``: ``total_s``, ``cpu_s`` and ``errors`` (method -> "Type: message": a method that raises
     fails alone). KeyboardInterrupt propagates unless ``remote`` (a worker ignores Ctrl-C: there it
-    comes from inside IPOPT and fails that run).
-    """
+    comes from inside IPOPT and fails that run)."""
     runs, errors = {}, {}
     t_item, c_item = time.perf_counter(), time.process_time()
     for method in methods:
@@ -73,8 +71,7 @@ def write_item(out_dir, item: str, problem_file, runs: dict) -> dict:
     and return the summary's numbers of each run, ``{method: cells}`` (:func:`summary.cells`).
 
     No runs: the item has no archive (a stale one is removed). Raises OutputError (disk full,
-    ...) and whatever HDF5 refuses to store. The pipeline's outcome of an item feeds this.
-    """
+    ...) and whatever HDF5 refuses to store. The pipeline's outcome of an item feeds this."""
     path = Path(out_dir) / f"{item}.h5"
     if not runs:
         path.unlink(missing_ok=True)
@@ -102,8 +99,7 @@ def archive_outcome(out_dir, item: str, problem_file, outcome: dict) -> dict:
 def solve_chunk(chunk, out_dir=None, token=None, remote: bool = False) -> list[dict]:
     """Solve and archive each ``(item, problem_file, methods, previous)`` of ``chunk`` (``previous``: runs
     kept from its archive). One record per item: ``cells``, ``errors``, ``total_s``, ``cpu_s``; ``runs``
-    instead of ``cells`` where ``out_dir`` is not the sweep's here (:func:`_reaches`); ``stop`` ends it.
-    """
+    instead of ``cells`` where ``out_dir`` is not the sweep's here (:func:`_reaches`); ``stop`` ends it."""
     here = out_dir is not None and (token is None or _reaches(out_dir, token))
     records = []
     for item, problem_file, methods, previous in chunk:

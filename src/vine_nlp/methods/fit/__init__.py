@@ -12,8 +12,7 @@ routing; only the rigid pose (and, for an sPAM, the shared lambda) is estimated.
 * ``frames``: :func:`fit_frames`, lambda per frame of an actuated sequence (Fig. 9(d)).
 
 Transforms are 4x4 homogeneous matrices. ``T`` returned by the fits maps measured
-points into the model frame (``T @ measured ~ model``).
-"""
+points into the model frame (``T @ measured ~ model``)."""
 
 from vine_nlp.methods.fit.align import Polyline, apply_transform, icp, invert_transform, pose_starts, r_squared
 from vine_nlp.methods.fit.frames import FrameFit, fit_frames

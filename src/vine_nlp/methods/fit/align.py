@@ -7,8 +7,7 @@ search: principal-axis alignments times the 24 rotations of the octahedral group
 plus seeded random rotations (:func:`pose_starts`), each refined by ICP (closest
 point, Kabsch SVD update) on a subsample, the best few polished by a damped
 Gauss-Newton on the point-to-line distances. :func:`icp` aligns general paths
-(paper Figs. 7 and 8).
-"""
+(paper Figs. 7 and 8)."""
 
 from __future__ import annotations
 
@@ -82,8 +81,7 @@ def pose_starts(source, target, starts: int = 24, seed: int = 0) -> list[np.ndar
     The principal axes of both point sets are aligned in all 24 ways of the
     octahedral group (every axis permutation with every sign flip that keeps a
     rotation; the 4 pure sign flips first), centroid onto centroid. Beyond 24,
-    seeded uniformly random rotations follow.
-    """
+    seeded uniformly random rotations follow."""
     cx, Vx = principal_axes(np.asarray(source, float))
     cy, Vy = principal_axes(np.asarray(target, float))
     Rs = [Vy @ g @ Vx.T for g in _octahedral()][: max(starts, 1)]
@@ -127,8 +125,7 @@ class Polyline:
         ``s`` is the arc length of the closest point along the line, ``tangent`` the
         unit direction of its piece and ``free_end`` marks points whose closest point
         is an end of the line (or a vertex, for ``path=False``): their residual is
-        not perpendicular to the line.
-        """
+        not perpendicular to the line."""
         x = np.asarray(x, float)
         K = x.shape[0]
         if not self.path:
@@ -196,8 +193,7 @@ def r_squared(measured, residuals, groups=None) -> float:
 
     1 - SS_res / SS_tot with SS_res the sum of squared distances of the measured
     points to the model and SS_tot the sum of squared distances to the centroid of
-    the measured points (of each group, e.g. each measured line, separately).
-    """
+    the measured points (of each group, e.g. each measured line, separately)."""
     X = np.asarray(measured, float)
     res = np.asarray(residuals, float)
     ss_res = float(np.sum(res**2))
@@ -243,8 +239,7 @@ def polish_pose(sets, T, max_iter=50, tol=1e-10):
     Linearizes each distance about its closest point with the projector
     I - t t^T onto the line's normal plane (the line may slide along itself), so
     unlike point-to-point ICP it converges quickly along the near-symmetric
-    sliding directions of a helix. Returns (T, mean squared distance, iterations).
-    """
+    sliding directions of a helix. Returns (T, mean squared distance, iterations)."""
     X = stack_points(sets)
     K = X.shape[0]
     scale = max(float(np.ptp(X, axis=0).max()), 1e-12)
@@ -354,8 +349,7 @@ def icp(
     (``starts`` of them). Point-to-closest-point ICP with Kabsch updates, then a
     point-to-line Gauss-Newton polish.
 
-    Returns (T, rmse, max_error): T maps source onto target.
-    """
+    Returns (T, rmse, max_error): T maps source onto target."""
     src = clean_points(source, "source")
     sets = [PointSet(src, Polyline(np.asarray(target, float), path=path))]
     if initial is None:

@@ -41,8 +41,7 @@ def fit_frames(
     later one starts from the previous frame's pose and lambda (Brent over
     lambda within +-``window``), and falls back to the full global fit when that
     is clearly worse (RMSE above 3x the previous frame's or 5 % of D). With lambda
-    not free only the pose is fitted.
-    """
+    not free only the pose is fitted."""
     free = tuple(problem.free)
     D = problem.diameter
     out = []

@@ -4,8 +4,7 @@
 default they minimize the orthogonal distance to the helix (as the model fit does,
 so R^2 values compare); the paper's eq. (error_func), the in-plane distance at the
 point's height, is available as ``residual="height"`` (it multiplies axial noise by
-R/b on flat helices).
-"""
+R/b on flat helices)."""
 
 from __future__ import annotations
 
@@ -58,8 +57,7 @@ def _helix_residuals(p, X, F0, line_idx, nradii, residual="orthogonal"):
     by r/b, which is large for flat helices. residual="orthogonal" (default): the
     difference to the closest point of the helix (3 per point), found per point by
     safeguarded Newton steps in t from the better of the same-height and the
-    same-angle point.
-    """
+    same-angle point."""
     alpha, beta, cx, cy, w, phi0 = p[:6]
     radii = np.asarray(p[6 : 6 + nradii])
     from scipy.spatial.transform import Rotation  # SciPy loads where it is used: the command line starts faster
@@ -115,8 +113,7 @@ def _curve_order(X):
     The longest path of the Euclidean minimum spanning tree; every point takes the
     position of its nearest point on that path. Needs samples closer along the curve
     than the curve's turns are to each other (true for tracker traces and for markers
-    along a helix with a pitch larger than their spacing).
-    """
+    along a helix with a pitch larger than their spacing)."""
     from scipy.sparse.csgraph import minimum_spanning_tree, shortest_path
 
     K = X.shape[0]
@@ -259,8 +256,7 @@ def best_fit_helix(points, top: int = 6, residual: str = "orthogonal") -> dict:
     Returns dict(R, b, axis_point, axis_dir, phase, rmse, r2): ``b`` is signed
     (2 pi |b| per turn; b > 0 a right-handed helix, like the model's b for theta > 0),
     ``axis_point`` the axis point closest to the points' centroid; ``rmse`` and
-    ``r2`` (:func:`r_squared`) of the chosen residual.
-    """
+    ``r2`` (:func:`r_squared`) of the chosen residual."""
     X = clean_points(points, "points")
     mean = X.mean(axis=0)
     Xc = X - mean
@@ -287,8 +283,7 @@ def best_fit_helix_pair(inner_points, outer_points, top: int = 3, residual: str 
     single-helix searches on each line; ``residual`` as in :func:`best_fit_helix`.
 
     Returns dict(R_i, R_o, b, theta, lam, D, axis_point, axis_dir, phase, rmse,
-    rmse_inner, rmse_outer, r2); r2 with each line about its own centroid.
-    """
+    rmse_inner, rmse_outer, r2); r2 with each line about its own centroid."""
     Xi, Xo = clean_points(inner_points, "inner points"), clean_points(outer_points, "outer points")
     X = np.concatenate([Xi, Xo])
     K = X.shape[0]
@@ -328,8 +323,7 @@ def parameter_errors(fitted: dict, nominal) -> dict:
     ``fitted``: a :func:`best_fit_helix_pair` result; ``nominal``: (theta, lam, D)
     of the built actuator. For each of R_i, R_o, b (Fig. 6(a)) and theta, lam, D
     (Fig. 6(b)): dict(fitted, model, error = fitted - model, relative = error /
-    |model|, percent = 100 relative).
-    """
+    |model|, percent = 100 relative)."""
     theta, lam, D = (float(v) for v in nominal)
     h = helix_forward(theta, lam, D)
     model = {"R_i": float(h.R_i), "R_o": float(h.R_o), "b": float(h.b), "theta": theta, "lam": lam, "D": D}

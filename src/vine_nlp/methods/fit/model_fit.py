@@ -9,8 +9,7 @@ bounded Brent) re-runs the pose fit.
 The model line is sampled with spacing <= ``FIT_SPACING * D`` and treated as a polyline;
 distances are to the polyline (the chord error of that spacing is about
 ``(D/10)^2 kappa / 8``, far below tracker noise). The archived shape is the model
-moved onto the measurement: the routing's initial pose becomes ``inv(T) @ initial_pose``.
-"""
+moved onto the measurement: the routing's initial pose becomes ``inv(T) @ initial_pose``."""
 
 from __future__ import annotations
 
@@ -50,8 +49,7 @@ def model_lines(routing: Routing, diameter: float, spacing: float = FIT_SPACING)
     Returns (dict line -> (P, 3), s_tube (P,), per_segment (M,)): s_tube is the
     unactuated tube length of every sample; every segment end is a sample.
     The lines' actuated lengths are at most 1/cos(theta) times the unactuated one,
-    which the sample count allows for.
-    """
+    which the sample count allows for."""
     h = spacing * diameter * np.cos(np.clip(np.abs(routing.theta), 0, 1.5))
     per_segment = np.maximum(1, np.ceil(routing.length / h)).astype(int)
     seg, frac = segment_end_samples(routing.length, per_segment)
@@ -119,8 +117,7 @@ class LineFitter:
         ``local=None``: coarse grid over ``bounds`` (full pose search at every
         value, warm-started from the best pose so far), then bounded Brent between
         the neighbours of the best grid value. ``local=(lo, hi)``: Brent in that
-        interval only, warm-started (for frame sequences).
-        """
+        interval only, warm-started (for frame sequences)."""
         best = {"lam": None, "fit": None}
 
         def keep(lam, fit):
@@ -167,8 +164,7 @@ def fit_lines(routing: Routing, diameter: float, measured: dict, free=(), starts
     its static helices. ``free``: () or ("lambda",) (one shared lambda).
     ``warm_start``: optional 4x4 measured -> model transform tried besides the global starts.
 
-    Returns (Result, extras): see :func:`fit_problem`.
-    """
+    Returns (Result, extras): see :func:`fit_problem`."""
     t0 = time.perf_counter()
     free = tuple(free)
     unknown = set(free) - {"lambda"}
@@ -261,8 +257,7 @@ def fit_problem(problem: FitProblem, starts: int = 24, seed: int = 0):
       ``measured/closest`` (K, 3) closest model points (measurement frame),
       ``measured/error`` (K,), ``measured/s`` (K,) arc length of the closest point
       along the fitted model line, ``measured/s_tube`` (K,) the same as unactuated
-      tube length, ``measured/line`` (K,) 0 center, 1 inner, 2 outer.
-    """
+      tube length, ``measured/line`` (K,) 0 center, 1 inner, 2 outer."""
     return fit_lines(problem.routing, problem.diameter, {problem.line: problem.measured}, free=problem.free, starts=starts, seed=seed)
 
 

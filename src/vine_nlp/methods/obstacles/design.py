@@ -18,8 +18,7 @@ primitives, MESH_BLOCKED_WEIGHT where the scene has a mesh; heavier blocked poin
 into the target away from the obstacles, lighter ones (with a mesh) sent it round the far side. With a mesh
 the weight rises from the margin over MESH_WEIGHT_RAMP (quadratically): points just outside the margin that
 the tube cannot follow past its detour pulled the neighbouring segments into a zig-zag. The values were
-chosen on the bundled problems and the speed scenes (results/BENCHMARKS.md, "Obstacles").
-"""
+chosen on the bundled problems and the speed scenes (results/BENCHMARKS.md, "Obstacles")."""
 
 from __future__ import annotations
 
@@ -110,8 +109,7 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
     min_obstacle_gap_after) and stats obstacle_rounds, obstacle_clear, obstacle_samples_per_segment,
     obstacle_margin, growth, start_rmse, start_min_obstacle_gap, obstacle_raise (the rows' extra
     requirement, units), obstacle_slots (primitive slots per segment); iterations, ipopt_iterations and
-    ipopt_time_s summed over the solves with rows (not the obstacle-free or pushed starts).
-    """
+    ipopt_time_s summed over the solves with rows (not the obstacle-free or pushed starts)."""
     stats = drive.Stats()
     start = start or design_nlp(problem, **kw)
     D = problem.diameter

@@ -28,8 +28,7 @@ against the exact obstacle (``Plan.samples_hold``) the tube dips between samples
 rises by settings.RAISE_FACTOR times what the shapes with rows still miss; where a sample did not hold it
 passed a mesh beside its active set (a fine mesh), and from then on every sample also has rows to its k
 nearest faces among those near the samples at every such miss (``Plan.remember``; raising there sent the
-tube far round).
-"""
+tube far round)."""
 
 from __future__ import annotations
 

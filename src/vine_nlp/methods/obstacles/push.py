@@ -12,8 +12,7 @@ can follow, pushed. The start is a function of the problem alone, and so is the 
 design decides only whether there is anything to do, the samples per segment and which primitives get
 slots: discrete choices that a tiny change of it leaves alone). Started from the obstacle-free design,
 which may cross a mesh deeper than a solve moves a frame, the first solve's rows contradicted each other
-and the rounds took routes that changed with a change of 1e-8 in the start.
-"""
+and the rounds took routes that changed with a change of 1e-8 in the start."""
 
 from __future__ import annotations
 

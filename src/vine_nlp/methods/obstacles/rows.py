@@ -23,8 +23,7 @@ lam_j, dl_j), 15 local variables:
   growth "after": the intermediate shapes with rows are *extra levels* of the multiple shooting, 12
       stage variables per level holding the frames E_j(t) of the intermediate chain, tied by per-stage
       continuity blocks E_{j+1}(t) = E_j(t) T(theta_j, lambda_t,j, dl_j) and E_0(t) = X_0 (single
-      shooting from the base would make every row depend on all upstream segments: dense derivatives).
-"""
+      shooting from the base would make every row depend on all upstream segments: dense derivatives)."""
 
 from __future__ import annotations
 

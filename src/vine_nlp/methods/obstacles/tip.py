@@ -5,8 +5,7 @@ obstacle-free tip design, its chain pushed out of the obstacles (``push.pushed_c
 sphere's center gives its rows no direction out), then the tip design's own guesses. Each start runs its
 own active-set loop (``design.Rounds`` on ``drive.refine``); a start whose solve reaches
 settings.TIP_MAX_ITER iterations is left there for the next (such a solve could crawl on to IPOPT's limit
-where another start converged quickly).
-"""
+where another start converged quickly)."""
 
 from __future__ import annotations
 
@@ -41,8 +40,7 @@ def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, ro
     pushed out (module docstring); ``rounds``, ``ts``, ``k``, ``spacing`` as design_with_obstacles';
     ``progress(done, total)`` after every start; ``thorough``: every start, the best kept (a lower
     objective, at several times the cost). Returns the best start by :func:`rank`, metrics as design_tip's
-    plus min_obstacle_gap, stats obstacle_* as design_with_obstacles'.
-    """
+    plus min_obstacle_gap, stats obstacle_* as design_with_obstacles'."""
     stats = drive.Stats()
     free = stats.absorb(design_tip(problem, starts=starts, thorough=True))
     D = problem.diameter
