@@ -138,7 +138,6 @@ def _regions(pairs, s, h):
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
-
     links = cKDTree(st).query_pairs(r=2.01 * h, p=np.inf, output_type="ndarray")
     g = coo_matrix((np.ones(len(links)), (links[:, 0], links[:, 1])), shape=(K, K)) if len(links) else coo_matrix((K, K))
     _, label = connected_components(g, directed=False)

@@ -174,7 +174,6 @@ class Design:
             Not registered with pyplot: a notebook shows it once, and no backend is changed.
         """
         from vine_nlp.front import figures, plot  # matplotlib loads when a figure is asked for
-
         if path is not None:
             try:
                 plot.figure_format(path)
@@ -208,7 +207,6 @@ class Design:
             pages, strips, paper, orientation, run, segments, tube_length, ...
         """
         from vine_nlp.front import template  # matplotlib loads when a template is asked for
-
         if paper not in template.PAPERS_MM:
             raise ArgumentError("paper", f"must be one of {', '.join(template.PAPERS_MM)}, got {paper!r}")
         out = output_path(path, overwrite)
@@ -250,7 +248,6 @@ class Design:
         if self.html_plotlyjs is None or importlib.util.find_spec("plotly") is None:
             return table
         from vine_nlp.front.view import view_html  # plotly loads when a view is shown
-
         return table + view_html(self._context.as_archive(), run=self.run, full_html=False, include_plotlyjs=self.html_plotlyjs)
 
 

@@ -80,7 +80,6 @@ def bounded(least, most, integer=False, above=False):
     anything else a usage error (one line, exit 2)."""
     import argparse
     import math
-
     def convert(text):
         try:
             value = int(text) if integer else float(text)
@@ -97,7 +96,6 @@ def bounded(least, most, integer=False, above=False):
 def run_name(text):
     """argparse type of --run: a run's name (non-empty printable text)."""
     import argparse
-
     if not text.strip() or not text.isprintable() or len(text) > limits.MAX_NAME_CHARS:
         raise argparse.ArgumentTypeError(f"must be the name of a run (printable, 1 to {limits.MAX_NAME_CHARS} characters), got {text!r}")
     return text

@@ -155,7 +155,6 @@ def _halfspace_polytope(A, b):
     """Vertices and hull triangles of {x: A x <= b} (bounded), or None when it is empty or flat."""
     from scipy.optimize import linprog
     from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
-
     norms = np.linalg.norm(A, axis=1)
     # Chebyshev center: an interior point for qhull, and the test for emptiness
     res = linprog(np.r_[np.zeros(3), -1.0], A_ub=np.column_stack([A, norms]), b_ub=b, bounds=[(None, None)] * 3 + [(0, None)])
@@ -176,7 +175,6 @@ def draw_obstacles(ax, obstacles, view=None, color=palette.OBSTACLE, alpha: floa
     behind the plane) are cut to ``view`` = (lo, hi) corners (default: the axis limits), so a
     large wall or floor does not swamp the tube. Returns the points drawn (for extents)."""
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-
     if view is None:
         view = (np.array([ax.get_xlim()[0], ax.get_ylim()[0], ax.get_zlim()[0]]),
                 np.array([ax.get_xlim()[1], ax.get_ylim()[1], ax.get_zlim()[1]]))

@@ -214,7 +214,6 @@ def load_mesh_file(path, data: bytes | None = None) -> tuple[np.ndarray, np.ndar
     ``mtllib`` is not followed). InputError ``(path, "mesh", reason)``: unreadable, no triangles, too many
     faces, not closed."""
     import trimesh
-
     path = Path(path)
     if data is None:
         data = files.read_text(path, None, "mesh", limits.MAX_MESH_BYTES, "MAX_MESH_BYTES", binary=True)

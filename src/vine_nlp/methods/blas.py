@@ -24,7 +24,6 @@ _set_here = False  # own_process set OPENBLAS_NUM_THREADS: not the user's choice
 @lru_cache(maxsize=1)
 def _casadi_openblas():
     import casadi as ca  # loaded where solvers are built: the command line checks its input without it
-
     path = os.path.join(os.path.dirname(ca.__file__), "libcasadi-tp-openblas.so.0")
     if not os.path.exists(path):
         return None
@@ -77,5 +76,4 @@ def own_process() -> None:
     os.environ["OPENBLAS_NUM_THREADS"] = "1"
     _set_here = True
     import threadpoolctl
-
     threadpoolctl.get_cached_controller().limit(limits=1, user_api="blas")

@@ -176,7 +176,6 @@ def library(spec_text: str, build_functions, prefix: str = "nlp", what: str = "t
 
     ``build_functions()`` returns the CasADi functions to compile (called only on a cache miss)."""
     import casadi as ca
-
     _running[:] = [proc for proc in _running if proc.poll() is None]  # reap the compilers that ended
     m = mode()
     if m == "off":
@@ -223,7 +222,6 @@ def _compile(target: Path, build_functions, cc: list[str], strict: bool, what: s
     """Generate the C code (milliseconds), then compile it: now (``strict``) or in a detached process
     that inherits the held ``lock``."""
     import casadi as ca
-
     try:
         work = tempfile.mkdtemp(prefix=".build-", dir=target.parent)
     except OSError as e:
@@ -282,7 +280,6 @@ def block_functions(name: str, functions: list) -> list | None:
     types (each new active set of pairs) loads them. None where they stay interpreted: codegen off, no
     compiler, a failed compile, or more than BLOCK_BUDGET instructions."""
     import casadi as ca
-
     if mode() == "off" or sum(f.n_instructions() for f in functions) > BLOCK_BUDGET:
         return None
     digest = hashlib.sha256("\0".join(f.serialize() for f in functions).encode()).hexdigest()
@@ -305,7 +302,6 @@ def stored(name: str, build) -> list:
     ``build()`` returns the functions; it runs where codegen is off, on a miss, or when the
     stored copy does not match its checksum (then it is written again)."""
     import casadi as ca
-
     if mode() == "off":
         return build()
     path = cache_dir() / f"casadi-{ca.__version__}" / f"{name}-{_code_fingerprint()[:24]}.casadi"

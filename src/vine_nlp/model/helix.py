@@ -145,7 +145,6 @@ def helix_self_collides(theta, lam, D, length=None):
     (and is false for the straight tube). With ``length`` None the section is taken
     as long enough for a full turn. numpy only (returns booleans)."""
     import numpy as np
-
     theta, lam = np.asarray(theta, float), np.asarray(lam, float)
     tight = math.pi * np.abs(np.sin(2 * theta)) + np.cos(2 * theta) < (lam**2 + 1) / (2 * lam)
     if length is None:

@@ -387,7 +387,6 @@ class Mesh:
     @cached_property
     def trimesh(self):
         import trimesh
-
         return trimesh.Trimesh(vertices=self.vertices, faces=self.faces, process=False)
 
     def distance(self, p):
@@ -430,7 +429,6 @@ def sharpness_radius(obstacle) -> float:
 def mesh_signed_distance(mesh: Mesh, points) -> np.ndarray:
     """Exact signed distance from points (..., 3) to a closed mesh, positive outside (trimesh's sign flipped)."""
     import trimesh
-
     p = np.asarray(points, float)
     flat = p.reshape(-1, 3)
     # trimesh: positive inside, negative outside; in chunks: its candidate pairs (up to points x faces) stay below ~2e5
@@ -454,7 +452,6 @@ def nearest_triangles(mesh: Mesh, points, k: int = 4) -> tuple[np.ndarray, np.nd
     cent = tri.mean(axis=1)
     reach = float(np.max(np.linalg.norm(tri - cent[:, None, :], axis=2)))
     from scipy.spatial import cKDTree  # SciPy loads only where a mesh is queried
-
     tree = cKDTree(cent)
     _, first = tree.query(p, k=min(F, max(2 * k, k + 8)))
     first = first.reshape(len(p), -1)

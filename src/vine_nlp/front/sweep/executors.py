@@ -62,7 +62,6 @@ def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]
 def design_item(problem_file, method: str) -> dict:
     """The runs of one method of one item: the pipeline's (run name -> Result)."""
     from vine_nlp import pipeline  # the solvers load in the worker (fork_is_safe: none in the parent)
-
     return pipeline.run(problem_file, pipeline.Request(methods=(method,))).runs
 
 
@@ -131,7 +130,6 @@ def error_text(exc: BaseException) -> str:
 def _worker_init(close_fds=(), watch_fd=None, parent=None):
     # Ctrl-C reaches the whole process group; only the parent handles it (it stops the workers).
     import signal
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # A forked worker inherits the parent's handlers (vine_nlp.interrupt turns SIGTERM into
     # KeyboardInterrupt): the parent ends its workers with SIGTERM, and they are to go quietly.
@@ -147,7 +145,6 @@ def _die_with_parent(watch_fd, parent) -> None:
     which ends with the sweep) is gone; a forked worker also reads the parent's pipe, which ends then."""
     import ctypes
     import signal
-
     with contextlib.suppress(OSError, AttributeError):  # not Linux
         ctypes.CDLL(None).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
     if parent is not None and os.getppid() != parent:  # gone before prctl
@@ -171,7 +168,6 @@ def fork_is_safe() -> bool:
     """True when this process can be forked for workers: POSIX fork (not macOS), only the main thread
     running, and no design solver used here (IPOPT/casadi threads do not survive a fork)."""
     import multiprocessing as mp
-
     return (
         "fork" in mp.get_all_start_methods()
         and sys.platform != "darwin"
@@ -199,7 +195,6 @@ class InlinePool:
 
     def submit(self, fn, args, name):
         from concurrent.futures import Future
-
         fut = Future()
         try:
             fut.set_result(fn(*args, remote=False))
@@ -237,7 +232,6 @@ class LocalPool:
     def _make(self, method, inherited_fd=None):
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
-
         if method is None:
             method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
             self.start_method = method
@@ -260,7 +254,6 @@ class LocalPool:
     def submit(self, fn, args, name):
         from concurrent.futures import Future
         from concurrent.futures.process import BrokenProcessPool
-
         try:
             return self.executor.submit(fn, *args, remote=True)
         except BrokenProcessPool as exc:
@@ -272,12 +265,10 @@ class LocalPool:
 
     def wait_first(self, futures):
         from concurrent.futures import FIRST_COMPLETED, wait
-
         return wait(futures, return_when=FIRST_COMPLETED).done
 
     def lost(self, exc) -> bool:
         from concurrent.futures.process import BrokenProcessPool
-
         return isinstance(exc, BrokenProcessPool)
 
     def restart(self):
@@ -344,7 +335,6 @@ class DaskPool:
 
     def submit(self, fn, args, name):
         import uuid
-
         fut = self.client.submit(fn, *args, remote=True, key=f"solve_item-{name}-{uuid.uuid4().hex[:8]}", pure=False)
         self._completed.add(fut)
         return fut

@@ -30,7 +30,6 @@ def plot_summary(rows, path, title: str | None = None) -> Path:
     from matplotlib.ticker import LogLocator, MaxNLocator, NullFormatter
 
     from vine_nlp.io.archive import write_atomic
-
     path = Path(path)
     ok = [r for r in rows if r.get("rmse") is not None and r.get("status") != FAILED]
     methods = list(dict.fromkeys(r["method"] for r in rows))

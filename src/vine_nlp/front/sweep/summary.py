@@ -149,7 +149,6 @@ def _cell(value) -> str:
 def write_summary(path, rows, grid_keys) -> None:
     """summary.csv (atomically): spec columns, then iterations, units, error."""
     from vine_nlp.io.archive import write_atomic
-
     columns = ["item", *grid_keys, *SPEC_COLUMNS, *(c for c in EXTRA_COLUMNS if c not in grid_keys)]
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")

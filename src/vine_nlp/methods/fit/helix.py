@@ -115,7 +115,6 @@ def _curve_order(X):
     than the curve's turns are to each other (true for tracker traces and for markers
     along a helix with a pitch larger than their spacing)."""
     from scipy.sparse.csgraph import minimum_spanning_tree, shortest_path
-
     K = X.shape[0]
     if K < 3:
         return np.arange(K)
