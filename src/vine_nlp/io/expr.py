@@ -18,15 +18,7 @@ import numpy as np
 MAX_LENGTH = 1000
 MAX_DEPTH = 50
 
-_FUNCTIONS = {
-    "sin": np.sin,
-    "cos": np.cos,
-    "tan": np.tan,
-    "exp": np.exp,
-    "log": np.log,
-    "sqrt": np.sqrt,
-    "abs": np.abs,
-}
+_FUNCTIONS = {"sin": np.sin, "cos": np.cos, "tan": np.tan, "exp": np.exp, "log": np.log, "sqrt": np.sqrt, "abs": np.abs}
 _CONSTANTS = {"pi": float(np.pi), "e": float(np.e)}
 _VARIABLE = "s"
 _ALLOWED_NAMES = "s, pi, e, " + ", ".join(_FUNCTIONS)
@@ -34,32 +26,12 @@ _ALLOWED_NAMES = "s, pi, e, " + ", ".join(_FUNCTIONS)
 _BINARY = {ast.Add: np.add, ast.Sub: np.subtract, ast.Mult: np.multiply, ast.Div: np.divide, ast.Pow: np.power}
 _UNARY = {ast.USub: np.negative, ast.UAdd: np.positive}
 
-_OPERATOR_TEXT = {
-    ast.Mod: "%",
-    ast.FloorDiv: "//",
-    ast.MatMult: "@",
-    ast.LShift: "<<",
-    ast.RShift: ">>",
-    ast.BitOr: "|",
-    ast.BitXor: "^",
-    ast.BitAnd: "&",
-    ast.Not: "not",
-    ast.Invert: "~",
-}
+_OPERATOR_TEXT = {ast.Mod: "%", ast.FloorDiv: "//", ast.MatMult: "@", ast.LShift: "<<", ast.RShift: ">>", ast.BitOr: "|",
+                  ast.BitXor: "^", ast.BitAnd: "&", ast.Not: "not", ast.Invert: "~"}
 _SYNTAX_TEXT = {
-    ast.Attribute: "attribute access",
-    ast.Subscript: "indexing",
-    ast.Compare: "comparison",
-    ast.BoolOp: "'and'/'or'",
-    ast.IfExp: "'if ... else'",
-    ast.Lambda: "lambda",
-    ast.List: "a list",
-    ast.Tuple: "a tuple",
-    ast.Set: "a set",
-    ast.Dict: "a dict",
-    ast.Starred: "'*' unpacking",
-    ast.NamedExpr: "':='",
-    ast.JoinedStr: "an f-string",
+    ast.Attribute: "attribute access", ast.Subscript: "indexing", ast.Compare: "comparison", ast.BoolOp: "'and'/'or'",
+    ast.IfExp: "'if ... else'", ast.Lambda: "lambda", ast.List: "a list", ast.Tuple: "a tuple", ast.Set: "a set", ast.Dict: "a dict",
+    ast.Starred: "'*' unpacking", ast.NamedExpr: "':='", ast.JoinedStr: "an f-string",
 }
 
 

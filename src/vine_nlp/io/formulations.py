@@ -27,16 +27,9 @@ def write_multishape_archive(path, problem_file, result: MultiShapeResult) -> No
     lambda, fixed and metrics attrs (rmse, max_error), /targets/<k>/points.
     ``problem_file`` is a ProblemFile (name, source, units, problem) of a MultiShapeProblem."""
     problem = problem_file.problem
-    archive = Archive(
-        name=problem_file.name,
-        kind="multishape",
-        source=problem_file.source,
-        diameter=problem.diameter,
-        units=problem_file.units,
-        target=problem.targets[0],
-        runs={RUN: result},
-        extra={f"targets/{k}/points": t for k, t in enumerate(problem.targets)},
-    )
+    archive = Archive(name=problem_file.name, kind="multishape", source=problem_file.source, diameter=problem.diameter,
+                      units=problem_file.units, target=problem.targets[0], runs={RUN: result},
+                      extra={f"targets/{k}/points": t for k, t in enumerate(problem.targets)})
 
     def extend(h5):  # the in-memory file after the standard layout: HDF5 never writes to the disk
         g = h5[f"runs/{RUN}"]

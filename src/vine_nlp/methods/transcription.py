@@ -41,15 +41,9 @@ from vine_nlp.model.segment import segment_function, so3_exp
 
 # IPOPT return statuses as archived (spec: "optimal" | "acceptable" | "max_iter" | "failed" | ...)
 IPOPT_STATUS = {
-    "Solve_Succeeded": "optimal",
-    "Solved_To_Acceptable_Level": "acceptable",
-    "Maximum_Iterations_Exceeded": "max_iter",
-    "Maximum_CpuTime_Exceeded": "max_time",
-    "Restoration_Failed": "restoration_failed",
-    "Infeasible_Problem_Detected": "infeasible",
-    "Invalid_Number_Detected": "invalid_number",
-    "Error_In_Step_Computation": "step_failed",
-    "Search_Direction_Becomes_Too_Small": "small_step",
+    "Solve_Succeeded": "optimal", "Solved_To_Acceptable_Level": "acceptable", "Maximum_Iterations_Exceeded": "max_iter",
+    "Maximum_CpuTime_Exceeded": "max_time", "Restoration_Failed": "restoration_failed", "Infeasible_Problem_Detected": "infeasible",
+    "Invalid_Number_Detected": "invalid_number", "Error_In_Step_Computation": "step_failed", "Search_Direction_Becomes_Too_Small": "small_step",
 }
 
 
@@ -377,11 +371,9 @@ class Solver:
         s, lay = self.structure, self.layout
         x = np.asarray(x, float)
         return {v.name: x[lay.var[v.name]].copy() for v in s.variables} | {  # lam: (M, K); length in units of D
-            "poses": x[lay.pose].copy(),
-            "lam_global": x[lay.lam_global].copy(),
+            "poses": x[lay.pose].copy(), "lam_global": x[lay.lam_global].copy(),
             "frames": np.stack([x[lay.X[:, k, :].T] for k in range(s.K)]),  # (K, 12, M+1)
-            "extra": x[lay.extra.T].copy() if s.extra else None,
-            "globals": x[lay.globals].copy(),
+            "extra": x[lay.extra.T].copy() if s.extra else None, "globals": x[lay.globals].copy(),
         }
 
     def bounds(self, X0=None, **boxes) -> tuple[np.ndarray, np.ndarray]:

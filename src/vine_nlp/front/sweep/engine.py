@@ -113,15 +113,8 @@ class DirectoryLock:
             self.fd = None
 
 
-def run_sweep(
-    sweep,
-    out_dir,
-    workers: int | None = None,
-    scheduler: str | None = None,
-    progress: bool = True,
-    force: bool = False,
-    callback: Callable[[str, list], None] | None = None,
-) -> SweepReport:
+def run_sweep(sweep, out_dir, workers: int | None = None, scheduler: str | None = None, progress: bool = True, force: bool = False,
+              callback: Callable[[str, list], None] | None = None) -> SweepReport:
     """Solve every item of ``sweep`` (from ``load_sweep``) into ``out_dir`` (see :mod:`vine_nlp.front.sweep`).
 
     ``workers``: local processes (default ``os.cpu_count()``; 0 or 1: this one), ignored with

@@ -52,10 +52,8 @@ def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]
         except KeyboardInterrupt:
             if not remote:
                 raise
-            errors[method] = (
-                "KeyboardInterrupt from the solver in a worker process, which ignores Ctrl-C "
-                "(IPOPT status NonIpopt_Exception_Thrown: an exception inside the solve)"
-            )
+            errors[method] = ("KeyboardInterrupt from the solver in a worker process, which ignores Ctrl-C "
+                              "(IPOPT status NonIpopt_Exception_Thrown: an exception inside the solve)")
     return runs, {"total_s": time.perf_counter() - t_item, "cpu_s": time.process_time() - c_item, "errors": errors}
 
 
@@ -168,12 +166,8 @@ def fork_is_safe() -> bool:
     """True when this process can be forked for workers: POSIX fork (not macOS), only the main thread
     running, and no design solver used here (IPOPT/casadi threads do not survive a fork)."""
     import multiprocessing as mp
-    return (
-        "fork" in mp.get_all_start_methods()
-        and sys.platform != "darwin"
-        and threading.active_count() == 1
-        and "vine_nlp.methods.transcription" not in sys.modules
-    )
+    return ("fork" in mp.get_all_start_methods() and sys.platform != "darwin" and threading.active_count() == 1
+            and "vine_nlp.methods.transcription" not in sys.modules)
 
 
 def _chunk(pending: int, slots: int) -> int:

@@ -115,16 +115,9 @@ def method_stats(rows) -> dict:
             rmse = [r["rmse"] * factor for r in ok]
             worst = max(range(len(ok)), key=lambda k: rmse[k])
             times = sorted(r["solve_time_s"] for r in ok)
-            s.update(
-                units=unit,
-                rmse_mean=sum(rmse) / len(rmse),
-                rmse_max=rmse[worst],
-                worst_item=ok[worst]["item"],
-                max_error_max=max(r["max_error"] for r in ok) * factor,
-                converged=sum(1 for r in ok if r["status"] in _CONVERGED),
-                time_median=times[len(times) // 2],
-                time_total=sum(times),
-            )
+            s.update(units=unit, rmse_mean=sum(rmse) / len(rmse), rmse_max=rmse[worst], worst_item=ok[worst]["item"],
+                     max_error_max=max(r["max_error"] for r in ok) * factor, converged=sum(1 for r in ok if r["status"] in _CONVERGED),
+                     time_median=times[len(times) // 2], time_total=sum(times))
         out[method] = s
     return out
 
@@ -161,14 +154,9 @@ def write_summary(path, rows, grid_keys) -> None:
 def cells(result) -> dict:
     """The summary's numbers of one Result (what a worker sends back for each run it archived)."""
     m = result.metrics
-    return {
-        "status": result.status,
-        "rmse": float(m["rmse"]) if "rmse" in m else None,
-        "max_error": float(m["max_error"]) if "max_error" in m else None,
-        "solve_time_s": float(result.solve_time_s),
-        "iterations": int(result.iterations),
-        "shortfall": "; ".join(result.shortfall),  # the hard requirements a run misses
-    }
+    return {"status": result.status, "rmse": float(m["rmse"]) if "rmse" in m else None,
+            "max_error": float(m["max_error"]) if "max_error" in m else None, "solve_time_s": float(result.solve_time_s),
+            "iterations": int(result.iterations), "shortfall": "; ".join(result.shortfall)}  # shortfall: the hard requirements missed
 
 
 def make_row(item, overrides, method, units, numbers=None, error=None) -> dict:

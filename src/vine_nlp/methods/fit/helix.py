@@ -26,6 +26,12 @@ def _frame_from_axis(a):
     return np.column_stack([u, np.cross(a, u), a])
 
 
+def _tilted(F0, alpha, beta):
+    """The axis frame F0 tilted by the rotation vector (alpha, beta, 0)."""
+    from scipy.spatial.transform import Rotation  # SciPy loads where it is used: the command line starts faster
+    return F0 @ Rotation.from_rotvec([alpha, beta, 0.0]).as_matrix()
+
+
 def _fibonacci_hemisphere(n):
     k = np.arange(n) + 0.5
     z = k / n  # z in (0, 1): one of each pair of opposite directions
@@ -36,12 +42,9 @@ def _fibonacci_hemisphere(n):
 
 def _circle_fit(xy):
     """Algebraic (Kasa) circle fit: center (2,), radius."""
-    A = np.column_stack([2 * xy, np.ones(xy.shape[0])])
-    rhs = np.sum(xy**2, axis=1)
-    sol, *_ = np.linalg.lstsq(A, rhs, rcond=None)
+    sol, *_ = np.linalg.lstsq(np.column_stack([2 * xy, np.ones(xy.shape[0])]), np.sum(xy**2, axis=1), rcond=None)
     c = sol[:2]
-    r2 = sol[2] + c @ c
-    return c, math.sqrt(max(r2, 0.0))
+    return c, math.sqrt(max(sol[2] + c @ c, 0.0))
 
 
 def _helix_residuals(p, X, F0, line_idx, nradii, residual="orthogonal"):
@@ -60,9 +63,7 @@ def _helix_residuals(p, X, F0, line_idx, nradii, residual="orthogonal"):
     same-angle point."""
     alpha, beta, cx, cy, w, phi0 = p[:6]
     radii = np.asarray(p[6 : 6 + nradii])
-    from scipy.spatial.transform import Rotation  # SciPy loads where it is used: the command line starts faster
-    F = F0 @ Rotation.from_rotvec([alpha, beta, 0.0]).as_matrix()
-    q = X @ F
+    q = X @ _tilted(F0, alpha, beta)
     qu, qv, qa = q[:, 0] - cx, q[:, 1] - cy, q[:, 2]
     r = radii[line_idx]
     if residual == "height":
@@ -190,9 +191,7 @@ def _rate_mismatch(p, X, F0, radius, order):
     noise is comparable to the pitch; its phase does not follow the points, which this
     detects (> 1 means aliased)."""
     alpha, beta, cx, cy, w, _ = p[:6]
-    from scipy.spatial.transform import Rotation  # SciPy loads where it is used: the command line starts faster
-    F = F0 @ Rotation.from_rotvec([alpha, beta, 0.0]).as_matrix()
-    q = X @ F
+    q = X @ _tilted(F0, alpha, beta)
     psi = np.arctan2(q[:, 1] - cy, q[:, 0] - cx) + (math.pi if radius < 0 else 0.0)
     Z = float(np.ptp(q[:, 2]))
     if Z <= 0 or X.shape[0] < 3:
@@ -206,7 +205,6 @@ def _fit_helices(Xc, idx, nradii, inits, residual, check_line, keep=2, max_point
     :func:`_rate_mismatch`, on the points of line ``check_line``) lose to any other."""
     K = Xc.shape[0]
     sub = np.arange(K) if K <= max_points else np.sort(np.random.default_rng(0).choice(K, max_points, replace=False))
-
     orders = {}
 
     def score(X, ids, F0, p, mse):
@@ -233,8 +231,7 @@ def _fit_helices(Xc, idx, nradii, inits, residual, check_line, keep=2, max_point
 def _helix_dict(p, F0, mean, nradii):
     """Axis point/direction, signed pitch b and radii in world coordinates from parameters."""
     alpha, beta, cx, cy, w, phi0 = p[:6]
-    from scipy.spatial.transform import Rotation  # SciPy loads where it is used: the command line starts faster
-    F = F0 @ Rotation.from_rotvec([alpha, beta, 0.0]).as_matrix()
+    F = _tilted(F0, alpha, beta)
     return {
         "axis_point": mean + F[:, 0] * cx + F[:, 1] * cy, "axis_dir": F[:, 2].copy(),
         "b": 1.0 / w if w != 0 else math.inf, "phase": float(phi0), "radii": np.asarray(p[6 : 6 + nradii], float),
@@ -257,9 +254,8 @@ def best_fit_helix(points, top: int = 6, residual: str = "orthogonal") -> dict:
     ``axis_point`` the axis point closest to the points' centroid; ``rmse`` and
     ``r2`` (:func:`r_squared`) of the chosen residual."""
     X = clean_points(points, "points")
-    mean = X.mean(axis=0)
+    mean, idx = X.mean(axis=0), np.zeros(X.shape[0], int)
     Xc = X - mean
-    idx = np.zeros(X.shape[0], int)
     inits = [(F0, p0) for _, F0, p0 in _helix_candidates(Xc, residual=residual)[:top]]
     F0, p = _fit_helices(Xc, idx, 1, inits, residual, check_line=0)
     h = _helix_dict(p, F0, mean, 1)
@@ -285,8 +281,7 @@ def best_fit_helix_pair(inner_points, outer_points, top: int = 3, residual: str 
     rmse_inner, rmse_outer, r2); r2 with each line about its own centroid."""
     Xi, Xo = clean_points(inner_points, "inner points"), clean_points(outer_points, "outer points")
     X = np.concatenate([Xi, Xo])
-    K = X.shape[0]
-    mean = X.mean(axis=0)
+    K, mean = X.shape[0], X.mean(axis=0)
     Xc = X - mean
     idx = np.r_[np.zeros(Xi.shape[0], int), np.ones(Xo.shape[0], int)]
     inits = []
