@@ -69,11 +69,8 @@ def uniform_sections(routing, D: float, atol: float = 1e-9) -> list[dict]:
     for j in range(1, th.size + 1):
         if j == th.size or abs(th[j] - th[start]) > atol or abs(lam[j] - lam[start]) > atol:
             t, la, L = float(th[start]), float(lam[start]), float(ln[start:j].sum())
-            out.append({
-                "start": start, "stop": j, "theta": t, "lam": la, "length": L,
-                "turns": float(helix_turns(t, la, D, L)),
-                "collides": bool(helix_self_collides(t, la, D, L)),
-            })
+            out.append({"start": start, "stop": j, "theta": t, "lam": la, "length": L, "turns": float(helix_turns(t, la, D, L)),
+                        "collides": bool(helix_self_collides(t, la, D, L))})
             start = j
     return out
 
@@ -108,6 +105,11 @@ def _segment_distance(p0, p1, q0, q1):
     elif u > 1.0:
         u, t = 1.0, (np.clip((b - c) / a, 0.0, 1.0) if a > 0 else 0.0)
     return float(np.linalg.norm(p0 + t * d1 - q0 - u * d2)), float(t), float(u)
+
+
+def _sampled(points, s):
+    """No refinement: the sampled pair itself."""
+    return lambda i, j: (float(np.linalg.norm(points[i] - points[j])), float(s[i]), float(s[j]), points[i], points[j])
 
 
 def _polyline_refine(points, s):
@@ -263,12 +265,7 @@ def min_clearance(center, D: float, s=None, exclude_arc: float | None = None, ma
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))]) if s is None else np.asarray(s, float)
     exclude_arc = 0.5 * math.pi * D if exclude_arc is None else float(exclude_arc)
     pts, s = _densify(pts, s, D / 4)
-    if refine:
-        ref = _polyline_refine(pts, s)
-    else:
-        def ref(i, j):
-            return float(np.linalg.norm(pts[i] - pts[j])), float(s[i]), float(s[j]), pts[i], pts[j]
-    return _clearance(pts, s, D, exclude_arc, margin, ref)
+    return _clearance(pts, s, D, exclude_arc, margin, _polyline_refine(pts, s) if refine else _sampled(pts, s))
 
 
 def routing_clearance(routing, D: float, spacing: float | None = None, exclude_arc: float | None = None, margin: float = 0.0, refine: bool = True,
@@ -286,10 +283,12 @@ def routing_clearance(routing, D: float, spacing: float | None = None, exclude_a
     model = ModelLine(routing, D)
     hl = float(np.max(np.diff(l))) if len(l) > 1 else 0.0
 
+    sampled = _sampled(pts, s)
+
     def ref(i, j):
         d0 = float(np.linalg.norm(pts[i] - pts[j]))
         if not refine:
-            return d0, float(s[i]), float(s[j]), pts[i], pts[j]
+            return sampled(i, j)
 
         def f(z):
             q = model.points(z)
@@ -301,7 +300,7 @@ def routing_clearance(routing, D: float, spacing: float | None = None, exclude_a
         za, zb = opt.x
         sa, sb = model.arc([za, zb])
         if not (opt.fun * D**2 < d0**2 and abs(sb - sa) > exclude_arc):
-            return d0, float(s[i]), float(s[j]), pts[i], pts[j]
+            return sampled(i, j)
         q = model.points(opt.x)
         return float(np.linalg.norm(q[0] - q[1])), float(sa), float(sb), q[0], q[1]
 
@@ -311,12 +310,8 @@ def routing_clearance(routing, D: float, spacing: float | None = None, exclude_a
         return float(np.interp(v, s, l))
 
     for r in out["regions"]:
-        r["l_i"], r["l_j"] = to_l(r["s_i"]), to_l(r["s_j"])
-        r["l_i_range"] = tuple(to_l(v) for v in r["s_i_range"])
-        r["l_j_range"] = tuple(to_l(v) for v in r["s_j_range"])
-    out["l_i"] = to_l(out["s_i"]) if math.isfinite(out["s_i"]) else math.nan
-    out["l_j"] = to_l(out["s_j"]) if math.isfinite(out["s_j"]) else math.nan
-    out["line"] = smp
+        r |= {f"l_{e}": to_l(r[f"s_{e}"]) for e in "ij"} | {f"l_{e}_range": tuple(map(to_l, r[f"s_{e}_range"])) for e in "ij"}
+    out |= {f"l_{e}": to_l(out[f"s_{e}"]) if math.isfinite(out[f"s_{e}"]) else math.nan for e in "ij"} | {"line": smp}
     return out
 
 
@@ -358,12 +353,7 @@ def growth_contacts(routing, D: float, margin: float = 0.0, spacing: float | Non
     for k, r in enumerate(final["regions"]):
         s_first = float(final["s"][r["pairs"][:, 1]].min())
         l_first = float(np.interp(s_first, final["s"], final["line"]["l"]))
-        out.append({
-            "region": k, "transient": False, "clearance": r["clearance"],
-            "l_early": r["l_i"], "l_late": r["l_j"], "s_early": r["s_i"], "s_late": r["s_j"],
-            "growth_length": l_first, "growth_arc": s_first, "growth_fraction": l_first / total,
-            "all_at_once_growth_length": total, "actuation_fraction": None,
-        })
+        out.append(_contact(k, r, r["clearance"], total, (l_first, s_first, l_first / total), None))
     transient = []  # [(t_first, min clearance, merged region)]
     if actuation_steps > 0:
         for t in np.linspace(0.0, 1.0, actuation_steps + 1)[1:]:
@@ -386,14 +376,15 @@ def growth_contacts(routing, D: float, margin: float = 0.0, spacing: float | Non
                 else:
                     keep = {k: q[k] for k in ("l_i", "l_j", "s_i", "s_j", "l_i_range", "l_j_range")}
                     transient.append([float(t), q["clearance"], keep])
-    for k, (t, d, q) in enumerate(transient):
-        out.append({
-            "region": len(final["regions"]) + k, "transient": True, "clearance": float(d),
-            "l_early": q["l_i"], "l_late": q["l_j"], "s_early": q["s_i"], "s_late": q["s_j"],
-            "growth_length": None, "growth_arc": None, "growth_fraction": None,
-            "all_at_once_growth_length": total, "actuation_fraction": t,
-        })
+    out += [_contact(len(final["regions"]) + k, q, float(d), total, None, t) for k, (t, d, q) in enumerate(transient)]
     return out
+
+
+def _contact(k, r, clearance, total, growth, t) -> dict:
+    """One entry of :func:`growth_contacts`: region ``r``'s places; ``growth`` (length, arc, fraction) or None (transient)."""
+    return {"region": k, "transient": growth is None, "clearance": clearance, "l_early": r["l_i"], "l_late": r["l_j"],
+            "s_early": r["s_i"], "s_late": r["s_j"], **dict(zip(("growth_length", "growth_arc", "growth_fraction"), growth or (None,) * 3)),
+            "all_at_once_growth_length": total, "actuation_fraction": t}
 
 
 def collision_metrics(result, D: float | None = None, margin: float = 0.0) -> dict:
@@ -404,8 +395,5 @@ def collision_metrics(result, D: float | None = None, margin: float = 0.0) -> di
     D = float(result.diameter if D is None else D)
     res = routing_clearance(result.routing, D, margin=margin)
     growth = [c["growth_length"] for c in growth_contacts(result.routing, D, margin, actuation_steps=0)]
-    return {
-        "min_clearance": float(res["clearance"]),
-        "contacts": float(len(res["regions"])),
-        "first_contact_growth_length": float(min(growth)) if growth else math.nan,
-    }
+    return {"min_clearance": float(res["clearance"]), "contacts": float(len(res["regions"])),
+            "first_contact_growth_length": float(min(growth)) if growth else math.nan}
