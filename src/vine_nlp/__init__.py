@@ -11,9 +11,8 @@ The Python API (``vine_nlp.api``, see the README's "Python API")::
     r.save("out.h5"); a = vn.load("out.h5")
     p = vn.solve("problems/obstacle-gap.toml")     # what `vine-nlp design` runs
 
-Importing the package is cheap: the API's names are imported from ``vine_nlp.api`` on
-first use (PEP 562), so ``import vine_nlp`` loads no CasADi, matplotlib, h5py or SciPy
-and never touches the matplotlib backend."""
+Importing the package is cheap: the API's names are imported from ``vine_nlp.api`` on first use (PEP 562), so ``import
+vine_nlp`` loads no CasADi, matplotlib, h5py or SciPy and never touches the matplotlib backend."""
 
 from importlib import import_module as _import_module
 

@@ -26,8 +26,7 @@ def trefoil(scale=(4.0, 4.0, 4.0), t_range=(-0.2 * math.pi, 1.5 * math.pi), samp
 def bezier(control_points, samples: int = DEFAULT_SAMPLES) -> np.ndarray:
     """Bezier curve of the K control points (Bernstein form), ``samples`` points equally spaced in t in [0, 1].
 
-    2-D control points mean z = 0. The first and last samples are the first and
-    last control points."""
+    2-D control points mean z = 0. The first and last samples are the first and last control points."""
     p = as_3d(control_points, least=2)
     if p.shape[0] > MAX_BEZIER_POINTS:
         raise ValueError(f"at most {MAX_BEZIER_POINTS} control points")
@@ -42,9 +41,8 @@ def bezier(control_points, samples: int = DEFAULT_SAMPLES) -> np.ndarray:
 def polyline(control_points, samples: int = DEFAULT_SAMPLES) -> np.ndarray:
     """Straight lines through the control points, ``samples`` points equally spaced in arc length.
 
-    The first and last control points are the first and last samples; inner
-    corners are generally not sampled. Repeated consecutive control points are
-    ignored."""
+    The first and last control points are the first and last samples; inner corners are generally not sampled. Repeated
+    consecutive control points are ignored."""
     p = as_3d(control_points, least=2)
     keep = np.concatenate([[True], np.any(np.diff(p, axis=0) != 0, axis=1)])
     p = p[keep]
@@ -58,10 +56,9 @@ def polyline(control_points, samples: int = DEFAULT_SAMPLES) -> np.ndarray:
 def helix(radius: float, pitch: float, length: float, samples: int = DEFAULT_SAMPLES) -> np.ndarray:
     """Helix of radius R and pitch parameter b (rise 2 pi b per turn), arc length ``length``.
 
-    Eq. (Helix) moved to start at the origin: r(u) = [R sin u, R (cos u - 1), b u],
-    u in [0, length / sqrt(R^2 + b^2)], so samples equally spaced in u are equally
-    spaced in arc length. The axis is the line x = 0, y = -R, parallel to z; b < 0
-    gives the mirrored (opposite-handed) helix, R = 0 a straight line along z."""
+    Eq. (Helix) moved to start at the origin: r(u) = [R sin u, R (cos u - 1), b u], u in [0, length / sqrt(R^2 + b^2)],
+    so samples equally spaced in u are equally spaced in arc length. The axis is the line x = 0, y = -R, parallel to z;
+    b < 0 gives the mirrored (opposite-handed) helix, R = 0 a straight line along z."""
     radius, pitch, length = float(radius), float(pitch), float(length)
     if radius < 0:
         raise ValueError("radius must be >= 0")

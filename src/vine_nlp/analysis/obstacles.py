@@ -156,9 +156,8 @@ class ModelLine:
 def grown_prefixes(routing: Routing, diameter: float, lengths, per_segment=DEFAULT_PER_SEGMENT) -> list[dict]:
     """Bodies grown while actuated to material lengths ``lengths``: prefixes of the final center line.
 
-    Each: dict(length, points, s, l): the final shape's samples with l < length plus the
-    exact point at l = length. Every prefix is a subset of the final line, so its gap to
-    any obstacle is >= the final shape's (module docstring)."""
+    Each: dict(length, points, s, l): the final shape's samples with l < length plus the exact point at l = length.
+    Every prefix is a subset of the final line, so its gap to any obstacle is >= the final shape's (module docstring)."""
     D = float(diameter)
     full = sample_chain(routing, D, per_segment)
     model = ModelLine(routing, D)

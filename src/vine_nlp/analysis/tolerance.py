@@ -1,9 +1,8 @@
 """Manufacturing tolerance: how construction errors in theta, lambda and segment length move the shape.
 
-Error model: every segment's (theta_j, lambda_j, dl_j) is built with independent,
-zero-mean Gaussian errors of standard deviations (see :class:`Sigmas`), by the physical
-rule (spec "Physical builds", model.routing.built_lambda): no lambda error where lambda_j = 1
-(no actuator), elsewhere the built lambda min(1, lambda_j + error), at least lambda_min
+Error model: every segment's (theta_j, lambda_j, dl_j) is built with independent, zero-mean Gaussian errors of standard
+deviations (see :class:`Sigmas`), by the physical rule (spec "Physical builds", model.routing.built_lambda): no lambda
+error where lambda_j = 1 (no actuator), elsewhere the built lambda min(1, lambda_j + error), at least lambda_min
 
 * sigma_theta  [rad]  drawn angle of the actuator,
 * sigma_lambda [-]    contraction ratio (absolute: lambda 0.70 +- 0.02),
@@ -11,9 +10,8 @@ rule (spec "Physical builds", model.routing.built_lambda): no lambda error where
                       segment's length, like a stopper or pinch cut 2 % off); with
                       ``relative_length=False`` an absolute length in problem units.
 
-First order. With J the Jacobian of the paired center points (single shooting,
-CasADi, :func:`point_jacobian`) with respect to q = (theta_j, lambda_j, dl_j)_j
-and Sigma = diag(sigma^2), the point errors are N(0, J_k Sigma J_k^T) and the
+First order. With J the Jacobian of the paired center points (single shooting, CasADi, :func:`point_jacobian`) with
+respect to q = (theta_j, lambda_j, dl_j)_j and Sigma = diag(sigma^2), the point errors are N(0, J_k Sigma J_k^T) and the
 expected squared error of the linearization is exact:
 
     E[MSE] = MSE_0 + (1/N) sum_k tr(J_k Sigma J_k^T)    (the cross term has zero mean),
@@ -22,9 +20,8 @@ so the "first-order RMSE" is sqrt(E[MSE]) (Jensen: E[RMSE] <= sqrt(E[MSE])). The
 covariance is J_tip Sigma J_tip^T, and the contribution of segment m to the tip
 variance is sum over its three parameters of |J_tip[:, (m, p)]|^2 sigma_(m, p)^2.
 
-First order ignores the clips (a derivative of 1; of 0 without an actuator). Monte Carlo
-builds by the rule itself: the numpy chain evaluated for all samples at once (model
-functions broadcast over a (samples, segments) array), seeded RNG."""
+First order ignores the clips (a derivative of 1; of 0 without an actuator). Monte Carlo builds by the rule itself: the
+numpy chain evaluated for all samples at once (model functions broadcast over a (samples, segments) array), seeded RNG."""
 
 from __future__ import annotations
 
@@ -53,11 +50,10 @@ def segment_jacobian_function(n: int) -> ca.Function:
 def point_jacobian(routing, D: float, seg, frac):
     """Center points at (seg, frac) and their Jacobian wrt (theta_j, lambda_j, dl_j), single shooting.
 
-    Returns (points (P, 3), J (P, 3, 3M)); column 3 j + p is parameter p (0 theta,
-    1 lambda, 2 dl) of segment j, in problem units. The chain is the NLP's per-segment
-    function (model.segment.segment_function, units of D) in a loop; its CasADi Jacobian
-    (frame and points wrt frame and parameters) is chained forward, S_{j+1} = A_j S_j + B_j
-    with S_j = dX_j/dq: O(M) evaluations of one small function, exact derivatives."""
+    Returns (points (P, 3), J (P, 3, 3M)); column 3 j + p is parameter p (0 theta, 1 lambda, 2 dl) of segment j, in
+    problem units. The chain is the NLP's per-segment function (model.segment.segment_function, units of D) in a loop;
+    its CasADi Jacobian (frame and points wrt frame and parameters) is chained forward, S_{j+1} = A_j S_j + B_j with S_j
+    = dX_j/dq: O(M) evaluations of one small function, exact derivatives."""
     M = routing.segments
     seg = np.asarray(seg, int)
     frac = np.asarray(frac, float)
@@ -115,9 +111,8 @@ def batch_points(theta, lam, length, D: float, seg, frac, initial_pose=None, chu
 def tolerance_report(problem, result, sigmas: Sigmas, samples: int = 2000, seed: int = 0) -> dict:
     """First-order and Monte Carlo sensitivity of a design to construction errors.
 
-    The shape is measured at the paired points of ``problem`` (pair_points with its
-    points_per_segment, the tip last), as the design methods do; the result's routing
-    must have that pairing's segment count. Lengths in problem units.
+    The shape is measured at the paired points of ``problem`` (pair_points with its points_per_segment, the tip last),
+    as the design methods do; the result's routing must have that pairing's segment count. Lengths in problem units.
 
     Returns dict with sigmas, units, segments, points; nominal: rmse, mse, tip (3,); first_order: mse_increase,
       rmse (= sqrt(MSE_0 + increase)), rmse_increase, tip_cov (3, 3), tip_std (= sqrt(trace)), point_std (N,);

@@ -103,10 +103,9 @@ def plot_fit(source, path=None, extras=None, title=None):
 def plot_frames(results, path, units: str = "cm", show: int = 5, title=None, frame_times=None):
     """Lambda over the frames of a sequence and the error against length of a few frames.
 
-    ``results``: the list from :func:`vine_nlp.methods.fit.fit_frames` (frames that could
-    not be fitted are gaps); ``show``: how many frames (evenly spread, labelled with
-    their lambda) get an error-against-length curve; ``frame_times``: optional x
-    values instead of the frame index."""
+    ``results``: the list from :func:`vine_nlp.methods.fit.fit_frames` (frames that could not be fitted are gaps);
+    ``show``: how many frames (evenly spread, labelled with their lambda) get an error-against-length curve;
+    ``frame_times``: optional x values instead of the frame index."""
     lam = np.array([r[0] for r in results], float)
     rmse = np.array([r[1] for r in results], float)
     x = np.arange(lam.size) if frame_times is None else np.asarray(frame_times, float)

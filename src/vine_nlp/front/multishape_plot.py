@@ -48,9 +48,8 @@ def plot_multishape_figure(source) -> Figure:
 
 
 def multishape_figure(a, r, targets) -> Figure:
-    """Draw a multi-shape result: ``a`` the archive (name, units, diameter), ``r`` the
-    MultiShapeResult (shared routing, K levels, shapes and per-level metrics), ``targets``
-    the K target point arrays (N, 3). Reads nothing."""
+    """Draw a multi-shape result: ``a`` the archive (name, units, diameter), ``r`` the MultiShapeResult (shared routing,
+    K levels, shapes and per-level metrics), ``targets`` the K target point arrays (N, 3). Reads nothing."""
     u = a.units
     K = r.count
     colors = [palette.RUNS[k % len(palette.RUNS)] for k in range(K)]

@@ -72,11 +72,10 @@ def error_along(archive: Archive, result) -> np.ndarray:
 def point_s(archive: Archive, result) -> np.ndarray:
     """Length along the unactuated tube of each archived shape point.
 
-    Design runs pair target point k with fraction frac_k of segment seg_k
-    (model.pairing.pair_points); the pairing is rebuilt from the archived
-    ``points_per_segment`` (or the n consistent with M and N) and accepted only
-    if the model reproduces the archived center line there. Otherwise s is
-    estimated from the target's chord length (proportional to the tube length)."""
+    Design runs pair target point k with fraction frac_k of segment seg_k (model.pairing.pair_points); the pairing is
+    rebuilt from the archived ``points_per_segment`` (or the n consistent with M and N) and accepted only if the model
+    reproduces the archived center line there. Otherwise s is estimated from the target's chord length (proportional to
+    the tube length)."""
     r = result.routing
     center = result.shape.center
     N, M = center.shape[0], r.segments
@@ -360,12 +359,10 @@ def plot_error(ax, archive: Archive, names, colors, styles=None):
 def plot_archive(archive, obstacles=None) -> Figure:
     """The figure of an archive (an Archive or a path to one).
 
-    Layouts: one run without target (forward): a 3.5 in column, 3-D view over the
-    theta, lambda, phi panels. One design run: 7.16 in, 3-D view and error in the
-    first row, theta, lambda, phi in the second. Several runs (``compare``): one
-    3-D view per run (at most three) over error, theta, lambda, phi in a 2 x 2 grid.
-    ``obstacles`` (``vine_nlp.io.obstacles.read_obstacles`` of the archive's /obstacles) are
-    drawn in every 3-D view."""
+    Layouts: one run without target (forward): a 3.5 in column, 3-D view over the theta, lambda, phi panels. One design
+    run: 7.16 in, 3-D view and error in the first row, theta, lambda, phi in the second. Several runs (``compare``): one
+    3-D view per run (at most three) over error, theta, lambda, phi in a 2 x 2 grid. ``obstacles``
+    (``vine_nlp.io.obstacles.read_obstacles`` of the archive's /obstacles) are drawn in every 3-D view."""
     if not isinstance(archive, Archive):
         archive = load_archive(archive)
     names = ordered_runs(archive)

@@ -1,21 +1,17 @@
-"""HDF5 result archives (../shared/spec/formats.md, "Result archives"): written atomically,
-validated on load.
+"""HDF5 result archives (../shared/spec/formats.md, "Result archives"): written atomically, validated on load.
 
-Writing. The HDF5 file is built in memory and its bytes written with ordinary file I/O to a
-temporary file beside the target, then renamed onto it. A full disk, a read-only
-filesystem or a missing permission is one :class:`OutputError` and leaves nothing behind;
-HDF5 itself never writes to the disk, so a failed write cannot leave it with a
-half-closed file (which used to crash the interpreter at exit).
+Writing. The HDF5 file is built in memory and its bytes written with ordinary file I/O to a temporary file beside the
+target, then renamed onto it. A full disk, a read-only filesystem or a missing permission is one :class:`OutputError`
+and leaves nothing behind; HDF5 itself never writes to the disk, so a failed write cannot leave it with a half-closed
+file (which used to crash the interpreter at exit).
 
-Reading. :func:`load_archive` opens the file through :mod:`vine_nlp.io.h5read` (no links, no
-external data, sizes bounded before reading) and checks everything it returns against the spec:
-every dataset's dtype and shape and their consistency (M segments, P shape rows, K levels), finite values (a metric other than rmse and max_error may be NaN:
-"does not apply"), proper initial poses (4x4, orthonormal rotation
-with det +1, last row 0 0 0 1), attribute types and the size limits of
-:mod:`vine_nlp.io.limits`. Anything else is an :class:`ArchiveError`
-``(file, dataset path, reason)``; no other exception leaves the loader. Groups the
-spec does not name are allowed; their datasets come back in ``Archive.extra`` and are
-validated too (numeric, at least 1-D, within the limits, finite except ``/frames``)."""
+Reading. :func:`load_archive` opens the file through :mod:`vine_nlp.io.h5read` (no links, no external data, sizes
+bounded before reading) and checks everything it returns against the spec: every dataset's dtype and shape and their
+consistency (M segments, P shape rows, K levels), finite values (a metric other than rmse and max_error may be NaN:
+"does not apply"), proper initial poses (4x4, orthonormal rotation with det +1, last row 0 0 0 1), attribute types and
+the size limits of :mod:`vine_nlp.io.limits`. Anything else is an :class:`ArchiveError` ``(file, dataset path,
+reason)``; no other exception leaves the loader. Groups the spec does not name are allowed; their datasets come back in
+``Archive.extra`` and are validated too (numeric, at least 1-D, within the limits, finite except ``/frames``)."""
 
 from __future__ import annotations
 

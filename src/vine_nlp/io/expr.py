@@ -1,11 +1,9 @@
 """Expressions of s in problem files (spec/formats.md, "Expressions").
 
-A routing value such as ``theta = "pi/12 * sin(0.1 * s)"`` is parsed with
-:func:`ast.parse` and accepted only if every node is on a short whitelist:
-numbers, ``+ - * / **``, unary ``-``/``+``, the names ``s``, ``pi``, ``e`` and
-one-argument calls of ``sin cos tan exp log sqrt abs``. The accepted tree is
-turned into a chain of numpy calls; the text is never handed to ``eval`` or
-``exec``."""
+A routing value such as ``theta = "pi/12 * sin(0.1 * s)"`` is parsed with :func:`ast.parse` and accepted only if every
+node is on a short whitelist: numbers, ``+ - * / **``, unary ``-``/``+``, the names ``s``, ``pi``, ``e`` and
+one-argument calls of ``sin cos tan exp log sqrt abs``. The accepted tree is turned into a chain of numpy calls; the
+text is never handed to ``eval`` or ``exec``."""
 
 from __future__ import annotations
 

@@ -19,13 +19,12 @@ RUN = MULTISHAPE_RUN
 def write_multishape_archive(path, problem_file, result: MultiShapeResult) -> None:
     """Write a multi-shape design archive atomically (the contract's layout, extended).
 
-    Standard part (old readers work): /problem (kind "multishape"), /tube,
-    /target/points = target 0, /runs/multishape/{design,shape,metrics,solver} with
-    design/lambda = level 0 repeated and shape = level 0's shape; metrics rmse and
-    max_error are over all levels. Extension: /runs/multishape/design/levels (K,),
-    /runs/multishape/levels/<k>/{shape/{center,inner,outer}, initial_pose} with attrs
-    lambda, fixed and metrics attrs (rmse, max_error), /targets/<k>/points.
-    ``problem_file`` is a ProblemFile (name, source, units, problem) of a MultiShapeProblem."""
+    Standard part (old readers work): /problem (kind "multishape"), /tube, /target/points = target 0,
+    /runs/multishape/{design,shape,metrics,solver} with design/lambda = level 0 repeated and shape = level 0's shape;
+    metrics rmse and max_error are over all levels. Extension: /runs/multishape/design/levels (K,),
+    /runs/multishape/levels/<k>/{shape/{center,inner,outer}, initial_pose} with attrs lambda, fixed and metrics attrs
+    (rmse, max_error), /targets/<k>/points. ``problem_file`` is a ProblemFile (name, source, units, problem) of a
+    MultiShapeProblem."""
     problem = problem_file.problem
     archive = Archive(name=problem_file.name, kind="multishape", source=problem_file.source, diameter=problem.diameter,
                       units=problem_file.units, target=problem.targets[0], runs={RUN: result},

@@ -1,12 +1,11 @@
 """Opening an HDF5 archive to read it: the one way every reader of vine_nlp does.
 
-:func:`open_archive` opens the file through :func:`vine_nlp.io.files.open_input` (a regular file
-within MAX_FILE_BYTES) and, before any value is read, walks every link and attribute once and
-refuses, as one :class:`ArchiveError` ``(file, path in the archive, reason)``: soft and external
-links (nothing is read through a link: a link to a pipe cannot block, another file's data cannot
-be copied in), virtual datasets and external raw storage, datasets of anything but numbers,
-unprintable or overlong names, and declared sizes over the limits (one dataset or attribute, all
-datasets, objects, chunks): compressed data cannot expand beyond them."""
+:func:`open_archive` opens the file through :func:`vine_nlp.io.files.open_input` (a regular file within MAX_FILE_BYTES)
+and, before any value is read, walks every link and attribute once and refuses, as one :class:`ArchiveError` ``(file,
+path in the archive, reason)``: soft and external links (nothing is read through a link: a link to a pipe cannot block,
+another file's data cannot be copied in), virtual datasets and external raw storage, datasets of anything but numbers,
+unprintable or overlong names, and declared sizes over the limits (one dataset or attribute, all datasets, objects,
+chunks): compressed data cannot expand beyond them."""
 
 from __future__ import annotations
 

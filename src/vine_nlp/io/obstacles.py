@@ -4,12 +4,11 @@ formats.md "Obstacles". Every bad value raises ``InputError(file, "obstacles[k].
 reason)`` with k counted from 0 (as the archive's ``/obstacles/<k>``). A mesh file's
 *content* is a data file of its own: its errors name the mesh file, key ``mesh``.
 
-Meshes must be closed (watertight: every edge shared by exactly two faces, with a
-consistent winding): inside and outside, and so the sign of the distance, mean
-nothing for an open surface. Vertices are merged and zero-area faces dropped on
-reading (an STL file stores every triangle's corners separately); a mesh wound
-inside-out (negative volume) is turned around. At most ``MAX_MESH_FACES`` faces:
-the design keeps rows for the nearest triangles of every tube sample."""
+Meshes must be closed (watertight: every edge shared by exactly two faces, with a consistent winding): inside and
+outside, and so the sign of the distance, mean nothing for an open surface. Vertices are merged and zero-area faces
+dropped on reading (an STL file stores every triangle's corners separately); a mesh wound inside-out (negative volume)
+is turned around. At most ``MAX_MESH_FACES`` faces: the design keeps rows for the nearest triangles of every tube
+sample."""
 
 from __future__ import annotations
 
@@ -209,10 +208,9 @@ def _mesh(err, base, value, name) -> Mesh:
 
 
 def load_mesh_file(path, data: bytes | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices and faces of a closed triangle mesh file (.stl, .obj, .ply) read through trimesh, from
-    its bytes (``data``, default: read within MAX_MESH_BYTES): trimesh opens no other file (an OBJ's
-    ``mtllib`` is not followed). InputError ``(path, "mesh", reason)``: unreadable, no triangles, too many
-    faces, not closed."""
+    """Vertices and faces of a closed triangle mesh file (.stl, .obj, .ply) read through trimesh, from its bytes
+    (``data``, default: read within MAX_MESH_BYTES): trimesh opens no other file (an OBJ's ``mtllib`` is not followed).
+    InputError ``(path, "mesh", reason)``: unreadable, no triangles, too many faces, not closed."""
     import trimesh
     path = Path(path)
     if data is None:

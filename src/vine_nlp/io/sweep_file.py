@@ -94,9 +94,8 @@ def load_sweep(path) -> Sweep:
 def apply_override(data: dict, dotted_key: str, value, file: str = "<sweep>") -> dict:
     """A deep copy of ``data`` with the value at ``dotted_key`` replaced ("target.scale.0" = element 0).
 
-    Missing tables are created (a sweep may set a key the base leaves at its default);
-    an index needs an existing array and must be in range. Bad paths raise
-    ``InputError(file, dotted_key, ...)``."""
+    Missing tables are created (a sweep may set a key the base leaves at its default); an index needs an existing array
+    and must be in range. Bad paths raise ``InputError(file, dotted_key, ...)``."""
     data = copy.deepcopy(data)
     _set(data, dotted_key, value, file)
     return data

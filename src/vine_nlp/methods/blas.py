@@ -55,9 +55,8 @@ def _user_chose() -> bool:
 
 
 def limited():
-    """A context in which the BLAS libraries loaded in the process (NumPy's, SciPy's) run one thread,
-    restored on exit; a no-op where the environment chose a thread count. (CasADi's copy is set where a
-    solver is built: ``one_thread``.)"""
+    """A context in which the BLAS libraries loaded in the process (NumPy's, SciPy's) run one thread, restored on exit;
+    a no-op where the environment chose a thread count. (CasADi's copy is set where a solver is built: ``one_thread``.)"""
     if _user_chose():
         return contextlib.nullcontext()
     import threadpoolctl  # loaded where a solve runs: the command line checks its input without it

@@ -92,13 +92,11 @@ class Guess:
 def geometric_guess(problem: DesignProblem, pairing: Pairing, flip_sign: float = 1.0) -> Guess:
     """Initial design from the target's own geometry.
 
-    Per segment: the turning angle of the target's tangents gives the curvature, the
-    rotation of the bending direction about the tangent between neighbouring segments
-    gives the torsion, and Table I's inverse (helix_from_curvature) turns both into
-    theta and lambda, clipped to the bounds. A bending direction that flips (an
-    inflection, where the actuator must move to the other side of the tube) is a
-    rotation of +-pi about the tangent: ``flip_sign`` picks the side, which breaks
-    the theta -> -theta symmetry of planar targets (model notes, symmetry trap)."""
+    Per segment: the turning angle of the target's tangents gives the curvature, the rotation of the bending direction
+    about the tangent between neighbouring segments gives the torsion, and Table I's inverse (helix_from_curvature)
+    turns both into theta and lambda, clipped to the bounds. A bending direction that flips (an inflection, where the
+    actuator must move to the other side of the tube) is a rotation of +-pi about the tangent: ``flip_sign`` picks the
+    side, which breaks the theta -> -theta symmetry of planar targets (model notes, symmetry trap)."""
     D = problem.diameter
     tgt = problem.target
     M, b = pairing.segments, pairing.bounds

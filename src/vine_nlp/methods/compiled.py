@@ -1,23 +1,21 @@
 """Compiled NLP functions: CasADi's C code generation, compiled once per structure and cached on disk.
 
-IPOPT calls five functions of the NLP per iteration; interpreted, they run CasADi's MX virtual machine over
-the mapped per-stage SX blocks, compiled the same expressions run as C (the answers agree to rounding).
-A structure built from an active set
-(clearance pairs, obstacle rows) seldom recurs: it runs interpreted with each block type compiled on its own
+IPOPT calls five functions of the NLP per iteration; interpreted, they run CasADi's MX virtual machine over the mapped
+per-stage SX blocks, compiled the same expressions run as C (the answers agree to rounding). A structure built from an
+active set (clearance pairs, obstacle rows) seldom recurs: it runs interpreted with each block type compiled on its own
 (``block_functions``, up to BLOCK_BUDGET instructions; a map of samples runs on its one-sample block).
 
-A library is keyed by everything that decides the generated code: the Spec without the solver's settings, the
-CasADi version, the compiler and its flags, and the source of model/ and methods/ (a changed formula never
-loads a stale library); a run never waits for the compiler: where the library is missing it solves on the
-interpreted functions and leaves the C code to a detached, niced compiler process (one per library on the
-machine: ``<library>.lock``; one at a time per cache: ``.compiler.lock``) that writes the library atomically;
-later builds, in this process too (``Upgrading``), load it. A failed compile leaves ``<library>.failed``
-(delete it to try again). Environment: ``VINE_NLP_CODEGEN`` ``auto`` (default: compile in the background where
-a C compiler is found, else interpreted, said once), ``on`` (compile before the solve; a missing or failing
-compiler is an error), ``off``; ``VINE_NLP_CACHE_DIR`` (default ``$XDG_CACHE_HOME/vine_nlp`` or
-``~/.cache/vine_nlp``); ``CC``, ``VINE_NLP_CFLAGS`` (default gcc, then cc; ``-O1``). Notes go to the
-``vine_nlp`` logger: compiling (INFO) and falling back to interpreted functions (WARNING, once per process).
-``wait(timeout)`` waits for this process's background compilers (tests, benchmarks)."""
+A library is keyed by everything that decides the generated code: the Spec without the solver's settings, the CasADi
+version, the compiler and its flags, and the source of model/ and methods/ (a changed formula never loads a stale
+library); a run never waits for the compiler: where the library is missing it solves on the interpreted functions and
+leaves the C code to a detached, niced compiler process (one per library on the machine: ``<library>.lock``; one at a
+time per cache: ``.compiler.lock``) that writes the library atomically; later builds, in this process too
+(``Upgrading``), load it. A failed compile leaves ``<library>.failed`` (delete it to try again). Environment:
+``VINE_NLP_CODEGEN`` ``auto`` (default: compile in the background where a C compiler is found, else interpreted, said
+once), ``on`` (compile before the solve; a missing or failing compiler is an error), ``off``; ``VINE_NLP_CACHE_DIR``
+(default ``$XDG_CACHE_HOME/vine_nlp`` or ``~/.cache/vine_nlp``); ``CC``, ``VINE_NLP_CFLAGS`` (default gcc, then cc;
+``-O1``). Notes go to the ``vine_nlp`` logger: compiling (INFO) and falling back to interpreted functions (WARNING, once
+per process). ``wait(timeout)`` waits for this process's background compilers (tests, benchmarks)."""
 
 from __future__ import annotations
 
@@ -169,10 +167,9 @@ def _fallback(text: str, strict: bool):
 
 def library(spec_text: str, build_functions, prefix: str = "nlp", what: str = "the NLP functions for this structure",
             later: list | None = None) -> str | None:
-    """Path of the compiled library for a solver (or one block type: ``prefix``, ``what``) where it is
-    in the cache; else None (run interpreted) after starting its compile in the background (codegen
-    ``auto``; ``on``: compiled first, its path returned). ``later`` gets the library's path where it
-    is being compiled (here or by another process).
+    """Path of the compiled library for a solver (or one block type: ``prefix``, ``what``) where it is in the cache;
+    else None (run interpreted) after starting its compile in the background (codegen ``auto``; ``on``: compiled first,
+    its path returned). ``later`` gets the library's path where it is being compiled (here or by another process).
 
     ``build_functions()`` returns the CasADi functions to compile (called only on a cache miss)."""
     import casadi as ca

@@ -205,13 +205,12 @@ def search(problem: DesignProblem, result: Result, pairing: Pairing, polish: Cal
            note: Callable[[str], None] | None = None, rounds: int = settings.SEARCH_ROUNDS) -> Result:
     """Improve the design ``result`` of a corner-like target window by window (module docstring).
 
-    ``polish(routing) -> Result``: the full NLP from a design (ends every round); ``budget``: seconds from
-    the call, no window or polish started that the time measured so far says would not fit; ``workers``:
-    threads sharing a window's starts; ``progress(done, total)`` after every window and polish;
-    ``note(line)``: one line per round (the command line prints it on stderr); ``rounds``: at most.
-    Returns the best design found (``result`` itself if nothing was better), with stats search_rounds,
-    search_windows, search_accepted, search_objectives (after each polish), search_time_s,
-    search_budget_hit, search_workers, search_window_iterations; its iterations are the first solve's and
+    ``polish(routing) -> Result``: the full NLP from a design (ends every round); ``budget``: seconds from the call, no
+    window or polish started that the time measured so far says would not fit; ``workers``: threads sharing a window's
+    starts; ``progress(done, total)`` after every window and polish; ``note(line)``: one line per round (the command
+    line prints it on stderr); ``rounds``: at most. Returns the best design found (``result`` itself if nothing was
+    better), with stats search_rounds, search_windows, search_accepted, search_objectives (after each polish),
+    search_time_s, search_budget_hit, search_workers, search_window_iterations; its iterations are the first solve's and
     the polishes', its solve time includes the search."""
     run = _Search(problem, result, pairing, budget, workers, progress, rounds)
     try:

@@ -249,12 +249,11 @@ def design_tip(problem: TipProblem, starts: int | None = None, progress=None, th
     optimal (module docstring); the lowest objective among converged starts (:func:`rank`). ``thorough``: every
     start, with IPOPT's adaptive barrier (the obstacle design's start: a wider search for a design that clears).
 
-    Unreachable tips get status "infeasible" and the nearest approach (the routing
-    that brings the tip closest, solved without the tip constraints), so tip_error
-    says how far out of reach the target is. A tip farther from the base than the
-    tube is long is not attempted (only the nearest approach is solved); when no
-    start converges, the nearest approach is solved too and, if it does reach the
-    tip after all (IPOPT's infeasibility is local), the design is re-solved from it."""
+    Unreachable tips get status "infeasible" and the nearest approach (the routing that brings the tip closest, solved
+    without the tip constraints), so tip_error says how far out of reach the target is. A tip farther from the base than
+    the tube is long is not attempted (only the nearest approach is solved); when no start converges, the nearest
+    approach is solved too and, if it does reach the tip after all (IPOPT's infeasibility is local), the design is
+    re-solved from it."""
     n = max(1, problem.options.starts if starts is None else starts)
     guesses = start_guesses(problem, n)
     stats = drive.Stats()

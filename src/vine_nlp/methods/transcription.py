@@ -1,15 +1,12 @@
 """One multiple-shooting transcription of the chain for every design formulation.
 
-The chain of M segments (paper eq. iterativeTransform, T^{j+1}_w = T^j_w T^{j+1}_j)
-is written once here; each formulation (nlp, multishape, tip, clearance, robust,
-correction, obstacles) states the terms and rows it adds and the data it feeds in.
-Where each variable lives is ``methods.structure``; the per-stage pieces and their
-derivatives are ``methods.blocks``. Small global terms and rows (smoothness, tip rows)
-keep CasADi's automatic derivatives.
+The chain of M segments (paper eq. iterativeTransform, T^{j+1}_w = T^j_w T^{j+1}_j) is written once here; each
+formulation (nlp, multishape, tip, clearance, robust, correction, obstacles) states the terms and rows it adds and the
+data it feeds in. Where each variable lives is ``methods.structure``; the per-stage pieces and their derivatives are
+``methods.blocks``. Small global terms and rows (smoothness, tip rows) keep CasADi's automatic derivatives.
 
-A solver is built once per ``Spec`` (structure, terms, Hessian, settings) and cached;
-the data (targets, weights, fractions, guess rotations, smoothing weights) are
-parameters, so starts, hops and sweep items reuse it."""
+A solver is built once per ``Spec`` (structure, terms, Hessian, settings) and cached; the data (targets, weights,
+fractions, guess rotations, smoothing weights) are parameters, so starts, hops and sweep items reuse it."""
 
 from __future__ import annotations
 
@@ -341,9 +338,8 @@ class Solver:
         return self._param_slices[name]
 
     def pack_x(self, frames, poses=None, lam_global=None, extra=None, globals_=None, **values) -> np.ndarray:
-        """x from the declared variables by name (``values``: theta (M,), lam (M,) or (M, K), length (M,), in
-        units of D), frames (K, 12, M+1), poses (P, 6), global lambdas (shared or level), extra (E, M), extra
-        globals (G,)."""
+        """x from the declared variables by name (``values``: theta (M,), lam (M,) or (M, K), length (M,), in units of
+        D), frames (K, 12, M+1), poses (P, 6), global lambdas (shared or level), extra (E, M), extra globals (G,)."""
         s, lay = self.structure, self.layout
         x = np.zeros(lay.size)
         for v in s.variables:

@@ -1,8 +1,7 @@
 """Layer 1: the geometric model of Blumenschein et al. (IEEE T-RO 2021).
 
-Pure functions; each works on numpy arrays (vectorized over segments or designs)
-and on CasADi SX/MX symbols alike; and the pure value types they take and give
-(Routing, Shape, Pairing, Sigmas), and the one table of length units. No I/O."""
+Pure functions; each works on numpy arrays (vectorized over segments or designs) and on CasADi SX/MX symbols alike; and
+the pure value types they take and give (Routing, Shape, Pairing, Sigmas), and the one table of length units. No I/O."""
 
 from vine_nlp.model.chain import chain_frames, chain_points, phi_from_theta, shape_lines, theta_from_phi  # noqa: F401
 from vine_nlp.model.helix import center_rates, cosserat, helix_forward, helix_inverse, helix_self_collides, line_offset_angles  # noqa: F401

@@ -16,8 +16,7 @@ from vine_nlp.model.segment import segment_transform
 def chain_frames(theta, lam, length, D, initial_pose=None):
     """Frames T^j_w at all segment ends, j = 0..M.
 
-    numpy: returns (M+1, 4, 4). CasADi (any symbolic argument): a list of M+1 4x4
-    expressions."""
+    numpy: returns (M+1, 4, 4). CasADi (any symbolic argument): a list of M+1 4x4 expressions."""
     if is_symbolic(theta, lam, length, D, initial_pose):
         m = max(_length(theta), _length(lam), _length(length))
         T = ca.SX.eye(4) if initial_pose is None else initial_pose

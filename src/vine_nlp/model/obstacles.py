@@ -150,14 +150,12 @@ def _segment_d2(p, a, b):
 def point_triangle_distance(p, a, b, c, eps=None):
     """Unsigned exact distance from ``p`` to the triangle (a, b, c), numpy (vectorized) or CasADi.
 
-    If the projection of p onto the triangle's plane falls inside the triangle
-    (barycentric weights >= 0), the plane distance; otherwise the nearest of the three
-    edges (segments). A triangle is convex, so the distance is C^1 wherever it is > 0;
-    both branches agree (value and gradient) on the switch (the prism's side walls),
-    and the three edge distances tie only where they share a vertex region.
-    numpy: p (..., 3) with a, b, c (..., 3) broadcast against it; CasADi: any argument
-    (the NLP's rows take the vertices as data). sqrt(d^2 + eps^2): ``eps`` default
-    EPS_REL times the longest edge (numpy). Triangles must not be degenerate (zero area)."""
+    If the projection of p onto the triangle's plane falls inside the triangle (barycentric weights >= 0), the plane
+    distance; otherwise the nearest of the three edges (segments). A triangle is convex, so the distance is C^1 wherever
+    it is > 0; both branches agree (value and gradient) on the switch (the prism's side walls), and the three edge
+    distances tie only where they share a vertex region. numpy: p (..., 3) with a, b, c (..., 3) broadcast against it;
+    CasADi: any argument (the NLP's rows take the vertices as data). sqrt(d^2 + eps^2): ``eps`` default EPS_REL times
+    the longest edge (numpy). Triangles must not be degenerate (zero area)."""
     P, A, B, C = _xyz(p), _xyz(a), _xyz(b), _xyz(c)
     ab, ac, ap = _sub(B, A), _sub(C, A), _sub(P, A)
     L = _lib(*P, *A, *B, *C)
@@ -441,10 +439,9 @@ def mesh_signed_distance(mesh: Mesh, points) -> np.ndarray:
 def nearest_triangles(mesh: Mesh, points, k: int = 4) -> tuple[np.ndarray, np.ndarray]:
     """The ``k`` triangles nearest to each point (exact unsigned distances): the active set.
 
-    Returns (faces (P, k) face indices, nearest first; distances (P, k)). Exact: candidates
-    come from a k-d tree on the centroids, and every triangle that could be nearer than the
-    k-th candidate (centroid closer than that distance plus the largest centroid-to-vertex
-    radius) is measured too."""
+    Returns (faces (P, k) face indices, nearest first; distances (P, k)). Exact: candidates come from a k-d tree on the
+    centroids, and every triangle that could be nearer than the k-th candidate (centroid closer than that distance plus
+    the largest centroid-to-vertex radius) is measured too."""
     p = np.atleast_2d(np.asarray(points, float))
     tri = mesh.triangles
     F = len(tri)

@@ -1,8 +1,7 @@
 """One formula, two backends: numpy for numbers, CasADi for symbols.
 
-Every model formula is written once against this tiny namespace. ``lib(*args)``
-returns the casadi module when any argument is a CasADi object and numpy
-otherwise, so the same function evaluates numbers (vectorized over arrays) and
+Every model formula is written once against this tiny namespace. ``lib(*args)`` returns the casadi module when any
+argument is a CasADi object and numpy otherwise, so the same function evaluates numbers (vectorized over arrays) and
 builds SX/MX expressions for the optimizer."""
 
 from __future__ import annotations
@@ -58,9 +57,8 @@ def lib(*args):
 def safe_series(x, exact, coeffs, threshold):
     """Evaluate f(x) = exact(x) away from 0 and its Taylor series sum(c_k x^k) near 0.
 
-    Both branches are finite everywhere: the exact formula is evaluated at
-    max(x, threshold), so neither values nor derivatives of the branch not taken
-    can be NaN (CasADi's if_else differentiates both)."""
+    Both branches are finite everywhere: the exact formula is evaluated at max(x, threshold), so neither values nor
+    derivatives of the branch not taken can be NaN (CasADi's if_else differentiates both)."""
     L = lib(x)
     series = 0.0 * x
     power = 1.0 + 0.0 * x

@@ -1,12 +1,10 @@
 """Pairing of target points with model points (shared by every design method and the analyses).
 
-Pairing (the paper's PathError): the N target points are cut into segments of n
-intervals (the last segment takes the remainder), M = ceil((N - 1) / n). Target
-point k = j n + i sits in segment j; it pairs with the model point at the
-fraction of segment j given by the target's own chord length inside that
-segment, so unevenly sampled targets (the trefoil is equally spaced in t, not in
-arc length) pair with matching model points. The tip target pairs with the end
-of the last segment."""
+Pairing (the paper's PathError): the N target points are cut into segments of n intervals (the last segment takes the
+remainder), M = ceil((N - 1) / n). Target point k = j n + i sits in segment j; it pairs with the model point at the
+fraction of segment j given by the target's own chord length inside that segment, so unevenly sampled targets (the
+trefoil is equally spaced in t, not in arc length) pair with matching model points. The tip target pairs with the end of
+the last segment."""
 
 from __future__ import annotations
 

@@ -1,11 +1,9 @@
 """One helical segment's rigid motion T^{j+1}_j (paper eqs. transformationCC-positionCC).
 
-The frame is the Frenet frame of the center helix: x = tangent T, y = normal N
-(toward the actuator), z = binormal B. A segment of unactuated length dl moves
-the frame by exp(sigma xi), sigma = dl lambda_c, twist xi = (v = (1, 0, 0),
-omega = (tau_c, 0, kappa_c)) (Frenet-Serret). Written with the SE(3)
-exponential so the straight tube needs no special case; the series branches
-keep values and derivatives finite at phi = 0 (model notes)."""
+The frame is the Frenet frame of the center helix: x = tangent T, y = normal N (toward the actuator), z = binormal B. A
+segment of unactuated length dl moves the frame by exp(sigma xi), sigma = dl lambda_c, twist xi = (v = (1, 0, 0), omega
+= (tau_c, 0, kappa_c)) (Frenet-Serret). Written with the SE(3) exponential so the straight tube needs no special case;
+the series branches keep values and derivatives finite at phi = 0 (model notes)."""
 
 from __future__ import annotations
 
@@ -57,10 +55,8 @@ def segment_parts(theta, lam, length, D):
 def twist_parts(kappa_c, tau_c, sigma):
     """exp(sigma xi) for the Frenet twist xi = (v = (1,0,0), omega = (tau_c, 0, kappa_c)).
 
-    With rotation vector sigma * (tau_c, 0, kappa_c) =: (c, 0, a), x = a^2 + c^2 and
-    A, B, C the exp coefficients:
-    R = [[1 - B a^2, -A a, B a c], [A a, 1 - B x, -A c], [B a c, A c, 1 - B c^2]],
-    p = sigma (1 - C a^2, B a, C a c).
+    With rotation vector sigma * (tau_c, 0, kappa_c) =: (c, 0, a), x = a^2 + c^2 and A, B, C the exp coefficients: R =
+    [[1 - B a^2, -A a, B a c], [A a, 1 - B x, -A c], [B a c, A c, 1 - B c^2]], p = sigma (1 - C a^2, B a, C a c).
     Several points of one segment share kappa_c, tau_c: only sigma changes."""
     a = sigma * kappa_c
     c = sigma * tau_c

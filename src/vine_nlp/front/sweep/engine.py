@@ -117,11 +117,10 @@ def run_sweep(sweep, out_dir, workers: int | None = None, scheduler: str | None 
               callback: Callable[[str, list], None] | None = None) -> SweepReport:
     """Solve every item of ``sweep`` (from ``load_sweep``) into ``out_dir`` (see :mod:`vine_nlp.front.sweep`).
 
-    ``workers``: local processes (default ``os.cpu_count()``; 0 or 1: this one), ignored with
-    ``scheduler`` (a dask scheduler's address); ``progress``: a tqdm bar on a terminal; ``force``:
-    redo finished items; ``callback(item, rows)`` after each item this run finished. Raises
-    InputError (bad arguments or output directory, a locked one, no scheduler, obstacles),
-    OutputError (a file could not be written: the sweep stopped, the same command resumes) and
+    ``workers``: local processes (default ``os.cpu_count()``; 0 or 1: this one), ignored with ``scheduler`` (a dask
+    scheduler's address); ``progress``: a tqdm bar on a terminal; ``force``: redo finished items; ``callback(item,
+    rows)`` after each item this run finished. Raises InputError (bad arguments or output directory, a locked one, no
+    scheduler, obstacles), OutputError (a file could not be written: the sweep stopped, the same command resumes) and
     KeyboardInterrupt (Ctrl-C, SIGTERM; its ``sweep_report`` is the partial report)."""
     t_start = time.perf_counter()
     out = Path(out_dir)

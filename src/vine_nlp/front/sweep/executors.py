@@ -1,13 +1,12 @@
 """Where sweep items run: the worker task and three executors with one small interface.
 
-The worker task :func:`solve_chunk` solves a few items (:func:`solve_item`, the seam with the
-design methods), writes each item's archive (:func:`write_item`) and sends back a small record
-per item; where the sweep directory is not the one it sees (a dask worker on another machine:
-the lock file's token differs), it sends the Results and the parent writes them. Executors:
-:class:`InlinePool` (this process), :class:`LocalPool` (long-lived worker processes: each
-builds a solver once per problem structure; forked when this process is safe to fork, else
-from a forkserver) and :class:`DaskPool`. Items travel in chunks of up to MAX_CHUNK (a task
-costs more than a short item), single items at the end so that no worker waits for another."""
+The worker task :func:`solve_chunk` solves a few items (:func:`solve_item`, the seam with the design methods), writes
+each item's archive (:func:`write_item`) and sends back a small record per item; where the sweep directory is not the
+one it sees (a dask worker on another machine: the lock file's token differs), it sends the Results and the parent
+writes them. Executors: :class:`InlinePool` (this process), :class:`LocalPool` (long-lived worker processes: each builds
+a solver once per problem structure; forked when this process is safe to fork, else from a forkserver) and
+:class:`DaskPool`. Items travel in chunks of up to MAX_CHUNK (a task costs more than a short item), single items at the
+end so that no worker waits for another."""
 
 from __future__ import annotations
 
@@ -36,12 +35,11 @@ _ONE_SOLVE = threading.Lock()
 def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]:
     """Solve one sweep item with each of ``methods`` (in a worker process): ``(runs, timings)``.
 
-    Each method is one request to the pipeline, as `vine-nlp design --method M` makes it (obstacles,
-    calibration and the judgement of every hard requirement included). ``runs``: run name -> Result of
-    each method that finished, with the runs it brings along (an obstacle design's ``nlp_no_obstacles``);
-    ``timings``: ``total_s``, ``cpu_s`` and ``errors`` (method -> "Type: message": a method that raises
-    fails alone). KeyboardInterrupt propagates unless ``remote`` (a worker ignores Ctrl-C: there it
-    comes from inside IPOPT and fails that run)."""
+    Each method is one request to the pipeline, as `vine-nlp design --method M` makes it (obstacles, calibration and the
+    judgement of every hard requirement included). ``runs``: run name -> Result of each method that finished, with the
+    runs it brings along (an obstacle design's ``nlp_no_obstacles``); ``timings``: ``total_s``, ``cpu_s`` and ``errors``
+    (method -> "Type: message": a method that raises fails alone). KeyboardInterrupt propagates unless ``remote`` (a
+    worker ignores Ctrl-C: there it comes from inside IPOPT and fails that run)."""
     runs, errors = {}, {}
     t_item, c_item = time.perf_counter(), time.process_time()
     for method in methods:
@@ -80,9 +78,8 @@ def write_item(out_dir, item: str, problem_file, runs: dict) -> dict:
 
 
 def archive_outcome(out_dir, item: str, problem_file, outcome: dict) -> dict:
-    """:func:`write_item` for an item's ``outcome`` (its ``runs`` replaced by their ``cells``). A failed
-    write stops the sweep (``stop``: the OutputError's arguments, which pickle); a value HDF5
-    refuses fails this item's runs alone."""
+    """:func:`write_item` for an item's ``outcome`` (its ``runs`` replaced by their ``cells``). A failed write stops the
+    sweep (``stop``: the OutputError's arguments, which pickle); a value HDF5 refuses fails this item's runs alone."""
     runs, outcome["cells"] = outcome.pop("runs"), {}
     try:
         outcome["cells"] = write_item(out_dir, item, problem_file, runs)

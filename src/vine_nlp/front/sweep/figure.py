@@ -20,10 +20,9 @@ def preload_matplotlib() -> None:
 def plot_summary(rows, path, title: str | None = None) -> Path:
     """Summary figure of a sweep: RMSE and solve-time distributions per method, NLP against greedy.
 
-    ``rows`` as in summary.csv (dicts with item, method, status, rmse, solve_time_s,
-    units). RMSE is shown in mm when the units are a length unit (cm, mm, m, in).
-    ``title`` goes before the item count at the top.
-    The file is written atomically; its format follows the suffix."""
+    ``rows`` as in summary.csv (dicts with item, method, status, rmse, solve_time_s, units). RMSE is shown in mm when
+    the units are a length unit (cm, mm, m, in). ``title`` goes before the item count at the top. The file is written
+    atomically; its format follows the suffix."""
     import numpy as np
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure

@@ -1,13 +1,10 @@
 """Rigid alignment of measured points to a model line: pose starts, ICP and a Gauss-Newton polish.
 
-Transforms are 4x4 homogeneous matrices; ``T`` maps measured points into the model
-frame (``T @ measured ~ model``). The model line is a :class:`Polyline` (distances
-are to the polyline, or to the points of a cloud). :func:`fit_pose` is the global
-search: principal-axis alignments times the 24 rotations of the octahedral group,
-plus seeded random rotations (:func:`pose_starts`), each refined by ICP (closest
-point, Kabsch SVD update) on a subsample, the best few polished by a damped
-Gauss-Newton on the point-to-line distances. :func:`icp` aligns general paths
-(paper Figs. 7 and 8)."""
+Transforms are 4x4 homogeneous matrices; ``T`` maps measured points into the model frame (``T @ measured ~ model``). The
+model line is a :class:`Polyline` (distances are to the polyline, or to the points of a cloud). :func:`fit_pose` is the
+global search: principal-axis alignments times the 24 rotations of the octahedral group, plus seeded random rotations
+(:func:`pose_starts`), each refined by ICP (closest point, Kabsch SVD update) on a subsample, the best few polished by a
+damped Gauss-Newton on the point-to-line distances. :func:`icp` aligns general paths (paper Figs. 7 and 8)."""
 
 from __future__ import annotations
 
@@ -78,10 +75,9 @@ def _octahedral() -> np.ndarray:
 def pose_starts(source, target, starts: int = 24, seed: int = 0) -> list[np.ndarray]:
     """Deterministic starting transforms mapping ``source`` onto ``target``.
 
-    The principal axes of both point sets are aligned in all 24 ways of the
-    octahedral group (every axis permutation with every sign flip that keeps a
-    rotation; the 4 pure sign flips first), centroid onto centroid. Beyond 24,
-    seeded uniformly random rotations follow."""
+    The principal axes of both point sets are aligned in all 24 ways of the octahedral group (every axis permutation
+    with every sign flip that keeps a rotation; the 4 pure sign flips first), centroid onto centroid. Beyond 24, seeded
+    uniformly random rotations follow."""
     cx, Vx = principal_axes(np.asarray(source, float))
     cy, Vy = principal_axes(np.asarray(target, float))
     Rs = [Vy @ g @ Vx.T for g in _octahedral()][: max(starts, 1)]
@@ -122,10 +118,9 @@ class Polyline:
     def project(self, x):
         """Closest points of (K, 3) ``x``: (closest, distance, s, tangent, free_end).
 
-        ``s`` is the arc length of the closest point along the line, ``tangent`` the
-        unit direction of its piece and ``free_end`` marks points whose closest point
-        is an end of the line (or a vertex, for ``path=False``): their residual is
-        not perpendicular to the line."""
+        ``s`` is the arc length of the closest point along the line, ``tangent`` the unit direction of its piece and
+        ``free_end`` marks points whose closest point is an end of the line (or a vertex, for ``path=False``): their
+        residual is not perpendicular to the line."""
         x = np.asarray(x, float)
         K = x.shape[0]
         if not self.path:
@@ -191,9 +186,8 @@ def clean_points(points, what="measured"):
 def r_squared(measured, residuals, groups=None) -> float:
     """Coefficient of determination of measured coordinates, as the paper uses it.
 
-    1 - SS_res / SS_tot with SS_res the sum of squared distances of the measured
-    points to the model and SS_tot the sum of squared distances to the centroid of
-    the measured points (of each group, e.g. each measured line, separately)."""
+    1 - SS_res / SS_tot with SS_res the sum of squared distances of the measured points to the model and SS_tot the sum
+    of squared distances to the centroid of the measured points (of each group, e.g. each measured line, separately)."""
     X = np.asarray(measured, float)
     res = np.asarray(residuals, float)
     ss_res = float(np.sum(res**2))
@@ -236,10 +230,9 @@ def _skew(q):
 def polish_pose(sets, T, max_iter=50, tol=1e-10):
     """Damped Gauss-Newton (Levenberg-Marquardt) on the point-to-line distances.
 
-    Linearizes each distance about its closest point with the projector
-    I - t t^T onto the line's normal plane (the line may slide along itself), so
-    unlike point-to-point ICP it converges quickly along the near-symmetric
-    sliding directions of a helix. Returns (T, mean squared distance, iterations)."""
+    Linearizes each distance about its closest point with the projector I - t t^T onto the line's normal plane (the line
+    may slide along itself), so unlike point-to-point ICP it converges quickly along the near-symmetric sliding
+    directions of a helix. Returns (T, mean squared distance, iterations)."""
     X = stack_points(sets)
     K = X.shape[0]
     scale = max(float(np.ptp(X, axis=0).max()), 1e-12)
@@ -343,11 +336,10 @@ def icp(
 ):
     """Rigid alignment of ``source`` points onto ``target`` (paper Figs. 7 and 8).
 
-    ``target`` is a modeled path (ordered samples, distances to its polyline) or,
-    with ``path=False``, a point cloud (distances to its points). ``initial``: a
-    4x4 starting transform; None runs the global start set of :func:`pose_starts`
-    (``starts`` of them). Point-to-closest-point ICP with Kabsch updates, then a
-    point-to-line Gauss-Newton polish.
+    ``target`` is a modeled path (ordered samples, distances to its polyline) or, with ``path=False``, a point cloud
+    (distances to its points). ``initial``: a 4x4 starting transform; None runs the global start set of
+    :func:`pose_starts` (``starts`` of them). Point-to-closest-point ICP with Kabsch updates, then a point-to-line
+    Gauss-Newton polish.
 
     Returns (T, rmse, max_error): T maps source onto target."""
     src = clean_points(source, "source")

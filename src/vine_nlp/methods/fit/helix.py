@@ -1,10 +1,9 @@
 """Free helix fits (paper Sec. V-A1, Figs. 5(b) and 6): a helix of any axis, radius and pitch through measured points.
 
-:func:`best_fit_helix`, :func:`best_fit_helix_pair`, :func:`parameter_errors`. By
-default they minimize the orthogonal distance to the helix (as the model fit does,
-so R^2 values compare); the paper's eq. (error_func), the in-plane distance at the
-point's height, is available as ``residual="height"`` (it multiplies axial noise by
-R/b on flat helices)."""
+:func:`best_fit_helix`, :func:`best_fit_helix_pair`, :func:`parameter_errors`. By default they minimize the orthogonal
+distance to the helix (as the model fit does, so R^2 values compare); the paper's eq. (error_func), the in-plane
+distance at the point's height, is available as ``residual="height"`` (it multiplies axial noise by R/b on flat
+helices)."""
 
 from __future__ import annotations
 
@@ -50,17 +49,14 @@ def _circle_fit(xy):
 def _helix_residuals(p, X, F0, line_idx, nradii, residual="orthogonal"):
     """Residuals of points X against helices sharing axis, pitch and phase.
 
-    p = (alpha, beta, cx, cy, w, phi0, radius_0, ..., radius_{n-1}): the axis frame is
-    F0 tilted by the rotation vector (alpha, beta, 0); in its coordinates the helix
-    of radius r is h(t) = (cx + r cos(w t + phi0), cy + r sin(w t + phi0), t), w = 1/b.
-    Radii are signed (a negative radius is the opposite side of the axis).
+    p = (alpha, beta, cx, cy, w, phi0, radius_0, ..., radius_{n-1}): the axis frame is F0 tilted by the rotation vector
+    (alpha, beta, 0); in its coordinates the helix of radius r is h(t) = (cx + r cos(w t + phi0), cy + r sin(w t +
+    phi0), t), w = 1/b. Radii are signed (a negative radius is the opposite side of the axis).
 
-    residual="height": the paper's eq. (error_func), the in-plane difference to the
-    helix point at the same height t = q_a (2 per point). It multiplies axial noise
-    by r/b, which is large for flat helices. residual="orthogonal" (default): the
-    difference to the closest point of the helix (3 per point), found per point by
-    safeguarded Newton steps in t from the better of the same-height and the
-    same-angle point."""
+    residual="height": the paper's eq. (error_func), the in-plane difference to the helix point at the same height t =
+    q_a (2 per point). It multiplies axial noise by r/b, which is large for flat helices. residual="orthogonal"
+    (default): the difference to the closest point of the helix (3 per point), found per point by safeguarded Newton
+    steps in t from the better of the same-height and the same-angle point."""
     alpha, beta, cx, cy, w, phi0 = p[:6]
     radii = np.asarray(p[6 : 6 + nradii])
     q = X @ _tilted(F0, alpha, beta)
@@ -111,10 +107,9 @@ def _distances(res, K):
 def _curve_order(X):
     """An order of unordered points along the curve they sample.
 
-    The longest path of the Euclidean minimum spanning tree; every point takes the
-    position of its nearest point on that path. Needs samples closer along the curve
-    than the curve's turns are to each other (true for tracker traces and for markers
-    along a helix with a pitch larger than their spacing)."""
+    The longest path of the Euclidean minimum spanning tree; every point takes the position of its nearest point on that
+    path. Needs samples closer along the curve than the curve's turns are to each other (true for tracker traces and for
+    markers along a helix with a pitch larger than their spacing)."""
     from scipy.sparse.csgraph import minimum_spanning_tree, shortest_path
     K = X.shape[0]
     if K < 3:
@@ -186,10 +181,9 @@ def _rate_mismatch(p, X, F0, radius, order):
     """How far (in half turns over the points' height span) the fitted angular rate w is
     from the rate of the points' own phase, unwrapped along the curve (``order``).
 
-    A dense coil of the right radius ("slinky": |w| far too large) passes close to every
-    point on the cylinder and can beat the true helix in orthogonal distance when the
-    noise is comparable to the pitch; its phase does not follow the points, which this
-    detects (> 1 means aliased)."""
+    A dense coil of the right radius ("slinky": |w| far too large) passes close to every point on the cylinder and can
+    beat the true helix in orthogonal distance when the noise is comparable to the pitch; its phase does not follow the
+    points, which this detects (> 1 means aliased)."""
     alpha, beta, cx, cy, w, _ = p[:6]
     q = X @ _tilted(F0, alpha, beta)
     psi = np.arctan2(q[:, 1] - cy, q[:, 0] - cx) + (math.pi if radius < 0 else 0.0)
@@ -200,9 +194,8 @@ def _rate_mismatch(p, X, F0, radius, order):
 
 
 def _fit_helices(Xc, idx, nradii, inits, residual, check_line, keep=2, max_points=200):
-    """Refine helix candidates with least squares (first on at most ``max_points``
-    points, then the best ``keep`` on all). Aliased results (see
-    :func:`_rate_mismatch`, on the points of line ``check_line``) lose to any other."""
+    """Refine helix candidates with least squares (first on at most ``max_points`` points, then the best ``keep`` on
+    all). Aliased results (see :func:`_rate_mismatch`, on the points of line ``check_line``) lose to any other."""
     K = Xc.shape[0]
     sub = np.arange(K) if K <= max_points else np.sort(np.random.default_rng(0).choice(K, max_points, replace=False))
     orders = {}
@@ -241,18 +234,15 @@ def _helix_dict(p, F0, mean, nradii):
 def best_fit_helix(points, top: int = 6, residual: str = "orthogonal") -> dict:
     """Best circular helix through points in any order (axis, radius, pitch all free).
 
-    Global search over axis directions (the principal axes and a Fibonacci set on
-    the hemisphere; for each, a circle fit of the projected points and the angular
-    rate of the phase unwrapped along the height), then
-    ``scipy.optimize.least_squares`` from the ``top`` best candidates.
-    ``residual``: "orthogonal" (distance to the closest helix point, default, the
-    same distance the model fit uses) or "height" (the paper's eq. error_func:
+    Global search over axis directions (the principal axes and a Fibonacci set on the hemisphere; for each, a circle fit
+    of the projected points and the angular rate of the phase unwrapped along the height), then
+    ``scipy.optimize.least_squares`` from the ``top`` best candidates. ``residual``: "orthogonal" (distance to the
+    closest helix point, default, the same distance the model fit uses) or "height" (the paper's eq. error_func:
     in-plane distance at the same height; it inflates axial noise on flat helices).
 
-    Returns dict(R, b, axis_point, axis_dir, phase, rmse, r2): ``b`` is signed
-    (2 pi |b| per turn; b > 0 a right-handed helix, like the model's b for theta > 0),
-    ``axis_point`` the axis point closest to the points' centroid; ``rmse`` and
-    ``r2`` (:func:`r_squared`) of the chosen residual."""
+    Returns dict(R, b, axis_point, axis_dir, phase, rmse, r2): ``b`` is signed (2 pi |b| per turn; b > 0 a right-handed
+    helix, like the model's b for theta > 0), ``axis_point`` the axis point closest to the points' centroid; ``rmse``
+    and ``r2`` (:func:`r_squared`) of the chosen residual."""
     X = clean_points(points, "points")
     mean, idx = X.mean(axis=0), np.zeros(X.shape[0], int)
     Xc = X - mean
@@ -271,11 +261,10 @@ def best_fit_helix(points, top: int = 6, residual: str = "orthogonal") -> dict:
 def best_fit_helix_pair(inner_points, outer_points, top: int = 3, residual: str = "orthogonal") -> dict:
     """Best pair of helices for the inner (actuator) and outer lines (paper Sec. V-A1).
 
-    The two helices share axis, pitch b and phase (they are lines of one tube), with
-    their own signed radii R_i, R_o (R_i < 0: the inner line passes the axis, as in
-    Table I when lambda > cos 2 theta). Table I's inverse (``helix_inverse``) then
-    gives the actuator parameters the fitted helix implies. Candidates come from
-    single-helix searches on each line; ``residual`` as in :func:`best_fit_helix`.
+    The two helices share axis, pitch b and phase (they are lines of one tube), with their own signed radii R_i, R_o
+    (R_i < 0: the inner line passes the axis, as in Table I when lambda > cos 2 theta). Table I's inverse
+    (``helix_inverse``) then gives the actuator parameters the fitted helix implies. Candidates come from single-helix
+    searches on each line; ``residual`` as in :func:`best_fit_helix`.
 
     Returns dict(R_i, R_o, b, theta, lam, D, axis_point, axis_dir, phase, rmse,
     rmse_inner, rmse_outer, r2); r2 with each line about its own centroid."""

@@ -44,13 +44,12 @@ METHOD = "nlp_obstacles"
 
 
 class Rounds:
-    """The obstacle rows' active set, a rule of ``drive.refine``: solve with the plan's rows (``solver(round,
-    last)``: the NLP for the plan's current slots; ``data``: the rows' data for ``routing``, the first round's),
-    judge by the report, refresh the plan (plan.next_round). ``params``: the formulation's data beside the
-    rows'; ``bounds``: (lbx, ubx); ``result(solver, x, status, st)``: a round's Result; ``stop_at_cap``: a
-    solve that reaches its iteration limit ends the loop (a tip start left for the next); ``warm``: a re-solve
-    with the rows of the round before starts from its answer's multipliers (``solver(round, last, warm)``;
-    module docstring)."""
+    """The obstacle rows' active set, a rule of ``drive.refine``: solve with the plan's rows (``solver(round, last)``:
+    the NLP for the plan's current slots; ``data``: the rows' data for ``routing``, the first round's), judge by the
+    report, refresh the plan (plan.next_round). ``params``: the formulation's data beside the rows'; ``bounds``: (lbx,
+    ubx); ``result(solver, x, status, st)``: a round's Result; ``stop_at_cap``: a solve that reaches its iteration limit
+    ends the loop (a tip start left for the next); ``warm``: a re-solve with the rows of the round before starts from
+    its answer's multipliers (``solver(round, last, warm)``; module docstring)."""
 
     def __init__(self, plan: Plan, routing, data: dict, solver, params: dict, bounds: tuple, result, stop_at_cap: bool = False,
                  warm: bool = False):
@@ -101,15 +100,14 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
                           k: int = MESH_K, spacing: float = settings.SAMPLE_SPACING, **kw) -> Result:
     """Inverse design that keeps the tube ``problem.obstacle_margin`` clear of ``problem.obstacles``.
 
-    ``start``: the obstacle-free design (default design_nlp(problem, **kw)), returned (with the obstacle
-    metrics) when it already clears; ``rounds``: solves of the active-set loop at most (settings.MESH_ROUNDS
-    at least with a mesh); ``ts``: growth "after", the shapes t with rows (default the report's grid);
-    ``k``: nearest triangles per mesh sample; ``spacing``: target sample spacing, units of D.
-    Returns the best round (method "nlp_obstacles"; ``drive.rank``) with metrics min_obstacle_gap (and
-    min_obstacle_gap_after) and stats obstacle_rounds, obstacle_clear, obstacle_samples_per_segment,
-    obstacle_margin, growth, start_rmse, start_min_obstacle_gap, obstacle_raise (the rows' extra
-    requirement, units), obstacle_slots (primitive slots per segment); iterations, ipopt_iterations and
-    ipopt_time_s summed over the solves with rows (not the obstacle-free or pushed starts)."""
+    ``start``: the obstacle-free design (default design_nlp(problem, **kw)), returned (with the obstacle metrics) when
+    it already clears; ``rounds``: solves of the active-set loop at most (settings.MESH_ROUNDS at least with a mesh);
+    ``ts``: growth "after", the shapes t with rows (default the report's grid); ``k``: nearest triangles per mesh
+    sample; ``spacing``: target sample spacing, units of D. Returns the best round (method "nlp_obstacles";
+    ``drive.rank``) with metrics min_obstacle_gap (and min_obstacle_gap_after) and stats obstacle_rounds,
+    obstacle_clear, obstacle_samples_per_segment, obstacle_margin, growth, start_rmse, start_min_obstacle_gap,
+    obstacle_raise (the rows' extra requirement, units), obstacle_slots (primitive slots per segment); iterations,
+    ipopt_iterations and ipopt_time_s summed over the solves with rows (not the obstacle-free or pushed starts)."""
     stats = drive.Stats()
     start = start or design_nlp(problem, **kw)
     D = problem.diameter

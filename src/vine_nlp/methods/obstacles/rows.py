@@ -6,9 +6,8 @@ drops at most ``dip(h_j)`` (analysis.obstacles, "Sampling rule"), so the rows as
 
     distance(point_i) >= D/2 + margin + dip(h_j)          (units of D in the NLP)
 
-and the continuous tube then clears by the margin. Everything that changes between rounds (the
-requirement, the active sets, the obstacles' numbers, t) is data: a solver serves every round with
-the same slot counts.
+and the continuous tube then clears by the margin. Everything that changes between rounds (the requirement, the active
+sets, the obstacles' numbers, t) is data: a solver serves every round with the same slot counts.
 
 Rows are per-stage SX blocks (methods.blocks) over (shape, segment) columns; v = (X_j, theta_j,
 lam_j, dl_j), 15 local variables:
@@ -128,13 +127,12 @@ def after_block() -> BlockType:
 
 @dataclass(frozen=True)
 class ObstacleRows:
-    """Obstacle rows on the chain (module docstring). ``slots``: primitive slots of every (shape, segment)
-    column (0: no rows), shape-major (the final shape, then the levels); ``meshes``: per mesh obstacle, the
-    columns with its rows (their triangles are data); ``S`` samples per segment; ``levels``: intermediate
-    shapes of actuation after growth, each an extra level of 12 stage variables (Structure.extra = 12
-    levels), their t the parameter ``after_t``; ``k`` triangles per mesh sample. Parameters:
-    ``obstacle_prims_<P>`` (one column per (shape, segment) column with P slots) and ``obstacle_mesh_<q>``
-    (one per column of mesh q), the data of the blocks."""
+    """Obstacle rows on the chain (module docstring). ``slots``: primitive slots of every (shape, segment) column (0: no
+    rows), shape-major (the final shape, then the levels); ``meshes``: per mesh obstacle, the columns with its rows
+    (their triangles are data); ``S`` samples per segment; ``levels``: intermediate shapes of actuation after growth,
+    each an extra level of 12 stage variables (Structure.extra = 12 levels), their t the parameter ``after_t``; ``k``
+    triangles per mesh sample. Parameters: ``obstacle_prims_<P>`` (one column per (shape, segment) column with P slots)
+    and ``obstacle_mesh_<q>`` (one per column of mesh q), the data of the blocks."""
 
     slots: tuple  # primitive slots of every (shape, segment) column, shape-major
     meshes: tuple  # per mesh obstacle, the columns with its rows (the others are far from it)

@@ -1,11 +1,10 @@
 """Tip problems among obstacles: the tip formulation (methods.tip, fixed base) plus the obstacle rows.
 
-Starts, tried in order until one is optimal and clear (``drive.multistart``; ``thorough``: every one): the
-obstacle-free tip design, its chain pushed out of the obstacles (``push.pushed_chain``: a chain through a
-sphere's center gives its rows no direction out), then the tip design's own guesses. Each start runs its
-own active-set loop (``design.Rounds`` on ``drive.refine``); a start whose solve reaches
-settings.TIP_MAX_ITER iterations is left there for the next (such a solve could crawl on to IPOPT's limit
-where another start converged quickly)."""
+Starts, tried in order until one is optimal and clear (``drive.multistart``; ``thorough``: every one): the obstacle-free
+tip design, its chain pushed out of the obstacles (``push.pushed_chain``: a chain through a sphere's center gives its
+rows no direction out), then the tip design's own guesses. Each start runs its own active-set loop (``design.Rounds`` on
+``drive.refine``); a start whose solve reaches settings.TIP_MAX_ITER iterations is left there for the next (such a solve
+could crawl on to IPOPT's limit where another start converged quickly)."""
 
 from __future__ import annotations
 
