@@ -86,8 +86,3 @@ def phi_from_theta(theta, length, D):
     steps = 2.0 / D * np.tan(np.asarray(theta, float)) * np.asarray(length, float)
     return np.concatenate([[0.0], np.cumsum(steps)])
 
-
-def theta_from_phi(phi, s, D):
-    """theta_j = arctan((D/2) (phi(s_{j+1}) - phi(s_j)) / (s_{j+1} - s_j)) (paper Sec. V-B)."""
-    phi, s = np.asarray(phi, float), np.asarray(s, float)
-    return np.arctan(0.5 * D * np.diff(phi) / np.diff(s))

@@ -96,19 +96,6 @@ def helix_from_curvature(kappa_c, tau_c, D):
     return theta, lam
 
 
-def cosserat(theta, lam, D):
-    """Cosserat-rod rates per unit of unactuated center length (Sec. II-C).
-
-    Returns (u_x, u_y, u_z, v_z). u_x, u_y are given in the actuator-attached frame (d1 toward the actuator, d3 along
-    the tangent), where the bending is about d2 only; sqrt(u_x^2 + u_y^2) is the paper's bending magnitude. u_z
-    subtracts the reference torsion 2 tan(theta)/D of the unactuated routing (paper: 2 sin 2theta / (D (1 + cos
-    2theta)))."""
-    L = lib(theta, lam, D)
-    kappa_c, tau_c, lambda_c = center_rates(theta, lam, D)
-    u_x = 0 * kappa_c
-    u_y = kappa_c * lambda_c
-    u_z = tau_c * lambda_c - 2 * L.tan(theta) / D
-    return u_x, u_y, u_z, lambda_c
 
 
 def line_offset_angles(theta, lam):

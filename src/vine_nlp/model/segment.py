@@ -13,7 +13,7 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from vine_nlp.model.helix import center_rates, helix_forward, line_offset_angles
+from vine_nlp.model.helix import center_rates, helix_forward
 from vine_nlp.model.ops import is_symbolic, lib, safe_series
 
 # Taylor coefficients in x = phi^2 of sin(phi)/phi, (1 - cos phi)/phi^2, (phi - sin phi)/phi^3.
@@ -99,28 +99,6 @@ def segment_point(theta, lam, length, D, u):
     return p
 
 
-def line_transform(theta, lam, D, line):
-    """T^c_i (line="inner") or T^c_o (line="outer"): center frame to the inner/outer line frame.
-
-    Paper eqs. transformationIC/OC: a shift of +-D/2 along the shared normal and a
-    rotation about it by the tangent offset angle (see helix.line_offset_angles)."""
-    L = lib(theta, lam, D)
-    a_ci, a_co = line_offset_angles(theta, lam)
-    if line == "inner":
-        ca_, sa = L.cos(a_ci), L.sin(a_ci)
-        R = [[ca_, 0 * ca_, -sa], [0 * ca_, 1 + 0 * ca_, 0 * ca_], [sa, 0 * ca_, ca_]]
-        p = [0 * ca_, D / 2 + 0 * ca_, 0 * ca_]
-    elif line == "outer":
-        ca_, sa = L.cos(a_co), L.sin(a_co)
-        R = [[ca_, 0 * ca_, sa], [0 * ca_, 1 + 0 * ca_, 0 * ca_], [-sa, 0 * ca_, ca_]]
-        p = [0 * ca_, -D / 2 + 0 * ca_, 0 * ca_]
-    elif line == "center":
-        one = 1 + 0 * L.cos(theta)
-        R = [[one, 0 * one, 0 * one], [0 * one, one, 0 * one], [0 * one, 0 * one, one]]
-        p = [0 * one, 0 * one, 0 * one]
-    else:
-        raise ValueError(f"line must be center, inner or outer, not {line!r}")
-    return assemble(R, p)
 
 
 def paper_segment_transform(theta, lam, length, D):
