@@ -99,13 +99,8 @@ def _check_keys(err, t) -> str:
         if key not in allowed:
             close = difflib.get_close_matches(str(key), list(allowed), n=1)
             other = [s for s in SHAPES if key in _KEYS[s]]
-            if close:
-                reason = f"unknown key; did you mean '{close[0]}'?"
-            elif other:
-                reason = f"not used by a {shape} (a key of {' and '.join(other)})"
-            else:
-                reason = "unknown key"
-            raise err(key, reason)
+            raise err(key, f"unknown key; did you mean '{close[0]}'?" if close else
+                      f"not used by a {shape} (a key of {' and '.join(other)})" if other else "unknown key")
     for key in _REQUIRED[shape]:
         if key not in t:
             raise err(key, "missing (required)")
@@ -127,21 +122,17 @@ def _plane(err, t, name):
 
 
 def _box(err, t, name):
-    center = _vector(err, "center", t["center"])
-    size = _vector(err, "size", t["size"])
+    center, size = _vector(err, "center", t["center"]), _vector(err, "size", t["size"])
     for i, s in enumerate(size):
         if not s > 0:
             raise err("size", f"must be > 0 (entry {i + 1})")
     if "rotation" in t and "rotation_deg" in t:
         raise err("rotation_deg", "give rotation or rotation_deg, not both")
+    R = rotation_from_degrees(_vector(err, "rotation_deg", t["rotation_deg"])) if "rotation_deg" in t else np.eye(3)
     if "rotation" in t:
         R = _matrix(err, "rotation", t["rotation"])
         if not is_rotation(R):
             raise err("rotation", "must be a proper rotation matrix (orthonormal rows, determinant +1, within 0.001)")
-    elif "rotation_deg" in t:
-        R = rotation_from_degrees(_vector(err, "rotation_deg", t["rotation_deg"]))
-    else:
-        R = np.eye(3)
     return Box(center, size, R, name)
 
 
@@ -269,18 +260,12 @@ def write_obstacles(h5group, obstacles) -> None:
         if isinstance(ob, Mesh) and ob.source:
             g.attrs["source"] = ob.source
         for key, value in ob.parameters().items():
-            if key == "faces":
-                g.create_dataset(key, data=np.asarray(value, np.int64), compression="gzip")
-            elif np.ndim(value) >= 2 and np.shape(value)[0] > 16:
-                g.create_dataset(key, data=np.asarray(value, float), compression="gzip")
-            else:
-                g.create_dataset(key, data=np.asarray(value, float))
+            big = key == "faces" or (np.ndim(value) >= 2 and np.shape(value)[0] > 16)
+            g.create_dataset(key, data=np.asarray(value, np.int64 if key == "faces" else float), **({"compression": "gzip"} if big else {}))
 
 
 def _text_attr(v):
-    if isinstance(v, bytes):
-        return v.decode()
-    return v
+    return v.decode() if isinstance(v, bytes) else v
 
 
 def _obstacle_dataset(g, key: str, want: tuple, file: str, path: str) -> np.ndarray:
