@@ -112,19 +112,14 @@ def mode() -> str:
 
 def cache_dir() -> Path:
     d = os.environ.get("VINE_NLP_CACHE_DIR")
-    if d:
-        return Path(d)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "vine_nlp"
+    return Path(d) if d else Path(os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")) / "vine_nlp"
 
 
 def compiler() -> list[str] | None:
     """The C compiler command with its flags, or None where none is found."""
     cc = os.environ.get("CC")
     exe = shutil.which(cc) if cc else (shutil.which("gcc") or shutil.which("cc"))
-    if not exe:
-        return None
-    return [exe, *shlex.split(os.environ.get("VINE_NLP_CFLAGS", "-O1"))]
+    return [exe, *shlex.split(os.environ.get("VINE_NLP_CFLAGS", "-O1"))] if exe else None
 
 
 @lru_cache(maxsize=1)
@@ -265,8 +260,6 @@ def wait(timeout: float | None = None) -> bool:
             return False
         _running.remove(proc)
     return True
-
-
 
 
 def block_functions(name: str, functions: list) -> list | None:

@@ -27,12 +27,12 @@ import dataclasses
 import numpy as np
 
 from vine_nlp.analysis.buildability import buildability
-from vine_nlp.analysis.obstacles import min_gap
+from vine_nlp.analysis.obstacles import min_gap, obstacle_metrics
 from vine_nlp.methods import drive, settings
 from vine_nlp.methods.buildable import Build, chain_bends, classify, lambda_bounds, made_buildable, unwind
 from vine_nlp.methods.common import evaluate, pair_points
 from vine_nlp.methods.nlp import chain_guess, design_bounds, design_nlp, extended_solver, nlp_parameters, result_of, start_x
-from vine_nlp.methods.obstacles.plan import Plan, obstacle_stats
+from vine_nlp.methods.obstacles.plan import Plan
 from vine_nlp.methods.obstacles.push import pushed_start
 from vine_nlp.methods.obstacles.rows import MESH_K
 from vine_nlp.methods.settings import BLOCKED_WEIGHT, MESH_BLOCKED_WEIGHT, MESH_WEIGHT_RAMP
@@ -117,7 +117,7 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
               "start_min_obstacle_gap": float(first["min_gap"])}
     if not problem.obstacles or first["clear"]:
         best = dataclasses.replace(start, metrics=dict(start.metrics), stats=dict(start.stats), met=dict(start.met))
-        best.metrics.update(obstacle_stats(first))
+        best.metrics.update(obstacle_metrics(first))
         best.stats.update(stats0 | {"obstacle_rounds": 0, "obstacle_clear": bool(first["clear"])})
         best.met["obstacles"] = bool(first["clear"])
         return best
@@ -154,7 +154,7 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
             best, found = built, dataclasses.replace(found, verdict=drive.Verdict(True, (), plan.report(built.routing)))
     best, rep = stats.stamp(best), found.verdict.report
     best.stats["obstacle_buildable"] = how if best.buildable else "not buildable"
-    best.metrics.update(obstacle_stats(rep))
+    best.metrics.update(obstacle_metrics(rep))
     best.met["obstacles"] = bool(rep["clear"])
     best.stats.update(stats0 | {"obstacle_rounds": found.rounds, "obstacle_clear": bool(rep["clear"]),
                                 "obstacle_samples_per_segment": plan.S, "obstacle_raise": plan.raised * problem.diameter, "obstacle_slots": plan.P,

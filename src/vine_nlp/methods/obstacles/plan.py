@@ -359,14 +359,6 @@ def _exit_planes(mesh: Mesh, faces, p, inside, need):
     return nrm, off
 
 
-def obstacle_stats(report: dict) -> dict:
-    """The run metrics of a report: min_obstacle_gap (and min_obstacle_gap_after for growth "after")."""
-    out = {"min_obstacle_gap": float(report["min_gap"])}
-    if report["growth"] == "after":
-        out["min_obstacle_gap_after"] = float(report["min_gap_intermediate"])
-    return out
-
-
 def _shortfall(plan: Plan, rep: dict) -> float:
     """What the shapes with rows (the final one, the intermediate ones at ``plan.ts``) miss of the margin, units of D:
     their dips between samples. An intermediate shape without rows that misses gets rows (``choose_levels``); raising

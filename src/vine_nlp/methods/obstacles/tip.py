@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from vine_nlp.analysis.obstacles import obstacle_metrics
 from vine_nlp.methods import drive, settings
 from vine_nlp.methods.obstacles.design import Rounds
-from vine_nlp.methods.obstacles.plan import Plan, obstacle_stats
+from vine_nlp.methods.obstacles.plan import Plan
 from vine_nlp.methods.obstacles.push import pushed_chain
 from vine_nlp.methods.obstacles.rows import MESH_K
 from vine_nlp.methods.structure import frames12
@@ -49,7 +50,7 @@ def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, ro
     stats0 = {"obstacle_margin": plan.margin, "growth": plan.growth, "start_min_obstacle_gap": float(first["min_gap"]),
               "start_actuation_contraction": float(free.metrics["actuation_contraction"])}
     if not problem.obstacles or (first["clear"] and free.converged):
-        free.metrics.update(obstacle_stats(first))
+        free.metrics.update(obstacle_metrics(first))
         free.stats.update(stats0 | {"obstacle_rounds": 0, "obstacle_clear": bool(first["clear"])})
         free.met["obstacles"] = bool(first["clear"])
         return free
@@ -97,7 +98,7 @@ def _tip_start(problem: TipProblem, plan: Plan, routing: Routing, rounds: int, l
                   lambda sol: tip_result(problem, sol), stop_at_cap=True)
     found = drive.refine(rule, rounds, x, stats)
     best, rep = stats.stamp(found.best), found.verdict.report
-    best.metrics.update(obstacle_stats(rep))
+    best.metrics.update(obstacle_metrics(rep))
     best.stats.update(obstacle_rounds=found.rounds, obstacle_clear=bool(rep["clear"]), obstacle_after_t=list(plan.ts))
     best.met["obstacles"] = bool(rep["clear"])
     return best
