@@ -226,9 +226,8 @@ def design(points, diameter, *, actuator: str = Actuator.kind, theta_max_deg: fl
         Also a design keeping the tube clear of itself by this gap beyond D (>= 0, ``units``):
         run ``nlp_clearance`` (the returned one).
     robust : Sigmas or dict, optional
-        Also a design minimizing the expected error under construction errors: run ``nlp_robust``
-        (the returned one). Dict keys: ``theta_deg``, ``lambda``, ``length`` (relative) or
-        ``length_abs`` (``units``).
+        Also a design minimizing the expected error under construction errors: run ``nlp_robust`` (the returned one).
+        Dict keys: ``theta_deg``, ``lambda``, ``length`` (relative) or ``length_abs`` (``units``).
     robust_weight : float
         Weight of the expected error increase (>= 0).
     seed : int
@@ -241,9 +240,8 @@ def design(points, diameter, *, actuator: str = Actuator.kind, theta_max_deg: fl
         Problem name in the archive.
     calibration : Calibration or str or Path, optional
         The systematic construction errors of the builder (``vine-nlp calibrate``'s CAL.toml, or a
-        ``vine_nlp.model.calibration.Calibration``): the nlp or greedy run is then the nominal to build,
-        its shape what that nominal realizes on the calibrated robot (as ``vine-nlp design`` with a
-        ``[calibration]`` table).
+        ``vine_nlp.model.calibration.Calibration``): the nlp or greedy run is then the nominal to build, its shape what
+        that nominal realizes on the calibrated robot (as ``vine-nlp design`` with a ``[calibration]`` table).
     correction_margin : float, optional
         nlp: every lambda is exactly 1 (no actuator) or inside [lambda_min + margin, 1 - margin] (>= 0, leaving
         room); default 0.05, at most (1 - lambda_min) / 2 (``[design] correction_margin``).
@@ -280,10 +278,9 @@ def forward(theta, lam, length, diameter, *, segments: int | None = None, initia
             name: str = "forward") -> Design:
     """The shape of a given routing (``vine-nlp forward``).
 
-    ``theta``, ``lam`` and ``length`` are per segment, each a number or a 1-D array; numbers
-    are repeated over the segments, so ``length`` is each segment's length (not the tube's).
-    The number of segments M is the arrays' common size, or ``segments`` when all three are
-    numbers (default 1). Example: 60 segments of 1 cm, theta 5 deg, lambda 0.8:
+    ``theta``, ``lam`` and ``length`` are per segment, each a number or a 1-D array; numbers are repeated over the
+    segments, so ``length`` is each segment's length (not the tube's). The number of segments M is the arrays' common
+    size, or ``segments`` when all three are numbers (default 1). Example: 60 segments of 1 cm, theta 5 deg, lambda 0.8:
     ``vn.forward(np.radians(5), 0.8, 1.0, 2.43, segments=60)``.
 
     Parameters

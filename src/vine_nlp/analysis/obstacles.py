@@ -6,27 +6,21 @@ a design asks for gap >= margin everywhere along the tube (formats.md "Obstacles
 
 Sampling rule (:func:`sample_spacing`, :func:`dip`)
 ---------------------------------------------------
-Center-line points at most h apart along the arc, each at distance >= r = D/2 + m
-from a convex obstacle K, bound the whole center line: let y be the point of the
-chord between two samples nearest to K and k its nearest point on K; the samples
-are >= r from k and y - k is normal to the chord, so the chord (length <= h)
-stays >= sqrt(r^2 - h^2/4) from K. If K's surface has all radii of curvature
->= R_K (sphere, capsule: their radius; plane: infinite; box, triangle: 0), the
-same argument about the center of curvature gives sqrt((r + R_K)^2 - h^2/4) - R_K.
-The arc leaves its chord by at most the sagitta (1 - cos(kappa h / 2)) / kappa
-(center-line curvature <= kappa), and the distance is 1-Lipschitz, so between
+Center-line points at most h apart along the arc, each at distance >= r = D/2 + m from a convex obstacle K, bound the
+whole center line: let y be the point of the chord between two samples nearest to K and k its nearest point on K; the
+samples are >= r from k and y - k is normal to the chord, so the chord (length <= h) stays >= sqrt(r^2 - h^2/4) from K.
+If K's surface has all radii of curvature >= R_K (sphere, capsule: their radius; plane: infinite; box, triangle: 0), the
+same argument about the center of curvature gives sqrt((r + R_K)^2 - h^2/4) - R_K. The arc leaves its chord by at most
+the sagitta (1 - cos(kappa h / 2)) / kappa (center-line curvature <= kappa), and the distance is 1-Lipschitz, so between
 samples the gap drops at most
 
     dip(h) = (r + R_K) - sqrt((r + R_K)^2 - h^2 / 4) + (1 - cos(kappa h / 2)) / kappa.
 
-No obstacle fits between samples (the chord never reaches K) when h < 2 r = D + 2 m.
-To hold gap >= margin - tol on the continuous tube: sample at h with dip(h) <= tol,
-or ask the samples for margin + dip(h) (how the NLP rows should use it). With
-kappa = 2/D (the limit lambda -> 0 at theta = 0; steeper theta bends more:
-:func:`curvature_bound` gives 2.21/D for theta <= 60 deg, lambda >= 0.4) and a sharp
-obstacle: dip ~ h^2 / (2 D), so tol = 1e-3 D needs h <= 0.045 D, while h = D/4
-costs an inflation of D/32.
-A mesh's unsigned distance is the minimum over its (convex) triangles, so the
+No obstacle fits between samples (the chord never reaches K) when h < 2 r = D + 2 m. To hold gap >= margin - tol on the
+continuous tube: sample at h with dip(h) <= tol, or ask the samples for margin + dip(h) (how the NLP rows should use
+it). With kappa = 2/D (the limit lambda -> 0 at theta = 0; steeper theta bends more: :func:`curvature_bound` gives
+2.21/D for theta <= 60 deg, lambda >= 0.4) and a sharp obstacle: dip ~ h^2 / (2 D), so tol = 1e-3 D needs h <= 0.045 D,
+while h = D/4 costs an inflation of D/32. A mesh's unsigned distance is the minimum over its (convex) triangles, so the
 bound holds for it with R_K = 0.
 
 Growth (paper Sec. VI-D; as in ``vine_nlp.analysis.collision``): grown while actuated, every body is a prefix
@@ -262,23 +256,20 @@ def obstacle_report(routing: Routing, diameter: float, obstacles, growth: str = 
                     per_segment=DEFAULT_PER_SEGMENT, ts=None, refine: bool = True) -> dict:
     """Distance from the tube to every obstacle along the tube, and the contacts (runs of samples with gap < ``margin``).
 
-    Final shape: sampled at ``per_segment`` points per segment, each obstacle's minimum
-    refined on the continuous model (``refine``: a bounded 1-D search around the smallest sample).
-    Intermediate shapes: grown while actuated they are prefixes (covered by the final
-    shape; each obstacle's ``first_contact_length`` is the material length grown when its
-    first contact appears); with ``growth`` "after", the shapes lambda_t on the grid ``ts``
-    (default 21 values of t) are checked at the samples.
+    Final shape: sampled at ``per_segment`` points per segment, each obstacle's minimum refined on the continuous model
+    (``refine``: a bounded 1-D search around the smallest sample). Intermediate shapes: grown while actuated they are
+    prefixes (covered by the final shape; each obstacle's ``first_contact_length`` is the material length grown when its
+    first contact appears); with ``growth`` "after", the shapes lambda_t on the grid ``ts`` (default 21 values of t) are
+    checked at the samples.
 
     Returns
     -------
     dict
-        growth, margin, final: list per obstacle of dict(index, kind, name,
-        min_gap, s, l (where), gaps (P,) per sample, contacts: list of dict(s (from, to),
-        l (from, to), min_gap, at_s))), s (P,), l (P,) the final samples, min_gap (over
-        all obstacles, final shape; inf without obstacles), intermediate: while-actuated:
-        list per obstacle of dict(index, min_gap, first_contact_length); after: dict(t
-        (T,), gaps (T, K) per-shape minima, worst: list per obstacle of dict(index,
-        min_gap, t, s, l), contacts: list per t of the per-obstacle contact lists),
+        growth, margin, final: list per obstacle of dict(index, kind, name, min_gap, s, l (where), gaps (P,) per sample,
+        contacts: list of dict(s (from, to), l (from, to), min_gap, at_s))), s (P,), l (P,) the final samples, min_gap
+        (over all obstacles, final shape; inf without obstacles), intermediate: while-actuated: list per obstacle of
+        dict(index, min_gap, first_contact_length); after: dict(t (T,), gaps (T, K) per-shape minima, worst: list per
+        obstacle of dict(index, min_gap, t, s, l), contacts: list per t of the per-obstacle contact lists),
         min_gap_intermediate, clear (every gap >= margin - 1e-3 D, final and intermediate).
 
     Raises

@@ -1,47 +1,36 @@
 """Obstacle shapes and their signed distances: ONE formula per shape for numpy and CasADi.
 
-Shapes (frozen value types, each with a ``kind`` name): :class:`Sphere`,
-:class:`Box`, :class:`Capsule`, :class:`Plane` and :class:`Mesh`. The tube of
-diameter D clears an obstacle by ``gap = distance(center line, obstacle) - D/2``.
+Shapes (frozen value types, each with a ``kind`` name): :class:`Sphere`, :class:`Box`, :class:`Capsule`, :class:`Plane`
+and :class:`Mesh`. The tube of diameter D clears an obstacle by ``gap = distance(center line, obstacle) - D/2``.
 
 Signed distances (positive outside, negative inside, in the obstacle's units)
 ---------------------------------------------------------------------------
-Every primitive's distance is written once against ``vine_nlp.model.ops.lib``: a
-numpy point array (..., 3) gives an array (...); a CasADi 3x1 (or 3xN) SX/MX
-gives a 1x1 (1xN) expression. All four primitives are convex, and the distance
-to a convex set is C^1 (indeed C^{1,1}) everywhere outside the set: the only
-kinks of the exact formulas (the clamp of the capsule's segment parameter, the
-box's max/abs) either cancel outside (the clamped parameter sits where the
-distance along the segment is stationary; the box's |x| kink lies where its
-max(q, 0) is identically 0) or lie inside (medial axis). The NLP's rows ask for
-distance >= D/2 + margin > 0, so every feasible point lies where the row is C^1.
+Every primitive's distance is written once against ``vine_nlp.model.ops.lib``: a numpy point array (..., 3) gives an
+array (...); a CasADi 3x1 (or 3xN) SX/MX gives a 1x1 (1xN) expression. All four primitives are convex, and the distance
+to a convex set is C^1 (indeed C^{1,1}) everywhere outside the set: the only kinks of the exact formulas (the clamp of
+the capsule's segment parameter, the box's max/abs) either cancel outside (the clamped parameter sits where the distance
+along the segment is stationary; the box's |x| kink lies where its max(q, 0) is identically 0) or lie inside (medial
+axis). The NLP's rows ask for distance >= D/2 + margin > 0, so every feasible point lies where the row is C^1.
 
-``sqrt`` at 0 (the sphere's center, the capsule's axis, the box's surface seen
-from its exterior term) has an infinite derivative, and CasADi's ``if_else`` and
-``fmax`` differentiate every branch: every sqrt here is ``sqrt(x + eps^2)`` with
-eps = ``EPS_REL`` (1e-9) times the obstacle's size. The value then differs from
-the exact distance d by at most eps^2 / (2 d): below 1e-18 of the size at d of
-the order of the size, at most eps at d = 0; gradients stay finite (Hessians
-are large, ~1/eps, only within eps of the singular set, which is inside).
+``sqrt`` at 0 (the sphere's center, the capsule's axis, the box's surface seen from its exterior term) has an infinite
+derivative, and CasADi's ``if_else`` and ``fmax`` differentiate every branch: every sqrt here is ``sqrt(x + eps^2)``
+with eps = ``EPS_REL`` (1e-9) times the obstacle's size. The value then differs from the exact distance d by at most
+eps^2 / (2 d): below 1e-18 of the size at d of the order of the size, at most eps at d = 0; gradients stay finite
+(Hessians are large, ~1/eps, only within eps of the singular set, which is inside).
 
-Sphere, box and capsule are one formula, a rounded box (:func:`rounded_box_distance`: a box,
-possibly flat or a point, rounded by a radius), whose parameters may be symbolic: the NLP's rows
-take them as data (``Obstacle.rounded_box()``), so one block serves every primitive. A plane's own
-formula is its half-space distance; its rows take it as a box PLANE_HALF deep behind it and as
-wide (exact within ~1e-10 of the obstacle's units).
+Sphere, box and capsule are one formula, a rounded box (:func:`rounded_box_distance`: a box, possibly flat or a point,
+rounded by a radius), whose parameters may be symbolic: the NLP's rows take them as data (``Obstacle.rounded_box()``),
+so one block serves every primitive. A plane's own formula is its half-space distance; its rows take it as a box
+PLANE_HALF deep behind it and as wide (exact within ~1e-10 of the obstacle's units).
 
-Meshes. The exact signed distance of a closed triangle mesh (numpy only) is
-trimesh's (``trimesh.proximity.signed_distance``, positive *inside*: negated
-here). For the NLP, the sign of a mesh's distance is a global property (inside
-or outside) that no finite set of smooth per-triangle expressions gives, so the
-rows are the *unsigned* exact distance to each triangle of an active set
-(:func:`nearest_triangles`, refreshed between solves; :func:`point_triangle_distance`,
-whose vertices may be symbolic data): a triangle is convex, so its distance is C^1
-wherever it is positive, continuous everywhere, and the mesh's unsigned distance is
-the minimum over its triangles, so rows over the nearest triangles are exact rows,
-not an approximation. What they cannot see is a point deeper inside than the
-clearance: the NLP gives such points a row on the plane of a face instead
-(methods.obstacles).
+Meshes. The exact signed distance of a closed triangle mesh (numpy only) is trimesh's
+(``trimesh.proximity.signed_distance``, positive *inside*: negated here). For the NLP, the sign of a mesh's distance is
+a global property (inside or outside) that no finite set of smooth per-triangle expressions gives, so the rows are the
+*unsigned* exact distance to each triangle of an active set (:func:`nearest_triangles`, refreshed between solves;
+:func:`point_triangle_distance`, whose vertices may be symbolic data): a triangle is convex, so its distance is C^1
+wherever it is positive, continuous everywhere, and the mesh's unsigned distance is the minimum over its triangles, so
+rows over the nearest triangles are exact rows, not an approximation. What they cannot see is a point deeper inside than
+the clearance: the NLP gives such points a row on the plane of a face instead (methods.obstacles).
 """
 
 from __future__ import annotations
