@@ -6,6 +6,8 @@ builds SX/MX expressions for the optimizer."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import casadi as ca
 import numpy as np
 
@@ -16,38 +18,11 @@ def is_symbolic(*args) -> bool:
     return any(isinstance(a, _CASADI_TYPES) for a in args)
 
 
-class _Numpy:
-    sin = staticmethod(np.sin)
-    cos = staticmethod(np.cos)
-    tan = staticmethod(np.tan)
-    sqrt = staticmethod(np.sqrt)
-    arctan2 = staticmethod(np.arctan2)
-    arccos = staticmethod(np.arccos)
-    fabs = staticmethod(np.abs)
-    fmax = staticmethod(np.maximum)
-    fmin = staticmethod(np.minimum)
-    where = staticmethod(np.where)
-
-
-class _Casadi:
-    sin = staticmethod(ca.sin)
-    cos = staticmethod(ca.cos)
-    tan = staticmethod(ca.tan)
-    sqrt = staticmethod(ca.sqrt)
-    arctan2 = staticmethod(ca.atan2)
-    arccos = staticmethod(ca.acos)
-    fabs = staticmethod(ca.fabs)
-    fmax = staticmethod(ca.fmax)
-    fmin = staticmethod(ca.fmin)
-
-    @staticmethod
-    def where(cond, a, b):
-        # if_else evaluates both branches: callers keep both finite (casadi #1805).
-        return ca.if_else(cond, a, b)
-
-
-NUMPY = _Numpy()
-CASADI = _Casadi()
+NUMPY = SimpleNamespace(sin=np.sin, cos=np.cos, tan=np.tan, sqrt=np.sqrt, arctan2=np.arctan2, arccos=np.arccos, fabs=np.abs,
+                        fmax=np.maximum, fmin=np.minimum, where=np.where)
+# if_else evaluates both branches: callers keep both finite (casadi #1805)
+CASADI = SimpleNamespace(sin=ca.sin, cos=ca.cos, tan=ca.tan, sqrt=ca.sqrt, arctan2=ca.atan2, arccos=ca.acos, fabs=ca.fabs,
+                         fmax=ca.fmax, fmin=ca.fmin, where=ca.if_else)
 
 
 def lib(*args):
