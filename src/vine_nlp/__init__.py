@@ -18,11 +18,9 @@ from importlib import import_module as _import_module
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "__version__", "design", "forward", "fit", "load", "solve", "correct", "Design", "Project", "ArgumentError",
-    "DesignProblem", "ForwardProblem", "FitProblem", "MultiShapeProblem", "TipProblem", "Actuator", "DesignOptions",
-    "Calibration", "Load", "Routing", "Sigmas", "Result",
-]
+__all__ = ["__version__", "design", "forward", "fit", "load", "solve", "correct", "Design", "Project", "ArgumentError",
+           "DesignProblem", "ForwardProblem", "FitProblem", "MultiShapeProblem", "TipProblem", "Actuator", "DesignOptions",
+           "Calibration", "Load", "Routing", "Sigmas", "Result"]
 
 def __getattr__(name):
     if name in __all__:

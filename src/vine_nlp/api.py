@@ -54,14 +54,12 @@ class _Arguments(check.SourceFile):
 
 
 # problem-file keys -> the argument that carries them
-_DESIGN_ARGUMENTS = {
-    "actuator.kind": "actuator", "actuator.lambda_min": "lambda_min", "actuator.theta_max_deg": "theta_max_deg",
-    "design.method": "method", "design.points_per_segment": "points_per_segment", "design.starts": "starts",
-    "design.hops": "hops", "design.budget": "budget", "design.solver": "solver", "design.seed": "seed",
-    "design.max_iter": "max_iter", "design.smoothness": "smoothing", "design.smoothness.theta": "smoothing",
-    "design.smoothness.lambda": "smoothing", "design.correction_margin": "correction_margin",
-    "design.min_feature": "min_feature", "design.base": "base", "routing.initial_pose": "base",
-}
+_DESIGN_ARGUMENTS = {"actuator.kind": "actuator", "actuator.lambda_min": "lambda_min", "actuator.theta_max_deg": "theta_max_deg",
+                     "design.method": "method", "design.points_per_segment": "points_per_segment", "design.starts": "starts",
+                     "design.hops": "hops", "design.budget": "budget", "design.solver": "solver", "design.seed": "seed",
+                     "design.max_iter": "max_iter", "design.smoothness": "smoothing", "design.smoothness.theta": "smoothing",
+                     "design.smoothness.lambda": "smoothing", "design.correction_margin": "correction_margin",
+                     "design.min_feature": "min_feature", "design.base": "base", "routing.initial_pose": "base"}
 _ROUTING_ARGUMENTS = {"theta": "theta", "lam": "lam", "length": "length", "initial_pose": "initial_pose"}
 
 

@@ -180,13 +180,10 @@ def _clearance(points, s, D, exclude_arc, margin, refine, closest=True):
             continue
         inside = idx[dist[idx] < threshold]
         pr = cand[inside] if len(inside) else cand[[k]]
-        regions.append({
-            "clearance": float(d), "i": i, "j": j, "s_i": float(si), "s_j": float(sj),
-            "point_i": np.asarray(pi, float), "point_j": np.asarray(pj, float),
-            "s_i_range": (float(s[pr[:, 0]].min()), float(s[pr[:, 0]].max())),
-            "s_j_range": (float(s[pr[:, 1]].min()), float(s[pr[:, 1]].max())),
-            "pairs": pr,
-        })
+        regions.append({"clearance": float(d), "i": i, "j": j, "s_i": float(si), "s_j": float(sj),
+                        "point_i": np.asarray(pi, float), "point_j": np.asarray(pj, float),
+                        "s_i_range": (float(s[pr[:, 0]].min()), float(s[pr[:, 0]].max())),
+                        "s_j_range": (float(s[pr[:, 1]].min()), float(s[pr[:, 1]].max())), "pairs": pr})
     # growth order: the region whose later part comes first
     regions.sort(key=lambda r: (r["s_j_range"][0], r["s_i_range"][0]))
     if regions:
@@ -214,13 +211,11 @@ def _clearance(points, s, D, exclude_arc, margin, refine, closest=True):
         else:
             d, si, sj, pi, pj, i, j = best
     pairs = np.concatenate([r["pairs"] for r in regions]) if regions else np.zeros((0, 2), int)
-    return {
-        "clearance": float(d), "gap": float(d - D), "contact": bool(regions),
-        "i": i, "j": j, "s_i": float(si), "s_j": float(sj), "point_i": pi, "point_j": pj, "pairs": pairs,
-        "distances": np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1) if len(pairs) else np.zeros(0),
-        "regions": regions, "points": points, "s": np.asarray(s, float),
-        "exclude_arc": float(exclude_arc), "threshold": float(threshold), "spacing": h,
-    }
+    return {"clearance": float(d), "gap": float(d - D), "contact": bool(regions),
+            "i": i, "j": j, "s_i": float(si), "s_j": float(sj), "point_i": pi, "point_j": pj, "pairs": pairs,
+            "distances": np.linalg.norm(points[pairs[:, 0]] - points[pairs[:, 1]], axis=1) if len(pairs) else np.zeros(0),
+            "regions": regions, "points": points, "s": np.asarray(s, float),
+            "exclude_arc": float(exclude_arc), "threshold": float(threshold), "spacing": h}
 
 
 def _densify(points, s, max_spacing):

@@ -159,10 +159,8 @@ def grown_prefixes(routing: Routing, diameter: float, lengths, per_segment=DEFAU
     for Lg in np.atleast_1d(np.asarray(lengths, float)):
         Lg = float(min(max(Lg, 0.0), model.cum[-1]))
         keep = full["l"] < Lg
-        out.append({
-            "length": Lg, "points": np.vstack([full["points"][keep], model.points([Lg])]),
-            "s": np.append(full["s"][keep], np.interp(Lg, model.cum, model.cum_s)), "l": np.append(full["l"][keep], Lg),
-        })
+        out.append({"length": Lg, "points": np.vstack([full["points"][keep], model.points([Lg])]),
+                    "s": np.append(full["s"][keep], np.interp(Lg, model.cum, model.cum_s)), "l": np.append(full["l"][keep], Lg)})
     return out
 
 
@@ -237,18 +235,14 @@ def _shape_gaps(routing, D, obstacles, margin, smp, refine) -> list[dict]:
         contacts = []
         for a, b in _runs(g < margin):
             j = a + int(np.argmin(g[a:b + 1]))
-            contacts.append({
-                "s": (float(smp["s"][a]), float(smp["s"][b])), "l": (float(smp["l"][a]), float(smp["l"][b])),
-                "min_gap": float(g[j]), "at_s": float(smp["s"][j]),
-            })
+            contacts.append({"s": (float(smp["s"][a]), float(smp["s"][b])), "l": (float(smp["l"][a]), float(smp["l"][b])),
+                             "min_gap": float(g[j]), "at_s": float(smp["s"][j])})
         if refine and contacts == [] and gmin < margin:
             # the refined minimum dips below the margin between two samples
             contacts.append({"s": (float(np.interp(lmin, cum_l, cum_s)),) * 2, "l": (lmin, lmin), "min_gap": gmin,
                              "at_s": float(np.interp(lmin, cum_l, cum_s))})
-        out.append({
-            "index": k, "kind": ob.kind, "name": ob.name, "min_gap": gmin, "l": lmin,
-            "s": float(np.interp(lmin, cum_l, cum_s)), "gaps": g, "contacts": contacts,
-        })
+        out.append({"index": k, "kind": ob.kind, "name": ob.name, "min_gap": gmin, "l": lmin,
+                    "s": float(np.interp(lmin, cum_l, cum_s)), "gaps": g, "contacts": contacts})
     return out
 
 

@@ -169,10 +169,8 @@ def tolerance_metrics(report: dict) -> dict:
     """Flat floats of a tolerance report for archive attributes (problem length units)."""
     fo, mc, ps = report["first_order"], report["monte_carlo"], report["per_segment"]
     worst = int(np.argmax(ps["tip_var"]))
-    return {
-        "tolerance_rmse_first_order": fo["rmse"], "tolerance_rmse_increase_first_order": fo["rmse_increase"],
-        "tolerance_tip_std_first_order": fo["tip_std"], "tolerance_rmse_mc_mean": mc["mean_rmse"],
-        "tolerance_rmse_mc_rms": mc["rms_rmse"], "tolerance_tip_std_mc": mc["tip_std"],
-        "tolerance_worst_segment": float(worst), "tolerance_worst_segment_l_mid": float(ps["l_mid"][worst]),
-        "tolerance_worst_segment_tip_share": float(ps["tip_var"][worst] / max(ps["tip_var"].sum(), 1e-300)),
-    }
+    return {"tolerance_rmse_first_order": fo["rmse"], "tolerance_rmse_increase_first_order": fo["rmse_increase"],
+            "tolerance_tip_std_first_order": fo["tip_std"], "tolerance_rmse_mc_mean": mc["mean_rmse"],
+            "tolerance_rmse_mc_rms": mc["rms_rmse"], "tolerance_tip_std_mc": mc["tip_std"],
+            "tolerance_worst_segment": float(worst), "tolerance_worst_segment_l_mid": float(ps["l_mid"][worst]),
+            "tolerance_worst_segment_tip_share": float(ps["tip_var"][worst] / max(ps["tip_var"].sum(), 1e-300))}

@@ -54,12 +54,10 @@ def tolerance_figure(report: dict, path=None, title: str | None = None) -> Figur
         a.set_title(f"(a) tip std {fo['tip_std']:.3g} {u} (first order), {mc['tip_std']:.3g} {u} (Monte Carlo)")
         r = mc["rmse"]
         b.hist(r, bins=min(60, max(10, int(math.sqrt(r.size)))), color="0.7", edgecolor="white", linewidth=0.3)
-        lines = [
-            (report["nominal"]["rmse"], "k", ":", "nominal"),
-            (fo["rmse"], "tab:red", "-", r"first order $\sqrt{E[\mathrm{MSE}]}$"),
-            (mc["rms_rmse"], "tab:blue", "--", r"MC $\sqrt{\mathrm{mean\ MSE}}$"),
-            (mc["mean_rmse"], "tab:green", "-.", "MC mean RMSE"),
-        ]
+        lines = [(report["nominal"]["rmse"], "k", ":", "nominal"),
+                 (fo["rmse"], "tab:red", "-", r"first order $\sqrt{E[\mathrm{MSE}]}$"),
+                 (mc["rms_rmse"], "tab:blue", "--", r"MC $\sqrt{\mathrm{mean\ MSE}}$"),
+                 (mc["mean_rmse"], "tab:green", "-.", "MC mean RMSE")]
         for v, c, ls, lab in lines:
             b.axvline(v, color=c, ls=ls, lw=1.0, label=f"{lab} {v:.3g}")
         b.set_xlabel(f"RMSE to the target [{u}]")

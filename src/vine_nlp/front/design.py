@@ -227,14 +227,11 @@ class Design:
 
     def summary(self) -> dict:
         """The key numbers: run, method, status, segments, tube length, RMSE, max error, solve time, iterations."""
-        return {
-            "name": self.name, "run": self.run, "method": self.method, "status": self.status, "segments": self.segments,
-            "tube length": f"{float(self.length.sum()):.4g} {self.units}",
-            "diameter": f"{self.diameter:.4g} {self.units}",
-            "rmse": f"{self.rmse:.4g} {self.units}" if "rmse" in self.metrics else "-",
-            "max error": f"{self.max_error:.4g} {self.units}" if "max_error" in self.metrics else "-",
-            "solve time": f"{self.solve_time_s:.3f} s", "iterations": self.iterations,
-        }
+        return {"name": self.name, "run": self.run, "method": self.method, "status": self.status, "segments": self.segments,
+                "tube length": f"{float(self.length.sum()):.4g} {self.units}", "diameter": f"{self.diameter:.4g} {self.units}",
+                "rmse": f"{self.rmse:.4g} {self.units}" if "rmse" in self.metrics else "-",
+                "max error": f"{self.max_error:.4g} {self.units}" if "max_error" in self.metrics else "-",
+                "solve time": f"{self.solve_time_s:.3f} s", "iterations": self.iterations}
 
     def __repr__(self) -> str:
         s = self.summary()

@@ -43,11 +43,9 @@ from vine_nlp.model.pairing import pair_points
 ERROR_CMAP = palette.ERROR_CMAP
 RUN_COLORS = palette.RUNS
 RUN_STYLES = ("-", "--", ":", "-.")
-STYLE = {
-    "font.size": 8, "axes.titlesize": 8, "axes.labelsize": 8, "xtick.labelsize": 7, "ytick.labelsize": 7,
-    "legend.fontsize": 7, "figure.titlesize": 9, "axes.linewidth": 0.6, "lines.linewidth": 1.0,
-    "xtick.major.width": 0.6, "ytick.major.width": 0.6,
-}
+STYLE = {"font.size": 8, "axes.titlesize": 8, "axes.labelsize": 8, "xtick.labelsize": 7, "ytick.labelsize": 7,
+         "legend.fontsize": 7, "figure.titlesize": 9, "axes.linewidth": 0.6, "lines.linewidth": 1.0,
+         "xtick.major.width": 0.6, "ytick.major.width": 0.6}
 COLUMN_IN, PAGE_IN = 3.5, 7.16  # IEEE column and text widths
 
 

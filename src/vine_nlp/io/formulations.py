@@ -79,8 +79,6 @@ def write_tip_archive(path, problem_file, result: Result) -> None:
     extra = {"tip/position": problem.position}
     if problem.direction is not None:
         extra["tip/direction"] = problem.direction
-    archive = Archive(
-        name=problem_file.name, kind="tip", source=problem_file.source, diameter=problem.diameter,
-        units=problem_file.units, runs={TIP_RUN: result}, extra=extra, obstacles=list(problem.obstacles),
-    )
+    archive = Archive(name=problem_file.name, kind="tip", source=problem_file.source, diameter=problem.diameter,
+                      units=problem_file.units, runs={TIP_RUN: result}, extra=extra, obstacles=list(problem.obstacles))
     write_archive(path, archive)

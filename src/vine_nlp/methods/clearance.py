@@ -181,11 +181,9 @@ def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, pairs=No
         found = drive.refine(rule, rounds, stats=stats)
         best, check, solves = stats.stamp(found.best), found.verdict.report, found.rounds
     best.met["clearance"] = bool(check["clearance"] >= rule.need - rule.tol)
-    best.stats.update({
-        "clearance_rounds": solves, "clearance_met": best.met["clearance"], "clearance_pairs": len(rule.active),
-        "clearance_row_margin": rule.row_margin, "min_clearance": float(check["clearance"]), "min_gap": float(min_gap),
-        "start_rmse": float(start.metrics["rmse"]), "start_min_clearance": float(first["clearance"]),
-    })
+    best.stats.update({"clearance_rounds": solves, "clearance_met": best.met["clearance"], "clearance_pairs": len(rule.active),
+                       "clearance_row_margin": rule.row_margin, "min_clearance": float(check["clearance"]), "min_gap": float(min_gap),
+                       "start_rmse": float(start.metrics["rmse"]), "start_min_clearance": float(first["clearance"])})
     return best
 
 

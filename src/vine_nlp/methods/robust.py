@@ -254,19 +254,14 @@ def design_robust(problem: DesignProblem, sigmas: Sigmas, samples: int = 0, seed
     if not weight:
         i0 = expected_increase(problem, start.routing, sigmas)
     m0, m1 = start.metrics["rmse"] ** 2, res.metrics["rmse"] ** 2
-    res.stats.update({
-        "robust_weight": float(weight),
-        **{f"robust_{k}": v for k, v in sigmas.as_dict().items()},
-        "robust_expected_mse_increase": i1, "robust_expected_mse_increase_start": i0,
-        "robust_expected_rmse": float(np.sqrt(m1 + i1)), "robust_expected_rmse_start": float(np.sqrt(m0 + i0)),
-        "robust_start_rmse": float(start.metrics["rmse"]),
-    })
+    res.stats.update({"robust_weight": float(weight), **{f"robust_{k}": v for k, v in sigmas.as_dict().items()},
+                      "robust_expected_mse_increase": i1, "robust_expected_mse_increase_start": i0,
+                      "robust_expected_rmse": float(np.sqrt(m1 + i1)), "robust_expected_rmse_start": float(np.sqrt(m0 + i0)),
+                      "robust_start_rmse": float(start.metrics["rmse"])})
     if samples:
         a = tolerance_report(problem, start, sigmas, samples, seed)["monte_carlo"]
         b = tolerance_report(problem, res, sigmas, samples, seed)["monte_carlo"]
-        res.stats.update({
-            "robust_mc_samples": int(samples), "robust_mc_seed": int(seed),
-            "robust_mc_mean_rmse": b["mean_rmse"], "robust_mc_mean_rmse_start": a["mean_rmse"],
-            "robust_mc_rms_rmse": b["rms_rmse"], "robust_mc_rms_rmse_start": a["rms_rmse"],
-        })
+        res.stats.update({"robust_mc_samples": int(samples), "robust_mc_seed": int(seed),
+                          "robust_mc_mean_rmse": b["mean_rmse"], "robust_mc_mean_rmse_start": a["mean_rmse"],
+                          "robust_mc_rms_rmse": b["rms_rmse"], "robust_mc_rms_rmse_start": a["rms_rmse"]})
     return stats.stamp(res)

@@ -218,10 +218,8 @@ def solve_from(problem: TipProblem, theta, lam, dl, frames, closest: bool = Fals
 
 def actuation(routing: Routing, diameter: float) -> dict:
     """Both measures of actuation of a routing: contraction sum (1 - lambda) dl [length] and turning (2/D) sum |tan theta| dl [rad]."""
-    return {
-        "actuation_contraction": float(np.sum((1 - routing.lam) * routing.length)),
-        "actuation_turning": float(2.0 / diameter * np.sum(np.abs(np.tan(routing.theta)) * routing.length)),
-    }
+    return {"actuation_contraction": float(np.sum((1 - routing.lam) * routing.length)),
+            "actuation_turning": float(2.0 / diameter * np.sum(np.abs(np.tan(routing.theta)) * routing.length))}
 
 
 def evaluate_tip(problem: TipProblem, routing: Routing, **kw) -> Result:

@@ -66,10 +66,8 @@ def helix_forward(theta, lam, D) -> Helix:
     R_c = D * (1 - lam**2) / (2 * dm)
     b = D * lam * s2 / dm
     kappa_c, tau_c, lambda_c = center_rates(theta, lam, D)
-    return Helix(
-        R_o=R_o, R_i=R_i, R_c=R_c, b=b, kappa_o=(1 - lam * c2) / D, tau_o=lam * s2 / D, kappa_i=(c2 - lam) / (D * lam),
-        tau_i=s2 / (D * lam), kappa_c=kappa_c, tau_c=tau_c, lambda_c=lambda_c,
-    )
+    return Helix(R_o=R_o, R_i=R_i, R_c=R_c, b=b, kappa_o=(1 - lam * c2) / D, tau_o=lam * s2 / D, kappa_i=(c2 - lam) / (D * lam),
+                 tau_i=s2 / (D * lam), kappa_c=kappa_c, tau_c=tau_c, lambda_c=lambda_c)
 
 
 def helix_inverse(R_o, R_i, b):

@@ -30,7 +30,5 @@ from vine_nlp.front.sweep.executors import MAX_CHUNK, LocalPool, solve_chunk, so
 from vine_nlp.front.sweep.figure import plot_summary
 from vine_nlp.front.sweep.summary import SweepReport, cells, format_report, method_stats, read_summary, write_summary
 
-__all__ = [
-    "DirectoryLock", "LocalPool", "MAX_CHUNK", "SweepReport", "cells", "format_report", "method_stats", "plot_summary",
-    "read_summary", "run_sweep", "solve_chunk", "solve_item", "write_item", "write_summary",
-]
+__all__ = ["DirectoryLock", "LocalPool", "MAX_CHUNK", "SweepReport", "cells", "format_report", "method_stats", "plot_summary",
+           "read_summary", "run_sweep", "solve_chunk", "solve_item", "write_item", "write_summary"]

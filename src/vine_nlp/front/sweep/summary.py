@@ -68,10 +68,8 @@ def format_report(report: SweepReport) -> str:
         head += f", {r.total - r.done - r.skipped - r.failed} not run (interrupted)"
     lines = [head]
     if r.solved:
-        lines.append(
-            f"{r.wall_time_s:.1f} s wall, {r.items_per_s:.3g} items/s, {r.executor}; "
-            f"items took {r.item_wall_s:.1f} s in the workers ({r.item_cpu_s:.1f} s CPU)"
-        )
+        lines.append(f"{r.wall_time_s:.1f} s wall, {r.items_per_s:.3g} items/s, {r.executor}; "
+                     f"items took {r.item_wall_s:.1f} s in the workers ({r.item_cpu_s:.1f} s CPU)")
     elif r.wall_time_s:
         lines.append(f"{r.wall_time_s:.1f} s wall, nothing to solve")
     if r.archived_here:
@@ -83,10 +81,8 @@ def format_report(report: SweepReport) -> str:
             lines.append(f"{method}: no finished runs")
             continue
         u = s["units"]
-        lines.append(
-            f"{method}: RMSE mean {s['rmse_mean']:.3g} {u}, worst {s['rmse_max']:.3g} {u} ({s['worst_item']}), "
-            f"{s['converged']}/{s['count']} converged, median solve time {s['time_median']:.3g} s"
-        )
+        lines.append(f"{method}: RMSE mean {s['rmse_mean']:.3g} {u}, worst {s['rmse_max']:.3g} {u} ({s['worst_item']}), "
+                     f"{s['converged']}/{s['count']} converged, median solve time {s['time_median']:.3g} s")
     if r.short:
         lines.append(f"{r.short} converged runs miss a hard requirement of their problem (see the error column)")
     for item, method, error in r.failures[:5]:

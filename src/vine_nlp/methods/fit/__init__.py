@@ -19,8 +19,6 @@ from vine_nlp.methods.fit.frames import FrameFit, fit_frames
 from vine_nlp.methods.fit.helix import best_fit_helix, best_fit_helix_pair, parameter_errors
 from vine_nlp.methods.fit.model_fit import describe_fit, fit_lines, fit_problem, model_lines
 
-__all__ = [
-    "fit_problem", "fit_lines", "fit_frames", "FrameFit", "icp", "best_fit_helix", "best_fit_helix_pair",
-    "parameter_errors", "r_squared", "model_lines", "describe_fit", "pose_starts", "Polyline", "apply_transform",
-    "invert_transform",
-]
+__all__ = ["fit_problem", "fit_lines", "fit_frames", "FrameFit", "icp", "best_fit_helix", "best_fit_helix_pair",
+           "parameter_errors", "r_squared", "model_lines", "describe_fit", "pose_starts", "Polyline", "apply_transform",
+           "invert_transform"]

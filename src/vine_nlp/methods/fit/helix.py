@@ -225,10 +225,8 @@ def _helix_dict(p, F0, mean, nradii):
     """Axis point/direction, signed pitch b and radii in world coordinates from parameters."""
     alpha, beta, cx, cy, w, phi0 = p[:6]
     F = _tilted(F0, alpha, beta)
-    return {
-        "axis_point": mean + F[:, 0] * cx + F[:, 1] * cy, "axis_dir": F[:, 2].copy(),
-        "b": 1.0 / w if w != 0 else math.inf, "phase": float(phi0), "radii": np.asarray(p[6 : 6 + nradii], float),
-    }
+    return {"axis_point": mean + F[:, 0] * cx + F[:, 1] * cy, "axis_dir": F[:, 2].copy(),
+            "b": 1.0 / w if w != 0 else math.inf, "phase": float(phi0), "radii": np.asarray(p[6 : 6 + nradii], float)}
 
 
 def best_fit_helix(points, top: int = 6, residual: str = "orthogonal") -> dict:
@@ -251,11 +249,8 @@ def best_fit_helix(points, top: int = 6, residual: str = "orthogonal") -> dict:
     h = _helix_dict(p, F0, mean, 1)
     R = float(h["radii"][0])
     err = _distances(_helix_residuals(p, Xc, F0, idx, 1, residual), X.shape[0])
-    return {
-        "R": abs(R), "b": h["b"], "axis_point": h["axis_point"], "axis_dir": h["axis_dir"],
-        "phase": h["phase"] + (math.pi if R < 0 else 0.0), "rmse": float(np.sqrt(np.mean(err**2))),
-        "r2": r_squared(X, err),
-    }
+    return {"R": abs(R), "b": h["b"], "axis_point": h["axis_point"], "axis_dir": h["axis_dir"],
+            "phase": h["phase"] + (math.pi if R < 0 else 0.0), "rmse": float(np.sqrt(np.mean(err**2))), "r2": r_squared(X, err)}
 
 
 def best_fit_helix_pair(inner_points, outer_points, top: int = 3, residual: str = "orthogonal") -> dict:
@@ -292,12 +287,10 @@ def best_fit_helix_pair(inner_points, outer_points, top: int = 3, residual: str 
         R_i, R_o, phase = -R_i, -R_o, phase + math.pi
     theta, lam, D = helix_inverse(R_o, R_i, h["b"])
     err = _distances(_helix_residuals(p, Xc, F0, idx, 2, residual), K)
-    return {
-        "R_i": float(R_i), "R_o": float(R_o), "b": float(h["b"]), "theta": float(theta), "lam": float(lam),
-        "D": float(D), "axis_point": h["axis_point"], "axis_dir": h["axis_dir"], "phase": float(phase),
-        "rmse": float(np.sqrt(np.mean(err**2))), "rmse_inner": float(np.sqrt(np.mean(err[idx == 0] ** 2))),
-        "rmse_outer": float(np.sqrt(np.mean(err[idx == 1] ** 2))), "r2": r_squared(X, err, idx),
-    }
+    return {"R_i": float(R_i), "R_o": float(R_o), "b": float(h["b"]), "theta": float(theta), "lam": float(lam),
+            "D": float(D), "axis_point": h["axis_point"], "axis_dir": h["axis_dir"], "phase": float(phase),
+            "rmse": float(np.sqrt(np.mean(err**2))), "rmse_inner": float(np.sqrt(np.mean(err[idx == 0] ** 2))),
+            "rmse_outer": float(np.sqrt(np.mean(err[idx == 1] ** 2))), "r2": r_squared(X, err, idx)}
 
 
 def parameter_errors(fitted: dict, nominal) -> dict:

@@ -207,15 +207,11 @@ def finish_fit(fitter: LineFitter, lam_fit, T, free, spacing):
         per_line[line] = Xt
     pts, closest, err, s, s_tube_pts, code = map(np.concatenate, (pts, closest, err, s, s_tube_pts, code))
     rmse = float(np.sqrt(np.mean(err**2)))
-    metrics = {
-        "rmse": rmse, "max_error": float(err.max()), "r2": r_squared(pts, err, code),
-        "lambda": float(lam_fit) if lam_fit is not None else float(np.mean(routing.lam)),
-    }
-    stats = {
-        "line": ",".join(fitter.measured), "free": list(free), "points": int(pts.shape[0]), "spacing": spacing * D,
-        "transform": T.tolist(), "lambda_evaluations": len(fitter.evaluations),
-        "model_line_length": {name: polylines[name].length for name in MEASURED_LINES},
-    }
+    metrics = {"rmse": rmse, "max_error": float(err.max()), "r2": r_squared(pts, err, code),
+               "lambda": float(lam_fit) if lam_fit is not None else float(np.mean(routing.lam))}
+    stats = {"line": ",".join(fitter.measured), "free": list(free), "points": int(pts.shape[0]), "spacing": spacing * D,
+             "transform": T.tolist(), "lambda_evaluations": len(fitter.evaluations),
+             "model_line_length": {name: polylines[name].length for name in MEASURED_LINES}}
     # RMSE of all measured points against each model line, at the fitted pose (diagnostic:
     # the measured line should be the one with the smallest).
     X_all = np.concatenate(list(per_line.values()))
@@ -226,10 +222,8 @@ def finish_fit(fitter: LineFitter, lam_fit, T, free, spacing):
         stats[f"rmse_measured_{line}"] = float(np.sqrt(np.mean(err[code == LINE_CODE[line]] ** 2)))
     status = "optimal" if np.isfinite(rmse) else "failed"
     result = Result(method="fit", routing=fitted, shape=shape, status=status, metrics=metrics, stats=stats, diameter=D)
-    extras = {
-        "measured/points": pts, "measured/closest": closest, "measured/error": err, "measured/s": s,
-        "measured/s_tube": s_tube_pts, "measured/line": code.astype(np.int8),
-    }
+    extras = {"measured/points": pts, "measured/closest": closest, "measured/error": err, "measured/s": s,
+              "measured/s_tube": s_tube_pts, "measured/line": code.astype(np.int8)}
     return result, extras
 
 
