@@ -65,11 +65,9 @@ def read_multishape_archive(path):
             lm.append({key: float(v) for key, v in lv["metrics"].attrs.items()})
             fixed.append(bool(lv.attrs.get("fixed", False)))
         shared = bool(g.attrs.get("shared_pose", True))
-    r = MultiShapeResult(
-        method=base.method, routing=base.routing, shape=base.shape, status=base.status, solve_time_s=base.solve_time_s,
-        iterations=base.iterations, metrics=base.metrics, stats=base.stats, diameter=base.diameter,
-        levels=levels, fixed=tuple(fixed), poses=np.array(poses), shapes=shapes, level_metrics=lm, shared_pose=shared,
-    )
+    r = MultiShapeResult(method=base.method, routing=base.routing, shape=base.shape, status=base.status, solve_time_s=base.solve_time_s,
+                         iterations=base.iterations, metrics=base.metrics, stats=base.stats, diameter=base.diameter, levels=levels,
+                         fixed=tuple(fixed), poses=np.array(poses), shapes=shapes, level_metrics=lm, shared_pose=shared)
     return a, r, targets
 
 

@@ -38,9 +38,8 @@ def clip_to_bounds(problem: DesignProblem, pairing: Pairing, **values) -> dict:
 
 def evaluate(problem: DesignProblem, routing: Routing, pairing: Pairing, method: str, **kw) -> Result:
     """Model the routing at the paired points and measure it against the target."""
-    center, inner, outer = shape_lines(
-        routing.theta, routing.lam, routing.length, problem.diameter, pairing.seg, pairing.frac, routing.initial_pose
-    )
+    center, inner, outer = shape_lines(routing.theta, routing.lam, routing.length, problem.diameter, pairing.seg, pairing.frac,
+                                       routing.initial_pose)
     metrics = error_metrics(center, problem.target) | routing_metrics(routing)
     return Result(method=method, routing=routing, shape=Shape(center, inner, outer), metrics=metrics, diameter=problem.diameter, **kw)
 

@@ -331,9 +331,7 @@ def fit_pose(sets, starts_T, global_iter=ICP_GLOBAL_ITER, top=POLISH_TOP, polish
 # ---------------------------------------------------------------- ICP of general paths
 
 
-def icp(
-    source, target, initial=None, max_iter: int = 100, tol: float = 1e-10, *, path: bool = True, starts: int = 24, seed: int = 0
-):
+def icp(source, target, initial=None, max_iter: int = 100, tol: float = 1e-10, *, path: bool = True, starts: int = 24, seed: int = 0):
     """Rigid alignment of ``source`` points onto ``target`` (paper Figs. 7 and 8).
 
     ``target`` is a modeled path (ordered samples, distances to its polyline) or, with ``path=False``, a point cloud

@@ -29,9 +29,7 @@ class FrameFit(tuple):
         return self[1]
 
 
-def fit_frames(
-    problem: FitProblem, measured_list, starts: int = 24, seed: int = 0, window: float = 0.1, min_points: int = 4
-):
+def fit_frames(problem: FitProblem, measured_list, starts: int = 24, seed: int = 0, window: float = 0.1, min_points: int = 4):
     """Fit every frame of a sequence of one actuator (paper Fig. 9(d)): a list of :class:`FrameFit`.
 
     Each frame is one point set of ``problem.line`` (rows with NaN, e.g. occluded markers, are dropped). The first good
