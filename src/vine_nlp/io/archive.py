@@ -30,7 +30,7 @@ import numpy as np
 from vine_nlp import __version__
 from vine_nlp.errors import InputError
 from vine_nlp.io import files, limits, outputs
-from vine_nlp.io.h5read import ArchiveError, open_archive
+from vine_nlp.io.h5read import ArchiveError, decode_attr, open_archive
 from vine_nlp.io.obstacles import read_obstacles, write_obstacles
 from vine_nlp.io.outputs import OutputError, output_error, temp_file
 from vine_nlp.model.shape import Shape
@@ -234,14 +234,6 @@ def add_metrics(path, run: str, metrics: dict) -> None:
 # ---------------------------------------------------------------- reading and validation
 
 
-def _decode(v):
-    if isinstance(v, bytes):
-        return v.decode()
-    if isinstance(v, np.generic):
-        return v.item()
-    return v
-
-
 _LINE_BREAKS = {ord(c): " " for c in "\n\r\t"}
 _CORE_GROUPS = ("problem", "tube", "target", "runs", "obstacles")
 _LINES = ("center", "inner", "outer")
@@ -266,7 +258,7 @@ class _Checker:
             if required:
                 self.fail(key, "missing attribute")
             return default
-        v = _decode(node.attrs[name])
+        v = decode_attr(node.attrs[name])
         if not isinstance(v, str):
             self.fail(key, f"must be text, got {type(v).__name__}")
         if len(v) > limits.MAX_TEXT_CHARS:
@@ -281,7 +273,7 @@ class _Checker:
             if required:
                 self.fail(key, "missing attribute")
             return default
-        v = _decode(node.attrs[name])
+        v = decode_attr(node.attrs[name])
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             self.fail(key, f"must be a number, got {type(v).__name__}")
         if integer and not (isinstance(v, int) or float(v).is_integer()):
@@ -404,7 +396,7 @@ def _run(c: _Checker, name: str, g, a: Archive) -> Result:
     if "solver" in g:
         st = c.group(g, "solver")
         for k, v in st.attrs.items():
-            v = _decode(v)
+            v = decode_attr(v)
             if isinstance(v, str):
                 v = c.text(st, k, lines=True)
             elif isinstance(v, np.ndarray):
@@ -474,7 +466,7 @@ def _extras(c: _Checker, h5, a: Archive) -> None:
 
 
 def _load(c: _Checker, h5) -> Archive:
-    fmt = _decode(h5.attrs.get("format"))
+    fmt = decode_attr(h5.attrs.get("format"))
     if fmt != FORMAT:
         c.fail("/@format", "not a vine_nlp result archive")
     version = c.number(h5, "format_version", integer=True, minimum=1)

@@ -34,7 +34,7 @@ from vine_nlp.io import limits
 from vine_nlp.io.archive import Archive, ArchiveError, load_archive, write_archive
 from vine_nlp.io.calibration import check_calibration
 from vine_nlp.io.data_files import check_spread, read_csv
-from vine_nlp.io.h5read import open_archive
+from vine_nlp.io.h5read import decode_attr, open_archive
 from vine_nlp.io.validate import SourceFile
 from vine_nlp.methods.correct import CorrectionResult, Measurement
 from vine_nlp.model.routing import MEASURED_LINES, Routing
@@ -89,8 +89,7 @@ def write_correction_archive(path, base: Archive, result: CorrectionResult, buil
         for name, v in (("theta", r.theta), ("lambda", r.lam), ("length", r.length), ("initial_pose", r.initial_pose)):
             extra[f"correction/builds/{b}/{name}"] = v
     est = result.estimate
-    extra["correction/systematic"] = est.systematic
-    extra["correction/systematic_std"] = est.systematic_std
+    extra |= {"correction/systematic": est.systematic, "correction/systematic_std": est.systematic_std}
     archive = Archive(name=base.name, kind=base.kind, source=base.source, diameter=base.diameter, units=base.units,
                       target=base.target, runs=runs, extra=extra)
 
@@ -130,11 +129,7 @@ def _attr(file, node, name, kinds, required=True, default=None):
         if required:
             raise ArchiveError(file, f"{node.name}@{name}", "missing attribute")
         return default
-    v = node.attrs[name]
-    if isinstance(v, bytes):
-        v = v.decode()
-    if isinstance(v, np.generic):
-        v = v.item()
+    v = decode_attr(node.attrs[name])
     if not isinstance(v, kinds) or isinstance(v, bool) and bool not in kinds:
         raise ArchiveError(file, f"{node.name}@{name}", f"unexpected type {type(v).__name__}")
     return v

@@ -13,6 +13,7 @@ import contextlib
 import math
 
 import h5py
+import numpy as np
 
 from vine_nlp import interrupt
 from vine_nlp.errors import InputError
@@ -118,3 +119,12 @@ def _attributes(obj, count) -> str | None:
         if reason:
             return f"attribute {name[:80]!r}: {reason}"
     return None
+
+
+def decode_attr(v):
+    """An HDF5 attribute's value as Python gives it: bytes decoded, numpy scalars as numbers."""
+    if isinstance(v, bytes):
+        return v.decode()
+    if isinstance(v, np.generic):
+        return v.item()
+    return v

@@ -23,6 +23,7 @@ import numpy as np
 from vine_nlp.analysis.obstacles import GROWTH_MODES
 from vine_nlp.errors import InputError
 from vine_nlp.io import files, limits
+from vine_nlp.io.h5read import decode_attr
 from vine_nlp.io.validate import is_number
 from vine_nlp.model.obstacles import OBSTACLE_TYPES, SHAPES, Box, Capsule, Mesh, Plane, Sphere, is_rotation, rotation_from_degrees
 
@@ -264,10 +265,6 @@ def write_obstacles(h5group, obstacles) -> None:
             g.create_dataset(key, data=np.asarray(value, np.int64 if key == "faces" else float), **({"compression": "gzip"} if big else {}))
 
 
-def _text_attr(v):
-    return v.decode() if isinstance(v, bytes) else v
-
-
 def _obstacle_dataset(g, key: str, want: tuple, file: str, path: str) -> np.ndarray:
     """Dataset ``key`` of obstacle group ``g``: numbers of shape ``want`` (None: any size), finite, coordinates within
     MAX_COORDINATE, a mesh of at most MAX_MESH_FACES faces (read before a byte of it is: the declared shape)."""
@@ -308,12 +305,12 @@ def read_obstacles(h5group, file) -> list:
     for k in order:
         g = h5group[str(k)]
         where = f"{base}/{k}"
-        shape = _text_attr(g.attrs.get("shape"))
+        shape = decode_attr(g.attrs.get("shape"))
         if shape is None:
             raise InputError(file, where, "missing attribute 'shape'")
         if shape not in OBSTACLE_TYPES:
             raise InputError(file, where, f"unknown shape '{shape}'")
-        name = _text_attr(g.attrs.get("name", ""))
+        name = decode_attr(g.attrs.get("name", ""))
         if not isinstance(name, str) or _bad_name(name):
             raise InputError(file, f"{where}@name", f"must be printable text of at most {limits.MAX_NAME_CHARS} characters")
         params = {key: _obstacle_dataset(g, key, want, file, f"{where}/{key}") for key, want in _DATASETS[shape].items()}
@@ -324,7 +321,7 @@ def read_obstacles(h5group, file) -> list:
                 faces = params["faces"]
                 if faces.dtype.kind == "f" and not np.array_equal(faces, np.round(faces)):
                     raise ValueError("faces must be integer vertex indices")
-                src = _text_attr(g.attrs.get("source"))
+                src = decode_attr(g.attrs.get("source"))
                 if src is not None and (not isinstance(src, str) or not src.isprintable()):
                     raise ValueError("source must be printable text")
                 ob = Mesh(params["vertices"], faces.astype(np.int64), source=src, name=name)
