@@ -70,9 +70,9 @@ def archive_run(archive, path, run):
 
 def sigmas(args) -> Sigmas:
     """The construction-error sigmas of the command line's --sigma-* options."""
-    if args.sigma_length_abs is not None:
-        return Sigmas.from_degrees(args.sigma_theta_deg, args.sigma_lambda, args.sigma_length_abs, relative_length=False)
-    return Sigmas.from_degrees(args.sigma_theta_deg, args.sigma_lambda, args.sigma_length, relative_length=True)
+    relative = args.sigma_length_abs is None
+    return Sigmas.from_degrees(args.sigma_theta_deg, args.sigma_lambda, args.sigma_length if relative else args.sigma_length_abs,
+                               relative_length=relative)
 
 
 def bounded(least, most, integer=False, above=False):

@@ -26,10 +26,7 @@ def apply_transform(T, points) -> np.ndarray:
 
 def invert_transform(T) -> np.ndarray:
     T = np.asarray(T, float)
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
+    return make_transform(T[:3, :3].T, -T[:3, :3].T @ T[:3, 3])
 
 
 def make_transform(R, t) -> np.ndarray:
@@ -161,14 +158,9 @@ class PointSet:
 
 def project_all(sets, Xt):
     """Closest points of the stacked transformed points, set by set."""
-    out = [[], [], [], [], []]
-    k0 = 0
-    for st in sets:
-        k1 = k0 + st.points.shape[0]
-        for lst, v in zip(out, st.line.project(Xt[k0:k1])):
-            lst.append(v)
-        k0 = k1
-    return [np.concatenate(v) for v in out]
+    ends = np.cumsum([0] + [st.points.shape[0] for st in sets])
+    parts = [st.line.project(Xt[a:b]) for st, a, b in zip(sets, ends[:-1], ends[1:])]
+    return [np.concatenate(v) for v in zip(*parts)]
 
 
 def stack_points(sets):
@@ -191,8 +183,7 @@ def r_squared(measured, residuals, groups=None) -> float:
     X = np.asarray(measured, float)
     res = np.asarray(residuals, float)
     ss_res = float(np.sum(res**2))
-    if groups is None:
-        groups = np.zeros(X.shape[0], int)
+    groups = np.zeros(X.shape[0], int) if groups is None else groups
     ss_tot = 0.0
     for gk in np.unique(groups):
         Xg = X[groups == gk]
@@ -299,8 +290,7 @@ def subsample(sets, n, seed=0):
     rng = np.random.default_rng(seed)
     out = []
     for st in sets:
-        k = max(3, int(round(n * st.points.shape[0] / total)))
-        k = min(k, st.points.shape[0])
+        k = min(max(3, int(round(n * st.points.shape[0] / total))), st.points.shape[0])
         idx = np.sort(rng.choice(st.points.shape[0], k, replace=False))
         out.append(PointSet(st.points[idx], st.line))
     return out
@@ -309,8 +299,7 @@ def subsample(sets, n, seed=0):
 def fit_pose(sets, starts_T, global_iter=ICP_GLOBAL_ITER, top=POLISH_TOP, polish_iter=50) -> PoseFit:
     """ICP from every start (on a subsample), then polish the best few on all points."""
     few = subsample(sets, GLOBAL_POINTS)
-    runs = []
-    iters = 0
+    runs, iters = [], 0
     for T0 in starts_T:
         T, mse, it = icp_refine(few, T0, max_iter=global_iter, tol=1e-9)
         iters += it
