@@ -55,16 +55,14 @@ def point_jacobian(routing, D: float, seg, frac):
     its CasADi Jacobian (frame and points wrt frame and parameters) is chained forward, S_{j+1} = A_j S_j + B_j with S_j
     = dX_j/dq: O(M) evaluations of one small function, exact derivatives."""
     M = routing.segments
-    seg = np.asarray(seg, int)
-    frac = np.asarray(frac, float)
+    seg, frac = np.asarray(seg, int), np.asarray(frac, float)
     counts = np.bincount(seg, minlength=M)
     n = int(max(1, counts.max()))
     G = segment_jacobian_function(n)
     T0 = np.asarray(routing.initial_pose, float)
     X = np.concatenate([T0[:3, :3].ravel(order="F"), T0[:3, 3] / D])
     S = np.zeros((12, 3 * M))  # dX_j / dq; the base frame is not a construction parameter
-    points = np.empty((seg.size, 3))
-    J = np.empty((seg.size, 3, 3 * M))
+    points, J = np.empty((seg.size, 3)), np.empty((seg.size, 3, 3 * M))
     for j in range(M):
         idx = np.flatnonzero(seg == j)
         u = np.zeros(n)
@@ -90,8 +88,7 @@ def batch_points(theta, lam, length, D: float, seg, frac, initial_pose=None, chu
     """Center points at (seg, frac) of many designs at once: (S, M) arrays -> (S, P, 3) (numpy chain)."""
     theta, lam, length = np.broadcast_arrays(*(np.atleast_2d(np.asarray(v, float)) for v in (theta, lam, length)))
     S, M = theta.shape
-    seg = np.asarray(seg, int)
-    frac = np.asarray(frac, float)
+    seg, frac = np.asarray(seg, int), np.asarray(frac, float)
     T0 = np.eye(4) if initial_pose is None else np.asarray(initial_pose, float)
     out = np.empty((S, seg.size, 3))
     for a in range(0, S, chunk):
@@ -119,8 +116,7 @@ def tolerance_report(problem, result, sigmas: Sigmas, samples: int = 2000, seed:
       per_segment: l_start, l_end, l_mid (material coordinate), tip_var (M,), tip_var_by_param (M, 3), mse (M,),
       mse_by_param (M, 3) (columns theta, lambda, length; they add up to the totals above); monte_carlo: samples,
       seed, rmse (S,), mean_rmse, rms_rmse (= sqrt(mean MSE)), mse_increase, tip_cov (3, 3), tip_std, tip_mean_shift."""
-    D = problem.diameter
-    r = result.routing
+    D, r = problem.diameter, result.routing
     pairing = pair_points(problem.target, problem.options.points_per_segment)
     if pairing.segments != r.segments:
         raise ValueError(f"the design has {r.segments} segments, the problem's pairing {pairing.segments}")

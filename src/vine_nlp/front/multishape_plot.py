@@ -50,8 +50,7 @@ def plot_multishape_figure(source) -> Figure:
 def multishape_figure(a, r, targets) -> Figure:
     """Draw a multi-shape result: ``a`` the archive (name, units, diameter), ``r`` the MultiShapeResult (shared routing,
     K levels, shapes and per-level metrics), ``targets`` the K target point arrays (N, 3). Reads nothing."""
-    u = a.units
-    K = r.count
+    u, K = a.units, r.count
     colors = [palette.RUNS[k % len(palette.RUNS)] for k in range(K)]
     with matplotlib.rc_context(STYLE):
         fig = Figure(figsize=(PAGE_IN, 3.6), layout="constrained")

@@ -74,8 +74,7 @@ def point_s(archive: Archive, result) -> np.ndarray:
     rebuilt from the archived ``points_per_segment`` (or the n consistent with M and N) and accepted only if the model
     reproduces the archived center line there. Otherwise s is estimated from the target's chord length (proportional to
     the tube length)."""
-    r = result.routing
-    center = result.shape.center
+    r, center = result.routing, result.shape.center
     N, M = center.shape[0], r.segments
     S = segment_edges(r)
     candidates = []
@@ -227,8 +226,7 @@ def draw_obstacles(ax, obstacles, view=None, color=palette.OBSTACLE, alpha: floa
 def plot_shape_3d(ax, archive: Archive, name: str, norm=None, cmap=ERROR_CMAP, legend: bool = True, zoom: float = 1.0,
                   obstacles=None):
     """One run in 3-D: target, tube wall at true diameter, actuator/opposite lines, error-colored center line."""
-    u = archive.units
-    D = archive.diameter
+    u, D = archive.units, archive.diameter
     r = archive.runs[name]
     everything = [r.shape.inner, r.shape.outer]
     handles = []
@@ -311,8 +309,7 @@ def plot_parameters(axes, archive: Archive, names, colors, styles=None, legend: 
         thetas.append(np.degrees(r.routing.theta))
         lams.append(r.routing.lam)
     act = source_table(archive, "actuator")
-    th_max = act.get("theta_max_deg")
-    lam_min = act.get("lambda_min")
+    th_max, lam_min = act.get("theta_max_deg"), act.get("lambda_min")
     ax_t.axhline(0.0, color="0.6", lw=0.4)
     if thetas:
         _bound_lines(ax_t, np.concatenate(thetas), [s * float(th_max) for s in (-1, 1)] if _number(th_max) else [])

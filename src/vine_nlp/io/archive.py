@@ -472,8 +472,7 @@ def _load(c: _Checker, h5) -> Archive:
     version = c.number(h5, "format_version", integer=True, minimum=1)
     if version > FORMAT_VERSION:
         c.fail("/@format_version", f"format version {version} is newer than this vine_nlp reads ({FORMAT_VERSION})")
-    p = c.group(h5, "problem")
-    tube = c.group(h5, "tube")
+    p, tube = c.group(h5, "problem"), c.group(h5, "tube")
     units = c.text(h5, "units")
     if not units or len(units) > limits.MAX_UNITS_CHARS:
         c.fail("/@units", f"must be a unit name, got {units[:40]!r}")

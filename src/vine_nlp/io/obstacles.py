@@ -335,8 +335,7 @@ def check_start(problem, file) -> None:
     """InputError ``(file, key, reason)`` for a design that cannot start: no point of the target clears the
     obstacles by the tube's radius and ``obstacle_margin`` (the whole target inside an obstacle, or a margin wider
     than the space around it). Cheap: one distance per target point and obstacle."""
-    obstacles = getattr(problem, "obstacles", ())
-    target = getattr(problem, "target", None)
+    obstacles, target = getattr(problem, "obstacles", ()), getattr(problem, "target", None)
     if not obstacles or target is None:
         return
     each = np.array([np.asarray(ob.distance(np.asarray(target, float)), float).reshape(-1) for ob in obstacles])

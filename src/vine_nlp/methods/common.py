@@ -96,8 +96,7 @@ def geometric_guess(problem: DesignProblem, pairing: Pairing, flip_sign: float =
     turns both into theta and lambda, clipped to the bounds. A bending direction that flips (an inflection, where the
     actuator must move to the other side of the tube) is a rotation of +-pi about the tangent: ``flip_sign`` picks the
     side, which breaks the theta -> -theta symmetry of planar targets (model notes, symmetry trap)."""
-    D = problem.diameter
-    tgt = problem.target
+    D, tgt = problem.diameter, problem.target
     M, b = pairing.segments, pairing.bounds
     tangent = _unit(np.gradient(tgt, pairing.chord, axis=0))
     arc = np.maximum(pairing.segment_chord, 1e-12)

@@ -64,8 +64,7 @@ def _window_nlp(W: int, n1: int, shared: bool):
     """SX of the window NLP: x per segment (theta, lam unless shared, dl); p = (X_a (12), u (n1 W),
     targets (3 n1 W, slot-major), weights (n1 W), shared lambda, tail: c, W, Q (3), C (9), T (3))."""
     per = 2 if shared else 3
-    x = ca.SX.sym("x", per * W)
-    X = ca.SX.sym("Xa", 12)
+    x, X = ca.SX.sym("x", per * W), ca.SX.sym("Xa", 12)
     u, tgt, w = ca.SX.sym("u", n1, W), ca.SX.sym("tgt", 3 * n1, W), ca.SX.sym("w", n1, W)
     lam_shared = ca.SX.sym("lam")
     c, Ws, Q, C, T = ca.SX.sym("c"), ca.SX.sym("W"), ca.SX.sym("Q", 3), ca.SX.sym("C", 9), ca.SX.sym("T", 3)

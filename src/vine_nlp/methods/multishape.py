@@ -108,8 +108,7 @@ def reference_level(problem: MultiShapeProblem, pairings) -> int:
 
 def initial_guess(problem: MultiShapeProblem, pairings, flip: float = 1.0) -> MultiGuess:
     """Geometric guess of the most actuated target; free lambdas from the chord lengths; frames on every target."""
-    a = problem.actuator
-    K = problem.count
+    a, K = problem.actuator, problem.count
     r = reference_level(problem, pairings)
     g = geometric_guess(problem.level_problem(r), pairings[r], flip)
     theta = g.theta

@@ -51,8 +51,7 @@ def chain_points(theta, lam, length, D, segment, fraction, initial_pose=None, fr
     theta, lam, length = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, float)) for v in (theta, lam, length)))
     if frames is None:
         frames = chain_frames(theta, lam, length, D, initial_pose)
-    segment = np.asarray(segment, int)
-    fraction = np.asarray(fraction, float)
+    segment, fraction = np.asarray(segment, int), np.asarray(fraction, float)
     local = segment_transform(theta[segment], lam[segment], fraction * length[segment], D)
     world = frames[segment] @ local
     return world[:, :3, 3], world[:, :3, :3]

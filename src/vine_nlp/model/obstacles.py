@@ -353,8 +353,7 @@ class Mesh:
     kind: ClassVar[str] = "mesh"
 
     def __post_init__(self):
-        v = np.array(self.vertices, dtype=float)
-        f = np.array(self.faces, dtype=np.int64)
+        v, f = np.array(self.vertices, dtype=float), np.array(self.faces, dtype=np.int64)
         if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] < 4 or not np.all(np.isfinite(v)):
             raise ValueError("vertices must be a (V, 3) array of finite numbers, V >= 4")
         if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] < 4 or f.min() < 0 or f.max() >= v.shape[0]:

@@ -180,8 +180,7 @@ def r_squared(measured, residuals, groups=None) -> float:
 
     1 - SS_res / SS_tot with SS_res the sum of squared distances of the measured points to the model and SS_tot the sum
     of squared distances to the centroid of the measured points (of each group, e.g. each measured line, separately)."""
-    X = np.asarray(measured, float)
-    res = np.asarray(residuals, float)
+    X, res = np.asarray(measured, float), np.asarray(residuals, float)
     ss_res = float(np.sum(res**2))
     groups = np.zeros(X.shape[0], int) if groups is None else groups
     ss_tot = 0.0
@@ -197,8 +196,7 @@ def r_squared(measured, residuals, groups=None) -> float:
 def icp_refine(sets, T, max_iter=100, tol=1e-10):
     """Point-to-closest-point ICP with Kabsch updates. Returns (T, mean squared distance, iterations)."""
     X = stack_points(sets)
-    prev = math.inf
-    it = 0
+    prev, it = math.inf, 0
     for it in range(1, max_iter + 1):
         c, d, *_ = project_all(sets, apply_transform(T, X))
         cost = float(np.mean(d**2))
@@ -235,8 +233,7 @@ def polish_pose(sets, T, max_iter=50, tol=1e-10):
         return Xt, c, tan, end, float(np.sum(d**2))
 
     state = evaluate(T)
-    mu = 1e-4
-    it = 0
+    mu, it = 1e-4, 0
     for it in range(1, max_iter + 1):  # noqa: B007  (the count is returned after the loop)
         Xt, c, tan, end, cost = state
         if cost <= floor * K:

@@ -145,8 +145,7 @@ class ObstacleRows:
 
     def apply(self, c: Chain) -> None:
         s, lay = c.s, c.lay
-        M = s.M
-        x = c.x
+        M, x = s.M, c.x
         if self.levels:
             ts = c.param("after_t", (1, self.levels))
         for a in range(self.levels):
