@@ -237,12 +237,10 @@ def _shape_gaps(routing, D, obstacles, margin, smp, refine) -> list[dict]:
             j = a + int(np.argmin(g[a:b + 1]))
             contacts.append({"s": (float(smp["s"][a]), float(smp["s"][b])), "l": (float(smp["l"][a]), float(smp["l"][b])),
                              "min_gap": float(g[j]), "at_s": float(smp["s"][j])})
-        if refine and contacts == [] and gmin < margin:
-            # the refined minimum dips below the margin between two samples
-            contacts.append({"s": (float(np.interp(lmin, cum_l, cum_s)),) * 2, "l": (lmin, lmin), "min_gap": gmin,
-                             "at_s": float(np.interp(lmin, cum_l, cum_s))})
-        out.append({"index": k, "kind": ob.kind, "name": ob.name, "min_gap": gmin, "l": lmin,
-                    "s": float(np.interp(lmin, cum_l, cum_s)), "gaps": g, "contacts": contacts})
+        s_min = float(np.interp(lmin, cum_l, cum_s))
+        if refine and contacts == [] and gmin < margin:  # the refined minimum dips below the margin between two samples
+            contacts.append({"s": (s_min, s_min), "l": (lmin, lmin), "min_gap": gmin, "at_s": s_min})
+        out.append({"index": k, "kind": ob.kind, "name": ob.name, "min_gap": gmin, "l": lmin, "s": s_min, "gaps": g, "contacts": contacts})
     return out
 
 
@@ -279,10 +277,8 @@ def obstacle_report(routing: Routing, diameter: float, obstacles, growth: str = 
     gmin = min((f["min_gap"] for f in final), default=math.inf)
     out = {"growth": growth, "margin": float(margin), "final": final, "s": smp["s"], "l": smp["l"], "min_gap": gmin}
     if growth == "while-actuated":
-        out["intermediate"] = [{
-            "index": f["index"], "min_gap": f["min_gap"],
-            "first_contact_length": (f["contacts"][0]["l"][0] if f["contacts"] else None),
-        } for f in final]
+        out["intermediate"] = [{"index": f["index"], "min_gap": f["min_gap"],
+                                "first_contact_length": (f["contacts"][0]["l"][0] if f["contacts"] else None)} for f in final]
         out["min_gap_intermediate"] = gmin
     else:
         shapes = after_growth_shapes(routing, D, ts, per_segment)
@@ -291,10 +287,7 @@ def obstacle_report(routing: Routing, diameter: float, obstacles, growth: str = 
         worst = [{"index": k, "min_gap": math.inf, "t": None, "s": None, "l": None} for k in range(K)]
         contacts = []
         for a, sh in enumerate(shapes):
-            if sh["t"] == 1.0:
-                per = final
-            else:
-                per = _shape_gaps(sh["routing"], D, obstacles, margin, sh, False)
+            per = final if sh["t"] == 1.0 else _shape_gaps(sh["routing"], D, obstacles, margin, sh, False)
             contacts.append([p["contacts"] for p in per])
             for k, p in enumerate(per):
                 gaps[a, k] = p["min_gap"]

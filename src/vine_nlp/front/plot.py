@@ -124,9 +124,8 @@ def set_equal_3d(ax, points, zoom: float = 1.0):
     pts = np.concatenate([np.asarray(p, float).reshape(-1, 3) for p in points if np.size(p)])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     mid, half = 0.5 * (lo + hi), 0.5 * max(float((hi - lo).max()), 1e-9)
-    ax.set_xlim(mid[0] - half, mid[0] + half)
-    ax.set_ylim(mid[1] - half, mid[1] + half)
-    ax.set_zlim(mid[2] - half, mid[2] + half)
+    for set_lim, m in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), mid):
+        set_lim(m - half, m + half)
     ax.set_box_aspect((1, 1, 1), zoom=zoom)
 
 
@@ -189,10 +188,7 @@ def draw_obstacles(ax, obstacles, view=None, color=palette.OBSTACLE, alpha: floa
             drawn.append(np.column_stack([X.ravel(), Y.ravel(), Z.ravel()]))
         elif isinstance(ob, Capsule):
             a, b, r = np.array(ob.p0), np.array(ob.p1), ob.radius
-            axis = (b - a) / np.linalg.norm(b - a)
-            e1 = np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0])
-            e1 /= np.linalg.norm(e1)
-            e2 = np.cross(axis, e1)
+            axis, e1, e2 = ob.rounded_box()[1].T  # the capsule's frame: its axis first
             # one surface: hemisphere at p0, cylinder, hemisphere at p1 (polar angle 0..pi)
             w = np.linspace(0, 2 * np.pi, 25)
             pol = np.r_[np.linspace(0, 0.5 * np.pi, 7), np.linspace(0.5 * np.pi, np.pi, 7)]
@@ -406,8 +402,7 @@ def plot_archive(archive, obstacles=None) -> Figure:
         if norm is not None:
             cb = fig.colorbar(ScalarMappable(norm=norm, cmap=ERROR_CMAP), ax=axes3d, shrink=0.7, pad=0.1 if k == 1 else 0.06, aspect=25)
             cb.set_label(f"center-line error to target [{archive.units}]")
-        first = ax_e if ax_e is not None else None
-        ax_t = fig.add_subplot(cells[0], sharex=first)
+        ax_t = fig.add_subplot(cells[0], sharex=ax_e)
         ax_l = fig.add_subplot(cells[1], sharex=ax_t)
         ax_p = fig.add_subplot(cells[2], sharex=ax_t)
         panels = [ax_t, ax_l, ax_p]

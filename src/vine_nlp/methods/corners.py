@@ -305,9 +305,7 @@ class _Search:
         return changed
 
     def finish(self, result: Result) -> Result:
-        total = self.per_round * max(1, self.rounds_asked)
-        if self.progress:
-            self.progress(total, total)
+        self.report(self.per_round * max(1, self.rounds_asked))  # done
         elapsed = time.perf_counter() - self.t0
         best = self.best
         best.stats |= {"search_rounds": self.rounds, "search_windows": self.windows_done, "search_accepted": self.accepted,
