@@ -177,9 +177,7 @@ class InlinePool:
 
     window = 1
     shared_fate = False
-
-    def __init__(self):
-        self.description = "in this process"
+    description = "in this process"
 
     def chunk_size(self, pending: int) -> int:
         return 1  # an interrupt keeps every finished item
