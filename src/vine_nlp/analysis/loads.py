@@ -33,8 +33,7 @@ import math
 
 import numpy as np
 
-from vine_nlp.model.chain import chain_frames, chain_points, segment_end_samples
-from vine_nlp.model.helix import center_rates
+from vine_nlp.analysis.obstacles import sample_chain
 from vine_nlp.model.routing import Routing
 
 METRES_PER_UNIT = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "inch": 0.0254}
@@ -106,16 +105,11 @@ def prefix_bending(points, l, tangents, mass_per_length: float, tip_mass: float,
 
 
 def _samples(routing: Routing, D: float, per_segment: int):
-    seg, frac = segment_end_samples(routing.length, per_segment)
-    frames = chain_frames(routing.theta, routing.lam, routing.length, D, routing.initial_pose)
-    pts, rot = chain_points(routing.theta, routing.lam, routing.length, D, seg, frac, routing.initial_pose, frames=frames)
-    _, _, lc = center_rates(routing.theta, routing.lam, D)
-    s = np.r_[0.0, np.cumsum(routing.length * lc)][seg] + frac * (routing.length * lc)[seg]
-    l = np.r_[0.0, np.cumsum(routing.length)][seg] + frac * routing.length[seg]
-    act = routing.lam < 1.0 - 1e-9
+    smp = sample_chain(routing, D, per_segment)
+    seg, frac, act = smp["seg"], smp["frac"], routing.lam < 1.0 - 1e-9
     # a segment end belongs to both segments: the weaker one counts
     actuated = act[seg] | ((frac == 0) & act[np.maximum(seg - 1, 0)])
-    return pts, rot[:, :, 0], s, l, actuated
+    return smp["points"], smp["tangent"], smp["s"], smp["l"], actuated
 
 
 def load_report(routing: Routing, D: float, units: str, load, growth: str = "while-actuated", per_segment: int = PER_SEGMENT) -> dict:

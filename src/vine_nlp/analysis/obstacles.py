@@ -108,17 +108,17 @@ def sample_spacing(diameter: float, margin: float = 0.0, tol: float | None = Non
 def sample_chain(routing: Routing, diameter: float, per_segment=DEFAULT_PER_SEGMENT) -> dict:
     """Center line of ``routing`` at ``per_segment`` (int or (M,) ints; default 20, as the obstacle goals are
     checked) equal pieces of every segment, base to tip: dict(points (P, 3), s (actuated arc length), l (material
-    coordinate), seg, frac), the segment ends included, P = sum(per_segment) + 1."""
+    coordinate), seg, frac, tangent (P, 3)), the segment ends included, P = sum(per_segment) + 1."""
     D = float(diameter)
     th, lam, ln = routing.theta, routing.lam, routing.length
     seg, frac = segment_end_samples(ln, per_segment)
     frames = chain_frames(th, lam, ln, D, routing.initial_pose)
-    pts, _ = chain_points(th, lam, ln, D, seg, frac, routing.initial_pose, frames=frames)
+    pts, rot = chain_points(th, lam, ln, D, seg, frac, routing.initial_pose, frames=frames)
     _, _, lc = center_rates(th, lam, D)
     arc = ln * lc
     s = np.concatenate([[0.0], np.cumsum(arc)])[seg] + frac * arc[seg]
     l = np.concatenate([[0.0], np.cumsum(ln)])[seg] + frac * ln[seg]
-    return {"points": pts, "s": s, "l": l, "seg": seg, "frac": frac}
+    return {"points": pts, "s": s, "l": l, "seg": seg, "frac": frac, "tangent": rot[:, :, 0]}
 
 
 class ModelLine:
