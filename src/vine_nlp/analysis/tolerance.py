@@ -1,9 +1,8 @@
 """Manufacturing tolerance: how construction errors in theta, lambda and segment length move the shape.
 
-Error model: every segment's (theta_j, lambda_j, dl_j) is built with independent,
-zero-mean Gaussian errors of standard deviations (see :class:`Sigmas`), by the physical
-rule (spec "Physical builds", model.routing.built_lambda): no lambda error where lambda_j = 1
-(no actuator), elsewhere the built lambda min(1, lambda_j + error), at least lambda_min
+Error model: every segment's (theta_j, lambda_j, dl_j) is built with independent, zero-mean Gaussian errors of standard
+deviations (see :class:`Sigmas`), by the physical rule (spec "Physical builds", model.routing.built_lambda): no lambda
+error where lambda_j = 1 (no actuator), elsewhere the built lambda min(1, lambda_j + error), at least lambda_min
 
 * sigma_theta  [rad]  drawn angle of the actuator,
 * sigma_lambda [-]    contraction ratio (absolute: lambda 0.70 +- 0.02),
@@ -11,9 +10,8 @@ rule (spec "Physical builds", model.routing.built_lambda): no lambda error where
                       segment's length, like a stopper or pinch cut 2 % off); with
                       ``relative_length=False`` an absolute length in problem units.
 
-First order. With J the Jacobian of the paired center points (single shooting,
-CasADi, :func:`point_jacobian`) with respect to q = (theta_j, lambda_j, dl_j)_j
-and Sigma = diag(sigma^2), the point errors are N(0, J_k Sigma J_k^T) and the
+First order. With J the Jacobian of the paired center points (single shooting, CasADi, :func:`point_jacobian`) with
+respect to q = (theta_j, lambda_j, dl_j)_j and Sigma = diag(sigma^2), the point errors are N(0, J_k Sigma J_k^T) and the
 expected squared error of the linearization is exact:
 
     E[MSE] = MSE_0 + (1/N) sum_k tr(J_k Sigma J_k^T)    (the cross term has zero mean),
@@ -22,10 +20,8 @@ so the "first-order RMSE" is sqrt(E[MSE]) (Jensen: E[RMSE] <= sqrt(E[MSE])). The
 covariance is J_tip Sigma J_tip^T, and the contribution of segment m to the tip
 variance is sum over its three parameters of |J_tip[:, (m, p)]|^2 sigma_(m, p)^2.
 
-First order ignores the clips (a derivative of 1; of 0 without an actuator). Monte Carlo
-builds by the rule itself: the numpy chain evaluated for all samples at once (model
-functions broadcast over a (samples, segments) array), seeded RNG.
-"""
+First order ignores the clips (a derivative of 1; of 0 without an actuator). Monte Carlo builds by the rule itself: the
+numpy chain evaluated for all samples at once (model functions broadcast over a (samples, segments) array), seeded RNG."""
 
 from __future__ import annotations
 
@@ -54,23 +50,19 @@ def segment_jacobian_function(n: int) -> ca.Function:
 def point_jacobian(routing, D: float, seg, frac):
     """Center points at (seg, frac) and their Jacobian wrt (theta_j, lambda_j, dl_j), single shooting.
 
-    Returns (points (P, 3), J (P, 3, 3M)); column 3 j + p is parameter p (0 theta,
-    1 lambda, 2 dl) of segment j, in problem units. The chain is the NLP's per-segment
-    function (model.segment.segment_function, units of D) in a loop; its CasADi Jacobian
-    (frame and points wrt frame and parameters) is chained forward, S_{j+1} = A_j S_j + B_j
-    with S_j = dX_j/dq: O(M) evaluations of one small function, exact derivatives.
-    """
+    Returns (points (P, 3), J (P, 3, 3M)); column 3 j + p is parameter p (0 theta, 1 lambda, 2 dl) of segment j, in
+    problem units. The chain is the NLP's per-segment function (model.segment.segment_function, units of D) in a loop;
+    its CasADi Jacobian (frame and points wrt frame and parameters) is chained forward, S_{j+1} = A_j S_j + B_j with S_j
+    = dX_j/dq: O(M) evaluations of one small function, exact derivatives."""
     M = routing.segments
-    seg = np.asarray(seg, int)
-    frac = np.asarray(frac, float)
+    seg, frac = np.asarray(seg, int), np.asarray(frac, float)
     counts = np.bincount(seg, minlength=M)
     n = int(max(1, counts.max()))
     G = segment_jacobian_function(n)
     T0 = np.asarray(routing.initial_pose, float)
     X = np.concatenate([T0[:3, :3].ravel(order="F"), T0[:3, 3] / D])
     S = np.zeros((12, 3 * M))  # dX_j / dq; the base frame is not a construction parameter
-    points = np.empty((seg.size, 3))
-    J = np.empty((seg.size, 3, 3 * M))
+    points, J = np.empty((seg.size, 3)), np.empty((seg.size, 3, 3 * M))
     for j in range(M):
         idx = np.flatnonzero(seg == j)
         u = np.zeros(n)
@@ -96,8 +88,7 @@ def batch_points(theta, lam, length, D: float, seg, frac, initial_pose=None, chu
     """Center points at (seg, frac) of many designs at once: (S, M) arrays -> (S, P, 3) (numpy chain)."""
     theta, lam, length = np.broadcast_arrays(*(np.atleast_2d(np.asarray(v, float)) for v in (theta, lam, length)))
     S, M = theta.shape
-    seg = np.asarray(seg, int)
-    frac = np.asarray(frac, float)
+    seg, frac = np.asarray(seg, int), np.asarray(frac, float)
     T0 = np.eye(4) if initial_pose is None else np.asarray(initial_pose, float)
     out = np.empty((S, seg.size, 3))
     for a in range(0, S, chunk):
@@ -117,18 +108,15 @@ def batch_points(theta, lam, length, D: float, seg, frac, initial_pose=None, chu
 def tolerance_report(problem, result, sigmas: Sigmas, samples: int = 2000, seed: int = 0) -> dict:
     """First-order and Monte Carlo sensitivity of a design to construction errors.
 
-    The shape is measured at the paired points of ``problem`` (pair_points with its
-    points_per_segment, the tip last), as the design methods do; the result's routing
-    must have that pairing's segment count. Lengths in problem units.
+    The shape is measured at the paired points of ``problem`` (pair_points with its points_per_segment, the tip last),
+    as the design methods do; the result's routing must have that pairing's segment count. Lengths in problem units.
 
     Returns dict with sigmas, units, segments, points; nominal: rmse, mse, tip (3,); first_order: mse_increase,
       rmse (= sqrt(MSE_0 + increase)), rmse_increase, tip_cov (3, 3), tip_std (= sqrt(trace)), point_std (N,);
       per_segment: l_start, l_end, l_mid (material coordinate), tip_var (M,), tip_var_by_param (M, 3), mse (M,),
       mse_by_param (M, 3) (columns theta, lambda, length; they add up to the totals above); monte_carlo: samples,
-      seed, rmse (S,), mean_rmse, rms_rmse (= sqrt(mean MSE)), mse_increase, tip_cov (3, 3), tip_std, tip_mean_shift.
-    """
-    D = problem.diameter
-    r = result.routing
+      seed, rmse (S,), mean_rmse, rms_rmse (= sqrt(mean MSE)), mse_increase, tip_cov (3, 3), tip_std, tip_mean_shift."""
+    D, r = problem.diameter, result.routing
     pairing = pair_points(problem.target, problem.options.points_per_segment)
     if pairing.segments != r.segments:
         raise ValueError(f"the design has {r.segments} segments, the problem's pairing {pairing.segments}")
@@ -182,10 +170,8 @@ def tolerance_metrics(report: dict) -> dict:
     """Flat floats of a tolerance report for archive attributes (problem length units)."""
     fo, mc, ps = report["first_order"], report["monte_carlo"], report["per_segment"]
     worst = int(np.argmax(ps["tip_var"]))
-    return {
-        "tolerance_rmse_first_order": fo["rmse"], "tolerance_rmse_increase_first_order": fo["rmse_increase"],
-        "tolerance_tip_std_first_order": fo["tip_std"], "tolerance_rmse_mc_mean": mc["mean_rmse"],
-        "tolerance_rmse_mc_rms": mc["rms_rmse"], "tolerance_tip_std_mc": mc["tip_std"],
-        "tolerance_worst_segment": float(worst), "tolerance_worst_segment_l_mid": float(ps["l_mid"][worst]),
-        "tolerance_worst_segment_tip_share": float(ps["tip_var"][worst] / max(ps["tip_var"].sum(), 1e-300)),
-    }
+    return {"tolerance_rmse_first_order": fo["rmse"], "tolerance_rmse_increase_first_order": fo["rmse_increase"],
+            "tolerance_tip_std_first_order": fo["tip_std"], "tolerance_rmse_mc_mean": mc["mean_rmse"],
+            "tolerance_rmse_mc_rms": mc["rms_rmse"], "tolerance_tip_std_mc": mc["tip_std"],
+            "tolerance_worst_segment": float(worst), "tolerance_worst_segment_l_mid": float(ps["l_mid"][worst]),
+            "tolerance_worst_segment_tip_share": float(ps["tip_var"][worst] / max(ps["tip_var"].sum(), 1e-300))}

@@ -53,7 +53,6 @@ def correction_figure(result, problem, units: str = "cm"):
     """Target, measured points, estimated as-built line and predicted corrected shape (equal axes: an out-of-plane
     error looks as large as it is), the problem's obstacles; deviations per segment."""
     from matplotlib.figure import Figure  # matplotlib loads when a figure is asked for
-
     fig = Figure(figsize=(12, 5.5))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     lines = [problem.target, result.as_built.shape.center, result.corrected.shape.center]

@@ -4,8 +4,7 @@ legend's word for it.
 The *opposite line* is the line on the tube wall diametrically opposite the actuator line (the model's outer
 line, D/2 from the center line away from the actuator): with the actuator line it shows how the routing twists
 around the tube. Runs (nlp, greedy, ...) take RUNS in the 2-D panels and the view's center lines; none of
-them is a colour of a thing above.
-"""
+them is a colour of a thing above."""
 
 ACTUATOR = "#1f5fbf"  # blue: the actuator line; on a template, its path where it stays (stoppers, an sPAM's pouches)
 OPPOSITE = "#2ca02c"  # green: the opposite line

@@ -18,8 +18,7 @@ The one place that decides which runs a problem makes, in which order, from whic
 Every run is then judged against the hard requirements of its problem (:func:`judge`: the
 actuator's bounds, the obstacle margin checked densely against the exact shapes, the clearance
 asked for, a [load]'s sections): ``Result.shortfall`` says what it misses. The exit status is 0 only where every run
-the request asked for converged and misses nothing (:attr:`Outcome.ok`).
-"""
+the request asked for converged and misses nothing (:attr:`Outcome.ok`)."""
 
 from __future__ import annotations
 
