@@ -35,8 +35,8 @@ import numpy as np
 
 from vine_nlp.analysis.obstacles import sample_chain
 from vine_nlp.model.routing import Routing
+from vine_nlp.model.units import METRES_PER_UNIT
 
-METRES_PER_UNIT = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "inch": 0.0254}
 WRINKLED = 0.5  # an actuated section's capacity, as a fraction of pi P r^3 (module docstring)
 PER_SEGMENT = 20  # samples per segment of the report (as the obstacle report's)
 ZERO = 1e-6  # a bending moment below this fraction of the largest possible one is none (round-off)

@@ -36,11 +36,10 @@ from vine_nlp.front.states import picked_states, samples, state_lines
 from vine_nlp.io.archive import Archive, write_atomic
 from vine_nlp.model import shape_lines
 from vine_nlp.model.actuators import Lines
-from vine_nlp.model.units import MM_PER_UNIT
+from vine_nlp.model.units import METRES_PER_UNIT
 from vine_nlp.problem import Routing
 
 FORMATS = (".stl", ".obj", ".ply", ".glb")
-METRES_PER_UNIT = {u: mm / 1000 for u, mm in MM_PER_UNIT.items()}
 RING = 64
 ACTUATOR_DIAMETER = 0.1  # of D
 TUBE_RGBA = [90, 140, 200, 255]
