@@ -447,7 +447,7 @@ def test_sweep_base_must_be_a_design_problem(tmp_path):
     path = write(tmp_path, "sweep.toml", 'base = "fwd.toml"\n')
     with pytest.raises(InputError) as info:
         load_sweep(path)
-    assert str(info.value) == f"{path}: base: must be a design problem file (one with [target])"
+    assert str(info.value) == f"{path}: base: must be a design problem file (one with [target], or [[actuators]] and [[states]])"
 
 
 # ------------------------------------------------------------------ fuzz

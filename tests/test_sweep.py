@@ -471,3 +471,38 @@ def test_what_design_refuses_a_sweep_refuses_before_anything_is_written(tmp_path
         sw.run_sweep(load_sweep(path), tmp_path / "out", workers=2, progress=False)
     assert info.value.key == "method"
     assert not (tmp_path / "out").exists()
+
+
+def test_a_sweep_of_several_actuators_writes_their_archives_and_resumes(tmp_path):
+    """A several-actuator base: one archive per item in the spec's layout (every state's shape), the same design as
+    `vine-nlp design` of the item; the summary's rmse is the run's, over every state's points; a rerun skips."""
+    from test_actuators_io import DESIGN
+
+    from vine_nlp.pipeline import run
+
+    (tmp_path / "base.toml").write_text(DESIGN)
+    path = tmp_path / "sweep.toml"
+    path.write_text('name = "two"\nbase = "base.toml"\n[grid]\n"tube.diameter" = [2.4, 3.0]\n')
+    out = tmp_path / "out"
+    report = sw.run_sweep(load_sweep(path), out, workers=0, progress=False)
+    assert (report.done, report.failed) == (2, 0)
+    assert _h5_files(out) == ["two-0000.h5", "two-0001.h5"]
+    _, rows = _read_csv(out / "summary.csv")
+    item = load_sweep(path).items()[1][2]
+    alone = run(item).runs["nlp"]
+    archive = load_archive(out / "two-0001.h5")
+    assert archive.kind == "actuators" and float(rows[1]["rmse"]) == pytest.approx(alone.metrics["rmse"], rel=1e-9)
+    assert np.allclose(archive.runs["nlp"].routing.theta, alone.routing.theta, atol=1e-12)
+    second = sw.run_sweep(load_sweep(path), out, workers=0, progress=False)
+    assert (second.done, second.skipped) == (0, 2)
+
+
+def test_a_sweep_of_several_actuators_is_made_by_the_nlp_alone(tmp_path):
+    from test_actuators_io import DESIGN
+
+    (tmp_path / "base.toml").write_text(DESIGN)
+    path = tmp_path / "sweep.toml"
+    path.write_text('base = "base.toml"\nmethods = ["nlp", "greedy"]\n')
+    with pytest.raises(InputError) as info:
+        load_sweep(path)
+    assert str(info.value) == f'{path}: methods: a design of several actuators is made by the nlp alone: ["nlp"]'

@@ -64,14 +64,15 @@ def load_sweep(path) -> Sweep:
     base_path = str(f.dir / base)
     base_source = read_text(base_path, path, "base")
     base_data = parse_toml(base_path, base_source)
-    if parse_problem(base_data, base_path, base_source).kind != "design":
-        raise f.error("base", "must be a design problem file (one with [target])")
+    kind = parse_problem(base_data, base_path, base_source).kind
+    check(f, "base", kind in ("design", "actuators"), "must be a design problem file (one with [target], or [[actuators]] and [[states]])")
 
     methods = data.get("methods", ["nlp"])
     check(f, "methods", isinstance(methods, list) and len(methods) > 0, "must be a non-empty list of methods")
     for m in methods:
         choice(f, "methods", m, METHODS)
     check(f, "methods", len(set(methods)) == len(methods), "lists a method twice")
+    check(f, "methods", kind == "design" or methods == ["nlp"], "a design of several actuators is made by the nlp alone: [\"nlp\"]")
 
     grid_table = data.get("grid", {})
     check(f, "grid", isinstance(grid_table, dict), "must be a table")

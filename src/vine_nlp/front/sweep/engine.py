@@ -42,6 +42,8 @@ class _Job:
 def _structure(pf, methods) -> tuple:
     """Items with equal keys reuse the same built solvers (nlp: M segments, n, shared lambda, options)."""
     p, o = pf.problem, pf.problem.options
+    if pf.kind == "actuators":  # several actuators: its own NLP, built per item (methods.actuators_design)
+        return (tuple(methods), pf.kind, tuple(p.states), p.names)
     segments = math.ceil((p.target.shape[0] - 1) / o.points_per_segment)
     # every option but the weights and the seed, which are parameters of a built solver
     options = tuple((f.name, repr(getattr(o, f.name))) for f in dataclasses.fields(o) if f.name not in _PARAMETER_OPTIONS)
@@ -54,7 +56,7 @@ def _existing_runs(path: Path, pf) -> dict | None:
         archive = load_archive(path)
     except InputError:  # unreadable, damaged or invalid: redone
         return None
-    if archive.kind != "design" or archive.source != pf.source:
+    if archive.kind != pf.kind or archive.source != pf.source:
         return None
     return archive.runs
 

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from vine_nlp.errors import InputError
 from vine_nlp.front.sweep.summary import cells
+from vine_nlp.io.actuators import write_actuators_archive
 from vine_nlp.io.archive import Archive, OutputError, write_archive
 
 LOCK_FILE = ".sweep.lock"  # DIR's lock; its second word is the sweep's token (see _reaches)
@@ -72,6 +73,9 @@ def write_item(out_dir, item: str, problem_file, runs: dict) -> dict:
         path.unlink(missing_ok=True)
         return {}
     pf = problem_file
+    if pf.kind == "actuators":  # the spec's layout of several actuators (its one run, "nlp")
+        write_actuators_archive(path, pf, "nlp", runs["nlp"])
+        return {m: cells(r) for m, r in runs.items()}
     write_archive(path, Archive(name=pf.name, kind=pf.kind, source=pf.source, diameter=pf.problem.diameter,
                                 units=pf.units, target=pf.problem.target, runs=runs))
     return {m: cells(r) for m, r in runs.items()}
