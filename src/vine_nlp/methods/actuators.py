@@ -101,14 +101,8 @@ def state_arcs(lines: Lines, D: float, active) -> np.ndarray:
 def sample_states(lines: Lines, D: float, states: dict, N: int) -> dict:
     """{state: (N, 3)} every state's center line at N points equally spaced in its own length (targets that
     the design's pairing matches exactly)."""
-    out = {}
-    for name, active in states.items():
-        arcs = state_arcs(lines, D, active)
-        A = np.r_[0.0, np.cumsum(arcs)]
-        x = np.linspace(0.0, A[-1], N)
-        seg = np.clip(np.searchsorted(A, x, side="right") - 1, 0, arcs.size - 1)
-        out[name] = state_shape(lines, D, active, seg, np.clip((x - A[seg]) / arcs[seg], 0, 1), name).center
-    return out
+    even = np.linspace(0.0, 1.0, N)[:, None] * [1.0, 0.0, 0.0]  # a chord of N equal steps
+    return {name: state_shape(lines, D, active, *arc_pairing(even, state_arcs(lines, D, active)), name).center for name, active in states.items()}
 
 
 def evaluate(problem: ActuatorsProblem, lines: Lines, method: str = "nlp", bounds=None, **kw) -> ActuatorsResult:

@@ -56,20 +56,16 @@ from vine_nlp.model.segment import so3_exp, twist_parts
 from vine_nlp.problem import DesignProblem
 
 
-def declared(problem: ActuatorsProblem) -> tuple:
-    """One segment's variables: every line's theta_k and lambda_k (``THETA``'s and ``LAM``'s rules, from
-    :func:`tube`'s bounds), phi_k at the segment's end (free), the shared length (``LENGTH``'s rule) and where the
-    segment's end falls on each state's target, a fraction of its chord (the last segment's exactly 1)."""
+def declared(problem: ActuatorsProblem, M: int) -> tuple:
+    """(variables, bounds): one segment's variables (every line's theta_k and lambda_k, ``THETA``'s and ``LAM``'s
+    rules; phi_k at the segment's end, free; the shared length, ``LENGTH``'s rule; where the segment's end falls on
+    each state's target, a fraction of its chord, the last segment's exactly 1) and the lines' bounds as the one
+    actuator those rules read: theta_max and lambda_min per segment and line (``box``'s shape)."""
     K, S = len(problem.actuators), len(problem.states)
+    per = {key: np.broadcast_to([getattr(a.actuator, key) for a in problem.actuators], (M, K)).reshape((M, K) if K > 1 else (M,))
+           for key in ("theta_max", "lambda_min")}
     return (replace(THETA, size=K), replace(LAM, size=K, levels=False), Var("phi", lambda a, ref: (-np.inf, np.inf), size=K),
-            LENGTH, Var("b", lambda a, ref: (np.arange(ref.size) == ref.size - 1, 1.0), size=S))
-
-
-def tube(problem: ActuatorsProblem, M: int) -> SimpleNamespace:
-    """The lines' bounds as one actuator of M segments: theta_max and lambda_min per segment and line (``box``'s shape)."""
-    K = len(problem.actuators)
-    return SimpleNamespace(**{key: np.broadcast_to([getattr(a.actuator, key) for a in problem.actuators], (M, K)).reshape((M, K) if K > 1 else (M,))
-                              for key in ("theta_max", "lambda_min")})
+            LENGTH, Var("b", lambda a, ref: (np.arange(ref.size) == ref.size - 1, 1.0), size=S)), SimpleNamespace(**per)
 
 
 def _rx(a):
@@ -115,7 +111,7 @@ class _NLP:
         K, S = len(problem.actuators), len(problem.states)
         self.K, self.M, self.S, self.D = K, M, S, D
         n, idx = o.points_per_segment, {nm: k for k, nm in enumerate(problem.names)}
-        self.lay = lay = Layout(Structure(M, K=S, pose="fixed" if fixed else "shared", globals=K, variables=declared(problem)))
+        self.lay = lay = Layout(Structure(M, K=S, pose="fixed" if fixed else "shared", globals=K, variables=declared(problem, M)[0]))
         self.x = x = ca.MX.sym("x", lay.size)
         th, lam, phi, dl, b = (ca.reshape(x[lay.var[v].reshape(M, -1).ravel().tolist()], -1, M) for v in ("theta", "lam", "phi", "length", "b"))
         ph = ca.horzcat(x[lay.globals.tolist()], phi)  # (K, M+1): phi_k[0] and at every segment's end
@@ -191,9 +187,7 @@ def initial_lines(problem: ActuatorsProblem, M: int) -> Lines:
         guesses.append(geometric_guess(one, pair_points(problem.targets[state], n)))
     B = guesses[0].initial_pose
     phi0 = [0.0] + [math.atan2(g.initial_pose[:3, 1] @ B[:3, 2], g.initial_pose[:3, 1] @ B[:3, 1]) for g in guesses[1:]]
-    th = np.array([g.theta for g in guesses])
-    lam = np.array([g.lam for g in guesses])
-    return Lines(problem.names, th, lam, phi0, np.mean([g.length for g in guesses], axis=0), B)
+    return Lines(problem.names, [g.theta for g in guesses], [g.lam for g in guesses], phi0, np.mean([g.length for g in guesses], axis=0), B)
 
 
 def _rollout(problem, lines: Lines, D: float) -> np.ndarray:
@@ -223,7 +217,7 @@ def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> Ac
     lay, frames = nlp.lay, _rollout(problem, guess, D)
     x0 = lay.pack_x(frames, poses=np.r_[0.0, 0.0, 0.0, B[:3, 3] / D], globals_=guess.phi0, theta=guess.theta.T, lam=guess.lam.T,
                     phi=guess.phi(D)[:, 1:].T, length=guess.length / D, b=np.column_stack([c[n::n] for c in _fractions(problem, guess, n)]))
-    lims = tube(problem, M)
+    lims = declared(problem, M)[1]
     lbx, ubx = lay.bounds(**box(lims, np.full(M, guess.length.mean() / D), lay.variables))
     lbx[lay.X[0]] = ubx[lay.X[0]] = frames[:, :, 0]  # each state's first frame: the base (fixed) or unused (a free base's pose)
     lbx[lay.globals[0]] = ubx[lay.globals[0]] = 0.0  # the first line starts at phi = 0
