@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vine_nlp.analysis.buildability import buildability, default_min_feature
 from vine_nlp.model.actuators import Lines, TwoLines, forward_states, owners, state_shape, too_close
 from vine_nlp.model.routing import Routing
 from vine_nlp.model.shape import error_metrics, routing_metrics
@@ -143,5 +144,19 @@ def shortfall(problem: ActuatorsProblem, lines: Lines) -> tuple:
     for j, a, b in too_close(lines, problem.diameter, problem.widths):
         out.append(f"segment {j + 1}: lines {problem.names[a]} and {problem.names[b]} closer than their widths")
         break
-    return tuple(out)
+    return tuple(out + unbuilt(problem, lines))
+
+
+def unbuilt(problem: ActuatorsProblem, lines: Lines) -> list:
+    """The buildable rules (``analysis.buildability.Report.missed``) each actuator's line misses, one line each,
+    judged with the problem's margin and min_feature; the turning before a line's first actuator is free (its
+    phi_k[0] is designed; the first line's: the base's roll) unless the base is fixed."""
+    o, out = problem.options, []
+    mf = default_min_feature(problem.units) if o.min_feature is None else o.min_feature
+    for k, a in enumerate(problem.actuators):
+        b = a.actuator
+        rep = buildability(lines.routing(k), problem.diameter, b.kind, b.lambda_min, o.correction_margin, mf, k > 0 or o.base != "fixed")
+        lo = b.lambda_min + o.correction_margin
+        out += [f"actuator {a.name}: not buildable: {m}" for m in rep.missed(lo, max(lo, 1 - o.correction_margin), problem.units)]
+    return out
 

@@ -44,14 +44,16 @@ from types import SimpleNamespace
 import casadi as ca
 import numpy as np
 
+from vine_nlp.analysis.buildability import default_min_feature, partners, pieces, wrap_angle
 from vine_nlp.methods import settings
 from vine_nlp.methods.actuators import ActuatorsProblem, ActuatorsResult, evaluate
 from vine_nlp.methods.common import geometric_guess, pair_points
 from vine_nlp.methods.settings import CHAIN, EXACT_BOUNDS, quiet
 from vine_nlp.methods.structure import Layout, Structure, frames12
 from vine_nlp.methods.variables import LAM, LENGTH, THETA, Var, box
-from vine_nlp.model.actuators import Lines
+from vine_nlp.model.actuators import Lines, roll
 from vine_nlp.model.helix import center_rates
+from vine_nlp.model.routing import actuated
 from vine_nlp.model.segment import so3_exp, twist_parts
 from vine_nlp.problem import DesignProblem
 
@@ -150,6 +152,10 @@ class _NLP:
         rows.append((ca.vec(ca.diff(b, 1, 0)), settings.ACTUATORS_MIN_PIECE / M, np.inf))  # each piece a fraction of 1/M at least
         w = problem.widths
         rows += [((1 - ca.cos(ph[a, :] - ph[c, :])).T, 1 - math.cos(min(math.pi, (w[a] + w[c]) / D)), np.inf) for a, c in pairs]
+        path = ca.repmat(dl, K, 1) / ca.cos(th)  # each line's length along it per segment (K, M)
+        gap, first = (1 - lam) * path, sum(e.numel() for e, _, _ in rows)  # the stopper gaps: constrained in the last stage only
+        rows += [(ca.vec(e), -np.inf, np.inf) for e in (gap, gap[:, :-1] + gap[:, 1:], lam * path)]
+        self.features = slice(first, first + K * (3 * M - 1))  # gaps alone, partners' together, stoppers: ``features``
         g = ca.vertcat(*(e for e, _, _ in rows))
         self.lbg, self.ubg = (np.concatenate([np.full(e.numel(), r[i]) for e, *r in rows]) for i in (0, 1))
         opts = quiet(o.max_iter, o.tol) | CHAIN | EXACT_BOUNDS | {"expand": True}
@@ -222,7 +228,7 @@ def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> Ac
     lbx[lay.X[0]] = ubx[lay.X[0]] = frames[:, :, 0]  # each state's first frame: the base (fixed) or unused (a free base's pose)
     lbx[lay.globals[0]] = ubx[lay.globals[0]] = 0.0  # the first line starts at phi = 0
     L, lmin = lay.var["lam"].reshape(M, -1).T, np.reshape(lims.lambda_min, (M, K))[0]  # L: (K, M) where each lambda lives
-    iters, status, rounds = 0, "optimal", 0
+    iters, status, rounds, lbg = 0, "optimal", 0, nlp.lbg
     stages = ["relaxed"] + (["assigned"] if nlp.exclusive else []) + (["margin"] if o.correction_margin > 0 else [])
     for stage in stages:
         keep = np.ones((K, M), bool)
@@ -233,14 +239,16 @@ def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> Ac
             keep = dither(x0[L], margin)
             free = keep & (lbx[L] < ubx[L])
             lbx[L], ubx[L] = np.where(free, (lmin + margin)[:, None], lbx[L]), np.where(free, 1 - margin[:, None], ubx[L])
+            lbg = features(nlp, problem, keep, lbx)
             x0[L] = np.clip(x0[L], lbx[L], ubx[L])
         x0[L[~keep]] = lbx[L[~keep]] = ubx[L[~keep]] = 1.0
         mu = settings.ACTUATORS_PENALTY if stage == "relaxed" else 0.0
-        x0, status, n_it, n_r = _stage(nlp, problem, x0, (lbx, ubx), mu, B, settings.ACTUATORS_ROUNDS if stage == stages[-1] else 1)
+        x0, status, n_it, n_r = _stage(nlp, problem, x0, (lbx, ubx, lbg), mu, B, settings.ACTUATORS_ROUNDS if stage == stages[-1] else 1)
         iters, rounds = iters + n_it, rounds + n_r
     stats = {"segments": M, "points_per_segment": n, "stages": len(stages), "rounds": rounds, "exclusive_pairs": len(nlp.exclusive),
              "base": o.base, "states": {s: list(a) for s, a in problem.states.items()}}
-    return evaluate(problem, _lines(nlp, problem, x0, B), "nlp", bounds=nlp.pairing(x0).T, status=status,
+    lines = unwound(_lines(nlp, problem, x0, B), D, o.base == "fixed", np.reshape(lims.theta_max, (M, K))[0])
+    return evaluate(problem, lines, "nlp", bounds=nlp.pairing(x0).T, status=status,
                     solve_time_s=time.perf_counter() - t0, iterations=iters, stats=stats)
 
 
@@ -248,11 +256,11 @@ def _stage(nlp: _NLP, problem, x0, box, mu, B, rounds: int):
     """One stage: solves from ``x0``, the target re-linearized at the pairing of the solve before, while a round
     lowers the objective; the round whose design meets the targets best (evaluate) is kept.
     Returns (x, status, iterations, solves)."""
-    n, (lbx, ubx) = problem.options.points_per_segment, box
+    n, (lbx, ubx, lbg) = problem.options.points_per_segment, box
     f, best, iters, solves = np.inf, None, 0, 0
     for _ in range(rounds):
         c = _pairing_fractions(nlp.pairing(x0), n)
-        sol = nlp.solver(x0=x0, p=np.r_[mu, _paired(problem, c)], lbx=lbx, ubx=ubx, lbg=nlp.lbg, ubg=nlp.ubg)
+        sol = nlp.solver(x0=x0, p=np.r_[mu, _paired(problem, c)], lbx=lbx, ubx=ubx, lbg=lbg, ubg=nlp.ubg)
         st = nlp.solver.stats()
         x0, iters, solves = np.asarray(sol["x"]).ravel(), iters + int(st.get("iter_count", 0)), solves + 1
         status = {"Solve_Succeeded": "optimal", "Solved_To_Acceptable_Level": "acceptable",
@@ -273,6 +281,38 @@ def _lines(nlp: _NLP, problem, x, B) -> Lines:
     if v["poses"].size:
         pose[:3, :3], pose[:3, 3] = B[:3, :3] @ so3_exp(v["poses"][0, :3]), v["poses"][0, 3:] * nlp.D
     return Lines(problem.names, nlp.get(x, "theta"), np.minimum(nlp.get(x, "lam"), 1.0), v["globals"], v["length"] * nlp.D, pose)
+
+
+def features(nlp: _NLP, problem: ActuatorsProblem, keep: np.ndarray, lbx: np.ndarray) -> np.ndarray:
+    """The lower bounds of the constraints for features at least min_feature (``analysis.buildability``'s, times
+    settings.FEATURE_SLACK) where ``keep`` (K, M) has an actuator: each stopper gap, alone or with its partner's, and
+    the stoppers either side (lambda path / 2 each); every segment at least that long (``lbx`` changed)."""
+    o, M = problem.options, nlp.M
+    least = settings.FEATURE_SLACK * (default_min_feature(problem.units) if o.min_feature is None else o.min_feature) / nlp.D
+    mate = np.array([partners(k) for k in keep])
+    pair = keep[:, :-1] & (mate[:, :-1] == np.arange(1, M))
+    lbx[nlp.lay.var["length"]] = np.maximum(lbx[nlp.lay.var["length"]], least)
+    lbg = nlp.lbg.copy()
+    lbg[nlp.features] = np.concatenate([np.where(c, f * least, -np.inf).ravel(order="F") for c, f in ((keep & (mate < 0), 1), (pair, 1), (keep, 2))])
+    return lbg
+
+
+def unwound(lines: Lines, D: float, fixed: bool, theta_max) -> Lines:
+    """Each line's runs without an actuator the shortest way round at constant slope (``methods.buildable.unwind``'s
+    rule, per line): a last run straight; a first run straight into the line's phi_k[0] (the first line's into the
+    base's roll, every phi_k[0] turned with it), or from phi = 0 with a fixed base. Every state's shape is unchanged
+    (it depends on each line's angle where it has an actuator only), but where a short run needs a slope above theta_max."""
+    phi, theta, M = lines.phi(D), lines.theta.copy(), lines.segments
+    phi0 = phi[:, 0].copy()
+    for k in range(lines.count):
+        for p in (p for p in pieces(actuated(lines.lam[k]), lines.length, lines.length) if not p.actuated):
+            run, net = slice(p.start, p.stop), phi[k, p.stop] - phi[k, p.start]
+            if p.stop == M or (p.start == 0 and (k or not fixed)):
+                theta[k, run], phi0[k] = 0.0, phi0[k] + (net if p.stop < M else 0.0)
+            else:
+                theta[k, run] = np.arctan(0.5 * D * wrap_angle(net) / (p.s1 - p.s0))
+    theta = np.clip(theta, -theta_max[:, None], theta_max[:, None])
+    return Lines(lines.names, theta, lines.lam, wrap_angle(phi0 - phi0[0]), lines.length, lines.initial_pose @ roll(phi0[0]))
 
 
 def _fractions(problem: ActuatorsProblem, lines: Lines, n: int) -> list:
