@@ -21,20 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from vine_nlp.io import limits
+from vine_nlp.io import limits, sections
 from vine_nlp.io.archive import Archive, _Checker, load_archive, write_archive
 from vine_nlp.io.h5read import ArchiveError, open_archive
-from vine_nlp.io.sections import (
-    _BUILD_KEYS,
-    _OTHER_DESIGN_KEYS,
-    Item,
-    build_options,
-    per_point,
-    read_actuator,
-    read_options,
-    read_routing,
-    read_target,
-)
 from vine_nlp.io.validate import SourceFile, check, nonempty_text, real_number, sub_table, unknown_key
 from vine_nlp.methods.actuators import ActuatorsProblem, ActuatorsResult, Line, check_states
 from vine_nlp.model.actuators import Lines, TwoLines
@@ -76,7 +65,7 @@ def parse_actuators(f: SourceFile, data: dict, name: str, units: str, diameter: 
             if key not in _LINE_KEYS and not (forward and key in _LINE_ROUTING):
                 raise f.error(f"actuators.{k}.{key}", "not used in a design problem (routings belong to forward problems)"
                               if key in _LINE_ROUTING else unknown_key(key, _LINE_KEYS + (_LINE_ROUTING if forward else ())))
-        act = read_actuator(Item(f, f"actuators.{k}", "actuator"), {key: v for key, v in item.items() if key in _LINE_KEYS[1:4]})
+        act = sections.read_actuator(sections.Item(f, f"actuators.{k}", "actuator"), {key: v for key, v in item.items() if key in _LINE_KEYS[1:4]})
         width = real_number(f, f"actuators.{k}.width", item.get("width", diameter / 8))
         check(f, f"actuators.{k}.width", width >= 0, "must be >= 0")
         check(f, f"actuators.{k}.width", width <= math.pi * diameter,
@@ -103,7 +92,7 @@ def parse_actuators(f: SourceFile, data: dict, name: str, units: str, diameter: 
             check(f, f"states.{k}.target", "target" not in item, "not used in a forward problem")
         else:
             check(f, f"states.{k}.target", isinstance(item.get("target"), dict), "missing: every state of a design problem needs a target")
-            targets[snames[k]] = read_target(Item(f, f"states.{k}.target", "target"), {"target": item["target"]}, diameter)
+            targets[snames[k]] = sections.read_target(sections.Item(f, f"states.{k}.target", "target"), {"target": item["target"]}, diameter)
     if forward:
         check(f, "design", "design" not in data, "not used in a forward problem")
         return "actuators-forward", _forward(f, data, items, name, units, diameter, lines, active)
@@ -115,12 +104,12 @@ def _forward(f, data, items, name, units, diameter, lines, active):
     theta, lam, phi0 = [], [], []
     for k, item in enumerate(items):
         table = {**shared, **{key: v for key, v in item.items() if key in _LINE_ROUTING[:4]}}
-        r = read_routing(Item(f, f"actuators.{k}", "routing", _LINE_ROUTING), table, diameter)
+        r = sections.read_routing(sections.Item(f, f"actuators.{k}", "routing", _LINE_ROUTING), table, diameter)
         theta.append(r.theta)
         lam.append(r.lam)
         start = 0.0
         if "phi" in item:
-            start = float(per_point(f, f"actuators.{k}.phi", item["phi"], np.zeros(1), "one per segment end")[0]) \
+            start = float(sections.per_point(f, f"actuators.{k}.phi", item["phi"], np.zeros(1), "one per segment end")[0]) \
                 if not isinstance(item["phi"], list) else real_number(f, f"actuators.{k}.phi", item["phi"][0])
         for key, scale in (("phi0", 1.0), ("phi0_deg", math.pi / 180)):
             if key in item:
@@ -138,11 +127,10 @@ def _forward(f, data, items, name, units, diameter, lines, active):
 
 
 def _design(f, data, design, name, units, diameter, lines, active, targets):
-    opts = {k: v for k, v in design.items() if k not in _BUILD_KEYS}
-    for key in opts:
-        if key not in _OTHER_DESIGN_KEYS:
-            raise f.error(f"design.{key}", unknown_key(key, _OTHER_DESIGN_KEYS + _BUILD_KEYS))
-    options = build_options(f, data, design, lines[0].actuator, read_options(f, opts))
+    for key in design:
+        if key not in sections._OTHER_DESIGN_KEYS + sections._BUILD_KEYS:
+            raise f.error(f"design.{key}", unknown_key(key, sections._OTHER_DESIGN_KEYS + sections._BUILD_KEYS))
+    options = sections.design_options(f, data, design, lines[0].actuator)
     first = next(iter(targets))
     for k, (pts, _) in enumerate(targets.values()):
         need = options.points_per_segment + 1

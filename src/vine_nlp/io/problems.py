@@ -17,24 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from vine_nlp.io import actuators as several
-from vine_nlp.io import limits
+from vine_nlp.io import limits, sections
 from vine_nlp.io.calibration import calibration_of
 from vine_nlp.io.data_files import check_spread, data_points
 from vine_nlp.io.loads import load_of
 from vine_nlp.io.obstacles import DESIGN_KEYS as OBSTACLE_DESIGN_KEYS
 from vine_nlp.io.obstacles import parse_obstacle_design, parse_obstacles
-from vine_nlp.io.sections import (
-    _ANGLE_KEYS,
-    _BUILD_KEYS,
-    _DESIGN_KEYS,
-    _OTHER_DESIGN_KEYS,
-    Item,
-    build_options,
-    read_actuator,
-    read_options,
-    read_routing,
-    read_target,
-)
 from vine_nlp.io.validate import (
     SourceFile,
     check,
@@ -75,7 +63,7 @@ _ALL_TOP_KEYS = tuple(dict.fromkeys(k for keys in _TOP_KEYS.values() for k in ke
 
 _ACTUATOR_KEYS = ("kind", "lambda_min", "theta_max_deg")
 
-_ROUTING_KEYS = ("length", "segment_length", *_ANGLE_KEYS, "lambda", "initial_pose")
+_ROUTING_KEYS = ("length", "segment_length", *sections._ANGLE_KEYS, "lambda", "initial_pose")
 
 _MEASURED_KEYS = ("file", "line")
 
@@ -83,9 +71,9 @@ _FIT_KEYS = ("free",)
 
 FREE_CHOICES = ("lambda",)
 
-_MULTISHAPE_DESIGN_KEYS = (*_OTHER_DESIGN_KEYS, "shared_pose", "correction_margin", "min_feature")  # the levels' band, the pouches
+_MULTISHAPE_DESIGN_KEYS = (*sections._OTHER_DESIGN_KEYS, "shared_pose", "correction_margin", "min_feature")  # the levels' band, the pouches
 
-_TIP_DESIGN_KEYS = (*_OTHER_DESIGN_KEYS, "correction_margin", "min_feature")  # buildable: its base is [tip] initial_pose
+_TIP_DESIGN_KEYS = (*sections._OTHER_DESIGN_KEYS, "correction_margin", "min_feature")  # buildable: its base is [tip] initial_pose
 
 _TIP_KEYS = ("position", "direction", "length", "segments", "objective", "initial_pose")
 
@@ -139,7 +127,7 @@ def parse_problem(data: dict, path: str, source: str) -> ProblemFile:
     elif kind == "design":
         problem = _design(f, data, name, units, diameter)
     elif kind == "forward":
-        routing = read_routing(f, sub_table(f, data, "routing", _ROUTING_KEYS, required=True), diameter)
+        routing = sections.read_routing(f, sub_table(f, data, "routing", _ROUTING_KEYS, required=True), diameter)
         problem = ForwardProblem(name=name, diameter=diameter, routing=routing, units=units, load=load_of(f, data, units))
     elif kind == "multishape":
         problem = _multishape(f, data, name, units, diameter)
@@ -170,15 +158,15 @@ def _kind(f: SourceFile, data: dict) -> str:
 
 
 def _design(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> DesignProblem:
-    return design_problem(f, data, name, units, diameter, *read_target(f, data, diameter))
+    return design_problem(f, data, name, units, diameter, *sections.read_target(f, data, diameter))
 
 
 def design_problem(f: SourceFile, data: dict, name: str, units: str, diameter: float, points: np.ndarray, points_key: str) -> DesignProblem:
     """A design problem around its checked target ``points``: [actuator], [design], a fixed base's [routing] and
     the optional tables of ``data``, as a problem file has them (the Python API passes its arguments so)."""
-    actuator = read_actuator(f, sub_table(f, data, "actuator", _ACTUATOR_KEYS))
-    design = sub_table(f, data, "design", (*_DESIGN_KEYS, *OBSTACLE_DESIGN_KEYS, *_BUILD_KEYS))
-    options = build_options(f, data, design, actuator, read_options(f, {k: v for k, v in design.items() if k not in _BUILD_KEYS}))
+    actuator = sections.read_actuator(f, sub_table(f, data, "actuator", _ACTUATOR_KEYS))
+    design = sub_table(f, data, "design", (*sections._DESIGN_KEYS, *OBSTACLE_DESIGN_KEYS, *sections._BUILD_KEYS))
+    options = sections.design_options(f, data, design, actuator)
     need = options.points_per_segment + 1
     check(f, points_key, points.shape[0] >= need, f"needs at least points_per_segment + 1 = {need} points, got {points.shape[0]}")
     problem = DesignProblem(name=name, diameter=diameter, target=points, actuator=actuator, options=options, units=units)
@@ -206,7 +194,7 @@ def _fit(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> F
     measured = sub_table(f, data, "measured", _MEASURED_KEYS, required=True)
     points = data_points(f, "measured.file", required_value(f, measured, "file", "measured."), ordered=False)
     line = choice(f, "measured.line", required_value(f, measured, "line", "measured."), MEASURED_LINES)
-    routing = read_routing(f, sub_table(f, data, "routing", _ROUTING_KEYS, required=True), diameter)
+    routing = sections.read_routing(f, sub_table(f, data, "routing", _ROUTING_KEYS, required=True), diameter)
     free = sub_table(f, data, "fit", _FIT_KEYS).get("free", [])
     check(f, "fit.free", isinstance(free, list), "must be a list: [] or [\"lambda\"]")
     for item in free:
@@ -245,19 +233,18 @@ def _multishape(f: SourceFile, data: dict, name: str, units: str, diameter: floa
     table = sub_table(f, data, "actuator", _ACTUATOR_KEYS)
     if "kind" in table and table["kind"] != "spam":
         raise f.error("actuator.kind", "must be 'spam' in a multishape problem (one lambda per pressure level)")
-    actuator = read_actuator(f, {**table, "kind": "spam"})
+    actuator = sections.read_actuator(f, {**table, "kind": "spam"})
     design = sub_table(f, data, "design", _MULTISHAPE_DESIGN_KEYS)
     shared_pose = design.get("shared_pose", True)
     check(f, "design.shared_pose", isinstance(shared_pose, bool), "must be true or false")
-    options = read_options(f, {k: v for k, v in design.items() if k not in ("shared_pose", *_BUILD_KEYS)})
-    options = build_options(f, data, design, actuator, options)
+    options = sections.design_options(f, data, design, actuator, skip=("shared_pose",))
     check(f, "design.method", options.method == "nlp", "must be 'nlp' in a multishape problem (the one formulation)")
     options = _starts_default(design, options, "multishape")
     need = options.points_per_segment + 1
     points, levels = [], []
     for k, item in enumerate(items):
-        tf = Item(f, f"targets.{k}", "target")
-        pts, points_key = read_target(tf, {"target": {key: v for key, v in item.items() if key != "lambda"}}, diameter)
+        tf = sections.Item(f, f"targets.{k}", "target")
+        pts, points_key = sections.read_target(tf, {"target": {key: v for key, v in item.items() if key != "lambda"}}, diameter)
         check(tf, points_key, pts.shape[0] >= need, f"needs at least points_per_segment + 1 = {need} points, got {pts.shape[0]}")
         if k > 0 and pts.shape[0] != points[0].shape[0]:
             raise tf.error(points_key, f"has {pts.shape[0]} points; every target needs as many as targets.0 ({points[0].shape[0]})")
@@ -289,9 +276,9 @@ def _tip(f: SourceFile, data: dict, name: str, units: str, diameter: float) -> T
     segments = integer(f, "tip.segments", table.get("segments", 10), 1, MAX_TIP_SEGMENTS)
     objective = choice(f, "tip.objective", table.get("objective", "contraction"), TIP_OBJECTIVES)
     pose = rigid_pose(f, "tip.initial_pose", table["initial_pose"]) if "initial_pose" in table else np.eye(4)
-    actuator = read_actuator(f, sub_table(f, data, "actuator", _ACTUATOR_KEYS))
+    actuator = sections.read_actuator(f, sub_table(f, data, "actuator", _ACTUATOR_KEYS))
     design = sub_table(f, data, "design", (*_TIP_DESIGN_KEYS, *OBSTACLE_DESIGN_KEYS))
-    options = build_options(f, data, design, actuator, read_options(f, {k: v for k, v in design.items() if k not in _BUILD_KEYS}))
+    options = sections.design_options(f, data, design, actuator)
     options = _starts_default(design, options, "tip")
     return TipProblem(**_obstacles_of(f, data), name=name, diameter=diameter, position=position, length=length, segments=segments,
                       direction=direction, objective=objective, initial_pose=pose, actuator=actuator, options=options, units=units)

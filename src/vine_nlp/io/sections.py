@@ -162,6 +162,11 @@ def read_options(f: SourceFile, table: dict) -> DesignOptions:
     return dataclasses.replace(DesignOptions(), **changes)
 
 
+def design_options(f: SourceFile, data: dict, design: dict, actuator: Actuator, skip=()) -> DesignOptions:
+    """[design]'s options (``read_options``; without the keys ``skip`` and the buildable keys), then its buildable keys."""
+    return build_options(f, data, design, actuator, read_options(f, {k: v for k, v in design.items() if k not in (*skip, *_BUILD_KEYS)}))
+
+
 def build_options(f: SourceFile, data: dict, table: dict, actuator: Actuator, options: DesignOptions) -> DesignOptions:
     """[design] correction_margin, min_feature, base, and a fixed base's [routing] initial_pose. Without
     correction_margin, the default shrinks to leave room: min(default, (1 - lambda_min) / 2)."""

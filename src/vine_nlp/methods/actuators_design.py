@@ -24,8 +24,10 @@ No two active lines on one segment (the method): lines that are active together 
 2. Each segment is assigned, line by line in order of how much it contracts there, to lines not exclusive with one
    already assigned; every other line's lambda is fixed to exactly 1 by its bounds, and the design is polished
    (same NLP). The polished design has at most one active line per segment in every state by construction.
-3. Buildable: each lambda near 1 (within half the correction margin) is fixed to exactly 1, the others kept
-   inside [lambda_min + margin, 1 - margin], and the design is polished again.
+3. Buildable (``analysis.buildability``'s rules per line): each lambda near 1 (within half the correction margin) is
+   fixed to exactly 1, the others kept inside [lambda_min + margin, 1 - margin], every stopper gap (alone or with its
+   partner's) and stopper at least min_feature, and the design is polished again. Then each line's runs without an
+   actuator are unwound (:func:`unwound`: no pointless turning; every state's shape unchanged).
 Chosen over a complementarity constraint because IPOPT handles fixed bounds exactly and an MPCC poorly (no
 constraint qualification at the solution); the assignment is what a builder decides anyway (which tendon runs
 where). Lines not exclusive keep (w_a + w_b)/2 apart around the circumference on every segment where both may
