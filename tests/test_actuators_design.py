@@ -91,3 +91,16 @@ def test_buildable_rules_per_actuator_and_unwinding_known_answers():
     assert abs(u.phi0[1] - (phi[1, 4] - phi[0, 2])) < 1e-12
     a, b = forward_states(lines, D, states), forward_states(u, D, states)
     assert max(np.abs(a[s].center - b[s].center).max() for s in states) < 1e-12  # every state's shape unchanged
+
+
+def test_one_line_on_a_fixed_base_keeps_the_base_exactly():
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]], [1.0, 2.0, 3.0]  # turned 90 deg about z, moved
+    lam = np.ones((1, 6))
+    lam[0, 2:] = 0.7
+    truth, states = Lines(("A",), np.full((1, 6), 0.1), lam, [0.0], np.full(6, 2.5), pose), {"a": ("A",)}
+    p = ActuatorsProblem("t", D, (Line("A"),), states, targets=sample_states(truth, D, states, 6 * 4 + 1),
+                         options=DesignOptions(points_per_segment=4, base="fixed", base_pose=tuple(map(tuple, pose))))
+    r = design_actuators(p)
+    assert r.ok, r.shortfall
+    assert np.array_equal(r.lines.initial_pose, pose) and r.state_metrics["a"]["rmse"] < 0.01

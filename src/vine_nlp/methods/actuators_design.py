@@ -226,7 +226,7 @@ def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> Ac
     x0 = lay.pack_x(frames, poses=np.r_[0.0, 0.0, 0.0, B[:3, 3] / D], globals_=guess.phi0, theta=guess.theta.T, lam=guess.lam.T,
                     phi=guess.phi(D)[:, 1:].T, length=guess.length / D, b=np.column_stack([c[n::n] for c in _fractions(problem, guess, n)]))
     lims = declared(problem, M)[1]
-    lbx, ubx = lay.bounds(**box(lims, np.full(M, guess.length.mean() / D), lay.variables))
+    lbx, ubx = lay.bounds(X0=frames[:, :, 0], **box(lims, np.full(M, guess.length.mean() / D), lay.variables))
     lbx[lay.X[0]] = ubx[lay.X[0]] = frames[:, :, 0]  # each state's first frame: the base (fixed) or unused (a free base's pose)
     lbx[lay.globals[0]] = ubx[lay.globals[0]] = 0.0  # the first line starts at phi = 0
     L, lmin = lay.var["lam"].reshape(M, -1).T, np.reshape(lims.lambda_min, (M, K))[0]  # L: (K, M) where each lambda lives
