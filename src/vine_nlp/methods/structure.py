@@ -104,9 +104,8 @@ class Layout:
         return np.r_[tuple(self.var[v.name][j, k] if v.levels else self.var[v.name][j] for v in variables)]
 
     def pack_x(self, frames, poses=None, lam_global=None, extra=None, globals_=None, **values) -> np.ndarray:
-        """x from the declared variables by name (``values``: theta (M,), lam (M,) or (M, K), length (M,), in
-        units of D; a variable of several entries (M, size)), frames (K, 12, M+1), poses (P, 6), global lambdas
-        (shared or level), extra (E, M), extra globals (G,)."""
+        """x from the declared variables by name (``values``: ``var``'s shapes, lengths in units of D), frames
+        (K, 12, M+1), poses (P, 6), global lambdas (shared or level), extra (E, M), extra globals (G,)."""
         s, x = self.s, np.zeros(self.size)
         for v in s.variables:
             val, at = values[v.name], self.var[v.name]
@@ -127,8 +126,8 @@ class Layout:
         return x
 
     def unpack(self, x) -> dict:
-        """The declared variables by name (``var``'s shapes; lengths in units of D), poses, global lambdas,
-        frames (K, 12, M+1), extra (E, M) and extra globals of a decision vector ``x``."""
+        """``pack_x``'s parts of a decision vector ``x`` by name (the declared variables, poses, lam_global, frames,
+        extra, globals)."""
         x = np.asarray(x, float)
         return {v.name: x[self.var[v.name]].copy() for v in self.variables} | {
             "poses": x[self.pose].copy(),
@@ -139,10 +138,8 @@ class Layout:
         }
 
     def bounds(self, X0=None, **boxes) -> tuple[np.ndarray, np.ndarray]:
-        """Box bounds of the declared variables by name from (lo, hi) pairs (``variables.box``'s; per segment
-        or scalars; lam per level (K,) for lambda per level; length in units of D); ``X0``: (K, 12) fixed base
-        frames for a fixed pose. Extra and global variables are free: set their entries of the returned arrays
-        (``extra``, ``globals``) to bound them."""
+        """Box bounds of the declared variables by name from (lo, hi) pairs (``variables.box``'s; lam per level
+        (K,) for lambda per level); ``X0``: (K, 12) fixed base frames for a fixed pose; everything else free."""
         s = self.s
         lbx, ubx = np.full(self.size, -np.inf), np.full(self.size, np.inf)
         for v in s.variables:
