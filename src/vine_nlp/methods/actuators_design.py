@@ -154,14 +154,20 @@ class _NLP:
         rows.append((ca.vec(ca.diff(b, 1, 0)), settings.ACTUATORS_MIN_PIECE / M, np.inf))  # each piece a fraction of 1/M at least
         w = problem.widths
         rows += [((1 - ca.cos(ph[a, :] - ph[c, :])).T, 1 - math.cos(min(math.pi, (w[a] + w[c]) / D)), np.inf) for a, c in pairs]
-        path = ca.repmat(dl, K, 1) / ca.cos(th)  # each line's length along it per segment (K, M)
-        gap, first = (1 - lam) * path, sum(e.numel() for e, _, _ in rows)  # the stopper gaps: constrained in the last stage only
-        rows += [(ca.vec(e), -np.inf, np.inf) for e in (gap, gap[:, :-1] + gap[:, 1:], lam * path)]
-        self.features = slice(first, first + K * (3 * M - 1))  # gaps alone, partners' together, stoppers: ``features``
-        g = ca.vertcat(*(e for e, _, _ in rows))
         self.lbg, self.ubg = (np.concatenate([np.full(e.numel(), r[i]) for e, *r in rows]) for i in (0, 1))
-        opts = quiet(o.max_iter, o.tol) | CHAIN | EXACT_BOUNDS | {"expand": True}
-        self.solver = ca.nlpsol("actuators", "ipopt", {"x": x, "f": J, "g": g, "p": par}, opts)
+        path = ca.repmat(dl, K, 1) / ca.cos(th)  # each line's length along it per segment (K, M)
+        gap = (1 - lam) * path  # the stopper gaps: alone, partners' together, and the stoppers (``features``)
+        self.features = ca.vertcat(*(ca.vec(e) for e in (gap, gap[:, :-1] + gap[:, 1:], lam * path)))
+        self.nlp, self.solvers = {"x": x, "f": J, "g": ca.vertcat(*(e for e, _, _ in rows)), "p": par}, {}
+        self.opts = quiet(o.max_iter, o.tol) | CHAIN | EXACT_BOUNDS | {"expand": True}
+
+    def solver(self, features: bool):
+        """The solver (built on first use) without or with the features' rows (the last stage's only: free rows
+        in the others would cost iterations)."""
+        if features not in self.solvers:
+            g = ca.vertcat(self.nlp["g"], self.features) if features else self.nlp["g"]
+            self.solvers[features] = ca.nlpsol("actuators", "ipopt", self.nlp | {"g": g}, self.opts)
+        return self.solvers[features]
 
     def get(self, x, name: str) -> np.ndarray:
         """A declared variable of a solution x, a row per line (state, for the pairing): (K, M)."""
@@ -262,8 +268,9 @@ def _stage(nlp: _NLP, problem, x0, box, mu, B, rounds: int):
     f, best, iters, solves = np.inf, None, 0, 0
     for _ in range(rounds):
         c = _pairing_fractions(nlp.pairing(x0), n)
-        sol = nlp.solver(x0=x0, p=np.r_[mu, _paired(problem, c)], lbx=lbx, ubx=ubx, lbg=lbg, ubg=nlp.ubg)
-        st = nlp.solver.stats()
+        solver = nlp.solver(lbg.size > nlp.lbg.size)
+        sol = solver(x0=x0, p=np.r_[mu, _paired(problem, c)], lbx=lbx, ubx=ubx, lbg=lbg, ubg=np.r_[nlp.ubg, np.full(lbg.size - nlp.ubg.size, np.inf)])
+        st = solver.stats()
         x0, iters, solves = np.asarray(sol["x"]).ravel(), iters + int(st.get("iter_count", 0)), solves + 1
         status = {"Solve_Succeeded": "optimal", "Solved_To_Acceptable_Level": "acceptable",
                   "Maximum_Iterations_Exceeded": "max_iter"}.get(st.get("return_status"), "failed")
@@ -294,9 +301,7 @@ def features(nlp: _NLP, problem: ActuatorsProblem, keep: np.ndarray, lbx: np.nda
     mate = np.array([partners(k) for k in keep])
     pair = keep[:, :-1] & (mate[:, :-1] == np.arange(1, M))
     lbx[nlp.lay.var["length"]] = np.maximum(lbx[nlp.lay.var["length"]], least)
-    lbg = nlp.lbg.copy()
-    lbg[nlp.features] = np.concatenate([np.where(c, f * least, -np.inf).ravel(order="F") for c, f in ((keep & (mate < 0), 1), (pair, 1), (keep, 2))])
-    return lbg
+    return np.concatenate([nlp.lbg] + [np.where(c, f * least, -np.inf).ravel(order="F") for c, f in ((keep & (mate < 0), 1), (pair, 1), (keep, 2))])
 
 
 def unwound(lines: Lines, D: float, fixed: bool, theta_max) -> Lines:
