@@ -43,6 +43,7 @@ PROBLEMS = ROOT / "problems"
 READER_MODULES = (
     "vine_nlp.io.validate",
     "vine_nlp.io.problems",
+    "vine_nlp.io.sections",
     "vine_nlp.io.sweep_file",
     "vine_nlp.io.data_files",
     "vine_nlp.io.problem_file",

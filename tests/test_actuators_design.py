@@ -4,10 +4,11 @@ widths apart."""
 
 import numpy as np
 
-from vine_nlp.methods.actuators import ActuatorsProblem, Line, sample_states
-from vine_nlp.methods.actuators_design import assign, design_actuators, dither, exclusive_pairs
-from vine_nlp.model.actuators import Lines, owners, too_close
+from vine_nlp.methods.actuators import ActuatorsProblem, Line, evaluate, sample_states, unbuilt
+from vine_nlp.methods.actuators_design import assign, design_actuators, dither, exclusive_pairs, unwound
+from vine_nlp.model.actuators import Lines, forward_states, owners, too_close
 from vine_nlp.model.routing import actuated
+from vine_nlp.pipeline.runs import judge
 from vine_nlp.problem import DesignOptions
 
 D, M, N_PER = 2.4, 8, 5
@@ -48,6 +49,7 @@ def test_base_tip_pair_three_states():
     on = actuated(r.lines.lam)
     assert not np.any(on[0] & on[1])
     assert np.all(r.lines.lam[~on] == 1.0)
+    assert unbuilt(p, r.lines) == []  # buildable: no pointless turning, every feature at least min_feature
 
 
 def test_lines_that_share_segments_keep_their_widths():
@@ -65,3 +67,40 @@ def test_dither_keeps_the_running_contraction():
     lam = np.array([[0.99, 0.99, 0.99, 0.99, 0.9, 1.0]])
     # 1 - lambda accumulates 0.01 per segment; at 0.025 (half the margin) one segment is kept at 1 - margin
     assert dither(lam, np.array([0.05])).tolist() == [[False, False, True, False, True, False]]
+
+
+def test_buildable_rules_per_actuator_and_unwinding_known_answers():
+    lam = np.ones((2, 6))
+    lam[0, 2], lam[1, 4] = 0.9, 0.6
+    th = np.array([[0.3, -0.2, 0.1, 0.2, -0.3, 0.1], [0.0, 0.2, 0.2, -0.1, 0.05, 0.4]])
+    lines, states = Lines(("A", "B"), th, lam, [0.0, 2.0], np.ones(6)), {"a": ("A",), "b": ("B",)}
+    p = ActuatorsProblem("t", D, (Line("A"), Line("B")), states, targets=sample_states(lines, D, states, 13),
+                         options=DesignOptions(min_feature=0.2))
+    gap = "actuator A: not buildable: 1 feature(s) below min_feature 0.2 cm (smallest: 0.100502 cm stopper gap)"  # 0.1 / cos(0.1)
+    # A turns (2/D) sum |tan theta| over its five segments without an actuator: 0.937 rad = 0.149 turn; it needs none there
+    assert unbuilt(p, lines) == [gap, "actuator A: not buildable: the actuator line turns 0.149 turn(s) where lambda = 1, the routing "
+                                 "needs 0 there (pointless turning)", "actuator B: not buildable: the actuator line turns 0.123 turn(s) "
+                                 "where lambda = 1, the routing needs 0 there (pointless turning)"]
+    r = evaluate(p, lines)
+    judge(p, r)  # the pipeline's judge keeps the design's own shortfall: exit 1
+    assert not r.ok and r.shortfall[-3:] == tuple(unbuilt(p, lines))
+    u = unwound(lines, D, False, np.radians([60, 60]))
+    assert unbuilt(p, u) == [gap]
+    assert np.array_equal(u.theta != 0, lam != 1)  # straight where no actuator: the base rolled to A's start, B's phi0 to its own
+    phi = lines.phi(D)
+    assert abs(u.phi0[1] - (phi[1, 4] - phi[0, 2])) < 1e-12
+    a, b = forward_states(lines, D, states), forward_states(u, D, states)
+    assert max(np.abs(a[s].center - b[s].center).max() for s in states) < 1e-12  # every state's shape unchanged
+
+
+def test_one_line_on_a_fixed_base_keeps_the_base_exactly():
+    pose = np.eye(4)
+    pose[:3, :3], pose[:3, 3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]], [1.0, 2.0, 3.0]  # turned 90 deg about z, moved
+    lam = np.ones((1, 6))
+    lam[0, 2:] = 0.7
+    truth, states = Lines(("A",), np.full((1, 6), 0.1), lam, [0.0], np.full(6, 2.5), pose), {"a": ("A",)}
+    p = ActuatorsProblem("t", D, (Line("A"),), states, targets=sample_states(truth, D, states, 6 * 4 + 1),
+                         options=DesignOptions(points_per_segment=4, base="fixed", base_pose=tuple(map(tuple, pose))))
+    r = design_actuators(p)
+    assert r.ok, r.shortfall
+    assert np.array_equal(r.lines.initial_pose, pose) and r.state_metrics["a"]["rmse"] < 0.01

@@ -218,8 +218,8 @@ def _generator():
 def test_format_reference_matches_the_readers():
     gen = _generator()
     page = gen.formats_page()
-    problems = importlib.import_module("vine_nlp.io.problems")
-    for key in (*problems._ACTUATOR_KEYS, *problems._DESIGN_KEYS, *problems._ROUTING_KEYS, *problems._TIP_KEYS):
+    problems, sections = importlib.import_module("vine_nlp.io.problems"), importlib.import_module("vine_nlp.io.sections")
+    for key in (*problems._ACTUATOR_KEYS, *sections._DESIGN_KEYS, *problems._ROUTING_KEYS, *problems._TIP_KEYS):
         assert f"| `{key}` |" in page
     for path in ("/runs/<run>/design/theta", "/runs/<run>/shape/center", "/target/points"):
         assert f"| `{path}` |" in page

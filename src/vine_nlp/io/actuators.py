@@ -21,8 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vine_nlp.errors import InputError
-from vine_nlp.io import limits
+from vine_nlp.io import limits, sections
 from vine_nlp.io.archive import Archive, _Checker, load_archive, write_archive
 from vine_nlp.io.h5read import ArchiveError, open_archive
 from vine_nlp.io.validate import SourceFile, check, nonempty_text, real_number, sub_table, unknown_key
@@ -33,19 +32,6 @@ from vine_nlp.model.shape import Shape
 _LINE_KEYS = ("name", "kind", "lambda_min", "theta_max_deg", "width")
 _LINE_ROUTING = ("theta", "theta_deg", "phi", "lambda", "phi0", "phi0_deg")
 _STATE_KEYS = ("name", "active", "target", "units")
-
-
-class _Item(SourceFile):
-    """Errors of a borrowed reader ("target.x", "routing.theta", "actuator.kind") renamed to the item's key."""
-
-    def __init__(self, f: SourceFile, prefix: str, borrowed: str, only=None):
-        super().__init__(f.path)
-        self.prefix, self.borrowed, self.only = prefix, borrowed, only
-
-    def error(self, key: str, reason: str) -> InputError:
-        if (key == self.borrowed or key.startswith(self.borrowed + ".")) and (self.only is None or key.split(".")[-1] in self.only):
-            key = self.prefix + key[len(self.borrowed):]
-        return super().error(key, reason)
 
 
 def _list(f, data, key):
@@ -67,10 +53,9 @@ def _names(f, items, key):
     return names
 
 
-def parse_actuators(f: SourceFile, data: dict, name: str, units: str, diameter: float, P):
-    """(kind, ActuatorsProblem): kind "actuators" (design) or "actuators-forward" ([routing] present). ``P``: the
-    module ``vine_nlp.io.problems``, whose readers of [actuator], [target], [routing] and [design] this borrows
-    (passed in: it imports this module)."""
+def parse_actuators(f: SourceFile, data: dict, name: str, units: str, diameter: float):
+    """(kind, ActuatorsProblem): kind "actuators" (design) or "actuators-forward" ([routing] present); each item's
+    [actuator], [target] and [routing] read by ``io.sections``' readers."""
     forward = "routing" in data and any(k in data["routing"] for k in ("length", "segment_length")) if isinstance(data.get("routing"), dict) else False
     items, states = _list(f, data, "actuators"), _list(f, data, "states")
     names = _names(f, items, "actuators")
@@ -80,7 +65,7 @@ def parse_actuators(f: SourceFile, data: dict, name: str, units: str, diameter: 
             if key not in _LINE_KEYS and not (forward and key in _LINE_ROUTING):
                 raise f.error(f"actuators.{k}.{key}", "not used in a design problem (routings belong to forward problems)"
                               if key in _LINE_ROUTING else unknown_key(key, _LINE_KEYS + (_LINE_ROUTING if forward else ())))
-        act = P._actuator(_Item(f, f"actuators.{k}", "actuator"), {key: v for key, v in item.items() if key in _LINE_KEYS[1:4]})
+        act = sections.read_actuator(sections.Item(f, f"actuators.{k}", "actuator"), {key: v for key, v in item.items() if key in _LINE_KEYS[1:4]})
         width = real_number(f, f"actuators.{k}.width", item.get("width", diameter / 8))
         check(f, f"actuators.{k}.width", width >= 0, "must be >= 0")
         check(f, f"actuators.{k}.width", width <= math.pi * diameter,
@@ -107,24 +92,24 @@ def parse_actuators(f: SourceFile, data: dict, name: str, units: str, diameter: 
             check(f, f"states.{k}.target", "target" not in item, "not used in a forward problem")
         else:
             check(f, f"states.{k}.target", isinstance(item.get("target"), dict), "missing: every state of a design problem needs a target")
-            targets[snames[k]] = P._target(_Item(f, f"states.{k}.target", "target"), {"target": item["target"]}, diameter)
+            targets[snames[k]] = sections.read_target(sections.Item(f, f"states.{k}.target", "target"), {"target": item["target"]}, diameter)
     if forward:
         check(f, "design", "design" not in data, "not used in a forward problem")
-        return "actuators-forward", _forward(f, data, items, name, units, diameter, lines, active, P)
-    return "actuators", _design(f, data, design, name, units, diameter, lines, active, targets, P)
+        return "actuators-forward", _forward(f, data, items, name, units, diameter, lines, active)
+    return "actuators", _design(f, data, design, name, units, diameter, lines, active, targets)
 
 
-def _forward(f, data, items, name, units, diameter, lines, active, P):
+def _forward(f, data, items, name, units, diameter, lines, active):
     shared = sub_table(f, data, "routing", ("length", "segment_length", "initial_pose"))
     theta, lam, phi0 = [], [], []
     for k, item in enumerate(items):
         table = {**shared, **{key: v for key, v in item.items() if key in _LINE_ROUTING[:4]}}
-        r = P._routing(_Item(f, f"actuators.{k}", "routing", _LINE_ROUTING), table, diameter)
+        r = sections.read_routing(sections.Item(f, f"actuators.{k}", "routing", _LINE_ROUTING), table, diameter)
         theta.append(r.theta)
         lam.append(r.lam)
         start = 0.0
         if "phi" in item:
-            start = float(P._per_point(f, f"actuators.{k}.phi", item["phi"], np.zeros(1), "one per segment end")[0]) \
+            start = float(sections.per_point(f, f"actuators.{k}.phi", item["phi"], np.zeros(1), "one per segment end")[0]) \
                 if not isinstance(item["phi"], list) else real_number(f, f"actuators.{k}.phi", item["phi"][0])
         for key, scale in (("phi0", 1.0), ("phi0_deg", math.pi / 180)):
             if key in item:
@@ -141,12 +126,11 @@ def _forward(f, data, items, name, units, diameter, lines, active, P):
     return problem
 
 
-def _design(f, data, design, name, units, diameter, lines, active, targets, P):
-    opts = {k: v for k, v in design.items() if k not in P._BUILD_KEYS}
-    for key in opts:
-        if key not in P._OTHER_DESIGN_KEYS:
-            raise f.error(f"design.{key}", unknown_key(key, P._OTHER_DESIGN_KEYS + P._BUILD_KEYS))
-    options = P._build_options(f, data, design, lines[0].actuator, P._options(f, opts))
+def _design(f, data, design, name, units, diameter, lines, active, targets):
+    for key in design:
+        if key not in sections._OTHER_DESIGN_KEYS + sections._BUILD_KEYS:
+            raise f.error(f"design.{key}", unknown_key(key, sections._OTHER_DESIGN_KEYS + sections._BUILD_KEYS))
+    options = sections.design_options(f, data, design, lines[0].actuator)
     first = next(iter(targets))
     for k, (pts, _) in enumerate(targets.values()):
         need = options.points_per_segment + 1

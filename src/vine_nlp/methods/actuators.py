@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vine_nlp.analysis.buildability import buildability, default_min_feature
 from vine_nlp.model.actuators import Lines, TwoLines, forward_states, owners, state_shape, too_close
 from vine_nlp.model.routing import Routing
 from vine_nlp.model.shape import error_metrics, routing_metrics
@@ -101,14 +102,8 @@ def state_arcs(lines: Lines, D: float, active) -> np.ndarray:
 def sample_states(lines: Lines, D: float, states: dict, N: int) -> dict:
     """{state: (N, 3)} every state's center line at N points equally spaced in its own length (targets that
     the design's pairing matches exactly)."""
-    out = {}
-    for name, active in states.items():
-        arcs = state_arcs(lines, D, active)
-        A = np.r_[0.0, np.cumsum(arcs)]
-        x = np.linspace(0.0, A[-1], N)
-        seg = np.clip(np.searchsorted(A, x, side="right") - 1, 0, arcs.size - 1)
-        out[name] = state_shape(lines, D, active, seg, np.clip((x - A[seg]) / arcs[seg], 0, 1), name).center
-    return out
+    even = np.linspace(0.0, 1.0, N)[:, None] * [1.0, 0.0, 0.0]  # a chord of N equal steps
+    return {name: state_shape(lines, D, active, *arc_pairing(even, state_arcs(lines, D, active)), name).center for name, active in states.items()}
 
 
 def evaluate(problem: ActuatorsProblem, lines: Lines, method: str = "nlp", bounds=None, **kw) -> ActuatorsResult:
@@ -149,5 +144,19 @@ def shortfall(problem: ActuatorsProblem, lines: Lines) -> tuple:
     for j, a, b in too_close(lines, problem.diameter, problem.widths):
         out.append(f"segment {j + 1}: lines {problem.names[a]} and {problem.names[b]} closer than their widths")
         break
-    return tuple(out)
+    return tuple(out + unbuilt(problem, lines))
+
+
+def unbuilt(problem: ActuatorsProblem, lines: Lines) -> list:
+    """The buildable rules (``analysis.buildability.Report.missed``) each actuator's line misses, one line each,
+    judged with the problem's margin and min_feature; the turning before a line's first actuator is free (its
+    phi_k[0] is designed; the first line's: the base's roll) unless the base is fixed."""
+    o, out = problem.options, []
+    mf = default_min_feature(problem.units) if o.min_feature is None else o.min_feature
+    for k, a in enumerate(problem.actuators):
+        b = a.actuator
+        rep = buildability(lines.routing(k), problem.diameter, b.kind, b.lambda_min, o.correction_margin, mf, k > 0 or o.base != "fixed")
+        lo = b.lambda_min + o.correction_margin
+        out += [f"actuator {a.name}: not buildable: {m}" for m in rep.missed(lo, max(lo, 1 - o.correction_margin), problem.units)]
+    return out
 

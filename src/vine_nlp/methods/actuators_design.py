@@ -2,12 +2,17 @@
 segment lengths and the one base pose, every state's shape paired with its own target (spec "Several actuators
 on one tube"; the model is ``vine_nlp.model.actuators``).
 
-Transcription (its own, multiple shooting; in units of D): each state's material frames G_j are variables, tied
-by one segment's motion. A segment of a state moves G by the product of its active lines' motions
+Transcription (the house's: ``methods.variables`` declares each variable once, ``methods.structure`` lays them
+out in stage order; in units of D): per segment j the declared variables :func:`declared` (every line's theta_k,
+lambda_k and phi_k at the segment's end, the shared length, the pairing's segment end on each state's target);
+the head the one base pose (a rotation vector about the guess's and a position; none for a fixed base), each
+line's phi_k[0] (globals; the first's 0) and each state's first frame (fixed by its bounds: the base if fixed,
+else unused). Each state is a level: its material frames G_j are variables (multiple shooting), tied by one
+segment's motion. A segment of a state moves G by the product of its active lines' motions
 G_k = Rx(phi_k[j]) H(theta_k, lambda_k, l_j) Rx(-phi_k[j+1]), separated by translations -l_j along x: every G_k
 with lambda_k = 1 is a translation l_j, so the product is the model exactly wherever at most one active line has
-lambda < 1 (and a smooth stand-in where several do, used only on the way). phi_k are variables with
-phi_k[j+1] = phi_k[j] + 2 tan(theta_k[j]) l_j / D.
+lambda < 1 (and a smooth stand-in where several do, used only on the way). phi_k[j+1] = phi_k[j] + 2 tan(theta_k[j])
+l_j / D are constraints.
 
 Pairing: a state's model points sit at n equal fractions of each segment; where each segment's ends fall on the
 state's target (fractions of its chord) are variables too, so the shared segment lengths can serve shapes whose
@@ -19,8 +24,10 @@ No two active lines on one segment (the method): lines that are active together 
 2. Each segment is assigned, line by line in order of how much it contracts there, to lines not exclusive with one
    already assigned; every other line's lambda is fixed to exactly 1 by its bounds, and the design is polished
    (same NLP). The polished design has at most one active line per segment in every state by construction.
-3. Buildable: each lambda near 1 (within half the correction margin) is fixed to exactly 1, the others kept
-   inside [lambda_min + margin, 1 - margin], and the design is polished again.
+3. Buildable (``analysis.buildability``'s rules per line): each lambda near 1 (within half the correction margin) is
+   fixed to exactly 1, the others kept inside [lambda_min + margin, 1 - margin], every stopper gap (alone or with its
+   partner's) and stopper at least min_feature, and the design is polished again. Then each line's runs without an
+   actuator are unwound (:func:`unwound`: no pointless turning; every state's shape unchanged).
 Chosen over a complementarity constraint because IPOPT handles fixed bounds exactly and an MPCC poorly (no
 constraint qualification at the solution); the assignment is what a builder decides anyway (which tendon runs
 where). Lines not exclusive keep (w_a + w_b)/2 apart around the circumference on every segment where both may
@@ -33,20 +40,36 @@ from __future__ import annotations
 import itertools
 import math
 import time
+from dataclasses import replace
+from types import SimpleNamespace
 
 import casadi as ca
 import numpy as np
 
+from vine_nlp.analysis.buildability import default_min_feature, partners, pieces, wrap_angle
 from vine_nlp.methods import settings
 from vine_nlp.methods.actuators import ActuatorsProblem, ActuatorsResult, evaluate
 from vine_nlp.methods.common import geometric_guess, pair_points
-from vine_nlp.methods.settings import CHAIN, EXACT_BOUNDS, WARM, quiet
-from vine_nlp.model.actuators import Lines
+from vine_nlp.methods.settings import CHAIN, EXACT_BOUNDS, quiet
+from vine_nlp.methods.structure import Layout, Structure, frames12
+from vine_nlp.methods.variables import LAM, LENGTH, THETA, Var, box
+from vine_nlp.model.actuators import Lines, roll
 from vine_nlp.model.helix import center_rates
+from vine_nlp.model.routing import actuated
 from vine_nlp.model.segment import so3_exp, twist_parts
 from vine_nlp.problem import DesignProblem
 
-EXPAND = True  # the NLP expanded to SX: slower to build, each iteration faster
+
+def declared(problem: ActuatorsProblem, M: int) -> tuple:
+    """(variables, bounds): one segment's variables (every line's theta_k and lambda_k, ``THETA``'s and ``LAM``'s
+    rules; phi_k at the segment's end, free; the shared length, ``LENGTH``'s rule; where the segment's end falls on
+    each state's target, a fraction of its chord, the last segment's exactly 1) and the lines' bounds as the one
+    actuator those rules read: theta_max and lambda_min per segment and line (``box``'s shape)."""
+    K, S = len(problem.actuators), len(problem.states)
+    per = {key: np.broadcast_to([getattr(a.actuator, key) for a in problem.actuators], (M, K)).reshape((M, K) if K > 1 else (M,))
+           for key in ("theta_max", "lambda_min")}
+    return (replace(THETA, size=K), replace(LAM, size=K, levels=False), Var("phi", lambda a, ref: (-np.inf, np.inf), size=K),
+            LENGTH, Var("b", lambda a, ref: (np.arange(ref.size) == ref.size - 1, 1.0), size=S)), SimpleNamespace(**per)
 
 
 def _rx(a):
@@ -75,50 +98,47 @@ def _functions(a: int, n: int):
     at u = 0, 1/n, ..., (n-1)/n, and the tip (u = 1)."""
     X, th, lam, ph, dl = ca.SX.sym("X", 12), ca.SX.sym("th", a), ca.SX.sym("lam", a), ca.SX.sym("ph", a), ca.SX.sym("dl")
     R0, p0 = ca.reshape(X[:9], 3, 3), X[9:]
-    Rl, pl = local_motion([th[i] for i in range(a)], [lam[i] for i in range(a)], [ph[i] for i in range(a)], dl, 1.0)
+    lines = [th[i] for i in range(a)], [lam[i] for i in range(a)], [ph[i] for i in range(a)]
+    Rl, pl = local_motion(*lines, dl, 1.0)
     step = ca.Function("step", [X, th, lam, ph, dl], [ca.vertcat(ca.vec(ca.mtimes(R0, Rl)), p0 + ca.mtimes(R0, pl))])
-    pts = [p0 + ca.mtimes(R0, local_motion([th[i] for i in range(a)], [lam[i] for i in range(a)], [ph[i] for i in range(a)], dl, i_ / n)[1])
-           for i_ in range(n)]
+    pts = [p0 + ca.mtimes(R0, local_motion(*lines, dl, i / n)[1]) for i in range(n)]
     return step, ca.Function("pts", [X, th, lam, ph, dl], [ca.horzcat(*pts)])
 
 
 class _NLP:
-    """The NLP of one problem, built once (MX: every segment's motion and points one call of an SX function
-    per number of active lines, mapped over the segments); the stages and pairing rounds change only bounds and
-    parameters."""
+    """The NLP of one problem, built once (expanded to SX: every segment's motion and points one call of an SX
+    function per number of active lines, mapped over the segments); the stages and pairing rounds change only
+    bounds and parameters. ``lay``: where each declared variable lives (``methods.structure.Layout``, a level per state)."""
 
     def __init__(self, problem: ActuatorsProblem, M: int, R0g: np.ndarray, h: np.ndarray):
-        D, o = problem.diameter, problem.options
-        self.K, self.M, self.S = len(problem.actuators), M, len(problem.states)
-        K, S, n = self.K, self.S, o.points_per_segment
-        idx = {nm: k for k, nm in enumerate(problem.names)}
-        sizes = {"th": (K, M), "lam": (K, M), "ph": (K, M + 1), "dl": (M, 1), "w": (3, 1), "p0": (3, 1), "X": (12, M * S),
-                 "b": (M + 1, S)}
-        self.x = ca.MX.sym("x", sum(a * b for a, b in sizes.values()))
-        v, i, self.sl = {}, 0, {}
-        for key, (a, b) in sizes.items():
-            self.sl[key] = slice(i, i + a * b)
-            v[key] = ca.reshape(self.x[i: i + a * b], a, b)
-            i += a * b
+        D, o, fixed = problem.diameter, problem.options, problem.options.base == "fixed"
+        K, S = len(problem.actuators), len(problem.states)
+        self.K, self.M, self.S, self.D = K, M, S, D
+        n, idx = o.points_per_segment, {nm: k for k, nm in enumerate(problem.names)}
+        self.lay = lay = Layout(Structure(M, K=S, pose="fixed" if fixed else "shared", globals=K, variables=declared(problem, M)[0]))
+        self.x = x = ca.MX.sym("x", lay.size)
+        th, lam, phi, dl, b = (ca.reshape(x[lay.var[v].reshape(M, -1).ravel().tolist()], -1, M) for v in ("theta", "lam", "phi", "length", "b"))
+        ph = ca.horzcat(x[lay.globals.tolist()], phi)  # (K, M+1): phi_k[0] and at every segment's end
+        b = ca.horzcat(ca.DM.zeros(S, 1), b).T  # (M+1, S): the pairing's segment ends (fractions of each target's chord)
         self.P = n * M + 1  # model points per state: n per segment and the tip
         # the stage-1 penalty weight, then per state the model points' fractions c0 of the state's length at the
         # pairing, the target there and its derivative in c (the pairing linearized: exact where c = c0)
         par = ca.MX.sym("p", 1 + 7 * self.P * S)
-        mu = par[0]
-        base = ca.vertcat(ca.vec(ca.mtimes(ca.DM(R0g), so3_exp(v["w"]))), v["p0"])
-        th, lam, ph, dl = v["th"], v["lam"], v["ph"], v["dl"]
-        g = [ca.vec(ph[:, 1:] - ph[:, :-1] - 2 * ca.tan(th) * ca.repmat(dl.T, K, 1))]
+        rows = [(ca.vec(ph[:, 1:] - ph[:, :-1] - 2 * ca.tan(th) * ca.repmat(dl, K, 1)), 0.0, 0.0)]  # (expression, lower, upper)
+        w, p = (x[lay.pose[0, i: i + 3].tolist()] for i in (0, 3)) if not fixed else (None, None)  # rotation vector about R0g, position
         J, fns = 0, {}
         for s, active in enumerate(problem.states.values()):
             ks = [idx[a] for a in active]
             step, pts = fns.setdefault(len(ks), _functions(len(ks), n))
-            Xs = v["X"][:, s * M: (s + 1) * M]
+            Xs = ca.reshape(x[lay.X[:, s].ravel().tolist()], 12, M + 1)  # the state's frames: its base, every segment's end
             q = ca.reshape(par[1 + 7 * self.P * s: 1 + 7 * self.P * (s + 1)], 7, self.P)
-            b = v["b"][:, s].T  # the target's segment ends, fractions of its chord (variables: the pairing is designed too)
-            c = ca.horzcat(ca.vec(ca.repmat(b[:, :M], n, 1) + ca.mtimes(ca.DM(np.arange(n) / n), ca.diff(b, 1, 1))).T, 1)
+            bs = b[:, s].T  # the target's segment ends, fractions of its chord (variables: the pairing is designed too)
+            c = ca.horzcat(ca.vec(ca.repmat(bs[:, :M], n, 1) + ca.mtimes(ca.DM(np.arange(n) / n), ca.diff(bs, 1, 1))).T, 1)
             T = q[1:4, :] + q[4:7, :] * ca.repmat(c - q[0, :], 3, 1)
-            args = [ca.horzcat(base, Xs[:, :-1]), th[ks, :], lam[ks, :], ph[ks, :-1], dl.T]
-            g.append(ca.vec(Xs - step.map(M)(*args)))
+            if not fixed:  # a free base is the pose (the state's first frame is fixed by its bounds, unused)
+                Xs = ca.horzcat(ca.vertcat(ca.vec(ca.mtimes(ca.DM(R0g), so3_exp(w))), p), Xs[:, 1:])
+            args = [Xs[:, :-1], th[ks, :], lam[ks, :], ph[ks, :-1], dl]
+            rows.append((ca.vec(Xs[:, 1:] - step.map(M)(*args)), 0.0, 0.0))
             J += ca.sumsqr(pts.map(M)(*args) - T[:, :-1]) + ca.sumsqr(Xs[9:, -1] - T[:, -1])
         J = J / (S * self.P)
         # smoothness of theta and lambda along the tube (h: the guess's segment lengths, L their sum)
@@ -127,23 +147,35 @@ class _NLP:
             J += o.smooth_theta / h.sum() * ca.sum2(ca.sum1(ca.diff(th, 1, 1) ** 2) / hm)
             J += o.smooth_lambda / h.sum() * ca.sum2(ca.sum1(ca.diff(lam, 1, 1) ** 2) / hm)
         # exclusive pairs (stage 1 penalty) and widths (1 - cos(phi_a - phi_b) at every segment end)
-        self.exclusive, self.pairs = exclusive_pairs(problem)
-        for a, b in self.exclusive:
-            J += mu * ca.sum2((1 - lam[a, :]) * (1 - lam[b, :])) / M
-        self.n_eq = sum(e.numel() for e in g)
-        g.append(ca.vec(ca.diff(v["b"], 1, 0)))  # the pairing keeps the order: b_{j+1} - b_j >= a fraction of 1/M
-        self.width_rows = list(self.pairs)
-        for a, b in self.pairs:
-            g.append((1 - ca.cos(ph[a, :] - ph[b, :])).T)
-        self.g = ca.vertcat(*g)
-        opts = quiet(o.max_iter, o.tol) | CHAIN | EXACT_BOUNDS | {"expand": EXPAND}
-        nlp = {"x": self.x, "f": J, "g": self.g, "p": par}
-        self.solver = ca.nlpsol("actuators", "ipopt", nlp, opts)
-        self.warm = self.solver if EXPAND else ca.nlpsol("actuators_warm", "ipopt", nlp, opts | WARM)  # one expansion only
-        self.D = D
+        self.exclusive, pairs = exclusive_pairs(problem)
+        mu = par[0]
+        for a, c in self.exclusive:
+            J += mu * ca.sum2((1 - lam[a, :]) * (1 - lam[c, :])) / M
+        rows.append((ca.vec(ca.diff(b, 1, 0)), settings.ACTUATORS_MIN_PIECE / M, np.inf))  # each piece a fraction of 1/M at least
+        w = problem.widths
+        rows += [((1 - ca.cos(ph[a, :] - ph[c, :])).T, 1 - math.cos(min(math.pi, (w[a] + w[c]) / D)), np.inf) for a, c in pairs]
+        self.lbg, self.ubg = (np.concatenate([np.full(e.numel(), r[i]) for e, *r in rows]) for i in (0, 1))
+        path = ca.repmat(dl, K, 1) / ca.cos(th)  # each line's length along it per segment (K, M)
+        gap = (1 - lam) * path  # the stopper gaps: alone, partners' together, and the stoppers (``features``)
+        self.features = ca.vertcat(*(ca.vec(e) for e in (gap, gap[:, :-1] + gap[:, 1:], lam * path)))
+        self.nlp, self.solvers = {"x": x, "f": J, "g": ca.vertcat(*(e for e, _, _ in rows)), "p": par}, {}
+        self.opts = quiet(o.max_iter, o.tol) | CHAIN | EXACT_BOUNDS | {"expand": True}
 
-    def slices(self):
-        return self.sl
+    def solver(self, features: bool):
+        """The solver (built on first use) without or with the features' rows (the last stage's only: free rows
+        in the others would cost iterations)."""
+        if features not in self.solvers:
+            g = ca.vertcat(self.nlp["g"], self.features) if features else self.nlp["g"]
+            self.solvers[features] = ca.nlpsol("actuators", "ipopt", self.nlp | {"g": g}, self.opts)
+        return self.solvers[features]
+
+    def get(self, x, name: str) -> np.ndarray:
+        """A declared variable of a solution x, a row per line (state, for the pairing): (K, M)."""
+        return np.asarray(x)[self.lay.var[name].reshape(self.M, -1)].T
+
+    def pairing(self, x) -> np.ndarray:
+        """(M+1, S) each segment's ends as fractions of each state's target chord."""
+        return np.vstack([np.zeros(self.S), self.get(x, "b").T])
 
 
 def exclusive_pairs(problem: ActuatorsProblem):
@@ -169,24 +201,20 @@ def initial_lines(problem: ActuatorsProblem, M: int) -> Lines:
         guesses.append(geometric_guess(one, pair_points(problem.targets[state], n)))
     B = guesses[0].initial_pose
     phi0 = [0.0] + [math.atan2(g.initial_pose[:3, 1] @ B[:3, 2], g.initial_pose[:3, 1] @ B[:3, 1]) for g in guesses[1:]]
-    th = np.array([g.theta for g in guesses])
-    lam = np.array([g.lam for g in guesses])
-    return Lines(problem.names, th, lam, phi0, np.mean([g.length for g in guesses], axis=0), B)
+    return Lines(problem.names, [g.theta for g in guesses], [g.lam for g in guesses], phi0, np.mean([g.length for g in guesses], axis=0), B)
 
 
-def _rollout(nlp: _NLP, problem, lines: Lines, base12):
-    """The frames of every state from a design (the step functions evaluated)."""
-    idx = {nm: k for k, nm in enumerate(problem.names)}
-    phi, dl = lines.phi(nlp.D), lines.length / nlp.D
-    X = []
+def _rollout(problem, lines: Lines, D: float) -> np.ndarray:
+    """(S, 12, M+1) the material frames of every state from a design (the step functions evaluated)."""
+    phi, dl, out = lines.phi(D), lines.length / D, []
     for active in problem.states.values():
-        ks = [idx[a] for a in active]
+        ks = lines.index(active)
         step, _ = _functions(len(ks), 1)
-        x = ca.DM(base12)
-        for j in range(nlp.M):
-            x = step(x, lines.theta[ks, j], lines.lam[ks, j], phi[ks, j], dl[j])
-            X.append(np.asarray(x).ravel())
-    return np.concatenate(X)
+        X = [frames12(lines.initial_pose[None], D)[:, 0]]
+        for j in range(lines.segments):
+            X.append(np.asarray(step(X[-1], lines.theta[ks, j], lines.lam[ks, j], phi[ks, j], dl[j])).ravel())
+        out.append(np.column_stack(X))
+    return np.stack(out)
 
 
 def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> ActuatorsResult:
@@ -194,88 +222,59 @@ def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> Ac
     accepted for the pipeline and not used yet)."""
     t0 = time.perf_counter()
     D, o = problem.diameter, problem.options
-    n = o.points_per_segment
-    M = math.ceil((next(iter(problem.targets.values())).shape[0] - 1) / o.points_per_segment)
+    n, K = o.points_per_segment, len(problem.actuators)
+    M = math.ceil((next(iter(problem.targets.values())).shape[0] - 1) / n)
     guess = initial_lines(problem, M)
-    fixed = o.base == "fixed"
-    B = np.asarray(o.base_pose, float) if fixed else guess.initial_pose
+    B = np.asarray(o.base_pose, float) if o.base == "fixed" else guess.initial_pose
     guess = Lines(guess.names, guess.theta, guess.lam, guess.phi0, guess.length, B)
     nlp = _NLP(problem, M, B[:3, :3], guess.length / D)
-    sl = nlp.slices()
-    x0 = np.zeros(nlp.x.numel())
-    x0[sl["th"]], x0[sl["lam"]] = guess.theta.ravel(order="F"), guess.lam.ravel(order="F")
-    x0[sl["ph"]], x0[sl["dl"]] = guess.phi(D).ravel(order="F"), guess.length / D
-    x0[sl["p0"]] = B[:3, 3] / D
-    lbx, ubx = np.full(x0.size, -np.inf), np.full(x0.size, np.inf)
-    S = len(problem.states)
-    bounds = [c[::n] for c in _fractions(problem, guess, n)]
-    x0[sl["b"]] = np.concatenate(bounds)
-    ends = np.zeros((M + 1, S), bool)
-    ends[[0, -1]] = True
-    lbx[sl["b"]] = np.where(ends.ravel(order="F"), x0[sl["b"]], 0.0)
-    ubx[sl["b"]] = np.where(ends.ravel(order="F"), x0[sl["b"]], 1.0)
-    x0[sl["X"]] = _rollout(nlp, problem, guess, np.r_[B[:3, :3].ravel(order="F"), B[:3, 3] / D])
-    K = len(problem.actuators)
-    tmax = np.array([a.actuator.theta_max for a in problem.actuators])[:, None] * np.ones((K, M))
-    lmin = np.array([a.actuator.lambda_min for a in problem.actuators])[:, None] * np.ones((K, M))
-    lbx[sl["th"]], ubx[sl["th"]] = -tmax.ravel(order="F"), tmax.ravel(order="F")
-    lbx[sl["lam"]], ubx[sl["lam"]] = lmin.ravel(order="F"), 1.0
-    chord = guess.length.mean() / D
-    lbx[sl["dl"]], ubx[sl["dl"]] = 0.2 * chord, 5.0 * chord
-    first_phi = sl["ph"].start  # ph is K x (M+1) column-major: entry (0, 0) first
-    lbx[first_phi] = ubx[first_phi] = 0.0
-    if fixed:
-        lbx[sl["w"]] = ubx[sl["w"]] = 0.0
-        lbx[sl["p0"]] = ubx[sl["p0"]] = B[:3, 3] / D
-    lbg, ubg = np.zeros(nlp.g.numel()), np.zeros(nlp.g.numel())
-    w, S = problem.widths, len(problem.states)
-    lbg[nlp.n_eq: nlp.n_eq + M * S], ubg[nlp.n_eq: nlp.n_eq + M * S] = settings.ACTUATORS_MIN_PIECE / M, np.inf
-    first = nlp.n_eq + M * S
-    for r, (a, b) in enumerate(nlp.width_rows):
-        rows = slice(first + r * (M + 1), first + (r + 1) * (M + 1))
-        lbg[rows], ubg[rows] = 1 - math.cos(min(math.pi, (w[a] + w[b]) / D)), np.inf
-    iters, status, rounds = 0, "optimal", 0
+    lay, frames = nlp.lay, _rollout(problem, guess, D)
+    x0 = lay.pack_x(frames, poses=np.r_[0.0, 0.0, 0.0, B[:3, 3] / D], globals_=guess.phi0, theta=guess.theta.T, lam=guess.lam.T,
+                    phi=guess.phi(D)[:, 1:].T, length=guess.length / D, b=np.column_stack([c[n::n] for c in _fractions(problem, guess, n)]))
+    lims = declared(problem, M)[1]
+    lbx, ubx = lay.bounds(X0=frames[:, :, 0], **box(lims, np.full(M, guess.length.mean() / D), lay.variables))
+    lbx[lay.X[0]] = ubx[lay.X[0]] = frames[:, :, 0]  # each state's first frame: the base (fixed) or unused (a free base's pose)
+    lbx[lay.globals[0]] = ubx[lay.globals[0]] = 0.0  # the first line starts at phi = 0
+    L, lmin = lay.var["lam"].reshape(M, -1).T, np.reshape(lims.lambda_min, (M, K))[0]  # L: (K, M) where each lambda lives
+    iters, status, rounds, lbg = 0, "optimal", 0, nlp.lbg
     stages = ["relaxed"] + (["assigned"] if nlp.exclusive else []) + (["margin"] if o.correction_margin > 0 else [])
     for stage in stages:
-        mu = settings.ACTUATORS_PENALTY if stage == "relaxed" else 0.0
-        lam = x0[sl["lam"]].reshape(K, M, order="F")
-        fix = np.zeros(x0.size, bool)
+        keep = np.ones((K, M), bool)
         if stage == "assigned":
-            fix[sl["lam"]] = (~assign(lam, nlp.exclusive)).ravel(order="F")
+            keep = assign(x0[L], nlp.exclusive)
         elif stage == "margin":  # buildable: lambda exactly 1, or inside [lambda_min + margin, 1 - margin]
             margin = np.minimum(o.correction_margin, (1 - lmin) / 2)
-            fix[sl["lam"]] = (~dither(lam, margin[:, 0])).ravel(order="F")
-            free = sl["lam"].start + np.flatnonzero((lbx[sl["lam"]] < ubx[sl["lam"]]) & ~fix[sl["lam"]])
-            lbx[free] = (lmin + margin).ravel(order="F")[free - sl["lam"].start]
-            ubx[free] = (1 - margin).ravel(order="F")[free - sl["lam"].start]
-            x0[free] = np.clip(x0[free], lbx[free], ubx[free])
-        x0[fix] = 1.0
-        lbx[fix] = ubx[fix] = 1.0
-        x0, status, n_it, n_r = _stage(nlp, problem, x0, (lbx, ubx, lbg, ubg), mu, B, settings.ACTUATORS_ROUNDS if stage == stages[-1] else 1)
+            keep = dither(x0[L], margin)
+            free = keep & (lbx[L] < ubx[L])
+            lbx[L], ubx[L] = np.where(free, (lmin + margin)[:, None], lbx[L]), np.where(free, 1 - margin[:, None], ubx[L])
+            lbg = features(nlp, problem, keep, lbx)
+            x0[L] = np.clip(x0[L], lbx[L], ubx[L])
+        x0[L[~keep]] = lbx[L[~keep]] = ubx[L[~keep]] = 1.0
+        mu = settings.ACTUATORS_PENALTY if stage == "relaxed" else 0.0
+        x0, status, n_it, n_r = _stage(nlp, problem, x0, (lbx, ubx, lbg), mu, B, settings.ACTUATORS_ROUNDS if stage == stages[-1] else 1)
         iters, rounds = iters + n_it, rounds + n_r
-    lines = _lines(nlp, problem, x0, B)
-    stats = {"segments": M, "points_per_segment": o.points_per_segment, "stages": len(stages), "rounds": rounds, "exclusive_pairs": len(nlp.exclusive),
+    stats = {"segments": M, "points_per_segment": n, "stages": len(stages), "rounds": rounds, "exclusive_pairs": len(nlp.exclusive),
              "base": o.base, "states": {s: list(a) for s, a in problem.states.items()}}
-    return evaluate(problem, lines, "nlp", bounds=x0[sl["b"]].reshape(M + 1, S, order="F").T, status=status, solve_time_s=time.perf_counter() - t0, iterations=iters, stats=stats)
+    lines = unwound(_lines(nlp, problem, x0, B), D, o.base == "fixed", np.reshape(lims.theta_max, (M, K))[0])
+    return evaluate(problem, lines, "nlp", bounds=nlp.pairing(x0).T, status=status,
+                    solve_time_s=time.perf_counter() - t0, iterations=iters, stats=stats)
 
 
 def _stage(nlp: _NLP, problem, x0, box, mu, B, rounds: int):
-    """One stage: solves from ``x0`` (cold, then warm), the target re-linearized at the pairing of the solve before,
-    while a round lowers the objective; the round whose design meets the targets best (evaluate) is kept.
+    """One stage: solves from ``x0``, the target re-linearized at the pairing of the solve before, while a round
+    lowers the objective; the round whose design meets the targets best (evaluate) is kept.
     Returns (x, status, iterations, solves)."""
-    sl, M, S, n = nlp.sl, nlp.M, len(problem.states), problem.options.points_per_segment
-    lbx, ubx, lbg, ubg = box
-    f, duals, best, iters, solves = np.inf, None, None, 0, 0
+    n, (lbx, ubx, lbg) = problem.options.points_per_segment, box
+    f, best, iters, solves = np.inf, None, 0, 0
     for _ in range(rounds):
-        c = _pairing_fractions(x0[sl["b"]].reshape(M + 1, S, order="F"), n)
-        solver = nlp.solver if duals is None else nlp.warm
-        sol = solver(x0=x0, p=np.r_[mu, _paired(problem, c)], lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg, **(duals or {}))
+        c = _pairing_fractions(nlp.pairing(x0), n)
+        solver = nlp.solver(lbg.size > nlp.lbg.size)
+        sol = solver(x0=x0, p=np.r_[mu, _paired(problem, c)], lbx=lbx, ubx=ubx, lbg=lbg, ubg=np.r_[nlp.ubg, np.full(lbg.size - nlp.ubg.size, np.inf)])
         st = solver.stats()
-        duals = {"lam_x0": sol["lam_x"], "lam_g0": sol["lam_g"]} if st.get("success") else None
         x0, iters, solves = np.asarray(sol["x"]).ravel(), iters + int(st.get("iter_count", 0)), solves + 1
         status = {"Solve_Succeeded": "optimal", "Solved_To_Acceptable_Level": "acceptable",
                   "Maximum_Iterations_Exceeded": "max_iter"}.get(st.get("return_status"), "failed")
-        b = x0[sl["b"]].reshape(M + 1, S, order="F")
+        b = nlp.pairing(x0)
         err = evaluate(problem, _lines(nlp, problem, x0, B), bounds=b.T).metrics["rmse"] if rounds > 1 else 0.0
         if best is None or err < best[0]:
             best = (err, x0.copy(), status)
@@ -287,11 +286,40 @@ def _stage(nlp: _NLP, problem, x0, box, mu, B, rounds: int):
 
 
 def _lines(nlp: _NLP, problem, x, B) -> Lines:
-    sl, K, M, D = nlp.sl, nlp.K, nlp.M, nlp.D
-    pose = np.eye(4)
-    pose[:3, :3], pose[:3, 3] = B[:3, :3] @ so3_exp(x[sl["w"]]), x[sl["p0"]] * D
-    th, lam = x[sl["th"]].reshape(K, M, order="F"), np.minimum(x[sl["lam"]].reshape(K, M, order="F"), 1.0)
-    return Lines(problem.names, th, lam, x[sl["ph"]].reshape(K, M + 1, order="F")[:, 0], x[sl["dl"]] * D, pose)
+    v, pose = nlp.lay.unpack(x), np.array(B, float)
+    if v["poses"].size:
+        pose[:3, :3], pose[:3, 3] = B[:3, :3] @ so3_exp(v["poses"][0, :3]), v["poses"][0, 3:] * nlp.D
+    return Lines(problem.names, nlp.get(x, "theta"), np.minimum(nlp.get(x, "lam"), 1.0), v["globals"], v["length"] * nlp.D, pose)
+
+
+def features(nlp: _NLP, problem: ActuatorsProblem, keep: np.ndarray, lbx: np.ndarray) -> np.ndarray:
+    """The lower bounds of the constraints for features at least min_feature (``analysis.buildability``'s, times
+    settings.FEATURE_SLACK) where ``keep`` (K, M) has an actuator: each stopper gap, alone or with its partner's, and
+    the stoppers either side (lambda path / 2 each); every segment at least that long (``lbx`` changed)."""
+    o, M = problem.options, nlp.M
+    least = settings.FEATURE_SLACK * (default_min_feature(problem.units) if o.min_feature is None else o.min_feature) / nlp.D
+    mate = np.array([partners(k) for k in keep])
+    pair = keep[:, :-1] & (mate[:, :-1] == np.arange(1, M))
+    lbx[nlp.lay.var["length"]] = np.maximum(lbx[nlp.lay.var["length"]], least)
+    return np.concatenate([nlp.lbg] + [np.where(c, f * least, -np.inf).ravel(order="F") for c, f in ((keep & (mate < 0), 1), (pair, 1), (keep, 2))])
+
+
+def unwound(lines: Lines, D: float, fixed: bool, theta_max) -> Lines:
+    """Each line's runs without an actuator the shortest way round at constant slope (``methods.buildable.unwind``'s
+    rule, per line): a last run straight; a first run straight into the line's phi_k[0] (the first line's into the
+    base's roll, every phi_k[0] turned with it), or from phi = 0 with a fixed base. Every state's shape is unchanged
+    (it depends on each line's angle where it has an actuator only), but where a short run needs a slope above theta_max."""
+    phi, theta, M = lines.phi(D), lines.theta.copy(), lines.segments
+    phi0 = phi[:, 0].copy()
+    for k in range(lines.count):
+        for p in (p for p in pieces(actuated(lines.lam[k]), lines.length, lines.length) if not p.actuated):
+            run, net = slice(p.start, p.stop), phi[k, p.stop] - phi[k, p.start]
+            if p.stop == M or (p.start == 0 and (k or not fixed)):
+                theta[k, run], phi0[k] = 0.0, phi0[k] + (net if p.stop < M else 0.0)
+            else:
+                theta[k, run] = np.arctan(0.5 * D * wrap_angle(net) / (p.s1 - p.s0))
+    theta = np.clip(theta, -theta_max[:, None], theta_max[:, None])
+    return Lines(lines.names, theta, lines.lam, wrap_angle(phi0 - phi0[0]), lines.length, lines.initial_pose @ roll(phi0[0]))
 
 
 def _fractions(problem: ActuatorsProblem, lines: Lines, n: int) -> list:

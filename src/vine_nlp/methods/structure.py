@@ -68,7 +68,7 @@ class Layout:
 
     def __init__(self, s: Structure):
         M, K, E = s.M, s.K, s.extra
-        self.variables, i = s.variables, 0
+        self.s, self.variables, i = s, s.variables, 0
 
         def take(count: int) -> np.ndarray:  # the next ``count`` entries of x
             nonlocal i
@@ -102,3 +102,62 @@ class Layout:
         """Entries of segment j's ``variables`` (level k) in order: by default the routing's (after X_j,
         ``variables.POINT``'s; the blocks of the model); ``layout.variables``: every declared one."""
         return np.r_[tuple(self.var[v.name][j, k] if v.levels else self.var[v.name][j] for v in variables)]
+
+    def pack_x(self, frames, poses=None, lam_global=None, extra=None, globals_=None, **values) -> np.ndarray:
+        """x from the declared variables by name (``values``: ``var``'s shapes, lengths in units of D), frames
+        (K, 12, M+1), poses (P, 6), global lambdas (shared or level), extra (E, M), extra globals (G,)."""
+        s, x = self.s, np.zeros(self.size)
+        for v in s.variables:
+            val, at = values[v.name], self.var[v.name]
+            if not v.levels:
+                x[at] = np.reshape(val, at.shape) if np.size(val) == at.size else val
+            elif s.lam == "segment":
+                x[at[:, 0]] = np.asarray(val, float).reshape(s.M, -1)[:, 0]
+            elif lam_global is not None:
+                x[self.lam_global] = lam_global
+            else:
+                x[self.lam_global] = np.mean(val) if s.lam == "shared" else np.asarray(val, float).reshape(s.M, s.K)[0]
+        frames = np.asarray(frames, float).reshape(s.K, 12, s.M + 1)
+        for k in range(s.K):
+            x[self.X[:, k, :].T] = frames[k]
+        for got, at in ((poses, self.pose), (extra, self.extra.T), (globals_, self.globals)):
+            if got is not None and at.size:
+                x[at] = np.asarray(got, float).reshape(at.shape)
+        return x
+
+    def unpack(self, x) -> dict:
+        """``pack_x``'s parts of a decision vector ``x`` by name (the declared variables, poses, lam_global, frames,
+        extra, globals)."""
+        x = np.asarray(x, float)
+        return {v.name: x[self.var[v.name]].copy() for v in self.variables} | {
+            "poses": x[self.pose].copy(),
+            "lam_global": x[self.lam_global].copy(),
+            "frames": np.stack([x[self.X[:, k, :].T] for k in range(self.s.K)]),
+            "extra": x[self.extra.T].copy() if self.s.extra else None,
+            "globals": x[self.globals].copy(),
+        }
+
+    def bounds(self, X0=None, **boxes) -> tuple[np.ndarray, np.ndarray]:
+        """Box bounds of the declared variables by name from (lo, hi) pairs (``variables.box``'s; lam per level
+        (K,) for lambda per level); ``X0``: (K, 12) fixed base frames for a fixed pose; everything else free."""
+        s = self.s
+        lbx, ubx = np.full(self.size, -np.inf), np.full(self.size, np.inf)
+        for v in s.variables:
+            b = boxes[v.name]
+            if not v.levels:
+                lbx[self.var[v.name]], ubx[self.var[v.name]] = b
+            elif s.lam == "level":
+                lbx[self.lam_global], ubx[self.lam_global] = b
+            else:
+                lo, hi = (np.broadcast_to(np.asarray(e, float), (s.M,)) for e in b)
+                if s.lam == "shared":
+                    lbx[self.lam_global], ubx[self.lam_global] = lo[0], hi[0]
+                else:
+                    lbx[self.var[v.name][:, 0]], ubx[self.var[v.name][:, 0]] = lo, hi
+        if s.pose == "fixed":
+            if X0 is None:
+                raise ValueError("a fixed pose needs its base frames X0")
+            X0 = np.asarray(X0, float).reshape(s.K, 12)
+            for k in range(s.K):
+                lbx[self.X[0, k]] = ubx[self.X[0, k]] = X0[k]
+        return lbx, ubx

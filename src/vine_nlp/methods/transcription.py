@@ -338,66 +338,13 @@ class Solver:
         return self._param_slices[name]
 
     def pack_x(self, frames, poses=None, lam_global=None, extra=None, globals_=None, **values) -> np.ndarray:
-        """x from the declared variables by name (``values``: theta (M,), lam (M,) or (M, K), length (M,), in units of
-        D), frames (K, 12, M+1), poses (P, 6), global lambdas (shared or level), extra (E, M), extra globals (G,)."""
-        s, lay = self.structure, self.layout
-        x = np.zeros(lay.size)
-        for v in s.variables:
-            val = values[v.name]
-            if not v.levels:
-                x[lay.var[v.name]] = val
-            elif s.lam == "segment":
-                x[lay.var[v.name][:, 0]] = np.asarray(val, float).reshape(s.M, -1)[:, 0]
-            elif lam_global is not None:
-                x[lay.lam_global] = lam_global
-            else:
-                x[lay.lam_global] = np.mean(val) if s.lam == "shared" else np.asarray(val, float).reshape(s.M, s.K)[0]
-        frames = np.asarray(frames, float).reshape(s.K, 12, s.M + 1)
-        for k in range(s.K):
-            x[lay.X[:, k, :].T] = frames[k]
-        if poses is not None and s.poses:
-            x[lay.pose] = np.asarray(poses, float).reshape(s.poses, 6)
-        if extra is not None and s.extra:
-            x[lay.extra.T] = np.asarray(extra, float).reshape(s.extra, s.M)
-        if globals_ is not None and s.globals:
-            x[lay.globals] = globals_
-        return x
+        return self.layout.pack_x(frames, poses, lam_global, extra, globals_, **values)  # structure.Layout's
 
     def unpack(self, x) -> dict:
-        s, lay = self.structure, self.layout
-        x = np.asarray(x, float)
-        return {v.name: x[lay.var[v.name]].copy() for v in s.variables} | {  # lam: (M, K); length in units of D
-            "poses": x[lay.pose].copy(), "lam_global": x[lay.lam_global].copy(),
-            "frames": np.stack([x[lay.X[:, k, :].T] for k in range(s.K)]),  # (K, 12, M+1)
-            "extra": x[lay.extra.T].copy() if s.extra else None, "globals": x[lay.globals].copy(),
-        }
+        return self.layout.unpack(x)
 
     def bounds(self, X0=None, **boxes) -> tuple[np.ndarray, np.ndarray]:
-        """Box bounds of the declared variables by name from (lo, hi) pairs (``variables.box``'s; per segment
-        or scalars; lam per level (K,) for lambda per level; length in units of D); ``X0``: (K, 12) fixed base
-        frames for a fixed pose. Extra and global variables are free: set their entries of the returned arrays
-        (``layout.extra``, ``layout.globals``) to bound them."""
-        s, lay = self.structure, self.layout
-        lbx, ubx = np.full(lay.size, -np.inf), np.full(lay.size, np.inf)
-        for v in s.variables:
-            b = boxes[v.name]
-            if not v.levels:
-                lbx[lay.var[v.name]], ubx[lay.var[v.name]] = b
-            elif s.lam == "level":
-                lbx[lay.lam_global], ubx[lay.lam_global] = b
-            else:
-                lo, hi = (np.broadcast_to(np.asarray(e, float), (s.M,)) for e in b)
-                if s.lam == "shared":
-                    lbx[lay.lam_global], ubx[lay.lam_global] = lo[0], hi[0]
-                else:
-                    lbx[lay.var[v.name][:, 0]], ubx[lay.var[v.name][:, 0]] = lo, hi
-        if s.pose == "fixed":
-            if X0 is None:
-                raise ValueError("a fixed pose needs its base frames X0")
-            X0 = np.asarray(X0, float).reshape(s.K, 12)
-            for k in range(s.K):
-                lbx[lay.X[0, k]] = ubx[lay.X[0, k]] = X0[k]
-        return lbx, ubx
+        return self.layout.bounds(X0, **boxes)
 
     def terms(self, x, p) -> dict:
         return {k: float(v) for k, v in zip(self.term_names, self._terms.call([x, p]))}  # a list for any number of terms

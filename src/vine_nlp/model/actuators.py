@@ -120,23 +120,26 @@ def material_frames(lines: Lines, D: float, own: np.ndarray) -> np.ndarray:
     return G
 
 
+def _at(lines: Lines, D: float, active, seg, frac, state: str):
+    """The frames at fraction ``frac`` of segments ``seg`` of a state, turned to the angle of the line shaping each
+    segment (of the state's first active line where none does; straight pieces: lambda 1, the line only turns around
+    the tube), and that line's angle there. TwoLines as :func:`owners`."""
+    own = owners(lines, active, state)
+    seg, frac = np.asarray(seg, int), np.asarray(frac, float)
+    k = np.where(own[seg] < 0, lines.index(active)[0], own[seg])
+    phi, l = lines.phi(D), frac * lines.length[seg]
+    lam = np.where(own[seg] >= 0, lines.lam[k, seg], 1.0)
+    world = material_frames(lines, D, own)[seg] @ roll(phi[k, seg]) @ segment_transform(lines.theta[k, seg], lam, l, D)
+    return world, phi[k, seg] + 2.0 / D * np.tan(lines.theta[k, seg]) * l
+
+
 def state_shape(lines: Lines, D: float, active, seg, frac, state: str = "") -> Shape:
     """Center, actuator and opposite lines of a state at fraction ``frac`` of segments ``seg``.
 
     The actuator line is the line of the active actuator shaping the segment, or of the state's first active
     actuator where none does (with one actuator: exactly the one-actuator shape). TwoLines as :func:`owners`.
     """
-    own = owners(lines, active, state)
-    G = material_frames(lines, D, own)
-    seg, frac = np.asarray(seg, int), np.asarray(frac, float)
-    k = np.where(own[seg] < 0, lines.index(active)[0], own[seg])
-    phi = lines.phi(D)
-    l = frac * lines.length[seg]
-    shaped = own[seg] >= 0
-    # straight pieces: lambda 1 (the line only turns around the tube); shaped pieces: the owner's helix
-    lam = np.where(shaped, lines.lam[k, seg], 1.0)
-    local = roll(phi[k, seg]) @ segment_transform(lines.theta[k, seg], lam, l, D)
-    world = G[seg] @ local
+    world = _at(lines, D, active, seg, frac, state)[0]
     center, normal = world[:, :3, 3], world[:, :3, 1]
     return Shape(center, center + 0.5 * D * normal, center - 0.5 * D * normal)
 
@@ -144,18 +147,9 @@ def state_shape(lines: Lines, D: float, active, seg, frac, state: str = "") -> S
 def actuator_lines(lines: Lines, D: float, active, seg, frac, state: str = "") -> dict:
     """{actuator: (P, 3)} where every actuator's line lies on the tube in a state, at the points of
     :func:`state_shape` (the material frame there turned to the line's angle around the tube)."""
-    own = owners(lines, active, state)
-    G = material_frames(lines, D, own)
-    seg, frac = np.asarray(seg, int), np.asarray(frac, float)
-    phi, l = lines.phi(D), frac * lines.length[seg]
-    k = np.maximum(own[seg], 0)
-    shaped = own[seg] >= 0
-    lam = np.where(shaped, lines.lam[k, seg], 1.0)
-    moved = phi[k, seg] + 2.0 / D * np.tan(lines.theta[k, seg]) * l  # the shaping line's angle at the point
-    local = roll(phi[k, seg]) @ segment_transform(lines.theta[k, seg], lam, l, D) @ roll(-moved)
-    straight = np.tile(np.eye(4), (seg.size, 1, 1))
-    straight[:, 0, 3] = l
-    world = G[seg] @ np.where(shaped[:, None, None], local, straight)  # the material frame at each point
+    world, moved = _at(lines, D, active, seg, frac, state)
+    world = world @ roll(-moved)  # the material frame at each point
+    phi, l, seg = lines.phi(D), np.asarray(frac, float) * lines.length[np.asarray(seg, int)], np.asarray(seg, int)
     out = {}
     for i, name in enumerate(lines.names):
         a = phi[i, seg] + 2.0 / D * np.tan(lines.theta[i, seg]) * l

@@ -292,10 +292,10 @@ def calibrated(problem: DesignProblem, result: Result) -> Result:
 
 def judge(problem, result: Result) -> None:
     """Set ``result.shortfall``: every hard requirement of ``problem`` the result misses, one line each
-    (the actuator's bounds; the obstacle margin, checked densely on the shape the robot realizes; the
+    (the actuator's bounds, a several-actuator design's own: methods.actuators.shortfall; the obstacle margin, checked densely on the shape the robot realizes; the
     clearance a clearance run was asked for; a [load]: every section holds with its safety factor). Adds the
     obstacle and load metrics of problems with obstacles and loads."""
-    short = []
+    short = list(actuators.shortfall(problem, result.lines)) if isinstance(result, actuators.ActuatorsResult) and result.method == "nlp" else []
     a, r = getattr(problem, "actuator", None), result.routing
     if a is not None and result.method not in ("forward", "fit"):
         if np.any(np.abs(r.theta) > a.theta_max * (1 + BOUND_TOL)):
