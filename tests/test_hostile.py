@@ -30,6 +30,7 @@ from vine_nlp.front.cli import main
 from vine_nlp.io import limits, outputs
 from vine_nlp.io.archive import ArchiveError, load_archive, write_atomic
 from vine_nlp.io.problem_file import load_problem, load_sweep
+from vine_nlp.problem import Result
 
 ROOT = Path(__file__).resolve().parents[1]
 MEMORY = 1 << 30
@@ -1170,3 +1171,67 @@ def test_a_signal_before_the_command_line_is_imported(design_archive, tmp_path, 
     rc, err = finish(proc, marker)
     assert rc == 130 and [x for x in err.splitlines() if not x.startswith("vine-nlp: test hold")] == ["interrupted: nothing partial was written"]
     assert not (tmp_path / "t.pdf").exists()
+
+
+# ---------------------------------------------------------------- round 2: --budget bounds the whole design (starts, hops, rounds)
+
+def test_a_spent_budget_runs_the_first_step_of_each_loop_only():
+    from vine_nlp.methods import drive
+
+    ran = []
+    with drive.budget(0) as cut:
+        found = drive.multistart(lambda s: ran.append(s) or Result("x", None, None, "optimal", objective=float(s)), [3, 1, 2])
+        rounds = drive.refine(_Counting(), 5)
+    assert ran == [3] and found.best.objective == 3.0 and rounds.rounds == 1
+    assert cut == ["1 of 3 starts", "1 of 5 rounds"]
+    with drive.budget(None) as cut:  # no budget: every start, every round
+        assert len(drive.multistart(lambda s: Result("x", None, None, "optimal", objective=float(s)), [3, 1, 2]).results) == 3
+        assert drive.refine(_Counting(), 5).rounds == 5 and cut == []
+
+
+def test_a_budget_spent_during_a_start_stops_before_the_next():
+    from vine_nlp.methods import drive
+
+    ran = []
+
+    def solve(s):  # the second start lasts until the budget is spent (the event itself, no guessed time)
+        ran.append(s)
+        while s == 2 and drive.remaining() > 0:
+            time.sleep(drive.remaining())
+        return Result("x", None, None, "optimal", objective=float(s))
+
+    with drive.budget(0.05) as cut:
+        found = drive.multistart(solve, [1, 2, 3, 4])
+    assert ran == [1, 2] and found.best.objective == 1.0 and cut == ["2 of 4 starts"]
+
+
+class _Counting:
+    def solve(self, x, round, last):
+        return x, Result("x", None, None, "optimal", objective=1.0)
+
+    def judge(self, result):
+        from vine_nlp.methods.drive import Verdict
+
+        return Verdict(False, (False, 1.0))
+
+    def refresh(self, result, verdict, x):
+        return x
+
+
+@pytest.mark.parametrize("more, cut", [(["--starts", "3"], "1 of 3 starts"), (["--hops", "2"], "0 of 2 hops")])
+def test_design_within_a_budget_of_0_is_the_first_start_not_optimal(tmp_path, capsys, more, cut):
+    (tmp_path / "p.toml").write_text(TINY_TREFOIL)
+    assert main(["design", str(tmp_path / "p.toml"), "-o", str(tmp_path / "d.h5"), "--budget", "0", *more]) == 1
+    assert capsys.readouterr().err.splitlines()[-1] == f"tiny-trefoil: nlp: max_time, the budget cut {cut}"
+    run = load_archive(tmp_path / "d.h5").runs["nlp"]
+    assert run.status == "max_time" and run.stats.get("starts", 1) == 1 and "hop_objectives" not in run.stats
+
+
+def test_a_budget_that_cuts_nothing_leaves_the_design_as_it_was(tmp_path):
+    import vine_nlp as vn
+
+    (tmp_path / "p.toml").write_text(TINY_TREFOIL)
+    whole = vn.solve(tmp_path / "p.toml", starts=2, budget=3600).result
+    assert whole.status == "optimal" and whole.stats["starts"] == 2 and "budget_cut" not in whole.stats
+    cut = vn.solve(tmp_path / "p.toml", starts=2, budget=0).result
+    assert cut.status == "max_time" and cut.stats["budget_cut"] == "1 of 2 starts" and not cut.ok

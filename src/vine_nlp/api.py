@@ -389,7 +389,8 @@ def solve(problem, method: str | None = None, *, starts: int | None = None, hops
     method : {"nlp", "greedy"}, optional
         Design problems: the design method (default: the problem's).
     starts, hops, budget, workers
-        The nlp design's multi-start, basin hopping, corner-search budget and processes (default: the problem's).
+        The nlp design's multi-start, basin hopping, processes (default: the problem's) and seconds for the whole
+        design, as ``--budget`` (default: none; a design it cut short has status "max_time").
     robust : Sigmas or dict, optional
         Also a robust design (run ``nlp_robust``), as :func:`design`.
     robust_weight : float
