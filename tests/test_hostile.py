@@ -1235,3 +1235,74 @@ def test_a_budget_that_cuts_nothing_leaves_the_design_as_it_was(tmp_path):
     assert whole.status == "optimal" and whole.stats["starts"] == 2 and "budget_cut" not in whole.stats
     cut = vn.solve(tmp_path / "p.toml", starts=2, budget=0).result
     assert cut.status == "max_time" and cut.stats["budget_cut"] == "1 of 2 starts" and not cut.ok
+
+
+# ---------------------------------------------------------------- round 2: archives of several actuators, every number checked
+
+@pytest.fixture(scope="module")
+def actuators_archive(tmp_path_factory):
+    """problems/actuators-reach.toml (three actuators, three states) on 41 samples a state: 4 segments."""
+    d = tmp_path_factory.mktemp("actuators")
+    (d / "p.toml").write_text((ROOT / "problems" / "actuators-reach.toml").read_text().replace("samples = 201", "samples = 41"))
+    assert main(["design", str(d / "p.toml"), "-o", str(d / "a.h5")]) == 0
+    return d / "a.h5"
+
+
+def _all_lines(h5, names=("theta", "lambda", "phi")):
+    for name in names:
+        for where in ["runs/nlp/design", *(f"runs/nlp/actuators/{a}/design" for a in ("left", "right", "up"))]:
+            del h5[f"{where}/{name}"]
+            h5[f"{where}/{name}"] = np.zeros(1 if name == "phi" else 0)
+    del h5["runs/nlp/design/length"]
+    h5["runs/nlp/design/length"] = np.zeros(0)
+
+
+def _phi0(value):
+    def edit(h5):
+        phi = h5["runs/nlp/actuators/right/design/phi"]
+        phi[0] = value
+    return edit
+
+
+ACTUATOR_RANGES = {  # the second line's values (the first line's are the run's design/, checked as every archive's)
+    "theta-90-deg": (_fill("runs/nlp/actuators/right/design/theta", np.pi / 2), "/runs/nlp/actuators/right/design/theta",
+                     "|theta| must be < 90 deg (segment 1: 90 deg)"),
+    "lambda-1.5": (_fill("runs/nlp/actuators/right/design/lambda", 1.5), "/runs/nlp/actuators/right/design/lambda", "must be in (0, 1] (segment 1: 1.5)"),
+    "length-1e300": (_fill("runs/nlp/design/length", 1e300), "/runs/nlp/design/length", "MAX_COORDINATE"),
+    "zero-segments": (_all_lines, "/runs/nlp/design/theta", "a routing needs at least one segment"),
+    "phi0-nan": (_phi0(np.nan), "/runs/nlp/actuators/right/design/phi", "non-finite value nan at [0]"),
+    "phi0-inf": (_phi0(-np.inf), "/runs/nlp/actuators/right/design/phi", "non-finite value -inf at [0]"),
+}
+ACTUATOR_COMMANDS = {"show": [], "plot": ["-o", "{out}/o.png"], "forward": ["--run", "nlp", "-o", "{out}/f.h5"]}
+
+
+@pytest.mark.parametrize("case", list(ACTUATOR_RANGES))
+def test_archives_of_several_actuators_out_of_range_are_one_line_in_every_command(actuators_archive, tmp_path, capsys, case):
+    edit, key, reason = ACTUATOR_RANGES[case]
+    path = hostile(actuators_archive, tmp_path, edit)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "m.csv").write_text("0, 0, 0\n1, 0, 0\n2, 0, 0\n")
+    for command, rest in ACTUATOR_COMMANDS.items():  # the commands that read them
+        assert reason in refused(capsys, [command, path, *(a.format(out=out) for a in rest)], path, key), command
+    for command, rest in ARCHIVE_COMMANDS.items():  # and every other: one line (most refuse the kind today)
+        if command not in ACTUATOR_COMMANDS:
+            assert main([command, str(path), *(a.format(out=out) for a in rest)]) == 2, command
+            lines = capsys.readouterr().err.splitlines()
+            assert len(lines) == 1 and lines[0].startswith((f"error: {path}: {key}: ", f"error: {path}: kind: ")), (command, lines)
+    assert sorted(p.name for p in out.iterdir()) == ["m.csv"]
+
+
+def test_a_width_wider_than_the_tube_in_an_archived_source_is_read_by_no_command(actuators_archive, tmp_path, capsys):
+    """The archive stores no width (only the source text names one, and no command reads it back): a hostile one changes nothing."""
+    def wide(h5):
+        h5["problem"].attrs["source"] = h5["problem"].attrs["source"].replace("width = 0.4", "width = 100", 1)
+
+    path = hostile(actuators_archive, tmp_path, wide)
+    assert main(["show", str(actuators_archive)]) == 0
+    plain = capsys.readouterr().out
+    assert main(["show", str(path)]) == 0 and capsys.readouterr().out == plain.replace(str(actuators_archive), str(path))
+    assert main(["forward", str(path), "--run", "nlp", "-o", str(tmp_path / "f.h5")]) == 0
+    assert "width" not in load_archive(tmp_path / "f.h5").source
+    (tmp_path / "p.toml").write_text(load_archive(path).source)  # designed again from it: the problem reader refuses it
+    refused(capsys, ["design", tmp_path / "p.toml", "-o", tmp_path / "d.h5"], tmp_path / "p.toml", "actuators.0.width")
