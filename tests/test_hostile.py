@@ -957,7 +957,7 @@ COMMAND_LINE = [
     (["design", "{p}", "-o", "{o}", "--starts", "1000000", "--budget", "0"], "--starts: must be an integer >= 1 and <= 1000"),
     (["design", "{p}", "-o", "{o}", "--hops", "1000000"], "--hops: must be an integer >= 0 and <= 1000"),
     (["design", "{p}", "-o", "{o}", "--budget", "inf"], "--budget: must be a finite number >= 0"),
-    (["animate", "{a}", "-o", "{o}.gif", "--frames", "100000"], "--frames: must be an integer >= 2 and <= 200, got 100000"),
+    (["animate", "{a}", "-o", "{o}.gif", "--frames", "100000"], "--frames: must be an integer >= 2 and <= 150, got 100000"),
     (["template", "{a}", "-o", "{o}.pdf", "--run", ""], "--run: must be the name of a run"),
     (["export", "{a}", "-o", "{o}.stl", "--run", "\x1b[31m"], "--run: must be the name of a run"),
     (["correct", "{a}", "{a}", "-o", "{o}", "--sigma-measurement", "inf"], "--sigma-measurement: must be a finite number > 0"),
