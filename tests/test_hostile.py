@@ -1,9 +1,9 @@
-"""Hostile files (issue 34): every case an attacker tried, and a fuzzer per reader.
+"""Hostile files (issues 34, 48): every case an attacker tried, and a fuzzer per reader.
 
 Each case is one ``error: <file>: <key>: <reason>`` line, exit 2, nothing written. Cases that
 could exhaust memory or hang run the command in a subprocess held to 1 GB of address space
 (RLIMIT_AS) and a timeout of TIME_LIMIT seconds (a broken reader fails the test instead of
-hanging it); no test waits a guessed time.
+hanging it); no test waits a guessed time. NumPy's RuntimeWarnings are errors here (``pytestmark``, ``limited``).
 """
 
 from __future__ import annotations
@@ -32,6 +32,9 @@ from vine_nlp.io.archive import ArchiveError, load_archive, write_atomic
 from vine_nlp.io.problem_file import load_problem, load_sweep
 from vine_nlp.problem import Result
 
+# every case here, in this process and in the commands it starts (limited), with NumPy's RuntimeWarnings (overflow,
+# invalid value, divide by zero) as errors: hostile input is refused or handled, never a warning on stderr (issue 48)
+pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
 ROOT = Path(__file__).resolve().parents[1]
 MEMORY = 1 << 30
 TIME_LIMIT = 10
@@ -56,7 +59,7 @@ def limited(*args, timeout=TIME_LIMIT, python=False):
 
         resource.setrlimit(resource.RLIMIT_AS, (MEMORY, MEMORY))
 
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", PYTHONWARNINGS="error::RuntimeWarning")
     cmd = [sys.executable, "-c", *args] if python else [sys.executable, "-m", "vine_nlp", *map(str, args)]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, preexec_fn=preexec, env=env)
 
@@ -1306,3 +1309,11 @@ def test_a_width_wider_than_the_tube_in_an_archived_source_is_read_by_no_command
     assert "width" not in load_archive(tmp_path / "f.h5").source
     (tmp_path / "p.toml").write_text(load_archive(path).source)  # designed again from it: the problem reader refuses it
     refused(capsys, ["design", tmp_path / "p.toml", "-o", tmp_path / "d.h5"], tmp_path / "p.toml", "actuators.0.width")
+
+
+def test_runtime_warnings_are_errors_in_every_case_and_command_here():
+    """The guard itself (module ``pytestmark`` and ``limited``): an overflow fails a case instead of passing beside a warning."""
+    with pytest.raises(RuntimeWarning, match="overflow"):
+        np.float64(1e308) * 10
+    r = limited("import numpy; numpy.float64(1e308) * 10", python=True)
+    assert r.returncode == 1 and r.stderr.strip().endswith("RuntimeWarning: overflow encountered in scalar multiply"), r.stderr

@@ -249,8 +249,8 @@ def _gif_palette(first):
 
 
 def _record(fig, axes, panels, D: float, path, fps: int, dpi: int) -> None:
-    """Draw every frame of ``panels`` (:func:`_frames`) into the movie at ``path``, atomically: a GIF through pillow (each
-    frame quantized to its own 256 colours as it is drawn), an MP4 through matplotlib's ffmpeg pipe."""
+    """Draw every frame of ``panels`` (:func:`_frames`) into the movie at ``path``, atomically: a GIF through pillow (every
+    frame in one palette, :func:`_gif_palette`, as it is drawn), an MP4 through matplotlib's ffmpeg pipe."""
     from matplotlib import animation
     from PIL import Image
 
