@@ -139,9 +139,7 @@ def test_a_design_short_of_its_tolerance_is_written_with_its_status_and_rerun_fo
         assert np.allclose(back.shapes[s].center, fwd.shapes[s].center, atol=1e-12)
 
 
-@pytest.mark.parametrize("command", [["template", "-o", "t.pdf"], ["view", "-o", "v.html"], ["animate", "-o", "m.gif"],
-                                     ["export", "-o", "t.stl"], ["analyze"], ["correct", "m.csv", "-o", "c.h5"], ["calibrate", "-o", "c.toml"]],
-                         ids=lambda c: c[0])
+@pytest.mark.parametrize("command", [["correct", "m.csv", "-o", "c.h5"], ["calibrate", "-o", "c.toml"]], ids=lambda c: c[0])
 def test_commands_of_one_actuator_refuse_an_archive_of_several(tmp_path, command, capsys):
     from vine_nlp.front.cli import main
 
@@ -151,5 +149,5 @@ def test_commands_of_one_actuator_refuse_an_archive_of_several(tmp_path, command
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err == (f"error: {out}: kind: an archive of several actuators: `{command[0]}` reads one actuator's routing and "
-                   "does not take it yet (show, plot and forward --run do)\n")
+                   "does not take it yet (show, plot, template, view, animate, export, analyze and forward --run do)\n")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["o.h5", "p.toml"]

@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 from simulate import draw_deviations, simulate_build
 
+from vine_nlp.analysis.buildability import buildability, correction_missed
 from vine_nlp.front.cli import main
+from vine_nlp.io.archive import Archive, write_archive
 from vine_nlp.io.calibration import read_calibration
 from vine_nlp.io.correction import read_correction
 from vine_nlp.io.problem_file import load_problem
@@ -27,6 +29,8 @@ from vine_nlp.model.calibration import Calibration, realized_of
 from vine_nlp.model.chain import chain_frames
 from vine_nlp.model.routing import Routing, Sigmas
 from vine_nlp.model.segment import so3_exp
+from vine_nlp.model.shape import forward_shape
+from vine_nlp.problem import DesignProblem
 
 PROBLEM = """name = "small-trefoil"
 units = "cm"
@@ -312,7 +316,7 @@ def test_unreachable_correction_says_so_once_writes_the_best_exit_1(setup, tmp_p
     cap = capsys.readouterr()
     err = cap.err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("correct: corrected (lambda): cannot reach the target within the bounds"), err
-    assert "lambda at the actuator's least contraction (its nominal at 1): segments" in err[0]
+    assert "lambda at the actuator's least contraction (its nominal's gap at min_feature): segments" in err[0]
     (line,) = [x for x in cap.out.splitlines() if x.startswith("corrected ")]
     assert line.startswith("corrected   lambda (") and ", short of the target: " in line and "optimal" in line
     a, s = read_correction(out)
@@ -581,3 +585,59 @@ def test_estimate_compiles_once_and_takes_the_interpreted_steps(setup, monkeypat
     assert (fast.iterations, fast.rounds) == (slow.iterations, slow.rounds)
     for a, b in ((fast.routing.theta, slow.routing.theta), (fast.routing.lam, slow.routing.lam), (fast.std, slow.std)):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-8)
+
+
+def test_correction_rule_known_answers():
+    # the buildable rules' variant for a correction: the margin is spent, no actuator added (analysis.buildability)
+    built = Routing(theta=np.zeros(6), lam=np.array([0.8, 0.8, 1.0, 1.0, 0.7, 0.7]), length=np.full(6, 4.0))
+
+    def rule(lam):
+        return correction_missed(dataclasses.replace(built, lam=np.array(lam)), built.lam, 2.43, "tendon", 0.4, 0.2, "cm")
+
+    assert rule([0.97, 0.97, 1.0, 1.0, 0.7, 0.7]) == []  # inside the correction margin: what a correction is for
+    assert rule([0.8, 0.8, 0.9, 1.0, 0.7, 0.7]) == [
+        "1 segment(s) with an actuator where the robot has none (lambda exactly 1 there; segments 2)"]
+    assert rule([0.35, 0.8, 1.0, 1.0, 0.7, 0.7]) == [
+        "1 segment(s) with lambda neither 1 nor in [0.4, 1] (the actuator's range; segments 0)"]
+    # partners' gaps join: 2 x 4 x 0.02 = 0.16 cm < 0.2 cm
+    assert rule([0.98, 0.98, 1.0, 1.0, 0.7, 0.7]) == ["1 feature(s) below min_feature 0.2 cm (smallest: 0.16 cm stopper gap)"]
+
+
+def _straight_run_robot(tmp_path, wound: bool):
+    """A design archive of a known buildable routing (actuated 0-3 and 7-9, straight 4-6 at one slope; ``wound``: one full
+    turn more there, the same shape) and the points of the robot built from it whose actuators all contract 0.04 more."""
+    M, D = 10, 2.43
+    lam = np.where(np.arange(M) < 4, 0.92, np.where(np.arange(M) > 6, 0.8, 1.0))
+    theta = np.array([0.3, 0.25, 0.2, 0.15, 0.1, 0.1, 0.1, -0.2, -0.25, -0.3])
+    if wound:
+        theta[4:7] = np.arctan(np.tan(theta[4:7]) + math.pi * D / 12.0)  # the line turns 2 pi more over the 12 cm run
+    nominal = Routing(theta=theta, lam=lam, length=np.full(M, 4.0))
+    problem = DesignProblem("run", D, forward_shape(nominal, D, per_segment=10).center)
+    run = evaluate(problem, nominal, pair_points(problem.target, 10), "nlp")
+    write_archive(tmp_path / "d.h5", Archive("run", "design", "", D, "cm", problem.target, {"nlp": run}))
+    dev = C.Deviations(np.zeros(M), np.where(lam < 1, -0.04, 0.0), np.ones(M), 0.4)
+    return write_csv(tmp_path / "m.csv", simulate_build(nominal, dev, D, "outer", 150, 0.01, seed=4)), nominal
+
+
+@pytest.mark.parametrize("wound", [False, True])
+def test_a_correction_spends_the_margin_and_is_judged(tmp_path, capsys, wound):
+    m, nominal = _straight_run_robot(tmp_path, wound)
+    code = main(["correct", str(tmp_path / "d.h5"), str(m), "-o", str(tmp_path / "c.h5"), "--adjust", "lambda"])
+    err = capsys.readouterr().err.strip().splitlines()
+    corr = read_correction(tmp_path / "c.h5")[0].runs["corrected"]
+    # known answer: the actuators contract 0.04 more, so their nominal goes up by 0.04; 0.96 is inside the correction
+    # margin (a design could not have it) and its gaps meet min_feature with their partners'
+    np.testing.assert_allclose(corr.routing.lam, np.where(nominal.lam < 1, nominal.lam + 0.04, 1.0), atol=0.01)
+    assert np.all(corr.routing.lam[nominal.lam == 1.0] == 1.0)
+    if not wound:
+        assert code == 0 and err == [] and corr.shortfall == ()
+        assert correction_missed(corr.routing, nominal.lam, 2.43, "tendon", 0.4, 0.2) == []
+        assert buildability(corr.routing, 2.43, "tendon", 0.4, 0.05, 0.2).missed(0.45, 0.95)  # a design's rule: the margin
+        return
+    # the line kept as built winds a full turn where no actuator needs it: one line, exit 1
+    assert code == 1 and len(err) == 1, err
+    assert err[0].startswith("correct: corrected (lambda): not buildable: the actuator line turns ")
+    need = 2 * math.tan(0.1) * 12.0 / 2.43 / (2 * math.pi)  # turns: (2 / D) tan(theta) l over the run, one full turn more
+    assert err[0].endswith(f"turns {need + 1:.3g} turn(s) where lambda = 1, the routing needs {need:.3g} there (pointless turning); "
+                           "the best correction found is written")
+    assert corr.shortfall == (err[0].split(": ", 2)[2].removesuffix("; the best correction found is written"),)

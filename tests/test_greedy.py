@@ -5,8 +5,9 @@ import math
 import numpy as np
 import pytest
 
+from vine_nlp.methods.buildable import missed
 from vine_nlp.methods.common import design_bounds, pair_points, path_error
-from vine_nlp.methods.greedy import _window_data, _window_solver_for, design_greedy, lowpass
+from vine_nlp.methods.greedy import _window_data, _window_solver_for, design_greedy, design_greedy_buildable, lowpass
 from vine_nlp.model import chain_points
 from vine_nlp.model.chain import chain_frames, segment_end_samples
 from vine_nlp.model.shape import total_variation
@@ -212,3 +213,29 @@ def test_single_segment_chain():
     assert res.routing.segments == 1
     assert res.metrics["rmse"] < 1e-4
     assert math.isfinite(res.metrics["max_error"])
+
+
+def test_buildable_greedy_recovers_a_buildable_routing():
+    # a buildable routing: straight (lambda exactly 1) on 0-2, 7-8 (its line turning at one slope, 0.2 rad: 1.2 rad
+    # net, the shortest way) and 12-13, actuated inside the correction margin's band elsewhere; its model target
+    M = 14
+    act = np.zeros(M, bool)
+    act[3:7] = act[9:12] = True
+    theta = np.where(act, 0.35 * np.cos(np.arange(M)), 0.0)
+    theta[7:9] = 0.2
+    lam = np.where(act, 0.7 + 0.1 * np.sin(np.arange(M)), 1.0)
+    routing = Routing(theta=theta, lam=lam, length=np.full(M, 3.0), initial_pose=_pose())
+    prob = _problem(_target(theta, lam, routing.length, routing.initial_pose))
+    free = design_greedy(prob)
+    res = design_greedy_buildable(prob, start=free)  # classes from the bends of the greedy's own design
+    assert res.method == "greedy_buildable" and res.buildable and res.status == "optimal"
+    assert res.stats["buildable_actuated"] == act.sum()
+    assert res.metrics["rmse"] < 1e-4 * D
+    np.testing.assert_array_equal(res.routing.lam == 1.0, ~act)  # exactly 1 without an actuator
+    np.testing.assert_allclose(res.routing.lam[act], lam[act], atol=1e-4)
+    np.testing.assert_allclose(res.routing.theta[3:12], theta[3:12], atol=1e-4)  # the middle run unwound to its one slope
+    np.testing.assert_array_equal(res.routing.theta[12:], 0.0)  # nothing downstream: no turning
+    np.testing.assert_array_equal(res.routing.theta[:3], 0.0)  # a free base rolls instead
+    np.testing.assert_allclose(res.routing.initial_pose, routing.initial_pose, atol=1e-4)
+    assert missed(prob, res) == []  # judged by the buildable rules (the greedy's own run is not)
+    assert missed(prob, free) == [] and res.solve_time_s > free.solve_time_s  # the free design's time counted

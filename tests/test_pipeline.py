@@ -7,12 +7,17 @@ import numpy as np
 import pytest
 
 import vine_nlp as vn
+from vine_nlp.analysis.buildability import buildability
 from vine_nlp.front.cli import main
+from vine_nlp.front.reports import comparison_table
 from vine_nlp.io.archive import load_archive
+from vine_nlp.io.problems import ProblemFile
+from vine_nlp.methods.buildable import Build
 from vine_nlp.model.obstacles import Sphere
 from vine_nlp.model.shape import forward_shape
-from vine_nlp.pipeline import judge
-from vine_nlp.problem import DesignProblem, Result
+from vine_nlp.pipeline import Request, judge, run
+from vine_nlp.pipeline.request import COMPARE
+from vine_nlp.problem import DesignOptions, DesignProblem, Result
 
 ROOT = Path(__file__).resolve().parents[1]
 D = 2.0
@@ -89,3 +94,32 @@ def test_forward_reruns_a_stored_routing(tmp_path, capsys):
     assert b.kind == "forward" and b.name == "bezier-c-nlp"
     assert main(["forward", str(design), "--run", "greedy", "-o", str(tmp_path / "g.h5")]) == 2
     assert "--run: no run 'greedy' (runs: nlp)" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_compare_shows_buildable_and_free_figures_for_both_methods():
+    # a target the model makes from a routing with lambda 0.97 on segments 2-5 and 8-9: within the correction margin
+    # of 1, so the free designs, which recover the routing, are not buildable; the buildable ones are
+    M = 10
+    lam = np.where(np.isin(np.arange(M), [0, 1, 6, 7]), 0.7, 0.97)
+    r = vn.Routing(theta=0.3 * np.cos(np.arange(M)), lam=lam, length=np.full(M, 3.0))
+    options = DesignOptions(points_per_segment=5, greedy_starts=2)
+    problem = DesignProblem("p", D, forward_shape(r, D, per_segment=5).center, options=options)
+    out = run(ProblemFile("p.toml", "", "design", "p", "cm", problem), Request(methods=COMPARE))
+    assert tuple(out.runs) == ("nlp_free", "nlp", "greedy", "greedy_buildable", "greedy_filtered")
+    assert out.decisive == ("nlp", "greedy", "greedy_buildable", "greedy_filtered") and out.ok  # nlp_free: a figure only
+    for name in ("nlp_free", "greedy"):  # the known answer, lambda 0.97 where the routing has it
+        assert out.runs[name].metrics["rmse"] < 1e-3 * D
+        np.testing.assert_allclose(out.runs[name].routing.lam, lam, atol=1e-3)
+    b = Build.of(problem)
+    for name in ("nlp", "greedy_buildable"):
+        rb = out.runs[name]
+        assert rb.buildable and rb.shortfall == ()
+        rep = buildability(rb.routing, D, "tendon", 0.4, b.margin, b.min_feature)
+        assert rep.missed(b.lo, 1 - b.margin) == []
+    table = comparison_table(out.runs, "cm", problem).splitlines()
+    assert {row.split()[0]: row.split()[-1] for row in table[2:7]} == {
+        "nlp": "yes", "nlp_free": "no", "greedy_buildable": "yes", "greedy": "no", "greedy_filtered": "no"}
+    assert "nlp_free misses: 6 segment(s) with lambda neither 1 nor in [0.45, 0.95] (correction margin; segments 2, 3, 4, 5, 8, 9)" in table
+    assert table[-2].startswith("buildable: nlp is ") and " faster than greedy_buildable, RMSE " in table[-2]
+    assert table[-1].startswith("free: nlp_free is ") and " faster than greedy, RMSE " in table[-1]

@@ -271,7 +271,7 @@ def test_template_is_one_to_one(units):
     table = tpl.cut_table(a, "forward")
     cm = tpl.CM_PER_UNIT[units]
     lay = tpl.layout(table["s_end"][-1] * cm, math.pi * a.diameter * cm, "A4", unit_per_cm=1 / cm)
-    fig = tpl._page(a, "forward", table, lay, 0, False)
+    fig = tpl._page(a, "forward", [table | {"spam": False, "style": tpl.STYLE}], lay, 0)
     W_mm, H_mm = lay.width_mm, lay.height_mm
     assert tuple(fig.get_size_inches() * 25.4) == pytest.approx((W_mm, H_mm))
     strips = [ax for ax in fig.axes]

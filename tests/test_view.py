@@ -463,3 +463,34 @@ def test_math_of_tube_rings():
     np.testing.assert_allclose(np.hypot(rings[..., 1], rings[..., 2]), D / 2)
     np.testing.assert_allclose(rings[:, 0], rings[:, -1], atol=1e-12)  # closed
     assert math.isclose(rings[0, 2, 1], D / 2 * math.cos(2 * math.pi * 2 / 8), abs_tol=1e-12)
+
+
+@pytest.mark.slow
+def test_view_of_several_actuators_switches_state_in_the_menu(browser, tmp_path):
+    """An archive of several actuators: the menu shows one state at a time, its center line the model's."""
+    lam_a, lam_b = [0.6] * 6 + [1.0] * 6, [1.0] * 6 + [0.7] * 6
+    (tmp_path / "p.toml").write_text(f'name = "two"\n[tube]\ndiameter = {D}\n[routing]\nlength = 24.0\nsegment_length = 2.0\n'
+                                     f'[[actuators]]\nname = "A"\ntheta_deg = 5.0\nlambda = {lam_a}\n'
+                                     f'[[actuators]]\nname = "B"\ntheta_deg = -3.0\nlambda = {lam_b}\nphi0_deg = 180\n'
+                                     '[[states]]\nname = "a"\nactive = ["A"]\n[[states]]\nname = "ab"\nactive = ["A", "B"]\n')
+    assert main(["forward", str(tmp_path / "p.toml"), "-o", str(tmp_path / "f.h5")]) == 0
+    out = tmp_path / "v.html"
+    assert main(["view", str(tmp_path / "f.h5"), "-o", str(out)]) == 0
+    assert external_scripts(out.read_text()) == []
+    assert errors(load(browser, out)) == []
+    fig = view.states_figure(tmp_path / "f.h5")
+    centers = [k for k, t in enumerate(fig.data) if t.name.endswith("center line")]
+    before = screenshot(browser)
+    shown = browser.execute_script(f"return {PLOT}._fullData.map(t => t.visible)")
+    assert [shown[k] for k in centers] == [True, False]
+    ok = browser.execute_async_script(f"""
+        var done = arguments[arguments.length - 1], gd = {PLOT}, b = gd.layout.updatemenus[0].buttons[1];
+        Plotly.update(gd, b.args[0], b.args[1]).then(function () {{ done(true); }}, function (e) {{ done(String(e)); }});""")
+    assert ok is True, ok
+    shown = browser.execute_script(f"return {PLOT}._fullData.map(t => t.visible)")
+    assert [shown[k] for k in centers] == [False, True]
+    want = np.column_stack([fig.data[centers[1]].x, fig.data[centers[1]].y, fig.data[centers[1]].z])
+    np.testing.assert_allclose(trace_xyz(browser, centers[1]), want, atol=1e-4)
+    assert browser.execute_script(f"return {PLOT}._fullLayout.title.text").startswith("two: state ab (A, B)")
+    assert not np.array_equal(screenshot(browser), before)
+    assert errors(browser.get_log("browser")) == []

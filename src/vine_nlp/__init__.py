@@ -11,39 +11,16 @@ The Python API (``vine_nlp.api``, see the README's "Python API")::
     r.save("out.h5"); a = vn.load("out.h5")
     p = vn.solve("problems/obstacle-gap.toml")     # what `vine-nlp design` runs
 
-Importing the package is cheap: the API's names are imported from ``vine_nlp.api`` on
-first use (PEP 562), so ``import vine_nlp`` loads no CasADi, matplotlib, h5py or SciPy
-and never touches the matplotlib backend.
-"""
+Importing the package is cheap: the API's names are imported from ``vine_nlp.api`` on first use (PEP 562), so ``import
+vine_nlp`` loads no CasADi, matplotlib, h5py or SciPy and never touches the matplotlib backend."""
 
 from importlib import import_module as _import_module
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "__version__",
-    "design",
-    "forward",
-    "fit",
-    "load",
-    "solve",
-    "correct",
-    "Design",
-    "Project",
-    "ArgumentError",
-    "DesignProblem",
-    "ForwardProblem",
-    "FitProblem",
-    "MultiShapeProblem",
-    "TipProblem",
-    "Actuator",
-    "DesignOptions",
-    "Calibration",
-    "Load",
-    "Routing",
-    "Sigmas",
-    "Result",
-]
+__all__ = ["__version__", "design", "forward", "fit", "load", "solve", "correct", "Design", "Project", "ArgumentError",
+           "DesignProblem", "ForwardProblem", "FitProblem", "MultiShapeProblem", "TipProblem", "Actuator", "DesignOptions",
+           "Calibration", "Load", "Routing", "Sigmas", "Result"]
 
 def __getattr__(name):
     if name in __all__:

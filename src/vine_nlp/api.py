@@ -4,8 +4,7 @@
 Every entry point is a thin adapter: its arguments read by the problem files' reader (``vine_nlp.io``: the same
 rules; bad input raises :class:`ArgumentError`, a ValueError whose message starts with the argument's name),
 ``vine_nlp.pipeline.run`` (the command line's), the outcome wrapped as a :class:`Design` (``vine_nlp.front.design``).
-Solvers report trouble through ``status``, not exceptions.
-"""
+Solvers report trouble through ``status``, not exceptions."""
 
 from __future__ import annotations
 
@@ -55,14 +54,12 @@ class _Arguments(check.SourceFile):
 
 
 # problem-file keys -> the argument that carries them
-_DESIGN_ARGUMENTS = {
-    "actuator.kind": "actuator", "actuator.lambda_min": "lambda_min", "actuator.theta_max_deg": "theta_max_deg",
-    "design.method": "method", "design.points_per_segment": "points_per_segment", "design.starts": "starts",
-    "design.hops": "hops", "design.budget": "budget", "design.solver": "solver", "design.seed": "seed",
-    "design.max_iter": "max_iter", "design.smoothness": "smoothing", "design.smoothness.theta": "smoothing",
-    "design.smoothness.lambda": "smoothing", "design.correction_margin": "correction_margin",
-    "design.min_feature": "min_feature", "design.base": "base", "routing.initial_pose": "base",
-}
+_DESIGN_ARGUMENTS = {"actuator.kind": "actuator", "actuator.lambda_min": "lambda_min", "actuator.theta_max_deg": "theta_max_deg",
+                     "design.method": "method", "design.points_per_segment": "points_per_segment", "design.starts": "starts",
+                     "design.hops": "hops", "design.budget": "budget", "design.solver": "solver", "design.seed": "seed",
+                     "design.max_iter": "max_iter", "design.smoothness": "smoothing", "design.smoothness.theta": "smoothing",
+                     "design.smoothness.lambda": "smoothing", "design.correction_margin": "correction_margin",
+                     "design.min_feature": "min_feature", "design.base": "base", "routing.initial_pose": "base"}
 _ROUTING_ARGUMENTS = {"theta": "theta", "lam": "lam", "length": "length", "initial_pose": "initial_pose"}
 
 
@@ -227,9 +224,8 @@ def design(points, diameter, *, actuator: str = Actuator.kind, theta_max_deg: fl
         Also a design keeping the tube clear of itself by this gap beyond D (>= 0, ``units``):
         run ``nlp_clearance`` (the returned one).
     robust : Sigmas or dict, optional
-        Also a design minimizing the expected error under construction errors: run ``nlp_robust``
-        (the returned one). Dict keys: ``theta_deg``, ``lambda``, ``length`` (relative) or
-        ``length_abs`` (``units``).
+        Also a design minimizing the expected error under construction errors: run ``nlp_robust`` (the returned one).
+        Dict keys: ``theta_deg``, ``lambda``, ``length`` (relative) or ``length_abs`` (``units``).
     robust_weight : float
         Weight of the expected error increase (>= 0).
     seed : int
@@ -242,9 +238,8 @@ def design(points, diameter, *, actuator: str = Actuator.kind, theta_max_deg: fl
         Problem name in the archive.
     calibration : Calibration or str or Path, optional
         The systematic construction errors of the builder (``vine-nlp calibrate``'s CAL.toml, or a
-        ``vine_nlp.model.calibration.Calibration``): the nlp or greedy run is then the nominal to build,
-        its shape what that nominal realizes on the calibrated robot (as ``vine-nlp design`` with a
-        ``[calibration]`` table).
+        ``vine_nlp.model.calibration.Calibration``): the nlp or greedy run is then the nominal to build, its shape what
+        that nominal realizes on the calibrated robot (as ``vine-nlp design`` with a ``[calibration]`` table).
     correction_margin : float, optional
         nlp: every lambda is exactly 1 (no actuator) or inside [lambda_min + margin, 1 - margin] (>= 0, leaving
         room); default 0.05, at most (1 - lambda_min) / 2 (``[design] correction_margin``).
@@ -281,10 +276,9 @@ def forward(theta, lam, length, diameter, *, segments: int | None = None, initia
             name: str = "forward") -> Design:
     """The shape of a given routing (``vine-nlp forward``).
 
-    ``theta``, ``lam`` and ``length`` are per segment, each a number or a 1-D array; numbers
-    are repeated over the segments, so ``length`` is each segment's length (not the tube's).
-    The number of segments M is the arrays' common size, or ``segments`` when all three are
-    numbers (default 1). Example: 60 segments of 1 cm, theta 5 deg, lambda 0.8:
+    ``theta``, ``lam`` and ``length`` are per segment, each a number or a 1-D array; numbers are repeated over the
+    segments, so ``length`` is each segment's length (not the tube's). The number of segments M is the arrays' common
+    size, or ``segments`` when all three are numbers (default 1). Example: 60 segments of 1 cm, theta 5 deg, lambda 0.8:
     ``vn.forward(np.radians(5), 0.8, 1.0, 2.43, segments=60)``.
 
     Parameters

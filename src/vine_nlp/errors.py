@@ -12,8 +12,7 @@ class InputError(Exception):
     """Bad user input: a problem, sweep, fit or data file, or a command-line argument.
 
     Rendered by the command line as one line ``error: <file>: <key>: <reason>``
-    and exit status 2; the parts keep the values as given, the line escapes them (:func:`printable`).
-    """
+    and exit status 2; the parts keep the values as given, the line escapes them (:func:`printable`)."""
 
     def __init__(self, file, key, reason):
         self.file = str(file)
@@ -28,8 +27,7 @@ class InputError(Exception):
 class ArgumentError(ValueError):
     """Bad input to the Python API: ``argument`` names the argument, ``reason`` says what is wrong.
 
-    The message is ``"<argument>: <reason>"``, the command line's ``<key>: <reason>``.
-    """
+    The message is ``"<argument>: <reason>"``, the command line's ``<key>: <reason>``."""
 
     def __init__(self, argument: str, reason: str):
         self.argument = str(argument)

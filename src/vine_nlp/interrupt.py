@@ -1,25 +1,20 @@
 """Ctrl-C and SIGTERM across CasADi solves, and the test hold points.
 
-CasADi catches a KeyboardInterrupt raised inside an IPOPT solve and returns with
-status "NonIpopt_Exception_Thrown" instead of propagating it. Every solver call is
-followed by :func:`check`, which turns that (or a signal recorded by
-:func:`install`) back into a KeyboardInterrupt, so interrupted work unwinds and
-atomic writers leave nothing partial. A solver that never looks at signals (Fatrop's C
-loop) runs through :func:`call`, in a thread of its own the main thread waits for.
+CasADi catches a KeyboardInterrupt raised inside an IPOPT solve and returns with status "NonIpopt_Exception_Thrown"
+instead of propagating it. Every solver call is followed by :func:`check`, which turns that (or a signal recorded by
+:func:`install`) back into a KeyboardInterrupt, so interrupted work unwinds and atomic writers leave nothing partial. A
+solver that never looks at signals (Fatrop's C loop) runs through :func:`call`, in a thread of its own the main thread
+waits for.
 
-Test hold points. Tests that interrupt a run must not guess how long it runs.
-With the environment variable ``VINE_NLP_TEST_HOLD=<point>=<fifo>`` (``<fifo>``
-a named pipe made by the test), the first process that reaches hold point
-``<point>`` claims it (``<fifo>.claimed``, holding its pid, appears), prints
-``vine-nlp: test hold at <point> (pid <pid>)`` on stderr and blocks opening
-``<fifo>`` until the test opens it for writing (and reads until the test closes
-it). The test waits for the line (or the claim file), then signals or kills the
-process: it is then certainly mid-run at that point. Every other process, and
-later visits, pass through. Hold points: ``solve`` (:func:`check`, after each
-solver call, so a run is inside its solve loop), ``sweep-item`` (a sweep wrote
-an item's archive and its summary), ``archive`` (an archive open in h5py), ``start`` (``python -m vine_nlp`` before its imports). Without the variable the points cost one
-dictionary lookup.
-"""
+Test hold points. Tests that interrupt a run must not guess how long it runs. With the environment variable
+``VINE_NLP_TEST_HOLD=<point>=<fifo>`` (``<fifo>`` a named pipe made by the test), the first process that reaches hold
+point ``<point>`` claims it (``<fifo>.claimed``, holding its pid, appears), prints ``vine-nlp: test hold at <point> (pid
+<pid>)`` on stderr and blocks opening ``<fifo>`` until the test opens it for writing (and reads until the test closes
+it). The test waits for the line (or the claim file), then signals or kills the process: it is then certainly mid-run at
+that point. Every other process, and later visits, pass through. Hold points: ``solve`` (:func:`check`, after each
+solver call, so a run is inside its solve loop), ``sweep-item`` (a sweep wrote an item's archive and its summary),
+``archive`` (an archive open in h5py), ``start`` (``python -m vine_nlp`` before its imports). Without the variable the
+points cost one dictionary lookup."""
 
 from __future__ import annotations
 

@@ -2,8 +2,7 @@
 pipeline and what every method returns.
 
 Plain, validated-elsewhere containers: ``vine_nlp.io.problems`` builds them from TOML files, the API from
-its arguments, tests and scripts directly.
-"""
+its arguments, tests and scripts directly."""
 
 from __future__ import annotations
 
@@ -83,8 +82,7 @@ class DesignOptions:
         Seconds the nlp's corner search may take where the first solve shows a corner-like target
         (design.corners); 0 turns it off.
     solver : str
-        "auto" or "ipopt": both IPOPT (the file key is kept; a Fatrop stage form was removed: no gain end
-        to end).
+        "auto" or "ipopt": both IPOPT (the file key is kept; a Fatrop stage form was removed: no gain end to end).
     correction_margin : float
         Buildable designs: every lambda is exactly 1 (no actuator) or inside [lambda_min + margin,
         1 - margin], so the next round can correct an as-built error both ways.
@@ -252,8 +250,7 @@ TIP_OBJECTIVES = ("contraction", "turns")
 class MultiShapeProblem:
     """One sPAM routing, K target shapes at K contraction levels (``vine_nlp.methods.multishape``).
 
-    All targets have the same number of points, so the pairing structure (segments, points per
-    segment) is shared.
+    All targets have the same number of points, so the pairing structure (segments, points per segment) is shared.
 
     Parameters
     ----------

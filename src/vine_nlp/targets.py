@@ -1,8 +1,7 @@
 """Target curves for inverse design (paper Sec. VII): sampled center lines as (N, 3) arrays.
 
 Pure numpy; reading curves from files is ``vine_nlp.io.problems``'s job. Every
-generator returns points in the order the tube should pass through them.
-"""
+generator returns points in the order the tube should pass through them."""
 
 from __future__ import annotations
 
@@ -18,8 +17,7 @@ def trefoil(scale=(4.0, 4.0, 4.0), t_range=(-0.2 * math.pi, 1.5 * math.pi), samp
     """Trefoil knot of eq. (knot), ``samples`` points equally spaced in t.
 
     r(t) = [m_x (sin t + 2 sin 2t), m_y (cos t - 2 cos 2t), -m_z sin 3t] with
-    (m_x, m_y, m_z) = ``scale``; the paper uses t in [-0.2 pi, 1.5 pi].
-    """
+    (m_x, m_y, m_z) = ``scale``; the paper uses t in [-0.2 pi, 1.5 pi]."""
     mx, my, mz = (float(m) for m in scale)
     t = np.linspace(float(t_range[0]), float(t_range[1]), _samples(samples))
     return np.column_stack([mx * (np.sin(t) + 2 * np.sin(2 * t)), my * (np.cos(t) - 2 * np.cos(2 * t)), -mz * np.sin(3 * t)])
@@ -28,9 +26,7 @@ def trefoil(scale=(4.0, 4.0, 4.0), t_range=(-0.2 * math.pi, 1.5 * math.pi), samp
 def bezier(control_points, samples: int = DEFAULT_SAMPLES) -> np.ndarray:
     """Bezier curve of the K control points (Bernstein form), ``samples`` points equally spaced in t in [0, 1].
 
-    2-D control points mean z = 0. The first and last samples are the first and
-    last control points.
-    """
+    2-D control points mean z = 0. The first and last samples are the first and last control points."""
     p = as_3d(control_points, least=2)
     if p.shape[0] > MAX_BEZIER_POINTS:
         raise ValueError(f"at most {MAX_BEZIER_POINTS} control points")
@@ -45,10 +41,8 @@ def bezier(control_points, samples: int = DEFAULT_SAMPLES) -> np.ndarray:
 def polyline(control_points, samples: int = DEFAULT_SAMPLES) -> np.ndarray:
     """Straight lines through the control points, ``samples`` points equally spaced in arc length.
 
-    The first and last control points are the first and last samples; inner
-    corners are generally not sampled. Repeated consecutive control points are
-    ignored.
-    """
+    The first and last control points are the first and last samples; inner corners are generally not sampled. Repeated
+    consecutive control points are ignored."""
     p = as_3d(control_points, least=2)
     keep = np.concatenate([[True], np.any(np.diff(p, axis=0) != 0, axis=1)])
     p = p[keep]
@@ -62,11 +56,9 @@ def polyline(control_points, samples: int = DEFAULT_SAMPLES) -> np.ndarray:
 def helix(radius: float, pitch: float, length: float, samples: int = DEFAULT_SAMPLES) -> np.ndarray:
     """Helix of radius R and pitch parameter b (rise 2 pi b per turn), arc length ``length``.
 
-    Eq. (Helix) moved to start at the origin: r(u) = [R sin u, R (cos u - 1), b u],
-    u in [0, length / sqrt(R^2 + b^2)], so samples equally spaced in u are equally
-    spaced in arc length. The axis is the line x = 0, y = -R, parallel to z; b < 0
-    gives the mirrored (opposite-handed) helix, R = 0 a straight line along z.
-    """
+    Eq. (Helix) moved to start at the origin: r(u) = [R sin u, R (cos u - 1), b u], u in [0, length / sqrt(R^2 + b^2)],
+    so samples equally spaced in u are equally spaced in arc length. The axis is the line x = 0, y = -R, parallel to z;
+    b < 0 gives the mirrored (opposite-handed) helix, R = 0 a straight line along z."""
     radius, pitch, length = float(radius), float(pitch), float(length)
     if radius < 0:
         raise ValueError("radius must be >= 0")
@@ -83,8 +75,7 @@ def check_points(points) -> np.ndarray:
     """A user's target points as a float (N, 3) array (2-D columns mean z = 0), or ValueError.
 
     Needs at least 3 finite points and no two consecutive identical points (a
-    zero-length step has no direction to fit); indices in messages count from 1.
-    """
+    zero-length step has no direction to fit); indices in messages count from 1."""
     p = as_3d(points, least=3)
     if not np.all(np.isfinite(p)):
         row = int(np.argmax(~np.all(np.isfinite(p), axis=1)))

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vine_nlp.model.chain import phi_from_theta
+from vine_nlp.model.routing import actuated
 from vine_nlp.model.units import MM_PER_UNIT, mm_per_unit  # noqa: F401  MM_PER_UNIT: for the importers from here
 
 MIN_FEATURE_MM = 2.0  # the template's precision: a feature printed 1:1 and cut by hand, below 2 mm, is not built to 10 %
@@ -143,14 +144,15 @@ class Report:
         """Features shorter than ``min_feature``."""
         return [f for f in self.features if f[0] < self.min_feature - 1e-12]
 
-    def missed(self, lambda_lo: float, lambda_hi: float, units: str = "") -> list[str]:
+    def missed(self, lambda_lo: float, lambda_hi: float, units: str = "", band: str = "correction margin") -> list[str]:
         """The buildable rules this report misses, one line each: lambda exactly 1 or inside [lambda_lo, lambda_hi] (an
-        actuator that barely contracts is not exactly 1), the smallest feature at least min_feature (to the last digit),
-        no turning of the line where lambda is 1 beyond what the routing needs there, pouches that can be made."""
+        actuator that barely contracts is not exactly 1; ``band`` names that range), the smallest feature at least
+        min_feature (to the last digit), no turning of the line where lambda is 1 beyond what the routing needs there,
+        pouches that can be made."""
         out, u = [], f" {units}" if units else ""
         if self.violations:
             v = self.violations
-            out.append(f"{len(v)} segment(s) with lambda neither 1 nor in [{lambda_lo:.6g}, {lambda_hi:.6g}] (correction margin; "
+            out.append(f"{len(v)} segment(s) with lambda neither 1 nor in [{lambda_lo:.6g}, {lambda_hi:.6g}] ({band}; "
                        f"segments {', '.join(map(str, v[:8]))}{', ...' if len(v) > 8 else ''})")
         if self.below:
             length, name, _ = self.smallest
@@ -205,6 +207,21 @@ def buildability(routing, D: float, kind: str = "tendon", lambda_min: float = 0.
         report.parts["stoppers"] = stoppers
         report.parts["tendons"] = [p.path for p in ps if p.actuated]
     return report
+
+
+def correction_missed(nominal, built_lam, D: float, kind: str = "tendon", lambda_min: float = 0.4, min_feature: float = 0.0,
+                      units: str = "") -> list[str]:
+    """The buildable rules for a correction's new ``nominal`` of a robot built from a nominal with lambda ``built_lam``,
+    one line each. A correction spends the correction margin (that is what it is for), and no actuator can be added
+    to a built robot: lambda exactly 1 where the robot has none (model.routing.actuated), within [lambda_min, 1]
+    elsewhere; min_feature and no pointless turning as for every design (the robot's base stays where it was built:
+    the line's turning from it to the first actuated piece is needed)."""
+    out = buildability(nominal, D, kind, lambda_min, 0.0, min_feature, base_free=False).missed(lambda_min, 1.0, units, "the actuator's range")
+    added = np.flatnonzero(~actuated(built_lam) & (np.asarray(nominal.lam, float) != 1.0))
+    if added.size:
+        out.insert(0, f"{added.size} segment(s) with an actuator where the robot has none (lambda exactly 1 there; segments "
+                      f"{', '.join(map(str, added[:8]))}{', ...' if added.size > 8 else ''})")
+    return out
 
 
 def _pouches(report: Report, lam, path, D: float) -> None:

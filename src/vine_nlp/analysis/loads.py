@@ -25,8 +25,7 @@ Mechanics (SI units throughout; lengths converted from the problem's units, :dat
   base tangent, then the final shape (the intermediate shapes of the actuation are not checked).
 
 Capacity is linear in P, so the least pressure at which every section holds with the safety factor is
-P * safety / margin.
-"""
+P * safety / margin."""
 
 from __future__ import annotations
 
@@ -34,11 +33,10 @@ import math
 
 import numpy as np
 
-from vine_nlp.model.chain import chain_frames, chain_points, segment_end_samples
-from vine_nlp.model.helix import center_rates
+from vine_nlp.analysis.obstacles import sample_chain
 from vine_nlp.model.routing import Routing
+from vine_nlp.model.units import METRES_PER_UNIT
 
-METRES_PER_UNIT = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "inch": 0.0254}
 WRINKLED = 0.5  # an actuated section's capacity, as a fraction of pi P r^3 (module docstring)
 PER_SEGMENT = 20  # samples per segment of the report (as the obstacle report's)
 ZERO = 1e-6  # a bending moment below this fraction of the largest possible one is none (round-off)
@@ -107,16 +105,11 @@ def prefix_bending(points, l, tangents, mass_per_length: float, tip_mass: float,
 
 
 def _samples(routing: Routing, D: float, per_segment: int):
-    seg, frac = segment_end_samples(routing.length, per_segment)
-    frames = chain_frames(routing.theta, routing.lam, routing.length, D, routing.initial_pose)
-    pts, rot = chain_points(routing.theta, routing.lam, routing.length, D, seg, frac, routing.initial_pose, frames=frames)
-    _, _, lc = center_rates(routing.theta, routing.lam, D)
-    s = np.r_[0.0, np.cumsum(routing.length * lc)][seg] + frac * (routing.length * lc)[seg]
-    l = np.r_[0.0, np.cumsum(routing.length)][seg] + frac * routing.length[seg]
-    act = routing.lam < 1.0 - 1e-9
+    smp = sample_chain(routing, D, per_segment)
+    seg, frac, act = smp["seg"], smp["frac"], routing.lam < 1.0 - 1e-9
     # a segment end belongs to both segments: the weaker one counts
     actuated = act[seg] | ((frac == 0) & act[np.maximum(seg - 1, 0)])
-    return pts, rot[:, :, 0], s, l, actuated
+    return smp["points"], smp["tangent"], smp["s"], smp["l"], actuated
 
 
 def load_report(routing: Routing, D: float, units: str, load, growth: str = "while-actuated", per_segment: int = PER_SEGMENT) -> dict:
@@ -127,8 +120,7 @@ def load_report(routing: Routing, D: float, units: str, load, growth: str = "whi
     capacity / moment, inf where nothing bends), collapse_at (s of that minimum, problem units; NaN where
     inf), min_pressure (kPa: every section holds with the safety factor), holds (margin >= safety),
     growth_length (the grown length, problem units, of the prefix that loads the weakest section most), l (the
-    samples' grown lengths), prefix_end (per sample, the grown length of the prefix that loads it most).
-    """
+    samples' grown lengths), prefix_end (per sample, the grown length of the prefix that loads it most)."""
     k = METRES_PER_UNIT[units]
     pts, t, s, l, actuated = _samples(routing, D, per_segment)
     pts, l_m = pts * k, l * k

@@ -6,27 +6,21 @@ a design asks for gap >= margin everywhere along the tube (formats.md "Obstacles
 
 Sampling rule (:func:`sample_spacing`, :func:`dip`)
 ---------------------------------------------------
-Center-line points at most h apart along the arc, each at distance >= r = D/2 + m
-from a convex obstacle K, bound the whole center line: let y be the point of the
-chord between two samples nearest to K and k its nearest point on K; the samples
-are >= r from k and y - k is normal to the chord, so the chord (length <= h)
-stays >= sqrt(r^2 - h^2/4) from K. If K's surface has all radii of curvature
->= R_K (sphere, capsule: their radius; plane: infinite; box, triangle: 0), the
-same argument about the center of curvature gives sqrt((r + R_K)^2 - h^2/4) - R_K.
-The arc leaves its chord by at most the sagitta (1 - cos(kappa h / 2)) / kappa
-(center-line curvature <= kappa), and the distance is 1-Lipschitz, so between
+Center-line points at most h apart along the arc, each at distance >= r = D/2 + m from a convex obstacle K, bound the
+whole center line: let y be the point of the chord between two samples nearest to K and k its nearest point on K; the
+samples are >= r from k and y - k is normal to the chord, so the chord (length <= h) stays >= sqrt(r^2 - h^2/4) from K.
+If K's surface has all radii of curvature >= R_K (sphere, capsule: their radius; plane: infinite; box, triangle: 0), the
+same argument about the center of curvature gives sqrt((r + R_K)^2 - h^2/4) - R_K. The arc leaves its chord by at most
+the sagitta (1 - cos(kappa h / 2)) / kappa (center-line curvature <= kappa), and the distance is 1-Lipschitz, so between
 samples the gap drops at most
 
     dip(h) = (r + R_K) - sqrt((r + R_K)^2 - h^2 / 4) + (1 - cos(kappa h / 2)) / kappa.
 
-No obstacle fits between samples (the chord never reaches K) when h < 2 r = D + 2 m.
-To hold gap >= margin - tol on the continuous tube: sample at h with dip(h) <= tol,
-or ask the samples for margin + dip(h) (how the NLP rows should use it). With
-kappa = 2/D (the limit lambda -> 0 at theta = 0; steeper theta bends more:
-:func:`curvature_bound` gives 2.21/D for theta <= 60 deg, lambda >= 0.4) and a sharp
-obstacle: dip ~ h^2 / (2 D), so tol = 1e-3 D needs h <= 0.045 D, while h = D/4
-costs an inflation of D/32.
-A mesh's unsigned distance is the minimum over its (convex) triangles, so the
+No obstacle fits between samples (the chord never reaches K) when h < 2 r = D + 2 m. To hold gap >= margin - tol on the
+continuous tube: sample at h with dip(h) <= tol, or ask the samples for margin + dip(h) (how the NLP rows should use
+it). With kappa = 2/D (the limit lambda -> 0 at theta = 0; steeper theta bends more: :func:`curvature_bound` gives
+2.21/D for theta <= 60 deg, lambda >= 0.4) and a sharp obstacle: dip ~ h^2 / (2 D), so tol = 1e-3 D needs h <= 0.045 D,
+while h = D/4 costs an inflation of D/32. A mesh's unsigned distance is the minimum over its (convex) triangles, so the
 bound holds for it with R_K = 0.
 
 Growth (paper Sec. VI-D; as in ``vine_nlp.analysis.collision``): grown while actuated, every body is a prefix
@@ -77,8 +71,7 @@ def dip(h: float, diameter: float, margin: float = 0.0, kappa: float | None = No
     """How far the gap can fall between center-line samples h apart (module docstring, "Sampling rule").
 
     kappa: largest center-line curvature (default 2/D); sharpness: the obstacle's smallest
-    radius of curvature (0 for edges and corners). inf if h >= 2 (D/2 + margin + sharpness).
-    """
+    radius of curvature (0 for edges and corners). inf if h >= 2 (D/2 + margin + sharpness)."""
     r = 0.5 * float(diameter) + float(margin) + float(sharpness)
     kappa = 2.0 / float(diameter) if kappa is None else float(kappa)
     if math.isinf(sharpness):
@@ -115,17 +108,17 @@ def sample_spacing(diameter: float, margin: float = 0.0, tol: float | None = Non
 def sample_chain(routing: Routing, diameter: float, per_segment=DEFAULT_PER_SEGMENT) -> dict:
     """Center line of ``routing`` at ``per_segment`` (int or (M,) ints; default 20, as the obstacle goals are
     checked) equal pieces of every segment, base to tip: dict(points (P, 3), s (actuated arc length), l (material
-    coordinate), seg, frac), the segment ends included, P = sum(per_segment) + 1."""
+    coordinate), seg, frac, tangent (P, 3)), the segment ends included, P = sum(per_segment) + 1."""
     D = float(diameter)
     th, lam, ln = routing.theta, routing.lam, routing.length
     seg, frac = segment_end_samples(ln, per_segment)
     frames = chain_frames(th, lam, ln, D, routing.initial_pose)
-    pts, _ = chain_points(th, lam, ln, D, seg, frac, routing.initial_pose, frames=frames)
+    pts, rot = chain_points(th, lam, ln, D, seg, frac, routing.initial_pose, frames=frames)
     _, _, lc = center_rates(th, lam, D)
     arc = ln * lc
     s = np.concatenate([[0.0], np.cumsum(arc)])[seg] + frac * arc[seg]
     l = np.concatenate([[0.0], np.cumsum(ln)])[seg] + frac * ln[seg]
-    return {"points": pts, "s": s, "l": l, "seg": seg, "frac": frac}
+    return {"points": pts, "s": s, "l": l, "seg": seg, "frac": frac, "tangent": rot[:, :, 0]}
 
 
 class ModelLine:
@@ -157,10 +150,8 @@ class ModelLine:
 def grown_prefixes(routing: Routing, diameter: float, lengths, per_segment=DEFAULT_PER_SEGMENT) -> list[dict]:
     """Bodies grown while actuated to material lengths ``lengths``: prefixes of the final center line.
 
-    Each: dict(length, points, s, l): the final shape's samples with l < length plus the
-    exact point at l = length. Every prefix is a subset of the final line, so its gap to
-    any obstacle is >= the final shape's (module docstring).
-    """
+    Each: dict(length, points, s, l): the final shape's samples with l < length plus the exact point at l = length.
+    Every prefix is a subset of the final line, so its gap to any obstacle is >= the final shape's (module docstring)."""
     D = float(diameter)
     full = sample_chain(routing, D, per_segment)
     model = ModelLine(routing, D)
@@ -168,10 +159,8 @@ def grown_prefixes(routing: Routing, diameter: float, lengths, per_segment=DEFAU
     for Lg in np.atleast_1d(np.asarray(lengths, float)):
         Lg = float(min(max(Lg, 0.0), model.cum[-1]))
         keep = full["l"] < Lg
-        out.append({
-            "length": Lg, "points": np.vstack([full["points"][keep], model.points([Lg])]),
-            "s": np.append(full["s"][keep], np.interp(Lg, model.cum, model.cum_s)), "l": np.append(full["l"][keep], Lg),
-        })
+        out.append({"length": Lg, "points": np.vstack([full["points"][keep], model.points([Lg])]),
+                    "s": np.append(full["s"][keep], np.interp(Lg, model.cum, model.cum_s)), "l": np.append(full["l"][keep], Lg)})
     return out
 
 
@@ -246,18 +235,12 @@ def _shape_gaps(routing, D, obstacles, margin, smp, refine) -> list[dict]:
         contacts = []
         for a, b in _runs(g < margin):
             j = a + int(np.argmin(g[a:b + 1]))
-            contacts.append({
-                "s": (float(smp["s"][a]), float(smp["s"][b])), "l": (float(smp["l"][a]), float(smp["l"][b])),
-                "min_gap": float(g[j]), "at_s": float(smp["s"][j]),
-            })
-        if refine and contacts == [] and gmin < margin:
-            # the refined minimum dips below the margin between two samples
-            contacts.append({"s": (float(np.interp(lmin, cum_l, cum_s)),) * 2, "l": (lmin, lmin), "min_gap": gmin,
-                             "at_s": float(np.interp(lmin, cum_l, cum_s))})
-        out.append({
-            "index": k, "kind": ob.kind, "name": ob.name, "min_gap": gmin, "l": lmin,
-            "s": float(np.interp(lmin, cum_l, cum_s)), "gaps": g, "contacts": contacts,
-        })
+            contacts.append({"s": (float(smp["s"][a]), float(smp["s"][b])), "l": (float(smp["l"][a]), float(smp["l"][b])),
+                             "min_gap": float(g[j]), "at_s": float(smp["s"][j])})
+        s_min = float(np.interp(lmin, cum_l, cum_s))
+        if refine and contacts == [] and gmin < margin:  # the refined minimum dips below the margin between two samples
+            contacts.append({"s": (s_min, s_min), "l": (lmin, lmin), "min_gap": gmin, "at_s": s_min})
+        out.append({"index": k, "kind": ob.kind, "name": ob.name, "min_gap": gmin, "l": lmin, "s": s_min, "gaps": g, "contacts": contacts})
     return out
 
 
@@ -265,23 +248,20 @@ def obstacle_report(routing: Routing, diameter: float, obstacles, growth: str = 
                     per_segment=DEFAULT_PER_SEGMENT, ts=None, refine: bool = True) -> dict:
     """Distance from the tube to every obstacle along the tube, and the contacts (runs of samples with gap < ``margin``).
 
-    Final shape: sampled at ``per_segment`` points per segment, each obstacle's minimum
-    refined on the continuous model (``refine``: a bounded 1-D search around the smallest sample).
-    Intermediate shapes: grown while actuated they are prefixes (covered by the final
-    shape; each obstacle's ``first_contact_length`` is the material length grown when its
-    first contact appears); with ``growth`` "after", the shapes lambda_t on the grid ``ts``
-    (default 21 values of t) are checked at the samples.
+    Final shape: sampled at ``per_segment`` points per segment, each obstacle's minimum refined on the continuous model
+    (``refine``: a bounded 1-D search around the smallest sample). Intermediate shapes: grown while actuated they are
+    prefixes (covered by the final shape; each obstacle's ``first_contact_length`` is the material length grown when its
+    first contact appears); with ``growth`` "after", the shapes lambda_t on the grid ``ts`` (default 21 values of t) are
+    checked at the samples.
 
     Returns
     -------
     dict
-        growth, margin, final: list per obstacle of dict(index, kind, name,
-        min_gap, s, l (where), gaps (P,) per sample, contacts: list of dict(s (from, to),
-        l (from, to), min_gap, at_s))), s (P,), l (P,) the final samples, min_gap (over
-        all obstacles, final shape; inf without obstacles), intermediate: while-actuated:
-        list per obstacle of dict(index, min_gap, first_contact_length); after: dict(t
-        (T,), gaps (T, K) per-shape minima, worst: list per obstacle of dict(index,
-        min_gap, t, s, l), contacts: list per t of the per-obstacle contact lists),
+        growth, margin, final: list per obstacle of dict(index, kind, name, min_gap, s, l (where), gaps (P,) per sample,
+        contacts: list of dict(s (from, to), l (from, to), min_gap, at_s))), s (P,), l (P,) the final samples, min_gap
+        (over all obstacles, final shape; inf without obstacles), intermediate: while-actuated: list per obstacle of
+        dict(index, min_gap, first_contact_length); after: dict(t (T,), gaps (T, K) per-shape minima, worst: list per
+        obstacle of dict(index, min_gap, t, s, l), contacts: list per t of the per-obstacle contact lists),
         min_gap_intermediate, clear (every gap >= margin - 1e-3 D, final and intermediate).
 
     Raises
@@ -297,10 +277,8 @@ def obstacle_report(routing: Routing, diameter: float, obstacles, growth: str = 
     gmin = min((f["min_gap"] for f in final), default=math.inf)
     out = {"growth": growth, "margin": float(margin), "final": final, "s": smp["s"], "l": smp["l"], "min_gap": gmin}
     if growth == "while-actuated":
-        out["intermediate"] = [{
-            "index": f["index"], "min_gap": f["min_gap"],
-            "first_contact_length": (f["contacts"][0]["l"][0] if f["contacts"] else None),
-        } for f in final]
+        out["intermediate"] = [{"index": f["index"], "min_gap": f["min_gap"],
+                                "first_contact_length": (f["contacts"][0]["l"][0] if f["contacts"] else None)} for f in final]
         out["min_gap_intermediate"] = gmin
     else:
         shapes = after_growth_shapes(routing, D, ts, per_segment)
@@ -309,10 +287,7 @@ def obstacle_report(routing: Routing, diameter: float, obstacles, growth: str = 
         worst = [{"index": k, "min_gap": math.inf, "t": None, "s": None, "l": None} for k in range(K)]
         contacts = []
         for a, sh in enumerate(shapes):
-            if sh["t"] == 1.0:
-                per = final
-            else:
-                per = _shape_gaps(sh["routing"], D, obstacles, margin, sh, False)
+            per = final if sh["t"] == 1.0 else _shape_gaps(sh["routing"], D, obstacles, margin, sh, False)
             contacts.append([p["contacts"] for p in per])
             for k, p in enumerate(per):
                 gaps[a, k] = p["min_gap"]

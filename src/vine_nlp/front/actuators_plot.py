@@ -10,6 +10,7 @@ import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
 
+from vine_nlp.front import palette
 from vine_nlp.front.plot import PAGE_IN, STYLE, label_3d_axes, set_equal_3d
 from vine_nlp.io.actuators import read_actuators_archive
 from vine_nlp.model.actuators import actuator_lines
@@ -20,7 +21,7 @@ def plot_actuators_figure(path) -> Figure:
     a, r, targets = read_actuators_archive(path)
     ls, u, D = r.lines, a.units, a.diameter
     states = r.stats["states"]
-    colors = dict(zip(ls.names, matplotlib.colormaps["tab10"](np.arange(ls.count) % 10)))
+    colors = {name: palette.LINES[k % len(palette.LINES)] for k, name in enumerate(ls.names)}
     seg, frac = segment_end_samples(ls.length, np.maximum(1, np.ceil(ls.length / (0.25 * D))).astype(int))
     cols = min(3, len(states))
     rows = math.ceil(len(states) / cols)
@@ -41,7 +42,7 @@ def plot_actuators_figure(path) -> Figure:
             label_3d_axes(ax, u)
             set_equal_3d(ax, drawn)
             m = r.state_metrics.get(s)
-            ax.set_title(f"{s} ({', '.join(active)})" + (f": RMSE {m['rmse']:.3g} {u}" if m else ""), pad=0)
+            ax.set_title(f"{s} ({', '.join(active)})" + (f": RMSE {m['rmse']:.3g} {u}" if "rmse" in (m or {}) else ""), pad=0)
         ax_l = fig.add_subplot(gs[rows, :])
         edges = np.r_[0.0, np.cumsum(ls.length)]
         for k, name in enumerate(ls.names):

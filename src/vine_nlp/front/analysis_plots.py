@@ -9,8 +9,7 @@
   nearest non-neighbouring part against length along the tube, the tube diameter D
   (contact below it) and where each contact appears when grown while actuated.
 
-Same style and sizes as front.plot (IEEE column 3.5 in, fonts 7-8 pt).
-"""
+Same style and sizes as front.plot (IEEE column 3.5 in, fonts 7-8 pt)."""
 
 from __future__ import annotations
 
@@ -55,12 +54,10 @@ def tolerance_figure(report: dict, path=None, title: str | None = None) -> Figur
         a.set_title(f"(a) tip std {fo['tip_std']:.3g} {u} (first order), {mc['tip_std']:.3g} {u} (Monte Carlo)")
         r = mc["rmse"]
         b.hist(r, bins=min(60, max(10, int(math.sqrt(r.size)))), color="0.7", edgecolor="white", linewidth=0.3)
-        lines = [
-            (report["nominal"]["rmse"], "k", ":", "nominal"),
-            (fo["rmse"], "tab:red", "-", r"first order $\sqrt{E[\mathrm{MSE}]}$"),
-            (mc["rms_rmse"], "tab:blue", "--", r"MC $\sqrt{\mathrm{mean\ MSE}}$"),
-            (mc["mean_rmse"], "tab:green", "-.", "MC mean RMSE"),
-        ]
+        lines = [(report["nominal"]["rmse"], "k", ":", "nominal"),
+                 (fo["rmse"], "tab:red", "-", r"first order $\sqrt{E[\mathrm{MSE}]}$"),
+                 (mc["rms_rmse"], "tab:blue", "--", r"MC $\sqrt{\mathrm{mean\ MSE}}$"),
+                 (mc["mean_rmse"], "tab:green", "-.", "MC mean RMSE")]
         for v, c, ls, lab in lines:
             b.axvline(v, color=c, ls=ls, lw=1.0, label=f"{lab} {v:.3g}")
         b.set_xlabel(f"RMSE to the target [{u}]")
@@ -92,8 +89,7 @@ def nearest_distance_profile(points, s, exclude_arc, chunk: int = 512) -> np.nda
 def clearance_figure(routing, D: float, path=None, units: str = "", growth=None, title: str | None = None) -> Figure:
     """Nearest non-neighbour distance along the tube, the diameter D, and the growth order of contacts.
 
-    ``growth``: the list from analysis.collision.growth_contacts (computed if None).
-    """
+    ``growth``: the list from analysis.collision.growth_contacts (computed if None)."""
     res = routing_clearance(routing, D)
     line = res["line"]
     prof = nearest_distance_profile(line["points"], line["s"], res["exclude_arc"])

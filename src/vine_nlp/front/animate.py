@@ -15,6 +15,11 @@ colours and legend words of ``plot`` and ``view`` (front/palette.py): tube, actu
 (across the tube from the actuator: the twist), self-contacts, obstacles. The default 41 frames put a
 frame at every t where ``analyze`` looks for contacts after growth (0.05 apart), found by the same call.
 
+An archive of several actuators on one tube (:func:`write_states_movie`): one panel going from state to state in
+the archive's order, each actuator's line in its palette colour; between two states the lines pulled only in the
+first are released (lambda_t = 1 - t (1 - lambda)), then the lines pulled only in the second are pulled, those
+pulled in both stay: every frame is a shape of the model (never two active lines on one segment).
+
 matplotlib.animation writes the movie: GIF through pillow, MP4 through ffmpeg
 (where it is installed; an error otherwise). No pyplot: the figure is a plain
 ``matplotlib.figure.Figure``, the backend is never changed.
@@ -25,6 +30,7 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -33,8 +39,10 @@ from vine_nlp.analysis.collision import growth_contacts, routing_clearance
 from vine_nlp.analysis.obstacles import ModelLine, after_growth_routing
 from vine_nlp.front import palette
 from vine_nlp.front.plot import equal_view_3d, label_3d_axes
+from vine_nlp.front.states import picked_states, state_lines
 from vine_nlp.front.view import run_shape, tube_rings
 from vine_nlp.io.archive import Archive, OutputError, write_atomic
+from vine_nlp.model.actuators import Lines
 from vine_nlp.problem import Routing
 
 MODES = ("grow", "after", "both")
@@ -102,8 +110,8 @@ def _draw(ax, frame, D):
     center, inner = frame["center"], frame["inner"]
     if len(center) >= 2:
         drawn.append(_surface(ax, tube_rings(center, inner, D, ring=12)))
-        drawn += ax.plot(*inner.T, color=palette.ACTUATOR, lw=2.0, zorder=5)
-        drawn += ax.plot(*frame["outer"].T, color=palette.OPPOSITE, lw=1.0, zorder=4)
+        for pts, color, lw in frame.get("lines") or [(inner, palette.ACTUATOR, 2.0), (frame["outer"], palette.OPPOSITE, 1.0)]:
+            drawn += ax.plot(*pts.T, color=color, lw=lw, zorder=5 if lw > 1 else 4)
     if len(frame["contacts"]):
         drawn.append(ax.scatter(*np.asarray(frame["contacts"]).T, color=palette.CONTACT, s=110, marker="X", depthshade=False,
                                edgecolors="white", linewidths=0.8, zorder=10))
@@ -132,21 +140,21 @@ def _surface(ax, rings):
     return surface
 
 
-def _legend(fig, obstacles: bool, contacts: bool):
+def _legend(fig, obstacles: bool, contacts: bool, lines=None):
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
     L = palette.LABELS
-    handles = [Patch(color=palette.TUBE, alpha=0.6, label=L["tube"]), Line2D([], [], color=palette.ACTUATOR, lw=2.0, label=L["actuator"]),
-               Line2D([], [], color=palette.OPPOSITE, lw=1.0, label=L["opposite"]),
-               Line2D([], [], color=palette.CONTACT, marker="X", ls="none", markersize=9,
-                      label=L["contact"] + ("" if contacts else " (none in this movie)"))]
+    lines = lines or [(L["actuator"], palette.ACTUATOR, 2.0), (L["opposite"], palette.OPPOSITE, 1.0)]
+    handles = [Patch(color=palette.TUBE, alpha=0.6, label=L["tube"]), *(Line2D([], [], color=c, lw=w, label=t) for t, c, w in lines)]
+    handles += [] if lines[0][0] != L["actuator"] else [Line2D([], [], color=palette.CONTACT, marker="X", ls="none", markersize=9,
+                                                               label=L["contact"] + ("" if contacts else " (none in this movie)"))]
     if obstacles:
         handles.append(Patch(color=palette.OBSTACLE, alpha=0.5, label=L["obstacle"]))
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), fontsize=12, frameon=False)
 
 
-def movie_figure(archive: Archive, run: str, panels: list, dpi: int = DPI):
+def movie_figure(archive: Archive, run: str, panels: list, dpi: int = DPI, lines=None):
     """(Figure, 3-D axes) of a movie before its first frame: ``panels`` the frames of each panel
     (:func:`panel_frames`); each panel's equal axes hold every frame of its whole motion (the tube at its true
     diameter), and the obstacles, drawn in each; WIDTH_PX wide."""
@@ -164,7 +172,7 @@ def movie_figure(archive: Archive, run: str, panels: list, dpi: int = DPI):
         ax.tick_params(labelsize=10)
         for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
             axis.label.set_size(11)
-    _legend(fig, bool(archive.obstacles), any(len(f["contacts"]) for frames in panels for f in frames))
+    _legend(fig, bool(archive.obstacles), any(len(f["contacts"]) for frames in panels for f in frames), lines)
     fig.suptitle(f"{archive.name}, run {run}: D = {D:.4g} {u}", fontsize=15)
     return fig, axes
 
@@ -285,3 +293,39 @@ def _record(fig, axes, panels, D: float, path, fps: int, dpi: int) -> None:
         write_atomic(target, write)
     finally:
         tmp_name.unlink(missing_ok=True)
+
+
+def state_frames(ls: Lines, D: float, states: dict, frames: int) -> list[dict]:
+    """``frames`` frames from each state to the next (module docstring), as :func:`panel_frames` makes them, with
+    every actuator's line ("lines": (points, colour, width), thick where pulled); "x": the frame's place in the
+    movie, 0 to 1."""
+    names, hops = list(states), max(1, len(states) - 1)
+    out = []
+    for k in range(frames):
+        x = k / (frames - 1) * hops
+        i = min(int(x), hops - 1) if len(names) > 1 else 0
+        nxt = names[min(i + 1, len(names) - 1)]
+        a, b = states[names[i]], states[nxt]
+        off, on = [n for n in a if n not in b], [n for n in b if n not in a]
+        split, u = (0.5 if on else 1.0) if off else 0.0, x - i  # release what only a pulls, then pull what only b pulls
+        level = {n: 1.0 for n in set(a) & set(b)} | ({n: 1 - u / split for n in off} if u < split else {n: (u - split) / (1 - split) for n in on})
+        active = [n for n in ls.names if level.get(n, 0.0) > 0] or [a[0]]
+        lam = np.array([1.0 - level.get(n, 0.0) * (1.0 - ls.lam[j]) for j, n in enumerate(ls.names)])
+        _, _, sh, paths = state_lines(replace(ls, lam=lam), D, active)
+        lines = [(p, palette.LINES[j % len(palette.LINES)], 2.5 if level.get(n, 0.0) > 0 else 0.8) for j, (n, p) in enumerate(paths.items())]
+        what = f"state {names[i]}" if u < 1e-9 else f"state {nxt}" if u > 1 - 1e-9 else f"{names[i]} \u2192 {nxt}"
+        out.append({"center": sh.center, "inner": sh.inner, "outer": sh.outer, "lines": lines, "contacts": np.zeros((0, 3)),
+                    "title": f"{what}: pulled " + (", ".join(f"{n} {level[n]:.0%}" for n in ls.names if level.get(n, 0) > 0) or "none"), "x": x / hops})
+    return out
+
+
+def write_states_movie(path, out, run: str | None = None, frames: int = FRAMES, fps: int = 10, dpi: int = DPI) -> dict:
+    """The movie of an archive of several actuators on one tube, state to state (:func:`state_frames`), to ``out``
+    (.gif or .mp4). Returns dict(run, states (in the movie's order), frames, format)."""
+    a, run, r, _, states = picked_states(path, run)
+    if movie_format(out) == ".mp4" and not ffmpeg_available():
+        raise RuntimeError("MP4 needs ffmpeg, which is not installed (apt-get install ffmpeg), or write a .gif")
+    panel = state_frames(r.lines, a.diameter, states, frames)
+    fig, axes = movie_figure(a, run, [panel], dpi, [(f"line {n}", palette.LINES[j % len(palette.LINES)], 2.5) for j, n in enumerate(r.lines.names)])
+    _record(fig, axes, [panel], a.diameter, out, fps, dpi)
+    return {"run": run, "states": list(states), "frames": frames, "format": movie_format(out)[1:]}

@@ -1,12 +1,10 @@
 """What changes from the robot that was built to the corrected one (``vine-nlp template ... --changes``).
 
-A correction archive (``vine_nlp.io.correction``) holds the nominal of every build in
-``/correction/builds/<b>``; the last one is what was built and measured. For each segment whose
-lambda (or theta) differs in the corrected run, one row: which stopper, longer or shorter, by how
-many millimetres. A stopper keeps a fraction lambda of the segment's actuator path (length / cos
-theta; front.template's cut table), so its length changes by lambda' l / cos theta' - lambda l / cos theta;
-the gap (or pinch) between stoppers takes the rest.
-"""
+A correction archive (``vine_nlp.io.correction``) holds the nominal of every build in ``/correction/builds/<b>``; the
+last one is what was built and measured. For each segment whose lambda (or theta) differs in the corrected run, one row:
+which stopper, longer or shorter, by how many millimetres. A stopper keeps a fraction lambda of the segment's actuator
+path (length / cos theta; front.template's cut table), so its length changes by lambda' l / cos theta' - lambda l / cos
+theta; the gap (or pinch) between stoppers takes the rest."""
 
 from __future__ import annotations
 

@@ -165,7 +165,7 @@ def cmd_solve(args) -> int:
     finally:
         close()
     outcome.write(out)
-    print(comparison_table(outcome.runs, pf.units) if methods else "\n".join(outcome_lines(outcome)))
+    print(comparison_table(outcome.runs, pf.units, pf.problem) if methods else "\n".join(outcome_lines(outcome)))
     print(f"archive -> {out}")
     for line in outcome.shortfalls():
         print(f"{pf.name}: {line}", file=sys.stderr)
@@ -212,7 +212,7 @@ def cmd_sweep(args) -> int:
 def cmd_analyze(args) -> int:
     from vine_nlp.front import analyze  # matplotlib and SciPy load when the command runs
 
-    return analyze.cmd_analyze(args)
+    return analyze.cmd_analyze_states(args) if several_actuators(args.archive) else analyze.cmd_analyze(args)
 
 
 def cmd_correct(args) -> int:
@@ -239,7 +239,7 @@ def cmd_plot(args) -> int:
 
 
 def cmd_template(args) -> int:
-    from vine_nlp.front.template import write_template
+    from vine_nlp.front.template import write_actuators_template, write_template
 
     out = check_output(args.output, args.force)
     fmt = _output_format(out, "template", "template_format")
@@ -255,9 +255,12 @@ def cmd_template(args) -> int:
         except (ValueError, KeyError) as e:
             raise InputError(args.archive, "--changes", str(e).strip("'")) from None
         print(changes_text(rows, archive.units))
+    several = several_actuators(args.archive)
     try:
-        info = write_template(archive, out, csv_path=csv, paper=args.paper, run=args.run or ("corrected" if rows is not None else None),
-                              changes=rows)
+        info = write_actuators_template(args.archive, out, csv, args.paper, args.run) if several else \
+            write_template(archive, out, csv_path=csv, paper=args.paper, run=args.run or ("corrected" if rows is not None else None), changes=rows)
+    except InputError:
+        raise
     except ValueError as e:
         raise InputError(args.archive, "--run" if args.run and args.run in str(e) else "template", str(e)) from None
     if fmt == ".pdf":
@@ -275,7 +278,7 @@ def cmd_template(args) -> int:
         print(f"cuts -> {csv}")
     from vine_nlp.front.show import build_warnings
 
-    for line in build_warnings(archive, info["run"]):  # judged as show and the design judge it
+    for line in [] if several else build_warnings(archive, info["run"]):  # judged as show and the design judge it
         print(f"warning: {args.archive}: {line}", file=sys.stderr)
     print("print at 100 % (no 'fit to page') and check the 10 cm scale bar" if fmt == ".pdf"
           else "the 10 cm scale bar is 100 mm in the file: check it after import")
@@ -333,9 +336,10 @@ def cmd_view(args) -> int:
             archive_run(archive, src, args.run)
         elif not archive.runs:
             raise InputError(src, "runs", "the archive has no runs")
-        ff.within_limits("view", archive, src, [args.run] if args.run else list(archive.runs))
-        html = view.view_html(archive, run=args.run)
-        what = ", ".join([args.run] if args.run else archive.runs)
+        several = several_actuators(src)  # one page, a menu of its states (of the run named, or the default run)
+        ff.within_limits("view", archive, src, [archive.pick_run(args.run)] if args.run or several else list(archive.runs))
+        html = view.view_html(src if several else archive, run=args.run)
+        what = ", ".join([args.run] if args.run else archive.runs) if not several else f"every state of run {archive.pick_run(args.run)}"
     view.write_html(out, html)
     print(f"view of {what} ({len(html) / 1e6:.2f} MB, opens offline) -> {out}")
     return EXIT_OK
@@ -351,6 +355,10 @@ def cmd_animate(args) -> int:
     archive = read_archive(args.archive)
     run = archive_run(archive, args.archive, args.run)
     ff.within_limits("animate", archive, args.archive, [run])
+    if several_actuators(args.archive):  # state to state (--mode is for one actuator)
+        info = animate.write_states_movie(args.archive, out, run=run, frames=args.frames, fps=args.fps)
+        print(f"{info['frames']} frames, run {run}, state to state: {' -> '.join(info['states'])} -> {out}")
+        return EXIT_OK
     info = animate.write_movie(archive, out, mode=args.mode, run=run, frames=args.frames, fps=args.fps)
     print(f"{info['frames']} frames ({info['mode']}), run {run}, self-contacts: {info['contacts_grow']} of the final shape, "
           f"up to {info['contacts_after']} at once when actuated after growth"
@@ -362,6 +370,8 @@ def cmd_animate(args) -> int:
 def cmd_export(args) -> int:
     """The tube as a closed triangle mesh (STL, OBJ, PLY, glTF binary)."""
     export = _front("export")
+    if several_actuators(args.archive):
+        return export.cmd_export_states(args)
     out = check_output(args.output, args.force)
     fmt = _output_format(out, "export", "mesh_format")
     if fmt in (".stl", ".ply"):
@@ -438,7 +448,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     for name, text in (
         ("design", "inverse design of a routing for a target curve -> result archive"),
-        ("compare", "run nlp and greedy on one problem: one archive, a table on stdout"),
+        ("compare", "nlp and the greedy, each free and buildable, on one problem: one archive, a table on stdout"),
     ):
         d = sub.add_parser(name, help=text)
         d.add_argument("problem", metavar="PROBLEM.toml")
@@ -462,6 +472,7 @@ def build_parser() -> argparse.ArgumentParser:
     an = sub.add_parser("analyze", help="self-collision, growth order and manufacturing tolerance of a design")
     an.add_argument("archive", metavar="OUT.h5")
     an.add_argument("--run", type=ff.run_name, help="which run (default: nlp, greedy, forward, ...)")
+    an.add_argument("--state", type=ff.run_name, help="several actuators: this state alone (default: every state)")
     add_sigma_args(an)
     an.add_argument("--samples", type=ff.bounded(1, limits.MAX_SAMPLES, True), default=2000, help="Monte Carlo samples (default 2000)")
     an.add_argument("--seed", type=ff.bounded(0, limits.MAX_SEED, True), default=0)
@@ -517,7 +528,7 @@ def build_parser() -> argparse.ArgumentParser:
     am = sub.add_parser("animate", help="movie: growth while actuated beside actuation after growth (GIF or MP4)")
     am.add_argument("archive", metavar="ARCHIVE.h5")
     am.add_argument("-o", "--output", required=True, metavar="MOVIE.gif|MOVIE.mp4")
-    am.add_argument("--mode", choices=("grow", "after", "both"), default="both")
+    am.add_argument("--mode", choices=("grow", "after", "both"), default="both", help="one actuator (several: state to state)")
     am.add_argument("--run", type=ff.run_name, help="which run (default: nlp, greedy, forward, ...)")
     am.add_argument("--frames", type=ff.bounded(2, limits.MAX_FRAMES, True), default=41, metavar="N",
                     help="frames (default 41: a frame at every t analyze looks at)")
@@ -529,6 +540,7 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("archive", metavar="ARCHIVE.h5")
     ex.add_argument("-o", "--output", required=True, metavar="TUBE.stl|.obj|.ply|.glb")
     ex.add_argument("--run", type=ff.run_name, help="which run (default: nlp, greedy, forward, ...)")
+    ex.add_argument("--state", type=ff.run_name, help="several actuators: this state alone, in OUT (default: every state, OUT.<state>.ext each)")
     ex.add_argument("--force", action="store_true", help="overwrite existing files")
     ex.set_defaults(func=cmd_export)
 
@@ -570,21 +582,30 @@ def _commands(parser) -> str:
 
 
 # commands that read one actuator's routing from an archive: not yet for archives of several actuators (io.actuators)
-ONE_ACTUATOR = ("template", "view", "animate", "export", "analyze", "correct", "calibrate")
+ONE_ACTUATOR = ("correct", "calibrate")
+
+
+def several_actuators(path) -> bool:
+    """Whether ``path`` is an archive of several actuators: its kind attribute alone (the command reads and checks
+    the whole archive next)."""
+    if not (path and Path(path).suffix.lower() in (".h5", ".hdf5") and Path(path).is_file()):
+        return False
+    with open_archive(path) as h5:
+        kind = h5["problem"].attrs.get("kind") if "problem" in h5 else None
+    kind = kind.decode(errors="replace") if isinstance(kind, bytes) else kind
+    return isinstance(kind, str) and kind.startswith("actuators")
 
 
 def _one_actuator_only(args) -> None:
-    """One error line, before any work, for a command that cannot read an archive of several actuators yet."""
-    if args.command not in ONE_ACTUATOR:
-        return
-    for path in [getattr(args, "archive", None), getattr(args, "source", None), *(getattr(args, "archives", None) or [])]:
-        if path and Path(path).suffix.lower() in (".h5", ".hdf5") and Path(path).is_file():
-            with open_archive(path) as h5:  # the kind attribute alone: the command reads and checks the whole archive next
-                kind = h5["problem"].attrs.get("kind") if "problem" in h5 else None
-            kind = kind.decode(errors="replace") if isinstance(kind, bytes) else kind
-            if isinstance(kind, str) and kind.startswith("actuators"):
-                raise InputError(path, "kind", f"an archive of several actuators: `{args.command}` reads one actuator's "
-                                 "routing and does not take it yet (show, plot and forward --run do)")
+    """One error line, before any work, for a command that cannot read an archive of several actuators yet, and
+    for --state on an archive of one actuator."""
+    for path in [getattr(args, "archive", None), *(getattr(args, "archives", None) or [])] if args.command in ONE_ACTUATOR else ():
+        if several_actuators(path):
+            raise InputError(path, "kind", f"an archive of several actuators: `{args.command}` reads one actuator's routing and does "
+                             "not take it yet (show, plot, template, view, animate, export, analyze and forward --run do)")
+    path = getattr(args, "archive", None) or getattr(args, "source", None)
+    if getattr(args, "state", None) is not None and Path(path).is_file() and not several_actuators(path):
+        raise InputError(path, "--state", "an archive of one actuator has no states (--state is for archives of several actuators)")
 
 
 def main(argv=None) -> int:

@@ -53,7 +53,6 @@ def correction_figure(result, problem, units: str = "cm"):
     """Target, measured points, estimated as-built line and predicted corrected shape (equal axes: an out-of-plane
     error looks as large as it is), the problem's obstacles; deviations per segment."""
     from matplotlib.figure import Figure  # matplotlib loads when a figure is asked for
-
     fig = Figure(figsize=(12, 5.5))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     lines = [problem.target, result.as_built.shape.center, result.corrected.shape.center]
@@ -101,8 +100,8 @@ def cmd_correct(args) -> int:
         print(line)
     print(f"archive -> {out}")
     short = shortfall(result)
-    if short:
-        print(f"correct: corrected ({','.join(result.adjust)}): {short}; the best correction found is written", file=sys.stderr)
+    for k, line in enumerate(short):  # one line each, the first saying what is written
+        print(f"correct: corrected ({','.join(result.adjust)}): {line}" + ("" if k else "; the best correction found is written"), file=sys.stderr)
     if fig:
         save_figure(correction_figure(result, archived_problem(archive, args.archive, settings["built_run"]), archive.units), fig)
         print(f"figure -> {fig}")

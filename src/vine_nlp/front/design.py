@@ -64,8 +64,7 @@ class Design:
     an archive, by :func:`load`. It has the attributes of a ``Result`` (``method``, ``routing``,
     ``shape``, ``status``, ``solve_time_s``, ``iterations``, ``metrics``, ``stats``, ``phi``,
     ``converged``, ``diameter``) and the context: ``name``, ``run``, ``kind``, ``units``,
-    ``target``, ``problem``, ``source``, ``runs`` (the runs made or read together, as Designs).
-    """
+    ``target``, ``problem``, ``source``, ``runs`` (the runs made or read together, as Designs)."""
 
     #: plotly.js in the notebook view (``_repr_html_``): True embeds it (about 4.5 MB per shown
     #: design, works offline), "cdn" links it, None shows the table of key numbers only
@@ -175,7 +174,6 @@ class Design:
             Not registered with pyplot: a notebook shows it once, and no backend is changed.
         """
         from vine_nlp.front import figures, plot  # matplotlib loads when a figure is asked for
-
         if path is not None:
             try:
                 plot.figure_format(path)
@@ -209,7 +207,6 @@ class Design:
             pages, strips, paper, orientation, run, segments, tube_length, ...
         """
         from vine_nlp.front import template  # matplotlib loads when a template is asked for
-
         if paper not in template.PAPERS_MM:
             raise ArgumentError("paper", f"must be one of {', '.join(template.PAPERS_MM)}, got {paper!r}")
         out = output_path(path, overwrite)
@@ -230,14 +227,11 @@ class Design:
 
     def summary(self) -> dict:
         """The key numbers: run, method, status, segments, tube length, RMSE, max error, solve time, iterations."""
-        return {
-            "name": self.name, "run": self.run, "method": self.method, "status": self.status, "segments": self.segments,
-            "tube length": f"{float(self.length.sum()):.4g} {self.units}",
-            "diameter": f"{self.diameter:.4g} {self.units}",
-            "rmse": f"{self.rmse:.4g} {self.units}" if "rmse" in self.metrics else "-",
-            "max error": f"{self.max_error:.4g} {self.units}" if "max_error" in self.metrics else "-",
-            "solve time": f"{self.solve_time_s:.3f} s", "iterations": self.iterations,
-        }
+        return {"name": self.name, "run": self.run, "method": self.method, "status": self.status, "segments": self.segments,
+                "tube length": f"{float(self.length.sum()):.4g} {self.units}", "diameter": f"{self.diameter:.4g} {self.units}",
+                "rmse": f"{self.rmse:.4g} {self.units}" if "rmse" in self.metrics else "-",
+                "max error": f"{self.max_error:.4g} {self.units}" if "max_error" in self.metrics else "-",
+                "solve time": f"{self.solve_time_s:.3f} s", "iterations": self.iterations}
 
     def __repr__(self) -> str:
         s = self.summary()
@@ -251,7 +245,6 @@ class Design:
         if self.html_plotlyjs is None or importlib.util.find_spec("plotly") is None:
             return table
         from vine_nlp.front.view import view_html  # plotly loads when a view is shown
-
         return table + view_html(self._context.as_archive(), run=self.run, full_html=False, include_plotlyjs=self.html_plotlyjs)
 
 

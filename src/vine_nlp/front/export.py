@@ -11,6 +11,10 @@ The actuator line is a thin closed tube of its own (diameter D/10): a second
 object in OBJ, a second node in glTF, and for STL and PLY (one mesh per file) a
 second file ``<name>.actuator.<ext>`` beside the first.
 
+Several actuators on one tube: one file per state, ``<name>.<state>.<ext>`` (``--state NAME``: that state alone,
+in the file named), the tube in that state's shape and every actuator's line on it (``actuator-<name>``: an
+object, a node, or a file ``<name>.<state>.actuator-<line>.<ext>`` beside), each line in its palette colour.
+
 Units: glTF is in metres by definition, so coordinates are scaled from the
 archive's ``units`` (cm, mm, m). STL, OBJ and PLY keep the archive's units and say
 so where the format has room for it (STL header, OBJ and PLY comments).
@@ -25,20 +29,20 @@ from pathlib import Path
 
 import numpy as np
 
+from vine_nlp.errors import InputError
+from vine_nlp.front import palette
+from vine_nlp.front.files import check_output, within_limits
+from vine_nlp.front.states import picked_states, samples, state_lines
 from vine_nlp.io.archive import Archive, write_atomic
 from vine_nlp.model import shape_lines
-from vine_nlp.model.chain import segment_end_samples
-from vine_nlp.model.helix import center_rates
-from vine_nlp.model.units import MM_PER_UNIT
+from vine_nlp.model.actuators import Lines
+from vine_nlp.model.units import METRES_PER_UNIT
 from vine_nlp.problem import Routing
 
 FORMATS = (".stl", ".obj", ".ply", ".glb")
-METRES_PER_UNIT = {u: mm / 1000 for u, mm in MM_PER_UNIT.items()}
 RING = 64
-# the faces between two rings run straight: where the center line turns by a between them, the tube loses about
-# a^2 / 8 of its volume there (a tight bend sampled at D/8 only: 0.3 %); 2 deg keeps that below 0.02 %
-MAX_TURN = math.radians(2.0)
 ACTUATOR_DIAMETER = 0.1  # of D
+TUBE_RGBA = [90, 140, 200, 255]
 
 
 def mesh_format(path) -> str:
@@ -50,15 +54,22 @@ def mesh_format(path) -> str:
 
 
 def tube_lines(routing: Routing, D: float, spacing: float | None = None):
-    """Center and actuator lines at most ``spacing`` (default D/8) apart along the material and MAX_TURN apart
-    in the center line's direction: two (P, 3) arrays."""
-    spacing = D / 8 if spacing is None else float(spacing)
-    kappa_c, _, _ = center_rates(routing.theta, routing.lam, D)  # the center line's turn per unit of material
-    per = np.ceil(np.maximum(routing.length / spacing, np.abs(kappa_c) * routing.length / MAX_TURN))
-    per = np.maximum(1, per).astype(int)
-    seg, frac = segment_end_samples(routing.length, per)
+    """Center and actuator lines sampled by :func:`samples`: two (P, 3) arrays."""
+    seg, frac = samples(routing.theta, routing.lam, routing.length, D, spacing)
     center, inner, _ = shape_lines(routing.theta, routing.lam, routing.length, D, seg, frac, routing.initial_pose)
     return center, inner
+
+
+def state_meshes(lines: Lines, D: float, active, state: str = "") -> list:
+    """[(name, mesh, rgba)]: the tube in a state's shape, then every actuator's line (palette.LINES)."""
+    _, _, shape, paths = state_lines(lines, D, active, state)
+    return [("tube", tube_mesh(shape.center, D, normal=shape.inner[0] - shape.center[0]), TUBE_RGBA)] + [
+        (f"actuator-{name}", tube_mesh(p, ACTUATOR_DIAMETER * D), _rgba(palette.LINES[k % len(palette.LINES)]))
+        for k, (name, p) in enumerate(paths.items())]
+
+
+def _rgba(color: str) -> list:
+    return [int(color[i:i + 2], 16) for i in (1, 3, 5)] + [255]
 
 
 def _frames(line, normal0=None):
@@ -124,12 +135,19 @@ def run_meshes(archive: Archive, run: str):
     return tube, actuator
 
 
-def write_mesh(archive: Archive, path, run: str | None = None) -> dict:
+def beside(path, name: str) -> Path:
+    """Where an STL or PLY puts its part ``name`` (one mesh per file): ``<stem>.<name><ext>`` beside ``path``."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}.{name}{path.suffix}")
+
+
+def write_mesh(archive: Archive, path, run: str | None = None, parts: list | None = None, what: str = "") -> dict:
     """Write the tube of ``run`` (default: the archive's default run) to ``path`` (.stl, .obj, .ply, .glb).
 
-    Returns dict(run, files (written, in order), faces, watertight, volume (archive units^3), units (of the file's
-    coordinates), scale (file units per archive unit)). ValueError for an unknown extension, an unknown run, an
-    archive without runs or units glTF cannot scale.
+    ``parts``: [(name, mesh, rgba)], the tube first (default: the run's tube and actuator line); ``what`` is added
+    to the note after the run (" state NAME"). Returns dict(run, files (written, in order), faces, watertight,
+    volume (archive units^3), units (of the file's coordinates), scale (file units per archive unit)). ValueError
+    for an unknown extension, an unknown run, an archive without runs or units glTF cannot scale.
     """
     import trimesh
 
@@ -139,35 +157,32 @@ def write_mesh(archive: Archive, path, run: str | None = None) -> dict:
     units = archive.units
     if ext == ".glb" and units not in METRES_PER_UNIT:
         raise ValueError(f"glTF is in metres: cannot scale units {units!r} (use {', '.join(METRES_PER_UNIT)})")
-    tube, actuator = run_meshes(archive, run)
+    if parts is None:
+        parts = list(zip(("tube", "actuator"), run_meshes(archive, run), (TUBE_RGBA, [214, 39, 40, 255])))
+    tube = parts[0][1]
     info = {"run": run, "faces": len(tube.faces), "watertight": bool(tube.is_watertight), "volume": float(tube.volume),
             "units": units, "scale": 1.0}
-    note = f"vine_nlp tube of {archive.name} run {run}, units {units}"
-    if ext == ".glb":
-        scale = METRES_PER_UNIT[units]
-        info.update(units="m", scale=scale)
-        scene = trimesh.Scene()
-        for name, mesh, color in (("tube", tube, [90, 140, 200, 255]), ("actuator", actuator, [214, 39, 40, 255])):
-            m = mesh.copy()
-            m.apply_scale(scale)
-            m.visual.face_colors = color
-            scene.add_geometry(m, node_name=name, geom_name=name)
-        data = scene.export(file_type="glb")
-    elif ext == ".obj":
-        scene = trimesh.Scene()
-        scene.add_geometry(tube, node_name="tube", geom_name="tube")
-        scene.add_geometry(actuator, node_name="actuator", geom_name="actuator")
-        text = scene.export(file_type="obj")
-        text = text if isinstance(text, str) else text.decode()
-        data = f"# {note}\n{text}".encode()
-    else:  # STL and PLY: one mesh per file, the actuator line beside the tube
-        second = path.with_name(f"{path.stem}.actuator{path.suffix}")
-        blobs = [_with_units(tube.export(file_type=ext[1:]), ext, note),
-                 _with_units(actuator.export(file_type=ext[1:]), ext, note + ", actuator line")]
-        write_atomic(path, lambda t: Path(t).write_bytes(blobs[0]))
-        write_atomic(second, lambda t: Path(t).write_bytes(blobs[1]))
-        info["files"] = [path, second]
+    note = f"vine_nlp tube of {archive.name} run {run}{what}, units {units}"
+    if ext in (".stl", ".ply"):  # one mesh per file, the actuator lines beside the tube
+        info["files"] = [path] + [beside(path, name) for name, _, _ in parts[1:]]
+        for f, (name, mesh, _) in zip(info["files"], parts):
+            blob = _with_units(mesh.export(file_type=ext[1:]), ext, note + ("" if name == "tube" else f", {name} line"))
+            write_atomic(f, lambda t, b=blob: Path(t).write_bytes(b))
         return info
+    scale = METRES_PER_UNIT[units] if ext == ".glb" else 1.0
+    scene = trimesh.Scene()
+    for name, mesh, color in parts:
+        m = mesh.copy()
+        m.apply_scale(scale)
+        if ext == ".glb":
+            m.visual.face_colors = color
+        scene.add_geometry(m, node_name=name, geom_name=name)
+    if ext == ".glb":
+        info.update(units="m", scale=scale)
+        data = scene.export(file_type="glb")
+    else:
+        text = scene.export(file_type="obj")
+        data = f"# {note}\n{text if isinstance(text, str) else text.decode()}".encode()
     write_atomic(path, lambda t: Path(t).write_bytes(data))
     info["files"] = [path]
     return info
@@ -182,3 +197,28 @@ def _with_units(data: bytes, ext: str, note: str) -> bytes:
         fmt, sep2, rest2 = rest.partition(b"\n")
         return head + sep + fmt + sep2 + f"comment {note}\n".encode("ascii", "replace") + rest2
     return data
+
+
+def cmd_export_states(args) -> int:
+    """``export`` of an archive of several actuators: one file per state, or ``--state NAME`` alone in the file
+    named (module docstring); every output checked before any is written."""
+    out = Path(args.output)
+    try:
+        ext = mesh_format(out)
+    except ValueError as e:
+        raise InputError(out, "-o", str(e)) from None
+    a, run, r, _, states = picked_states(args.archive, args.run, args.state)
+    within_limits("export", a, args.archive, [run])
+    paths = {s: out if args.state else beside(out, s) for s in states}
+    for path in paths.values():
+        check_output(path, args.force)
+        for name in r.lines.names if ext in (".stl", ".ply") else ():
+            check_output(beside(path, f"actuator-{name}"), args.force)
+    for s, active in states.items():
+        try:
+            info = write_mesh(a, paths[s], run, parts=state_meshes(r.lines, a.diameter, active, s), what=f" state {s}")
+        except ValueError as e:
+            raise InputError(args.archive, "units", str(e)) from None
+        print(f"run {run} state {s} ({', '.join(active)}): {info['faces']} faces, {'closed' if info['watertight'] else 'NOT closed'}, "
+              f"volume {info['volume']:.4g} {a.units}^3, coordinates in {info['units']} -> {', '.join(str(f) for f in info['files'])}")
+    return 0

@@ -70,9 +70,9 @@ def archive_run(archive, path, run):
 
 def sigmas(args) -> Sigmas:
     """The construction-error sigmas of the command line's --sigma-* options."""
-    if args.sigma_length_abs is not None:
-        return Sigmas.from_degrees(args.sigma_theta_deg, args.sigma_lambda, args.sigma_length_abs, relative_length=False)
-    return Sigmas.from_degrees(args.sigma_theta_deg, args.sigma_lambda, args.sigma_length, relative_length=True)
+    relative = args.sigma_length_abs is None
+    return Sigmas.from_degrees(args.sigma_theta_deg, args.sigma_lambda, args.sigma_length if relative else args.sigma_length_abs,
+                               relative_length=relative)
 
 
 def bounded(least, most, integer=False, above=False):
@@ -80,7 +80,6 @@ def bounded(least, most, integer=False, above=False):
     anything else a usage error (one line, exit 2)."""
     import argparse
     import math
-
     def convert(text):
         try:
             value = int(text) if integer else float(text)
@@ -97,7 +96,6 @@ def bounded(least, most, integer=False, above=False):
 def run_name(text):
     """argparse type of --run: a run's name (non-empty printable text)."""
     import argparse
-
     if not text.strip() or not text.isprintable() or len(text) > limits.MAX_NAME_CHARS:
         raise argparse.ArgumentTypeError(f"must be the name of a run (printable, 1 to {limits.MAX_NAME_CHARS} characters), got {text!r}")
     return text

@@ -4,8 +4,7 @@
   (equal axes) and the position error against length along the model line
   (paper Figs. 5, 7(d)-(e), 9(c)).
 * :func:`plot_frames`: lambda over the frames of an actuated sequence and the error
-  against length of a few frames (paper Figs. 9(d) and 11(c)-(d)).
-"""
+  against length of a few frames (paper Figs. 9(d) and 11(c)-(d))."""
 
 from __future__ import annotations
 
@@ -48,12 +47,10 @@ def plot_fit(source, path=None, extras=None, title=None):
 
     ``source``: an archive written by ``vine-nlp fit`` (an :class:`Archive` or its
     path), a ``(Result, extras)`` pair from :func:`vine_nlp.methods.fit.fit_problem`, or a
-    Result with ``extras`` given separately. Returns the Figure, also written to ``path`` (png or pdf) if given.
-    """
+    Result with ``extras`` given separately. Returns the Figure, also written to ``path`` (png or pdf) if given."""
     result, ex, units, name = _fit_inputs(source, extras)
     pts = ex["measured/points"].reshape(-1, 3)
-    err = ex.get("measured/error")
-    s = ex.get("measured/s")
+    err, s = ex.get("measured/error"), ex.get("measured/s")
     closest = ex.get("measured/closest")
     code = ex.get("measured/line", np.full(pts.shape[0], -1)).astype(int)
     measured_lines = sorted(set(code.tolist()))
@@ -105,13 +102,10 @@ def plot_fit(source, path=None, extras=None, title=None):
 def plot_frames(results, path, units: str = "cm", show: int = 5, title=None, frame_times=None):
     """Lambda over the frames of a sequence and the error against length of a few frames.
 
-    ``results``: the list from :func:`vine_nlp.methods.fit.fit_frames` (frames that could
-    not be fitted are gaps); ``show``: how many frames (evenly spread, labelled with
-    their lambda) get an error-against-length curve; ``frame_times``: optional x
-    values instead of the frame index.
-    """
-    lam = np.array([r[0] for r in results], float)
-    rmse = np.array([r[1] for r in results], float)
+    ``results``: the list from :func:`vine_nlp.methods.fit.fit_frames` (frames that could not be fitted are gaps);
+    ``show``: how many frames (evenly spread, labelled with their lambda) get an error-against-length curve;
+    ``frame_times``: optional x values instead of the frame index."""
+    lam, rmse = np.array([r[0] for r in results], float), np.array([r[1] for r in results], float)
     x = np.arange(lam.size) if frame_times is None else np.asarray(frame_times, float)
     fig = Figure(figsize=(11, 4.2))
     a1, a2 = fig.subplots(1, 2)

@@ -50,7 +50,6 @@ def load_figure(rep: dict, path=None, units: str = "", title: str = ""):
     """Bending moment (final shape; the largest over growth) and capacity along the tube, N m; with
     ``rep["growth_curve"]`` a second panel: the weakest section's moment as the tube grows."""
     from matplotlib.figure import Figure
-
     curve = rep.get("growth_curve")
     with matplotlib.rc_context(STYLE):
         fig = Figure(figsize=(COLUMN_IN, 4.2 if curve else 2.4), layout="constrained")

@@ -7,8 +7,7 @@
 (b) the shared routing theta(s) [deg] against length along the unactuated tube;
 (c) each level's error to its target against that length.
 
-Sized like ``vine_nlp.front.plot`` (7.16 in wide, 7-8 pt fonts); png, pdf or svg by suffix.
-"""
+Sized like ``vine_nlp.front.plot`` (7.16 in wide, 7-8 pt fonts); png, pdf or svg by suffix."""
 
 from __future__ import annotations
 
@@ -49,11 +48,9 @@ def plot_multishape_figure(source) -> Figure:
 
 
 def multishape_figure(a, r, targets) -> Figure:
-    """Draw a multi-shape result: ``a`` the archive (name, units, diameter), ``r`` the
-    MultiShapeResult (shared routing, K levels, shapes and per-level metrics), ``targets``
-    the K target point arrays (N, 3). Reads nothing."""
-    u = a.units
-    K = r.count
+    """Draw a multi-shape result: ``a`` the archive (name, units, diameter), ``r`` the MultiShapeResult (shared routing,
+    K levels, shapes and per-level metrics), ``targets`` the K target point arrays (N, 3). Reads nothing."""
+    u, K = a.units, r.count
     colors = [palette.RUNS[k % len(palette.RUNS)] for k in range(K)]
     with matplotlib.rc_context(STYLE):
         fig = Figure(figsize=(PAGE_IN, 3.6), layout="constrained")

@@ -14,8 +14,7 @@ One figure per archive, laid out like the paper's Figs. 9 and 11:
     each run's RMSE.
 
 Sized for a two-column paper (7.16 in wide; a single run fits one 3.5 in column),
-fonts 7-8 pt, equal axis scaling in 3-D, units on every axis.
-"""
+fonts 7-8 pt, equal axis scaling in 3-D, units on every axis."""
 
 from __future__ import annotations
 
@@ -44,11 +43,9 @@ from vine_nlp.model.pairing import pair_points
 ERROR_CMAP = palette.ERROR_CMAP
 RUN_COLORS = palette.RUNS
 RUN_STYLES = ("-", "--", ":", "-.")
-STYLE = {
-    "font.size": 8, "axes.titlesize": 8, "axes.labelsize": 8, "xtick.labelsize": 7, "ytick.labelsize": 7,
-    "legend.fontsize": 7, "figure.titlesize": 9, "axes.linewidth": 0.6, "lines.linewidth": 1.0,
-    "xtick.major.width": 0.6, "ytick.major.width": 0.6,
-}
+STYLE = {"font.size": 8, "axes.titlesize": 8, "axes.labelsize": 8, "xtick.labelsize": 7, "ytick.labelsize": 7,
+         "legend.fontsize": 7, "figure.titlesize": 9, "axes.linewidth": 0.6, "lines.linewidth": 1.0,
+         "xtick.major.width": 0.6, "ytick.major.width": 0.6}
 COLUMN_IN, PAGE_IN = 3.5, 7.16  # IEEE column and text widths
 
 
@@ -73,14 +70,11 @@ def error_along(archive: Archive, result) -> np.ndarray:
 def point_s(archive: Archive, result) -> np.ndarray:
     """Length along the unactuated tube of each archived shape point.
 
-    Design runs pair target point k with fraction frac_k of segment seg_k
-    (model.pairing.pair_points); the pairing is rebuilt from the archived
-    ``points_per_segment`` (or the n consistent with M and N) and accepted only
-    if the model reproduces the archived center line there. Otherwise s is
-    estimated from the target's chord length (proportional to the tube length).
-    """
-    r = result.routing
-    center = result.shape.center
+    Design runs pair target point k with fraction frac_k of segment seg_k (model.pairing.pair_points); the pairing is
+    rebuilt from the archived ``points_per_segment`` (or the n consistent with M and N) and accepted only if the model
+    reproduces the archived center line there. Otherwise s is estimated from the target's chord length (proportional to
+    the tube length)."""
+    r, center = result.routing, result.shape.center
     N, M = center.shape[0], r.segments
     S = segment_edges(r)
     candidates = []
@@ -130,9 +124,8 @@ def set_equal_3d(ax, points, zoom: float = 1.0):
     pts = np.concatenate([np.asarray(p, float).reshape(-1, 3) for p in points if np.size(p)])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     mid, half = 0.5 * (lo + hi), 0.5 * max(float((hi - lo).max()), 1e-9)
-    ax.set_xlim(mid[0] - half, mid[0] + half)
-    ax.set_ylim(mid[1] - half, mid[1] + half)
-    ax.set_zlim(mid[2] - half, mid[2] + half)
+    for set_lim, m in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), mid):
+        set_lim(m - half, m + half)
     ax.set_box_aspect((1, 1, 1), zoom=zoom)
 
 
@@ -157,7 +150,6 @@ def _halfspace_polytope(A, b):
     """Vertices and hull triangles of {x: A x <= b} (bounded), or None when it is empty or flat."""
     from scipy.optimize import linprog
     from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
-
     norms = np.linalg.norm(A, axis=1)
     # Chebyshev center: an interior point for qhull, and the test for emptiness
     res = linprog(np.r_[np.zeros(3), -1.0], A_ub=np.column_stack([A, norms]), b_ub=b, bounds=[(None, None)] * 3 + [(0, None)])
@@ -176,10 +168,8 @@ def draw_obstacles(ax, obstacles, view=None, color=palette.OBSTACLE, alpha: floa
 
     Spheres, capsules and meshes are drawn whole; boxes and planes (the solid half-space
     behind the plane) are cut to ``view`` = (lo, hi) corners (default: the axis limits), so a
-    large wall or floor does not swamp the tube. Returns the points drawn (for extents).
-    """
+    large wall or floor does not swamp the tube. Returns the points drawn (for extents)."""
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-
     if view is None:
         view = (np.array([ax.get_xlim()[0], ax.get_ylim()[0], ax.get_zlim()[0]]),
                 np.array([ax.get_xlim()[1], ax.get_ylim()[1], ax.get_zlim()[1]]))
@@ -198,10 +188,7 @@ def draw_obstacles(ax, obstacles, view=None, color=palette.OBSTACLE, alpha: floa
             drawn.append(np.column_stack([X.ravel(), Y.ravel(), Z.ravel()]))
         elif isinstance(ob, Capsule):
             a, b, r = np.array(ob.p0), np.array(ob.p1), ob.radius
-            axis = (b - a) / np.linalg.norm(b - a)
-            e1 = np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0])
-            e1 /= np.linalg.norm(e1)
-            e2 = np.cross(axis, e1)
+            axis, e1, e2 = ob.rounded_box()[1].T  # the capsule's frame: its axis first
             # one surface: hemisphere at p0, cylinder, hemisphere at p1 (polar angle 0..pi)
             w = np.linspace(0, 2 * np.pi, 25)
             pol = np.r_[np.linspace(0, 0.5 * np.pi, 7), np.linspace(0.5 * np.pi, np.pi, 7)]
@@ -235,8 +222,7 @@ def draw_obstacles(ax, obstacles, view=None, color=palette.OBSTACLE, alpha: floa
 def plot_shape_3d(ax, archive: Archive, name: str, norm=None, cmap=ERROR_CMAP, legend: bool = True, zoom: float = 1.0,
                   obstacles=None):
     """One run in 3-D: target, tube wall at true diameter, actuator/opposite lines, error-colored center line."""
-    u = archive.units
-    D = archive.diameter
+    u, D = archive.units, archive.diameter
     r = archive.runs[name]
     everything = [r.shape.inner, r.shape.outer]
     handles = []
@@ -319,8 +305,7 @@ def plot_parameters(axes, archive: Archive, names, colors, styles=None, legend: 
         thetas.append(np.degrees(r.routing.theta))
         lams.append(r.routing.lam)
     act = source_table(archive, "actuator")
-    th_max = act.get("theta_max_deg")
-    lam_min = act.get("lambda_min")
+    th_max, lam_min = act.get("theta_max_deg"), act.get("lambda_min")
     ax_t.axhline(0.0, color="0.6", lw=0.4)
     if thetas:
         _bound_lines(ax_t, np.concatenate(thetas), [s * float(th_max) for s in (-1, 1)] if _number(th_max) else [])
@@ -365,13 +350,10 @@ def plot_error(ax, archive: Archive, names, colors, styles=None):
 def plot_archive(archive, obstacles=None) -> Figure:
     """The figure of an archive (an Archive or a path to one).
 
-    Layouts: one run without target (forward): a 3.5 in column, 3-D view over the
-    theta, lambda, phi panels. One design run: 7.16 in, 3-D view and error in the
-    first row, theta, lambda, phi in the second. Several runs (``compare``): one
-    3-D view per run (at most three) over error, theta, lambda, phi in a 2 x 2 grid.
-    ``obstacles`` (``vine_nlp.io.obstacles.read_obstacles`` of the archive's /obstacles) are
-    drawn in every 3-D view.
-    """
+    Layouts: one run without target (forward): a 3.5 in column, 3-D view over the theta, lambda, phi panels. One design
+    run: 7.16 in, 3-D view and error in the first row, theta, lambda, phi in the second. Several runs (``compare``): one
+    3-D view per run (at most three) over error, theta, lambda, phi in a 2 x 2 grid. ``obstacles``
+    (``vine_nlp.io.obstacles.read_obstacles`` of the archive's /obstacles) are drawn in every 3-D view."""
     if not isinstance(archive, Archive):
         archive = load_archive(archive)
     names = ordered_runs(archive)
@@ -420,8 +402,7 @@ def plot_archive(archive, obstacles=None) -> Figure:
         if norm is not None:
             cb = fig.colorbar(ScalarMappable(norm=norm, cmap=ERROR_CMAP), ax=axes3d, shrink=0.7, pad=0.1 if k == 1 else 0.06, aspect=25)
             cb.set_label(f"center-line error to target [{archive.units}]")
-        first = ax_e if ax_e is not None else None
-        ax_t = fig.add_subplot(cells[0], sharex=first)
+        ax_t = fig.add_subplot(cells[0], sharex=ax_e)
         ax_l = fig.add_subplot(cells[1], sharex=ax_t)
         ax_p = fig.add_subplot(cells[2], sharex=ax_t)
         panels = [ax_t, ax_l, ax_p]

@@ -3,8 +3,10 @@ targets), the comparison table, and the shortfall of every run that is not ok.""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
+from vine_nlp.methods.buildable import missed
 from vine_nlp.methods.fit import describe_fit
 from vine_nlp.pipeline import Outcome
 
@@ -77,15 +79,33 @@ def outcome_lines(outcome: Outcome) -> list[str]:
     return [line for name, r in outcome.runs.items() for line in run_lines(name, r, pf.problem, pf.units)]
 
 
-def comparison_table(runs: dict, units: str) -> str:
-    """``vine-nlp compare``'s table: status, errors, time, iterations (greedy: window solves), total variations."""
-    head = (f"{'run':<16}{'status':<12}{'RMSE [' + units + ']':>14}{'max [' + units + ']':>14}{'time [s]':>10}{'iter/solves':>13}"
-            f"{'TV theta':>10}{'TV lambda':>11}")
-    lines = [head, "-" * len(head)]
+def rules_missed(problem, r) -> list[str]:
+    """The buildable rules run ``r`` misses, one line each, judged as every buildable design is (methods.buildable.missed),
+    whatever its method: the free runs of a comparison too."""
+    return missed(problem, dataclasses.replace(r, method="nlp"))
+
+
+# the runs of a comparison compared with each other: (label, nlp's run, greedy's run)
+PAIRS = (("buildable", "nlp", "greedy_buildable"), ("free", "nlp_free", "greedy"))
+
+
+def comparison_table(runs: dict, units: str, problem=None) -> str:
+    """``vine-nlp compare``'s table: status, errors, time, iterations (greedy: window solves), total variations, and
+    (given the ``problem``) whether each run is buildable; then the rules each run misses, one line each, and the nlp
+    against the greedy, buildable against buildable and free against free."""
+    head = (f"{'run':<18}{'status':<12}{'RMSE [' + units + ']':>14}{'max [' + units + ']':>14}{'time [s]':>10}{'iter/solves':>13}"
+            f"{'TV theta':>10}{'TV lambda':>11}" + ("  buildable" if problem is not None else ""))
+    lines, misses = [head, "-" * len(head)], []
     for name, r in runs.items():
-        m = r.metrics
-        lines.append(f"{name:<16}{r.status:<12}{m['rmse']:>14.5g}{m['max_error']:>14.5g}{r.solve_time_s:>10.3f}"
-                     f"{r.stats.get('window_solves', r.iterations):>13}{m['tv_theta']:>10.4g}{m['tv_lambda']:>11.4g}")
-    if "nlp" in runs and "greedy" in runs and runs["nlp"].solve_time_s > 0:
-        lines.append(f"nlp is {runs['greedy'].solve_time_s / runs['nlp'].solve_time_s:.1f}x faster than greedy")
+        m, rules = r.metrics, [] if problem is None else rules_missed(problem, r)
+        misses += [f"{name} misses: {line}" for line in rules]
+        lines.append(f"{name:<18}{r.status:<12}{m['rmse']:>14.5g}{m['max_error']:>14.5g}{r.solve_time_s:>10.3f}"
+                     f"{r.stats.get('window_solves', r.iterations):>13}{m['tv_theta']:>10.4g}{m['tv_lambda']:>11.4g}"
+                     + ("" if problem is None else f"  {'no' if rules else 'yes'}"))
+    lines += misses
+    for label, a, b in PAIRS:
+        if a in runs and b in runs and runs[a].solve_time_s > 0:
+            ra, rb = runs[a], runs[b]
+            lines.append(f"{label}: {a} is {rb.solve_time_s / ra.solve_time_s:.1f}x faster than {b}, RMSE {ra.metrics['rmse']:.4g} "
+                         f"against {rb.metrics['rmse']:.4g} {units}")
     return "\n".join(lines)

@@ -103,7 +103,6 @@ def _levels(path) -> list[str]:
     """One line per level of a multi-shape archive: its lambda, fixed or designed, its RMSE, and whether an sPAM
     can hold it with room to correct (inside [max(lambda_min, 2/pi) + margin, 1 - margin])."""
     from vine_nlp.io.formulations import read_multishape_archive
-
     a, r, _ = read_multishape_archive(path)
     b = build_settings(a)
     lo, hi = max(b["lambda_min"], POUCH_LAMBDA_MIN) + b["margin"], 1.0 - b["margin"]
@@ -119,7 +118,6 @@ def _actuator_lines(path, run: str, a: Archive) -> list[str]:
     """Several actuators on one tube (io.actuators): per actuator its angles, pieces, stoppers and turning (the
     line alone, as one actuator's routing); per state its active actuators and RMSE."""
     from vine_nlp.io.actuators import read_actuators_archive
-
     _, r, _ = read_actuators_archive(path, run)
     ls, out = r.lines, []
     for k, name in enumerate(ls.names):
@@ -128,7 +126,7 @@ def _actuator_lines(path, run: str, a: Archive) -> list[str]:
         out += _build_lines(a, ls.routing(k))
     for s, active in r.stats["states"].items():
         m = r.state_metrics.get(s)
-        out.append(f"  state {s} ({', '.join(active)})" + (f": RMSE {_num(m['rmse'])} {a.units}, max error {_num(m['max_error'])} {a.units}" if m else ""))
+        out.append(f"  state {s} ({', '.join(active)})" + (f": RMSE {_num(m['rmse'])} {a.units}, max error {_num(m['max_error'])} {a.units}" if "rmse" in (m or {}) else ""))
     return out
 
 

@@ -22,6 +22,11 @@ mm). A tube longer than a page is cut into strips, several per page when the
 band is narrow; neighbouring strips share 1 cm (the shaded end of a strip, with
 alignment crosses at both ends of the shared part), and a wide band is cut the
 same way around the circumference. Every page carries a 10 cm scale bar.
+
+Several actuators on one tube (:func:`write_actuators_template`): every line on the one band, each from where it
+starts around the tube (phi_k[0], marked at the base), its stoppers, pouches and the parts where it has no
+actuator in its own colour (palette.LINES), gaps red as for one actuator; in SVG and DXF each line has its own
+layers (``actuator_path-<name>``, ``stoppers-<name>``, ``removed-<name>``); the CSV has a row per line and segment.
 """
 
 from __future__ import annotations
@@ -43,9 +48,11 @@ from matplotlib.ticker import MultipleLocator
 from vine_nlp.analysis.buildability import buildability, gap_fractions
 from vine_nlp.front import palette
 from vine_nlp.front.show import build_settings, source_table
+from vine_nlp.front.states import line_kinds, picked_states
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
 from vine_nlp.model.chain import phi_from_theta
 from vine_nlp.model.units import MM_PER_UNIT
+from vine_nlp.problem import Routing
 
 PAPERS_MM = {"A4": (210.0, 297.0), "Letter": (215.9, 279.4)}
 CM_PER_UNIT = {u: MM_PER_UNIT[u] / 10 for u in ("cm", "mm")}  # the units a template takes
@@ -112,18 +119,19 @@ def _paper(paper: str) -> tuple[str, tuple[float, float]]:
     raise ValueError(f"paper must be one of {', '.join(PAPERS_MM)}, not {paper!r}")
 
 
-def cut_table(archive: Archive, run: str, kind: str | None = None) -> dict:
+def cut_table(archive: Archive, run: str, kind: str | None = None, routing=None, phi0: float = 0.0, settings=None) -> dict:
     """Per-segment fabrication numbers (the CUTS.csv columns) as arrays, in the problem's units; NaN where a
-    column does not apply. ``kind``: the actuator kind (default: the archived problem's)."""
-    r = archive.runs[run].routing
+    column does not apply. ``kind``: the actuator kind (default: the archived problem's); ``routing``, ``phi0``
+    and ``settings``: one line of several (default: the run's routing, from phi = 0, build_settings)."""
+    r = archive.runs[run].routing if routing is None else routing
     D = archive.diameter
     S = np.concatenate([[0.0], np.cumsum(r.length)])
-    phi = phi_from_theta(r.theta, r.length, D)
+    phi = phi0 + phi_from_theta(r.theta, r.length, D)
     C = math.pi * D
     c = 0.5 * D * phi
     actuator = r.length / np.cos(r.theta)
     act = r.lam != 1.0
-    settings = build_settings(archive) | ({"kind": kind} if kind else {})
+    settings = (build_settings(archive) if settings is None else settings) | ({"kind": kind} if kind else {})
     frac = gap_fractions(r.lam, actuator, settings["min_feature"])
     rep = buildability(r, D, **settings)
     extra = {k: np.full(r.segments, np.nan) for k in CSV_COLUMNS[-7:]}
@@ -153,12 +161,16 @@ def wrap(c, circumference: float) -> np.ndarray:
     return np.where(w >= circumference, 0.0, w)
 
 
-def cuts_csv(table: dict) -> str:
+def cuts_csv(*tables) -> str:
+    """The CUTS.csv of one line's table, or of several lines' (a first column ``actuator``, a row per line and segment)."""
     out = io.StringIO()
     w = csv.writer(out, lineterminator="\n")
-    w.writerow(CSV_COLUMNS)
-    for i in range(len(table["segment"])):
-        w.writerow([int(table["segment"][i])] + [f"{float(table[k][i]):.10g}" if np.isfinite(table[k][i]) else "" for k in CSV_COLUMNS[1:]])
+    several = "name" in tables[0]
+    w.writerow(("actuator",) * several + CSV_COLUMNS)
+    for table in tables:
+        for i in range(len(table["segment"])):
+            w.writerow(([table["name"]] if several else []) + [int(table["segment"][i])]
+                       + [f"{float(table[k][i]):.10g}" if np.isfinite(table[k][i]) else "" for k in CSV_COLUMNS[1:]])
     return out.getvalue()
 
 
@@ -263,50 +275,67 @@ def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str 
     with a stopper/gap split), "gaps" (segments with a gap drawn), "unactuated" (segments without an actuator),
     "refused" (analysis.buildability's reasons), "tube_length", "format", "changes" (segments marked)}.
     """
-    fmt = template_format(pdf_path)
     a = archive_path_or_archive if isinstance(archive_path_or_archive, Archive) else load_archive(archive_path_or_archive)
-    if a.units not in CM_PER_UNIT:
-        raise ValueError(f"a 1:1 template needs lengths in cm or mm, not {a.units!r}")
     name = a.pick_run(run)
     kind = source_table(a, "actuator").get("kind")
     spam = kind == "spam" if spam is None else bool(spam)
     table = cut_table(a, name, "spam" if spam else (None if kind in ("tendon", "programmed") else "tendon"))
-    table["changes"] = {int(r["segment"]): r for r in (changes or [])}
+    table |= {"changes": {int(r["segment"]): r for r in (changes or [])}, "spam": spam, "style": STYLE}
+    info = _write(a, name, [table], pdf_path, csv_path, paper, orientation)
+    return info | {"spam": spam, **split_counts(table, spam), "changes": len(table["changes"]), "unactuated": _none_count(table),
+                   "refused": table["refused"]}
+
+
+def write_actuators_template(path, out, csv_path=None, paper: str = "A4", run: str | None = None) -> dict:
+    """:func:`write_template` of an archive of several actuators (module docstring): every line, from its phi_k[0],
+    by its own [[actuators]] kind and lambda_min. Returns write_template's keys but spam, changes and the counts,
+    and "actuators" ({name: dict(spam, stoppers, gaps, unactuated, refused)})."""
+    a, name, r, _, _ = picked_states(path, run)
+    base, ls, tables = build_settings(a), r.lines, []
+    for k, (line, (kind, lmin)) in enumerate(zip(ls.names, line_kinds(a, ls.count))):
+        routing = Routing(theta=ls.theta[k], lam=ls.lam[k], length=ls.length)
+        tables.append(cut_table(a, name, routing=routing, phi0=float(ls.phi0[k]), settings=base | {"kind": kind, "lambda_min": lmin})
+                      | {"name": line, "spam": kind == "spam", "style": line_style(k, line), "changes": {}})
+    info = _write(a, name, tables, out, csv_path, paper, "auto")
+    return info | {"actuators": {t["name"]: {"spam": t["spam"], **split_counts(t, t["spam"]), "unactuated": _none_count(t),
+                                             "refused": t["refused"]} for t in tables}}
+
+
+def _write(a: Archive, name: str, tables: list, path, csv_path, paper: str, orientation: str) -> dict:
+    """Lay out and write the template of ``tables`` (one per line, the first's ends and segments drawn for all)."""
+    fmt = template_format(path)
+    if a.units not in CM_PER_UNIT:
+        raise ValueError(f"a 1:1 template needs lengths in cm or mm, not {a.units!r}")
+    table = tables[0]
     k = CM_PER_UNIT[a.units]
-    D = a.diameter
-    C = math.pi * D
     L = float(table["s_end"][-1]) if len(table["s_end"]) else 0.0
-    lay = layout(L * k, C * k, paper, orientation, unit_per_cm=1.0 / k)
+    lay = layout(L * k, math.pi * a.diameter * k, paper, orientation, unit_per_cm=1.0 / k)
     pages, size = lay.pages, (lay.width_mm, lay.height_mm)
 
     def write_cuts():
         if csv_path is not None:
-            write_atomic(csv_path, lambda t: Path(t).write_text(cuts_csv(table)))
+            write_atomic(csv_path, lambda t: Path(t).write_text(cuts_csv(*tables)))
 
     if fmt == ".pdf":
         def write_pdf(tmp):
             with PdfPages(tmp, metadata={"Title": f"{a.name} fabrication template ({name})", "Creator": "vine_nlp"}) as pdf:
                 for page in range(lay.pages):
-                    pdf.savefig(_page(a, name, table, lay, page, spam))  # no bbox_inches: the page stays exactly the paper size
+                    pdf.savefig(_page(a, name, tables, lay, page))  # no bbox_inches: the page stays exactly the paper size
             write_cuts()
 
-        write_atomic(pdf_path, write_pdf)
+        write_atomic(path, write_pdf)
     else:
-        sheet = template_sheet(a, name, table, lay, spam)
+        sheet = template_sheet(a, name, tables, lay)
         data = sheet_svg(sheet) if fmt == ".svg" else sheet_dxf(sheet)
 
         def write_sheet(tmp):
             Path(tmp).write_bytes(data)
             write_cuts()
 
-        write_atomic(pdf_path, write_sheet)
+        write_atomic(path, write_sheet)
         pages, size = 1, (sheet.width_mm, sheet.height_mm)
-    return {
-        "pages": pages, "strips": len(lay.tiles), "paper": lay.paper, "paper_mm": size, "orientation": lay.orientation,
-        "run": name, "spam": spam, "segments": int(len(table["segment"])), **split_counts(table, spam),
-        "tube_length": L, "format": fmt[1:], "changes": len(table["changes"]),
-        "unactuated": _none_count(table), "refused": table["refused"],
-    }
+    return {"pages": pages, "strips": len(lay.tiles), "paper": lay.paper, "paper_mm": size, "orientation": lay.orientation,
+            "run": name, "segments": int(len(table["segment"])), "tube_length": L, "format": fmt[1:]}
 
 
 # ------------------------------------------------------------------ drawing
@@ -323,24 +352,28 @@ def _segment_parts(table, j, spam):
     return [p for p in parts if p[1] - p[0] > 1e-9]
 
 
-def _page(a: Archive, run: str, table: dict, lay: Layout, page: int, spam: bool):
+def _title(a: Archive, run: str, tables: list) -> tuple:
+    """The title's first line and the rest of what it says of the tube (PDF and sheets alike)."""
+    table, D, u = tables[0], a.diameter, a.units
+    what = (f"{len(tables)} actuators ({', '.join(t['name'] for t in tables)}), each from the base mark of its colour"
+            if "name" in table else f"{_none_count(table)} without an actuator")
+    refused = [f"refused: {t['name'] + ': ' if 'name' in t else ''}{reason}" for t in tables for reason in t["refused"]]
+    return (f"{a.name}: fabrication template of run {run} ({a.runs[run].method}), D = {D:.4g} {u}",
+            f"tube length {float(table['s_end'][-1]):.4g} {u}, {len(table['segment'])} segments ({what}), "
+            f"circumference \u03c0D = {math.pi * D:.4g} {u}", refused[:1])  # the title has room for one refusal
+
+
+def _page(a: Archive, run: str, tables: list, lay: Layout, page: int):
     """One page of the template: a figure exactly the paper's size."""
     W, H = lay.width_mm, lay.height_mm
     k = CM_PER_UNIT[a.units]
     u = a.units
-    D = a.diameter
-    C = math.pi * D
     fig = Figure(figsize=(W / 25.4, H / 25.4))
     fx, fy = (lambda mm: mm / W), (lambda mm: mm / H)
-    r = a.runs[run]
-    lines = [
-        f"{a.name}: fabrication template of run {run} ({r.method}), D = {D:.4g} {u}",
-        f"tube length {float(table['s_end'][-1]):.4g} {u}, {len(table['segment'])} segments ({_none_count(table)} without an actuator), "
-        f"circumference \u03c0D = {C:.4g} {u}. Print at 100 % (actual size, no fit to page): 1 cm on paper = 1 cm of tube.",
-        "s: length along the unactuated tube. c = (D/2) \u03c6: position around the tube, wrapped at \u03c0D "
-        "(both band edges are the same line on the tube).",
-    ]
-    lines += [f"refused: {reason}" for reason in table["refused"][:1]]  # the title has room for one
+    head, tube, refused = _title(a, run, tables)
+    lines = [head, tube + ". Print at 100 % (actual size, no fit to page): 1 cm on paper = 1 cm of tube.",
+             "s: length along the unactuated tube. c = (D/2) \u03c6: position around the tube, wrapped at \u03c0D "
+             "(both band edges are the same line on the tube).", *refused]
     fig.text(fx(MARGIN), fy(H - MARGIN), lines[0], fontsize=8, va="top", ha="left", weight="bold")
     for i, line in enumerate(lines[1:]):
         fig.text(fx(MARGIN), fy(H - MARGIN - 4.2 - 3.3 * i), line, fontsize=FONT, va="top", ha="left")
@@ -357,10 +390,10 @@ def _page(a: Archive, run: str, table: dict, lay: Layout, page: int, spam: bool)
         mark = MARK_H / (10.0 * k)  # the mark room in problem units
         ax.set_xlim(tile.s0, tile.s_end)
         ax.set_ylim(tile.c0 - mark, tile.c_end + mark)
-        _strip(ax, a, table, tile, spam, lay)
+        _strip(ax, a, tables, tile)
         fig.text(fx(MARGIN + LEFT_LABELS), fy(top - 0.5), tile.label + f" {u}", fontsize=FONT, va="top", ha="left")
         top = y_top - ax_h - TICKS_H - STRIP_GAP
-    _footer(fig, W, H, spam, table)
+    _footer(fig, W, H, tables)
     return fig
 
 
@@ -380,6 +413,7 @@ class StripGeometry:
     labels: list  # (s, c, text): segment indices
     mark_c: tuple  # c of the mark rows below and above the band (base/tip words)
     changes: list = field(default_factory=list)  # (frame lines, (s, c, text) or None): segments that change (--changes)
+    starts: list = field(default_factory=list)  # (s, c, text): where a line of several starts around the tube
 
 
 def _clip(p, q, box):
@@ -455,8 +489,11 @@ def strip_geometry(table: dict, tile: Tile, D: float, units: str, spam: bool) ->
         if row is not None:
             changes.append(_change_mark(row, sa, sb, ca, cb, C, box, k, tile.s0 <= 0.5 * (sa + sb) < max(tile.s1, tile.s0 + 1e-12)
                                         or (0.5 * (sa + sb) >= tile.s1 and tile.s_end >= L - 1e-9)))
+    c = float(table["c_start"][0])
+    starts = [(0.0, c, f"{table['name']}: \u03c6 = {math.degrees(table['phi_start_rad'][0]):.4g}\u00b0")] \
+        if "name" in table and tile.s0 <= 0.0 and tile.c0 <= c <= band_top else []
     return StripGeometry(box, shared, references, crosses, ends, paths, ticks, labels,
-                         (tile.c0 - outside, band_top + outside), changes)
+                         (tile.c0 - outside, band_top + outside), changes, starts)
 
 
 def change_text(row) -> str:
@@ -490,17 +527,27 @@ def _change_mark(row, sa, sb, ca, cb, C, box, k, with_text=True):
     return lines, ((s_mid, min(max(c_text, box[1]), box[3]), text) if with_text else None)
 
 
-PATH_COLORS = {"stopper": STOPPER_COLOR, "gap": GAP_COLOR, "muscle": SPAM_COLOR, "none": GAP_COLOR}
-PATH_WIDTHS_PT = {"stopper": 1.6, "gap": 2.4, "muscle": 1.6, "none": 0.8}
-NONE_DASH = (0, (3, 2))  # no actuator: red dashed
+NONE_DASH = (0, (3, 2))  # no actuator: dashed
 NONE_LEGEND = "removed: no actuator (\u03bb = 1): no stopper, pouch or pinch"
+# each part of a line's path: (colour, width pt, dashed, sheet layer: None for the path's layer alone); "path": that layer
+STYLE = {"stopper": (STOPPER_COLOR, 1.6, False, "stoppers"), "gap": (GAP_COLOR, 2.4, False, "removed"),
+         "muscle": (SPAM_COLOR, 1.6, False, None), "none": (GAP_COLOR, 0.8, True, "removed"), "path": "actuator_path"}
 
 
-def _strip(ax, a: Archive, table: dict, tile: Tile, spam: bool, lay: Layout):
+def line_style(k: int, name: str) -> dict:
+    """STYLE of line k of several: its stoppers, muscle and parts without an actuator in palette.LINES[k], its
+    gaps red; its own sheet layers."""
+    c = palette.LINES[k % len(palette.LINES)]
+    return {"stopper": (c, 1.6, False, f"stoppers-{name}"), "gap": (GAP_COLOR, 2.4, False, f"removed-{name}"),
+            "muscle": (c, 1.6, False, None), "none": (c, 0.8, True, f"removed-{name}"), "path": f"actuator_path-{name}"}
+
+
+def _strip(ax, a: Archive, tables: list, tile: Tile):
     k = CM_PER_UNIT[a.units]
     C = math.pi * a.diameter
     cm = 1.0 / k  # one centimetre in problem units
-    g = strip_geometry(table, tile, a.diameter, a.units, spam)
+    geoms = [strip_geometry(t, tile, a.diameter, a.units, t["spam"]) for t in tables]
+    g = geoms[0]
     for side in ("top", "right", "left"):
         ax.spines[side].set_visible(False)
     ax.spines["bottom"].set_linewidth(0.5)
@@ -525,12 +572,17 @@ def _strip(ax, a: Archive, table: dict, tile: Tile, spam: bool, lay: Layout):
         ax.axvline(s, color="k", lw=0.8)
         ax.text(s, g.mark_c[1], "  base" if word == "base" else "tip  ", fontsize=FONT,
                 ha="left" if word == "base" else "right", va="center")
-    for kind, lines in g.paths.items():
-        if lines:
-            ax.add_collection(LineCollection(lines, colors=PATH_COLORS[kind], linewidths=PATH_WIDTHS_PT[kind],
-                                             linestyles=NONE_DASH if kind == "none" else "solid", capstyle="butt", zorder=3))
-    if g.ticks:
-        ax.add_collection(LineCollection(g.ticks, colors="k", linewidths=0.5, zorder=4))
+    for t, gk in zip(tables, geoms):
+        for kind, lines in gk.paths.items():
+            color, width, dashed, _ = t["style"][kind]
+            if lines:
+                ax.add_collection(LineCollection(lines, colors=color, linewidths=width, linestyles=NONE_DASH if dashed else "solid",
+                                                 capstyle="butt", zorder=3))
+        if gk.ticks:
+            ax.add_collection(LineCollection(gk.ticks, colors="k", linewidths=0.5, zorder=4))
+        for s, c, text in gk.starts:
+            ax.plot([s], [c], marker=">", ms=5, color=t["style"]["stopper"][0], clip_on=False, zorder=6)
+            ax.text(s + 0.3 * cm, c, text, fontsize=6, ha="left", va="bottom", color=t["style"]["stopper"][0], zorder=6)
     for s, c, text in g.labels:
         ax.text(s, c, text, fontsize=6, ha="center", va="center", color="0.25", zorder=5, clip_on=True)
     for lines, label in g.changes:
@@ -558,14 +610,22 @@ def _muscle_lambda(table: dict) -> float:
     return float(np.mean(lam)) if lam.size else 1.0
 
 
-def _legend(table: dict, spam: bool) -> list[tuple[str, str]]:
-    """The legend's rows of the PDF and the sheets: (path kind or "changes", text)."""
-    rows = ([("muscle", f"sPAM muscle path, one \u03bb = {_muscle_lambda(table):.3g}")] if spam else
-            [("stopper", "stays: stopper / unpinched (\u03bb)"), ("gap", "removed: gap / pinched (1 \u2212 \u03bb)")])
-    if not table["actuated"].all():
-        rows.append(("none", NONE_LEGEND))
-    if table.get("changes"):
-        rows.append(("changes", f"framed: {len(table['changes'])} segment(s) to change against the robot built last"))
+def _legend(tables: list) -> list[tuple[tuple, str]]:
+    """The legend's rows of the PDF and the sheets: (style (colour, width, dashed, layer), text)."""
+    rows = []
+    for t in tables:
+        st, who = t["style"], f"{t['name']}: " if "name" in t else ""
+        rows += ([((*st["muscle"][:3], st["path"]), f"{who}sPAM muscle path, one \u03bb = {_muscle_lambda(t):.3g}")] if t["spam"] else
+                 [(st["stopper"], f"{who}stays: stopper / unpinched (\u03bb)")])
+    if any("name" in t and not t["actuated"].all() for t in tables):
+        rows.append((("#808080", 0.8, True, "removed-<line>"), "dashed, in a line's colour: no actuator on that line (\u03bb = 1): "
+                     "no stopper, pouch or pinch"))
+    if not all(t["spam"] for t in tables):
+        rows.append((tables[0]["style"]["gap"], "removed: gap / pinched (1 \u2212 \u03bb)"))
+    if not tables[0]["actuated"].all() and "name" not in tables[0]:
+        rows.append((STYLE["none"], NONE_LEGEND))
+    if tables[0].get("changes"):
+        rows.append(((CHANGE_COLOR, 0.9, False, "changes"), f"framed: {len(tables[0]['changes'])} segment(s) to change against the robot built last"))
     return rows
 
 
@@ -579,7 +639,7 @@ def split_counts(table: dict, spam: bool) -> dict:
     return counts
 
 
-def _footer(fig, W, H, spam, table):
+def _footer(fig, W, H, tables):
     fx, fy = (lambda mm: mm / W), (lambda mm: mm / H)
     x0, y0 = MARGIN, MARGIN + 9.0
     x1 = x0 + SCALE_BAR_CM * 10.0
@@ -590,12 +650,13 @@ def _footer(fig, W, H, spam, table):
     fig.text(fx(x0), fy(y0 - 1.5), f"scale check: this bar must measure {SCALE_BAR_CM * 10:.0f} mm ({SCALE_BAR_CM:.0f} cm) on the print",
              fontsize=FONT, va="top", ha="left")
     lx = x1 + 8.0
-    items = [(PATH_COLORS.get(kind, CHANGE_COLOR), PATH_WIDTHS_PT.get(kind, 0.9), text) for kind, text in _legend(table, spam)]
-    items.append((None, 0, "+ alignment marks, shaded: 1 cm overlap"))
-    for i, (color, lw, text) in enumerate(items):
-        y = y0 + 3.0 - 3.6 * i
+    items = [(*style[:3], text) for style, text in _legend(tables)]
+    items.append((None, 0, False, "+ alignment marks, shaded: 1 cm overlap"))
+    step = min(3.6, (FOOT_H + 3.0) / len(items))  # several lines: rows closer together
+    for i, (color, lw, dashed, text) in enumerate(items):
+        y = y0 + 3.0 - step * i
         if color is not None:
-            fig.add_artist(Line2D([fx(lx), fx(lx + 7)], [fy(y), fy(y)], color=color, lw=lw, ls=NONE_DASH if text == NONE_LEGEND else "-"))
+            fig.add_artist(Line2D([fx(lx), fx(lx + 7)], [fy(y), fy(y)], color=color, lw=lw, ls=NONE_DASH if dashed else "-"))
         fig.text(fx(lx + 9), fy(y), text, fontsize=FONT, va="center", ha="left")
 
 
@@ -622,6 +683,7 @@ class Sheet:
     width_mm: float
     height_mm: float
     lines: list = field(default_factory=list)  # (layer, [(x, y), ...], closed)
+    layers: dict = field(default_factory=lambda: dict(LAYERS))  # LAYERS and each line's of several
     texts: list = field(default_factory=list)  # (layer, x, y, text, height, anchor: start | middle | end)
 
     def line(self, layer, points, closed=False):
@@ -631,8 +693,9 @@ class Sheet:
         self.texts.append((layer, float(x), float(y), str(text), float(height), anchor))
 
 
-def _sheet_strip(sh: Sheet, g: StripGeometry, tile, x0: float, y_ax: float, mm: float, mark: float) -> None:
-    """One strip's band, marks, actuator path, labels and changes on the sheet, its lower left corner at (x0, y_ax)."""
+def _sheet_strip(sh: Sheet, tables: list, geoms: list, tile, x0: float, y_ax: float, mm: float, mark: float) -> None:
+    """One strip's band, marks, every line's path, labels and changes on the sheet, its lower left corner at (x0, y_ax)."""
+    g = geoms[0]
 
     def xy(s, c):
         return x0 + (s - tile.s0) * mm, y_ax + (c - (tile.c0 - mark)) * mm
@@ -649,12 +712,16 @@ def _sheet_strip(sh: Sheet, g: StripGeometry, tile, x0: float, y_ax: float, mm: 
         sh.line("marks", [xy(s, tile.c0 - mark), xy(s, tile.c_end + mark)])
         x, y = xy(s, g.mark_c[1])
         sh.text("text", x + (1.0 if word == "base" else -1.0), y - 0.8, word, anchor="start" if word == "base" else "end")
-    layer = {"stopper": "stoppers", "gap": "removed", "muscle": None, "none": "removed"}
-    for kind, lines in g.paths.items():
-        for p, q in lines:
-            sh.line("actuator_path", [xy(*p), xy(*q)])
-            if layer[kind]:
-                sh.line(layer[kind], [xy(*p), xy(*q)])
+    for t, gk in zip(tables, geoms):
+        for kind, lines in gk.paths.items():
+            for p, q in lines:
+                sh.line(t["style"]["path"], [xy(*p), xy(*q)])
+                if t["style"][kind][3]:
+                    sh.line(t["style"][kind][3], [xy(*p), xy(*q)])
+        for s, c, text in gk.starts:  # a triangle at the base pointing along the line, and its start
+            x, y = xy(s, c)
+            sh.line(t["style"]["path"], [(x, y - 1.0), (x + 1.7, y), (x, y + 1.0)], closed=True)
+            sh.text(t["style"]["path"], x + 2.2, y + 0.3, text, 2.0)
     for s, c, text in g.labels:
         x, y = xy(s, c)
         sh.text("text", x, y - 0.7, text, 2.0, "middle")
@@ -666,25 +733,25 @@ def _sheet_strip(sh: Sheet, g: StripGeometry, tile, x0: float, y_ax: float, mm: 
             sh.text("changes", x, y - 0.7, label[2], 2.0, "middle")
 
 
-def template_sheet(a: Archive, run: str, table: dict, lay: Layout, spam: bool) -> Sheet:
+def template_sheet(a: Archive, run: str, tables: list, lay: Layout) -> Sheet:
     """Every strip of ``lay`` stacked on one sheet at 1:1 in mm (the strips of the PDF, from
     :func:`strip_geometry`), with the title, the 10 cm scale bar and the legend."""
     k = CM_PER_UNIT[a.units]
     mm = 10.0 * k  # mm per problem unit
     D, u = a.diameter, a.units
-    C = math.pi * D
     mark = MARK_H / mm
     heights = [(t.c_end - t.c0) * mm + 2 * MARK_H for t in lay.tiles]
     widths = [(t.s_end - t.s0) * mm for t in lay.tiles]
     W = 2 * MARGIN + LEFT_LABELS + RIGHT_ROOM + max(widths + [SCALE_BAR_CM * 10.0 + 90.0])
     H = 2 * MARGIN + TITLE_H + sum(h + STRIP_LABEL_H + TICKS_H + STRIP_GAP for h in heights) + FOOT_H
     sh = Sheet(W, H)
-    L = float(table["s_end"][-1])
-    sh.text("text", MARGIN, H - MARGIN - 3.0, f"{a.name}: fabrication template of run {run} ({a.runs[run].method}), "
-            f"D = {D:.4g} {u}, tube length {L:.4g} {u}, {len(table['segment'])} segments ({_none_count(table)} without an actuator), "
-            f"circumference \u03c0D = {C:.4g} {u}", 3.0)
-    for i, reason in enumerate(table["refused"][:1]):  # the title has room for one
-        sh.text("text", MARGIN, H - MARGIN - 14.0 - 3.0 * i, f"refused: {reason}", 2.2)
+    for t in tables if "name" in tables[0] else ():  # each line's own layers, in its colour
+        color = t["style"]["stopper"][0]
+        sh.layers |= {t["style"]["path"]: (color, 0.2, 7), t["style"]["stopper"][3]: (color, 0.6, 7), t["style"]["gap"][3]: (GAP_COLOR, 0.8, 1)}
+    head, tube, refused = _title(a, run, tables)
+    sh.text("text", MARGIN, H - MARGIN - 3.0, f"{head}, {tube}", 3.0)
+    for reason in refused:
+        sh.text("text", MARGIN, H - MARGIN - 14.0, reason, 2.2)
     sh.text("text", MARGIN, H - MARGIN - 8.0, f"Drawn 1:1, true size at 100 % (the sheet's own unit is 1 mm); lengths, strips and the s ruler in {u}; "
             "s: length along the unactuated tube.", 2.2)
     sh.text("text", MARGIN, H - MARGIN - 11.0, "c = (D/2) \u03c6: position around the tube, wrapped at \u03c0D (both band edges are the "
@@ -694,7 +761,7 @@ def template_sheet(a: Archive, run: str, table: dict, lay: Layout, spam: bool) -
     for tile, ax_h in zip(lay.tiles, heights):
         y_ax = top - STRIP_LABEL_H - ax_h
         sh.text("text", x0, top - 3.5, tile.label + f" {u}")
-        _sheet_strip(sh, strip_geometry(table, tile, D, u, spam), tile, x0, y_ax, mm, mark)
+        _sheet_strip(sh, tables, [strip_geometry(t, tile, D, u, t["spam"]) for t in tables], tile, x0, y_ax, mm, mark)
         # the s ruler under the strip: a tick every cm, labelled every 5 cm
         sh.line("marks", [(x0, y_ax), (x0 + (tile.s_end - tile.s0) * mm, y_ax)])
         for n in range(math.ceil(tile.s0 * k - 1e-9), math.floor(tile.s_end * k + 1e-9) + 1):
@@ -711,10 +778,10 @@ def template_sheet(a: Archive, run: str, table: dict, lay: Layout, spam: bool) -
         sh.line("scale", [(bx + 10.0 * i, by), (bx + 10.0 * i, by + (2.0 if i % 5 == 0 else 1.0))])
     sh.text("text", bx, by - 4.0, f"scale check: this bar must measure {SCALE_BAR_CM * 10:.0f} mm ({SCALE_BAR_CM:.0f} cm)", 2.2)
     lx = bx + SCALE_BAR_CM * 10.0 + 8.0
-    layers = {"muscle": "actuator_path", "stopper": "stoppers", "gap": "removed", "none": "removed", "changes": "changes"}
-    legend = [(layers[kind], text) for kind, text in _legend(table, spam)] + [("marks", "alignment marks; outlined: 1 cm overlap")]
+    legend = [(style[3], text) for style, text in _legend(tables)] + [("marks", "alignment marks; outlined: 1 cm overlap")]
+    step = min(3.6, (FOOT_H + 3.0) / len(legend))
     for i, (layer, text) in enumerate(legend):
-        y = by + 3.0 - 3.6 * i
+        y = by + 3.0 - step * i
         sh.text("text", lx, y - 0.8, f"[{layer}] {text}", 2.2)  # by layer name: nothing on the cut layers but the strips
     return sh
 
@@ -730,7 +797,7 @@ def sheet_svg(sheet: Sheet) -> bytes:
     root = ET.Element("{http://www.w3.org/2000/svg}svg", {
         "width": f"{W:.3f}mm", "height": f"{H:.3f}mm", "viewBox": f"0 0 {W:.3f} {H:.3f}", "version": "1.1"})
     groups = {}
-    for name, (color, width, _) in LAYERS.items():
+    for name, (color, width, _) in sheet.layers.items():
         groups[name] = ET.SubElement(root, "{http://www.w3.org/2000/svg}g", {
             "id": f"layer-{name}", f"{{{ink}}}groupmode": "layer", f"{{{ink}}}label": name,
             "fill": "none" if name != "text" else color, "stroke": color if name != "text" else "none",
@@ -741,7 +808,7 @@ def sheet_svg(sheet: Sheet) -> bytes:
     for layer, x, y, text, height, anchor in sheet.texts:
         el = ET.SubElement(groups[layer], "{http://www.w3.org/2000/svg}text", {
             "x": f"{x:.4f}", "y": f"{H - y:.4f}", "font-size": f"{height:g}", "font-family": "sans-serif", "text-anchor": anchor,
-            "fill": LAYERS[layer][0], "stroke": "none"})  # filled in its layer's colour, whatever the layer strokes
+            "fill": sheet.layers[layer][0], "stroke": "none"})  # filled in its layer's colour, whatever the layer strokes
         el.text = text
     return ET.tostring(root, encoding="utf-8", xml_declaration=True)
 
@@ -755,8 +822,8 @@ def sheet_dxf(sheet: Sheet) -> bytes:
     doc = ezdxf.new("R2010", setup=True)
     doc.units = units.MM
     doc.header["$MEASUREMENT"] = 1  # metric
-    for name, (_, width, aci) in LAYERS.items():
-        doc.layers.add(name, color=aci, lineweight=int(round(width * 100)))
+    for name, (color, width, aci) in sheet.layers.items():  # a line of several: its own colour, exactly
+        doc.layers.add(name, color=aci, lineweight=int(round(width * 100)), true_color=None if name in LAYERS else int(color[1:], 16))
     msp = doc.modelspace()
     for layer, pts, closed in sheet.lines:
         if len(pts) == 2 and not closed:

@@ -39,10 +39,12 @@ import numpy as np
 
 from vine_nlp.errors import InputError
 from vine_nlp.front import palette
+from vine_nlp.front.states import picked_states, state_lines, state_rates
 from vine_nlp.front.sweep.summary import SUMMARY_CSV, read_summary
 from vine_nlp.io import files, limits
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
 from vine_nlp.model import shape_lines
+from vine_nlp.model.actuators import owners
 from vine_nlp.model.chain import segment_end_samples
 from vine_nlp.problem import Routing
 
@@ -236,11 +238,15 @@ def _hover_data(shape):
     return _f32(np.column_stack([shape["s"], np.degrees(shape["theta"]), shape["lam"], shape["error"]]))
 
 
-def _run_traces(go, name, shape, D, color, units, visible=True):
+def _run_traces(go, name, shape, D, color, units, visible=True, lines=None):
+    """Tube, lines on it (default: the actuator line and the opposite line; ``lines``: (label, points, colour, width)
+    each), center line (hover) of one run or state."""
+    if lines is None:
+        lines = [(palette.LABELS["actuator"], shape["inner"], palette.ACTUATOR, 5), (palette.LABELS["opposite"], _thin(shape["outer"]), palette.OPPOSITE, 2)]
     count = len(shape["center"])
     V = tube_vertices(shape, D, count)
     F = tube_faces(count)
-    group = f"run {name}"
+    group = name if name.startswith("state ") else f"run {name}"
     hover = (f"run {name}<br>s = %{{customdata[0]:.4g}} {units}<br>theta = %{{customdata[1]:.3g}} deg"
              f"<br>lambda = %{{customdata[2]:.3g}}<br>error = %{{customdata[3]:.3g}} {units}<extra></extra>")
     return [
@@ -248,10 +254,8 @@ def _run_traces(go, name, shape, D, color, units, visible=True):
         go.Mesh3d(**_xyz(V), i=F[:, 0], j=F[:, 1], k=F[:, 2], name=f"{name}: {palette.LABELS['tube']}", legendgroup=group,
                   showlegend=True, color=palette.TUBE, opacity=0.4, hoverinfo="skip", visible=visible,
                   lighting={"ambient": 0.6, "diffuse": 0.6, "specular": 0.2}),
-        go.Scatter3d(**_xyz(shape["inner"]), mode="lines", line={"color": palette.ACTUATOR, "width": 5}, name=f"{name}: {palette.LABELS['actuator']}",
-                     legendgroup=group, showlegend=True, hovertemplate=f"actuator line, run {name}<extra></extra>", visible=visible),
-        go.Scatter3d(**_xyz(_thin(shape["outer"])), mode="lines", line={"color": palette.OPPOSITE, "width": 2}, name=f"{name}: {palette.LABELS['opposite']}",
-                     legendgroup=group, showlegend=True, hovertemplate=f"opposite line, run {name}<extra></extra>", visible=visible),
+        *(go.Scatter3d(**_xyz(p), mode="lines", line={"color": c, "width": w}, name=f"{name}: {label}", legendgroup=group, showlegend=True,
+                       hovertemplate=f"{label.split(' (')[0]}, {group}<extra></extra>", visible=visible) for label, p, c, w in lines),
         go.Scatter3d(**_xyz(shape["center"]), mode="lines", line={"color": color, "width": 2}, name=f"{name}: center line",
                      legendgroup=group, showlegend=True, customdata=_hover_data(shape), hovertemplate=hover, visible=visible),
     ]
@@ -355,10 +359,48 @@ def camera_eye(points, D: float) -> dict:
     return {"x": 1.25 * k, "y": 1.25 * k, "z": 1.25 * k}
 
 
-def view_html(archive: Archive, run: str | None = None, full_html: bool = True, include_plotlyjs=True) -> str:
-    """The view of :func:`view_figure` as HTML: a whole page (``full_html``) or a ``<div>`` for notebooks;
-    ``include_plotlyjs`` True embeds plotly.js (opens with no network), "cdn" links it (smaller)."""
-    fig = view_figure(archive, run)
+def states_figure(path, run: str | None = None):
+    """The 3-D view of an archive of several actuators on one tube: one state at a time, chosen in the page's menu
+    (its tube, center line (hover: s, theta and lambda of the line shaping the segment, error), every actuator's
+    line in its palette colour (thick where pulled in that state) and the state's target)."""
+    import plotly.graph_objects as go
+    from scipy.spatial import cKDTree
+
+    a, run, r, targets, states = picked_states(path, run)
+    ls, D, u = r.lines, a.diameter, a.units
+    fig, counts, pts = go.Figure(), [], []
+    for i, (s, active) in enumerate(states.items()):
+        seg, frac, shape, paths = state_lines(ls, D, active, s, spacing=D / 3)
+        th, lam = state_rates(ls, owners(ls, active, s))
+        err = cKDTree(targets[s]).query(shape.center)[0] if s in targets else np.full(len(seg), np.nan)
+        d = {"center": shape.center, "inner": shape.inner, "s": np.r_[0.0, np.cumsum(ls.length)][seg] + frac * ls.length[seg],
+             "theta": th[seg], "lam": lam[seg], "error": err}
+        lines = [(f"line {n}" + " (pulled)" * (n in active), p, palette.LINES[k % len(palette.LINES)], 5 if n in active else 2)
+                 for k, (n, p) in enumerate(paths.items())]
+        traces = _run_traces(go, f"state {s}", d, D, palette.RUNS[1], u, visible=i == 0, lines=lines)  # gold: far from the lines
+        traces += [go.Scatter3d(**_xyz(targets[s]), mode="lines", line={"color": palette.TARGET, "width": 3, "dash": "dash"}, visible=i == 0,
+                                name=f"state {s}: {palette.LABELS['target']}", hovertemplate="target<extra></extra>")] if s in targets else []
+        fig.add_traces(traces)
+        counts.append(len(traces))
+        pts += [shape.center] + ([targets[s]] if s in targets else [])
+    first = np.r_[0, np.cumsum(counts)]
+    titles = [f"{a.name}: state {s} ({', '.join(act)}), run {run}, D = {D:.4g} {u}" for s, act in states.items()]
+    buttons = [{"label": f"{s} ({', '.join(act)})", "method": "update",
+                "args": [{"visible": [bool(first[i] <= j < first[i + 1]) for j in range(first[-1])]}, {"title.text": titles[i]}]}
+               for i, (s, act) in enumerate(states.items())]
+    fig.update_layout(title={"text": titles[0], "x": 0.3}, margin={"l": 0, "r": 0, "t": 40, "b": 0}, uirevision="keep",
+                      scene={"aspectmode": "data", "xaxis_title": f"x [{u}]", "yaxis_title": f"y [{u}]", "zaxis_title": f"z [{u}]",
+                             "camera": {"eye": camera_eye(np.concatenate(pts), D)}},
+                      updatemenus=[{"buttons": buttons, "direction": "down", "x": 0.0, "xanchor": "left", "y": 1.0, "yanchor": "top",
+                                    "active": 0, "showactive": True, "name": "state"}])
+    return fig
+
+
+def view_html(archive, run: str | None = None, full_html: bool = True, include_plotlyjs=True) -> str:
+    """The view of :func:`view_figure` (of :func:`states_figure` for the path of an archive of several actuators)
+    as HTML: a whole page (``full_html``) or a ``<div>`` for notebooks; ``include_plotlyjs`` True embeds plotly.js
+    (opens with no network), "cdn" links it (smaller)."""
+    fig = view_figure(archive, run) if isinstance(archive, Archive) else states_figure(archive, run)
     return fig.to_html(full_html=full_html, include_plotlyjs=include_plotlyjs, auto_play=False,
                        config={"displaylogo": False, "responsive": True})
 

@@ -1,22 +1,17 @@
-"""HDF5 result archives (../shared/spec/formats.md, "Result archives"): written atomically,
-validated on load.
+"""HDF5 result archives (../shared/spec/formats.md, "Result archives"): written atomically, validated on load.
 
-Writing. The HDF5 file is built in memory and its bytes written with ordinary file I/O to a
-temporary file beside the target, then renamed onto it. A full disk, a read-only
-filesystem or a missing permission is one :class:`OutputError` and leaves nothing behind;
-HDF5 itself never writes to the disk, so a failed write cannot leave it with a
-half-closed file (which used to crash the interpreter at exit).
+Writing. The HDF5 file is built in memory and its bytes written with ordinary file I/O to a temporary file beside the
+target, then renamed onto it. A full disk, a read-only filesystem or a missing permission is one :class:`OutputError`
+and leaves nothing behind; HDF5 itself never writes to the disk, so a failed write cannot leave it with a half-closed
+file (which used to crash the interpreter at exit).
 
-Reading. :func:`load_archive` opens the file through :mod:`vine_nlp.io.h5read` (no links, no
-external data, sizes bounded before reading) and checks everything it returns against the spec:
-every dataset's dtype and shape and their consistency (M segments, P shape rows, K levels), finite values (a metric other than rmse and max_error may be NaN:
-"does not apply"), proper initial poses (4x4, orthonormal rotation
-with det +1, last row 0 0 0 1), attribute types and the size limits of
-:mod:`vine_nlp.io.limits`. Anything else is an :class:`ArchiveError`
-``(file, dataset path, reason)``; no other exception leaves the loader. Groups the
-spec does not name are allowed; their datasets come back in ``Archive.extra`` and are
-validated too (numeric, at least 1-D, within the limits, finite except ``/frames``).
-"""
+Reading. :func:`load_archive` opens the file through :mod:`vine_nlp.io.h5read` (no links, no external data, sizes
+bounded before reading) and checks everything it returns against the spec: every dataset's dtype and shape and their
+consistency (M segments, P shape rows, K levels), finite values (a metric other than rmse and max_error may be NaN:
+"does not apply"), proper initial poses (4x4, orthonormal rotation with det +1, last row 0 0 0 1), attribute types and
+the size limits of :mod:`vine_nlp.io.limits`. Anything else is an :class:`ArchiveError` ``(file, dataset path,
+reason)``; no other exception leaves the loader. Groups the spec does not name are allowed; their datasets come back in
+``Archive.extra`` and are validated too (numeric, at least 1-D, within the limits, finite except ``/frames``)."""
 
 from __future__ import annotations
 
@@ -35,7 +30,7 @@ import numpy as np
 from vine_nlp import __version__
 from vine_nlp.errors import InputError
 from vine_nlp.io import files, limits, outputs
-from vine_nlp.io.h5read import ArchiveError, open_archive
+from vine_nlp.io.h5read import ArchiveError, decode_attr, open_archive
 from vine_nlp.io.obstacles import read_obstacles, write_obstacles
 from vine_nlp.io.outputs import OutputError, output_error, temp_file
 from vine_nlp.model.shape import Shape
@@ -123,8 +118,7 @@ def write_h5_atomic(path, fill) -> None:
     """Write an HDF5 file made by ``fill(h5)`` (an in-memory h5py.File) atomically to ``path``.
 
     HDF5 never touches the disk: the finished image is written with plain file I/O, so a
-    failed write is one OutputError and nothing else (no HDF5 error at close or exit).
-    """
+    failed write is one OutputError and nothing else (no HDF5 error at close or exit)."""
     buf = io.BytesIO()
     with h5py.File(buf, "w") as h5:
         fill(h5)
@@ -213,8 +207,7 @@ def _write(h5: h5py.File, a: Archive):
 def write_archive(path, archive: Archive, extend=None) -> None:
     """Write ``archive`` (the spec's layout, ``extra`` as further datasets) to ``path`` atomically:
     built in memory, temporary file, fsync, rename. ``extend(h5)`` adds further groups (multi-shape
-    levels, ...) to the in-memory file. OutputError when it cannot be written: nothing is left.
-    """
+    levels, ...) to the in-memory file. OutputError when it cannot be written: nothing is left."""
 
     def fill(h5):
         _write(h5, archive)
@@ -241,14 +234,6 @@ def add_metrics(path, run: str, metrics: dict) -> None:
 # ---------------------------------------------------------------- reading and validation
 
 
-def _decode(v):
-    if isinstance(v, bytes):
-        return v.decode()
-    if isinstance(v, np.generic):
-        return v.item()
-    return v
-
-
 _LINE_BREAKS = {ord(c): " " for c in "\n\r\t"}
 _CORE_GROUPS = ("problem", "tube", "target", "runs", "obstacles")
 _LINES = ("center", "inner", "outer")
@@ -273,7 +258,7 @@ class _Checker:
             if required:
                 self.fail(key, "missing attribute")
             return default
-        v = _decode(node.attrs[name])
+        v = decode_attr(node.attrs[name])
         if not isinstance(v, str):
             self.fail(key, f"must be text, got {type(v).__name__}")
         if len(v) > limits.MAX_TEXT_CHARS:
@@ -288,7 +273,7 @@ class _Checker:
             if required:
                 self.fail(key, "missing attribute")
             return default
-        v = _decode(node.attrs[name])
+        v = decode_attr(node.attrs[name])
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             self.fail(key, f"must be a number, got {type(v).__name__}")
         if integer and not (isinstance(v, int) or float(v).is_integer()):
@@ -411,7 +396,7 @@ def _run(c: _Checker, name: str, g, a: Archive) -> Result:
     if "solver" in g:
         st = c.group(g, "solver")
         for k, v in st.attrs.items():
-            v = _decode(v)
+            v = decode_attr(v)
             if isinstance(v, str):
                 v = c.text(st, k, lines=True)
             elif isinstance(v, np.ndarray):
@@ -481,14 +466,13 @@ def _extras(c: _Checker, h5, a: Archive) -> None:
 
 
 def _load(c: _Checker, h5) -> Archive:
-    fmt = _decode(h5.attrs.get("format"))
+    fmt = decode_attr(h5.attrs.get("format"))
     if fmt != FORMAT:
         c.fail("/@format", "not a vine_nlp result archive")
     version = c.number(h5, "format_version", integer=True, minimum=1)
     if version > FORMAT_VERSION:
         c.fail("/@format_version", f"format version {version} is newer than this vine_nlp reads ({FORMAT_VERSION})")
-    p = c.group(h5, "problem")
-    tube = c.group(h5, "tube")
+    p, tube = c.group(h5, "problem"), c.group(h5, "tube")
     units = c.text(h5, "units")
     if not units or len(units) > limits.MAX_UNITS_CHARS:
         c.fail("/@units", f"must be a unit name, got {units[:40]!r}")

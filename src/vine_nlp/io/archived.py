@@ -4,8 +4,7 @@ An archive is self-contained: its stored source is parsed again with every file 
 the archive stores (the target by ``/target/points``, obstacles by ``/obstacles``; a calibration only
 shifts how a design is built, which ``analyze`` and ``correct`` do not need), so no file is opened because
 an archive names it, and a moved archive reads the same. The pairing of target points and segments is the
-run's own; a run that cannot pair with the archived target is one error line.
-"""
+run's own; a run that cannot pair with the archived target is one error line."""
 
 from __future__ import annotations
 

@@ -19,8 +19,7 @@ A correction archive is a result archive (every command reads it) with:
                              offset rad, lambda offset, length scale) and ``systematic_std`` (3,);
                              ``builds/<b>/{theta,lambda,length,initial_pose}`` the nominal of build b (oldest first)
 
-Bad files raise :class:`vine_nlp.errors.InputError` (archives: ``ArchiveError``) naming the file and the key.
-"""
+Bad files raise :class:`vine_nlp.errors.InputError` (archives: ``ArchiveError``) naming the file and the key."""
 
 from __future__ import annotations
 
@@ -35,7 +34,7 @@ from vine_nlp.io import limits
 from vine_nlp.io.archive import Archive, ArchiveError, load_archive, write_archive
 from vine_nlp.io.calibration import check_calibration
 from vine_nlp.io.data_files import check_spread, read_csv
-from vine_nlp.io.h5read import open_archive
+from vine_nlp.io.h5read import decode_attr, open_archive
 from vine_nlp.io.validate import SourceFile
 from vine_nlp.methods.correct import CorrectionResult, Measurement
 from vine_nlp.model.routing import MEASURED_LINES, Routing
@@ -76,8 +75,7 @@ def write_correction_archive(path, base: Archive, result: CorrectionResult, buil
 
     ``base``: the archive that was corrected (its target, problem and runs other than as_built and
     corrected are kept); ``builds``: the nominal of every build so far, oldest first (the last is
-    ``result.built``); ``settings``: attributes of /correction (adjust, free_pose, sigmas, built_run).
-    """
+    ``result.built``); ``settings``: attributes of /correction (adjust, free_pose, sigmas, built_run)."""
     runs = {k: v for k, v in base.runs.items() if k not in RUNS}
     runs["as_built"], runs["corrected"] = result.as_built, result.corrected
     for name, r in result.routes.items():
@@ -91,8 +89,7 @@ def write_correction_archive(path, base: Archive, result: CorrectionResult, buil
         for name, v in (("theta", r.theta), ("lambda", r.lam), ("length", r.length), ("initial_pose", r.initial_pose)):
             extra[f"correction/builds/{b}/{name}"] = v
     est = result.estimate
-    extra["correction/systematic"] = est.systematic
-    extra["correction/systematic_std"] = est.systematic_std
+    extra |= {"correction/systematic": est.systematic, "correction/systematic_std": est.systematic_std}
     archive = Archive(name=base.name, kind=base.kind, source=base.source, diameter=base.diameter, units=base.units,
                       target=base.target, runs=runs, extra=extra)
 
@@ -132,11 +129,7 @@ def _attr(file, node, name, kinds, required=True, default=None):
         if required:
             raise ArchiveError(file, f"{node.name}@{name}", "missing attribute")
         return default
-    v = node.attrs[name]
-    if isinstance(v, bytes):
-        v = v.decode()
-    if isinstance(v, np.generic):
-        v = v.item()
+    v = decode_attr(node.attrs[name])
     if not isinstance(v, kinds) or isinstance(v, bool) and bool not in kinds:
         raise ArchiveError(file, f"{node.name}@{name}", f"unexpected type {type(v).__name__}")
     return v

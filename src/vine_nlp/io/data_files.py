@@ -1,7 +1,6 @@
 """Point data files (.csv, .npy) named by problem files or given on the command line.
 
-Errors name the data file: "line N" for a bad CSV line, "values" for the content as a whole.
-"""
+Errors name the data file: "line N" for a bad CSV line, "values" for the content as a whole."""
 
 from __future__ import annotations
 

@@ -1,12 +1,9 @@
 """Expressions of s in problem files (spec/formats.md, "Expressions").
 
-A routing value such as ``theta = "pi/12 * sin(0.1 * s)"`` is parsed with
-:func:`ast.parse` and accepted only if every node is on a short whitelist:
-numbers, ``+ - * / **``, unary ``-``/``+``, the names ``s``, ``pi``, ``e`` and
-one-argument calls of ``sin cos tan exp log sqrt abs``. The accepted tree is
-turned into a chain of numpy calls; the text is never handed to ``eval`` or
-``exec``.
-"""
+A routing value such as ``theta = "pi/12 * sin(0.1 * s)"`` is parsed with :func:`ast.parse` and accepted only if every
+node is on a short whitelist: numbers, ``+ - * / **``, unary ``-``/``+``, the names ``s``, ``pi``, ``e`` and
+one-argument calls of ``sin cos tan exp log sqrt abs``. The accepted tree is turned into a chain of numpy calls; the
+text is never handed to ``eval`` or ``exec``."""
 
 from __future__ import annotations
 
@@ -19,15 +16,7 @@ import numpy as np
 MAX_LENGTH = 1000
 MAX_DEPTH = 50
 
-_FUNCTIONS = {
-    "sin": np.sin,
-    "cos": np.cos,
-    "tan": np.tan,
-    "exp": np.exp,
-    "log": np.log,
-    "sqrt": np.sqrt,
-    "abs": np.abs,
-}
+_FUNCTIONS = {"sin": np.sin, "cos": np.cos, "tan": np.tan, "exp": np.exp, "log": np.log, "sqrt": np.sqrt, "abs": np.abs}
 _CONSTANTS = {"pi": float(np.pi), "e": float(np.e)}
 _VARIABLE = "s"
 _ALLOWED_NAMES = "s, pi, e, " + ", ".join(_FUNCTIONS)
@@ -35,32 +24,12 @@ _ALLOWED_NAMES = "s, pi, e, " + ", ".join(_FUNCTIONS)
 _BINARY = {ast.Add: np.add, ast.Sub: np.subtract, ast.Mult: np.multiply, ast.Div: np.divide, ast.Pow: np.power}
 _UNARY = {ast.USub: np.negative, ast.UAdd: np.positive}
 
-_OPERATOR_TEXT = {
-    ast.Mod: "%",
-    ast.FloorDiv: "//",
-    ast.MatMult: "@",
-    ast.LShift: "<<",
-    ast.RShift: ">>",
-    ast.BitOr: "|",
-    ast.BitXor: "^",
-    ast.BitAnd: "&",
-    ast.Not: "not",
-    ast.Invert: "~",
-}
+_OPERATOR_TEXT = {ast.Mod: "%", ast.FloorDiv: "//", ast.MatMult: "@", ast.LShift: "<<", ast.RShift: ">>", ast.BitOr: "|",
+                  ast.BitXor: "^", ast.BitAnd: "&", ast.Not: "not", ast.Invert: "~"}
 _SYNTAX_TEXT = {
-    ast.Attribute: "attribute access",
-    ast.Subscript: "indexing",
-    ast.Compare: "comparison",
-    ast.BoolOp: "'and'/'or'",
-    ast.IfExp: "'if ... else'",
-    ast.Lambda: "lambda",
-    ast.List: "a list",
-    ast.Tuple: "a tuple",
-    ast.Set: "a set",
-    ast.Dict: "a dict",
-    ast.Starred: "'*' unpacking",
-    ast.NamedExpr: "':='",
-    ast.JoinedStr: "an f-string",
+    ast.Attribute: "attribute access", ast.Subscript: "indexing", ast.Compare: "comparison", ast.BoolOp: "'and'/'or'",
+    ast.IfExp: "'if ... else'", ast.Lambda: "lambda", ast.List: "a list", ast.Tuple: "a tuple", ast.Set: "a set", ast.Dict: "a dict",
+    ast.Starred: "'*' unpacking", ast.NamedExpr: "':='", ast.JoinedStr: "an f-string",
 }
 
 
@@ -72,8 +41,7 @@ class Expression:
     """A compiled expression; calling it evaluates it at s (any shape) and returns an array of that shape.
 
     Floating-point warnings are silenced: a log of a negative number is NaN, and the
-    caller decides whether non-finite values are acceptable.
-    """
+    caller decides whether non-finite values are acceptable."""
 
     def __init__(self, text: str, fn: Callable):
         self.text = text

@@ -1,14 +1,12 @@
 """The one way vine_nlp opens a file it reads (TOML, CSV, .npy, meshes, archives).
 
-:func:`open_input` opens without blocking (a FIFO named as a problem file cannot hang the run),
-refuses anything but a regular file (FIFOs, devices such as /dev/zero, directories) and a file
-larger than its limit, all checked on the open file itself before a byte is parsed. Every
-failure is one :class:`InputError` ``(named_by, key, reason)``: the file or argument that named
-the path. Paths a problem file names may lead anywhere the user can read (``../``, absolute
-paths): like a script, a problem file is trusted to name its own data; its content is not.
+:func:`open_input` opens without blocking (a FIFO named as a problem file cannot hang the run), refuses anything but a
+regular file (FIFOs, devices such as /dev/zero, directories) and a file larger than its limit, all checked on the open
+file itself before a byte is parsed. Every failure is one :class:`InputError` ``(named_by, key, reason)``: the file or
+argument that named the path. Paths a problem file names may lead anywhere the user can read (``../``, absolute paths):
+like a script, a problem file is trusted to name its own data; its content is not.
 
-A file this run is writing (``vine_nlp.io.outputs``) is read from its staged copy.
-"""
+A file this run is writing (``vine_nlp.io.outputs``) is read from its staged copy."""
 
 from __future__ import annotations
 

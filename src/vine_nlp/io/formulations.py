@@ -19,25 +19,16 @@ RUN = MULTISHAPE_RUN
 def write_multishape_archive(path, problem_file, result: MultiShapeResult) -> None:
     """Write a multi-shape design archive atomically (the contract's layout, extended).
 
-    Standard part (old readers work): /problem (kind "multishape"), /tube,
-    /target/points = target 0, /runs/multishape/{design,shape,metrics,solver} with
-    design/lambda = level 0 repeated and shape = level 0's shape; metrics rmse and
-    max_error are over all levels. Extension: /runs/multishape/design/levels (K,),
-    /runs/multishape/levels/<k>/{shape/{center,inner,outer}, initial_pose} with attrs
-    lambda, fixed and metrics attrs (rmse, max_error), /targets/<k>/points.
-    ``problem_file`` is a ProblemFile (name, source, units, problem) of a MultiShapeProblem.
-    """
+    Standard part (old readers work): /problem (kind "multishape"), /tube, /target/points = target 0,
+    /runs/multishape/{design,shape,metrics,solver} with design/lambda = level 0 repeated and shape = level 0's shape;
+    metrics rmse and max_error are over all levels. Extension: /runs/multishape/design/levels (K,),
+    /runs/multishape/levels/<k>/{shape/{center,inner,outer}, initial_pose} with attrs lambda, fixed and metrics attrs
+    (rmse, max_error), /targets/<k>/points. ``problem_file`` is a ProblemFile (name, source, units, problem) of a
+    MultiShapeProblem."""
     problem = problem_file.problem
-    archive = Archive(
-        name=problem_file.name,
-        kind="multishape",
-        source=problem_file.source,
-        diameter=problem.diameter,
-        units=problem_file.units,
-        target=problem.targets[0],
-        runs={RUN: result},
-        extra={f"targets/{k}/points": t for k, t in enumerate(problem.targets)},
-    )
+    archive = Archive(name=problem_file.name, kind="multishape", source=problem_file.source, diameter=problem.diameter,
+                      units=problem_file.units, target=problem.targets[0], runs={RUN: result},
+                      extra={f"targets/{k}/points": t for k, t in enumerate(problem.targets)})
 
     def extend(h5):  # the in-memory file after the standard layout: HDF5 never writes to the disk
         g = h5[f"runs/{RUN}"]
@@ -74,11 +65,9 @@ def read_multishape_archive(path):
             lm.append({key: float(v) for key, v in lv["metrics"].attrs.items()})
             fixed.append(bool(lv.attrs.get("fixed", False)))
         shared = bool(g.attrs.get("shared_pose", True))
-    r = MultiShapeResult(
-        method=base.method, routing=base.routing, shape=base.shape, status=base.status, solve_time_s=base.solve_time_s,
-        iterations=base.iterations, metrics=base.metrics, stats=base.stats, diameter=base.diameter,
-        levels=levels, fixed=tuple(fixed), poses=np.array(poses), shapes=shapes, level_metrics=lm, shared_pose=shared,
-    )
+    r = MultiShapeResult(method=base.method, routing=base.routing, shape=base.shape, status=base.status, solve_time_s=base.solve_time_s,
+                         iterations=base.iterations, metrics=base.metrics, stats=base.stats, diameter=base.diameter, levels=levels,
+                         fixed=tuple(fixed), poses=np.array(poses), shapes=shapes, level_metrics=lm, shared_pose=shared)
     return a, r, targets
 
 
@@ -88,8 +77,6 @@ def write_tip_archive(path, problem_file, result: Result) -> None:
     extra = {"tip/position": problem.position}
     if problem.direction is not None:
         extra["tip/direction"] = problem.direction
-    archive = Archive(
-        name=problem_file.name, kind="tip", source=problem_file.source, diameter=problem.diameter,
-        units=problem_file.units, runs={TIP_RUN: result}, extra=extra, obstacles=list(problem.obstacles),
-    )
+    archive = Archive(name=problem_file.name, kind="tip", source=problem_file.source, diameter=problem.diameter,
+                      units=problem_file.units, runs={TIP_RUN: result}, extra=extra, obstacles=list(problem.obstacles))
     write_archive(path, archive)

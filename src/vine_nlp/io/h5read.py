@@ -1,13 +1,11 @@
 """Opening an HDF5 archive to read it: the one way every reader of vine_nlp does.
 
-:func:`open_archive` opens the file through :func:`vine_nlp.io.files.open_input` (a regular file
-within MAX_FILE_BYTES) and, before any value is read, walks every link and attribute once and
-refuses, as one :class:`ArchiveError` ``(file, path in the archive, reason)``: soft and external
-links (nothing is read through a link: a link to a pipe cannot block, another file's data cannot
-be copied in), virtual datasets and external raw storage, datasets of anything but numbers,
-unprintable or overlong names, and declared sizes over the limits (one dataset or attribute, all
-datasets, objects, chunks): compressed data cannot expand beyond them.
-"""
+:func:`open_archive` opens the file through :func:`vine_nlp.io.files.open_input` (a regular file within MAX_FILE_BYTES)
+and, before any value is read, walks every link and attribute once and refuses, as one :class:`ArchiveError` ``(file,
+path in the archive, reason)``: soft and external links (nothing is read through a link: a link to a pipe cannot block,
+another file's data cannot be copied in), virtual datasets and external raw storage, datasets of anything but numbers,
+unprintable or overlong names, and declared sizes over the limits (one dataset or attribute, all datasets, objects,
+chunks): compressed data cannot expand beyond them."""
 
 from __future__ import annotations
 
@@ -15,6 +13,7 @@ import contextlib
 import math
 
 import h5py
+import numpy as np
 
 from vine_nlp import interrupt
 from vine_nlp.errors import InputError
@@ -120,3 +119,12 @@ def _attributes(obj, count) -> str | None:
         if reason:
             return f"attribute {name[:80]!r}: {reason}"
     return None
+
+
+def decode_attr(v):
+    """An HDF5 attribute's value as Python gives it: bytes decoded, numpy scalars as numbers."""
+    if isinstance(v, bytes):
+        return v.decode()
+    if isinstance(v, np.generic):
+        return v.item()
+    return v

@@ -1,14 +1,12 @@
 """The core layout of result archives (spec/formats.md, "Result archives"), as data.
 
-One table of the groups, datasets and attributes every archive has, for the code that
-writes, checks and documents archives to share: the documentation's format reference is
-rendered from it and checked, at every build, against archives that the command line
-writes (docs/gen_reference.py). Shapes are given in the spec's symbols: ``N`` target
+One table of the groups, datasets and attributes every archive has, for the code that writes, checks and documents
+archives to share: the documentation's format reference is rendered from it and checked, at every build, against
+archives that the command line writes (docs/gen_reference.py). Shapes are given in the spec's symbols: ``N`` target
 points, ``M`` segments, ``P`` shape points (``P = N`` for design runs).
 
 Groups outside this layout (``/measured``, ``/frames``, ``/targets``, ``/tip``,
-``/obstacles``, per-level groups of multishape runs) belong to the commands that add them.
-"""
+``/obstacles``, per-level groups of multishape runs) belong to the commands that add them."""
 
 from __future__ import annotations
 

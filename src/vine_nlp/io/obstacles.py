@@ -4,13 +4,11 @@ formats.md "Obstacles". Every bad value raises ``InputError(file, "obstacles[k].
 reason)`` with k counted from 0 (as the archive's ``/obstacles/<k>``). A mesh file's
 *content* is a data file of its own: its errors name the mesh file, key ``mesh``.
 
-Meshes must be closed (watertight: every edge shared by exactly two faces, with a
-consistent winding): inside and outside, and so the sign of the distance, mean
-nothing for an open surface. Vertices are merged and zero-area faces dropped on
-reading (an STL file stores every triangle's corners separately); a mesh wound
-inside-out (negative volume) is turned around. At most ``MAX_MESH_FACES`` faces:
-the design keeps rows for the nearest triangles of every tube sample.
-"""
+Meshes must be closed (watertight: every edge shared by exactly two faces, with a consistent winding): inside and
+outside, and so the sign of the distance, mean nothing for an open surface. Vertices are merged and zero-area faces
+dropped on reading (an STL file stores every triangle's corners separately); a mesh wound inside-out (negative volume)
+is turned around. At most ``MAX_MESH_FACES`` faces: the design keeps rows for the nearest triangles of every tube
+sample."""
 
 from __future__ import annotations
 
@@ -25,6 +23,7 @@ import numpy as np
 from vine_nlp.analysis.obstacles import GROWTH_MODES
 from vine_nlp.errors import InputError
 from vine_nlp.io import files, limits
+from vine_nlp.io.h5read import decode_attr
 from vine_nlp.io.validate import is_number
 from vine_nlp.model.obstacles import OBSTACLE_TYPES, SHAPES, Box, Capsule, Mesh, Plane, Sphere, is_rotation, rotation_from_degrees
 
@@ -62,8 +61,7 @@ def parse_obstacles(tables, file, base_dir=None) -> list:
     ``tables`` is ``data["obstacles"]`` of the parsed TOML document, ``file`` the problem file (named in errors),
     ``base_dir`` the directory mesh ``file`` paths are relative to (default: the problem file's). Returns the
     shapes in file order. InputError ``(file, "obstacles[k].key", reason)``; a bad mesh file's content:
-    ``(mesh file, "mesh", reason)``.
-    """
+    ``(mesh file, "mesh", reason)``."""
     file = str(file)
     base = Path(file).parent if base_dir is None else Path(base_dir)
     if not (isinstance(tables, list) and all(isinstance(t, dict) for t in tables)):
@@ -102,13 +100,8 @@ def _check_keys(err, t) -> str:
         if key not in allowed:
             close = difflib.get_close_matches(str(key), list(allowed), n=1)
             other = [s for s in SHAPES if key in _KEYS[s]]
-            if close:
-                reason = f"unknown key; did you mean '{close[0]}'?"
-            elif other:
-                reason = f"not used by a {shape} (a key of {' and '.join(other)})"
-            else:
-                reason = "unknown key"
-            raise err(key, reason)
+            raise err(key, f"unknown key; did you mean '{close[0]}'?" if close else
+                      f"not used by a {shape} (a key of {' and '.join(other)})" if other else "unknown key")
     for key in _REQUIRED[shape]:
         if key not in t:
             raise err(key, "missing (required)")
@@ -130,21 +123,17 @@ def _plane(err, t, name):
 
 
 def _box(err, t, name):
-    center = _vector(err, "center", t["center"])
-    size = _vector(err, "size", t["size"])
+    center, size = _vector(err, "center", t["center"]), _vector(err, "size", t["size"])
     for i, s in enumerate(size):
         if not s > 0:
             raise err("size", f"must be > 0 (entry {i + 1})")
     if "rotation" in t and "rotation_deg" in t:
         raise err("rotation_deg", "give rotation or rotation_deg, not both")
+    R = rotation_from_degrees(_vector(err, "rotation_deg", t["rotation_deg"])) if "rotation_deg" in t else np.eye(3)
     if "rotation" in t:
         R = _matrix(err, "rotation", t["rotation"])
         if not is_rotation(R):
             raise err("rotation", "must be a proper rotation matrix (orthonormal rows, determinant +1, within 0.001)")
-    elif "rotation_deg" in t:
-        R = rotation_from_degrees(_vector(err, "rotation_deg", t["rotation_deg"]))
-    else:
-        R = np.eye(3)
     return Box(center, size, R, name)
 
 
@@ -211,12 +200,10 @@ def _mesh(err, base, value, name) -> Mesh:
 
 
 def load_mesh_file(path, data: bytes | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices and faces of a closed triangle mesh file (.stl, .obj, .ply) read through trimesh, from
-    its bytes (``data``, default: read within MAX_MESH_BYTES): trimesh opens no other file (an OBJ's
-    ``mtllib`` is not followed). InputError ``(path, "mesh", reason)``: unreadable, no triangles, too many
-    faces, not closed."""
+    """Vertices and faces of a closed triangle mesh file (.stl, .obj, .ply) read through trimesh, from its bytes
+    (``data``, default: read within MAX_MESH_BYTES): trimesh opens no other file (an OBJ's ``mtllib`` is not followed).
+    InputError ``(path, "mesh", reason)``: unreadable, no triangles, too many faces, not closed."""
     import trimesh
-
     path = Path(path)
     if data is None:
         data = files.read_text(path, None, "mesh", limits.MAX_MESH_BYTES, "MAX_MESH_BYTES", binary=True)
@@ -265,8 +252,7 @@ def write_obstacles(h5group, obstacles) -> None:
     """Write obstacles into ``h5group`` (the archive's ``/obstacles`` group): subgroups ``0``, ``1``, ...
 
     Each subgroup has attrs ``shape`` (and ``name``, and ``source`` for meshes read from a
-    file) and one dataset per parameter (formats.md "Obstacles").
-    """
+    file) and one dataset per parameter (formats.md "Obstacles")."""
     for k, ob in enumerate(obstacles):
         g = h5group.create_group(str(k))
         g.attrs["shape"] = ob.kind
@@ -275,18 +261,8 @@ def write_obstacles(h5group, obstacles) -> None:
         if isinstance(ob, Mesh) and ob.source:
             g.attrs["source"] = ob.source
         for key, value in ob.parameters().items():
-            if key == "faces":
-                g.create_dataset(key, data=np.asarray(value, np.int64), compression="gzip")
-            elif np.ndim(value) >= 2 and np.shape(value)[0] > 16:
-                g.create_dataset(key, data=np.asarray(value, float), compression="gzip")
-            else:
-                g.create_dataset(key, data=np.asarray(value, float))
-
-
-def _text_attr(v):
-    if isinstance(v, bytes):
-        return v.decode()
-    return v
+            big = key == "faces" or (np.ndim(value) >= 2 and np.shape(value)[0] > 16)
+            g.create_dataset(key, data=np.asarray(value, np.int64 if key == "faces" else float), **({"compression": "gzip"} if big else {}))
 
 
 def _obstacle_dataset(g, key: str, want: tuple, file: str, path: str) -> np.ndarray:
@@ -329,12 +305,12 @@ def read_obstacles(h5group, file) -> list:
     for k in order:
         g = h5group[str(k)]
         where = f"{base}/{k}"
-        shape = _text_attr(g.attrs.get("shape"))
+        shape = decode_attr(g.attrs.get("shape"))
         if shape is None:
             raise InputError(file, where, "missing attribute 'shape'")
         if shape not in OBSTACLE_TYPES:
             raise InputError(file, where, f"unknown shape '{shape}'")
-        name = _text_attr(g.attrs.get("name", ""))
+        name = decode_attr(g.attrs.get("name", ""))
         if not isinstance(name, str) or _bad_name(name):
             raise InputError(file, f"{where}@name", f"must be printable text of at most {limits.MAX_NAME_CHARS} characters")
         params = {key: _obstacle_dataset(g, key, want, file, f"{where}/{key}") for key, want in _DATASETS[shape].items()}
@@ -345,7 +321,7 @@ def read_obstacles(h5group, file) -> list:
                 faces = params["faces"]
                 if faces.dtype.kind == "f" and not np.array_equal(faces, np.round(faces)):
                     raise ValueError("faces must be integer vertex indices")
-                src = _text_attr(g.attrs.get("source"))
+                src = decode_attr(g.attrs.get("source"))
                 if src is not None and (not isinstance(src, str) or not src.isprintable()):
                     raise ValueError("source must be printable text")
                 ob = Mesh(params["vertices"], faces.astype(np.int64), source=src, name=name)
@@ -359,8 +335,7 @@ def check_start(problem, file) -> None:
     """InputError ``(file, key, reason)`` for a design that cannot start: no point of the target clears the
     obstacles by the tube's radius and ``obstacle_margin`` (the whole target inside an obstacle, or a margin wider
     than the space around it). Cheap: one distance per target point and obstacle."""
-    obstacles = getattr(problem, "obstacles", ())
-    target = getattr(problem, "target", None)
+    obstacles, target = getattr(problem, "obstacles", ()), getattr(problem, "target", None)
     if not obstacles or target is None:
         return
     each = np.array([np.asarray(ob.distance(np.asarray(target, float)), float).reshape(-1) for ob in obstacles])

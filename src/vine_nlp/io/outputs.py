@@ -7,8 +7,7 @@ the block ends normally each written output is moved onto its path: a new one by
 fails if another process created the file meanwhile), a forced one by a rename; a failure undoes the
 moves before it (a replaced file comes back); an exception or signal just removes the temporary files.
 Outside a run (scripts, sweeps) writes are immediate. Temporary files, ``.<name>.vine-nlp-<pid>-*.tmp``,
-of a process that no longer exists (SIGKILL) go with the next write into their directory.
-"""
+of a process that no longer exists (SIGKILL) go with the next write into their directory."""
 
 from __future__ import annotations
 

@@ -1,16 +1,13 @@
 """Sweep files (spec/formats.md, "Sweep files"): a base design problem and a grid of overrides.
 
 Every item of the grid is validated when the file is read: a bad item is bad input
-before any work is done, reported against the sweep file with the item named.
-"""
+before any work is done, reported against the sweep file with the item named."""
 
 from __future__ import annotations
 
 import copy
 import itertools
-import os
 import re
-import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -43,8 +40,7 @@ class Sweep:
     def items(self) -> list[tuple[str, dict, ProblemFile]]:
         """(item name, {dotted key: value}, problem) for the cartesian product of the grid, in grid order.
 
-        Item names are ``<sweep name>-<index:04d>``; each item's problem is named after it.
-        """
+        Item names are ``<sweep name>-<index:04d>``; each item's problem is named after it."""
         if self._items is None:
             self._items = _expand(self)
         return list(self._items)
@@ -54,7 +50,7 @@ def load_sweep(path) -> Sweep:
     """Read a sweep file and validate its base problem and every item."""
     path = str(path)
     f = SourceFile(path)
-    source = read_text(_regular(path, path, "file"), path, "file")
+    source = read_text(path, path, "file")  # a FIFO or device is refused unopened (io.files)
     data = parse_toml(path, source)  # refuses a dotted key of more parts than any grid key may have
     bad = _unprintable(data)
     if bad is not None:
@@ -66,7 +62,7 @@ def load_sweep(path) -> Sweep:
 
     base = nonempty_text(f, "base", required_value(f, data, "base", ""))
     base_path = str(f.dir / base)
-    base_source = read_text(_regular(base_path, path, "base"), path, "base")
+    base_source = read_text(base_path, path, "base")
     base_data = parse_toml(base_path, base_source)
     if parse_problem(base_data, base_path, base_source).kind != "design":
         raise f.error("base", "must be a design problem file (one with [target])")
@@ -96,10 +92,8 @@ def load_sweep(path) -> Sweep:
 def apply_override(data: dict, dotted_key: str, value, file: str = "<sweep>") -> dict:
     """A deep copy of ``data`` with the value at ``dotted_key`` replaced ("target.scale.0" = element 0).
 
-    Missing tables are created (a sweep may set a key the base leaves at its default);
-    an index needs an existing array and must be in range. Bad paths raise
-    ``InputError(file, dotted_key, ...)``.
-    """
+    Missing tables are created (a sweep may set a key the base leaves at its default); an index needs an existing array
+    and must be in range. Bad paths raise ``InputError(file, dotted_key, ...)``."""
     data = copy.deepcopy(data)
     _set(data, dotted_key, value, file)
     return data
@@ -169,17 +163,6 @@ def _flatten(table: dict, prefix: str = "") -> dict:
         else:
             flat[f"{prefix}{key}"] = value
     return flat
-
-
-def _regular(path: str, named_by: str, key: str) -> str:
-    """``path``, unless it is something that is no file to read (a FIFO blocks in open(), /dev/zero never ends)."""
-    try:
-        mode = os.stat(path).st_mode
-    except (OSError, ValueError):
-        mode = stat.S_IFREG  # read_text says what is wrong
-    if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
-        raise InputError(named_by, key, f"not a regular file (a pipe, device or socket): {path}")
-    return path
 
 
 def _unprintable(data):

@@ -1,11 +1,9 @@
 """Validation of values read from input files: every bad value is one InputError ``(file, key, reason)``.
 
-The checks the readers of problem, sweep and data files share (``vine_nlp.io.problems``,
-``vine_nlp.io.sweep_file``, ``vine_nlp.io.data_files``): reading and parsing a TOML file,
-tables and their keys (with a "did you mean" hint for unknown ones), numbers, arrays,
-choices, strings and rigid poses. Each takes the :class:`SourceFile` being read (it names
-the file in errors) and the dotted key of the value ("tube.diameter").
-"""
+The checks the readers of problem, sweep and data files share (``vine_nlp.io.problems``, ``vine_nlp.io.sweep_file``,
+``vine_nlp.io.data_files``): reading and parsing a TOML file, tables and their keys (with a "did you mean" hint for
+unknown ones), numbers, arrays, choices, strings and rigid poses. Each takes the :class:`SourceFile` being read (it
+names the file in errors) and the dotted key of the value ("tube.diameter")."""
 
 from __future__ import annotations
 

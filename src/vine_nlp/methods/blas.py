@@ -6,8 +6,7 @@ and doubled the CPU time of the designs (results/BENCHMARKS.md, "Solver threads"
 sets OpenBLAS's thread count (ENV_VARS; the user's choice wins): ``one_thread`` sets CasADi's copy to one
 thread when the first solver is built; ``limited`` is a context in which NumPy's and SciPy's copies run one
 thread (threadpoolctl), around every solve; ``own_process``, for processes vine_nlp owns (the command line,
-sweep workers, benchmarks), sets the environment so copies loaded later read it too.
-"""
+sweep workers, benchmarks), sets the environment so copies loaded later read it too."""
 
 from __future__ import annotations
 
@@ -25,7 +24,6 @@ _set_here = False  # own_process set OPENBLAS_NUM_THREADS: not the user's choice
 @lru_cache(maxsize=1)
 def _casadi_openblas():
     import casadi as ca  # loaded where solvers are built: the command line checks its input without it
-
     path = os.path.join(os.path.dirname(ca.__file__), "libcasadi-tp-openblas.so.0")
     if not os.path.exists(path):
         return None
@@ -57,9 +55,8 @@ def _user_chose() -> bool:
 
 
 def limited():
-    """A context in which the BLAS libraries loaded in the process (NumPy's, SciPy's) run one thread,
-    restored on exit; a no-op where the environment chose a thread count. (CasADi's copy is set where a
-    solver is built: ``one_thread``.)"""
+    """A context in which the BLAS libraries loaded in the process (NumPy's, SciPy's) run one thread, restored on exit;
+    a no-op where the environment chose a thread count. (CasADi's copy is set where a solver is built: ``one_thread``.)"""
     if _user_chose():
         return contextlib.nullcontext()
     import threadpoolctl  # loaded where a solve runs: the command line checks its input without it
@@ -78,5 +75,4 @@ def own_process() -> None:
     os.environ["OPENBLAS_NUM_THREADS"] = "1"
     _set_here = True
     import threadpoolctl
-
     threadpoolctl.get_cached_controller().limit(limits=1, user_api="blas")

@@ -1,16 +1,14 @@
 """Blocks: the per-stage pieces of the chain NLP, each with its own SX derivatives.
 
-A *block* is an SX function of a few local variables v (a gather of x) and data d, giving a share
-of the objective f and rows r. Every block carries its own SX derivatives, mapped over its
-instances and scattered into the global matrices (:func:`scatter`): CasADi's automatic MX
-derivatives would colour the whole banded matrix and sweep the mapped function once per colour,
-several times the cost per iteration (results/BENCHMARKS.md, "Derivatives").
+A *block* is an SX function of a few local variables v (a gather of x) and data d, giving a share of the objective f and
+rows r. Every block carries its own SX derivatives, mapped over its instances and scattered into the global matrices
+(:func:`scatter`): CasADi's automatic MX derivatives would colour the whole banded matrix and sweep the mapped function
+once per colour, several times the cost per iteration (results/BENCHMARKS.md, "Derivatives").
 
 Blocks every chain has:
   pose      X_0(k) = [vec(R0g exp(w)); p]          (not for a fixed pose: bounds fix X_0)
   segment   X_{j+1}(k) = X_j(k) T^{j+1}_j(theta_j, lam_j(k), dl_j)   (continuity)
-            and the point fit sum_i w_i |r_c(u_i) - r_d,i|^2 of the slots of the cell
-"""
+            and the point fit sum_i w_i |r_c(u_i) - r_d,i|^2 of the slots of the cell"""
 
 from __future__ import annotations
 
@@ -138,10 +136,9 @@ def _sampled(bt: BlockType, sub: tuple) -> tuple:
 def segment_block(n: int) -> BlockType:
     """Continuity and point fit of one (segment, level) cell.
 
-    v = ``variables.CELL`` (X_j (12), theta, lam, length, X_{j+1} (12)); d = (u (n), target slots (3 n, slot-major), w (n)).
-    f = sum_i w_i |r_c(u_i) - r_d,i|^2; r = X_j T^{j+1}_j - X_{j+1}. Gauss-Newton: 2 J^T J of the
-    weighted residuals, the constraint curvature left out (always PSD, cheap, linear convergence on
-    large-residual targets)."""
+    v = ``variables.CELL`` (X_j (12), theta, lam, length, X_{j+1} (12)); d = (u (n), target slots (3 n, slot-major), w
+    (n)). f = sum_i w_i |r_c(u_i) - r_d,i|^2; r = X_j T^{j+1}_j - X_{j+1}. Gauss-Newton: 2 J^T J of the weighted
+    residuals, the constraint curvature left out (always PSD, cheap, linear convergence on large-residual targets)."""
 
     def build():
         v, d = ca.SX.sym("v", CELL.size), ca.SX.sym("d", 5 * n)
@@ -168,12 +165,10 @@ def pose_block() -> BlockType:
 def scatter(shape, blocks, symmetric: bool):
     """Sparse MX of ``shape`` from per-instance dense-pattern blocks.
 
-    ``blocks``: (values, pattern, rows, cols) with ``values`` the horizontally
-    concatenated block outputs of a mapped call, ``pattern`` one block's sparsity and
-    ``rows``/``cols`` (local size x instances) the global index of each local row/column.
-    Entries that land on the same place (a shared variable of several blocks) are summed;
-    ``symmetric`` stores each entry in the upper triangle.
-    """
+    ``blocks``: (values, pattern, rows, cols) with ``values`` the horizontally concatenated block outputs of a mapped
+    call, ``pattern`` one block's sparsity and ``rows``/``cols`` (local size x instances) the global index of each local
+    row/column. Entries that land on the same place (a shared variable of several blocks) are summed; ``symmetric``
+    stores each entry in the upper triangle."""
     R, C, V = [], [], []
     for values, pattern, rows, cols in blocks:
         r, c = (np.asarray(v) for v in pattern.get_triplet())

@@ -300,7 +300,7 @@ def inherited_bounds(problem: DesignProblem, pairing, start: Result | None):
     return box | {"lam": lambda_bounds(np.ones(r.segments, bool) if build.shared else r.lam != 1.0, r.length, build)}
 
 
-JUDGED = ("nlp", "nlp_obstacles", "tip", "multishape", "nlp_robust", "nlp_clearance")
+JUDGED = ("nlp", "nlp_obstacles", "tip", "multishape", "nlp_robust", "nlp_clearance", "greedy_buildable")
 
 
 def missed(problem, result: Result) -> list[str]:

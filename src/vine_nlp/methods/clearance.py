@@ -1,18 +1,16 @@
 """Inverse design that keeps the tube clear of itself: the plain NLP plus clearance rows.
 
-For chosen pairs of material points (l_a, l_b): |r_c(l_a) - r_c(l_b)|^2 >= (D + min_gap)^2, each point
-the frame X_j of its segment times the partial segment (the fraction as data). Which pairs: an active set
-on the drive (``drive.refine``, the rule :class:`_Pairs`). Start from design_nlp's result; detect the
-contact regions of the current design (analysis.collision.routing_clearance, with a detection margin);
-constrain, for every sampled point of a region, the pair with its closest partner, plus each region's
-continuous minimum; re-solve warm; until the continuous minimum clearance is >= D + min_gap (to
-``tol_gap`` D). Pairs are never dropped. Between the rows, and as material points slide along the tube,
-the clearance can dip below the target: after a solve the rows' target rises by settings.RAISE_FACTOR
-times the shortfall, but only where every short region has a constrained pair near its minimum (a dip
-between rows that hold); a region without one is a new contact and gets its pairs instead (raising for it
-pushed tight coils ever farther open: the loop ran away). The pairs' segments are structure (a solver per
-active set, cached), their fractions and the required distance data.
-"""
+For chosen pairs of material points (l_a, l_b): |r_c(l_a) - r_c(l_b)|^2 >= (D + min_gap)^2, each point the frame X_j of
+its segment times the partial segment (the fraction as data). Which pairs: an active set on the drive (``drive.refine``,
+the rule :class:`_Pairs`). Start from design_nlp's result; detect the contact regions of the current design
+(analysis.collision.routing_clearance, with a detection margin); constrain, for every sampled point of a region, the
+pair with its closest partner, plus each region's continuous minimum; re-solve warm; until the continuous minimum
+clearance is >= D + min_gap (to ``tol_gap`` D). Pairs are never dropped. Between the rows, and as material points slide
+along the tube, the clearance can dip below the target: after a solve the rows' target rises by settings.RAISE_FACTOR
+times the shortfall, but only where every short region has a constrained pair near its minimum (a dip between rows that
+hold); a region without one is a new contact and gets its pairs instead (raising for it pushed tight coils ever farther
+open: the loop ran away). The pairs' segments are structure (a solver per active set, cached), their fractions and the
+required distance data."""
 
 from __future__ import annotations
 
@@ -56,9 +54,8 @@ def pair_block(k: int = 1) -> BlockType:
 
 @dataclass(frozen=True)
 class ClearancePairs:
-    """Rows |r_c(a) - r_c(b)|^2 >= need for pairs of points given by their segments (structure), one block
-    per segment pair (pair_block); parameters pair_u (2 x P, the fractions) and pair_need (the squared
-    distance, units of D^2)."""
+    """Rows |r_c(a) - r_c(b)|^2 >= need for pairs of points given by their segments (structure), one block per segment
+    pair (pair_block); parameters pair_u (2 x P, the fractions) and pair_need (the squared distance, units of D^2)."""
 
     segments: tuple  # ((j_a, j_b), ...)
     # the pairs are an active set, a new structure nearly every solve: the structure runs interpreted,
@@ -161,16 +158,13 @@ def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, pairs=No
                           tol_gap: float = 1e-7, pair_step: float | None = None, **kw) -> Result:
     """Inverse design with |r_c(l_a) - r_c(l_b)| >= D + min_gap at the contact pairs (active-set loop).
 
-    ``start``: a design to start from (default: design_nlp(problem, **kw)); returned (a copy) when it is
-    already clear and no ``pairs`` are given. ``pairs``: extra (l_a, l_b)
-    material-coordinate pairs (problem units) constrained from the first solve on (at least one).
-    ``detect_margin`` (default D/4): pairs closer than D + min_gap + margin are constrained.
-    ``exclude_arc`` (default pi (D + min_gap) / 2): nearer points along the tube are neighbours, never paired.
-    The loop stops when the continuous minimum clearance (analysis.collision.routing_clearance)
-    is >= D + min_gap - tol_gap D and no region needs new rows, or after ``rounds`` solves.
-    stats: clearance_rounds, clearance_pairs, min_clearance, start_rmse, start_min_clearance; iterations
-    and ipopt_time_s summed over the rounds.
-    """
+    ``start``: a design to start from (default: design_nlp(problem, **kw)); returned (a copy) when it is already clear
+    and no ``pairs`` are given. ``pairs``: extra (l_a, l_b) material-coordinate pairs (problem units) constrained from
+    the first solve on (at least one). ``detect_margin`` (default D/4): pairs closer than D + min_gap + margin are
+    constrained. ``exclude_arc`` (default pi (D + min_gap) / 2): nearer points along the tube are neighbours, never
+    paired. The loop stops when the continuous minimum clearance (analysis.collision.routing_clearance) is >= D +
+    min_gap - tol_gap D and no region needs new rows, or after ``rounds`` solves. stats: clearance_rounds,
+    clearance_pairs, min_clearance, start_rmse, start_min_clearance; iterations and ipopt_time_s summed over the rounds."""
     D = problem.diameter
     # neighbours: half a turn of the tightest circle that keeps them D + min_gap apart (analysis.collision,
     # "Neighbours", with D + min_gap for D): nearer points of any tube bent more gently are farther apart
@@ -187,11 +181,9 @@ def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, pairs=No
         found = drive.refine(rule, rounds, stats=stats)
         best, check, solves = stats.stamp(found.best), found.verdict.report, found.rounds
     best.met["clearance"] = bool(check["clearance"] >= rule.need - rule.tol)
-    best.stats.update({
-        "clearance_rounds": solves, "clearance_met": best.met["clearance"], "clearance_pairs": len(rule.active),
-        "clearance_row_margin": rule.row_margin, "min_clearance": float(check["clearance"]), "min_gap": float(min_gap),
-        "start_rmse": float(start.metrics["rmse"]), "start_min_clearance": float(first["clearance"]),
-    })
+    best.stats.update({"clearance_rounds": solves, "clearance_met": best.met["clearance"], "clearance_pairs": len(rule.active),
+                       "clearance_row_margin": rule.row_margin, "min_clearance": float(check["clearance"]), "min_gap": float(min_gap),
+                       "start_rmse": float(start.metrics["rmse"]), "start_min_clearance": float(first["clearance"])})
     return best
 
 

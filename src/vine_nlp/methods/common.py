@@ -1,8 +1,7 @@
 """What every design method shares: the fit error, bounds, initial guesses.
 
 The pairing of target points with model points (the paper's PathError) is
-``vine_nlp.model.pairing``, re-exported here for the methods.
-"""
+``vine_nlp.model.pairing``, re-exported here for the methods."""
 
 from __future__ import annotations
 
@@ -39,9 +38,8 @@ def clip_to_bounds(problem: DesignProblem, pairing: Pairing, **values) -> dict:
 
 def evaluate(problem: DesignProblem, routing: Routing, pairing: Pairing, method: str, **kw) -> Result:
     """Model the routing at the paired points and measure it against the target."""
-    center, inner, outer = shape_lines(
-        routing.theta, routing.lam, routing.length, problem.diameter, pairing.seg, pairing.frac, routing.initial_pose
-    )
+    center, inner, outer = shape_lines(routing.theta, routing.lam, routing.length, problem.diameter, pairing.seg, pairing.frac,
+                                       routing.initial_pose)
     metrics = error_metrics(center, problem.target) | routing_metrics(routing)
     return Result(method=method, routing=routing, shape=Shape(center, inner, outer), metrics=metrics, diameter=problem.diameter, **kw)
 
@@ -93,16 +91,12 @@ class Guess:
 def geometric_guess(problem: DesignProblem, pairing: Pairing, flip_sign: float = 1.0) -> Guess:
     """Initial design from the target's own geometry.
 
-    Per segment: the turning angle of the target's tangents gives the curvature, the
-    rotation of the bending direction about the tangent between neighbouring segments
-    gives the torsion, and Table I's inverse (helix_from_curvature) turns both into
-    theta and lambda, clipped to the bounds. A bending direction that flips (an
-    inflection, where the actuator must move to the other side of the tube) is a
-    rotation of +-pi about the tangent: ``flip_sign`` picks the side, which breaks
-    the theta -> -theta symmetry of planar targets (model notes, symmetry trap).
-    """
-    D = problem.diameter
-    tgt = problem.target
+    Per segment: the turning angle of the target's tangents gives the curvature, the rotation of the bending direction
+    about the tangent between neighbouring segments gives the torsion, and Table I's inverse (helix_from_curvature)
+    turns both into theta and lambda, clipped to the bounds. A bending direction that flips (an inflection, where the
+    actuator must move to the other side of the tube) is a rotation of +-pi about the tangent: ``flip_sign`` picks the
+    side, which breaks the theta -> -theta symmetry of planar targets (model notes, symmetry trap)."""
+    D, tgt = problem.diameter, problem.target
     M, b = pairing.segments, pairing.bounds
     tangent = _unit(np.gradient(tgt, pairing.chord, axis=0))
     arc = np.maximum(pairing.segment_chord, 1e-12)

@@ -1,24 +1,21 @@
 """Compiled NLP functions: CasADi's C code generation, compiled once per structure and cached on disk.
 
-IPOPT calls five functions of the NLP per iteration; interpreted, they run CasADi's MX virtual machine over
-the mapped per-stage SX blocks, compiled the same expressions run as C (the answers agree to rounding).
-A structure built from an active set
-(clearance pairs, obstacle rows) seldom recurs: it runs interpreted with each block type compiled on its own
+IPOPT calls five functions of the NLP per iteration; interpreted, they run CasADi's MX virtual machine over the mapped
+per-stage SX blocks, compiled the same expressions run as C (the answers agree to rounding). A structure built from an
+active set (clearance pairs, obstacle rows) seldom recurs: it runs interpreted with each block type compiled on its own
 (``block_functions``, up to BLOCK_BUDGET instructions; a map of samples runs on its one-sample block).
 
-A library is keyed by everything that decides the generated code: the Spec without the solver's settings, the
-CasADi version, the compiler and its flags, and the source of model/ and methods/ (a changed formula never
-loads a stale library); a run never waits for the compiler: where the library is missing it solves on the
-interpreted functions and leaves the C code to a detached, niced compiler process (one per library on the
-machine: ``<library>.lock``; one at a time per cache: ``.compiler.lock``) that writes the library atomically;
-later builds, in this process too (``Upgrading``), load it. A failed compile leaves ``<library>.failed``
-(delete it to try again). Environment: ``VINE_NLP_CODEGEN`` ``auto`` (default: compile in the background where
-a C compiler is found, else interpreted, said once), ``on`` (compile before the solve; a missing or failing
-compiler is an error), ``off``; ``VINE_NLP_CACHE_DIR`` (default ``$XDG_CACHE_HOME/vine_nlp`` or
-``~/.cache/vine_nlp``); ``CC``, ``VINE_NLP_CFLAGS`` (default gcc, then cc; ``-O1``). Notes go to the
-``vine_nlp`` logger: compiling (INFO) and falling back to interpreted functions (WARNING, once per process).
-``wait(timeout)`` waits for this process's background compilers (tests, benchmarks).
-"""
+A library is keyed by everything that decides the generated code: the Spec without the solver's settings, the CasADi
+version, the compiler and its flags, and the source of model/ and methods/ (a changed formula never loads a stale
+library); a run never waits for the compiler: where the library is missing it solves on the interpreted functions and
+leaves the C code to a detached, niced compiler process (one per library on the machine: ``<library>.lock``; one at a
+time per cache: ``.compiler.lock``) that writes the library atomically; later builds, in this process too
+(``Upgrading``), load it. A failed compile leaves ``<library>.failed`` (delete it to try again). Environment:
+``VINE_NLP_CODEGEN`` ``auto`` (default: compile in the background where a C compiler is found, else interpreted, said
+once), ``on`` (compile before the solve; a missing or failing compiler is an error), ``off``; ``VINE_NLP_CACHE_DIR``
+(default ``$XDG_CACHE_HOME/vine_nlp`` or ``~/.cache/vine_nlp``); ``CC``, ``VINE_NLP_CFLAGS`` (default gcc, then cc;
+``-O1``). Notes go to the ``vine_nlp`` logger: compiling (INFO) and falling back to interpreted functions (WARNING, once
+per process). ``wait(timeout)`` waits for this process's background compilers (tests, benchmarks)."""
 
 from __future__ import annotations
 
@@ -115,19 +112,14 @@ def mode() -> str:
 
 def cache_dir() -> Path:
     d = os.environ.get("VINE_NLP_CACHE_DIR")
-    if d:
-        return Path(d)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "vine_nlp"
+    return Path(d) if d else Path(os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")) / "vine_nlp"
 
 
 def compiler() -> list[str] | None:
     """The C compiler command with its flags, or None where none is found."""
     cc = os.environ.get("CC")
     exe = shutil.which(cc) if cc else (shutil.which("gcc") or shutil.which("cc"))
-    if not exe:
-        return None
-    return [exe, *shlex.split(os.environ.get("VINE_NLP_CFLAGS", "-O1"))]
+    return [exe, *shlex.split(os.environ.get("VINE_NLP_CFLAGS", "-O1"))] if exe else None
 
 
 @lru_cache(maxsize=1)
@@ -170,14 +162,12 @@ def _fallback(text: str, strict: bool):
 
 def library(spec_text: str, build_functions, prefix: str = "nlp", what: str = "the NLP functions for this structure",
             later: list | None = None) -> str | None:
-    """Path of the compiled library for a solver (or one block type: ``prefix``, ``what``) where it is
-    in the cache; else None (run interpreted) after starting its compile in the background (codegen
-    ``auto``; ``on``: compiled first, its path returned). ``later`` gets the library's path where it
-    is being compiled (here or by another process).
+    """Path of the compiled library for a solver (or one block type: ``prefix``, ``what``) where it is in the cache;
+    else None (run interpreted) after starting its compile in the background (codegen ``auto``; ``on``: compiled first,
+    its path returned). ``later`` gets the library's path where it is being compiled (here or by another process).
 
     ``build_functions()`` returns the CasADi functions to compile (called only on a cache miss)."""
     import casadi as ca
-
     _running[:] = [proc for proc in _running if proc.poll() is None]  # reap the compilers that ended
     m = mode()
     if m == "off":
@@ -224,7 +214,6 @@ def _compile(target: Path, build_functions, cc: list[str], strict: bool, what: s
     """Generate the C code (milliseconds), then compile it: now (``strict``) or in a detached process
     that inherits the held ``lock``."""
     import casadi as ca
-
     try:
         work = tempfile.mkdtemp(prefix=".build-", dir=target.parent)
     except OSError as e:
@@ -273,8 +262,6 @@ def wait(timeout: float | None = None) -> bool:
     return True
 
 
-
-
 def block_functions(name: str, functions: list) -> list | None:
     """Compiled copies of one block type's SX ``functions`` (value, derivatives), for a solver whose
     structure seldom recurs (an active set): the structure stays interpreted, its blocks run as C.
@@ -283,7 +270,6 @@ def block_functions(name: str, functions: list) -> list | None:
     types (each new active set of pairs) loads them. None where they stay interpreted: codegen off, no
     compiler, a failed compile, or more than BLOCK_BUDGET instructions."""
     import casadi as ca
-
     if mode() == "off" or sum(f.n_instructions() for f in functions) > BLOCK_BUDGET:
         return None
     digest = hashlib.sha256("\0".join(f.serialize() for f in functions).encode()).hexdigest()
@@ -306,7 +292,6 @@ def stored(name: str, build) -> list:
     ``build()`` returns the functions; it runs where codegen is off, on a miss, or when the
     stored copy does not match its checksum (then it is written again)."""
     import casadi as ca
-
     if mode() == "off":
         return build()
     path = cache_dir() / f"casadi-{ca.__version__}" / f"{name}-{_code_fingerprint()[:24]}.casadi"

@@ -23,8 +23,7 @@ the first solve; ``search`` then improves that design window by window:
 
 Deterministic for a given ``options.seed``: a window's work does not depend on which thread ran it, and the
 budget is only a safety stop (stats ``search_budget_hit`` says when it cut the search). The constants are
-methods.settings'; what a round gains on the polyline (d) is in results/BENCHMARKS.md ("compare").
-"""
+methods.settings'; what a round gains on the polyline (d) is in results/BENCHMARKS.md ("compare")."""
 
 from __future__ import annotations
 
@@ -65,8 +64,7 @@ def _window_nlp(W: int, n1: int, shared: bool):
     """SX of the window NLP: x per segment (theta, lam unless shared, dl); p = (X_a (12), u (n1 W),
     targets (3 n1 W, slot-major), weights (n1 W), shared lambda, tail: c, W, Q (3), C (9), T (3))."""
     per = 2 if shared else 3
-    x = ca.SX.sym("x", per * W)
-    X = ca.SX.sym("Xa", 12)
+    x, X = ca.SX.sym("x", per * W), ca.SX.sym("Xa", 12)
     u, tgt, w = ca.SX.sym("u", n1, W), ca.SX.sym("tgt", 3 * n1, W), ca.SX.sym("w", n1, W)
     lam_shared = ca.SX.sym("lam")
     c, Ws, Q, C, T = ca.SX.sym("c"), ca.SX.sym("W"), ca.SX.sym("Q", 3), ca.SX.sym("C", 9), ca.SX.sym("T", 3)
@@ -206,15 +204,13 @@ def search(problem: DesignProblem, result: Result, pairing: Pairing, polish: Cal
            note: Callable[[str], None] | None = None, rounds: int = settings.SEARCH_ROUNDS) -> Result:
     """Improve the design ``result`` of a corner-like target window by window (module docstring).
 
-    ``polish(routing) -> Result``: the full NLP from a design (ends every round); ``budget``: seconds from
-    the call, no window or polish started that the time measured so far says would not fit; ``workers``:
-    threads sharing a window's starts; ``progress(done, total)`` after every window and polish;
-    ``note(line)``: one line per round (the command line prints it on stderr); ``rounds``: at most.
-    Returns the best design found (``result`` itself if nothing was better), with stats search_rounds,
-    search_windows, search_accepted, search_objectives (after each polish), search_time_s,
-    search_budget_hit, search_workers, search_window_iterations; its iterations are the first solve's and
-    the polishes', its solve time includes the search.
-    """
+    ``polish(routing) -> Result``: the full NLP from a design (ends every round); ``budget``: seconds from the call, no
+    window or polish started that the time measured so far says would not fit; ``workers``: threads sharing a window's
+    starts; ``progress(done, total)`` after every window and polish; ``note(line)``: one line per round (the command
+    line prints it on stderr); ``rounds``: at most. Returns the best design found (``result`` itself if nothing was
+    better), with stats search_rounds, search_windows, search_accepted, search_objectives (after each polish),
+    search_time_s, search_budget_hit, search_workers, search_window_iterations; its iterations are the first solve's and
+    the polishes', its solve time includes the search."""
     run = _Search(problem, result, pairing, budget, workers, progress, rounds)
     try:
         for rnd in range(max(1, rounds)):
@@ -309,9 +305,7 @@ class _Search:
         return changed
 
     def finish(self, result: Result) -> Result:
-        total = self.per_round * max(1, self.rounds_asked)
-        if self.progress:
-            self.progress(total, total)
+        self.report(self.per_round * max(1, self.rounds_asked))  # done
         elapsed = time.perf_counter() - self.t0
         best = self.best
         best.stats |= {"search_rounds": self.rounds, "search_windows": self.windows_done, "search_accepted": self.accepted,

@@ -28,6 +28,7 @@ low-pass filter of theta(s) and lambda(s) (zero-phase Butterworth), re-evaluated
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from functools import lru_cache
@@ -36,14 +37,16 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
+from vine_nlp.analysis.buildability import pieces
 from vine_nlp.methods import blas, settings, variables
+from vine_nlp.methods.buildable import Build, chain_bends, classify, lambda_bounds, unwind
 from vine_nlp.methods.common import Pairing, clip_to_bounds, design_bounds, evaluate, geometric_guess, pair_points, path_error
 from vine_nlp.methods.transcription import ipopt_status
 from vine_nlp.model.chain import chain_points
 from vine_nlp.model.segment import segment_parts, segment_transform, so3_exp
 from vine_nlp.problem import DesignProblem, Result, Routing
 
-__all__ = ["design_greedy", "lowpass", "WindowSolver", "get_window_solver"]
+__all__ = ["design_greedy", "design_greedy_buildable", "lowpass", "WindowSolver", "get_window_solver"]
 
 
 
@@ -191,14 +194,15 @@ class _Counter:
 
 
 def _greedy_pass(problem: DesignProblem, pairing: Pairing, counter: _Counter, lam_fixed: float | None = None,
-                 abandon_at: float | None = None) -> dict:
-    """Algorithm 1 once (per-segment lambda, or a fixed shared lambda when ``lam_fixed`` is given)."""
+                 abandon_at: float | None = None, bounds: dict | None = None) -> dict:
+    """Algorithm 1 once (per-segment lambda, or a fixed shared lambda when ``lam_fixed`` is given); ``bounds``:
+    per-segment bounds (lo, hi) of "theta" or "lam" instead of the actuator's."""
     o = problem.options
     D = problem.diameter
     M, k = pairing.segments, max(1, int(o.lookahead))
     shared = lam_fixed is not None
     rng = np.random.default_rng(o.seed)
-    box = design_bounds(problem, pairing)
+    box = design_bounds(problem, pairing) | (bounds or {})
     (tl, tu), (ll, lu), (dlo, dhi) = box["theta"], box["lam"], box["length"]
     chord = pairing.segment_chord
 
@@ -297,10 +301,12 @@ def _total_error(problem, pairing, routing) -> float:
 # ---------------------------------------------------------------- public API
 
 
-def design_greedy(problem: DesignProblem, pairing: Pairing | None = None, progress: Callable[[int, int], None] | None = None) -> Result:
+def design_greedy(problem: DesignProblem, pairing: Pairing | None = None, progress: Callable[[int, int], None] | None = None,
+                  bounds: dict | None = None) -> Result:
     """The paper's greedy Algorithm 1 (sPAM variant when ``problem.actuator.kind == "spam"``).
 
-    ``progress(done, total)``, if given, is called after each window solve round.
+    ``progress(done, total)``, if given, is called after each window solve round. ``bounds``: per-segment
+    bounds (lo, hi) of "theta" or "lam" instead of the actuator's (sPAM: the lambda candidates span lo[0] to hi[0]).
     Returns a Result with method "greedy"; ``stats`` records window solves, windows,
     starts per window, the lookahead and (sPAM) the lambda candidates.
     """
@@ -314,7 +320,7 @@ def design_greedy(problem: DesignProblem, pairing: Pairing | None = None, progre
 
     if not problem.actuator.shared_lambda:
         counter = _Counter(M, progress)
-        best = _greedy_pass(problem, pairing, counter)
+        best = _greedy_pass(problem, pairing, counter, bounds=bounds)
         runs = [best]
     else:
         a = problem.actuator
@@ -324,14 +330,15 @@ def design_greedy(problem: DesignProblem, pairing: Pairing | None = None, progre
         runs, tried = [], []
 
         def run_candidate(lam_c, abandon=True):
-            r = _greedy_pass(problem, pairing, counter, lam_fixed=float(lam_c), abandon_at=threshold if abandon else None)
+            r = _greedy_pass(problem, pairing, counter, lam_fixed=float(lam_c), abandon_at=threshold if abandon else None, bounds=bounds)
             r["lambda"] = float(lam_c)
             r["error"] = math.inf if r["abandoned"] else _total_error(problem, pairing, r["routing"])
             runs.append(r)
             tried.append(float(lam_c))
             return r
 
-        grid = np.linspace(a.lambda_min, 1.0, settings.SPAM_CANDIDATES)
+        span = (a.lambda_min, 1.0) if "lam" not in (bounds or {}) else (float(bounds["lam"][0][0]), float(bounds["lam"][1][0]))
+        grid = np.linspace(*span, settings.SPAM_CANDIDATES)
         for lam_c in grid:
             run_candidate(lam_c)
         step = grid[1] - grid[0] if grid.size > 1 else 0.0
@@ -340,7 +347,7 @@ def design_greedy(problem: DesignProblem, pairing: Pairing | None = None, progre
         if done and step > 0:
             center = min(done, key=lambda r: r["error"])["lambda"]
             for lam_c in np.linspace(center - step / 2, center + step / 2, settings.SPAM_REFINE):
-                lam_c = float(np.clip(lam_c, a.lambda_min, 1.0))
+                lam_c = float(np.clip(lam_c, *span))
                 if any(abs(lam_c - t) < 1e-12 for t in tried):
                     continue
                 run_candidate(lam_c)
@@ -374,6 +381,45 @@ def design_greedy(problem: DesignProblem, pairing: Pairing | None = None, progre
     counter.step(counter.total - counter.done)
     return evaluate(problem, best["routing"], pairing, "greedy", status=_overall_status(best["window_status"]),
                     solve_time_s=elapsed, iterations=iterations, stats=stats)
+
+
+def _carriers(act, base_free: bool) -> np.ndarray:
+    """Where the buildable greedy's line may turn: actuated segments, and the last segment of each unactuated run
+    before an actuated piece (a first run's only with a fixed base: a free base rolls instead). Elsewhere theta 0:
+    on a straight run only its net turning moves the shape, and a window's equal choices of it stall IPOPT."""
+    out = np.array(act, bool)
+    for p in pieces(out, np.ones(out.size), np.ones(out.size)):
+        if not p.actuated and p.stop < out.size and (p.start > 0 or not base_free):
+            out[p.stop - 1] = True
+    return out
+
+
+def design_greedy_buildable(problem: DesignProblem, pairing: Pairing | None = None, progress: Callable[[int, int], None] | None = None,
+                            start: Result | None = None) -> Result:
+    """The greedy under the buildable rules (method "greedy_buildable"): Algorithm 1 again, with the lambda bounds
+    (methods.buildable.lambda_bounds: exactly 1 without an actuator, the correction margin and min_feature with one)
+    of the classes its free design ``start`` (default: run here; its time counted either way) bends for (``classify`` on its
+    ``chain_bends``: the greedy has no reclassification, and at a corner the target bends within one segment where
+    a tube spreads it over several); then each unactuated run's turning the shortest way round (``unwind``: the
+    same shape). stats buildable_actuated, buildable_free_rmse."""
+    t0 = time.perf_counter()
+    pairing = pairing or pair_points(problem.target, problem.options.points_per_segment)
+    before = 0.0 if start is None else start.solve_time_s  # the free design's time, counted as the nlp's buildable design does
+    start = start or design_greedy(problem, pairing, progress)
+    build = Build.of(problem)
+    act = classify(chain_bends(start.routing, problem.diameter), pairing.segment_chord, build)
+    box = design_bounds(problem, pairing)
+    turns = _carriers(act, build.pose is None)
+    theta = (np.where(turns, box["theta"][0], 0.0), np.where(turns, box["theta"][1], 0.0))
+    res = design_greedy(problem, pairing, progress, bounds={"lam": lambda_bounds(act, pairing.segment_chord, build), "theta": theta})
+    # the greedy fits its own base pose, a fixed one too: its pose is the one kept
+    r = unwind(res.routing, act, build if build.pose is None else dataclasses.replace(build, pose=res.routing.initial_pose))
+    stats = res.stats | {"buildable": True, "buildable_actuated": int(act.sum()), "buildable_free_rmse": float(start.metrics["rmse"]),
+                         "correction_margin": build.margin, "min_feature": build.min_feature}
+    out = evaluate(problem, r, pairing, "greedy_buildable", status=res.status, iterations=res.iterations, stats=stats,
+                   solve_time_s=before + time.perf_counter() - t0)
+    out.buildable = True
+    return out
 
 
 def lowpass(result_or_routing, problem: DesignProblem, pairing: Pairing | None = None, cutoff: float = 0.5) -> Result:

@@ -12,19 +12,17 @@ direction of gravity; a = w |g| D^2 / S_M, b = m_tip |g| D / S_M), and ask
 
     c_j^2 / tau^2 - |mu_j - (mu_j . t_j) t_j|^2 >= 0
 
-(c_j: 1, or analysis.loads.WRINKLED where segment j or j - 1 is actuated; t_j the tangent; tau >= 1 a
-tightening). Every row reads one stage and the next: the banded structure stays. The rows see the section at
-each segment's start; the analysis (analysis.loads.load_report) checks 20 per segment and every grown prefix.
-Where a grown prefix is short, rows for it join (an active set; :func:`prefix_block`: by the recursion's
-linearity, two stages' variables); where the final shape is, tau grows by the shortfall; and the design is
-solved again from where it is.
+(c_j: 1, or analysis.loads.WRINKLED where segment j or j - 1 is actuated; t_j the tangent; tau >= 1 a tightening). Every
+row reads one stage and the next: the banded structure stays. The rows see the section at each segment's start; the
+analysis (analysis.loads.load_report) checks 20 per segment and every grown prefix. Where a grown prefix is short, rows
+for it join (an active set; :func:`prefix_block`: by the recursion's linearity, two stages' variables); where the final
+shape is, tau grows by the shortfall; and the design is solved again from where it is.
 
 The design starts from the design without the load (the buildable one: its classes, lambda exactly 1 where
 there is no actuator, are kept, so which sections are actuated is known: the capacities are data) and is
 kept as it is where it already stands. A design that stands only BUDGET D (RMSE) or more off the target is no
 design of that target: the design on it stays the problem's design (it folds, and the judge says where and
-the pressure it needs) and the one that stands is kept beside it as run RUN (:func:`load_runs`).
-"""
+the pressure it needs) and the one that stands is kept beside it as run RUN (:func:`load_runs`)."""
 
 from __future__ import annotations
 

@@ -1,23 +1,20 @@
 """Mirror images: a design problem solved in the handedness its geometry picks (issue 33).
 
-The mirror y -> -y (M = diag(1, -1, 1)) maps a routing's shape to the shape of the mirrored routing:
-theta -> -theta, lambda and lengths kept, each frame T -> M T S with S = diag(1, 1, -1) (the Frenet
-frame's binormal is t x n; the segment's torsion is odd in theta, its curvature even). Negation is exact
-in floating point and the model's functions are exactly odd or even, so the mirror of a design is exact.
-A solve is not: IPOPT's sums over a variable's two bound multipliers run in another order once the
-variable's sign flips, and the local solve from exactly mirrored starts, with exactly mirrored
-derivatives, amplifies that last bit into a different local optimum (1e-13 after one iteration, 1e-5
-after 40, 0.1 after 120 on a random scene; designs 3 % apart in RMSE, 0.4 % without obstacles). So a
-problem is solved in ONE of its two handednesses, the one :func:`handedness` picks, and a problem of the
-other handedness is solved as its mirror and the design mirrored back: a scene and its mirror image are
-the same numbers for the solver, and their designs are mirror images bit for bit.
+The mirror y -> -y (M = diag(1, -1, 1)) maps a routing's shape to the shape of the mirrored routing: theta -> -theta,
+lambda and lengths kept, each frame T -> M T S with S = diag(1, 1, -1) (the Frenet frame's binormal is t x n; the
+segment's torsion is odd in theta, its curvature even). Negation is exact in floating point and the model's functions
+are exactly odd or even, so the mirror of a design is exact. A solve is not: IPOPT's sums over a variable's two bound
+multipliers run in another order once the variable's sign flips, and the local solve from exactly mirrored starts, with
+exactly mirrored derivatives, amplifies that last bit into a different local optimum (1e-13 after one iteration, 1e-5
+after 40, 0.1 after 120 on a random scene; designs 3 % apart in RMSE, 0.4 % without obstacles). So a problem is solved
+in ONE of its two handednesses, the one :func:`handedness` picks, and a problem of the other handedness is solved as its
+mirror and the design mirrored back: a scene and its mirror image are the same numbers for the solver, and their designs
+are mirror images bit for bit.
 
-:func:`handedness` is odd under the mirror, exactly: the target's torsion (the sum of the triple
-products of consecutive chords: a property of its shape, unchanged by a rotation, so that a mirror in
-any plane is solved as a rotated copy); for a target planar to round-off, where the shape has no
-handedness, the side of the world's y = 0 plane the target lies on, then the obstacles; 0 (solved as
-given) where nothing decides, a problem that is its own mirror.
-"""
+:func:`handedness` is odd under the mirror, exactly: the target's torsion (the sum of the triple products of consecutive
+chords: a property of its shape, unchanged by a rotation, so that a mirror in any plane is solved as a rotated copy);
+for a target planar to round-off, where the shape has no handedness, the side of the world's y = 0 plane the target lies
+on, then the obstacles; 0 (solved as given) where nothing decides, a problem that is its own mirror."""
 
 from __future__ import annotations
 

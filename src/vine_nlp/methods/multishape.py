@@ -12,8 +12,7 @@ One NLP over all K chains on the transcription, every chain's frames variables i
 the smoothness on the mean of the targets' chord lengths. Starts (``drive.multistart``): the geometric
 guess of the most actuated level's target (the smallest fixed lambda when all are fixed, else the shortest
 target), free lambda_k from the chord length of target k, frames on each level's own target; its mirrored
-side; seeded perturbations (lambdas spread in chord order, theta perturbed).
-"""
+side; seeded perturbations (lambdas spread in chord order, theta perturbed)."""
 
 from __future__ import annotations
 
@@ -43,8 +42,7 @@ class MultiShapeResult(Result):
     plus the shared routing's K levels, K poses, K shapes and per-level metrics.
 
     ``metrics`` holds the overall figures: rmse over all points of all levels,
-    max_error the largest of all, plus tv_theta, tv_lambda.
-    """
+    max_error the largest of all, plus tv_theta, tv_lambda."""
 
     levels: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (K,) lambda_k
     fixed: tuple = ()  # K booleans: lambda_k was fixed by the problem
@@ -110,8 +108,7 @@ def reference_level(problem: MultiShapeProblem, pairings) -> int:
 
 def initial_guess(problem: MultiShapeProblem, pairings, flip: float = 1.0) -> MultiGuess:
     """Geometric guess of the most actuated target; free lambdas from the chord lengths; frames on every target."""
-    a = problem.actuator
-    K = problem.count
+    a, K = problem.actuator, problem.count
     r = reference_level(problem, pairings)
     g = geometric_guess(problem.level_problem(r), pairings[r], flip)
     theta = g.theta

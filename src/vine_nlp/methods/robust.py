@@ -4,33 +4,26 @@ Objective (units of D, as in methods.nlp):
 
     J_robust = J_nlp + E[dMSE],   E[dMSE] = sum_k w_k tr(J_k Sigma J_k^T),
 
-J_k the Jacobian of paired point k (and the tip) with respect to every segment's
-(theta, lambda, dl), Sigma = diag(sigma^2) of analysis.tolerance.Sigmas (sigma_dl
-relative: sigma times the segment's length variable; sigma_lambda 0 where the start design has
-no actuator, lambda 1: the physical rule, spec "Physical builds"). E[dMSE] is the exact
-expected increase of the mean squared error of the linearized chain (the cross
-term has zero mean), smooth, and computed in O(M) without forming J:
+J_k the Jacobian of paired point k (and the tip) with respect to every segment's (theta, lambda, dl), Sigma =
+diag(sigma^2) of analysis.tolerance.Sigmas (sigma_dl relative: sigma times the segment's length variable; sigma_lambda 0
+where the start design has no actuator, lambda 1: the physical rule, spec "Physical builds"). E[dMSE] is the exact
+expected increase of the mean squared error of the linearized chain (the cross term has zero mean), smooth, and computed
+in O(M) without forming J:
 
-An error dq_m in segment m moves the segment's end frame by a small rigid motion,
-so every point k downstream moves by b + a x r_k with r_k = p_k - o_{m+1}
-(o_{m+1} the end frame's origin), a_i = sigma_i R_m (dR_s/dq_i R_s^T)^vee and
-b_i = sigma_i R_m dp_s/dq_i from the segment's own transform (R_s, p_s). Summed over
-the downstream points with weights w_k:
+An error dq_m in segment m moves the segment's end frame by a small rigid motion, so every point k downstream moves by b
++ a x r_k with r_k = p_k - o_{m+1} (o_{m+1} the end frame's origin), a_i = sigma_i R_m (dR_s/dq_i R_s^T)^vee and b_i =
+sigma_i R_m dp_s/dq_i from the segment's own transform (R_s, p_s). Summed over the downstream points with weights w_k:
 
     sum_k w_k E|dp_k|^2 = W |B|_F^2 - 2 c . sum_i a_i x b_i + sum_i (|a_i|^2 tr Q - a_i^T Q a_i),
 
-with W = sum w_k, c = sum w_k r_k, Q = sum w_k r_k r_k^T: suffix sums over the
-segments of sum w, sum w p, sum w p p^T. Points inside segment m add their direct
-term sum_k w_k sum_i sigma_i^2 |d rho_k / d q_i|^2 (rho_k in the segment's start frame).
-This is the linear-Gaussian propagation of the construction errors along the chain,
-run backwards: instead of carrying the 6 x 6 frame covariance forward (21 numbers per
-stage), the downstream sums (sum w p, sum w p p^T: 9 numbers) are carried back. They
-are extra stage variables S_j of the one transcription (methods.transcription), tied
-by the banded recursion S_j = S_{j+1} + L_{j+1}(stage j+1), so the term and its rows
-are per-stage blocks with their own SX derivatives and the cost per iteration stays
-linear in M. Written directly in x they would couple every segment to everything
-downstream (a dense Hessian). Started from design_nlp's result.
-"""
+with W = sum w_k, c = sum w_k r_k, Q = sum w_k r_k r_k^T: suffix sums over the segments of sum w, sum w p, sum w p p^T.
+Points inside segment m add their direct term sum_k w_k sum_i sigma_i^2 |d rho_k / d q_i|^2 (rho_k in the segment's
+start frame). This is the linear-Gaussian propagation of the construction errors along the chain, run backwards: instead
+of carrying the 6 x 6 frame covariance forward (21 numbers per stage), the downstream sums (sum w p, sum w p p^T: 9
+numbers) are carried back. They are extra stage variables S_j of the one transcription (methods.transcription), tied by
+the banded recursion S_j = S_{j+1} + L_{j+1}(stage j+1), so the term and its rows are per-stage blocks with their own SX
+derivatives and the cost per iteration stays linear in M. Written directly in x they would couple every segment to
+everything downstream (a dense Hessian). Started from design_nlp's result."""
 
 from __future__ import annotations
 
@@ -63,10 +56,8 @@ def _sym6(p):
 def robust_segment_function(n: int) -> ca.Function:
     """One segment's pieces of E[dMSE] (SX, units of D).
 
-    (X (12), theta, lam, dl, u (n), w (n), sig (3)) -> (A (3x3), B (3x3): sigma-scaled world
-    twist of the end frame per parameter; W, P1 (3), P2 (6): sums of w, w p, w p p^T
-    (xx, xy, xz, yy, yz, zz) over its points).
-    """
+    (X (12), theta, lam, dl, u (n), w (n), sig (3)) -> (A (3x3), B (3x3): sigma-scaled world twist of the end frame per
+    parameter; W, P1 (3), P2 (6): sums of w, w p, w p p^T (xx, xy, xz, yy, yz, zz) over its points)."""
     X = ca.SX.sym("X", 12)
     th, la, dl = ca.SX.sym("theta"), ca.SX.sym("lam"), ca.SX.sym("dl")
     u, w, sig = ca.SX.sym("u", n), ca.SX.sym("w", n), ca.SX.sym("sig", 3)
@@ -137,8 +128,7 @@ def robust_blocks(n: int) -> tuple[BlockType, BlockType, BlockType]:
     direct: v = (theta, lam, dl); d = (u (n), w (n), sig (4), weight): weight times the segment's own points'
       term (it does not depend on the frame: a block of 3 variables keeps its Hessian cheap).
     recursion: v = (S_j (9), S_{j+1} (9), X_{j+1} (12), theta, lam, dl of stage j+1); d = (u (n), w (n)) of stage j+1:
-      r = S_j - S_{j+1} - (sum w p, sum w p p^T)(stage j+1).
-    """
+      r = S_j - S_{j+1} - (sum w p, sum w p p^T)(stage j+1)."""
     seg, down = robust_segment_function(n), _downstream_function()
     one = robust_segment_function(1)
     down_v = POINT + (("tip", 3), ("S", 9))  # variables.POINT, X_{j+1}'s position, S_j
@@ -246,12 +236,10 @@ def design_robust(problem: DesignProblem, sigmas: Sigmas, samples: int = 0, seed
                   start: Result | None = None, **kw) -> Result:
     """Inverse design minimizing nominal error + ``weight`` * first-order expected increase under ``sigmas``.
 
-    ``start``: the design to start from (default design_nlp(problem, **kw)). With ``samples`` > 0,
-    the start and the robust design are both checked by Monte Carlo on the same seeded samples
-    (analysis.tolerance.tolerance_report). stats: robust_* entries (lengths in problem units):
-    expected_mse_increase / _start (first order), expected_rmse / _start (sqrt(MSE_0 + increase)),
-    start_rmse, and with samples mc_mean_rmse / _start, mc_rms_rmse / _start.
-    """
+    ``start``: the design to start from (default design_nlp(problem, **kw)). With ``samples`` > 0, the start and the
+    robust design are both checked by Monte Carlo on the same seeded samples (analysis.tolerance.tolerance_report).
+    stats: robust_* entries (lengths in problem units): expected_mse_increase / _start (first order), expected_rmse /
+    _start (sqrt(MSE_0 + increase)), start_rmse, and with samples mc_mean_rmse / _start, mc_rms_rmse / _start."""
     stats = drive.Stats()
     start = start or design_nlp(problem, **kw)
     D = problem.diameter
@@ -266,19 +254,14 @@ def design_robust(problem: DesignProblem, sigmas: Sigmas, samples: int = 0, seed
     if not weight:
         i0 = expected_increase(problem, start.routing, sigmas)
     m0, m1 = start.metrics["rmse"] ** 2, res.metrics["rmse"] ** 2
-    res.stats.update({
-        "robust_weight": float(weight),
-        **{f"robust_{k}": v for k, v in sigmas.as_dict().items()},
-        "robust_expected_mse_increase": i1, "robust_expected_mse_increase_start": i0,
-        "robust_expected_rmse": float(np.sqrt(m1 + i1)), "robust_expected_rmse_start": float(np.sqrt(m0 + i0)),
-        "robust_start_rmse": float(start.metrics["rmse"]),
-    })
+    res.stats.update({"robust_weight": float(weight), **{f"robust_{k}": v for k, v in sigmas.as_dict().items()},
+                      "robust_expected_mse_increase": i1, "robust_expected_mse_increase_start": i0,
+                      "robust_expected_rmse": float(np.sqrt(m1 + i1)), "robust_expected_rmse_start": float(np.sqrt(m0 + i0)),
+                      "robust_start_rmse": float(start.metrics["rmse"])})
     if samples:
         a = tolerance_report(problem, start, sigmas, samples, seed)["monte_carlo"]
         b = tolerance_report(problem, res, sigmas, samples, seed)["monte_carlo"]
-        res.stats.update({
-            "robust_mc_samples": int(samples), "robust_mc_seed": int(seed),
-            "robust_mc_mean_rmse": b["mean_rmse"], "robust_mc_mean_rmse_start": a["mean_rmse"],
-            "robust_mc_rms_rmse": b["rms_rmse"], "robust_mc_rms_rmse_start": a["rms_rmse"],
-        })
+        res.stats.update({"robust_mc_samples": int(samples), "robust_mc_seed": int(seed),
+                          "robust_mc_mean_rmse": b["mean_rmse"], "robust_mc_mean_rmse_start": a["mean_rmse"],
+                          "robust_mc_rms_rmse": b["rms_rmse"], "robust_mc_rms_rmse_start": a["rms_rmse"]})
     return stats.stamp(res)

@@ -24,8 +24,7 @@ coarse-to-fine start) moved designs to other local optima, more often worse.
 Reachability: the center line is never longer than the tube, so a tip farther than L from the base is out of
 reach. That, or no converged start, gives status "infeasible" and the nearest approach (the tip distance as
 the objective instead of rows), so tip_error tells how far out of reach the target is; a nearest approach
-that does reach the tip (IPOPT's infeasibility is local) re-solves the design.
-"""
+that does reach the tip (IPOPT's infeasibility is local) re-solves the design."""
 
 from __future__ import annotations
 
@@ -219,10 +218,8 @@ def solve_from(problem: TipProblem, theta, lam, dl, frames, closest: bool = Fals
 
 def actuation(routing: Routing, diameter: float) -> dict:
     """Both measures of actuation of a routing: contraction sum (1 - lambda) dl [length] and turning (2/D) sum |tan theta| dl [rad]."""
-    return {
-        "actuation_contraction": float(np.sum((1 - routing.lam) * routing.length)),
-        "actuation_turning": float(2.0 / diameter * np.sum(np.abs(np.tan(routing.theta)) * routing.length)),
-    }
+    return {"actuation_contraction": float(np.sum((1 - routing.lam) * routing.length)),
+            "actuation_turning": float(2.0 / diameter * np.sum(np.abs(np.tan(routing.theta)) * routing.length))}
 
 
 def evaluate_tip(problem: TipProblem, routing: Routing, **kw) -> Result:
@@ -250,13 +247,11 @@ def design_tip(problem: TipProblem, starts: int | None = None, progress=None, th
     optimal (module docstring); the lowest objective among converged starts (:func:`rank`). ``thorough``: every
     start, with IPOPT's adaptive barrier (the obstacle design's start: a wider search for a design that clears).
 
-    Unreachable tips get status "infeasible" and the nearest approach (the routing
-    that brings the tip closest, solved without the tip constraints), so tip_error
-    says how far out of reach the target is. A tip farther from the base than the
-    tube is long is not attempted (only the nearest approach is solved); when no
-    start converges, the nearest approach is solved too and, if it does reach the
-    tip after all (IPOPT's infeasibility is local), the design is re-solved from it.
-    """
+    Unreachable tips get status "infeasible" and the nearest approach (the routing that brings the tip closest, solved
+    without the tip constraints), so tip_error says how far out of reach the target is. A tip farther from the base than
+    the tube is long is not attempted (only the nearest approach is solved); when no start converges, the nearest
+    approach is solved too and, if it does reach the tip after all (IPOPT's infeasibility is local), the design is
+    re-solved from it."""
     n = max(1, problem.options.starts if starts is None else starts)
     guesses = start_guesses(problem, n)
     stats = drive.Stats()

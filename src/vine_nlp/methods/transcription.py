@@ -1,16 +1,12 @@
 """One multiple-shooting transcription of the chain for every design formulation.
 
-The chain of M segments (paper eq. iterativeTransform, T^{j+1}_w = T^j_w T^{j+1}_j)
-is written once here; each formulation (nlp, multishape, tip, clearance, robust,
-correction, obstacles) states the terms and rows it adds and the data it feeds in.
-Where each variable lives is ``methods.structure``; the per-stage pieces and their
-derivatives are ``methods.blocks``. Small global terms and rows (smoothness, tip rows)
-keep CasADi's automatic derivatives.
+The chain of M segments (paper eq. iterativeTransform, T^{j+1}_w = T^j_w T^{j+1}_j) is written once here; each
+formulation (nlp, multishape, tip, clearance, robust, correction, obstacles) states the terms and rows it adds and the
+data it feeds in. Where each variable lives is ``methods.structure``; the per-stage pieces and their derivatives are
+``methods.blocks``. Small global terms and rows (smoothness, tip rows) keep CasADi's automatic derivatives.
 
-A solver is built once per ``Spec`` (structure, terms, Hessian, settings) and cached;
-the data (targets, weights, fractions, guess rotations, smoothing weights) are
-parameters, so starts, hops and sweep items reuse it.
-"""
+A solver is built once per ``Spec`` (structure, terms, Hessian, settings) and cached; the data (targets, weights,
+fractions, guess rotations, smoothing weights) are parameters, so starts, hops and sweep items reuse it."""
 
 from __future__ import annotations
 
@@ -42,23 +38,16 @@ from vine_nlp.model.segment import segment_function, so3_exp
 
 # IPOPT return statuses as archived (spec: "optimal" | "acceptable" | "max_iter" | "failed" | ...)
 IPOPT_STATUS = {
-    "Solve_Succeeded": "optimal",
-    "Solved_To_Acceptable_Level": "acceptable",
-    "Maximum_Iterations_Exceeded": "max_iter",
-    "Maximum_CpuTime_Exceeded": "max_time",
-    "Restoration_Failed": "restoration_failed",
-    "Infeasible_Problem_Detected": "infeasible",
-    "Invalid_Number_Detected": "invalid_number",
-    "Error_In_Step_Computation": "step_failed",
-    "Search_Direction_Becomes_Too_Small": "small_step",
+    "Solve_Succeeded": "optimal", "Solved_To_Acceptable_Level": "acceptable", "Maximum_Iterations_Exceeded": "max_iter",
+    "Maximum_CpuTime_Exceeded": "max_time", "Restoration_Failed": "restoration_failed", "Infeasible_Problem_Detected": "infeasible",
+    "Invalid_Number_Detected": "invalid_number", "Error_In_Step_Computation": "step_failed", "Search_Direction_Becomes_Too_Small": "small_step",
 }
 
 
 def ipopt_status(stats: dict, x=None) -> str:
     """Archived status of one solve; an interrupted solve raises KeyboardInterrupt (vine_nlp.interrupt).
 
-    A solution ``x`` with anything non-finite is flagged "invalid_number" whatever IPOPT said.
-    """
+    A solution ``x`` with anything non-finite is flagged "invalid_number" whatever IPOPT said."""
     raw = stats.get("return_status", "")
     interrupt.check(raw)
     if x is not None and not np.all(np.isfinite(x)):
@@ -85,8 +74,7 @@ class Chain:
     Views (MX, units of D): ``x``, ``theta``, ``dl`` (1 x M), ``lam_of(k)`` (1 x M),
     ``frames(k)`` (12 x (M+1)), ``tip(k)`` (3), ``extra`` (E x M). ``param(name, shape)``
     declares data; ``add_block``, ``add_term`` and ``add_rows`` add per-stage blocks, global
-    objective terms and global rows. ``get_solver(spec)`` turns it into one solver.
-    """
+    objective terms and global rows. ``get_solver(spec)`` turns it into one solver."""
 
     def __init__(self, s: Structure):
         self.s, self.lay = s, Layout(s)
@@ -350,9 +338,8 @@ class Solver:
         return self._param_slices[name]
 
     def pack_x(self, frames, poses=None, lam_global=None, extra=None, globals_=None, **values) -> np.ndarray:
-        """x from the declared variables by name (``values``: theta (M,), lam (M,) or (M, K), length (M,), in
-        units of D), frames (K, 12, M+1), poses (P, 6), global lambdas (shared or level), extra (E, M), extra
-        globals (G,)."""
+        """x from the declared variables by name (``values``: theta (M,), lam (M,) or (M, K), length (M,), in units of
+        D), frames (K, 12, M+1), poses (P, 6), global lambdas (shared or level), extra (E, M), extra globals (G,)."""
         s, lay = self.structure, self.layout
         x = np.zeros(lay.size)
         for v in s.variables:
@@ -380,11 +367,9 @@ class Solver:
         s, lay = self.structure, self.layout
         x = np.asarray(x, float)
         return {v.name: x[lay.var[v.name]].copy() for v in s.variables} | {  # lam: (M, K); length in units of D
-            "poses": x[lay.pose].copy(),
-            "lam_global": x[lay.lam_global].copy(),
+            "poses": x[lay.pose].copy(), "lam_global": x[lay.lam_global].copy(),
             "frames": np.stack([x[lay.X[:, k, :].T] for k in range(s.K)]),  # (K, 12, M+1)
-            "extra": x[lay.extra.T].copy() if s.extra else None,
-            "globals": x[lay.globals].copy(),
+            "extra": x[lay.extra.T].copy() if s.extra else None, "globals": x[lay.globals].copy(),
         }
 
     def bounds(self, X0=None, **boxes) -> tuple[np.ndarray, np.ndarray]:

@@ -1,10 +1,8 @@
 """The systematic construction errors of one construction method (``vine-nlp calibrate``), as a value type.
 
-A design problem may carry one (``[calibration]`` or ``calibration = "CAL.toml"``): the design is then
-made for the robot as it actually gets built. The design method designs as usual (what the robot
-should realize); the nominal to build is that design with the systematic parts taken out
-(:func:`nominal_of`, applied by the pipeline).
-"""
+A design problem may carry one (``[calibration]`` or ``calibration = "CAL.toml"``): the design is then made for the
+robot as it actually gets built. The design method designs as usual (what the robot should realize); the nominal to
+build is that design with the systematic parts taken out (:func:`nominal_of`, applied by the pipeline)."""
 
 from __future__ import annotations
 

@@ -2,8 +2,7 @@
 
 T^{j+1}_w = T^j_w T^{j+1}_j, with non-uniform segment lengths and any initial pose
 T^0_w. Numbers give numpy arrays; CasADi symbols give lists of 4x4 expressions
-(single shooting, for small windows; the NLP uses multiple shooting instead).
-"""
+(single shooting, for small windows; the NLP uses multiple shooting instead)."""
 
 from __future__ import annotations
 
@@ -17,9 +16,7 @@ from vine_nlp.model.segment import segment_transform
 def chain_frames(theta, lam, length, D, initial_pose=None):
     """Frames T^j_w at all segment ends, j = 0..M.
 
-    numpy: returns (M+1, 4, 4). CasADi (any symbolic argument): a list of M+1 4x4
-    expressions.
-    """
+    numpy: returns (M+1, 4, 4). CasADi (any symbolic argument): a list of M+1 4x4 expressions."""
     if is_symbolic(theta, lam, length, D, initial_pose):
         m = max(_length(theta), _length(lam), _length(length))
         T = ca.SX.eye(4) if initial_pose is None else initial_pose
@@ -50,13 +47,11 @@ def _at(v, j):
 def chain_points(theta, lam, length, D, segment, fraction, initial_pose=None, frames=None):
     """Center-line points at ``fraction`` (0..1) of segment ``segment`` (numpy, vectorized).
 
-    Returns (P, 3) points and (P, 3, 3) rotations of the center frames there.
-    """
+    Returns (P, 3) points and (P, 3, 3) rotations of the center frames there."""
     theta, lam, length = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, float)) for v in (theta, lam, length)))
     if frames is None:
         frames = chain_frames(theta, lam, length, D, initial_pose)
-    segment = np.asarray(segment, int)
-    fraction = np.asarray(fraction, float)
+    segment, fraction = np.asarray(segment, int), np.asarray(fraction, float)
     local = segment_transform(theta[segment], lam[segment], fraction * length[segment], D)
     world = frames[segment] @ local
     return world[:, :3, 3], world[:, :3, :3]
@@ -65,8 +60,7 @@ def chain_points(theta, lam, length, D, segment, fraction, initial_pose=None, fr
 def shape_lines(theta, lam, length, D, segment, fraction, initial_pose=None):
     """Center, inner (actuator) and outer lines at the given points: three (P, 3) arrays.
 
-    Inner = center + (D/2) N, outer = center - (D/2) N (paper T^c_i, T^c_o translations).
-    """
+    Inner = center + (D/2) N, outer = center - (D/2) N (paper T^c_i, T^c_o translations)."""
     center, rot = chain_points(theta, lam, length, D, segment, fraction, initial_pose)
     normal = rot[:, :, 1]
     return center, center + 0.5 * D * normal, center - 0.5 * D * normal
@@ -84,16 +78,10 @@ def segment_end_samples(length, per_segment):
 def phi_from_theta(theta, length, D):
     """Actuator angle around the tube at the segment ends, phi[0] = 0 (paper eq. phi(s_j)).
 
-    phi(s_{j+1}) = phi(s_j) + (2/D) tan(theta_j) dl_j.
-    """
+    phi(s_{j+1}) = phi(s_j) + (2/D) tan(theta_j) dl_j."""
     if is_symbolic(theta, length, D):
         steps = 2.0 / D * ca.tan(theta) * length
         return ca.vertcat(0, ca.cumsum(steps))
     steps = 2.0 / D * np.tan(np.asarray(theta, float)) * np.asarray(length, float)
     return np.concatenate([[0.0], np.cumsum(steps)])
 
-
-def theta_from_phi(phi, s, D):
-    """theta_j = arctan((D/2) (phi(s_{j+1}) - phi(s_j)) / (s_{j+1} - s_j)) (paper Sec. V-B)."""
-    phi, s = np.asarray(phi, float), np.asarray(s, float)
-    return np.arctan(0.5 * D * np.diff(phi) / np.diff(s))

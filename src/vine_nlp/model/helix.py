@@ -1,11 +1,8 @@
 """Uniform (helical) actuation: Section II and Table I of the paper.
 
-Notation as in the paper: theta is the drawn angle of the actuator, lam its
-contraction ratio lambda, D the tube diameter. Curvatures and torsions are per
-unit of *actuated* length of the line they belong to; ``lambda_c`` is actuated
-over unactuated center-line length. Everything here accepts numpy arrays
-(broadcast elementwise) or CasADi symbols.
-"""
+Notation as in the paper: theta is the drawn angle of the actuator, lam its contraction ratio lambda, D the tube
+diameter. Curvatures and torsions are per unit of *actuated* length of the line they belong to; ``lambda_c`` is actuated
+over unactuated center-line length. Everything here accepts numpy arrays (broadcast elementwise) or CasADi symbols."""
 
 from __future__ import annotations
 
@@ -44,11 +41,9 @@ def _den_plus(theta, lam):
 def center_rates(theta, lam, D):
     """Singularity-free center-line quantities (model notes, 'Numerically safe form').
 
-    Returns (kappa_c, tau_c, lambda_c): curvature and torsion of the center line per
-    unit of actuated length and the compression ratio lambda_c (paper eq. for v_z).
-    Finite with finite derivatives over |theta| < 90 deg, lam > 0, including the
-    straight tube lam = 1, theta = 0 where the R, b form is 0/0.
-    """
+    Returns (kappa_c, tau_c, lambda_c): curvature and torsion of the center line per unit of actuated length and the
+    compression ratio lambda_c (paper eq. for v_z). Finite with finite derivatives over |theta| < 90 deg, lam > 0,
+    including the straight tube lam = 1, theta = 0 where the R, b form is 0/0."""
     L = lib(theta, lam, D)
     dp = _den_plus(theta, lam)
     kappa_c = 2 * (1 - lam**2) / (D * dp)
@@ -62,8 +57,7 @@ def helix_forward(theta, lam, D) -> Helix:
     """Forward solution of Table I: (theta, lambda, D) -> radii, pitch, curvatures, torsions.
 
     R_o, R_i, R_c and b are infinite for the straight tube (lam = 1, theta = 0);
-    use :func:`center_rates` inside optimization.
-    """
+    use :func:`center_rates` inside optimization."""
     L = lib(theta, lam, D)
     c2, s2 = L.cos(2 * theta), L.sin(2 * theta)
     dm = _den_minus(theta, lam)
@@ -72,19 +66,15 @@ def helix_forward(theta, lam, D) -> Helix:
     R_c = D * (1 - lam**2) / (2 * dm)
     b = D * lam * s2 / dm
     kappa_c, tau_c, lambda_c = center_rates(theta, lam, D)
-    return Helix(
-        R_o=R_o, R_i=R_i, R_c=R_c, b=b, kappa_o=(1 - lam * c2) / D, tau_o=lam * s2 / D, kappa_i=(c2 - lam) / (D * lam),
-        tau_i=s2 / (D * lam), kappa_c=kappa_c, tau_c=tau_c, lambda_c=lambda_c,
-    )
+    return Helix(R_o=R_o, R_i=R_i, R_c=R_c, b=b, kappa_o=(1 - lam * c2) / D, tau_o=lam * s2 / D, kappa_i=(c2 - lam) / (D * lam),
+                 tau_i=s2 / (D * lam), kappa_c=kappa_c, tau_c=tau_c, lambda_c=lambda_c)
 
 
 def helix_inverse(R_o, R_i, b):
     """Inverse solution of Table I: (R_o, R_i, b) -> (theta, lam, D).
 
-    theta takes the sign of the pitch b. The angle is computed as
-    2 theta = atan2(b D, R_i R_o + b^2), the same angle as the paper's arccos form
-    but accurate near 0 and carrying the sign.
-    """
+    theta takes the sign of the pitch b. The angle is computed as 2 theta = atan2(b D, R_i R_o + b^2), the same angle as
+    the paper's arccos form but accurate near 0 and carrying the sign."""
     L = lib(R_o, R_i, b)
     D = R_o - R_i
     lam = L.sqrt((b**2 + R_i**2) / (b**2 + R_o**2))
@@ -95,10 +85,8 @@ def helix_inverse(R_o, R_i, b):
 def helix_from_curvature(kappa_c, tau_c, D):
     """Actuator (theta, lam) whose center helix has curvature kappa_c and torsion tau_c.
 
-    Table I's inverse written in kappa_c, tau_c (R_c = kappa/q, b = tau/q, q = kappa^2 + tau^2,
-    R_o,i = R_c +- D/2) and divided through by q so that the straight tube
-    (q = 0 -> theta = 0, lam = 1) is not 0/0. Used for initial guesses.
-    """
+    Table I's inverse written in kappa_c, tau_c (R_c = kappa/q, b = tau/q, q = kappa^2 + tau^2, R_o,i = R_c +- D/2) and
+    divided through by q so that the straight tube (q = 0 -> theta = 0, lam = 1) is not 0/0. Used for initial guesses."""
     L = lib(kappa_c, tau_c, D)
     q = kappa_c**2 + tau_c**2
     theta = 0.5 * L.arctan2(tau_c * D, 1 - D**2 * q / 4)
@@ -106,33 +94,15 @@ def helix_from_curvature(kappa_c, tau_c, D):
     return theta, lam
 
 
-def cosserat(theta, lam, D):
-    """Cosserat-rod rates per unit of unactuated center length (Sec. II-C).
-
-    Returns (u_x, u_y, u_z, v_z). u_x, u_y are given in the actuator-attached
-    frame (d1 toward the actuator, d3 along the tangent), where the bending is
-    about d2 only; sqrt(u_x^2 + u_y^2) is the paper's bending magnitude.
-    u_z subtracts the reference torsion 2 tan(theta)/D of the unactuated routing
-    (paper: 2 sin 2theta / (D (1 + cos 2theta))).
-    """
-    L = lib(theta, lam, D)
-    kappa_c, tau_c, lambda_c = center_rates(theta, lam, D)
-    u_x = 0 * kappa_c
-    u_y = kappa_c * lambda_c
-    u_z = tau_c * lambda_c - 2 * L.tan(theta) / D
-    return u_x, u_y, u_z, lambda_c
 
 
 def line_offset_angles(theta, lam):
     """Angles alpha_{c,i}, alpha_{c,o} between the center tangent and the inner/outer tangents.
 
-    The paper's alpha_{c,i} = atan(b/R_i) - atan(b/R_c) and alpha_{c,o} =
-    atan(b/R_c) - atan(b/R_o), taken with quadrant-correct angles and simplified
-    (the common factor lam^2 - 2 lam cos 2theta + 1 > 0 cancels):
-    alpha_{c,i} = atan2(sin 2theta, lam + cos 2theta),
-    alpha_{c,o} = atan2(lam sin 2theta, 1 + lam cos 2theta).
-    They add up to 2 theta (eq. tangent_dot) and equal theta each on a straight tube.
-    """
+    The paper's alpha_{c,i} = atan(b/R_i) - atan(b/R_c) and alpha_{c,o} = atan(b/R_c) - atan(b/R_o), taken with
+    quadrant-correct angles and simplified (the common factor lam^2 - 2 lam cos 2theta + 1 > 0 cancels): alpha_{c,i} =
+    atan2(sin 2theta, lam + cos 2theta), alpha_{c,o} = atan2(lam sin 2theta, 1 + lam cos 2theta). They add up to 2 theta
+    (eq. tangent_dot) and equal theta each on a straight tube."""
     L = lib(theta, lam)
     c2, s2 = L.cos(2 * theta), L.sin(2 * theta)
     return L.arctan2(s2, lam + c2), L.arctan2(lam * s2, 1 + lam * c2)
@@ -148,12 +118,9 @@ def helix_turns(theta, lam, D, length):
 def helix_self_collides(theta, lam, D, length=None):
     """The paper's self-collision condition (Sec. VI-A): 2 pi |b| < D with at least one turn.
 
-    Written as pi |sin 2theta| + cos 2theta < (lam^2 + 1) / (2 lam), which needs no R, b
-    (and is false for the straight tube). With ``length`` None the section is taken
-    as long enough for a full turn. numpy only (returns booleans).
-    """
+    Written as pi |sin 2theta| + cos 2theta < (lam^2 + 1) / (2 lam), which needs no R, b (and is false for the straight
+    tube). With ``length`` None the section is taken as long enough for a full turn. numpy only (returns booleans)."""
     import numpy as np
-
     theta, lam = np.asarray(theta, float), np.asarray(lam, float)
     tight = math.pi * np.abs(np.sin(2 * theta)) + np.cos(2 * theta) < (lam**2 + 1) / (2 * lam)
     if length is None:

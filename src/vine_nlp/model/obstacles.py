@@ -1,47 +1,36 @@
 """Obstacle shapes and their signed distances: ONE formula per shape for numpy and CasADi.
 
-Shapes (frozen value types, each with a ``kind`` name): :class:`Sphere`,
-:class:`Box`, :class:`Capsule`, :class:`Plane` and :class:`Mesh`. The tube of
-diameter D clears an obstacle by ``gap = distance(center line, obstacle) - D/2``.
+Shapes (frozen value types, each with a ``kind`` name): :class:`Sphere`, :class:`Box`, :class:`Capsule`, :class:`Plane`
+and :class:`Mesh`. The tube of diameter D clears an obstacle by ``gap = distance(center line, obstacle) - D/2``.
 
 Signed distances (positive outside, negative inside, in the obstacle's units)
 ---------------------------------------------------------------------------
-Every primitive's distance is written once against ``vine_nlp.model.ops.lib``: a
-numpy point array (..., 3) gives an array (...); a CasADi 3x1 (or 3xN) SX/MX
-gives a 1x1 (1xN) expression. All four primitives are convex, and the distance
-to a convex set is C^1 (indeed C^{1,1}) everywhere outside the set: the only
-kinks of the exact formulas (the clamp of the capsule's segment parameter, the
-box's max/abs) either cancel outside (the clamped parameter sits where the
-distance along the segment is stationary; the box's |x| kink lies where its
-max(q, 0) is identically 0) or lie inside (medial axis). The NLP's rows ask for
-distance >= D/2 + margin > 0, so every feasible point lies where the row is C^1.
+Every primitive's distance is written once against ``vine_nlp.model.ops.lib``: a numpy point array (..., 3) gives an
+array (...); a CasADi 3x1 (or 3xN) SX/MX gives a 1x1 (1xN) expression. All four primitives are convex, and the distance
+to a convex set is C^1 (indeed C^{1,1}) everywhere outside the set: the only kinks of the exact formulas (the clamp of
+the capsule's segment parameter, the box's max/abs) either cancel outside (the clamped parameter sits where the distance
+along the segment is stationary; the box's |x| kink lies where its max(q, 0) is identically 0) or lie inside (medial
+axis). The NLP's rows ask for distance >= D/2 + margin > 0, so every feasible point lies where the row is C^1.
 
-``sqrt`` at 0 (the sphere's center, the capsule's axis, the box's surface seen
-from its exterior term) has an infinite derivative, and CasADi's ``if_else`` and
-``fmax`` differentiate every branch: every sqrt here is ``sqrt(x + eps^2)`` with
-eps = ``EPS_REL`` (1e-9) times the obstacle's size. The value then differs from
-the exact distance d by at most eps^2 / (2 d): below 1e-18 of the size at d of
-the order of the size, at most eps at d = 0; gradients stay finite (Hessians
-are large, ~1/eps, only within eps of the singular set, which is inside).
+``sqrt`` at 0 (the sphere's center, the capsule's axis, the box's surface seen from its exterior term) has an infinite
+derivative, and CasADi's ``if_else`` and ``fmax`` differentiate every branch: every sqrt here is ``sqrt(x + eps^2)``
+with eps = ``EPS_REL`` (1e-9) times the obstacle's size. The value then differs from the exact distance d by at most
+eps^2 / (2 d): below 1e-18 of the size at d of the order of the size, at most eps at d = 0; gradients stay finite
+(Hessians are large, ~1/eps, only within eps of the singular set, which is inside).
 
-Sphere, box and capsule are one formula, a rounded box (:func:`rounded_box_distance`: a box,
-possibly flat or a point, rounded by a radius), whose parameters may be symbolic: the NLP's rows
-take them as data (``Obstacle.rounded_box()``), so one block serves every primitive. A plane's own
-formula is its half-space distance; its rows take it as a box PLANE_HALF deep behind it and as
-wide (exact within ~1e-10 of the obstacle's units).
+Sphere, box and capsule are one formula, a rounded box (:func:`rounded_box_distance`: a box, possibly flat or a point,
+rounded by a radius), whose parameters may be symbolic: the NLP's rows take them as data (``Obstacle.rounded_box()``),
+so one block serves every primitive. A plane's own formula is its half-space distance; its rows take it as a box
+PLANE_HALF deep behind it and as wide (exact within ~1e-10 of the obstacle's units).
 
-Meshes. The exact signed distance of a closed triangle mesh (numpy only) is
-trimesh's (``trimesh.proximity.signed_distance``, positive *inside*: negated
-here). For the NLP, the sign of a mesh's distance is a global property (inside
-or outside) that no finite set of smooth per-triangle expressions gives, so the
-rows are the *unsigned* exact distance to each triangle of an active set
-(:func:`nearest_triangles`, refreshed between solves; :func:`point_triangle_distance`,
-whose vertices may be symbolic data): a triangle is convex, so its distance is C^1
-wherever it is positive, continuous everywhere, and the mesh's unsigned distance is
-the minimum over its triangles, so rows over the nearest triangles are exact rows,
-not an approximation. What they cannot see is a point deeper inside than the
-clearance: the NLP gives such points a row on the plane of a face instead
-(methods.obstacles).
+Meshes. The exact signed distance of a closed triangle mesh (numpy only) is trimesh's
+(``trimesh.proximity.signed_distance``, positive *inside*: negated here). For the NLP, the sign of a mesh's distance is
+a global property (inside or outside) that no finite set of smooth per-triangle expressions gives, so the rows are the
+*unsigned* exact distance to each triangle of an active set (:func:`nearest_triangles`, refreshed between solves;
+:func:`point_triangle_distance`, whose vertices may be symbolic data): a triangle is convex, so its distance is C^1
+wherever it is positive, continuous everywhere, and the mesh's unsigned distance is the minimum over its triangles, so
+rows over the nearest triangles are exact rows, not an approximation. What they cannot see is a point deeper inside than
+the clearance: the NLP gives such points a row on the plane of a face instead (methods.obstacles).
 """
 
 from __future__ import annotations
@@ -114,8 +103,7 @@ def rounded_box_distance(p, center, rotation, half, radius=0.0, eps=0.0):
     and a capsule (a segment along the box's first axis). Outside it is C^1 (distance to a convex set):
     where a local coordinate crosses 0 (|.| kink), that q is -half < 0 and clamped away; the max q kinks
     (medial axis) and the exterior/interior switch are inside or on the surface. Any argument may be CasADi
-    (the NLP's rows take the parameters as data); numpy points (..., 3), CasADi 3 x N.
-    """
+    (the NLP's rows take the parameters as data); numpy points (..., 3), CasADi 3 x N."""
     w = _sub(_xyz(p), _xyz(center))
     L = _lib(*w)
     local = [w[0] * rotation[0, i] + w[1] * rotation[1, i] + w[2] * rotation[2, i] for i in range(3)]
@@ -151,15 +139,12 @@ def _segment_d2(p, a, b):
 def point_triangle_distance(p, a, b, c, eps=None):
     """Unsigned exact distance from ``p`` to the triangle (a, b, c), numpy (vectorized) or CasADi.
 
-    If the projection of p onto the triangle's plane falls inside the triangle
-    (barycentric weights >= 0), the plane distance; otherwise the nearest of the three
-    edges (segments). A triangle is convex, so the distance is C^1 wherever it is > 0;
-    both branches agree (value and gradient) on the switch (the prism's side walls),
-    and the three edge distances tie only where they share a vertex region.
-    numpy: p (..., 3) with a, b, c (..., 3) broadcast against it; CasADi: any argument
-    (the NLP's rows take the vertices as data). sqrt(d^2 + eps^2): ``eps`` default
-    EPS_REL times the longest edge (numpy). Triangles must not be degenerate (zero area).
-    """
+    If the projection of p onto the triangle's plane falls inside the triangle (barycentric weights >= 0), the plane
+    distance; otherwise the nearest of the three edges (segments). A triangle is convex, so the distance is C^1 wherever
+    it is > 0; both branches agree (value and gradient) on the switch (the prism's side walls), and the three edge
+    distances tie only where they share a vertex region. numpy: p (..., 3) with a, b, c (..., 3) broadcast against it;
+    CasADi: any argument (the NLP's rows take the vertices as data). sqrt(d^2 + eps^2): ``eps`` default EPS_REL times
+    the longest edge (numpy). Triangles must not be degenerate (zero area)."""
     P, A, B, C = _xyz(p), _xyz(a), _xyz(b), _xyz(c)
     ab, ac, ap = _sub(B, A), _sub(C, A), _sub(P, A)
     L = _lib(*P, *A, *B, *C)
@@ -368,8 +353,7 @@ class Mesh:
     kind: ClassVar[str] = "mesh"
 
     def __post_init__(self):
-        v = np.array(self.vertices, dtype=float)
-        f = np.array(self.faces, dtype=np.int64)
+        v, f = np.array(self.vertices, dtype=float), np.array(self.faces, dtype=np.int64)
         if v.ndim != 2 or v.shape[1] != 3 or v.shape[0] < 4 or not np.all(np.isfinite(v)):
             raise ValueError("vertices must be a (V, 3) array of finite numbers, V >= 4")
         if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] < 4 or f.min() < 0 or f.max() >= v.shape[0]:
@@ -389,7 +373,6 @@ class Mesh:
     @cached_property
     def trimesh(self):
         import trimesh
-
         return trimesh.Trimesh(vertices=self.vertices, faces=self.faces, process=False)
 
     def distance(self, p):
@@ -432,7 +415,6 @@ def sharpness_radius(obstacle) -> float:
 def mesh_signed_distance(mesh: Mesh, points) -> np.ndarray:
     """Exact signed distance from points (..., 3) to a closed mesh, positive outside (trimesh's sign flipped)."""
     import trimesh
-
     p = np.asarray(points, float)
     flat = p.reshape(-1, 3)
     # trimesh: positive inside, negative outside; in chunks: its candidate pairs (up to points x faces) stay below ~2e5
@@ -445,11 +427,9 @@ def mesh_signed_distance(mesh: Mesh, points) -> np.ndarray:
 def nearest_triangles(mesh: Mesh, points, k: int = 4) -> tuple[np.ndarray, np.ndarray]:
     """The ``k`` triangles nearest to each point (exact unsigned distances): the active set.
 
-    Returns (faces (P, k) face indices, nearest first; distances (P, k)). Exact: candidates
-    come from a k-d tree on the centroids, and every triangle that could be nearer than the
-    k-th candidate (centroid closer than that distance plus the largest centroid-to-vertex
-    radius) is measured too.
-    """
+    Returns (faces (P, k) face indices, nearest first; distances (P, k)). Exact: candidates come from a k-d tree on the
+    centroids, and every triangle that could be nearer than the k-th candidate (centroid closer than that distance plus
+    the largest centroid-to-vertex radius) is measured too."""
     p = np.atleast_2d(np.asarray(points, float))
     tri = mesh.triangles
     F = len(tri)
@@ -457,7 +437,6 @@ def nearest_triangles(mesh: Mesh, points, k: int = 4) -> tuple[np.ndarray, np.nd
     cent = tri.mean(axis=1)
     reach = float(np.max(np.linalg.norm(tri - cent[:, None, :], axis=2)))
     from scipy.spatial import cKDTree  # SciPy loads only where a mesh is queried
-
     tree = cKDTree(cent)
     _, first = tree.query(p, k=min(F, max(2 * k, k + 8)))
     first = first.reshape(len(p), -1)

@@ -1,13 +1,10 @@
 """Pairing of target points with model points (shared by every design method and the analyses).
 
-Pairing (the paper's PathError): the N target points are cut into segments of n
-intervals (the last segment takes the remainder), M = ceil((N - 1) / n). Target
-point k = j n + i sits in segment j; it pairs with the model point at the
-fraction of segment j given by the target's own chord length inside that
-segment, so unevenly sampled targets (the trefoil is equally spaced in t, not in
-arc length) pair with matching model points. The tip target pairs with the end
-of the last segment.
-"""
+Pairing (the paper's PathError): the N target points are cut into segments of n intervals (the last segment takes the
+remainder), M = ceil((N - 1) / n). Target point k = j n + i sits in segment j; it pairs with the model point at the
+fraction of segment j given by the target's own chord length inside that segment, so unevenly sampled targets (the
+trefoil is equally spaced in t, not in arc length) pair with matching model points. The tip target pairs with the end of
+the last segment."""
 
 from __future__ import annotations
 
@@ -37,8 +34,7 @@ def pair_points(target: np.ndarray, n: int) -> Pairing:
     """Pair the N target points (the center line (N, 3), in order) with model points, ``n`` intervals of the
     target per segment: M = ceil((N - 1) / n) segments (module docstring). The Pairing holds the segment and
     fraction of every target point, the target index of each segment end and the target's cumulative chord
-    length. ValueError for a target of fewer than two points.
-    """
+    length. ValueError for a target of fewer than two points."""
     target = np.asarray(target, float)
     N = target.shape[0]
     if N < 2:

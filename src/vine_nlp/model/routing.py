@@ -14,8 +14,7 @@ MEASURED_LINES = ("center", "inner", "outer")
 @dataclass(frozen=True, kw_only=True)
 class Routing:
     """A discretized actuator routing: one entry per segment (paper eq. phi(s_j)). Built by name only
-    (``Routing(theta=..., lam=..., length=...)``): the design variables are declared in
-    ``vine_nlp.methods.variables``.
+    (``Routing(theta=..., lam=..., length=...)``): the design variables are declared in ``vine_nlp.methods.variables``.
 
     Parameters
     ----------

@@ -1,12 +1,9 @@
 """One helical segment's rigid motion T^{j+1}_j (paper eqs. transformationCC-positionCC).
 
-The frame is the Frenet frame of the center helix: x = tangent T, y = normal N
-(toward the actuator), z = binormal B. A segment of unactuated length dl moves
-the frame by exp(sigma xi), sigma = dl lambda_c, twist xi = (v = (1, 0, 0),
-omega = (tau_c, 0, kappa_c)) (Frenet-Serret). Written with the SE(3)
-exponential so the straight tube needs no special case; the series branches
-keep values and derivatives finite at phi = 0 (model notes).
-"""
+The frame is the Frenet frame of the center helix: x = tangent T, y = normal N (toward the actuator), z = binormal B. A
+segment of unactuated length dl moves the frame by exp(sigma xi), sigma = dl lambda_c, twist xi = (v = (1, 0, 0), omega
+= (tau_c, 0, kappa_c)) (Frenet-Serret). Written with the SE(3) exponential so the straight tube needs no special case;
+the series branches keep values and derivatives finite at phi = 0 (model notes)."""
 
 from __future__ import annotations
 
@@ -16,7 +13,7 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from vine_nlp.model.helix import center_rates, helix_forward, line_offset_angles
+from vine_nlp.model.helix import center_rates, helix_forward
 from vine_nlp.model.ops import is_symbolic, lib, safe_series
 
 # Taylor coefficients in x = phi^2 of sin(phi)/phi, (1 - cos phi)/phi^2, (phi - sin phi)/phi^3.
@@ -50,8 +47,7 @@ def segment_parts(theta, lam, length, D):
     """Entries of T^{j+1}_j as a 3x3 nested list R and a 3-list p (numpy arrays or SX).
 
     See :func:`twist_parts`; against the paper this is its rotation matrix and its
-    position vector with the erratum corrected (y = R (1 - cos(dl/L)), model notes).
-    """
+    position vector with the erratum corrected (y = R (1 - cos(dl/L)), model notes)."""
     kappa_c, tau_c, lambda_c = center_rates(theta, lam, D)
     return twist_parts(kappa_c, tau_c, length * lambda_c)
 
@@ -59,12 +55,9 @@ def segment_parts(theta, lam, length, D):
 def twist_parts(kappa_c, tau_c, sigma):
     """exp(sigma xi) for the Frenet twist xi = (v = (1,0,0), omega = (tau_c, 0, kappa_c)).
 
-    With rotation vector sigma * (tau_c, 0, kappa_c) =: (c, 0, a), x = a^2 + c^2 and
-    A, B, C the exp coefficients:
-    R = [[1 - B a^2, -A a, B a c], [A a, 1 - B x, -A c], [B a c, A c, 1 - B c^2]],
-    p = sigma (1 - C a^2, B a, C a c).
-    Several points of one segment share kappa_c, tau_c: only sigma changes.
-    """
+    With rotation vector sigma * (tau_c, 0, kappa_c) =: (c, 0, a), x = a^2 + c^2 and A, B, C the exp coefficients: R =
+    [[1 - B a^2, -A a, B a c], [A a, 1 - B x, -A c], [B a c, A c, 1 - B c^2]], p = sigma (1 - C a^2, B a, C a c).
+    Several points of one segment share kappa_c, tau_c: only sigma changes."""
     a = sigma * kappa_c
     c = sigma * tau_c
     x = a * a + c * c
@@ -101,42 +94,17 @@ def segment_transform(theta, lam, length, D):
 def segment_point(theta, lam, length, D, u):
     """Center-line point at fraction u of the segment, in the segment's start frame.
 
-    Same as the translation of segment_transform(theta, lam, u * length, D).
-    """
+    Same as the translation of segment_transform(theta, lam, u * length, D)."""
     _, p = segment_parts(theta, lam, u * length, D)
     return p
 
 
-def line_transform(theta, lam, D, line):
-    """T^c_i (line="inner") or T^c_o (line="outer"): center frame to the inner/outer line frame.
-
-    Paper eqs. transformationIC/OC: a shift of +-D/2 along the shared normal and a
-    rotation about it by the tangent offset angle (see helix.line_offset_angles).
-    """
-    L = lib(theta, lam, D)
-    a_ci, a_co = line_offset_angles(theta, lam)
-    if line == "inner":
-        ca_, sa = L.cos(a_ci), L.sin(a_ci)
-        R = [[ca_, 0 * ca_, -sa], [0 * ca_, 1 + 0 * ca_, 0 * ca_], [sa, 0 * ca_, ca_]]
-        p = [0 * ca_, D / 2 + 0 * ca_, 0 * ca_]
-    elif line == "outer":
-        ca_, sa = L.cos(a_co), L.sin(a_co)
-        R = [[ca_, 0 * ca_, sa], [0 * ca_, 1 + 0 * ca_, 0 * ca_], [-sa, 0 * ca_, ca_]]
-        p = [0 * ca_, -D / 2 + 0 * ca_, 0 * ca_]
-    elif line == "center":
-        one = 1 + 0 * L.cos(theta)
-        R = [[one, 0 * one, 0 * one], [0 * one, one, 0 * one], [0 * one, 0 * one, one]]
-        p = [0 * one, 0 * one, 0 * one]
-    else:
-        raise ValueError(f"line must be center, inner or outer, not {line!r}")
-    return assemble(R, p)
 
 
 def paper_segment_transform(theta, lam, length, D):
     """The paper's printed T^{j+1}_j in R_c, b, L form, with the erratum corrected (numpy only).
 
-    Kept as an independent reference for tests; 0/0 on a straight tube (lam = 1, theta = 0).
-    """
+    Kept as an independent reference for tests; 0/0 on a straight tube (lam = 1, theta = 0)."""
     h = helix_forward(np.asarray(theta, float), np.asarray(lam, float), D)
     R, b = h.R_c, h.b
     Lh = np.sqrt(R**2 + b**2)
@@ -155,8 +123,7 @@ def paper_segment_transform(theta, lam, length, D):
 def so3_exp(w):
     """Rotation matrix exp([w]x) (Rodrigues), finite with finite derivatives at w = 0.
 
-    numpy: w of shape (3,) -> (3, 3); CasADi: 3-vector -> 3x3 SX/MX.
-    """
+    numpy: w of shape (3,) -> (3, 3); CasADi: 3-vector -> 3x3 SX/MX."""
     x = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
     A, B, _ = _exp_coefficients(x)
     K = [[0 * x, -w[2], w[1]], [w[2], 0 * x, -w[0]], [-w[1], w[0], 0 * x]]
@@ -173,8 +140,7 @@ def segment_function(n: int) -> ca.Function:
     ``(X (12), theta, lam, dl, u (n)) -> (Xn (12), pts (3 x n))``: the frame at the segment's start (rotation
     column-major, then position), the routing parameters and segment length dl (in D), the fractions u of the
     segment where points are wanted; the frame at its end and the center-line points at the fractions. Cached:
-    one function per n, shared by every formulation and analysis.
-    """
+    one function per n, shared by every formulation and analysis."""
     X = ca.SX.sym("X", 12)  # rotation column-major (9), then position (3)
     theta, lam, dl = ca.SX.sym("theta"), ca.SX.sym("lam"), ca.SX.sym("dl")
     u = ca.SX.sym("u", n)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 MM_PER_UNIT = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4, "inch": 25.4}
+METRES_PER_UNIT = {u: mm / 1000 for u, mm in MM_PER_UNIT.items()}  # loads are in SI, glTF in metres
 
 
 def mm_per_unit(units: str) -> float | None:

@@ -136,13 +136,13 @@ def correct_to_file(archive_path, measured, output, **kw):
     return result
 
 
-def shortfall(result) -> str:
-    """Why the chosen route does not reach the target ("" when it does: exit 0): an estimate that did not
-    converge, or the route's own shortfall (methods.correct: bounds that cost accuracy, a correction that did not
-    converge)."""
+def shortfall(result) -> list[str]:
+    """Why the chosen route does not reach the target, one line each ([] when it does: exit 0): an estimate that did
+    not converge, or the route's own shortfall (methods.correct: bounds that cost accuracy, a correction that did not
+    converge, each buildable rule its nominal misses)."""
     if not result.as_built.converged:
-        return f"the estimate did not converge ({result.as_built.status})"
-    return "; ".join(result.corrected.shortfall)
+        return [f"the estimate did not converge ({result.as_built.status})"]
+    return list(result.corrected.shortfall)
 
 
 def calibrate(paths) -> tuple[Calibration, float]:

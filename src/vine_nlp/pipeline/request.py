@@ -12,8 +12,10 @@ from vine_nlp.io.problems import ProblemFile
 from vine_nlp.model.routing import Routing, Sigmas
 from vine_nlp.problem import METHODS
 
-DESIGN_METHODS = (*METHODS, "greedy_filtered")  # greedy_filtered: the paper's low-pass filter of the greedy design
-COMPARE = DESIGN_METHODS
+# greedy_filtered: the paper's low-pass filter of the greedy design; nlp_free: the free design the buildable nlp
+# starts from, kept as its own run; greedy_buildable: the greedy under the buildable rules (methods.greedy)
+DESIGN_METHODS = (*METHODS, "greedy_filtered", "nlp_free", "greedy_buildable")
+COMPARE = ("nlp", "nlp_free", "greedy", "greedy_buildable", "greedy_filtered")  # free and buildable, both methods
 
 
 @dataclass(frozen=True)
@@ -78,9 +80,10 @@ def check_request(pf: ProblemFile, rq: Request) -> None:
             if key not in KIND_OPTIONS[kind]:
                 raise InputError(pf.path, key, f"not available for {kind} problems")
         return
-    if "greedy_filtered" in methods and "greedy" not in methods:
-        raise InputError(pf.path, "method", "greedy_filtered needs greedy")
-    if problem.obstacles and "greedy" in methods:
+    for run, base in (("greedy_filtered", "greedy"), ("nlp_free", "nlp")):
+        if run in methods and base not in methods:
+            raise InputError(pf.path, "method", f"{run} needs {base}")
+    if problem.obstacles and set(methods) - {"nlp"}:  # their design's start is kept as nlp_no_obstacles
         raise InputError(pf.path, "method", "obstacles are designed by the nlp formulation only")
     needs_nlp = [k for k in ("robust", "clearance", "warm", "hops") if k in asked]
     if needs_nlp and "nlp" not in methods:

@@ -18,8 +18,7 @@ The one place that decides which runs a problem makes, in which order, from whic
 Every run is then judged against the hard requirements of its problem (:func:`judge`: the
 actuator's bounds, the obstacle margin checked densely against the exact shapes, the clearance
 asked for, a [load]'s sections): ``Result.shortfall`` says what it misses. The exit status is 0 only where every run
-the request asked for converged and misses nothing (:attr:`Outcome.ok`).
-"""
+the request asked for converged and misses nothing (:attr:`Outcome.ok`)."""
 
 from __future__ import annotations
 
@@ -40,7 +39,7 @@ from vine_nlp.methods.buildable import design_buildable, missed
 from vine_nlp.methods.clearance import design_with_clearance
 from vine_nlp.methods.common import evaluate, pair_points, run_forward
 from vine_nlp.methods.fit import fit_frames, fit_problem
-from vine_nlp.methods.greedy import design_greedy, lowpass
+from vine_nlp.methods.greedy import design_greedy, design_greedy_buildable, lowpass
 from vine_nlp.methods.loads import load_runs
 from vine_nlp.methods.multishape import design_multishape
 from vine_nlp.methods.nlp import design_nlp
@@ -174,15 +173,20 @@ def _design_as_given(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, 
     runs = {}
     for m in methods:
         if m == "nlp":
-            runs[m] = design_nlp(problem, starts=rq.starts, workers=rq.workers, warm=rq.warm, progress=rq.progress, hops=rq.hops,
-                                 budget=rq.budget, note=rq.note)
-            if not problem.obstacles or _clears(problem, runs[m]):  # among obstacles a design that cuts one only starts theirs
-                runs[m] = design_buildable(problem, runs[m])  # from the free one (issue 31); robust and clearance keep its classes
+            free = design_nlp(problem, starts=rq.starts, workers=rq.workers, warm=rq.warm, progress=rq.progress, hops=rq.hops,
+                              budget=rq.budget, note=rq.note)
+            if "nlp_free" in methods:  # compare: the free design kept before it, a figure only (not decisive)
+                runs["nlp_free"] = free
+            # the buildable design from the free one (issue 31; robust and clearance keep its classes); among obstacles a
+            # design that cuts one only starts theirs
+            runs[m] = design_buildable(problem, free) if not problem.obstacles or _clears(problem, free) else free
         elif m == "greedy":
             runs[m] = design_greedy(problem, progress=rq.progress)
-        else:
+        elif m == "greedy_buildable":  # from the greedy's own design where it was made
+            runs[m] = design_greedy_buildable(problem, progress=rq.progress, start=runs.get("greedy"))
+        elif m == "greedy_filtered":
             runs[m] = lowpass(runs["greedy"], problem)
-    decisive = tuple(runs)
+    decisive = tuple(r for r in runs if r != "nlp_free")
     if problem.obstacles:  # the obstacle design is run nlp; the design without obstacles it started from is kept beside it
         start = runs.pop("nlp")
         runs = {"nlp": design_with_obstacles(problem, start=start), START_RUN: start} | runs

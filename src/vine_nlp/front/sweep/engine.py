@@ -1,8 +1,7 @@
 """The sweep itself: resume, the directory lock, the run (see :mod:`vine_nlp.front.sweep`).
 
 The parent plans (what is finished), keeps the workers busy, keeps the summary rows and
-writes summary.csv and summary.png; the workers write the archives.
-"""
+writes summary.csv and summary.png; the workers write the archives."""
 
 from __future__ import annotations
 
@@ -42,8 +41,7 @@ class _Job:
 
 def _structure(pf, methods) -> tuple:
     """Items with equal keys reuse the same built solvers (nlp: M segments, n, shared lambda, options)."""
-    p = pf.problem
-    o = p.options
+    p, o = pf.problem, pf.problem.options
     segments = math.ceil((p.target.shape[0] - 1) / o.points_per_segment)
     # every option but the weights and the seed, which are parameters of a built solver
     options = tuple((f.name, repr(getattr(o, f.name))) for f in dataclasses.fields(o) if f.name not in _PARAMETER_OPTIONS)
@@ -80,9 +78,7 @@ class DirectoryLock:
     The file says ``<pid> <token>``: a worker that reads this sweep's token there writes in place."""
 
     def __init__(self, out: Path):
-        self.path = out / LOCK_FILE
-        self.fd = None
-        self.token = secrets.token_hex(8)
+        self.path, self.fd, self.token = out / LOCK_FILE, None, secrets.token_hex(8)
 
     def acquire(self) -> None:
         """Take the lock or raise InputError naming the sweep that holds it."""
@@ -99,10 +95,8 @@ class DirectoryLock:
         except OSError:
             holder = (os.pread(fd, 64, 0).decode(errors="replace").split() or ["?"])[0]
             os.close(fd)
-            raise InputError(
-                str(self.path.parent), "-o",
-                f"another sweep (pid {holder}) is writing into this directory; wait for it to end or choose another -o",
-            ) from None
+            raise InputError(str(self.path.parent), "-o", f"another sweep (pid {holder}) is writing into this directory; "
+                             "wait for it to end or choose another -o") from None
         with contextlib.suppress(OSError):  # a full disk must not stop the lock (the workers then send their results)
             os.ftruncate(fd, 0)
             os.pwrite(fd, f"{os.getpid()} {self.token}\n".encode(), 0)
@@ -114,24 +108,15 @@ class DirectoryLock:
             self.fd = None
 
 
-def run_sweep(
-    sweep,
-    out_dir,
-    workers: int | None = None,
-    scheduler: str | None = None,
-    progress: bool = True,
-    force: bool = False,
-    callback: Callable[[str, list], None] | None = None,
-) -> SweepReport:
+def run_sweep(sweep, out_dir, workers: int | None = None, scheduler: str | None = None, progress: bool = True, force: bool = False,
+              callback: Callable[[str, list], None] | None = None) -> SweepReport:
     """Solve every item of ``sweep`` (from ``load_sweep``) into ``out_dir`` (see :mod:`vine_nlp.front.sweep`).
 
-    ``workers``: local processes (default ``os.cpu_count()``; 0 or 1: this one), ignored with
-    ``scheduler`` (a dask scheduler's address); ``progress``: a tqdm bar on a terminal; ``force``:
-    redo finished items; ``callback(item, rows)`` after each item this run finished. Raises
-    InputError (bad arguments or output directory, a locked one, no scheduler, obstacles),
-    OutputError (a file could not be written: the sweep stopped, the same command resumes) and
-    KeyboardInterrupt (Ctrl-C, SIGTERM; its ``sweep_report`` is the partial report).
-    """
+    ``workers``: local processes (default ``os.cpu_count()``; 0 or 1: this one), ignored with ``scheduler`` (a dask
+    scheduler's address); ``progress``: a tqdm bar on a terminal; ``force``: redo finished items; ``callback(item,
+    rows)`` after each item this run finished. Raises InputError (bad arguments or output directory, a locked one, no
+    scheduler, obstacles), OutputError (a file could not be written: the sweep stopped, the same command resumes) and
+    KeyboardInterrupt (Ctrl-C, SIGTERM; its ``sweep_report`` is the partial report)."""
     t_start = time.perf_counter()
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
@@ -309,10 +294,9 @@ class _Run:
             if self.bar is not None:
                 self.bar.write(f"{job.item} {m} failed: {error}")
         self.rows_of[job.item] = rows
-        if any(r["status"] == FAILED for r in rows):
-            report.failed += 1
-        else:
-            report.done += 1
+        failed = any(r["status"] == FAILED for r in rows)
+        report.failed += failed
+        report.done += not failed
         report.item_wall_s += record.get("total_s", 0.0)
         report.item_cpu_s += record.get("cpu_s", 0.0)
         if self.bar is not None:

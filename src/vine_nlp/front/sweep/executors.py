@@ -1,14 +1,12 @@
 """Where sweep items run: the worker task and three executors with one small interface.
 
-The worker task :func:`solve_chunk` solves a few items (:func:`solve_item`, the seam with the
-design methods), writes each item's archive (:func:`write_item`) and sends back a small record
-per item; where the sweep directory is not the one it sees (a dask worker on another machine:
-the lock file's token differs), it sends the Results and the parent writes them. Executors:
-:class:`InlinePool` (this process), :class:`LocalPool` (long-lived worker processes: each
-builds a solver once per problem structure; forked when this process is safe to fork, else
-from a forkserver) and :class:`DaskPool`. Items travel in chunks of up to MAX_CHUNK (a task
-costs more than a short item), single items at the end so that no worker waits for another.
-"""
+The worker task :func:`solve_chunk` solves a few items (:func:`solve_item`, the seam with the design methods), writes
+each item's archive (:func:`write_item`) and sends back a small record per item; where the sweep directory is not the
+one it sees (a dask worker on another machine: the lock file's token differs), it sends the Results and the parent
+writes them. Executors: :class:`InlinePool` (this process), :class:`LocalPool` (long-lived worker processes: each builds
+a solver once per problem structure; forked when this process is safe to fork, else from a forkserver) and
+:class:`DaskPool`. Items travel in chunks of up to MAX_CHUNK (a task costs more than a short item), single items at the
+end so that no worker waits for another."""
 
 from __future__ import annotations
 
@@ -37,13 +35,11 @@ _ONE_SOLVE = threading.Lock()
 def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]:
     """Solve one sweep item with each of ``methods`` (in a worker process): ``(runs, timings)``.
 
-    Each method is one request to the pipeline, as `vine-nlp design --method M` makes it (obstacles,
-    calibration and the judgement of every hard requirement included). ``runs``: run name -> Result of
-    each method that finished, with the runs it brings along (an obstacle design's ``nlp_no_obstacles``);
-    ``timings``: ``total_s``, ``cpu_s`` and ``errors`` (method -> "Type: message": a method that raises
-    fails alone). KeyboardInterrupt propagates unless ``remote`` (a worker ignores Ctrl-C: there it
-    comes from inside IPOPT and fails that run).
-    """
+    Each method is one request to the pipeline, as `vine-nlp design --method M` makes it (obstacles, calibration and the
+    judgement of every hard requirement included). ``runs``: run name -> Result of each method that finished, with the
+    runs it brings along (an obstacle design's ``nlp_no_obstacles``); ``timings``: ``total_s``, ``cpu_s`` and ``errors``
+    (method -> "Type: message": a method that raises fails alone). KeyboardInterrupt propagates unless ``remote`` (a
+    worker ignores Ctrl-C: there it comes from inside IPOPT and fails that run)."""
     runs, errors = {}, {}
     t_item, c_item = time.perf_counter(), time.process_time()
     for method in methods:
@@ -54,17 +50,14 @@ def solve_item(problem_file, methods, remote: bool = False) -> tuple[dict, dict]
         except KeyboardInterrupt:
             if not remote:
                 raise
-            errors[method] = (
-                "KeyboardInterrupt from the solver in a worker process, which ignores Ctrl-C "
-                "(IPOPT status NonIpopt_Exception_Thrown: an exception inside the solve)"
-            )
+            errors[method] = ("KeyboardInterrupt from the solver in a worker process, which ignores Ctrl-C "
+                              "(IPOPT status NonIpopt_Exception_Thrown: an exception inside the solve)")
     return runs, {"total_s": time.perf_counter() - t_item, "cpu_s": time.process_time() - c_item, "errors": errors}
 
 
 def design_item(problem_file, method: str) -> dict:
     """The runs of one method of one item: the pipeline's (run name -> Result)."""
     from vine_nlp import pipeline  # the solvers load in the worker (fork_is_safe: none in the parent)
-
     return pipeline.run(problem_file, pipeline.Request(methods=(method,))).runs
 
 
@@ -73,8 +66,7 @@ def write_item(out_dir, item: str, problem_file, runs: dict) -> dict:
     and return the summary's numbers of each run, ``{method: cells}`` (:func:`summary.cells`).
 
     No runs: the item has no archive (a stale one is removed). Raises OutputError (disk full,
-    ...) and whatever HDF5 refuses to store. The pipeline's outcome of an item feeds this.
-    """
+    ...) and whatever HDF5 refuses to store. The pipeline's outcome of an item feeds this."""
     path = Path(out_dir) / f"{item}.h5"
     if not runs:
         path.unlink(missing_ok=True)
@@ -86,9 +78,8 @@ def write_item(out_dir, item: str, problem_file, runs: dict) -> dict:
 
 
 def archive_outcome(out_dir, item: str, problem_file, outcome: dict) -> dict:
-    """:func:`write_item` for an item's ``outcome`` (its ``runs`` replaced by their ``cells``). A failed
-    write stops the sweep (``stop``: the OutputError's arguments, which pickle); a value HDF5
-    refuses fails this item's runs alone."""
+    """:func:`write_item` for an item's ``outcome`` (its ``runs`` replaced by their ``cells``). A failed write stops the
+    sweep (``stop``: the OutputError's arguments, which pickle); a value HDF5 refuses fails this item's runs alone."""
     runs, outcome["cells"] = outcome.pop("runs"), {}
     try:
         outcome["cells"] = write_item(out_dir, item, problem_file, runs)
@@ -102,8 +93,7 @@ def archive_outcome(out_dir, item: str, problem_file, outcome: dict) -> dict:
 def solve_chunk(chunk, out_dir=None, token=None, remote: bool = False) -> list[dict]:
     """Solve and archive each ``(item, problem_file, methods, previous)`` of ``chunk`` (``previous``: runs
     kept from its archive). One record per item: ``cells``, ``errors``, ``total_s``, ``cpu_s``; ``runs``
-    instead of ``cells`` where ``out_dir`` is not the sweep's here (:func:`_reaches`); ``stop`` ends it.
-    """
+    instead of ``cells`` where ``out_dir`` is not the sweep's here (:func:`_reaches`); ``stop`` ends it."""
     here = out_dir is not None and (token is None or _reaches(out_dir, token))
     records = []
     for item, problem_file, methods, previous in chunk:
@@ -135,7 +125,6 @@ def error_text(exc: BaseException) -> str:
 def _worker_init(close_fds=(), watch_fd=None, parent=None):
     # Ctrl-C reaches the whole process group; only the parent handles it (it stops the workers).
     import signal
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     # A forked worker inherits the parent's handlers (vine_nlp.interrupt turns SIGTERM into
     # KeyboardInterrupt): the parent ends its workers with SIGTERM, and they are to go quietly.
@@ -151,7 +140,6 @@ def _die_with_parent(watch_fd, parent) -> None:
     which ends with the sweep) is gone; a forked worker also reads the parent's pipe, which ends then."""
     import ctypes
     import signal
-
     with contextlib.suppress(OSError, AttributeError):  # not Linux
         ctypes.CDLL(None).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
     if parent is not None and os.getppid() != parent:  # gone before prctl
@@ -175,13 +163,8 @@ def fork_is_safe() -> bool:
     """True when this process can be forked for workers: POSIX fork (not macOS), only the main thread
     running, and no design solver used here (IPOPT/casadi threads do not survive a fork)."""
     import multiprocessing as mp
-
-    return (
-        "fork" in mp.get_all_start_methods()
-        and sys.platform != "darwin"
-        and threading.active_count() == 1
-        and "vine_nlp.methods.transcription" not in sys.modules
-    )
+    return ("fork" in mp.get_all_start_methods() and sys.platform != "darwin" and threading.active_count() == 1
+            and "vine_nlp.methods.transcription" not in sys.modules)
 
 
 def _chunk(pending: int, slots: int) -> int:
@@ -194,16 +177,13 @@ class InlinePool:
 
     window = 1
     shared_fate = False
-
-    def __init__(self):
-        self.description = "in this process"
+    description = "in this process"
 
     def chunk_size(self, pending: int) -> int:
         return 1  # an interrupt keeps every finished item
 
     def submit(self, fn, args, name):
         from concurrent.futures import Future
-
         fut = Future()
         try:
             fut.set_result(fn(*args, remote=False))
@@ -241,7 +221,6 @@ class LocalPool:
     def _make(self, method, inherited_fd=None):
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
-
         if method is None:
             method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
             self.start_method = method
@@ -264,7 +243,6 @@ class LocalPool:
     def submit(self, fn, args, name):
         from concurrent.futures import Future
         from concurrent.futures.process import BrokenProcessPool
-
         try:
             return self.executor.submit(fn, *args, remote=True)
         except BrokenProcessPool as exc:
@@ -276,12 +254,10 @@ class LocalPool:
 
     def wait_first(self, futures):
         from concurrent.futures import FIRST_COMPLETED, wait
-
         return wait(futures, return_when=FIRST_COMPLETED).done
 
     def lost(self, exc) -> bool:
         from concurrent.futures.process import BrokenProcessPool
-
         return isinstance(exc, BrokenProcessPool)
 
     def restart(self):
@@ -348,7 +324,6 @@ class DaskPool:
 
     def submit(self, fn, args, name):
         import uuid
-
         fut = self.client.submit(fn, *args, remote=True, key=f"solve_item-{name}-{uuid.uuid4().hex[:8]}", pure=False)
         self._completed.add(fut)
         return fut

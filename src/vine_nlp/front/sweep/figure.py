@@ -20,18 +20,15 @@ def preload_matplotlib() -> None:
 def plot_summary(rows, path, title: str | None = None) -> Path:
     """Summary figure of a sweep: RMSE and solve-time distributions per method, NLP against greedy.
 
-    ``rows`` as in summary.csv (dicts with item, method, status, rmse, solve_time_s,
-    units). RMSE is shown in mm when the units are a length unit (cm, mm, m, in).
-    ``title`` goes before the item count at the top.
-    The file is written atomically; its format follows the suffix.
-    """
+    ``rows`` as in summary.csv (dicts with item, method, status, rmse, solve_time_s, units). RMSE is shown in mm when
+    the units are a length unit (cm, mm, m, in). ``title`` goes before the item count at the top. The file is written
+    atomically; its format follows the suffix."""
     import numpy as np
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from matplotlib.ticker import LogLocator, MaxNLocator, NullFormatter
 
     from vine_nlp.io.archive import write_atomic
-
     path = Path(path)
     ok = [r for r in rows if r.get("rmse") is not None and r.get("status") != FAILED]
     methods = list(dict.fromkeys(r["method"] for r in rows))

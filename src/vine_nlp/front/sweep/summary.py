@@ -68,10 +68,8 @@ def format_report(report: SweepReport) -> str:
         head += f", {r.total - r.done - r.skipped - r.failed} not run (interrupted)"
     lines = [head]
     if r.solved:
-        lines.append(
-            f"{r.wall_time_s:.1f} s wall, {r.items_per_s:.3g} items/s, {r.executor}; "
-            f"items took {r.item_wall_s:.1f} s in the workers ({r.item_cpu_s:.1f} s CPU)"
-        )
+        lines.append(f"{r.wall_time_s:.1f} s wall, {r.items_per_s:.3g} items/s, {r.executor}; "
+                     f"items took {r.item_wall_s:.1f} s in the workers ({r.item_cpu_s:.1f} s CPU)")
     elif r.wall_time_s:
         lines.append(f"{r.wall_time_s:.1f} s wall, nothing to solve")
     if r.archived_here:
@@ -83,10 +81,8 @@ def format_report(report: SweepReport) -> str:
             lines.append(f"{method}: no finished runs")
             continue
         u = s["units"]
-        lines.append(
-            f"{method}: RMSE mean {s['rmse_mean']:.3g} {u}, worst {s['rmse_max']:.3g} {u} ({s['worst_item']}), "
-            f"{s['converged']}/{s['count']} converged, median solve time {s['time_median']:.3g} s"
-        )
+        lines.append(f"{method}: RMSE mean {s['rmse_mean']:.3g} {u}, worst {s['rmse_max']:.3g} {u} ({s['worst_item']}), "
+                     f"{s['converged']}/{s['count']} converged, median solve time {s['time_median']:.3g} s")
     if r.short:
         lines.append(f"{r.short} converged runs miss a hard requirement of their problem (see the error column)")
     for item, method, error in r.failures[:5]:
@@ -115,16 +111,9 @@ def method_stats(rows) -> dict:
             rmse = [r["rmse"] * factor for r in ok]
             worst = max(range(len(ok)), key=lambda k: rmse[k])
             times = sorted(r["solve_time_s"] for r in ok)
-            s.update(
-                units=unit,
-                rmse_mean=sum(rmse) / len(rmse),
-                rmse_max=rmse[worst],
-                worst_item=ok[worst]["item"],
-                max_error_max=max(r["max_error"] for r in ok) * factor,
-                converged=sum(1 for r in ok if r["status"] in _CONVERGED),
-                time_median=times[len(times) // 2],
-                time_total=sum(times),
-            )
+            s.update(units=unit, rmse_mean=sum(rmse) / len(rmse), rmse_max=rmse[worst], worst_item=ok[worst]["item"],
+                     max_error_max=max(r["max_error"] for r in ok) * factor, converged=sum(1 for r in ok if r["status"] in _CONVERGED),
+                     time_median=times[len(times) // 2], time_total=sum(times))
         out[method] = s
     return out
 
@@ -149,7 +138,6 @@ def _cell(value) -> str:
 def write_summary(path, rows, grid_keys) -> None:
     """summary.csv (atomically): spec columns, then iterations, units, error."""
     from vine_nlp.io.archive import write_atomic
-
     columns = ["item", *grid_keys, *SPEC_COLUMNS, *(c for c in EXTRA_COLUMNS if c not in grid_keys)]
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
@@ -162,14 +150,9 @@ def write_summary(path, rows, grid_keys) -> None:
 def cells(result) -> dict:
     """The summary's numbers of one Result (what a worker sends back for each run it archived)."""
     m = result.metrics
-    return {
-        "status": result.status,
-        "rmse": float(m["rmse"]) if "rmse" in m else None,
-        "max_error": float(m["max_error"]) if "max_error" in m else None,
-        "solve_time_s": float(result.solve_time_s),
-        "iterations": int(result.iterations),
-        "shortfall": "; ".join(result.shortfall),  # the hard requirements a run misses
-    }
+    return {"status": result.status, "rmse": float(m["rmse"]) if "rmse" in m else None,
+            "max_error": float(m["max_error"]) if "max_error" in m else None, "solve_time_s": float(result.solve_time_s),
+            "iterations": int(result.iterations), "shortfall": "; ".join(result.shortfall)}  # shortfall: the hard requirements missed
 
 
 def make_row(item, overrides, method, units, numbers=None, error=None) -> dict:

@@ -23,7 +23,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from vine_nlp.analysis.buildability import correction_missed
 from vine_nlp.methods import drive, settings
+from vine_nlp.methods.buildable import Build, upper
 from vine_nlp.methods.common import evaluate, pair_points
 from vine_nlp.methods.correct.deviations import TOP, Deviations, apply_deviations, remove_deviations
 from vine_nlp.methods.correct.estimate import Estimate, estimate_as_built
@@ -49,14 +51,18 @@ def correction_spec(M: int, n: int, shared: bool, max_iter: int, tol: float, hes
 
 
 def lambda_bounds(problem: DesignProblem, built: Routing, dev: Deviations) -> tuple[np.ndarray, np.ndarray]:
-    """(lo, hi) of the lambda the robot realizes from the next nominal: [lambda_min, min(1, TOP + d_lam)] where
-    ``built`` has an actuator (its nominal at most TOP keeps it), exactly 1 where it has none, what it realizes now
-    where ``dev.held``. sPAM: one lambda."""
-    a, act = problem.actuator, actuated(built.lam)
+    """(lo, hi) of the lambda the robot realizes from the next nominal where ``built`` has an actuator: its nominal
+    within [lambda_min, top] (the buildable rules for a correction, analysis.buildability.correction_missed: top
+    keeps the actuator and its gap at least min_feature, methods.buildable.upper without margin; TOP for pouches),
+    i.e. [lambda_min + max(d_lam, 0), min(1, top + d_lam)]; exactly 1 where it has none, what it realizes now where
+    ``dev.held``. sPAM: one lambda."""
+    a, act, build = problem.actuator, actuated(built.lam), replace(Build.of(problem), margin=0.0)
     d = np.full(built.segments, float(np.mean(dev.lam))) if a.shared_lambda else dev.lam
-    lo, now = np.where(act, a.lambda_min, 1.0), built_lambda(built.lam, d, a.lambda_min)
+    top = np.full(built.segments, TOP) if a.shared_lambda else np.minimum(TOP, upper(built.length, act, build))
+    lo, now = np.where(act, a.lambda_min + np.maximum(d, 0.0), 1.0), built_lambda(built.lam, d, a.lambda_min)
+    hi = np.where(act, np.minimum(1.0, top + d), 1.0)
     held = dev.held if dev.held is not None else False
-    return np.where(held, now, lo), np.where(held, now, np.maximum(lo, np.where(act, np.minimum(1.0, TOP + d), 1.0)))
+    return np.where(held, now, np.minimum(lo, hi)), np.where(held, now, hi)
 
 
 def correct_routing(problem: DesignProblem, as_built: Routing, dev: Deviations, adjust=("lambda",), built: Routing | None = None,
@@ -112,7 +118,7 @@ def at_bounds(problem: DesignProblem, realized: Routing, built: Routing, dev: De
     parts = []
     for mask, what in ((act & (lam <= lo + eps), f"lambda at lambda_min {a.lambda_min:g}"),
                        (act & (lam >= hi - eps) & (hi >= 1.0 - eps), "lambda at 1 (an actuator cannot lengthen the tube)"),
-                       (act & (lam >= hi - eps) & (hi < 1.0 - eps), "lambda at the actuator's least contraction (its nominal at 1)"),
+                       (act & (lam >= hi - eps) & (hi < 1.0 - eps), "lambda at the actuator's least contraction (its nominal's gap at min_feature)"),
                        (np.abs(realized.theta - dev.theta) >= a.theta_max - eps if "theta" in adjust else act & False,
                         f"|theta| at theta_max {math.degrees(a.theta_max):g} deg")):
         if mask.any():
@@ -194,5 +200,8 @@ def _route(problem, pairing, est: Estimate, built: Routing, adjust, trust) -> Re
                              f"{pinned}",)
     elif not res.converged:
         res.shortfall = (f"the correction did not converge ({status})",)
+    b = Build.of(problem)  # the buildable rules' variant for a correction (analysis.buildability.correction_missed)
+    res.shortfall += tuple(f"not buildable: {line}" for line in correction_missed(nominal, built.lam, b.D, b.kind, b.lambda_min,
+                                                                                  b.min_feature, problem.units))
     res.solve_time_s = time.perf_counter() - t1
     return res

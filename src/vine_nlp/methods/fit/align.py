@@ -1,14 +1,10 @@
 """Rigid alignment of measured points to a model line: pose starts, ICP and a Gauss-Newton polish.
 
-Transforms are 4x4 homogeneous matrices; ``T`` maps measured points into the model
-frame (``T @ measured ~ model``). The model line is a :class:`Polyline` (distances
-are to the polyline, or to the points of a cloud). :func:`fit_pose` is the global
-search: principal-axis alignments times the 24 rotations of the octahedral group,
-plus seeded random rotations (:func:`pose_starts`), each refined by ICP (closest
-point, Kabsch SVD update) on a subsample, the best few polished by a damped
-Gauss-Newton on the point-to-line distances. :func:`icp` aligns general paths
-(paper Figs. 7 and 8).
-"""
+Transforms are 4x4 homogeneous matrices; ``T`` maps measured points into the model frame (``T @ measured ~ model``). The
+model line is a :class:`Polyline` (distances are to the polyline, or to the points of a cloud). :func:`fit_pose` is the
+global search: principal-axis alignments times the 24 rotations of the octahedral group, plus seeded random rotations
+(:func:`pose_starts`), each refined by ICP (closest point, Kabsch SVD update) on a subsample, the best few polished by a
+damped Gauss-Newton on the point-to-line distances. :func:`icp` aligns general paths (paper Figs. 7 and 8)."""
 
 from __future__ import annotations
 
@@ -30,10 +26,7 @@ def apply_transform(T, points) -> np.ndarray:
 
 def invert_transform(T) -> np.ndarray:
     T = np.asarray(T, float)
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
+    return make_transform(T[:3, :3].T, -T[:3, :3].T @ T[:3, 3])
 
 
 def make_transform(R, t) -> np.ndarray:
@@ -79,11 +72,9 @@ def _octahedral() -> np.ndarray:
 def pose_starts(source, target, starts: int = 24, seed: int = 0) -> list[np.ndarray]:
     """Deterministic starting transforms mapping ``source`` onto ``target``.
 
-    The principal axes of both point sets are aligned in all 24 ways of the
-    octahedral group (every axis permutation with every sign flip that keeps a
-    rotation; the 4 pure sign flips first), centroid onto centroid. Beyond 24,
-    seeded uniformly random rotations follow.
-    """
+    The principal axes of both point sets are aligned in all 24 ways of the octahedral group (every axis permutation
+    with every sign flip that keeps a rotation; the 4 pure sign flips first), centroid onto centroid. Beyond 24, seeded
+    uniformly random rotations follow."""
     cx, Vx = principal_axes(np.asarray(source, float))
     cy, Vy = principal_axes(np.asarray(target, float))
     Rs = [Vy @ g @ Vx.T for g in _octahedral()][: max(starts, 1)]
@@ -124,11 +115,9 @@ class Polyline:
     def project(self, x):
         """Closest points of (K, 3) ``x``: (closest, distance, s, tangent, free_end).
 
-        ``s`` is the arc length of the closest point along the line, ``tangent`` the
-        unit direction of its piece and ``free_end`` marks points whose closest point
-        is an end of the line (or a vertex, for ``path=False``): their residual is
-        not perpendicular to the line.
-        """
+        ``s`` is the arc length of the closest point along the line, ``tangent`` the unit direction of its piece and
+        ``free_end`` marks points whose closest point is an end of the line (or a vertex, for ``path=False``): their
+        residual is not perpendicular to the line."""
         x = np.asarray(x, float)
         K = x.shape[0]
         if not self.path:
@@ -169,14 +158,9 @@ class PointSet:
 
 def project_all(sets, Xt):
     """Closest points of the stacked transformed points, set by set."""
-    out = [[], [], [], [], []]
-    k0 = 0
-    for st in sets:
-        k1 = k0 + st.points.shape[0]
-        for lst, v in zip(out, st.line.project(Xt[k0:k1])):
-            lst.append(v)
-        k0 = k1
-    return [np.concatenate(v) for v in out]
+    ends = np.cumsum([0] + [st.points.shape[0] for st in sets])
+    parts = [st.line.project(Xt[a:b]) for st, a, b in zip(sets, ends[:-1], ends[1:])]
+    return [np.concatenate(v) for v in zip(*parts)]
 
 
 def stack_points(sets):
@@ -194,15 +178,11 @@ def clean_points(points, what="measured"):
 def r_squared(measured, residuals, groups=None) -> float:
     """Coefficient of determination of measured coordinates, as the paper uses it.
 
-    1 - SS_res / SS_tot with SS_res the sum of squared distances of the measured
-    points to the model and SS_tot the sum of squared distances to the centroid of
-    the measured points (of each group, e.g. each measured line, separately).
-    """
-    X = np.asarray(measured, float)
-    res = np.asarray(residuals, float)
+    1 - SS_res / SS_tot with SS_res the sum of squared distances of the measured points to the model and SS_tot the sum
+    of squared distances to the centroid of the measured points (of each group, e.g. each measured line, separately)."""
+    X, res = np.asarray(measured, float), np.asarray(residuals, float)
     ss_res = float(np.sum(res**2))
-    if groups is None:
-        groups = np.zeros(X.shape[0], int)
+    groups = np.zeros(X.shape[0], int) if groups is None else groups
     ss_tot = 0.0
     for gk in np.unique(groups):
         Xg = X[groups == gk]
@@ -216,8 +196,7 @@ def r_squared(measured, residuals, groups=None) -> float:
 def icp_refine(sets, T, max_iter=100, tol=1e-10):
     """Point-to-closest-point ICP with Kabsch updates. Returns (T, mean squared distance, iterations)."""
     X = stack_points(sets)
-    prev = math.inf
-    it = 0
+    prev, it = math.inf, 0
     for it in range(1, max_iter + 1):
         c, d, *_ = project_all(sets, apply_transform(T, X))
         cost = float(np.mean(d**2))
@@ -240,11 +219,9 @@ def _skew(q):
 def polish_pose(sets, T, max_iter=50, tol=1e-10):
     """Damped Gauss-Newton (Levenberg-Marquardt) on the point-to-line distances.
 
-    Linearizes each distance about its closest point with the projector
-    I - t t^T onto the line's normal plane (the line may slide along itself), so
-    unlike point-to-point ICP it converges quickly along the near-symmetric
-    sliding directions of a helix. Returns (T, mean squared distance, iterations).
-    """
+    Linearizes each distance about its closest point with the projector I - t t^T onto the line's normal plane (the line
+    may slide along itself), so unlike point-to-point ICP it converges quickly along the near-symmetric sliding
+    directions of a helix. Returns (T, mean squared distance, iterations)."""
     X = stack_points(sets)
     K = X.shape[0]
     scale = max(float(np.ptp(X, axis=0).max()), 1e-12)
@@ -256,8 +233,7 @@ def polish_pose(sets, T, max_iter=50, tol=1e-10):
         return Xt, c, tan, end, float(np.sum(d**2))
 
     state = evaluate(T)
-    mu = 1e-4
-    it = 0
+    mu, it = 1e-4, 0
     for it in range(1, max_iter + 1):  # noqa: B007  (the count is returned after the loop)
         Xt, c, tan, end, cost = state
         if cost <= floor * K:
@@ -311,8 +287,7 @@ def subsample(sets, n, seed=0):
     rng = np.random.default_rng(seed)
     out = []
     for st in sets:
-        k = max(3, int(round(n * st.points.shape[0] / total)))
-        k = min(k, st.points.shape[0])
+        k = min(max(3, int(round(n * st.points.shape[0] / total))), st.points.shape[0])
         idx = np.sort(rng.choice(st.points.shape[0], k, replace=False))
         out.append(PointSet(st.points[idx], st.line))
     return out
@@ -321,8 +296,7 @@ def subsample(sets, n, seed=0):
 def fit_pose(sets, starts_T, global_iter=ICP_GLOBAL_ITER, top=POLISH_TOP, polish_iter=50) -> PoseFit:
     """ICP from every start (on a subsample), then polish the best few on all points."""
     few = subsample(sets, GLOBAL_POINTS)
-    runs = []
-    iters = 0
+    runs, iters = [], 0
     for T0 in starts_T:
         T, mse, it = icp_refine(few, T0, max_iter=global_iter, tol=1e-9)
         iters += it
@@ -343,19 +317,15 @@ def fit_pose(sets, starts_T, global_iter=ICP_GLOBAL_ITER, top=POLISH_TOP, polish
 # ---------------------------------------------------------------- ICP of general paths
 
 
-def icp(
-    source, target, initial=None, max_iter: int = 100, tol: float = 1e-10, *, path: bool = True, starts: int = 24, seed: int = 0
-):
+def icp(source, target, initial=None, max_iter: int = 100, tol: float = 1e-10, *, path: bool = True, starts: int = 24, seed: int = 0):
     """Rigid alignment of ``source`` points onto ``target`` (paper Figs. 7 and 8).
 
-    ``target`` is a modeled path (ordered samples, distances to its polyline) or,
-    with ``path=False``, a point cloud (distances to its points). ``initial``: a
-    4x4 starting transform; None runs the global start set of :func:`pose_starts`
-    (``starts`` of them). Point-to-closest-point ICP with Kabsch updates, then a
-    point-to-line Gauss-Newton polish.
+    ``target`` is a modeled path (ordered samples, distances to its polyline) or, with ``path=False``, a point cloud
+    (distances to its points). ``initial``: a 4x4 starting transform; None runs the global start set of
+    :func:`pose_starts` (``starts`` of them). Point-to-closest-point ICP with Kabsch updates, then a point-to-line
+    Gauss-Newton polish.
 
-    Returns (T, rmse, max_error): T maps source onto target.
-    """
+    Returns (T, rmse, max_error): T maps source onto target."""
     src = clean_points(source, "source")
     sets = [PointSet(src, Polyline(np.asarray(target, float), path=path))]
     if initial is None:

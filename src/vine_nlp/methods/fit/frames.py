@@ -11,11 +11,9 @@ from vine_nlp.problem import FitProblem
 
 
 class FrameFit(tuple):
-    """``(lambda, rmse)`` of one frame; more as attributes: ``r2``, ``max_error``,
-    ``transform`` (measured -> model), ``error`` and ``s`` (per point, for the
-    error-against-length figure), ``points`` (finite measured points), ``ok``.
-    A frame that could not be fitted (fewer than ``min_points`` finite points) is
-    ``(nan, nan)`` with ``ok = False``."""
+    """``(lambda, rmse)`` of one frame; more as attributes: ``r2``, ``max_error``, ``transform`` (measured -> model),
+    ``error`` and ``s`` (per point, for the error-against-length figure), ``points`` (finite measured points), ``ok``. A
+    frame that could not be fitted (fewer than ``min_points`` finite points) is ``(nan, nan)`` with ``ok = False``."""
 
     def __new__(cls, lam, rmse, **info):
         obj = super().__new__(cls, (float(lam), float(rmse)))
@@ -31,18 +29,13 @@ class FrameFit(tuple):
         return self[1]
 
 
-def fit_frames(
-    problem: FitProblem, measured_list, starts: int = 24, seed: int = 0, window: float = 0.1, min_points: int = 4
-):
+def fit_frames(problem: FitProblem, measured_list, starts: int = 24, seed: int = 0, window: float = 0.1, min_points: int = 4):
     """Fit every frame of a sequence of one actuator (paper Fig. 9(d)): a list of :class:`FrameFit`.
 
-    Each frame is one point set of ``problem.line`` (rows with NaN, e.g. occluded
-    markers, are dropped). The first good frame gets the full global fit; every
-    later one starts from the previous frame's pose and lambda (Brent over
-    lambda within +-``window``), and falls back to the full global fit when that
-    is clearly worse (RMSE above 3x the previous frame's or 5 % of D). With lambda
-    not free only the pose is fitted.
-    """
+    Each frame is one point set of ``problem.line`` (rows with NaN, e.g. occluded markers, are dropped). The first good
+    frame gets the full global fit; every later one starts from the previous frame's pose and lambda (Brent over lambda
+    within +-``window``), and falls back to the full global fit when that is clearly worse (RMSE above 3x the previous
+    frame's or 5 % of D). With lambda not free only the pose is fitted."""
     free = tuple(problem.free)
     D = problem.diameter
     out = []

@@ -1,11 +1,9 @@
 """Free helix fits (paper Sec. V-A1, Figs. 5(b) and 6): a helix of any axis, radius and pitch through measured points.
 
-:func:`best_fit_helix`, :func:`best_fit_helix_pair`, :func:`parameter_errors`. By
-default they minimize the orthogonal distance to the helix (as the model fit does,
-so R^2 values compare); the paper's eq. (error_func), the in-plane distance at the
-point's height, is available as ``residual="height"`` (it multiplies axial noise by
-R/b on flat helices).
-"""
+:func:`best_fit_helix`, :func:`best_fit_helix_pair`, :func:`parameter_errors`. By default they minimize the orthogonal
+distance to the helix (as the model fit does, so R^2 values compare); the paper's eq. (error_func), the in-plane
+distance at the point's height, is available as ``residual="height"`` (it multiplies axial noise by R/b on flat
+helices)."""
 
 from __future__ import annotations
 
@@ -27,6 +25,12 @@ def _frame_from_axis(a):
     return np.column_stack([u, np.cross(a, u), a])
 
 
+def _tilted(F0, alpha, beta):
+    """The axis frame F0 tilted by the rotation vector (alpha, beta, 0)."""
+    from scipy.spatial.transform import Rotation  # SciPy loads where it is used: the command line starts faster
+    return F0 @ Rotation.from_rotvec([alpha, beta, 0.0]).as_matrix()
+
+
 def _fibonacci_hemisphere(n):
     k = np.arange(n) + 0.5
     z = k / n  # z in (0, 1): one of each pair of opposite directions
@@ -37,34 +41,25 @@ def _fibonacci_hemisphere(n):
 
 def _circle_fit(xy):
     """Algebraic (Kasa) circle fit: center (2,), radius."""
-    A = np.column_stack([2 * xy, np.ones(xy.shape[0])])
-    rhs = np.sum(xy**2, axis=1)
-    sol, *_ = np.linalg.lstsq(A, rhs, rcond=None)
+    sol, *_ = np.linalg.lstsq(np.column_stack([2 * xy, np.ones(xy.shape[0])]), np.sum(xy**2, axis=1), rcond=None)
     c = sol[:2]
-    r2 = sol[2] + c @ c
-    return c, math.sqrt(max(r2, 0.0))
+    return c, math.sqrt(max(sol[2] + c @ c, 0.0))
 
 
 def _helix_residuals(p, X, F0, line_idx, nradii, residual="orthogonal"):
     """Residuals of points X against helices sharing axis, pitch and phase.
 
-    p = (alpha, beta, cx, cy, w, phi0, radius_0, ..., radius_{n-1}): the axis frame is
-    F0 tilted by the rotation vector (alpha, beta, 0); in its coordinates the helix
-    of radius r is h(t) = (cx + r cos(w t + phi0), cy + r sin(w t + phi0), t), w = 1/b.
-    Radii are signed (a negative radius is the opposite side of the axis).
+    p = (alpha, beta, cx, cy, w, phi0, radius_0, ..., radius_{n-1}): the axis frame is F0 tilted by the rotation vector
+    (alpha, beta, 0); in its coordinates the helix of radius r is h(t) = (cx + r cos(w t + phi0), cy + r sin(w t +
+    phi0), t), w = 1/b. Radii are signed (a negative radius is the opposite side of the axis).
 
-    residual="height": the paper's eq. (error_func), the in-plane difference to the
-    helix point at the same height t = q_a (2 per point). It multiplies axial noise
-    by r/b, which is large for flat helices. residual="orthogonal" (default): the
-    difference to the closest point of the helix (3 per point), found per point by
-    safeguarded Newton steps in t from the better of the same-height and the
-    same-angle point.
-    """
+    residual="height": the paper's eq. (error_func), the in-plane difference to the helix point at the same height t =
+    q_a (2 per point). It multiplies axial noise by r/b, which is large for flat helices. residual="orthogonal"
+    (default): the difference to the closest point of the helix (3 per point), found per point by safeguarded Newton
+    steps in t from the better of the same-height and the same-angle point."""
     alpha, beta, cx, cy, w, phi0 = p[:6]
     radii = np.asarray(p[6 : 6 + nradii])
-    from scipy.spatial.transform import Rotation  # SciPy loads where it is used: the command line starts faster
-    F = F0 @ Rotation.from_rotvec([alpha, beta, 0.0]).as_matrix()
-    q = X @ F
+    q = X @ _tilted(F0, alpha, beta)
     qu, qv, qa = q[:, 0] - cx, q[:, 1] - cy, q[:, 2]
     r = radii[line_idx]
     if residual == "height":
@@ -112,13 +107,10 @@ def _distances(res, K):
 def _curve_order(X):
     """An order of unordered points along the curve they sample.
 
-    The longest path of the Euclidean minimum spanning tree; every point takes the
-    position of its nearest point on that path. Needs samples closer along the curve
-    than the curve's turns are to each other (true for tracker traces and for markers
-    along a helix with a pitch larger than their spacing).
-    """
+    The longest path of the Euclidean minimum spanning tree; every point takes the position of its nearest point on that
+    path. Needs samples closer along the curve than the curve's turns are to each other (true for tracker traces and for
+    markers along a helix with a pitch larger than their spacing)."""
     from scipy.sparse.csgraph import minimum_spanning_tree, shortest_path
-
     K = X.shape[0]
     if K < 3:
         return np.arange(K)
@@ -189,14 +181,11 @@ def _rate_mismatch(p, X, F0, radius, order):
     """How far (in half turns over the points' height span) the fitted angular rate w is
     from the rate of the points' own phase, unwrapped along the curve (``order``).
 
-    A dense coil of the right radius ("slinky": |w| far too large) passes close to every
-    point on the cylinder and can beat the true helix in orthogonal distance when the
-    noise is comparable to the pitch; its phase does not follow the points, which this
-    detects (> 1 means aliased)."""
+    A dense coil of the right radius ("slinky": |w| far too large) passes close to every point on the cylinder and can
+    beat the true helix in orthogonal distance when the noise is comparable to the pitch; its phase does not follow the
+    points, which this detects (> 1 means aliased)."""
     alpha, beta, cx, cy, w, _ = p[:6]
-    from scipy.spatial.transform import Rotation  # SciPy loads where it is used: the command line starts faster
-    F = F0 @ Rotation.from_rotvec([alpha, beta, 0.0]).as_matrix()
-    q = X @ F
+    q = X @ _tilted(F0, alpha, beta)
     psi = np.arctan2(q[:, 1] - cy, q[:, 0] - cx) + (math.pi if radius < 0 else 0.0)
     Z = float(np.ptp(q[:, 2]))
     if Z <= 0 or X.shape[0] < 3:
@@ -205,12 +194,10 @@ def _rate_mismatch(p, X, F0, radius, order):
 
 
 def _fit_helices(Xc, idx, nradii, inits, residual, check_line, keep=2, max_points=200):
-    """Refine helix candidates with least squares (first on at most ``max_points``
-    points, then the best ``keep`` on all). Aliased results (see
-    :func:`_rate_mismatch`, on the points of line ``check_line``) lose to any other."""
+    """Refine helix candidates with least squares (first on at most ``max_points`` points, then the best ``keep`` on
+    all). Aliased results (see :func:`_rate_mismatch`, on the points of line ``check_line``) lose to any other."""
     K = Xc.shape[0]
     sub = np.arange(K) if K <= max_points else np.sort(np.random.default_rng(0).choice(K, max_points, replace=False))
-
     orders = {}
 
     def score(X, ids, F0, p, mse):
@@ -237,62 +224,48 @@ def _fit_helices(Xc, idx, nradii, inits, residual, check_line, keep=2, max_point
 def _helix_dict(p, F0, mean, nradii):
     """Axis point/direction, signed pitch b and radii in world coordinates from parameters."""
     alpha, beta, cx, cy, w, phi0 = p[:6]
-    from scipy.spatial.transform import Rotation  # SciPy loads where it is used: the command line starts faster
-    F = F0 @ Rotation.from_rotvec([alpha, beta, 0.0]).as_matrix()
-    return {
-        "axis_point": mean + F[:, 0] * cx + F[:, 1] * cy, "axis_dir": F[:, 2].copy(),
-        "b": 1.0 / w if w != 0 else math.inf, "phase": float(phi0), "radii": np.asarray(p[6 : 6 + nradii], float),
-    }
+    F = _tilted(F0, alpha, beta)
+    return {"axis_point": mean + F[:, 0] * cx + F[:, 1] * cy, "axis_dir": F[:, 2].copy(),
+            "b": 1.0 / w if w != 0 else math.inf, "phase": float(phi0), "radii": np.asarray(p[6 : 6 + nradii], float)}
 
 
 def best_fit_helix(points, top: int = 6, residual: str = "orthogonal") -> dict:
     """Best circular helix through points in any order (axis, radius, pitch all free).
 
-    Global search over axis directions (the principal axes and a Fibonacci set on
-    the hemisphere; for each, a circle fit of the projected points and the angular
-    rate of the phase unwrapped along the height), then
-    ``scipy.optimize.least_squares`` from the ``top`` best candidates.
-    ``residual``: "orthogonal" (distance to the closest helix point, default, the
-    same distance the model fit uses) or "height" (the paper's eq. error_func:
+    Global search over axis directions (the principal axes and a Fibonacci set on the hemisphere; for each, a circle fit
+    of the projected points and the angular rate of the phase unwrapped along the height), then
+    ``scipy.optimize.least_squares`` from the ``top`` best candidates. ``residual``: "orthogonal" (distance to the
+    closest helix point, default, the same distance the model fit uses) or "height" (the paper's eq. error_func:
     in-plane distance at the same height; it inflates axial noise on flat helices).
 
-    Returns dict(R, b, axis_point, axis_dir, phase, rmse, r2): ``b`` is signed
-    (2 pi |b| per turn; b > 0 a right-handed helix, like the model's b for theta > 0),
-    ``axis_point`` the axis point closest to the points' centroid; ``rmse`` and
-    ``r2`` (:func:`r_squared`) of the chosen residual.
-    """
+    Returns dict(R, b, axis_point, axis_dir, phase, rmse, r2): ``b`` is signed (2 pi |b| per turn; b > 0 a right-handed
+    helix, like the model's b for theta > 0), ``axis_point`` the axis point closest to the points' centroid; ``rmse``
+    and ``r2`` (:func:`r_squared`) of the chosen residual."""
     X = clean_points(points, "points")
-    mean = X.mean(axis=0)
+    mean, idx = X.mean(axis=0), np.zeros(X.shape[0], int)
     Xc = X - mean
-    idx = np.zeros(X.shape[0], int)
     inits = [(F0, p0) for _, F0, p0 in _helix_candidates(Xc, residual=residual)[:top]]
     F0, p = _fit_helices(Xc, idx, 1, inits, residual, check_line=0)
     h = _helix_dict(p, F0, mean, 1)
     R = float(h["radii"][0])
     err = _distances(_helix_residuals(p, Xc, F0, idx, 1, residual), X.shape[0])
-    return {
-        "R": abs(R), "b": h["b"], "axis_point": h["axis_point"], "axis_dir": h["axis_dir"],
-        "phase": h["phase"] + (math.pi if R < 0 else 0.0), "rmse": float(np.sqrt(np.mean(err**2))),
-        "r2": r_squared(X, err),
-    }
+    return {"R": abs(R), "b": h["b"], "axis_point": h["axis_point"], "axis_dir": h["axis_dir"],
+            "phase": h["phase"] + (math.pi if R < 0 else 0.0), "rmse": float(np.sqrt(np.mean(err**2))), "r2": r_squared(X, err)}
 
 
 def best_fit_helix_pair(inner_points, outer_points, top: int = 3, residual: str = "orthogonal") -> dict:
     """Best pair of helices for the inner (actuator) and outer lines (paper Sec. V-A1).
 
-    The two helices share axis, pitch b and phase (they are lines of one tube), with
-    their own signed radii R_i, R_o (R_i < 0: the inner line passes the axis, as in
-    Table I when lambda > cos 2 theta). Table I's inverse (``helix_inverse``) then
-    gives the actuator parameters the fitted helix implies. Candidates come from
-    single-helix searches on each line; ``residual`` as in :func:`best_fit_helix`.
+    The two helices share axis, pitch b and phase (they are lines of one tube), with their own signed radii R_i, R_o
+    (R_i < 0: the inner line passes the axis, as in Table I when lambda > cos 2 theta). Table I's inverse
+    (``helix_inverse``) then gives the actuator parameters the fitted helix implies. Candidates come from single-helix
+    searches on each line; ``residual`` as in :func:`best_fit_helix`.
 
     Returns dict(R_i, R_o, b, theta, lam, D, axis_point, axis_dir, phase, rmse,
-    rmse_inner, rmse_outer, r2); r2 with each line about its own centroid.
-    """
+    rmse_inner, rmse_outer, r2); r2 with each line about its own centroid."""
     Xi, Xo = clean_points(inner_points, "inner points"), clean_points(outer_points, "outer points")
     X = np.concatenate([Xi, Xo])
-    K = X.shape[0]
-    mean = X.mean(axis=0)
+    K, mean = X.shape[0], X.mean(axis=0)
     Xc = X - mean
     idx = np.r_[np.zeros(Xi.shape[0], int), np.ones(Xo.shape[0], int)]
     inits = []
@@ -314,12 +287,10 @@ def best_fit_helix_pair(inner_points, outer_points, top: int = 3, residual: str 
         R_i, R_o, phase = -R_i, -R_o, phase + math.pi
     theta, lam, D = helix_inverse(R_o, R_i, h["b"])
     err = _distances(_helix_residuals(p, Xc, F0, idx, 2, residual), K)
-    return {
-        "R_i": float(R_i), "R_o": float(R_o), "b": float(h["b"]), "theta": float(theta), "lam": float(lam),
-        "D": float(D), "axis_point": h["axis_point"], "axis_dir": h["axis_dir"], "phase": float(phase),
-        "rmse": float(np.sqrt(np.mean(err**2))), "rmse_inner": float(np.sqrt(np.mean(err[idx == 0] ** 2))),
-        "rmse_outer": float(np.sqrt(np.mean(err[idx == 1] ** 2))), "r2": r_squared(X, err, idx),
-    }
+    return {"R_i": float(R_i), "R_o": float(R_o), "b": float(h["b"]), "theta": float(theta), "lam": float(lam),
+            "D": float(D), "axis_point": h["axis_point"], "axis_dir": h["axis_dir"], "phase": float(phase),
+            "rmse": float(np.sqrt(np.mean(err**2))), "rmse_inner": float(np.sqrt(np.mean(err[idx == 0] ** 2))),
+            "rmse_outer": float(np.sqrt(np.mean(err[idx == 1] ** 2))), "r2": r_squared(X, err, idx)}
 
 
 def parameter_errors(fitted: dict, nominal) -> dict:
@@ -328,8 +299,7 @@ def parameter_errors(fitted: dict, nominal) -> dict:
     ``fitted``: a :func:`best_fit_helix_pair` result; ``nominal``: (theta, lam, D)
     of the built actuator. For each of R_i, R_o, b (Fig. 6(a)) and theta, lam, D
     (Fig. 6(b)): dict(fitted, model, error = fitted - model, relative = error /
-    |model|, percent = 100 relative).
-    """
+    |model|, percent = 100 relative)."""
     theta, lam, D = (float(v) for v in nominal)
     h = helix_forward(theta, lam, D)
     model = {"R_i": float(h.R_i), "R_o": float(h.R_o), "b": float(h.b), "theta": theta, "lam": lam, "D": D}

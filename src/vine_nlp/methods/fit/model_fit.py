@@ -1,16 +1,13 @@
 """The model fit (``vine-nlp fit``, paper Sec. V-A2 and V-B2): measured points against the model of a known routing.
 
-Measured points in any order and any pose are fitted to the model's center, inner
-or outer line (:func:`fit_problem`, :func:`fit_lines`): only the rigid pose (see
-``vine_nlp.methods.fit.align``) and, with ``free = ("lambda",)``, the shared lambda
-of an sPAM are estimated: an outer 1-D search over lambda (coarse grid, then
-bounded Brent) re-runs the pose fit.
+Measured points in any order and any pose are fitted to the model's center, inner or outer line (:func:`fit_problem`,
+:func:`fit_lines`): only the rigid pose (see ``vine_nlp.methods.fit.align``) and, with ``free = ("lambda",)``, the
+shared lambda of an sPAM are estimated: an outer 1-D search over lambda (coarse grid, then bounded Brent) re-runs the
+pose fit.
 
-The model line is sampled with spacing <= ``FIT_SPACING * D`` and treated as a polyline;
-distances are to the polyline (the chord error of that spacing is about
-``(D/10)^2 kappa / 8``, far below tracker noise). The archived shape is the model
-moved onto the measurement: the routing's initial pose becomes ``inv(T) @ initial_pose``.
-"""
+The model line is sampled with spacing <= ``FIT_SPACING * D`` and treated as a polyline; distances are to the polyline
+(the chord error of that spacing is about ``(D/10)^2 kappa / 8``, far below tracker noise). The archived shape is the
+model moved onto the measurement: the routing's initial pose becomes ``inv(T) @ initial_pose``."""
 
 from __future__ import annotations
 
@@ -47,11 +44,9 @@ LINE_CODE = {name: k for k, name in enumerate(MEASURED_LINES)}  # center 0, inne
 def model_lines(routing: Routing, diameter: float, spacing: float = FIT_SPACING):
     """Center, inner and outer lines of ``routing`` sampled at <= spacing * D.
 
-    Returns (dict line -> (P, 3), s_tube (P,), per_segment (M,)): s_tube is the
-    unactuated tube length of every sample; every segment end is a sample.
-    The lines' actuated lengths are at most 1/cos(theta) times the unactuated one,
-    which the sample count allows for.
-    """
+    Returns (dict line -> (P, 3), s_tube (P,), per_segment (M,)): s_tube is the unactuated tube length of every sample;
+    every segment end is a sample. The lines' actuated lengths are at most 1/cos(theta) times the unactuated one, which
+    the sample count allows for."""
     h = spacing * diameter * np.cos(np.clip(np.abs(routing.theta), 0, 1.5))
     per_segment = np.maximum(1, np.ceil(routing.length / h)).astype(int)
     seg, frac = segment_end_samples(routing.length, per_segment)
@@ -116,11 +111,9 @@ class LineFitter:
     def fit_lambda(self, lam0, bounds=LAMBDA_BOUNDS, warm=(), local=None):
         """Shared lambda minimizing the pose-fitted RMSE.
 
-        ``local=None``: coarse grid over ``bounds`` (full pose search at every
-        value, warm-started from the best pose so far), then bounded Brent between
-        the neighbours of the best grid value. ``local=(lo, hi)``: Brent in that
-        interval only, warm-started (for frame sequences).
-        """
+        ``local=None``: coarse grid over ``bounds`` (full pose search at every value, warm-started from the best pose so
+        far), then bounded Brent between the neighbours of the best grid value. ``local=(lo, hi)``: Brent in that
+        interval only, warm-started (for frame sequences)."""
         best = {"lam": None, "fit": None}
 
         def keep(lam, fit):
@@ -162,13 +155,11 @@ def fit_lines(routing: Routing, diameter: float, measured: dict, free=(), starts
               spacing: float = FIT_SPACING, lambda_bounds=LAMBDA_BOUNDS, warm_start=None):
     """Fit the model of ``routing`` to measured lines sharing one rigid pose.
 
-    ``measured``: {"center" | "inner" | "outer": (K, 3) points in any order}; several
-    lines are fitted together, as the paper does for the inner and outer lines of
-    its static helices. ``free``: () or ("lambda",) (one shared lambda).
+    ``measured``: {"center" | "inner" | "outer": (K, 3) points in any order}; several lines are fitted together, as the
+    paper does for the inner and outer lines of its static helices. ``free``: () or ("lambda",) (one shared lambda).
     ``warm_start``: optional 4x4 measured -> model transform tried besides the global starts.
 
-    Returns (Result, extras): see :func:`fit_problem`.
-    """
+    Returns (Result, extras): see :func:`fit_problem`."""
     t0 = time.perf_counter()
     free = tuple(free)
     unknown = set(free) - {"lambda"}
@@ -216,15 +207,11 @@ def finish_fit(fitter: LineFitter, lam_fit, T, free, spacing):
         per_line[line] = Xt
     pts, closest, err, s, s_tube_pts, code = map(np.concatenate, (pts, closest, err, s, s_tube_pts, code))
     rmse = float(np.sqrt(np.mean(err**2)))
-    metrics = {
-        "rmse": rmse, "max_error": float(err.max()), "r2": r_squared(pts, err, code),
-        "lambda": float(lam_fit) if lam_fit is not None else float(np.mean(routing.lam)),
-    }
-    stats = {
-        "line": ",".join(fitter.measured), "free": list(free), "points": int(pts.shape[0]), "spacing": spacing * D,
-        "transform": T.tolist(), "lambda_evaluations": len(fitter.evaluations),
-        "model_line_length": {name: polylines[name].length for name in MEASURED_LINES},
-    }
+    metrics = {"rmse": rmse, "max_error": float(err.max()), "r2": r_squared(pts, err, code),
+               "lambda": float(lam_fit) if lam_fit is not None else float(np.mean(routing.lam))}
+    stats = {"line": ",".join(fitter.measured), "free": list(free), "points": int(pts.shape[0]), "spacing": spacing * D,
+             "transform": T.tolist(), "lambda_evaluations": len(fitter.evaluations),
+             "model_line_length": {name: polylines[name].length for name in MEASURED_LINES}}
     # RMSE of all measured points against each model line, at the fitted pose (diagnostic:
     # the measured line should be the one with the smallest).
     X_all = np.concatenate(list(per_line.values()))
@@ -235,10 +222,8 @@ def finish_fit(fitter: LineFitter, lam_fit, T, free, spacing):
         stats[f"rmse_measured_{line}"] = float(np.sqrt(np.mean(err[code == LINE_CODE[line]] ** 2)))
     status = "optimal" if np.isfinite(rmse) else "failed"
     result = Result(method="fit", routing=fitted, shape=shape, status=status, metrics=metrics, stats=stats, diameter=D)
-    extras = {
-        "measured/points": pts, "measured/closest": closest, "measured/error": err, "measured/s": s,
-        "measured/s_tube": s_tube_pts, "measured/line": code.astype(np.int8),
-    }
+    extras = {"measured/points": pts, "measured/closest": closest, "measured/error": err, "measured/s": s,
+              "measured/s_tube": s_tube_pts, "measured/line": code.astype(np.int8)}
     return result, extras
 
 
@@ -261,8 +246,7 @@ def fit_problem(problem: FitProblem, starts: int = 24, seed: int = 0):
       ``measured/closest`` (K, 3) closest model points (measurement frame),
       ``measured/error`` (K,), ``measured/s`` (K,) arc length of the closest point
       along the fitted model line, ``measured/s_tube`` (K,) the same as unactuated
-      tube length, ``measured/line`` (K,) 0 center, 1 inner, 2 outer.
-    """
+      tube length, ``measured/line`` (K,) 0 center, 1 inner, 2 outer."""
     return fit_lines(problem.routing, problem.diameter, {problem.line: problem.measured}, free=problem.free, starts=starts, seed=seed)
 
 

@@ -18,8 +18,7 @@ primitives, MESH_BLOCKED_WEIGHT where the scene has a mesh; heavier blocked poin
 into the target away from the obstacles, lighter ones (with a mesh) sent it round the far side. With a mesh
 the weight rises from the margin over MESH_WEIGHT_RAMP (quadratically): points just outside the margin that
 the tube cannot follow past its detour pulled the neighbouring segments into a zig-zag. The values were
-chosen on the bundled problems and the speed scenes (results/BENCHMARKS.md, "Obstacles").
-"""
+chosen on the bundled problems and the speed scenes (results/BENCHMARKS.md, "Obstacles")."""
 
 from __future__ import annotations
 
@@ -28,12 +27,12 @@ import dataclasses
 import numpy as np
 
 from vine_nlp.analysis.buildability import buildability
-from vine_nlp.analysis.obstacles import min_gap
+from vine_nlp.analysis.obstacles import min_gap, obstacle_metrics
 from vine_nlp.methods import drive, settings
 from vine_nlp.methods.buildable import Build, chain_bends, classify, lambda_bounds, made_buildable, unwind
 from vine_nlp.methods.common import evaluate, pair_points
 from vine_nlp.methods.nlp import chain_guess, design_bounds, design_nlp, extended_solver, nlp_parameters, result_of, start_x
-from vine_nlp.methods.obstacles.plan import Plan, obstacle_stats
+from vine_nlp.methods.obstacles.plan import Plan
 from vine_nlp.methods.obstacles.push import pushed_start
 from vine_nlp.methods.obstacles.rows import MESH_K
 from vine_nlp.methods.settings import BLOCKED_WEIGHT, MESH_BLOCKED_WEIGHT, MESH_WEIGHT_RAMP
@@ -45,13 +44,12 @@ METHOD = "nlp_obstacles"
 
 
 class Rounds:
-    """The obstacle rows' active set, a rule of ``drive.refine``: solve with the plan's rows (``solver(round,
-    last)``: the NLP for the plan's current slots; ``data``: the rows' data for ``routing``, the first round's),
-    judge by the report, refresh the plan (plan.next_round). ``params``: the formulation's data beside the
-    rows'; ``bounds``: (lbx, ubx); ``result(solver, x, status, st)``: a round's Result; ``stop_at_cap``: a
-    solve that reaches its iteration limit ends the loop (a tip start left for the next); ``warm``: a re-solve
-    with the rows of the round before starts from its answer's multipliers (``solver(round, last, warm)``;
-    module docstring)."""
+    """The obstacle rows' active set, a rule of ``drive.refine``: solve with the plan's rows (``solver(round, last)``:
+    the NLP for the plan's current slots; ``data``: the rows' data for ``routing``, the first round's), judge by the
+    report, refresh the plan (plan.next_round). ``params``: the formulation's data beside the rows'; ``bounds``: (lbx,
+    ubx); ``result(solver, x, status, st)``: a round's Result; ``stop_at_cap``: a solve that reaches its iteration limit
+    ends the loop (a tip start left for the next); ``warm``: a re-solve with the rows of the round before starts from
+    its answer's multipliers (``solver(round, last, warm)``; module docstring)."""
 
     def __init__(self, plan: Plan, routing, data: dict, solver, params: dict, bounds: tuple, result, stop_at_cap: bool = False,
                  warm: bool = False):
@@ -102,16 +100,14 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
                           k: int = MESH_K, spacing: float = settings.SAMPLE_SPACING, **kw) -> Result:
     """Inverse design that keeps the tube ``problem.obstacle_margin`` clear of ``problem.obstacles``.
 
-    ``start``: the obstacle-free design (default design_nlp(problem, **kw)), returned (with the obstacle
-    metrics) when it already clears; ``rounds``: solves of the active-set loop at most (settings.MESH_ROUNDS
-    at least with a mesh); ``ts``: growth "after", the shapes t with rows (default the report's grid);
-    ``k``: nearest triangles per mesh sample; ``spacing``: target sample spacing, units of D.
-    Returns the best round (method "nlp_obstacles"; ``drive.rank``) with metrics min_obstacle_gap (and
-    min_obstacle_gap_after) and stats obstacle_rounds, obstacle_clear, obstacle_samples_per_segment,
-    obstacle_margin, growth, start_rmse, start_min_obstacle_gap, obstacle_raise (the rows' extra
-    requirement, units), obstacle_slots (primitive slots per segment); iterations, ipopt_iterations and
-    ipopt_time_s summed over the solves with rows (not the obstacle-free or pushed starts).
-    """
+    ``start``: the obstacle-free design (default design_nlp(problem, **kw)), returned (with the obstacle metrics) when
+    it already clears; ``rounds``: solves of the active-set loop at most (settings.MESH_ROUNDS at least with a mesh);
+    ``ts``: growth "after", the shapes t with rows (default the report's grid); ``k``: nearest triangles per mesh
+    sample; ``spacing``: target sample spacing, units of D. Returns the best round (method "nlp_obstacles";
+    ``drive.rank``) with metrics min_obstacle_gap (and min_obstacle_gap_after) and stats obstacle_rounds,
+    obstacle_clear, obstacle_samples_per_segment, obstacle_margin, growth, start_rmse, start_min_obstacle_gap,
+    obstacle_raise (the rows' extra requirement, units), obstacle_slots (primitive slots per segment); iterations,
+    ipopt_iterations and ipopt_time_s summed over the solves with rows (not the obstacle-free or pushed starts)."""
     stats = drive.Stats()
     start = start or design_nlp(problem, **kw)
     D = problem.diameter
@@ -121,7 +117,7 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
               "start_min_obstacle_gap": float(first["min_gap"])}
     if not problem.obstacles or first["clear"]:
         best = dataclasses.replace(start, metrics=dict(start.metrics), stats=dict(start.stats), met=dict(start.met))
-        best.metrics.update(obstacle_stats(first))
+        best.metrics.update(obstacle_metrics(first))
         best.stats.update(stats0 | {"obstacle_rounds": 0, "obstacle_clear": bool(first["clear"])})
         best.met["obstacles"] = bool(first["clear"])
         return best
@@ -158,7 +154,7 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
             best, found = built, dataclasses.replace(found, verdict=drive.Verdict(True, (), plan.report(built.routing)))
     best, rep = stats.stamp(best), found.verdict.report
     best.stats["obstacle_buildable"] = how if best.buildable else "not buildable"
-    best.metrics.update(obstacle_stats(rep))
+    best.metrics.update(obstacle_metrics(rep))
     best.met["obstacles"] = bool(rep["clear"])
     best.stats.update(stats0 | {"obstacle_rounds": found.rounds, "obstacle_clear": bool(rep["clear"]),
                                 "obstacle_samples_per_segment": plan.S, "obstacle_raise": plan.raised * problem.diameter, "obstacle_slots": plan.P,

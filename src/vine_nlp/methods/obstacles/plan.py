@@ -23,13 +23,11 @@ Growth "after": the report's grid t = 0, 1/20, ..., 19/20 must clear too; settin
 carry rows at a time (``Plan.choose_levels``): first the worst of the start, then, round by round, a
 shape that does not clear replaces the one with rows that clears by the most (t is data).
 
-After a round that does not clear (``Plan.next_round``): where every sample held what its rows asked
-against the exact obstacle (``Plan.samples_hold``) the tube dips between samples, and the requirement
-rises by settings.RAISE_FACTOR times what the shapes with rows still miss; where a sample did not hold it
-passed a mesh beside its active set (a fine mesh), and from then on every sample also has rows to its k
-nearest faces among those near the samples at every such miss (``Plan.remember``; raising there sent the
-tube far round).
-"""
+After a round that does not clear (``Plan.next_round``): where every sample held what its rows asked against the exact
+obstacle (``Plan.samples_hold``) the tube dips between samples, and the requirement rises by settings.RAISE_FACTOR times
+what the shapes with rows still miss; where a sample did not hold it passed a mesh beside its active set (a fine mesh),
+and from then on every sample also has rows to its k nearest faces among those near the samples at every such miss
+(``Plan.remember``; raising there sent the tube far round)."""
 
 from __future__ import annotations
 
@@ -283,13 +281,12 @@ class Plan:
         return x
 
     def samples_hold(self, routing: Routing, tol: float = 1e-4) -> bool:
-        """Whether every sample of the rows clears the requirement its rows asked (the last ``data``)
-        against the exact obstacle (units of D, within ``tol``). A converged solve whose report still finds
-        the tube too close then dips between samples (raise the requirement); a sample that does not hold
-        passed a mesh where its active set had no triangle, or a primitive its column had no slot for
-        (the next ``data`` adds it; raising would only push the tube farther than needed). Not the
-        requirement of the new segment lengths: their growth in the solve raises it, samples that held
-        their rows' seemed not to, and a design short by its dips was never raised (CHANGELOG)."""
+        """Whether every sample of the rows clears the requirement its rows asked (the last ``data``) against the exact
+        obstacle (units of D, within ``tol``). A converged solve whose report still finds the tube too close then dips
+        between samples (raise the requirement); a sample that does not hold passed a mesh where its active set had no
+        triangle, or a primitive its column had no slot for (the next ``data`` adds it; raising would only push the tube
+        farther than needed). Not the requirement of the new segment lengths: their growth in the solve raises it,
+        samples that held their rows' seemed not to, and a design short by its dips was never raised (CHANGELOG)."""
         for t in [1.0] + list(self.ts):
             p = self.sample_points(routing, t).reshape(-1, 3)
             for q, ob in enumerate(self.obstacles):
@@ -362,19 +359,10 @@ def _exit_planes(mesh: Mesh, faces, p, inside, need):
     return nrm, off
 
 
-def obstacle_stats(report: dict) -> dict:
-    """The run metrics of a report: min_obstacle_gap (and min_obstacle_gap_after for growth "after")."""
-    out = {"min_obstacle_gap": float(report["min_gap"])}
-    if report["growth"] == "after":
-        out["min_obstacle_gap_after"] = float(report["min_gap_intermediate"])
-    return out
-
-
 def _shortfall(plan: Plan, rep: dict) -> float:
-    """What the shapes with rows (the final one, the intermediate ones at ``plan.ts``) miss of the margin,
-    units of D: their dips between samples. An intermediate shape without rows that misses gets rows
-    (``choose_levels``); raising every requirement by its miss pushed a growth "after" scene's tube
-    ever farther out (CHANGELOG)."""
+    """What the shapes with rows (the final one, the intermediate ones at ``plan.ts``) miss of the margin, units of D:
+    their dips between samples. An intermediate shape without rows that misses gets rows (``choose_levels``); raising
+    every requirement by its miss pushed a growth "after" scene's tube ever farther out (CHANGELOG)."""
     worst = rep["min_gap"]
     if plan.ts:
         worst = min([worst] + [g for t, g in _intermediate_gaps(rep).items() if t in plan.ts])

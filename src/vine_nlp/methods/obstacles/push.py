@@ -1,19 +1,17 @@
 """A start around the obstacles: the target (or a chain) pushed out of them and designed by the plain NLP.
 
-A design through an obstacle is a poor start for the rows: IPOPT spends most of its iterations pushing
-the tube out. The target is pushed out of the obstacles across itself (:func:`pushed_target`): past a
-primitive along the distance gradient, a run of points through one obstacle to one side; through a
-mesh, a run along ONE direction across its chord, of settings.PUSH_DIRECTIONS the one with the least total push
-(sphere tracing on the exact signed distance: the shortest way round; a gradient push sent the tube
-round the long way). The plain NLP designs that from its own geometric guess, and the rows start from
-its chain. Without a mesh, where that chain still does not clear (it cannot follow the pushed target's
-corners), its own points are pushed out the same way and designed once more (settings.REPUSH): a curve the model
-can follow, pushed. The start is a function of the problem alone, and so is the design (the obstacle-free
-design decides only whether there is anything to do, the samples per segment and which primitives get
-slots: discrete choices that a tiny change of it leaves alone). Started from the obstacle-free design,
-which may cross a mesh deeper than a solve moves a frame, the first solve's rows contradicted each other
-and the rounds took routes that changed with a change of 1e-8 in the start.
-"""
+A design through an obstacle is a poor start for the rows: IPOPT spends most of its iterations pushing the tube out. The
+target is pushed out of the obstacles across itself (:func:`pushed_target`): past a primitive along the distance
+gradient, a run of points through one obstacle to one side; through a mesh, a run along ONE direction across its chord,
+of settings.PUSH_DIRECTIONS the one with the least total push (sphere tracing on the exact signed distance: the shortest
+way round; a gradient push sent the tube round the long way). The plain NLP designs that from its own geometric guess,
+and the rows start from its chain. Without a mesh, where that chain still does not clear (it cannot follow the pushed
+target's corners), its own points are pushed out the same way and designed once more (settings.REPUSH): a curve the
+model can follow, pushed. The start is a function of the problem alone, and so is the design (the obstacle-free design
+decides only whether there is anything to do, the samples per segment and which primitives get slots: discrete choices
+that a tiny change of it leaves alone). Started from the obstacle-free design, which may cross a mesh deeper than a
+solve moves a frame, the first solve's rows contradicted each other and the rounds took routes that changed with a
+change of 1e-8 in the start."""
 
 from __future__ import annotations
 
@@ -101,13 +99,12 @@ def _push_mesh(p: np.ndarray, mesh: Mesh, d: np.ndarray, need: float) -> np.ndar
 
 
 def pushed_target(target: np.ndarray, obstacles, need: float, passes: int = settings.PUSH_PASSES) -> np.ndarray:
-    """The target with every point closer than ``need`` (center distance, units) to an obstacle moved out
-    across the target: along the distance gradient with its component along the target's tangent taken
-    out (a target through an obstacle is pushed to one side of it, not back along itself), a run of
-    points through one obstacle to ONE side (their mean direction) unless their directions cancel (a run
-    along the obstacle, a helix round a cylinder: each point along its own); a run through a mesh along
-    the one direction across its chord that pushes least (:func:`_push_mesh`); repeated ``passes`` times
-    (a point pushed out of one obstacle may land in another)."""
+    """The target with every point closer than ``need`` (center distance, units) to an obstacle moved out across the
+    target: along the distance gradient with its component along the target's tangent taken out (a target through an
+    obstacle is pushed to one side of it, not back along itself), a run of points through one obstacle to ONE side
+    (their mean direction) unless their directions cancel (a run along the obstacle, a helix round a cylinder: each
+    point along its own); a run through a mesh along the one direction across its chord that pushes least
+    (:func:`_push_mesh`); repeated ``passes`` times (a point pushed out of one obstacle may land in another)."""
     p = np.array(target, float)
     span = float(np.ptp(p, axis=0).max())
 
@@ -160,11 +157,10 @@ def pushed_target(target: np.ndarray, obstacles, need: float, passes: int = sett
 
 
 def pushed_start(problem: DesignProblem, plan: Plan) -> Routing:
-    """A start around the obstacles: the plain design of the pushed target (:func:`pushed_target`, center
-    distance D/2 + margin + settings.PUSH_EXTRA D, settings.MESH_PUSH_EXTRA with a mesh) from its own geometric guess, to
-    settings.PUSH_TOL; without
-    a mesh, where it does not clear, the plain design of its own chain pushed out (settings.REPUSH times); a
-    function of the problem alone (module docstring, "Start")."""
+    """A start around the obstacles: the plain design of the pushed target (:func:`pushed_target`, center distance D/2 +
+    margin + settings.PUSH_EXTRA D, settings.MESH_PUSH_EXTRA with a mesh) from its own geometric guess, to
+    settings.PUSH_TOL; without a mesh, where it does not clear, the plain design of its own chain pushed out
+    (settings.REPUSH times); a function of the problem alone (module docstring, "Start")."""
     need = push_need(plan)
     tg, passes = problem.target, 0 if plan.has_mesh else settings.REPUSH
     # the exact Hessian from the start: Gauss-Newton does not converge on a pushed target's corners, and

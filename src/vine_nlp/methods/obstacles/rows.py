@@ -6,9 +6,8 @@ drops at most ``dip(h_j)`` (analysis.obstacles, "Sampling rule"), so the rows as
 
     distance(point_i) >= D/2 + margin + dip(h_j)          (units of D in the NLP)
 
-and the continuous tube then clears by the margin. Everything that changes between rounds (the
-requirement, the active sets, the obstacles' numbers, t) is data: a solver serves every round with
-the same slot counts.
+and the continuous tube then clears by the margin. Everything that changes between rounds (the requirement, the active
+sets, the obstacles' numbers, t) is data: a solver serves every round with the same slot counts.
 
 Rows are per-stage SX blocks (methods.blocks) over (shape, segment) columns; v = (X_j, theta_j,
 lam_j, dl_j), 15 local variables:
@@ -23,8 +22,7 @@ lam_j, dl_j), 15 local variables:
   growth "after": the intermediate shapes with rows are *extra levels* of the multiple shooting, 12
       stage variables per level holding the frames E_j(t) of the intermediate chain, tied by per-stage
       continuity blocks E_{j+1}(t) = E_j(t) T(theta_j, lambda_t,j, dl_j) and E_0(t) = X_0 (single
-      shooting from the base would make every row depend on all upstream segments: dense derivatives).
-"""
+      shooting from the base would make every row depend on all upstream segments: dense derivatives)."""
 
 from __future__ import annotations
 
@@ -129,13 +127,12 @@ def after_block() -> BlockType:
 
 @dataclass(frozen=True)
 class ObstacleRows:
-    """Obstacle rows on the chain (module docstring). ``slots``: primitive slots of every (shape, segment)
-    column (0: no rows), shape-major (the final shape, then the levels); ``meshes``: per mesh obstacle, the
-    columns with its rows (their triangles are data); ``S`` samples per segment; ``levels``: intermediate
-    shapes of actuation after growth, each an extra level of 12 stage variables (Structure.extra = 12
-    levels), their t the parameter ``after_t``; ``k`` triangles per mesh sample. Parameters:
-    ``obstacle_prims_<P>`` (one column per (shape, segment) column with P slots) and ``obstacle_mesh_<q>``
-    (one per column of mesh q), the data of the blocks."""
+    """Obstacle rows on the chain (module docstring). ``slots``: primitive slots of every (shape, segment) column (0: no
+    rows), shape-major (the final shape, then the levels); ``meshes``: per mesh obstacle, the columns with its rows
+    (their triangles are data); ``S`` samples per segment; ``levels``: intermediate shapes of actuation after growth,
+    each an extra level of 12 stage variables (Structure.extra = 12 levels), their t the parameter ``after_t``; ``k``
+    triangles per mesh sample. Parameters: ``obstacle_prims_<P>`` (one column per (shape, segment) column with P slots)
+    and ``obstacle_mesh_<q>`` (one per column of mesh q), the data of the blocks."""
 
     slots: tuple  # primitive slots of every (shape, segment) column, shape-major
     meshes: tuple  # per mesh obstacle, the columns with its rows (the others are far from it)
@@ -148,8 +145,7 @@ class ObstacleRows:
 
     def apply(self, c: Chain) -> None:
         s, lay = c.s, c.lay
-        M = s.M
-        x = c.x
+        M, x = s.M, c.x
         if self.levels:
             ts = c.param("after_t", (1, self.levels))
         for a in range(self.levels):

@@ -1,20 +1,19 @@
 """Tip problems among obstacles: the tip formulation (methods.tip, fixed base) plus the obstacle rows.
 
-Starts, tried in order until one is optimal and clear (``drive.multistart``; ``thorough``: every one): the
-obstacle-free tip design, its chain pushed out of the obstacles (``push.pushed_chain``: a chain through a
-sphere's center gives its rows no direction out), then the tip design's own guesses. Each start runs its
-own active-set loop (``design.Rounds`` on ``drive.refine``); a start whose solve reaches
-settings.TIP_MAX_ITER iterations is left there for the next (such a solve could crawl on to IPOPT's limit
-where another start converged quickly).
-"""
+Starts, tried in order until one is optimal and clear (``drive.multistart``; ``thorough``: every one): the obstacle-free
+tip design, its chain pushed out of the obstacles (``push.pushed_chain``: a chain through a sphere's center gives its
+rows no direction out), then the tip design's own guesses. Each start runs its own active-set loop (``design.Rounds`` on
+``drive.refine``); a start whose solve reaches settings.TIP_MAX_ITER iterations is left there for the next (such a solve
+could crawl on to IPOPT's limit where another start converged quickly)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from vine_nlp.analysis.obstacles import obstacle_metrics
 from vine_nlp.methods import drive, settings
 from vine_nlp.methods.obstacles.design import Rounds
-from vine_nlp.methods.obstacles.plan import Plan, obstacle_stats
+from vine_nlp.methods.obstacles.plan import Plan
 from vine_nlp.methods.obstacles.push import pushed_chain
 from vine_nlp.methods.obstacles.rows import MESH_K
 from vine_nlp.methods.structure import frames12
@@ -41,8 +40,7 @@ def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, ro
     pushed out (module docstring); ``rounds``, ``ts``, ``k``, ``spacing`` as design_with_obstacles';
     ``progress(done, total)`` after every start; ``thorough``: every start, the best kept (a lower
     objective, at several times the cost). Returns the best start by :func:`rank`, metrics as design_tip's
-    plus min_obstacle_gap, stats obstacle_* as design_with_obstacles'.
-    """
+    plus min_obstacle_gap, stats obstacle_* as design_with_obstacles'."""
     stats = drive.Stats()
     free = stats.absorb(design_tip(problem, starts=starts, thorough=True))
     D = problem.diameter
@@ -52,7 +50,7 @@ def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, ro
     stats0 = {"obstacle_margin": plan.margin, "growth": plan.growth, "start_min_obstacle_gap": float(first["min_gap"]),
               "start_actuation_contraction": float(free.metrics["actuation_contraction"])}
     if not problem.obstacles or (first["clear"] and free.converged):
-        free.metrics.update(obstacle_stats(first))
+        free.metrics.update(obstacle_metrics(first))
         free.stats.update(stats0 | {"obstacle_rounds": 0, "obstacle_clear": bool(first["clear"])})
         free.met["obstacles"] = bool(first["clear"])
         return free
@@ -100,7 +98,7 @@ def _tip_start(problem: TipProblem, plan: Plan, routing: Routing, rounds: int, l
                   lambda sol: tip_result(problem, sol), stop_at_cap=True)
     found = drive.refine(rule, rounds, x, stats)
     best, rep = stats.stamp(found.best), found.verdict.report
-    best.metrics.update(obstacle_stats(rep))
+    best.metrics.update(obstacle_metrics(rep))
     best.stats.update(obstacle_rounds=found.rounds, obstacle_clear=bool(rep["clear"]), obstacle_after_t=list(plan.ts))
     best.met["obstacles"] = bool(rep["clear"])
     return best
