@@ -170,7 +170,7 @@ def test_load_needs_units_that_convert_to_metres(tmp_path, capsys):
     p, out = tmp_path / "ft.toml", tmp_path / "ft.h5"
     p.write_text(FORWARD.format(pressure=5.0).replace('units = "cm"', 'units = "ft"'))
     assert main(["forward", str(p), "-o", str(out)]) == 2
-    assert capsys.readouterr().err.strip() == f"error: {p}: units: must be one of m, cm, mm, in, inch with [load] (its SI values need metres)"
+    assert capsys.readouterr().err.strip() == f"error: {p}: units: must be one of mm, cm, m, in, inch with [load] (its SI values need metres)"
     assert not out.exists()
 
 
