@@ -1238,6 +1238,8 @@ def test_a_budget_that_cuts_nothing_leaves_the_design_as_it_was(tmp_path):
     assert whole.status == "optimal" and whole.stats["starts"] == 2 and "budget_cut" not in whole.stats
     cut = vn.solve(tmp_path / "p.toml", starts=2, budget=0).result
     assert cut.status == "max_time" and cut.stats["budget_cut"] == "1 of 2 starts" and not cut.ok
+    points = load_problem(tmp_path / "p.toml").problem.target  # vn.design: the same bound
+    assert vn.design(points, 2.43, starts=2, budget=0).status == "max_time" and vn.design(points, 2.43, starts=2).status == "optimal"
 
 
 # ---------------------------------------------------------------- round 2: archives of several actuators, every number checked
