@@ -27,6 +27,8 @@ from vine_nlp.front.cli import main
 from vine_nlp.front.show import summarize
 from vine_nlp.io.archive import ArchiveError, load_archive
 
+# NumPy's RuntimeWarnings (overflow, invalid value, divide by zero) are errors: a mutated archive never makes one (issue 48)
+pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
 ROOT = Path(__file__).resolve().parents[1]
 FUZZ = settings(
     max_examples=int(os.environ.get("VINE_NLP_FUZZ_EXAMPLES", "80")),

@@ -147,7 +147,9 @@ def test_budget_in_problem_files_and_on_the_command_line(tmp_path, capsys):
     assert capsys.readouterr().err.strip().splitlines() == [
         "error: command line: vine-nlp design: argument --budget: must be a finite number >= 0 and <= 604800, got -2"]
     assert not out.exists()
-    # --budget 0: no search, the first solve's design is archived
-    assert main(["design", str(path), "-o", str(out), "--budget", "0"]) == 0
+    # --budget 0: no search, the first solve's design is archived; the budget bounds the whole design (issue 48):
+    # the buildable rounds after the first are cut, and the status says so (exit 1)
+    assert main(["design", str(path), "-o", str(out), "--budget", "0"]) == 1
     assert out.exists()
-    assert "corner search" not in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "corner search" not in err and err.splitlines()[-1].startswith("c: nlp: max_time, the budget cut 1 of ")

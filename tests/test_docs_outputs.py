@@ -1,6 +1,7 @@
 """The documentation prints what the code prints (issue 35): every block marked
 ``<!-- printed by: vine-nlp ... -->`` in the README and docs/ is checked against a run of its
-commands (tests/printed.py says how); the tutorials' blocks are checked by tests/test_examples.py
+commands (tests/printed.py says how: text and counts exactly, timings not: benchmarks/bench_docs_timings.py
+checks those); the tutorials' blocks are checked by tests/test_examples.py
 against their examples' runs. And the README's and getting-started's commands write into
 results/ (or a temporary folder), never into the repository's root."""
 
@@ -105,3 +106,14 @@ def test_ci_says_each_long_step_before_it_starts():
     readme = (ROOT / "README.md").read_text()
     test_command = "python3 -m pip install -e '.[test]' && python3 -m pytest -q"
     assert test_command in readme and test_command in lines
+
+
+def test_a_timing_is_not_compared_by_the_tests_but_counts_and_other_numbers_are():
+    """A test that depends on the clock is a defect: ``about N s`` is checked by benchmarks/bench_docs_timings.py."""
+    block = printed.Block(ROOT / "README.md", 1, "vine-nlp x", 0.02, ["nlp: RMSE about 0.002 cm, solve time about 0.3 s, 27 iterations"])
+    assert printed.check(block, "nlp: RMSE 0.0021 cm, solve time 30 s, 27 iterations") == []
+    assert printed.check(block, "nlp: RMSE 0.0021 cm, solve time 30 s, 27 iterations", timings=True) == [
+        "README.md:1: 'nlp: RMSE about 0.002 cm, solve time about 0.3 s, 27 iterations': 0.3 shown, 30 printed (not within 2x)"]
+    assert printed.check(block, "nlp: RMSE 0.0021 cm, solve time 0.3 s, 28 iterations") == [
+        "README.md:1: 'nlp: RMSE about 0.002 cm, solve time about 0.3 s, 27 iterations': 27 shown, 28 printed (a count must be exact)"]
+    assert "not within 2x" in printed.check(block, "nlp: RMSE 0.02 cm, solve time 0.3 s, 27 iterations")[0]  # not a timing: 2x

@@ -1,9 +1,9 @@
-"""Hostile files (issue 34): every case an attacker tried, and a fuzzer per reader.
+"""Hostile files (issues 34, 48): every case an attacker tried, and a fuzzer per reader.
 
 Each case is one ``error: <file>: <key>: <reason>`` line, exit 2, nothing written. Cases that
 could exhaust memory or hang run the command in a subprocess held to 1 GB of address space
 (RLIMIT_AS) and a timeout of TIME_LIMIT seconds (a broken reader fails the test instead of
-hanging it); no test waits a guessed time.
+hanging it); no test waits a guessed time. NumPy's RuntimeWarnings are errors here (``pytestmark``, ``limited``).
 """
 
 from __future__ import annotations
@@ -30,7 +30,11 @@ from vine_nlp.front.cli import main
 from vine_nlp.io import limits, outputs
 from vine_nlp.io.archive import ArchiveError, load_archive, write_atomic
 from vine_nlp.io.problem_file import load_problem, load_sweep
+from vine_nlp.problem import Result
 
+# every case here, in this process and in the commands it starts (limited), with NumPy's RuntimeWarnings (overflow,
+# invalid value, divide by zero) as errors: hostile input is refused or handled, never a warning on stderr (issue 48)
+pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
 ROOT = Path(__file__).resolve().parents[1]
 MEMORY = 1 << 30
 TIME_LIMIT = 10
@@ -55,7 +59,7 @@ def limited(*args, timeout=TIME_LIMIT, python=False):
 
         resource.setrlimit(resource.RLIMIT_AS, (MEMORY, MEMORY))
 
-    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", PYTHONWARNINGS="error::RuntimeWarning")
     cmd = [sys.executable, "-c", *args] if python else [sys.executable, "-m", "vine_nlp", *map(str, args)]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, preexec_fn=preexec, env=env)
 
@@ -956,7 +960,7 @@ COMMAND_LINE = [
     (["design", "{p}", "-o", "{o}", "--starts", "1000000", "--budget", "0"], "--starts: must be an integer >= 1 and <= 1000"),
     (["design", "{p}", "-o", "{o}", "--hops", "1000000"], "--hops: must be an integer >= 0 and <= 1000"),
     (["design", "{p}", "-o", "{o}", "--budget", "inf"], "--budget: must be a finite number >= 0"),
-    (["animate", "{a}", "-o", "{o}.gif", "--frames", "100000"], "--frames: must be an integer >= 2 and <= 200, got 100000"),
+    (["animate", "{a}", "-o", "{o}.gif", "--frames", "100000"], "--frames: must be an integer >= 2 and <= 150, got 100000"),
     (["template", "{a}", "-o", "{o}.pdf", "--run", ""], "--run: must be the name of a run"),
     (["export", "{a}", "-o", "{o}.stl", "--run", "\x1b[31m"], "--run: must be the name of a run"),
     (["correct", "{a}", "{a}", "-o", "{o}", "--sigma-measurement", "inf"], "--sigma-measurement: must be a finite number > 0"),
@@ -1170,3 +1174,148 @@ def test_a_signal_before_the_command_line_is_imported(design_archive, tmp_path, 
     rc, err = finish(proc, marker)
     assert rc == 130 and [x for x in err.splitlines() if not x.startswith("vine-nlp: test hold")] == ["interrupted: nothing partial was written"]
     assert not (tmp_path / "t.pdf").exists()
+
+
+# ---------------------------------------------------------------- round 2: --budget bounds the whole design (starts, hops, rounds)
+
+def test_a_spent_budget_runs_the_first_step_of_each_loop_only():
+    from vine_nlp.methods import drive
+
+    ran = []
+    with drive.budget(0) as cut:
+        found = drive.multistart(lambda s: ran.append(s) or Result("x", None, None, "optimal", objective=float(s)), [3, 1, 2])
+        rounds = drive.refine(_Counting(), 5)
+    assert ran == [3] and found.best.objective == 3.0 and rounds.rounds == 1
+    assert cut == ["1 of 3 starts", "1 of 5 rounds"]
+    with drive.budget(None) as cut:  # no budget: every start, every round
+        assert len(drive.multistart(lambda s: Result("x", None, None, "optimal", objective=float(s)), [3, 1, 2]).results) == 3
+        assert drive.refine(_Counting(), 5).rounds == 5 and cut == []
+
+
+def test_a_budget_spent_during_a_start_stops_before_the_next():
+    from vine_nlp.methods import drive
+
+    ran = []
+
+    def solve(s):  # the second start lasts until the budget is spent (the event itself, no guessed time)
+        ran.append(s)
+        while s == 2 and drive.remaining() > 0:
+            time.sleep(drive.remaining())
+        return Result("x", None, None, "optimal", objective=float(s))
+
+    with drive.budget(0.05) as cut:
+        found = drive.multistart(solve, [1, 2, 3, 4])
+    assert ran == [1, 2] and found.best.objective == 1.0 and cut == ["2 of 4 starts"]
+
+
+class _Counting:
+    def solve(self, x, round, last):
+        return x, Result("x", None, None, "optimal", objective=1.0)
+
+    def judge(self, result):
+        from vine_nlp.methods.drive import Verdict
+
+        return Verdict(False, (False, 1.0))
+
+    def refresh(self, result, verdict, x):
+        return x
+
+
+@pytest.mark.parametrize("more, cut", [(["--starts", "3"], "1 of 3 starts"), (["--hops", "2"], "0 of 2 hops")])
+def test_design_within_a_budget_of_0_is_the_first_start_not_optimal(tmp_path, capsys, more, cut):
+    (tmp_path / "p.toml").write_text(TINY_TREFOIL)
+    assert main(["design", str(tmp_path / "p.toml"), "-o", str(tmp_path / "d.h5"), "--budget", "0", *more]) == 1
+    assert capsys.readouterr().err.splitlines()[-1] == f"tiny-trefoil: nlp: max_time, the budget cut {cut}"
+    run = load_archive(tmp_path / "d.h5").runs["nlp"]
+    assert run.status == "max_time" and run.stats.get("starts", 1) == 1 and "hop_objectives" not in run.stats
+
+
+def test_a_budget_that_cuts_nothing_leaves_the_design_as_it_was(tmp_path):
+    import vine_nlp as vn
+
+    (tmp_path / "p.toml").write_text(TINY_TREFOIL)
+    whole = vn.solve(tmp_path / "p.toml", starts=2, budget=3600).result
+    assert whole.status == "optimal" and whole.stats["starts"] == 2 and "budget_cut" not in whole.stats
+    cut = vn.solve(tmp_path / "p.toml", starts=2, budget=0).result
+    assert cut.status == "max_time" and cut.stats["budget_cut"] == "1 of 2 starts" and not cut.ok
+    points = load_problem(tmp_path / "p.toml").problem.target  # vn.design: the same bound
+    assert vn.design(points, 2.43, starts=2, budget=0).status == "max_time" and vn.design(points, 2.43, starts=2).status == "optimal"
+
+
+# ---------------------------------------------------------------- round 2: archives of several actuators, every number checked
+
+@pytest.fixture(scope="module")
+def actuators_archive(tmp_path_factory):
+    """problems/actuators-reach.toml (three actuators, three states) on 41 samples a state: 4 segments."""
+    d = tmp_path_factory.mktemp("actuators")
+    (d / "p.toml").write_text((ROOT / "problems" / "actuators-reach.toml").read_text().replace("samples = 201", "samples = 41"))
+    assert main(["design", str(d / "p.toml"), "-o", str(d / "a.h5")]) == 0
+    return d / "a.h5"
+
+
+def _all_lines(h5, names=("theta", "lambda", "phi")):
+    for name in names:
+        for where in ["runs/nlp/design", *(f"runs/nlp/actuators/{a}/design" for a in ("left", "right", "up"))]:
+            del h5[f"{where}/{name}"]
+            h5[f"{where}/{name}"] = np.zeros(1 if name == "phi" else 0)
+    del h5["runs/nlp/design/length"]
+    h5["runs/nlp/design/length"] = np.zeros(0)
+
+
+def _phi0(value):
+    def edit(h5):
+        phi = h5["runs/nlp/actuators/right/design/phi"]
+        phi[0] = value
+    return edit
+
+
+ACTUATOR_RANGES = {  # the second line's values (the first line's are the run's design/, checked as every archive's)
+    "theta-90-deg": (_fill("runs/nlp/actuators/right/design/theta", np.pi / 2), "/runs/nlp/actuators/right/design/theta",
+                     "|theta| must be < 90 deg (segment 1: 90 deg)"),
+    "lambda-1.5": (_fill("runs/nlp/actuators/right/design/lambda", 1.5), "/runs/nlp/actuators/right/design/lambda", "must be in (0, 1] (segment 1: 1.5)"),
+    "length-1e300": (_fill("runs/nlp/design/length", 1e300), "/runs/nlp/design/length", "MAX_COORDINATE"),
+    "zero-segments": (_all_lines, "/runs/nlp/design/theta", "a routing needs at least one segment"),
+    "phi0-nan": (_phi0(np.nan), "/runs/nlp/actuators/right/design/phi", "non-finite value nan at [0]"),
+    "phi0-inf": (_phi0(-np.inf), "/runs/nlp/actuators/right/design/phi", "non-finite value -inf at [0]"),
+}
+ACTUATOR_COMMANDS = {"show": [], "plot": ["-o", "{out}/o.png"], "forward": ["--run", "nlp", "-o", "{out}/f.h5"]}
+
+
+@pytest.mark.parametrize("case", list(ACTUATOR_RANGES))
+def test_archives_of_several_actuators_out_of_range_are_one_line_in_every_command(actuators_archive, tmp_path, capsys, case):
+    edit, key, reason = ACTUATOR_RANGES[case]
+    path = hostile(actuators_archive, tmp_path, edit)
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "m.csv").write_text("0, 0, 0\n1, 0, 0\n2, 0, 0\n")
+    for command, rest in ACTUATOR_COMMANDS.items():  # the commands that read them
+        assert reason in refused(capsys, [command, path, *(a.format(out=out) for a in rest)], path, key), command
+    for command, rest in ARCHIVE_COMMANDS.items():  # and every other: one line (most refuse the kind today)
+        if command not in ACTUATOR_COMMANDS:
+            assert main([command, str(path), *(a.format(out=out) for a in rest)]) == 2, command
+            lines = capsys.readouterr().err.splitlines()
+            assert len(lines) == 1 and lines[0].startswith((f"error: {path}: {key}: ", f"error: {path}: kind: ")), (command, lines)
+    assert sorted(p.name for p in out.iterdir()) == ["m.csv"]
+
+
+def test_a_width_wider_than_the_tube_in_an_archived_source_is_read_by_no_command(actuators_archive, tmp_path, capsys):
+    """The archive stores no width (only the source text names one, and no command reads it back): a hostile one changes nothing."""
+    def wide(h5):
+        h5["problem"].attrs["source"] = h5["problem"].attrs["source"].replace("width = 0.4", "width = 100", 1)
+
+    path = hostile(actuators_archive, tmp_path, wide)
+    assert main(["show", str(actuators_archive)]) == 0
+    plain = capsys.readouterr().out
+    assert main(["show", str(path)]) == 0 and capsys.readouterr().out == plain.replace(str(actuators_archive), str(path))
+    assert main(["forward", str(path), "--run", "nlp", "-o", str(tmp_path / "f.h5")]) == 0
+    assert "width" not in load_archive(tmp_path / "f.h5").source
+    (tmp_path / "p.toml").write_text(load_archive(path).source)  # designed again from it: the problem reader refuses it
+    refused(capsys, ["design", tmp_path / "p.toml", "-o", tmp_path / "d.h5"], tmp_path / "p.toml", "actuators.0.width")
+
+
+def test_runtime_warnings_are_errors_in_every_case_and_command_here():
+    """The guard itself (module ``pytestmark`` and ``limited``): an overflow fails a case instead of passing beside a warning."""
+    with pytest.raises(RuntimeWarning, match="overflow"):
+        np.float64(1e308) * 10
+    r = limited("import numpy; numpy.float64(1e308) * 10", python=True)
+    assert r.returncode == 1 and r.stderr.strip().endswith("RuntimeWarning: overflow encountered in scalar multiply"), r.stderr

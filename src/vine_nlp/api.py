@@ -189,7 +189,7 @@ def _run(problem, call: str, request: Request | None = None, notes=()) -> Design
 
 def design(points, diameter, *, actuator: str = Actuator.kind, theta_max_deg: float = _THETA_MAX_DEG, lambda_min: float | None = None,
            points_per_segment: int = DesignOptions.points_per_segment, smoothing=None, starts: int = DesignOptions.starts,
-           hops: int = DesignOptions.hops, budget: float = DesignOptions.budget, solver: str = DesignOptions.solver,
+           hops: int = DesignOptions.hops, budget: float | None = None, solver: str = DesignOptions.solver,
            method: str = DesignOptions.method, clearance: float | None = None, robust=None, robust_weight: float = 1.0,
            seed: int = DesignOptions.seed, workers: int = 1, units: str = "cm", name: str = "design", calibration=None,
            correction_margin: float | None = None, min_feature: float | None = None, base="free") -> Design:
@@ -214,9 +214,10 @@ def design(points, diameter, *, actuator: str = Actuator.kind, theta_max_deg: fl
         Smoothness weights of theta and lambda (>= 0); default that of ``DesignOptions``.
     starts, hops : int
         nlp: multi-start count (>= 1) and rounds of basin hopping (>= 0).
-    budget : float
-        nlp: seconds for the corner search that runs where the first solve finds a corner-like
-        target (>= 0; 0 turns it off), as ``[design] budget`` and ``--budget``.
+    budget : float, optional
+        Seconds for the whole design (>= 0), as ``--budget``: no start, hop or round begins after it (the first
+        start always runs) and the corner search ends within it; a design it cut short has status "max_time".
+        Default: no bound, the corner search within ``[design] budget``'s default (20 s).
     solver : {"auto", "ipopt"}
         Both IPOPT (``[design] solver``; the key is kept for existing files).
     method : {"nlp", "greedy"}
@@ -262,9 +263,9 @@ def design(points, diameter, *, actuator: str = Actuator.kind, theta_max_deg: fl
     """
     problem = _design_problem(points, diameter, actuator=actuator, theta_max_deg=theta_max_deg, lambda_min=lambda_min,
                               points_per_segment=points_per_segment, smoothing=smoothing, starts=starts, hops=hops,
-                              method=method, seed=seed, units=units, name=name, budget=budget, solver=solver,
-                              correction_margin=correction_margin, min_feature=min_feature, base=base, calibration=calibration)
-    rq = _request(robust=robust, robust_weight=robust_weight, clearance=clearance, workers=workers)
+                              method=method, seed=seed, units=units, name=name, budget=DesignOptions.budget if budget is None else budget,
+                              solver=solver, correction_margin=correction_margin, min_feature=min_feature, base=base, calibration=calibration)
+    rq = _request(robust=robust, robust_weight=robust_weight, clearance=clearance, workers=workers, budget=budget)
     notes = [f"clearance: min_gap = {rq.clearance!r} (run nlp_clearance)"] if rq.clearance is not None else []
     if rq.robust is not None:
         notes.append(f"robust: weight = {rq.robust_weight!r}, sigmas {rq.robust.as_dict()} (run nlp_robust)")
@@ -383,7 +384,8 @@ def solve(problem, method: str | None = None, *, starts: int | None = None, hops
     method : {"nlp", "greedy"}, optional
         Design problems: the design method (default: the problem's).
     starts, hops, budget, workers
-        The nlp design's multi-start, basin hopping, corner-search budget and processes (default: the problem's).
+        The nlp design's multi-start, basin hopping, processes (default: the problem's) and seconds for the whole
+        design, as ``--budget`` (default: none; a design it cut short has status "max_time").
     robust : Sigmas or dict, optional
         Also a robust design (run ``nlp_robust``), as :func:`design`.
     robust_weight : float

@@ -109,9 +109,7 @@ def _draw(ax, frame, D):
     drawn = []
     center, inner = frame["center"], frame["inner"]
     if len(center) >= 2:
-        rings = tube_rings(center, inner, D, ring=12)
-        drawn.append(ax.plot_surface(rings[..., 0], rings[..., 1], rings[..., 2], color=palette.TUBE, alpha=0.3, linewidth=0,
-                                     shade=True, antialiased=False))
+        drawn.append(_surface(ax, tube_rings(center, inner, D, ring=12)))
         for pts, color, lw in frame.get("lines") or [(inner, palette.ACTUATOR, 2.0), (frame["outer"], palette.OPPOSITE, 1.0)]:
             drawn += ax.plot(*pts.T, color=color, lw=lw, zorder=5 if lw > 1 else 4)
     if len(frame["contacts"]):
@@ -119,6 +117,27 @@ def _draw(ax, frame, D):
                                edgecolors="white", linewidths=0.8, zorder=10))
     ax._vine_frame = drawn
     ax.set_title(frame["title"], fontsize=13)
+
+
+def _surface(ax, rings):
+    """The tube's surface, as ``ax.plot_surface(*rings.T, color=TUBE, alpha=0.3, linewidth=0, shade=True,
+    antialiased=False)`` draws it (its 50 rows of patches: the same polygons in the same order), with the patches cut
+    at once instead of one by one (plot_surface's slow path when the rows do not divide evenly: most of a frame)."""
+    from matplotlib.cbook import _array_patch_perimeters
+    from matplotlib.colors import to_rgba
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection, _shade_colors
+
+    rows = rings.shape[0]
+    step = max(int(np.ceil(rows / 50)), 1)
+    cut = (rows - 2) // step * step  # the whole steps; the last block the rest (as plot_surface's row_inds)
+    blocks = [(rings[: cut + 1], step), (rings[cut:], rows - 1 - cut)] if cut else [(rings, rows - 1)]
+    parts = [np.stack([_array_patch_perimeters(part[..., i], r, 1) for i in range(3)], axis=-1) for part, r in blocks]
+    # plot_surface's shading (Poly3DCollection(shade=True)): each patch's normal from its vertices 0, n/3 and 2n/3
+    normals = np.concatenate([np.cross(p[:, 0] - p[:, p.shape[1] // 3], p[:, p.shape[1] // 3] - p[:, 2 * p.shape[1] // 3]) for p in parts])
+    surface = Poly3DCollection([p for part in parts for p in part], facecolors=_shade_colors(np.array(to_rgba(palette.TUBE)), normals),
+                               alpha=0.3, linewidth=0, antialiased=False)
+    ax.add_collection(surface, autolim="_datalim_only")
+    return surface
 
 
 def _legend(fig, obstacles: bool, contacts: bool, lines=None):
@@ -191,25 +210,77 @@ def write_movie(archive: Archive, path, mode: str = "both", run: str | None = No
             "contacts_after_t": [f["x"] for f in after if len(f["contacts"])]}
 
 
-def _record(fig, axes, panels, D: float, path, fps: int, dpi: int) -> None:
-    """Draw every frame of ``panels`` into the movie at ``path`` (atomically)."""
-    from matplotlib import animation
+def _frames(fig, axes, panels, D: float):
+    """Every frame's pixels (an RGBA array, reused): the figure without the frames' artists (axes, ticks, legend,
+    obstacles: the same in every frame) is drawn once, and each frame draws only its own artists and titles on a
+    copy of it (blitting: a frame costs its tube and lines, not the whole figure)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    ext = movie_format(path)
-    frames = len(panels[0])
-    writer = animation.PillowWriter(fps=fps) if ext == ".gif" else animation.FFMpegWriter(fps=fps, codec="libx264",
-                                                                                          extra_args=["-pix_fmt", "yuv420p"])
+    canvas = FigureCanvasAgg(fig)
+    for ax, frames in zip(axes, panels):  # the first frame laid out (the titles' places), its artists hidden
+        _draw(ax, frames[0], D)
+        for artist in [*ax._vine_frame, ax.title]:
+            artist.set_alpha(0.0)
+    canvas.draw()
+    background, renderer = canvas.copy_from_bbox(fig.bbox), canvas.get_renderer()
+    places = [ax.title.get_position() for ax in axes]  # where a draw puts them (a 3-D set_title moves its title)
+    for ax in axes:
+        ax.title.set_alpha(None)
+    for k in range(len(panels[0])):
+        canvas.restore_region(background)
+        for ax, frames, place in zip(axes, panels, places):
+            _draw(ax, frames[k], D)
+            ax.title.set_position(place)
+            for artist in sorted(ax._vine_frame, key=lambda a: a.get_zorder()):  # as the axes order them (computed_zorder off)
+                if hasattr(artist, "do_3d_projection"):
+                    artist.do_3d_projection()
+                artist.draw(renderer)
+            ax.title.draw(renderer)
+        yield np.asarray(canvas.buffer_rgba())
+
+
+def _gif_palette(first):
+    """One 256-colour palette for every frame of a GIF: the first frame's colours and the palette's (front/palette.py:
+    the tube, lines, contacts and obstacles, shaded and blended with the white background as they are drawn)."""
+    from matplotlib.colors import to_rgb
+    from PIL import Image
+
+    named = np.array([to_rgb(getattr(palette, n)) for n in ("TUBE", "ACTUATOR", "OPPOSITE", "CONTACT", "OBSTACLE")]
+                     + [to_rgb(c) for c in getattr(palette, "LINES", ())])
+    mix = np.linspace(0.25, 1.0, 16)[:, None, None]  # alpha (or shade) from a quarter to whole, over white
+    swatches = np.repeat(255 * (mix * named[None] + (1 - mix)), 8, axis=0).round().astype(np.uint8)  # (128, colours, 3)
+    strip = Image.fromarray(np.repeat(swatches, 8, axis=1))
+    both = Image.new("RGB", (max(first.width, strip.width), first.height + strip.height), "white")
+    both.paste(first)
+    both.paste(strip, (0, first.height))
+    return both.quantize(method=Image.Quantize.FASTOCTREE)
+
+
+def _record(fig, axes, panels, D: float, path, fps: int, dpi: int) -> None:
+    """Draw every frame of ``panels`` (:func:`_frames`) into the movie at ``path``, atomically: a GIF through pillow (every
+    frame in one palette, :func:`_gif_palette`, as it is drawn), an MP4 through matplotlib's ffmpeg pipe."""
+    from matplotlib import animation
+    from PIL import Image
+
+    ext, target = movie_format(path), Path(path)
+    fig.set_dpi(dpi)
+    # the writer needs a real file name with the right extension: a temporary one beside the target
+    tmp_name = target.with_name(f".{target.name}.vine-nlp-{os.getpid()}-partial.tmp{ext}")  # swept if killed (io/outputs.py)
 
     def record(tmp):
+        if ext == ".gif":
+            shots, colours = [], None
+            for rgba in _frames(fig, axes, panels, D):
+                rgb = Image.frombuffer("RGBA", (rgba.shape[1], rgba.shape[0]), rgba, "raw", "RGBA", 0, 1).convert("RGB")
+                colours = _gif_palette(rgb) if colours is None else colours
+                shots.append(rgb.quantize(palette=colours, dither=Image.Dither.NONE))
+            shots[0].save(tmp, save_all=True, append_images=shots[1:], duration=int(1000 / fps), loop=0)
+            return
+        writer = animation.FFMpegWriter(fps=fps, codec="libx264", extra_args=["-pix_fmt", "yuv420p"])
         with writer.saving(fig, str(tmp), dpi):
-            for k in range(frames):
-                for ax, frame in zip(axes, panels):
-                    _draw(ax, frame[k], D)
-                writer.grab_frame()
+            for rgba in _frames(fig, axes, panels, D):
+                writer._proc.stdin.write(rgba.tobytes())  # the frame as grab_frame writes it (frame_format rgba), not drawn again
 
-    # the writer needs a real file name with the right extension: a temporary one beside the target
-    target = Path(path)
-    tmp_name = target.with_name(f".{target.name}.vine-nlp-{os.getpid()}-partial.tmp{ext}")  # swept if killed (io/outputs.py)
     def write(t):
         try:
             record(tmp_name)

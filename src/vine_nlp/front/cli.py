@@ -463,7 +463,7 @@ def build_parser() -> argparse.ArgumentParser:
             d.add_argument("--min-gap", type=ff.bounded(0, limits.MAX_COORDINATE), default=0.0, metavar="G", help="clearance beyond D, in units")
         d.add_argument("--starts", type=ff.bounded(1, limits.MAX_STARTS, True), metavar="N", help="nlp: number of starts of the multi-start (default: the problem's)")
         d.add_argument("--hops", type=ff.bounded(0, limits.MAX_HOPS, True), metavar="N", help="nlp: rounds of basin hopping after the starts, for targets with corners (default: the problem's)")
-        d.add_argument("--budget", type=ff.bounded(0, limits.MAX_SECONDS), metavar="S", help="nlp: seconds for the corner search where the first solve shows a corner-like target (default: the problem's [design] budget, 20; 0: off)")
+        d.add_argument("--budget", type=ff.bounded(0, limits.MAX_SECONDS), metavar="S", help="seconds for the whole design: no start, hop or round begins after it (the first start always runs; a design it cut is status max_time, exit 1) and the corner search ends within it (default: no bound, the corner search the problem's [design] budget, 20 s; 0: the first start alone, no search)")
         d.add_argument("--workers", type=ff.bounded(1, limits.MAX_WORKERS, True), default=1, metavar="N", help="nlp: run the starts in N processes")
         d.add_argument("--plot", metavar="FIG.png", help="also draw the result (png or pdf)")
         d.add_argument("--force", action="store_true", help="overwrite existing output files")

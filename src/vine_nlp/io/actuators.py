@@ -194,6 +194,9 @@ def read_actuators_archive(path, run: str | None = None):
             sg = c.group(c.group(g, "states"), s)
             shapes[s] = c.shape_lines(sg, s, targets[s].shape[0] if s in targets else None)
             sm[s] = c.metrics(sg)
+    for nm, (t, v, _) in zip(names, rows):  # every line's values by the problem files' rules (the first one's: design/)
+        if broken := limits.routing_rule(t, v, base.routing.length, a.diameter):
+            raise ArchiveError(path, f"/runs/{run}/actuators/{nm}/design/{broken[0]}", broken[1])
     th, lam, phi = (np.array([r[i] for r in rows]) for i in range(3))
     lines = Lines(tuple(names), th, lam, phi[:, 0], base.routing.length, base.routing.initial_pose)
     if not np.allclose(lines.phi(a.diameter), phi, atol=1e-9 * (1 + np.abs(phi).max())):

@@ -10,13 +10,17 @@ counts the same way (rockit keeps the method apart from the problem in the same 
 - :func:`schedule`: the Hessian schedule, steps tried in order until one converges;
 - :func:`refine`: the active-set protocol (clearance pairs, obstacle rows, the ICP pairing of an
   as-built estimate are rules of one loop);
-- :class:`Stats`: every solve's iterations and solver time summed in one record.
+- :class:`Stats`: every solve's iterations and solver time summed in one record;
+- :func:`budget`: a deadline for every loop of one design (starts, hops, rounds after the first): a loop it
+  cuts returns its best so far and says what it cut (:func:`spent`).
 """
 
 from __future__ import annotations
 
 import time
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
 
@@ -48,6 +52,39 @@ class Stats:
         result.solve_time_s = time.perf_counter() - self.started
         result.stats.update(solves=self.solves, ipopt_iterations=self.iterations, ipopt_time_s=self.solver_time_s)
         return result
+
+
+# ---------------------------------------------------------------- the budget of one design
+
+_DEADLINE: ContextVar = ContextVar("deadline", default=None)
+
+
+@contextmanager
+def budget(seconds: float | None):
+    """Every loop of the drive within ``seconds`` from now (None: unbounded): a loop runs its first step, and no
+    step after the deadline. Yields the list of what the budget cut (one line per loop cut, see :func:`spent`)."""
+    cut: list = []
+    token = _DEADLINE.set(None if seconds is None else (time.perf_counter() + seconds, cut))
+    try:
+        yield cut
+    finally:
+        _DEADLINE.reset(token)
+
+
+def remaining() -> float | None:
+    """Seconds left of the current :func:`budget` (0 when spent), None when there is none."""
+    d = _DEADLINE.get()
+    return None if d is None else max(0.0, d[0] - time.perf_counter())
+
+
+def spent(done: int, total: int, what: str) -> bool:
+    """Whether the budget is spent before step ``done`` + 1 of ``total`` of a loop (``what``: "starts", "hops",
+    "rounds"); if so, ``"{done} of {total} {what}"`` is recorded as cut."""
+    d = _DEADLINE.get()
+    if d is None or time.perf_counter() < d[0]:
+        return False
+    d[1].append(f"{done} of {total} {what}")
+    return True
 
 
 # ---------------------------------------------------------------- ranking and multi-start
@@ -86,7 +123,8 @@ def multistart(solve: Callable, starts, *, key: Callable = rank, accept: Callabl
     ``accept``: stop at the first result it accepts (the later starts are fallbacks); sequential.
     ``workers`` > 1 (and no ``accept``): a process pool, results in start order (the same choice as one
     process); ``solve`` and the starts must then pickle. ``progress(done, total)`` after each start.
-    A start may be a callable: it is called when its turn comes (a start that costs a solve to make)."""
+    A start may be a callable: it is called when its turn comes (a start that costs a solve to make).
+    No start after the first begins once the :func:`budget` is spent."""
     starts = list(starts)
     results = []
 
@@ -97,10 +135,15 @@ def multistart(solve: Callable, starts, *, key: Callable = rank, accept: Callabl
 
     if workers > 1 and len(starts) > 1 and accept is None:
         with ProcessPoolExecutor(max_workers=min(workers, len(starts))) as pool:
-            for r in pool.map(solve, starts):  # map keeps start order: deterministic choice
-                done(r)
+            for f in [pool.submit(solve, s) for s in starts]:  # taken in start order: a deterministic choice
+                done(f.result())
+                if len(results) < len(starts) and spent(len(results), len(starts), "starts"):
+                    pool.shutdown(cancel_futures=True)
+                    break
     else:
         for s in starts:
+            if results and spent(len(results), len(starts), "starts"):
+                break
             done(solve(s() if callable(s) else s))
             if accept is not None and accept(results[-1]):
                 break
@@ -179,7 +222,7 @@ class Refined:
 def refine(rule: Rule, max_rounds: int, x=None, stats: Stats | None = None) -> Refined:
     """The active-set protocol: solve, judge, keep the best round (by the verdicts' keys, the earlier on a
     tie; with no key the latest), stop when a round is done or after ``max_rounds`` (>= 1); else refresh and
-    solve again. Every round's solves count in ``stats``."""
+    solve again. Every round's solves count in ``stats``; no round after the first once the :func:`budget` is spent."""
     stats = stats if stats is not None else Stats()
     best = verdict_best = None
     for k in range(max_rounds):
@@ -188,7 +231,7 @@ def refine(rule: Rule, max_rounds: int, x=None, stats: Stats | None = None) -> R
         verdict = rule.judge(res)
         if best is None or verdict.key is None or pick_best([verdict_best, verdict], key=lambda v: v.key) == 1:
             best, verdict_best = res, verdict
-        if verdict.done or k == max_rounds - 1:
+        if verdict.done or k == max_rounds - 1 or spent(k + 1, max_rounds, "rounds"):
             break
         x = rule.refresh(res, verdict, x)
     return Refined(best, verdict_best, k + 1)

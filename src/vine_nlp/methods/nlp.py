@@ -25,7 +25,7 @@ import numpy as np
 from vine_nlp.methods import common, corners, drive, variables
 from vine_nlp.methods.common import Guess, evaluate, geometric_guess, pair_points
 from vine_nlp.methods.drive import TIE_RTOL
-from vine_nlp.methods.settings import AUTO_GN_MAX_ITER, MAX_ITER, TOL, WINDOW, Method, Settings
+from vine_nlp.methods.settings import AUTO_GN_MAX_ITER, MAX_ITER, SEARCH_ROUNDS, TOL, WINDOW, Method, Settings
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Smoothness, SoftTip, Solution, Spec, cell_data, smoothing_steps
 from vine_nlp.methods.transcription import get_solver as _get
@@ -226,9 +226,11 @@ def design_nlp(
         best.stats["warm_start"] = True
     if n_hops:
         return stats.stamp(basin_hops(problem, best, n_hops, pairing, lambda k: progress and progress(len(jobs) + k, total), stats, m))
-    budget = m.budget if budget is None else budget
+    budget, left = m.budget if budget is None else budget, drive.remaining()  # left: of the whole design's drive.budget
     if budget > 0 and corners.corner_like(problem, best):
-        best = _corner_search(problem, best, pairing, budget, workers, progress, note, len(jobs), m)
+        best = _corner_search(problem, best, pairing, budget if left is None else min(budget, left), workers, progress, note, len(jobs), m)
+        if best.stats["search_budget_hit"]:
+            drive.spent(best.stats["search_rounds"], SEARCH_ROUNDS, "corner search rounds")
         best.solve_time_s = time.perf_counter() - stats.started
         return best
     return stats.stamp(best)
@@ -267,6 +269,8 @@ def basin_hops(problem: DesignProblem, result: Result, hops: int, pairing: Pairi
     rng = np.random.default_rng([m.seed, 1])  # a stream apart from start_guesses'
     best, objectives, iterations, accepted = result, [], [], 0
     for k in range(hops):
+        if drive.spent(k, hops, "hops"):
+            break
         per_segment = corners.error_per_segment(problem, pairing, best) + 1e-300
         j = int(rng.choice(M, p=per_segment / per_segment.sum()))
         start = max(0, min(j - WINDOW // 2, M - WINDOW))

@@ -33,7 +33,7 @@ class Request:
     clearance : float, optional
         Also a design clear of itself by this gap beyond D (run ``nlp_clearance``).
     starts, hops, budget, workers, warm
-        The nlp design's multi-start, basin hopping, corner-search budget, processes and warm start
+        The nlp design's multi-start, basin hopping, seconds for the whole design (pipeline.run), processes and warm start
         (None: the problem's own settings).
     fit_starts, seed : int
         The fit's starting orientations and seed.

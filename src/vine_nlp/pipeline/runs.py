@@ -33,7 +33,7 @@ from vine_nlp.io.actuators import write_actuators_archive
 from vine_nlp.io.archive import Archive, write_archive
 from vine_nlp.io.formulations import write_multishape_archive, write_tip_archive
 from vine_nlp.io.problems import ProblemFile
-from vine_nlp.methods import actuators, blas, mirror, settings
+from vine_nlp.methods import actuators, blas, drive, mirror, settings
 from vine_nlp.methods.actuators_design import design_actuators
 from vine_nlp.methods.buildable import design_buildable, missed
 from vine_nlp.methods.clearance import design_with_clearance
@@ -99,7 +99,8 @@ class Outcome:
         for name in self.decisive:
             r = self.runs[name]
             if not r.ok:
-                out.append(f"{name}: {r.status}" + ("; " + "; ".join(r.shortfall) if r.shortfall else ", did not converge"))
+                why = f", the budget cut {r.stats['budget_cut']}" if "budget_cut" in r.stats else ", did not converge"
+                out.append(f"{name}: {r.status}" + ("; " + "; ".join(r.shortfall) if r.shortfall else why))
         return out
 
     def archive(self) -> Archive:
@@ -265,8 +266,10 @@ def run(pf: ProblemFile, request: Request | None = None) -> Outcome:
     """
     rq = request or Request()
     check_request(pf, rq)
-    with blas.limited():  # one BLAS thread while solving (methods.blas); the caller's restored after
+    with blas.limited(), drive.budget(rq.budget) as cut:  # one BLAS thread while solving (methods.blas); the caller's restored after
         runs, decisive, extra, details = KINDS[pf.kind](pf.problem, rq)
+    for r in (runs[name] for name in decisive if cut):  # the budget ended a loop: the best so far, not "optimal"
+        r.status, r.stats["budget_cut"] = "max_time" if r.converged else r.status, "; ".join(cut)
     for r in runs.values():
         judge(pf.problem, r)
     return Outcome(pf, runs, decisive, extra, details)
