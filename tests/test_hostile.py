@@ -717,6 +717,7 @@ def _zero_segments(h5):
 RANGES = {
     "theta-90-deg": (_fill("runs/nlp/design/theta", np.pi / 2), "/runs/nlp/design/theta", "|theta| must be < 90 deg (segment 1: 90 deg)"),
     "theta-1e6-deg": (_fill("runs/nlp/design/theta", -np.radians(1e6)), "/runs/nlp/design/theta", "|theta| must be < 90 deg"),
+    "theta-just-under-90-deg": (_fill("runs/nlp/design/theta", np.radians(89.9999999)), "/runs/nlp/design/theta", "MAX_WINDING"),
     "lambda-1.5": (_fill("runs/nlp/design/lambda", 1.5), "/runs/nlp/design/lambda", "must be in (0, 1] (segment 1: 1.5)"),
     "lambda-1e300": (_fill("runs/nlp/design/lambda", 1e300), "/runs/nlp/design/lambda", "must be in (0, 1]"),
     "length-1e300": (_fill("runs/nlp/design/length", 1e300), "/runs/nlp/design/length", "MAX_COORDINATE"),
@@ -1319,3 +1320,17 @@ def test_runtime_warnings_are_errors_in_every_case_and_command_here():
         np.float64(1e308) * 10
     r = limited("import numpy; numpy.float64(1e308) * 10", python=True)
     assert r.returncode == 1 and r.stderr.strip().endswith("RuntimeWarning: overflow encountered in scalar multiply"), r.stderr
+
+
+def test_a_line_wound_almost_at_90_deg_is_one_line_in_a_problem_file(tmp_path, capsys):
+    """At 89.9999999 deg every command would sample a line 5.7e8 times the tube's length (terabytes): the routing rule
+    MAX_WINDING refuses it; at 89 deg (57x) the tube is run."""
+    path = tmp_path / "w.toml"
+    text = 'name = "w"\nunits = "cm"\n[tube]\ndiameter = 2\n[routing]\nlength = 12\nsegment_length = 1\ntheta_deg = {}\nlambda = 0.8\n'
+    path.write_text(text.format(89.9999999))
+    assert main(["forward", str(path), "-o", str(tmp_path / "f.h5")]) == 2
+    assert capsys.readouterr().err.strip() == (f"error: {path}: routing.theta_deg: the actuator line is 5.73e+08 times as long as the "
+                                               "tube (theta near 90 deg): at most 100 (vine_nlp.io.limits.MAX_WINDING)")
+    assert not (tmp_path / "f.h5").exists()
+    path.write_text(text.format(89.0))
+    assert main(["forward", str(path), "-o", str(tmp_path / "f.h5")]) == 0

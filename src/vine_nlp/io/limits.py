@@ -48,6 +48,10 @@ MIN_DIAMETERS = 1e-6
 # Angles of a routing: |theta| below 90 deg (at 90 deg the actuator line winds around the tube without end).
 MAX_THETA_DEG = 90.0
 _RAD = 0.017453292519943295  # pi / 180
+# The actuator line's length, sum l_j / cos(theta_j), over the tube's: at most MAX_WINDING (a line wound at 89.4 deg
+# all along). Commands sample the line by its length: at 89.9 deg (520x) analyze and animate need more than 1 GB,
+# just below 90 deg template asks for terabytes.
+MAX_WINDING = 100.0
 
 
 # The one set of per-segment rules of a routing, wherever it is read (problem files, the Python API, archives:
@@ -73,6 +77,8 @@ def routing_rule(theta, lam, length, diameter: float) -> tuple[str, str] | None:
         if not good.all():
             j = int(np.argmin(good))
             return name, f"{rule} (segment {j + 1}: {shown(values[j]):.6g}{unit})"
+    if reason := winding_rule(theta, length):
+        return "theta", reason
     total = float(np.sum(length))
     if total > MAX_COORDINATE:
         return "length", f"the tube is {total:.4g} long: at most {MAX_COORDINATE:g} (vine_nlp.io.limits.MAX_COORDINATE)"
@@ -80,6 +86,18 @@ def routing_rule(theta, lam, length, diameter: float) -> tuple[str, str] | None:
         return "length", (f"the tube is {total:.4g} long, {total / diameter:.4g} tube diameters: must be {MIN_DIAMETERS:g} to "
                           f"{MAX_DIAMETERS:g} (vine_nlp.io.limits.MIN_DIAMETERS, MAX_DIAMETERS)")
     return None
+
+
+def winding_rule(theta, length) -> str | None:
+    """Why a routing's actuator line is too long for the tube (MAX_WINDING), or None; theta within MAX_THETA_DEG."""
+    import numpy as np
+
+    share = np.asarray(length, float) / np.sum(length)  # <= 1: no overflow below
+    factor = float(np.sum(share / np.cos(np.asarray(theta, float))))
+    if factor <= MAX_WINDING:
+        return None
+    return (f"the actuator line is {factor:.4g} times as long as the tube (theta near 90 deg): at most {MAX_WINDING:g} "
+            "(vine_nlp.io.limits.MAX_WINDING)")
 
 
 # Command-line numbers (front/cli.py), each bounding what it costs: Monte Carlo samples of analyze (and

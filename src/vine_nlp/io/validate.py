@@ -252,6 +252,7 @@ def validate_routing(f: SourceFile, theta, lam, length, initial_pose=None, keys:
         if not good.all():
             j = int(np.argmin(good))
             raise f.error(keys[k], rule if values[k].ndim == 0 else f"{rule} (segment {j + 1}: {shown(v[j]):.6g}{unit})")
+    check(f, keys["theta"], (why := limits.winding_rule(th, dl)) is None, why)
     if diameter is not None:  # the forward shape: pieces of at most D/4 (model.shape.forward_shape)
         rows = int(np.maximum(1, np.ceil(dl / (0.25 * diameter))).sum()) + 1
         check(f, keys["length"], rows <= limits.MAX_SHAPE_POINTS, f"a tube {float(dl.sum()) / diameter:.4g} diameters long has a "
