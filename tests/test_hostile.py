@@ -1334,3 +1334,17 @@ def test_a_line_wound_almost_at_90_deg_is_one_line_in_a_problem_file(tmp_path, c
     assert not (tmp_path / "f.h5").exists()
     path.write_text(text.format(89.0))
     assert main(["forward", str(path), "-o", str(tmp_path / "f.h5")]) == 0
+
+
+@pytest.mark.parametrize("fmt", ["pdf", "svg", "dxf"])
+def test_a_template_longer_than_five_metres_is_one_line(tmp_path, capsys, fmt):
+    """A 1:1 template of 5.1 m of tube: one line for every format (a 50 m SVG or DXF took a minute and 5 GB)."""
+    problem = tmp_path / "long.toml"
+    problem.write_text('name = "long"\nunits = "cm"\n[tube]\ndiameter = 30\n[routing]\nlength = 510\nsegment_length = 51\n'
+                       'theta_deg = 10\nlambda = 0.8\n')
+    assert main(["forward", str(problem), "-o", str(tmp_path / "f.h5")]) == 0
+    capsys.readouterr()
+    assert main(["template", str(tmp_path / "f.h5"), "-o", str(tmp_path / f"t.{fmt}")]) == 2
+    assert capsys.readouterr().err.strip() == (f"error: {tmp_path / 'f.h5'}: runs: run forward: 5.1 m of tube; a 1:1 template takes "
+                                               "at most 5 m (vine_nlp.io.limits.MAX_TEMPLATE_MM)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f.h5", "long.toml"]

@@ -20,6 +20,7 @@ from vine_nlp.front.files import add_sigma_args, archive_run, check_figure, chec
 from vine_nlp.io import limits, outputs
 from vine_nlp.io.h5read import open_archive
 from vine_nlp.methods import blas, compiled
+from vine_nlp.model.units import mm_per_unit
 from vine_nlp.pipeline.request import COMPARE
 from vine_nlp.problem import METHODS
 
@@ -286,7 +287,7 @@ def cmd_template(args) -> int:
 
 
 def _template_limits(archive, args, fmt) -> None:
-    """A template's run within the command's limits; a PDF (1:1, paged) of at most MAX_TEMPLATE_MM of tube."""
+    """A template's run within the command's limits; at most MAX_TEMPLATE_MM of tube (1:1)."""
     run = args.run or ("corrected" if getattr(args, "changes", False) else None)
     if run is not None and run not in archive.runs:
         return  # the template names the missing run itself
@@ -294,11 +295,10 @@ def _template_limits(archive, args, fmt) -> None:
     if run is None:
         return
     ff.within_limits("template", archive, args.archive, [run])
-    mm = {"mm": 1.0, "cm": 10.0, "m": 1000.0, "in": 25.4, "inch": 25.4}.get(archive.units.lower())
-    length = float(archive.runs[run].routing.length.sum()) * (mm or 0.0)
-    if fmt == ".pdf" and length > limits.MAX_TEMPLATE_MM:
-        raise InputError(args.archive, "runs", f"run {run}: {length / 1000:.4g} m of tube; a 1:1 PDF template takes at most "
-                         f"{limits.MAX_TEMPLATE_MM / 1000:g} m (vine_nlp.io.limits.MAX_TEMPLATE_MM): write an .svg or .dxf")
+    length = float(archive.runs[run].routing.length.sum()) * (mm_per_unit(archive.units) or 0.0)
+    if length > limits.MAX_TEMPLATE_MM:  # PDF pages, and SVG/DXF's A4 cut lines and ruler ticks (50 m: a minute, 5 GB)
+        raise InputError(args.archive, "runs", f"run {run}: {length / 1000:.4g} m of tube; a 1:1 template takes at most "
+                         f"{limits.MAX_TEMPLATE_MM / 1000:g} m (vine_nlp.io.limits.MAX_TEMPLATE_MM)")
 
 
 def _sweep_view_limits(src) -> None:

@@ -114,8 +114,8 @@ MAX_SEED = 2**32 - 1
 MAX_SECONDS = 604_800.0
 # What one command draws, meshes or analyzes within about 10 s and 1 GB (measured on a shared 2-core machine,
 # a tube at both limits at once): segments and tube length in diameters of the runs it uses (plot and view: all
-# runs together), lower than MAX_SEGMENTS and MAX_DIAMETERS, which only the reader and forward reach. PDF templates
-# are 1:1: at most MAX_TEMPLATE_MM of tube (pages). Beyond them the command says so in one line.
+# runs together), lower than MAX_SEGMENTS and MAX_DIAMETERS, which only the reader and forward reach. Templates
+# are 1:1: at most MAX_TEMPLATE_MM of tube (PDF pages; SVG and DXF: 5 m in 2-9 s). Beyond them the command says so in one line.
 COMMAND_LIMITS = {"plot": (5_000, 300), "view": (5_000, 300), "animate": (5_000, 300), "export": (5_000, 300),
                   "template": (5_000, 300), "analyze": (2_000, 200)}
 MAX_TEMPLATE_MM = 5_000.0
