@@ -141,7 +141,7 @@ class _Fake:
     def __init__(self, want, lie=()):
         self.want, self.lie = np.asarray(want, bool), list(lie)
 
-    def __call__(self, act, start):
+    def __call__(self, act, start, round=0):
         miss = int(np.sum(act != self.want))
         res = Result("nlp", Routing(theta=start.theta, lam=np.where(act, 0.95, 1.0), length=start.length, initial_pose=start.initial_pose), None, status="optimal",
                      metrics={"rmse": 1.0 + miss})

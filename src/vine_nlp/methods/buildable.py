@@ -21,6 +21,7 @@ sPAM (one lambda, pouches along the whole tube): no classes; the lambda in [max(
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Callable
@@ -193,7 +194,7 @@ class Reclassify:
         self.taken, self.repairs, self.solves = 0, 0, 0
 
     def solve(self, x: Routing, round: int, last: bool):
-        res, self._trial_mult = self._solve(self.trial, unwind(x, self.trial, self.build))
+        res, self._trial_mult = self._solve(self.trial, unwind(x, self.trial, self.build), round)
         self.solves += 1
         return x, res
 
@@ -249,12 +250,17 @@ def buildable_spec(problem: DesignProblem, pairing, build: Build) -> Spec:
     return Spec(s, (Smoothness(), SoftTip(), BuildEffort()), "exact", settings.Settings(o.max_iter, o.tol))
 
 
-def solve_classes(problem: DesignProblem, pairing, build: Build, act, start: Routing) -> tuple[Result, np.ndarray]:
+def solve_classes(problem: DesignProblem, pairing, build: Build, act, start: Routing, round: int = 0) -> tuple[Result, np.ndarray]:
     """One solve of the plain NLP with the build effort and the classes' lambda bounds, from ``start`` (frames on
-    its chain; its base pose, or the fixed one); (Result "nlp", the lambda bounds' multipliers)."""
+    its chain; its base pose, or the fixed one); (Result "nlp", the lambda bounds' multipliers). The first round
+    (``round`` 0) from a start the bounds move by at most settings.WARM_CLIP in lambda: IPOPT's warm start (near
+    the answer); a later round (a trial of other classes) at most settings.ROUND_ITER iterations."""
     D, act = problem.diameter, np.asarray(act, bool)
-    solver = get_solver(buildable_spec(problem, pairing, build))
     lo, hi = lambda_bounds(act, start.length, build)
+    spec = buildable_spec(problem, pairing, build)
+    near = round == 0 and float(np.max(np.abs(np.clip(start.lam, lo, hi) - start.lam))) <= settings.WARM_CLIP
+    cap = spec.settings.max_iter if round == 0 else min(spec.settings.max_iter, settings.ROUND_ITER)
+    solver = get_solver(dataclasses.replace(spec, settings=dataclasses.replace(spec.settings, warm=near, max_iter=cap)))
     T0 = start.initial_pose if build.pose is None else build.pose
     guess = Guess(start.theta, np.clip(start.lam, lo, hi), start.length, T0, None)
     data = nlp_parameters(problem, pairing, T0[:3, :3])
@@ -273,8 +279,10 @@ def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Res
     stats.absorb(start)
     pairing = pairing or pair_points(problem.target, problem.options.points_per_segment)
     build = Build.of(problem)
-    act = classify(target_bends(problem, pairing), start.routing.length, build)
-    rule = Reclassify(lambda a, r: solve_classes(problem, pairing, build, a, r), act, build, accuracy_budget(problem, start.metrics["rmse"]))
+    # a design that misses the target by a corner's share of D follows its own shape, not the target's (polyline (d))
+    own = start.metrics["rmse"] > settings.CORNER_RMSE * problem.diameter
+    act = classify(chain_bends(start.routing, problem.diameter) if own else target_bends(problem, pairing), start.routing.length, build)
+    rule = Reclassify(lambda a, r, k: solve_classes(problem, pairing, build, a, r, k), act, build, accuracy_budget(problem, start.metrics["rmse"]))
     found = drive.refine(rule, settings.BUILDABLE_ROUNDS, start.routing, stats)
     best, act = found.best, rule.act
     # a solve may leave an unactuated run's turning beyond half a turn: the same shape the shortest way round

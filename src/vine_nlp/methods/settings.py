@@ -252,6 +252,10 @@ POLISH_TOP = 3  # the best poses of the global stage that are polished on all po
 EFFORT, EFFORT_ACTUATED, EFFORT_INNER = 1e-3, 1e-4, 1e-6
 ACCURACY_SLACK, ACCURACY_FLOOR_MM = 0.10, 0.05  # what the reclassification may give up: the issue's budget
 BUILDABLE_ROUNDS, BUILDABLE_REPAIRS = 8, 2  # solves at most; of them, re-solves while a gap is below min_feature (the lengths moved)
+# the first solve from the free design: IPOPT's warm start where the classes' bounds move its lambda by at most this (trefoil-m4:
+# 20 -> 3 iterations; a start they move farther, bezier-a's 0.12, took more iterations warm than cold)
+WARM_CLIP = 0.01
+ROUND_ITER = 200  # a later round (other classes) that needs more is not taken: bezier-c's 6th round ran 1009 iterations for nothing
 BEND_TOL = 1e-6  # rad: a segment of the target bending less is straight
 FEATURE_SLACK = 1.1  # a gap's lambda bound asks this much more than min_feature: a solve moves the lengths by up to ~10 %
 # tip
