@@ -98,10 +98,11 @@ def chain_bends(routing: Routing, D: float) -> np.ndarray:
     return np.asarray(kappa * lc * routing.length, float)
 
 
-def classify(bends, length, build: Build) -> np.ndarray:
+def classify(bends, length, build: Build, share: float = 0.5, paired: bool = False) -> np.ndarray:
     """Where an actuator goes (module docstring): ``bends`` the target's turning per segment, ``length`` the
     segment lengths. An actuated segment bends at least its bend at 1 - m_j (theta 0): in a piece with a partner
-    (``pair``), or alone (``alone``, the error diffusion's step: a gently bent run gets isolated actuators)."""
+    (``pair``), or alone (``alone``, the error diffusion's step: a gently bent run gets isolated actuators, one
+    where the sum reaches ``share`` of the step; ``paired``: the pair's bend as the step)."""
     bends, length = np.asarray(bends, float), np.asarray(length, float)
     if build.shared:
         return np.ones(bends.size, bool)
@@ -111,15 +112,27 @@ def classify(bends, length, build: Build) -> np.ndarray:
         return kappa * lc * length
 
     pair, alone = least_bend(np.ones(bends.size, bool)), least_bend(np.zeros(bends.size, bool))
+    step = pair if paired else alone
     act, acc = bends >= np.maximum(pair, settings.BEND_TOL), 0.0
     for j in range(bends.size):  # error diffusion along the gently bent runs
         if act[j]:
             acc = 0.0
             continue
         acc += bends[j]
-        if acc >= max(0.5 * alone[j], settings.BEND_TOL):
-            act[j], acc = True, acc - max(acc, alone[j])
+        if acc >= max(share * step[j], settings.BEND_TOL):
+            act[j], acc = True, acc - max(acc, step[j])
     return merge_short(act, length, build.min_feature)
+
+
+def phases(bends, length, build: Build) -> list[np.ndarray]:
+    """The classes of every error-diffusion phase (settings.DIFFUSION), each once, the default (share 0.5) first: on
+    a gently bent target the design's error depends on where the isolated actuators fall more than on their count."""
+    out = []
+    for share, paired in settings.DIFFUSION:
+        act = classify(bends, length, build, share, paired)
+        if not any(np.array_equal(act, a) for a in out):
+            out.append(act)
+    return out
 
 
 def merge_short(act, length, min_feature: float) -> np.ndarray:
@@ -184,16 +197,20 @@ def accuracy_budget(problem: DesignProblem, rmse: float) -> float:
 
 class Reclassify:
     """The reclassification, a ``drive.refine`` rule (x: the routing to start from; ``trials + settings.BUILDABLE_REPAIRS`` rounds) for
-    any formulation: ``solve(act, start)`` solves with the classes ``act`` from ``start`` (unwound here): (Result,
-    the lambda bounds' multipliers (M,)). ``limit``: the RMSE budget. After refine: ``act``, the best round's."""
+    any formulation: ``solve(act, start, round)`` solves with the classes ``act`` from ``start`` (unwound here): (Result,
+    the lambda bounds' multipliers (M,)). ``limit``: the RMSE budget. ``others``: more classes, each solved from the
+    same start after ``act`` (the lowest RMSE kept), before the multipliers' flips. After refine: ``act``, the best round's."""
 
-    def __init__(self, solve: Callable, act, build: Build, limit: float, trials: int = settings.BUILDABLE_ROUNDS - settings.BUILDABLE_REPAIRS):
+    def __init__(self, solve: Callable, act, build: Build, limit: float, trials: int = settings.BUILDABLE_ROUNDS - settings.BUILDABLE_REPAIRS,
+                 others=()):
         self._solve, self.build, self.limit, self.trials = solve, build, limit, trials
         self.act = self.trial = np.asarray(act, bool)
         self.best, self.mult, self.cand, self.k, self.over = None, None, np.zeros(0, int), 0, False
-        self.taken, self.repairs, self.solves = 0, 0, 0
+        self.taken, self.repairs, self.solves, self.others, self.start = 0, 0, 0, list(others), None
+        self.phased, self.phase = bool(self.others), True  # phase: the trial is one of the classes given
 
     def solve(self, x: Routing, round: int, last: bool):
+        self.start = x if self.start is None else self.start
         res, self._trial_mult = self._solve(self.trial, unwind(x, self.trial, self.build), round)
         self.solves += 1
         return x, res
@@ -202,20 +219,20 @@ class Reclassify:
         rmse = res.metrics["rmse"]
         if self.best is None or self.repairs:
             taken = True
-        elif self.over:
+        elif self.phase or self.over:
             taken = rmse < self.best.metrics["rmse"] * (1 - 1e-3) and (res.converged or not self.best.converged)
         else:
             taken = rmse <= self.limit and res.converged
         if taken:
             self.best, self.act, self.mult, self.taken = res, self.trial, self._trial_mult, self.taken + 1
             self._candidates()
-        else:
+        elif not self.phase:
             self.k //= 2
         self.trial = self._next()
         return drive.Verdict(self.trial is None, (not taken, -float(self.taken)), {"actuated": int(self.act.sum())})
 
     def refresh(self, res: Result, verdict: drive.Verdict, x) -> Routing:
-        return self.best.routing
+        return self.start if self.others else self.best.routing
 
     def _candidates(self) -> None:
         """To flip, the most eager first: actuated at the top asking for less (> 0); over the budget, unactuated asking for more."""
@@ -223,12 +240,19 @@ class Reclassify:
         self.over = self.best.metrics["rmse"] > self.limit
         at_top = act & (r.lam >= upper(r.length, act, self.build) - 1e-6) & (mult > 1e-9)
         asks = ~act & (mult < -1e-9) & self.over
-        self.cand = np.zeros(0, int) if self.build.shared or self.repairs else np.flatnonzero(at_top | asks)
+        if not self.over:
+            self.others = []  # within the budget: no other phase needed
+        # over the budget after the phases: they were the search (flips after them found nothing better on bezier-a to -c)
+        stop = self.build.shared or self.repairs or (self.over and self.phased)
+        self.cand = np.zeros(0, int) if stop else np.flatnonzero(at_top | asks)
         self.cand = self.cand[np.argsort(-np.abs(mult[self.cand]), kind="stable")]
         self.k = self.cand.size
 
     def _next(self):
         """The next trial's classes, or None: done."""
+        self.phase = bool(self.others)
+        if self.phase:
+            return self.others.pop(0)
         while self.k >= 1 and self.solves < self.trials:
             trial = self.act.copy()
             trial[self.cand[: self.k]] = ~trial[self.cand[: self.k]]
@@ -281,8 +305,9 @@ def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Res
     build = Build.of(problem)
     # a design that misses the target by a corner's share of D follows its own shape, not the target's (polyline (d))
     own = start.metrics["rmse"] > settings.CORNER_RMSE * problem.diameter
-    act = classify(chain_bends(start.routing, problem.diameter) if own else target_bends(problem, pairing), start.routing.length, build)
-    rule = Reclassify(lambda a, r, k: solve_classes(problem, pairing, build, a, r, k), act, build, accuracy_budget(problem, start.metrics["rmse"]))
+    act, *others = phases(chain_bends(start.routing, problem.diameter) if own else target_bends(problem, pairing), start.routing.length, build)
+    rule = Reclassify(lambda a, r, k: solve_classes(problem, pairing, build, a, r, k), act, build, accuracy_budget(problem, start.metrics["rmse"]),
+                      others=others)
     found = drive.refine(rule, settings.BUILDABLE_ROUNDS, start.routing, stats)
     best, act = found.best, rule.act
     # a solve may leave an unactuated run's turning beyond half a turn: the same shape the shortest way round
