@@ -167,6 +167,36 @@ def test_reclassify_rule_flips_what_the_multipliers_ask_for(act, limit, lie):
     assert found.best.metrics["rmse"] == 1.0
 
 
+def test_reclassify_tries_the_phases_from_one_start_and_keeps_the_best():
+    """Over the budget: every phase solved from the same start, the lowest RMSE kept, no flips after them; within
+    the budget at the first: no other phase."""
+    seen = []
+
+    def fake(act, start, round=0):
+        seen.append(start.lam[0])
+        return _Fake(WANT)(act, start)
+
+    far, near = ~WANT, WANT ^ (np.arange(8) == 0)  # 9 and 2 RMSE
+    rule = B.Reclassify(fake, far, build(min_feature=0.0), limit=0.5, others=[near, WANT])
+    found = drive.refine(rule, settings.BUILDABLE_ROUNDS, START)
+    np.testing.assert_array_equal(rule.act, WANT)
+    assert found.best.metrics["rmse"] == 1.0 and found.rounds == 3 and seen == [0.9] * 3  # each from START, nothing after
+    seen.clear()
+    rule = B.Reclassify(fake, WANT, build(min_feature=0.0), limit=1.5, others=[far, near])
+    assert drive.refine(rule, settings.BUILDABLE_ROUNDS, START).rounds == 1 and len(seen) == 1
+
+
+def test_phases_are_distinct_and_the_default_comes_first():
+    b, length = build(), np.full(30, 2.0)
+    kappa, _, lc = (np.asarray(v) for v in center_rates(0.0, B.upper(length, np.zeros(30, bool), b), b.D))
+    bends = np.full(30, 0.3 * kappa[0] * lc[0] * 2.0)  # 0.3 of the isolated actuator's least bend per segment
+    found = B.phases(bends, length, b)
+    np.testing.assert_array_equal(found[0], B.classify(bends, length, b))
+    assert len(found) == len({a.tobytes() for a in found}) >= 3
+    assert all(abs(a.sum() - 0.3 * 30) <= 3 for a in found[:3])  # as many actuators, elsewhere
+    assert len(B.phases(np.zeros(30), length, b)) == 1 and len(B.phases(np.full(30, 0.3), length, b)) == 1  # one answer: once
+
+
 BAD_API = [
     ({"correction_margin": 0.4}, "correction_margin: leaves no room: actuator.lambda_min + margin = 0.8 > 1 - margin = 0.6"),
     ({"correction_margin": -0.1}, "correction_margin: must be >= 0"),

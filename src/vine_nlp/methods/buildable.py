@@ -232,7 +232,7 @@ class Reclassify:
         return drive.Verdict(self.trial is None, (not taken, -float(self.taken)), {"actuated": int(self.act.sum())})
 
     def refresh(self, res: Result, verdict: drive.Verdict, x) -> Routing:
-        return self.start if self.others else self.best.routing
+        return self.start if self.phase else self.best.routing
 
     def _candidates(self) -> None:
         """To flip, the most eager first: actuated at the top asking for less (> 0); over the budget, unactuated asking for more."""
@@ -296,8 +296,10 @@ def solve_classes(problem: DesignProblem, pairing, build: Build, act, start: Rou
 
 
 def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Result:
-    """The buildable design from the free design ``start`` (design_nlp's; its solves counted). stats buildable (True),
-    buildable_actuated, buildable_free_rmse, buildable_budget, buildable_rounds, correction_margin, min_feature."""
+    """The buildable design from the free design ``start`` (design_nlp's; its solves counted): ``start`` itself (unwound; no
+    solve, rounds 0) where it lies inside its classes' lambda bounds with every feature at min_feature (the margins force no
+    winding), else the reclassification's rounds. stats buildable (True), buildable_actuated, buildable_free_rmse,
+    buildable_budget, buildable_rounds, correction_margin, min_feature."""
     stats = drive.Stats()
     stats.started -= start.solve_time_s  # the wall time from the free design's start
     stats.absorb(start)
@@ -306,10 +308,14 @@ def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Res
     # a design that misses the target by a corner's share of D follows its own shape, not the target's (polyline (d))
     own = start.metrics["rmse"] > settings.CORNER_RMSE * problem.diameter
     act, *others = phases(chain_bends(start.routing, problem.diameter) if own else target_bends(problem, pairing), start.routing.length, build)
-    rule = Reclassify(lambda a, r, k: solve_classes(problem, pairing, build, a, r, k), act, build, accuracy_budget(problem, start.metrics["rmse"]),
-                      others=others)
-    found = drive.refine(rule, settings.BUILDABLE_ROUNDS, start.routing, stats)
-    best, act = found.best, rule.act
+    limit, r0 = accuracy_budget(problem, start.metrics["rmse"]), start.routing
+    lo, hi = lambda_bounds(act, r0.length, build)
+    if np.all((r0.lam >= lo) & (r0.lam <= hi)) and not buildability(r0, build.D, build.kind, build.lambda_min, build.margin, build.min_feature).below:
+        best, rounds = dataclasses.replace(start, stats=dict(start.stats)), 0  # inside its classes' bounds: the margins force nothing
+    else:
+        rule = Reclassify(lambda a, r, k: solve_classes(problem, pairing, build, a, r, k), act, build, limit, others=others)
+        found = drive.refine(rule, settings.BUILDABLE_ROUNDS, r0, stats)
+        best, act, rounds = found.best, rule.act, found.rounds
     # a solve may leave an unactuated run's turning beyond half a turn: the same shape the shortest way round
     r = unwind(best.routing, act, build)
     short = evaluate(problem, Routing(theta=r.theta, lam=best.routing.lam, length=r.length, initial_pose=r.initial_pose), pairing, "nlp", status=best.status,
@@ -318,7 +324,7 @@ def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Res
     best.stats |= {k: v for k, v in start.stats.items() if k.startswith(("start", "best_start", "hops", "corner"))}
     best.buildable = True
     best.stats |= {"buildable": True, "buildable_actuated": int(act.sum()), "buildable_free_rmse": float(start.metrics["rmse"]),
-                   "buildable_budget": float(rule.limit), "buildable_rounds": found.rounds, "correction_margin": build.margin,
+                   "buildable_budget": float(limit), "buildable_rounds": rounds, "correction_margin": build.margin,
                    "min_feature": build.min_feature}
     return stats.stamp(best)
 
