@@ -154,17 +154,18 @@ WANT = np.array([1, 1, 0, 1, 0, 0, 1, 0], bool)
 START = Routing(theta=np.zeros(8), lam=np.full(8, 0.9), length=np.full(8, 2.0), initial_pose=np.eye(4))
 
 
-@pytest.mark.parametrize("act, limit, lie", [
-    (np.zeros(8, bool), 0.5, ()),  # over the budget: actuators where the multipliers ask for contraction, all at once
-    (WANT | (np.arange(8) == 2), 2.5, ()),  # within it: an actuator at its top that asks for less goes
-    (WANT, 1.5, (0,)),  # within it: a removal that leaves the budget is not kept
+@pytest.mark.parametrize("act, limit, lie, rounds", [
+    (np.zeros(8, bool), 0.5, (), 2),  # over the budget: actuators where the multipliers ask for contraction, all at once
+    (WANT | (np.arange(8) == 2), 0.5, (), 2),  # an actuator at its top that asks for less goes
+    (WANT, 0.5, (0,), 2),  # a removal that leaves the RMSE higher is not kept
+    (WANT, 1.5, (0,), 1),  # within the budget: done
 ])
-def test_reclassify_rule_flips_what_the_multipliers_ask_for(act, limit, lie):
+def test_reclassify_rule_flips_what_the_multipliers_ask_for(act, limit, lie, rounds):
     rule = B.Reclassify(_Fake(WANT, lie), act, build(min_feature=0.0), limit=limit)
     found = drive.refine(rule, settings.BUILDABLE_ROUNDS, START)
     np.testing.assert_array_equal(rule.act, WANT)
     np.testing.assert_array_equal(found.best.routing.lam == 1.0, ~WANT)
-    assert found.best.metrics["rmse"] == 1.0
+    assert found.best.metrics["rmse"] == 1.0 and found.rounds == rounds
 
 
 def test_reclassify_tries_the_phases_from_one_start_and_keeps_the_best():

@@ -217,12 +217,7 @@ class Reclassify:
 
     def judge(self, res: Result) -> drive.Verdict:
         rmse = res.metrics["rmse"]
-        if self.best is None or self.repairs:
-            taken = True
-        elif self.phase or self.over:
-            taken = rmse < self.best.metrics["rmse"] * (1 - 1e-3) and (res.converged or not self.best.converged)
-        else:
-            taken = rmse <= self.limit and res.converged
+        taken = self.best is None or self.repairs or rmse < self.best.metrics["rmse"] * (1 - 1e-3) and (res.converged or not self.best.converged)
         if taken:
             self.best, self.act, self.mult, self.taken = res, self.trial, self._trial_mult, self.taken + 1
             self._candidates()
@@ -235,15 +230,16 @@ class Reclassify:
         return self.start if self.phase else self.best.routing
 
     def _candidates(self) -> None:
-        """To flip, the most eager first: actuated at the top asking for less (> 0); over the budget, unactuated asking for more."""
+        """To flip over the budget (within it: done), the most eager first: actuated at the top asking for less (> 0),
+        unactuated asking for more; none after the phases (they were the search)."""
         r, act, mult = self.best.routing, self.act, self.mult
         self.over = self.best.metrics["rmse"] > self.limit
         at_top = act & (r.lam >= upper(r.length, act, self.build) - 1e-6) & (mult > 1e-9)
-        asks = ~act & (mult < -1e-9) & self.over
+        asks = ~act & (mult < -1e-9)
         if not self.over:
             self.others = []  # within the budget: no other phase needed
-        # over the budget after the phases: they were the search (flips after them found nothing better on bezier-a to -c)
-        stop = self.build.shared or self.repairs or (self.over and self.phased)
+        # within the budget: done; over it after the phases: they were the search (flips after them found nothing better on bezier-a to -c)
+        stop = self.build.shared or self.repairs or not self.over or self.phased
         self.cand = np.zeros(0, int) if stop else np.flatnonzero(at_top | asks)
         self.cand = self.cand[np.argsort(-np.abs(mult[self.cand]), kind="stable")]
         self.k = self.cand.size
