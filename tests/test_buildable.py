@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -14,6 +15,7 @@ from vine_nlp.front.cli import main
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import buildable as B
 from vine_nlp.methods import drive, settings
+from vine_nlp.methods.nlp import design_nlp
 from vine_nlp.model import shape_lines
 from vine_nlp.model.chain import segment_end_samples
 from vine_nlp.model.helix import center_rates
@@ -68,6 +70,20 @@ def test_a_fixed_base_is_kept_exactly():
     assert np.all(r.lam[:STRAIGHT] == 1.0) and d.rmse < 0.01
     _, free, need = turning(r.theta, r.length, pb.diameter, r.lam != 1.0, base_free=False)
     assert need == pytest.approx(math.pi / 2, abs=0.05) and free == pytest.approx(need, rel=1e-6)  # the shortest way round
+
+
+def test_a_free_design_inside_its_bounds_is_taken_without_a_solve_but_not_with_a_fixed_base():
+    pb = load_problem("problems/trefoil-m4.toml").problem
+    free = design_nlp(pb)
+    res = B.design_buildable(pb, free)
+    assert res.stats["buildable_rounds"] == 0 and res.stats["solves"] == 1 and np.all(res.routing.lam < 1.0)
+    np.testing.assert_array_equal(res.routing.lam, free.routing.lam)
+    pose = free.routing.initial_pose.copy()
+    pose[:3, 3] += [0.0, 0.0, 0.1]  # 1 mm off the free design's: the free design is not this problem's
+    fixed = dataclasses.replace(pb, options=dataclasses.replace(pb.options, base="fixed", base_pose=tuple(map(tuple, pose))))
+    res = B.design_buildable(fixed, free)
+    np.testing.assert_array_equal(res.routing.initial_pose, pose)
+    assert res.stats["buildable_rounds"] >= 1 and res.metrics["rmse"] <= B.accuracy_budget(pb, free.metrics["rmse"]) + 0.1
 
 
 def test_a_buildable_routing_is_recovered():

@@ -294,7 +294,7 @@ def solve_classes(problem: DesignProblem, pairing, build: Build, act, start: Rou
 def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Result:
     """The buildable design from the free design ``start`` (design_nlp's; its solves counted): ``start`` itself (unwound; no
     solve, rounds 0) where it lies inside its classes' lambda bounds with every feature at min_feature (the margins force no
-    winding), else the reclassification's rounds. stats buildable (True), buildable_actuated, buildable_free_rmse,
+    winding) and the base is free, else the reclassification's rounds. stats buildable (True), buildable_actuated, buildable_free_rmse,
     buildable_budget, buildable_rounds, correction_margin, min_feature."""
     stats = drive.Stats()
     stats.started -= start.solve_time_s  # the wall time from the free design's start
@@ -306,7 +306,7 @@ def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Res
     act, *others = phases(chain_bends(start.routing, problem.diameter) if own else target_bends(problem, pairing), start.routing.length, build)
     limit, r0 = accuracy_budget(problem, start.metrics["rmse"]), start.routing
     lo, hi = lambda_bounds(act, r0.length, build)
-    if np.all((r0.lam >= lo) & (r0.lam <= hi)) and not buildability(r0, build.D, build.kind, build.lambda_min, build.margin, build.min_feature).below:
+    if build.pose is None and np.all((r0.lam >= lo) & (r0.lam <= hi)) and not buildability(r0, build.D, build.kind, build.lambda_min, build.margin, build.min_feature).below:
         best, rounds = dataclasses.replace(start, stats=dict(start.stats)), 0  # inside its classes' bounds: the margins force nothing
     else:
         rule = Reclassify(lambda a, r, k: solve_classes(problem, pairing, build, a, r, k), act, build, limit, others=others)
