@@ -7,13 +7,18 @@ built there, and the line may take any way to where the next actuated piece need
   (:func:`lambda_bounds`; lo = lambda_min (pouches: 2/pi) + margin; m_j = max(margin, min_feature over its
   gap's length, alone or joined with its partner's)): room to correct an as-built error both ways. A segment
   whose target bends at least the least an actuated one bends keeps its actuator; along a gentler run the
-  bends are summed and a segment actuated each time the sum reaches half its least bend (error diffusion:
-  fewer, stronger actuated segments with straight ones between); short pieces merge (:func:`merge_short`).
+  bends are summed and a segment actuated each time the sum reaches a share of its least bend (error diffusion:
+  fewer, stronger actuated segments with straight ones between; :func:`phases`: several shares, where the
+  actuators fall); short pieces merge (:func:`merge_short`). A design missing its target by a corner's share
+  of D is classed by its own bends.
 - **Unwinding** (:func:`unwind`): on an unactuated run the shape sees only the line's net turning modulo
   2 pi: it is taken the shortest way round at one slope, before each solve and after the last (the same
   shape); a first run's goes into the base roll (free base: no arbitrary roll) or comes from the fixed pose.
 - **Build effort** (:class:`BuildEffort`, :func:`effort_data`): weighted (1/L) sum_j tan(theta_j)^2 dl_j.
-- **Reclassification** (:class:`Reclassify`, a ``drive.refine`` rule) from the lambda bounds' multipliers.
+- **Solves** (issue 46: about the free design's cost): none where the free design lies inside its classes'
+  bounds (free base); else (:class:`Reclassify`, a ``drive.refine`` rule) the phases' classes, each solved once
+  from the free design (warm where the bounds barely move it), the lowest RMSE kept, until one is within the
+  accuracy budget; a single phase over the budget: flips from the lambda bounds' multipliers.
 
 sPAM (one lambda, pouches along the whole tube): no classes; the lambda in [max(lambda_min, 2/pi) + margin,
 1 - margin], the build effort. Other formulations (obstacles) use the blocks with their own solve.
