@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -14,6 +15,7 @@ from vine_nlp.front.cli import main
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods import buildable as B
 from vine_nlp.methods import drive, settings
+from vine_nlp.methods.nlp import design_nlp
 from vine_nlp.model import shape_lines
 from vine_nlp.model.chain import segment_end_samples
 from vine_nlp.model.helix import center_rates
@@ -68,6 +70,20 @@ def test_a_fixed_base_is_kept_exactly():
     assert np.all(r.lam[:STRAIGHT] == 1.0) and d.rmse < 0.01
     _, free, need = turning(r.theta, r.length, pb.diameter, r.lam != 1.0, base_free=False)
     assert need == pytest.approx(math.pi / 2, abs=0.05) and free == pytest.approx(need, rel=1e-6)  # the shortest way round
+
+
+def test_a_free_design_inside_its_bounds_is_taken_without_a_solve_but_not_with_a_fixed_base():
+    pb = load_problem("problems/trefoil-m4.toml").problem
+    free = design_nlp(pb)
+    res = B.design_buildable(pb, free)
+    assert res.stats["buildable_rounds"] == 0 and res.stats["solves"] == 1 and np.all(res.routing.lam < 1.0)
+    np.testing.assert_array_equal(res.routing.lam, free.routing.lam)
+    pose = free.routing.initial_pose.copy()
+    pose[:3, 3] += [0.0, 0.0, 0.1]  # 1 mm off the free design's: the free design is not this problem's
+    fixed = dataclasses.replace(pb, options=dataclasses.replace(pb.options, base="fixed", base_pose=tuple(map(tuple, pose))))
+    res = B.design_buildable(fixed, free)
+    np.testing.assert_array_equal(res.routing.initial_pose, pose)
+    assert res.stats["buildable_rounds"] >= 1 and res.metrics["rmse"] <= B.accuracy_budget(pb, free.metrics["rmse"]) + 0.1
 
 
 def test_a_buildable_routing_is_recovered():
@@ -141,7 +157,7 @@ class _Fake:
     def __init__(self, want, lie=()):
         self.want, self.lie = np.asarray(want, bool), list(lie)
 
-    def __call__(self, act, start):
+    def __call__(self, act, start, round=0):
         miss = int(np.sum(act != self.want))
         res = Result("nlp", Routing(theta=start.theta, lam=np.where(act, 0.95, 1.0), length=start.length, initial_pose=start.initial_pose), None, status="optimal",
                      metrics={"rmse": 1.0 + miss})
@@ -154,17 +170,48 @@ WANT = np.array([1, 1, 0, 1, 0, 0, 1, 0], bool)
 START = Routing(theta=np.zeros(8), lam=np.full(8, 0.9), length=np.full(8, 2.0), initial_pose=np.eye(4))
 
 
-@pytest.mark.parametrize("act, limit, lie", [
-    (np.zeros(8, bool), 0.5, ()),  # over the budget: actuators where the multipliers ask for contraction, all at once
-    (WANT | (np.arange(8) == 2), 2.5, ()),  # within it: an actuator at its top that asks for less goes
-    (WANT, 1.5, (0,)),  # within it: a removal that leaves the budget is not kept
+@pytest.mark.parametrize("act, limit, lie, rounds", [
+    (np.zeros(8, bool), 0.5, (), 2),  # over the budget: actuators where the multipliers ask for contraction, all at once
+    (WANT | (np.arange(8) == 2), 0.5, (), 2),  # an actuator at its top that asks for less goes
+    (WANT, 0.5, (0,), 2),  # a removal that leaves the RMSE higher is not kept
+    (WANT, 1.5, (0,), 1),  # within the budget: done
 ])
-def test_reclassify_rule_flips_what_the_multipliers_ask_for(act, limit, lie):
+def test_reclassify_rule_flips_what_the_multipliers_ask_for(act, limit, lie, rounds):
     rule = B.Reclassify(_Fake(WANT, lie), act, build(min_feature=0.0), limit=limit)
     found = drive.refine(rule, settings.BUILDABLE_ROUNDS, START)
     np.testing.assert_array_equal(rule.act, WANT)
     np.testing.assert_array_equal(found.best.routing.lam == 1.0, ~WANT)
-    assert found.best.metrics["rmse"] == 1.0
+    assert found.best.metrics["rmse"] == 1.0 and found.rounds == rounds
+
+
+def test_reclassify_tries_the_phases_from_one_start_and_keeps_the_best():
+    """Over the budget: every phase solved from the same start, the lowest RMSE kept, no flips after them; within
+    the budget at the first: no other phase."""
+    seen = []
+
+    def fake(act, start, round=0):
+        seen.append(start.lam[0])
+        return _Fake(WANT)(act, start)
+
+    far, near = ~WANT, WANT ^ (np.arange(8) == 0)  # 9 and 2 RMSE
+    rule = B.Reclassify(fake, far, build(min_feature=0.0), limit=0.5, others=[near, WANT])
+    found = drive.refine(rule, settings.BUILDABLE_ROUNDS, START)
+    np.testing.assert_array_equal(rule.act, WANT)
+    assert found.best.metrics["rmse"] == 1.0 and found.rounds == 3 and seen == [0.9] * 3  # each from START, nothing after
+    seen.clear()
+    rule = B.Reclassify(fake, WANT, build(min_feature=0.0), limit=1.5, others=[far, near])
+    assert drive.refine(rule, settings.BUILDABLE_ROUNDS, START).rounds == 1 and len(seen) == 1
+
+
+def test_phases_are_distinct_and_the_default_comes_first():
+    b, length = build(), np.full(30, 2.0)
+    kappa, _, lc = (np.asarray(v) for v in center_rates(0.0, B.upper(length, np.zeros(30, bool), b), b.D))
+    bends = np.full(30, 0.3 * kappa[0] * lc[0] * 2.0)  # 0.3 of the isolated actuator's least bend per segment
+    found = B.phases(bends, length, b)
+    np.testing.assert_array_equal(found[0], B.classify(bends, length, b))
+    assert len(found) == len({a.tobytes() for a in found}) >= 3
+    assert all(abs(a.sum() - 0.3 * 30) <= 3 for a in found[:3])  # as many actuators, elsewhere
+    assert len(B.phases(np.zeros(30), length, b)) == 1 and len(B.phases(np.full(30, 0.3), length, b)) == 1  # one answer: once
 
 
 BAD_API = [

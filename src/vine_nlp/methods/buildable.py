@@ -7,13 +7,18 @@ built there, and the line may take any way to where the next actuated piece need
   (:func:`lambda_bounds`; lo = lambda_min (pouches: 2/pi) + margin; m_j = max(margin, min_feature over its
   gap's length, alone or joined with its partner's)): room to correct an as-built error both ways. A segment
   whose target bends at least the least an actuated one bends keeps its actuator; along a gentler run the
-  bends are summed and a segment actuated each time the sum reaches half its least bend (error diffusion:
-  fewer, stronger actuated segments with straight ones between); short pieces merge (:func:`merge_short`).
+  bends are summed and a segment actuated each time the sum reaches a share of its least bend (error diffusion:
+  fewer, stronger actuated segments with straight ones between; :func:`phases`: several shares, where the
+  actuators fall); short pieces merge (:func:`merge_short`). A design missing its target by a corner's share
+  of D is classed by its own bends.
 - **Unwinding** (:func:`unwind`): on an unactuated run the shape sees only the line's net turning modulo
   2 pi: it is taken the shortest way round at one slope, before each solve and after the last (the same
   shape); a first run's goes into the base roll (free base: no arbitrary roll) or comes from the fixed pose.
 - **Build effort** (:class:`BuildEffort`, :func:`effort_data`): weighted (1/L) sum_j tan(theta_j)^2 dl_j.
-- **Reclassification** (:class:`Reclassify`, a ``drive.refine`` rule) from the lambda bounds' multipliers.
+- **Solves** (issue 46: about the free design's cost): none where the free design lies inside its classes'
+  bounds (free base); else (:class:`Reclassify`, a ``drive.refine`` rule) the phases' classes (not under a load), each solved once
+  from the free design (warm where the bounds barely move it), the lowest RMSE kept, until one is within the
+  accuracy budget; a single phase over the budget: flips from the lambda bounds' multipliers.
 
 sPAM (one lambda, pouches along the whole tube): no classes; the lambda in [max(lambda_min, 2/pi) + margin,
 1 - margin], the build effort. Other formulations (obstacles) use the blocks with their own solve.
@@ -21,6 +26,7 @@ sPAM (one lambda, pouches along the whole tube): no classes; the lambda in [max(
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Callable
@@ -97,10 +103,11 @@ def chain_bends(routing: Routing, D: float) -> np.ndarray:
     return np.asarray(kappa * lc * routing.length, float)
 
 
-def classify(bends, length, build: Build) -> np.ndarray:
+def classify(bends, length, build: Build, share: float = 0.5, paired: bool = False) -> np.ndarray:
     """Where an actuator goes (module docstring): ``bends`` the target's turning per segment, ``length`` the
     segment lengths. An actuated segment bends at least its bend at 1 - m_j (theta 0): in a piece with a partner
-    (``pair``), or alone (``alone``, the error diffusion's step: a gently bent run gets isolated actuators)."""
+    (``pair``), or alone (``alone``, the error diffusion's step: a gently bent run gets isolated actuators, one
+    where the sum reaches ``share`` of the step; ``paired``: the pair's bend as the step)."""
     bends, length = np.asarray(bends, float), np.asarray(length, float)
     if build.shared:
         return np.ones(bends.size, bool)
@@ -110,15 +117,27 @@ def classify(bends, length, build: Build) -> np.ndarray:
         return kappa * lc * length
 
     pair, alone = least_bend(np.ones(bends.size, bool)), least_bend(np.zeros(bends.size, bool))
+    step = pair if paired else alone
     act, acc = bends >= np.maximum(pair, settings.BEND_TOL), 0.0
     for j in range(bends.size):  # error diffusion along the gently bent runs
         if act[j]:
             acc = 0.0
             continue
         acc += bends[j]
-        if acc >= max(0.5 * alone[j], settings.BEND_TOL):
-            act[j], acc = True, acc - max(acc, alone[j])
+        if acc >= max(share * step[j], settings.BEND_TOL):
+            act[j], acc = True, acc - max(acc, step[j])
     return merge_short(act, length, build.min_feature)
+
+
+def phases(bends, length, build: Build) -> list[np.ndarray]:
+    """The classes of every error-diffusion phase (settings.DIFFUSION), each once, the default (share 0.5) first: on
+    a gently bent target the design's error depends on where the isolated actuators fall more than on their count."""
+    out = []
+    for share, paired in settings.DIFFUSION:
+        act = classify(bends, length, build, share, paired)
+        if not any(np.array_equal(act, a) for a in out):
+            out.append(act)
+    return out
 
 
 def merge_short(act, length, min_feature: float) -> np.ndarray:
@@ -183,51 +202,58 @@ def accuracy_budget(problem: DesignProblem, rmse: float) -> float:
 
 class Reclassify:
     """The reclassification, a ``drive.refine`` rule (x: the routing to start from; ``trials + settings.BUILDABLE_REPAIRS`` rounds) for
-    any formulation: ``solve(act, start)`` solves with the classes ``act`` from ``start`` (unwound here): (Result,
-    the lambda bounds' multipliers (M,)). ``limit``: the RMSE budget. After refine: ``act``, the best round's."""
+    any formulation: ``solve(act, start, round)`` solves with the classes ``act`` from ``start`` (unwound here): (Result,
+    the lambda bounds' multipliers (M,)). ``limit``: the RMSE budget. ``others``: more classes, each solved from the
+    same start after ``act`` (the lowest RMSE kept), before the multipliers' flips. After refine: ``act``, the best round's."""
 
-    def __init__(self, solve: Callable, act, build: Build, limit: float, trials: int = settings.BUILDABLE_ROUNDS - settings.BUILDABLE_REPAIRS):
+    def __init__(self, solve: Callable, act, build: Build, limit: float, trials: int = settings.BUILDABLE_ROUNDS - settings.BUILDABLE_REPAIRS,
+                 others=()):
         self._solve, self.build, self.limit, self.trials = solve, build, limit, trials
         self.act = self.trial = np.asarray(act, bool)
         self.best, self.mult, self.cand, self.k, self.over = None, None, np.zeros(0, int), 0, False
-        self.taken, self.repairs, self.solves = 0, 0, 0
+        self.taken, self.repairs, self.solves, self.others, self.start = 0, 0, 0, list(others), None
+        self.phased, self.phase = bool(self.others), True  # phase: the trial is one of the classes given
 
     def solve(self, x: Routing, round: int, last: bool):
-        res, self._trial_mult = self._solve(self.trial, unwind(x, self.trial, self.build))
+        self.start = x if self.start is None else self.start
+        res, self._trial_mult = self._solve(self.trial, unwind(x, self.trial, self.build), round)
         self.solves += 1
         return x, res
 
     def judge(self, res: Result) -> drive.Verdict:
         rmse = res.metrics["rmse"]
-        if self.best is None or self.repairs:
-            taken = True
-        elif self.over:
-            taken = rmse < self.best.metrics["rmse"] * (1 - 1e-3) and (res.converged or not self.best.converged)
-        else:
-            taken = rmse <= self.limit and res.converged
+        taken = self.best is None or self.repairs or rmse < self.best.metrics["rmse"] * (1 - 1e-3) and (res.converged or not self.best.converged)
         if taken:
             self.best, self.act, self.mult, self.taken = res, self.trial, self._trial_mult, self.taken + 1
             self._candidates()
-        else:
+        elif not self.phase:
             self.k //= 2
         self.trial = self._next()
         return drive.Verdict(self.trial is None, (not taken, -float(self.taken)), {"actuated": int(self.act.sum())})
 
     def refresh(self, res: Result, verdict: drive.Verdict, x) -> Routing:
-        return self.best.routing
+        return self.start if self.phase else self.best.routing
 
     def _candidates(self) -> None:
-        """To flip, the most eager first: actuated at the top asking for less (> 0); over the budget, unactuated asking for more."""
+        """To flip over the budget (within it: done), the most eager first: actuated at the top asking for less (> 0),
+        unactuated asking for more; none after the phases (they were the search)."""
         r, act, mult = self.best.routing, self.act, self.mult
         self.over = self.best.metrics["rmse"] > self.limit
         at_top = act & (r.lam >= upper(r.length, act, self.build) - 1e-6) & (mult > 1e-9)
-        asks = ~act & (mult < -1e-9) & self.over
-        self.cand = np.zeros(0, int) if self.build.shared or self.repairs else np.flatnonzero(at_top | asks)
+        asks = ~act & (mult < -1e-9)
+        if not self.over:
+            self.others = []  # within the budget: no other phase needed
+        # within the budget: done; over it after the phases: they were the search (flips after them found nothing better on bezier-a to -c)
+        stop = self.build.shared or self.repairs or not self.over or self.phased
+        self.cand = np.zeros(0, int) if stop else np.flatnonzero(at_top | asks)
         self.cand = self.cand[np.argsort(-np.abs(mult[self.cand]), kind="stable")]
         self.k = self.cand.size
 
     def _next(self):
         """The next trial's classes, or None: done."""
+        self.phase = bool(self.others)
+        if self.phase:
+            return self.others.pop(0)
         while self.k >= 1 and self.solves < self.trials:
             trial = self.act.copy()
             trial[self.cand[: self.k]] = ~trial[self.cand[: self.k]]
@@ -249,12 +275,17 @@ def buildable_spec(problem: DesignProblem, pairing, build: Build) -> Spec:
     return Spec(s, (Smoothness(), SoftTip(), BuildEffort()), "exact", settings.Settings(o.max_iter, o.tol))
 
 
-def solve_classes(problem: DesignProblem, pairing, build: Build, act, start: Routing) -> tuple[Result, np.ndarray]:
+def solve_classes(problem: DesignProblem, pairing, build: Build, act, start: Routing, round: int = 0) -> tuple[Result, np.ndarray]:
     """One solve of the plain NLP with the build effort and the classes' lambda bounds, from ``start`` (frames on
-    its chain; its base pose, or the fixed one); (Result "nlp", the lambda bounds' multipliers)."""
+    its chain; its base pose, or the fixed one); (Result "nlp", the lambda bounds' multipliers). The first round
+    (``round`` 0) from a start the bounds move by at most settings.WARM_CLIP in lambda: IPOPT's warm start (near
+    the answer); a later round (a trial of other classes) at most settings.ROUND_ITER iterations."""
     D, act = problem.diameter, np.asarray(act, bool)
-    solver = get_solver(buildable_spec(problem, pairing, build))
     lo, hi = lambda_bounds(act, start.length, build)
+    spec = buildable_spec(problem, pairing, build)
+    near = round == 0 and float(np.max(np.abs(np.clip(start.lam, lo, hi) - start.lam))) <= settings.WARM_CLIP
+    cap = spec.settings.max_iter if round == 0 else min(spec.settings.max_iter, settings.ROUND_ITER)
+    solver = get_solver(dataclasses.replace(spec, settings=dataclasses.replace(spec.settings, warm=near, max_iter=cap)))
     T0 = start.initial_pose if build.pose is None else build.pose
     guess = Guess(start.theta, np.clip(start.lam, lo, hi), start.length, T0, None)
     data = nlp_parameters(problem, pairing, T0[:3, :3])
@@ -266,17 +297,27 @@ def solve_classes(problem: DesignProblem, pairing, build: Build, act, start: Rou
 
 
 def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Result:
-    """The buildable design from the free design ``start`` (design_nlp's; its solves counted). stats buildable (True),
-    buildable_actuated, buildable_free_rmse, buildable_budget, buildable_rounds, correction_margin, min_feature."""
+    """The buildable design from the free design ``start`` (design_nlp's; its solves counted): ``start`` itself (unwound; no
+    solve, rounds 0) where it lies inside its classes' lambda bounds with every feature at min_feature (the margins force no
+    winding) and the base is free, else the reclassification's rounds. stats buildable (True), buildable_actuated, buildable_free_rmse,
+    buildable_budget, buildable_rounds, correction_margin, min_feature."""
     stats = drive.Stats()
     stats.started -= start.solve_time_s  # the wall time from the free design's start
     stats.absorb(start)
     pairing = pairing or pair_points(problem.target, problem.options.points_per_segment)
     build = Build.of(problem)
-    act = classify(target_bends(problem, pairing), start.routing.length, build)
-    rule = Reclassify(lambda a, r: solve_classes(problem, pairing, build, a, r), act, build, accuracy_budget(problem, start.metrics["rmse"]))
-    found = drive.refine(rule, settings.BUILDABLE_ROUNDS, start.routing, stats)
-    best, act = found.best, rule.act
+    # a design that misses the target by a corner's share of D follows its own shape, not the target's (polyline (d))
+    own = start.metrics["rmse"] > settings.CORNER_RMSE * problem.diameter
+    act, *others = phases(chain_bends(start.routing, problem.diameter) if own else target_bends(problem, pairing), start.routing.length, build)
+    others = [] if problem.load is not None else others  # under a load where the actuators fall decides where the tube is weak: not by RMSE alone
+    limit, r0 = accuracy_budget(problem, start.metrics["rmse"]), start.routing
+    lo, hi = lambda_bounds(act, r0.length, build)
+    if build.pose is None and np.all((r0.lam >= lo) & (r0.lam <= hi)) and not buildability(r0, build.D, build.kind, build.lambda_min, build.margin, build.min_feature).below:
+        best, rounds = dataclasses.replace(start, stats=dict(start.stats)), 0  # inside its classes' bounds: the margins force nothing
+    else:
+        rule = Reclassify(lambda a, r, k: solve_classes(problem, pairing, build, a, r, k), act, build, limit, others=others)
+        found = drive.refine(rule, settings.BUILDABLE_ROUNDS, r0, stats)
+        best, act, rounds = found.best, rule.act, found.rounds
     # a solve may leave an unactuated run's turning beyond half a turn: the same shape the shortest way round
     r = unwind(best.routing, act, build)
     short = evaluate(problem, Routing(theta=r.theta, lam=best.routing.lam, length=r.length, initial_pose=r.initial_pose), pairing, "nlp", status=best.status,
@@ -285,7 +326,7 @@ def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Res
     best.stats |= {k: v for k, v in start.stats.items() if k.startswith(("start", "best_start", "hops", "corner"))}
     best.buildable = True
     best.stats |= {"buildable": True, "buildable_actuated": int(act.sum()), "buildable_free_rmse": float(start.metrics["rmse"]),
-                   "buildable_budget": float(rule.limit), "buildable_rounds": found.rounds, "correction_margin": build.margin,
+                   "buildable_budget": float(limit), "buildable_rounds": rounds, "correction_margin": build.margin,
                    "min_feature": build.min_feature}
     return stats.stamp(best)
 

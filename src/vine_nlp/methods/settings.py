@@ -252,6 +252,13 @@ POLISH_TOP = 3  # the best poses of the global stage that are polished on all po
 EFFORT, EFFORT_ACTUATED, EFFORT_INNER = 1e-3, 1e-4, 1e-6
 ACCURACY_SLACK, ACCURACY_FLOOR_MM = 0.10, 0.05  # what the reclassification may give up: the issue's budget
 BUILDABLE_ROUNDS, BUILDABLE_REPAIRS = 8, 2  # solves at most; of them, re-solves while a gap is below min_feature (the lengths moved)
+# the first solve from the free design: IPOPT's warm start where the classes' bounds move its lambda by at most this (trefoil-m4:
+# 20 -> 3 iterations; the 125-knot sweep's 67 re-solved knots 950 -> 767 at 0.05 against 0.01; bezier-a's 0.12 took more warm than cold)
+WARM_CLIP = 0.05
+ROUND_ITER = 200  # a later round (other classes) that needs more is not taken: bezier-c's 6th round ran 1009 iterations for nothing
+# the error diffusion's phases (share of the step, the pair's bend as the step): each a first solve, the best kept; the
+# design's error on a gently bent target depends on where the isolated actuators fall (bezier-c: 0.27 mm at 0.5, 0.11 at 0.35)
+DIFFUSION = ((0.5, False), (0.35, False), (0.7, False), (0.5, True))
 BEND_TOL = 1e-6  # rad: a segment of the target bending less is straight
 FEATURE_SLACK = 1.1  # a gap's lambda bound asks this much more than min_feature: a solve moves the lengths by up to ~10 %
 # tip
