@@ -366,7 +366,7 @@ def test_solve_takes_problem_objects(target):
     pb = vn.DesignProblem("p", D, points, options=vn.DesignOptions(points_per_segment=N_PER))
     r = vn.solve(pb)
     assert r.run == "nlp" and r.rmse < 1e-3 * D
-    with pytest.raises(vn.ArgumentError, match=r"^method: unknown design method 'tip'; one of nlp, greedy, greedy_filtered$"):
+    with pytest.raises(vn.ArgumentError, match=r"^method: unknown design method 'tip'; one of nlp, greedy, greedy_filtered, nlp_free, greedy_buildable$"):
         vn.solve(pb, method="tip")
     with pytest.raises(TypeError, match="colour"):
         vn.solve(pb, colour=1)

@@ -1012,7 +1012,7 @@ def test_commands_say_what_they_cannot_afford(tmp_path, capsys):
         assert f"run forward: 6000 segments; {command} handles at most {most}" in line
     short = _long_tube(tmp_path, 580.0, 1.0, "short")  # 580 segments, 290 diameters: 5.8 m of tube
     line = refused(capsys, ["template", short, "-o", out / "o.pdf"], short, "runs")
-    assert "5.8 m of tube; a 1:1 PDF template takes at most 5 m" in line
+    assert "5.8 m of tube; a 1:1 template takes at most 5 m" in line
     assert list(out.iterdir()) == []
 
 
