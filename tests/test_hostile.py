@@ -1028,6 +1028,24 @@ def test_each_command_at_its_limits_within_time_and_memory(tmp_path_factory, tmp
     assert r.returncode == 0, r.stderr  # 3 x 10 s: the machine these were measured on was shared (idle: 3 to 6 s)
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("command", list(DRAWING))
+def test_a_tube_the_size_of_a_planet_through_every_drawing_command(tmp_path_factory, tmp_path, command):
+    # 10 segments of a tube 5e8 cm wide and 1e9 cm long: every size and count within the limits, so nothing is
+    # refused for its segments or diameters; each command draws it in its time and memory, the template alone says
+    # its 1:1 print cannot take 1e7 m of tube (one line), with the machine's usual numbers nowhere near overflow
+    path = _long_tube(tmp_path_factory.mktemp("huge"), 1e9, 1e8, name="huge", D=5e8)
+    r = limited(command, path, *(str(tmp_path / a) if a.startswith("o.") else a for a in DRAWING[command]), timeout=3 * TIME_LIMIT)
+    if command == "template":
+        assert r.returncode == 2, r.stderr
+        assert "run forward: 1e+07 m of tube; a 1:1 template takes at most 5 m" in one_line(r.stderr, path, "runs")
+        assert list(tmp_path.iterdir()) == []
+    else:
+        assert r.returncode == 0 and r.stderr == "", r.stderr
+        written = {p.suffix for p in tmp_path.iterdir()}  # export: the tube's mesh and its actuator's
+        assert written == (set() if command == "analyze" else {Path(DRAWING[command][1]).suffix}), written
+
+
 def _many_runs(h5):
     for k in range(limits.MAX_RUNS):
         h5.copy(h5["runs/forward"], f"runs/r{k}")
