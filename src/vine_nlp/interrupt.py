@@ -28,6 +28,7 @@ _requested = threading.Event()
 _raised = {"once": False, "again": False}  # a KeyboardInterrupt was raised; one more is owed (the first was lost)
 INTERRUPTED_STATUS = "NonIpopt_Exception_Thrown"  # no callbacks of ours can throw: only an interrupt
 HOLD_ENV = "VINE_NLP_TEST_HOLD"
+HOLD_JOIN_S = 0.1  # a held process's longest delay in answering a signal (not a guess of how long anything takes)
 _passed: set = set()  # hold points this process went past (each holds at most once)
 
 
@@ -129,7 +130,17 @@ def hold(point: str) -> None:
         return
     sys.stderr.flush()
     os.write(2, f"vine-nlp: test hold at {point} (pid {os.getpid()})\n".encode())  # one write: a signal cannot split the line
-    # Blocks until the test opens the pipe for writing; a signal handler that raises ends the wait.
+    # Blocks until the test opens the pipe for writing and closes it. The blocking open runs in a thread this one
+    # waits for in short joins: a signal landing after the marker but before a blocking system call begins does not
+    # interrupt that call (its handler, which raises, runs between bytecodes), so waiting in the open itself could
+    # outlast the signal until the test's own deadline (seen once in 14 runs of the suite at load 8).
+    waiter = threading.Thread(target=_wait_open, args=(fifo,), daemon=True)
+    waiter.start()
+    while waiter.is_alive():
+        waiter.join(HOLD_JOIN_S)
+
+
+def _wait_open(fifo: str) -> None:
     with open(fifo, "rb") as fh:
         fh.read()
 
