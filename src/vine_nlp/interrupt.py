@@ -28,7 +28,10 @@ _requested = threading.Event()
 _raised = {"once": False, "again": False}  # a KeyboardInterrupt was raised; one more is owed (the first was lost)
 INTERRUPTED_STATUS = "NonIpopt_Exception_Thrown"  # no callbacks of ours can throw: only an interrupt
 HOLD_ENV = "VINE_NLP_TEST_HOLD"
-HOLD_JOIN_S = 0.1  # a held process's longest delay in answering a signal (not a guess of how long anything takes)
+# the main thread waits for a worker (a solve, a held test point) in joins this long: a signal landing just before a
+# blocking system call begins does not interrupt it (the handler, which raises, runs between bytecodes), so one long
+# wait could outlast the signal; this is the longest delay in answering it, not a guess of how long anything takes
+JOIN_S = 0.1
 _passed: set = set()  # hold points this process went past (each holds at most once)
 
 
@@ -102,9 +105,7 @@ def call(fn, *args, **kwargs):
         except BaseException as exc:  # noqa: BLE001  handed to the caller
             out["error"] = exc
 
-    worker = threading.Thread(target=run, daemon=True)
-    worker.start()
-    worker.join()
+    _join(threading.Thread(target=run, daemon=True))
     if "error" in out:
         raise out["error"]
     return out["value"]
@@ -130,14 +131,16 @@ def hold(point: str) -> None:
         return
     sys.stderr.flush()
     os.write(2, f"vine-nlp: test hold at {point} (pid {os.getpid()})\n".encode())  # one write: a signal cannot split the line
-    # Blocks until the test opens the pipe for writing and closes it. The blocking open runs in a thread this one
-    # waits for in short joins: a signal landing after the marker but before a blocking system call begins does not
-    # interrupt that call (its handler, which raises, runs between bytecodes), so waiting in the open itself could
-    # outlast the signal until the test's own deadline (seen once in 14 runs of the suite at load 8).
-    waiter = threading.Thread(target=_wait_open, args=(fifo,), daemon=True)
-    waiter.start()
-    while waiter.is_alive():
-        waiter.join(HOLD_JOIN_S)
+    # Blocks until the test opens the pipe for writing and closes it, in a thread waited for in JOIN_S steps: a signal
+    # between the marker and a blocking open held a process until the test's deadline (once, the suite at load 8)
+    _join(threading.Thread(target=_wait_open, args=(fifo,), daemon=True))
+
+
+def _join(worker: threading.Thread) -> None:
+    """Start ``worker`` and wait for it in JOIN_S steps, so a signal's handler runs (and raises) within JOIN_S."""
+    worker.start()
+    while worker.is_alive():
+        worker.join(JOIN_S)
 
 
 def _wait_open(fifo: str) -> None:
