@@ -49,6 +49,35 @@ def report(result, units: str) -> list[str]:
     return out
 
 
+def report_several(result, units: str) -> list[str]:
+    """The lines ``vine-nlp correct`` prints for a tube of several actuators: per actuator what the estimate found (or
+    that no measurement saw it), per state the error as built and the predicted one."""
+    e, ab, c, built = result.estimate, result.as_built, result.corrected, result.built
+    s, sd = e.systematic, e.systematic_std
+    states = {m.state for m in result.measurements}
+    out = [f"estimate    {e.status}, {e.rounds} pair-and-solve rounds, {e.iterations} iterations, {e.solve_time_s:.2f} s; "
+           f"{sum(m.points.shape[0] for m in result.measurements)} points of {len(states)} state(s) ({', '.join(sorted(states))}), "
+           f"{len({m.build for m in result.measurements})} build(s)",
+           f"  fit       measured points to the estimated lines: RMSE {ab.metrics['rmse']:.4g} {units}, max {ab.metrics['max_error']:.4g} {units}",
+           f"  systematic theta offset {math.degrees(s[0]):+.3f} +- {math.degrees(sd[0]):.3f} deg, lambda offset {s[1]:+.4f} +- {sd[1]:.4f}, "
+           f"length scale {s[2]:.4f} +- {sd[2]:.4f}"]
+    for k, name in enumerate(built.names):
+        if name not in e.stats["measured"]:
+            out.append(f"  actuator {name}: not measured, kept nominal")
+            continue
+        act, d = built.lam[k] < 1, e.deviations[k]
+        dl, dt = c.lines.lam[k] - built.lam[k], np.degrees(c.lines.theta[k] - built.theta[k])
+        out.append(f"  actuator {name}: lambda deviation median {float(np.median(d.lam[act])) if act.any() else 0:+.4f} (std "
+                   f"{float(np.median(e.std[name][act, 1])) if act.any() else 0:.4f}), theta {math.degrees(float(np.median(d.theta))):+.3f} deg; "
+                   f"corrected lambda in {int(np.sum(np.abs(dl) > 1e-6))} of {int(act.sum())} actuated segments (largest "
+                   f"{float(np.max(np.abs(dl), initial=0)):.4f})" + (f", theta in {int(np.sum(np.abs(dt) > 1e-6))}" if "theta" in result.adjust else ""))
+    for st in c.state_metrics:
+        out.append(f"  state {st}{'' if st in states else ' (not measured)'}: RMSE to the target as built {ab.state_metrics[st]['rmse']:.4g} {units}, "
+                   f"corrected (predicted) {c.state_metrics[st]['rmse']:.4g} {units}")
+    out.append(f"corrected   {','.join(result.adjust)}, {c.status}{', short of the target' if c.shortfall else ''}")
+    return out
+
+
 def correction_figure(result, problem, units: str = "cm"):
     """Target, measured points, estimated as-built line and predicted corrected shape (equal axes: an out-of-plane
     error looks as large as it is), the problem's obstacles; deviations per segment."""
@@ -93,10 +122,16 @@ def cmd_correct(args) -> int:
         raise InputError("command line", "--sigma-*", "the construction-error sigmas must be > 0")
     lines = tuple(x.strip() for x in args.line.split(","))
     adjust = tuple(x.strip() for x in args.adjust.split(",")) if args.adjust else None
+    from vine_nlp.front.cli import several_actuators
+
+    several = several_actuators(args.archive)
+    if fig and several:
+        raise InputError(args.plot, "--plot", "not for an archive of several actuators yet (`vine-nlp plot OUT.h5 --run corrected` draws every state)")
     result, archive, builds, settings = correct_files(args.archive, args.measured, run=args.run, lines=lines, adjust=adjust,
-                                                      free_pose=args.free_pose, sigmas=sig, measurement_sigma=args.sigma_measurement)
+                                                      free_pose=args.free_pose, sigmas=sig, measurement_sigma=args.sigma_measurement,
+                                                      states=args.state)
     write_correction_archive(out, archive, result, builds, settings)
-    for line in report(result, archive.units):
+    for line in (report_several if several else report)(result, archive.units):
         print(line)
     print(f"archive -> {out}")
     short = shortfall(result)
