@@ -60,22 +60,23 @@ class _Model:
     def __init__(self, builds, states, measured, D, lambda_min):
         self.builds, self.states, self.D, self.measured = builds, states, D, measured
         latest = builds[-1]
-        M = latest.segments
-        self.act = actuated(latest.lam)
-        self.lam_at = [(k, j) for k in measured for j in np.flatnonzero(self.act[k])]
-        self.n = len(measured) * M + len(self.lam_at) + M + 3
+        M, Km = latest.segments, len(measured)
+        self.lam_at = [(k, j) for k in measured for j in np.flatnonzero(actuated(latest.lam[k]))]
+        self.th_idx = {k: np.arange(i * M, (i + 1) * M) for i, k in enumerate(measured)}
+        self.lam_idx = Km * M + np.arange(len(self.lam_at))
+        self.rho_idx = Km * M + len(self.lam_at) + np.arange(M)
+        self.n = Km * M + len(self.lam_at) + M + 3
         z = self.z = ca.SX.sym("z", self.n)
-        self.dth = {k: z[i * M:(i + 1) * M] for i, k in enumerate(measured)}
-        base = len(measured) * M
-        self.dlam = {kj: z[base + i] for i, kj in enumerate(self.lam_at)}
-        self.rho, self.g = z[base + len(self.lam_at): base + len(self.lam_at) + M], z[self.n - 3:]
+        self.dth = {k: z[at.tolist()] for k, at in self.th_idx.items()}
+        self.dlam = {kj: z[int(i)] for kj, i in zip(self.lam_at, self.lam_idx)}
+        self.rho, self.g = z[self.rho_idx.tolist()], z[self.n - 3:]
         # bounds: lambda of the latest build within [lambda_min, 1]; theta within +-1.45 rad; lengths within a factor 2
         lo, hi = np.full(self.n, -np.inf), np.full(self.n, np.inf)
-        for i, k in enumerate(measured):
-            lo[i * M:(i + 1) * M], hi[i * M:(i + 1) * M] = -1.45 - latest.theta[k], 1.45 - latest.theta[k]
-        for i, (k, j) in enumerate(self.lam_at):
-            lo[base + i], hi[base + i] = max(lambda_min[k], 0.05) - latest.lam[k, j], 1.0 - latest.lam[k, j]
-        lo[base + len(self.lam_at): self.n - 3], hi[base + len(self.lam_at): self.n - 3] = math.log(0.5), math.log(2.0)
+        for k, at in self.th_idx.items():
+            lo[at], hi[at] = -1.45 - latest.theta[k], 1.45 - latest.theta[k]
+        for (k, j), i in zip(self.lam_at, self.lam_idx):
+            lo[i], hi[i] = max(lambda_min[k], 0.05) - latest.lam[k, j], 1.0 - latest.lam[k, j]
+        lo[self.rho_idx], hi[self.rho_idx] = math.log(0.5), math.log(2.0)
         self.bounds, self.chains = (lo, hi), {}
 
     def lines(self, b):
@@ -144,16 +145,25 @@ def _point(D: float):
 
 
 def _deviations(z, model: _Model, latest: Lines, lambda_min) -> list:
-    K, M = latest.count, latest.segments
-    dth, dlam = np.zeros((K, M)), np.zeros((K, M))
-    f = ca.Function("parts", [model.z], [ca.vertcat(*[model.dth[k] for k in model.measured] or [ca.DM.zeros(0)]),
-                                         ca.vertcat(*[model.dlam[kj] for kj in model.lam_at] or [ca.DM.zeros(0)]), model.rho])
-    a, b, rho = (np.asarray(v, float).ravel() for v in f(z))
-    for i, k in enumerate(model.measured):
-        dth[k] = a[i * M:(i + 1) * M]
-    for i, (k, j) in enumerate(model.lam_at):
-        dlam[k, j] = b[i]
-    return [Deviations(dth[k], dlam[k], np.exp(rho), lambda_min[k]) for k in range(K)]
+    """Deviations per actuator of the parameters z (zero for an actuator no measurement saw)."""
+    dth, dlam = np.zeros(latest.theta.shape), np.zeros(latest.lam.shape)
+    for k, at in model.th_idx.items():
+        dth[k] = z[at]
+    for (k, j), i in zip(model.lam_at, model.lam_idx):
+        dlam[k, j] = z[i]
+    return [Deviations(dth[k], dlam[k], np.exp(z[model.rho_idx]), lambda_min[k]) for k in range(latest.count)]
+
+
+def _pack(model: _Model, devs: list, systematic) -> np.ndarray:
+    """The parameters of deviations per actuator and systematic parts (a warm start)."""
+    z = np.zeros(model.n)
+    for k, at in model.th_idx.items():
+        z[at] = devs[k].theta
+    z[model.lam_idx] = [devs[k].lam[j] for k, j in model.lam_at]
+    z[model.rho_idx] = np.log(devs[0].length_ratio)
+    if systematic is not None:
+        z[model.n - 3:] = systematic[0], systematic[1], math.log(systematic[2])
+    return z
 
 
 def estimate_lines(builds: list, measurements: list, states: dict, D: float, sigmas: Sigmas, lambda_min, measurement_sigma: float,
@@ -166,7 +176,7 @@ def estimate_lines(builds: list, measurements: list, states: dict, D: float, sig
     from scipy.optimize import least_squares  # SciPy loads only where a robot of several actuators is corrected
 
     t0, latest = time.perf_counter(), builds[-1]
-    K, M = latest.count, latest.segments
+    M = latest.segments
     measured = measured_actuators(latest, states, measurements)
     model = _Model(builds, states, measured, D, lambda_min)
     N = sum(len(m.points) for m in measurements)
@@ -198,16 +208,11 @@ def estimate_lines(builds: list, measurements: list, states: dict, D: float, sig
     cov = np.linalg.pinv(J.T @ J)
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     ab = realized(latest, devs)
-    std = {}
-    for k in range(K):
-        s = np.zeros((M, 3))
-        if k in measured:
-            i = measured.index(k)
-            s[:, 0] = sd[i * M:(i + 1) * M]
-            for q, (kk, j) in enumerate(model.lam_at):
-                s[j, 1] = sd[len(measured) * M + q] if kk == k else s[j, 1]
-        s[:, 2] = ab.length * sd[model.n - 3 - M: model.n - 3]
-        std[latest.names[k]] = s
+    std = {n: np.column_stack([np.zeros((M, 2)), ab.length * sd[model.rho_idx]]) for n in latest.names}
+    for k, at in model.th_idx.items():
+        std[latest.names[k]][:, 0] = sd[at]
+    for (k, j), i in zip(model.lam_at, model.lam_idx):
+        std[latest.names[k]][j, 1] = sd[i]
     # the clip at 1 hides how far beyond it an actuator's error goes: hold what may be clipped
     devs = [replace(d, held=actuated(latest.lam[k]) & (ab.lam[k] >= 1.0 - settings.HELD_SIGMAS * std[latest.names[k]][:, 1]))
             for k, d in enumerate(devs)]
@@ -219,19 +224,6 @@ def estimate_lines(builds: list, measurements: list, states: dict, D: float, sig
                     status=status, iterations=iters, solve_time_s=time.perf_counter() - t0, rounds=done,
                     stats={"measurement_sigma": measurement_sigma, "points": N, "builds": len(builds),
                            "measured": [latest.names[k] for k in measured], "free_pose": False, "pairs_moved": moved})
-
-
-def _pack(model: _Model, devs: list, systematic) -> np.ndarray:
-    M, z = len(devs[0].theta), np.zeros(model.n)
-    for i, k in enumerate(model.measured):
-        z[i * M:(i + 1) * M] = devs[k].theta
-    base = len(model.measured) * M
-    for i, (k, j) in enumerate(model.lam_at):
-        z[base + i] = devs[k].lam[j]
-    z[base + len(model.lam_at): model.n - 3] = np.log(devs[0].length_ratio)
-    if systematic is not None:
-        z[model.n - 3:] = systematic[0], systematic[1], math.log(systematic[2])
-    return z
 
 
 def _pairs(builds, devs, states, measurements, D) -> list:
