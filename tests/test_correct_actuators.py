@@ -189,7 +189,9 @@ def plain(tmp_path_factory):
     (["--state", "base", "--state", "tip"], "command line: --state", "one state for all files or one per file (1), got 2"),
     ([], "command line: --state", "one state for all files or one per file (1), got 0; the archive's states: base, tip, both"),
     (["--state", "base", "--free-pose"], "command line: --free-pose", "not for an archive of several actuators yet (measure in its frame)"),
-], ids=["unknown", "count", "missing", "free-pose"])
+    (["--state", "base", "--plot", "f.png"], "f.png: --plot", "not for an archive of several actuators yet (`vine-nlp show OUT.h5` prints "
+     "each state's error as built and corrected)"),
+], ids=["unknown", "count", "missing", "free-pose", "plot"])
 def test_bad_states_are_one_line(plain, capsys, extra, key, reason):
     out = plain / "out.h5"
     assert main(["correct", str(plain / "design.h5"), str(plain / "m.csv"), "-o", str(out), *extra]) == 2

@@ -126,7 +126,7 @@ def cmd_correct(args) -> int:
 
     several = several_actuators(args.archive)
     if fig and several:
-        raise InputError(args.plot, "--plot", "not for an archive of several actuators yet (`vine-nlp plot OUT.h5 --run corrected` draws every state)")
+        raise InputError(args.plot, "--plot", "not for an archive of several actuators yet (`vine-nlp show OUT.h5` prints each state's error as built and corrected)")
     result, archive, builds, settings = correct_files(args.archive, args.measured, run=args.run, lines=lines, adjust=adjust,
                                                       free_pose=args.free_pose, sigmas=sig, measurement_sigma=args.sigma_measurement,
                                                       states=args.state)
