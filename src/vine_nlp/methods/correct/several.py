@@ -204,9 +204,9 @@ def estimate_lines(builds: list, measurements: list, states: dict, D: float, sig
         moved = max(float(np.max(np.abs(a.l - b.l))) for a, b in zip(new, pairs))
         if moved < 1e-3 * D:
             break
-    J = jac(z).full()
-    cov = np.linalg.pinv(J.T @ J)
-    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    with blas.limited():  # the Laplace approximation: the Gauss-Newton Hessian's inverse
+        J = jac(z).full()
+        sd = np.sqrt(np.maximum(np.diag(np.linalg.pinv(J.T @ J)), 0.0))
     ab = realized(latest, devs)
     std = {n: np.column_stack([np.zeros((M, 2)), ab.length * sd[model.rho_idx]]) for n in latest.names}
     for k, at in model.th_idx.items():
