@@ -164,6 +164,8 @@ def test_a_correction_archive_chains_and_every_door_reads_it(setup, tmp_path):
     for ext in ("svg", "dxf"):
         assert run(["template", str(d / "three.h5"), "--run", "corrected", "-o", str(tmp_path / f"t.{ext}")])[0] == 0
     assert run(["export", str(d / "three.h5"), "--run", "corrected", "--state", "both", "-o", str(tmp_path / "t.stl")])[0] == 0
+    assert main(["template", str(d / "three.h5"), "--changes", "-o", str(tmp_path / "c.svg")]) == 2  # --changes: one actuator's
+    assert not (tmp_path / "c.svg").exists()
     # calibrate pools the systematic parts of correction archives of several actuators (one method, every line)
     assert run(["calibrate", str(d / "two.h5"), str(d / "one.h5"), "-o", str(tmp_path / "cal.toml")])[0] == 0
     cal = read_calibration(tmp_path / "cal.toml")
