@@ -71,7 +71,7 @@ def setup(tmp_path_factory):
     base, tip = measure(d / "base.csv", nominal, devs, problem, "base", 4), measure(d / "tip.csv", nominal, devs, problem, "tip", 5)
     out = {"dir": d, "problem": problem, "nominal": nominal, "devs": devs}
     # one state (A alone: B unmeasured), lambda only; two states, lambda and theta
-    out["one"] = run(["correct", str(d / "design.h5"), base, "--state", "base", "-o", str(d / "one.h5")])
+    out["one"] = run(["correct", str(d / "design.h5"), base, "--state", "base", "--adjust", "lambda", "-o", str(d / "one.h5")])
     out["two"] = run(["correct", str(d / "design.h5"), base, tip, "--state", "base", "--state", "tip", "--adjust", "lambda,theta",
                       "-o", str(d / "two.h5")])
     # round 2: the corrected nominal built with the same deviations, measured in the state of both actuators
@@ -116,6 +116,11 @@ def test_one_state_estimates_the_measured_actuator_and_keeps_the_other_nominal(s
     corrected = _lines(d / "one.h5", "corrected")
     assert np.array_equal(corrected.theta, nominal.theta)  # lambda alone: theta and the lengths as built
     assert np.array_equal(corrected.length, nominal.length)
+    # both routes predicted and written, the one asked for taken
+    routes = [ln for ln in text.splitlines() if "predicted RMSE" in ln]
+    assert len(routes) == 2 and "corrected   lambda (" in text
+    theta_route = _lines(d / "one.h5", "corrected_lambda_theta")
+    assert np.array_equal(_lines(d / "one.h5", "corrected_lambda").lam, corrected.lam) and not np.array_equal(theta_route.theta, nominal.theta)
 
 
 @pytest.mark.slow
@@ -142,7 +147,7 @@ def test_bounds_of_the_physical_rule_hold(setup):
     d, nominal = setup["dir"], setup["nominal"]
     none = nominal.lam >= 1
     for name in ("one.h5", "two.h5", "three.h5"):
-        for run_name in ("as_built", "corrected"):
+        for run_name in ("as_built", "corrected", "corrected_lambda", "corrected_lambda_theta"):
             lam = _lines(d / name, run_name).lam
             assert np.all(lam <= 1.0) and np.all(lam[none] == 1.0), (name, run_name)
             assert np.all(lam[~none] >= 0.4)

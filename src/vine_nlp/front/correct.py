@@ -74,7 +74,11 @@ def report_several(result, units: str) -> list[str]:
     for st in c.state_metrics:
         out.append(f"  state {st}{'' if st in states else ' (not measured)'}: RMSE to the target as built {ab.state_metrics[st]['rmse']:.4g} {units}, "
                    f"corrected (predicted) {c.state_metrics[st]['rmse']:.4g} {units}")
-    out.append(f"corrected   {','.join(result.adjust)}, {c.status}{', short of the target' if c.shortfall else ''}")
+    for k, (name, r) in enumerate(result.routes.items()):
+        out.append(f"{'' if k else 'routes':12}{name:13} {ROUTES[name]}: predicted RMSE {r.metrics['rmse']:.4g} {units} (all states)")
+    route = ",".join(result.adjust)
+    why = "recommended" if route == result.recommended else f"as asked; recommended {result.recommended}"
+    out.append(f"corrected   {route} ({why}), {c.status}{', short of the target' if c.shortfall else ''}")
     return out
 
 

@@ -119,11 +119,12 @@ def write_correction_archive(path, base: Archive, result: CorrectionResult, buil
 
 def _write_several(path, base: Archive, result: CorrectionResult, builds: list, settings: dict) -> None:
     """The correction archive of a tube of several actuators (spec "As-built correction"): ``base``'s runs (each an
-    ActuatorsResult) but a correction's, ``as_built`` and ``corrected`` in the several-actuator layout, the
+    ActuatorsResult) but a correction's, ``as_built``, ``corrected`` and both routes' in the several-actuator layout, the
     deviations and uncertainties per actuator under /runs/as_built/actuators/<name>/ and the length's under
     /runs/as_built/; /measured/<state>/points (every point of the state so far) and /measured/<state>/<k>/points;
     /correction/builds/<b>/{theta, lambda (K, M), phi0 (K,), length (M,), initial_pose}."""
     runs = {k: v for k, v in base.runs.items() if k not in RUNS} | {"as_built": result.as_built, "corrected": result.corrected}
+    runs |= {f"corrected_{name.replace(',', '_')}": r for name, r in result.routes.items()}
     extra = {k: v for k, v in base.extra.items() if k.split("/")[0] not in ("measured", "correction", "targets")}
     by_state = {}
     for m in result.measurements:

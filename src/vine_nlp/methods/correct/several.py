@@ -31,7 +31,7 @@ from vine_nlp.methods import blas, settings
 from vine_nlp.methods.actuators import ActuatorsProblem, evaluate, standard_routing
 from vine_nlp.methods.actuators_design import correction_nlp, rx
 from vine_nlp.methods.buildable import Build
-from vine_nlp.methods.correct.correction import CorrectionResult, lambda_bounds
+from vine_nlp.methods.correct.correction import ADJUST, CorrectionResult, lambda_bounds, recommend
 from vine_nlp.methods.correct.deviations import Deviations, remove_deviations
 from vine_nlp.methods.correct.estimate import Estimate, _cap
 from vine_nlp.methods.correct.pairing import LINE_SIDE, pair_with_line
@@ -274,10 +274,10 @@ def correct_lines(problem: ActuatorsProblem, est: Estimate, built: Lines, adjust
 
 def correct_several(problem: ActuatorsProblem, builds: list, measurements: list, *, adjust=None, sigmas: Sigmas | None = None,
                     measurement_sigma: float = 0.1, start=None, start_systematic=None) -> CorrectionResult:
-    """Estimate the robot built last from ``builds`` (nominal Lines, oldest first) and correct it on the route ``adjust``
-    (default lambda), no file I/O; a ``CorrectionResult`` whose runs are ``ActuatorsResult``s."""
+    """Estimate the robot built last from ``builds`` (nominal Lines, oldest first) and correct it on both routes, taking
+    ``adjust`` (None: the recommended one, ``correction.recommend``), no file I/O; a ``CorrectionResult`` whose runs are
+    ``ActuatorsResult``s."""
     t0, sigmas = time.perf_counter(), sigmas or Sigmas.from_degrees(1.0, 0.02, 0.02)
-    adjust = tuple(adjust or ("lambda",))
     lmin = [a.actuator.lambda_min for a in problem.actuators]
     est = estimate_lines(builds, measurements, problem.states, problem.diameter, sigmas, lmin, measurement_sigma, start=start,
                          start_systematic=start_systematic)
@@ -287,8 +287,16 @@ def correct_several(problem: ActuatorsProblem, builds: list, measurements: list,
     ab.metrics |= {"target_rmse": ab.metrics["rmse"], "target_max_error": ab.metrics["max_error"], "rmse": float(np.sqrt(np.mean(d**2))),
                    "max_error": float(d.max())}
     ab.shortfall = ()
+    routes = {",".join(r): _route(problem, est, builds[-1], r, settings.THETA_TRUST * sigmas.theta) for r in ADJUST}
+    ab.stats["total_time_s"] = time.perf_counter() - t0
+    return recommend(CorrectionResult(builds[-1], ab, None, est, list(measurements), (), routes), adjust)
+
+
+def _route(problem: ActuatorsProblem, est: Estimate, built: Lines, adjust, trust: float):
+    """One route's correction (an ActuatorsResult: the nominal to build, its predicted shapes), judged by
+    ``correction_missed`` per measured actuator."""
     t1 = time.perf_counter()
-    nominal, pred, status, st = correct_lines(problem, est, builds[-1], adjust, settings.THETA_TRUST * sigmas.theta)
+    nominal, pred, status, st = correct_lines(problem, est, built, adjust, trust)
     res = evaluate(problem, pred, "corrected", status=status, iterations=st.pop("iterations"),
                    stats=st | {"adjust": ",".join(adjust), "shape": "predicted as built", "states": {s: list(a) for s, a in problem.states.items()}})
     res.lines, res.routing = nominal, standard_routing(nominal)
@@ -298,7 +306,6 @@ def correct_several(problem: ActuatorsProblem, builds: list, measurements: list,
             b = Build.of(line_problem(problem, k))
             one = Routing(theta=nominal.theta[k], lam=nominal.lam[k], length=nominal.length)
             res.shortfall += tuple(f"actuator {name}: not buildable: {line}"
-                                   for line in correction_missed(one, builds[-1].lam[k], b.D, b.kind, b.lambda_min, b.min_feature, problem.units))
-    res.solve_time_s, ab.stats["total_time_s"] = time.perf_counter() - t1, time.perf_counter() - t0
-    route = ",".join(adjust)
-    return CorrectionResult(builds[-1], ab, res, est, list(measurements), adjust, {route: res}, route)
+                                   for line in correction_missed(one, built.lam[k], b.D, b.kind, b.lambda_min, b.min_feature, problem.units))
+    res.solve_time_s = time.perf_counter() - t1
+    return res
