@@ -22,7 +22,6 @@ ROUTES = {"lambda": "stoppers or pouches on this robot", "lambda,theta": "the li
 def report(result, units: str) -> list[str]:
     """The lines ``vine-nlp correct`` prints."""
     e, ab, c = result.estimate, result.as_built, result.corrected
-    s, sd = e.systematic, e.systematic_std
     M = e.routing.segments
     dl, dt = c.routing.lam - result.built.lam, np.degrees(c.routing.theta - result.built.theta)
     route = ",".join(result.adjust)
@@ -31,15 +30,11 @@ def report(result, units: str) -> list[str]:
         f"{sum(m.points.shape[0] for m in result.measurements)} points of {len({m.build for m in result.measurements})} build(s)",
         f"  fit       measured points to the estimated line: RMSE {ab.metrics['rmse']:.4g} {units}, max {ab.metrics['max_error']:.4g} {units}",
         f"  built     error to the target as built: RMSE {ab.metrics['target_rmse']:.4g} {units}, max {ab.metrics['target_max_error']:.4g} {units}",
-        f"  systematic theta offset {math.degrees(s[0]):+.3f} +- {math.degrees(sd[0]):.3f} deg, lambda offset {s[1]:+.4f} +- {sd[1]:.4f}, "
-        f"length scale {s[2]:.4f} +- {sd[2]:.4f}",
+        _systematic(e),
         f"  per segment (median std): theta {math.degrees(float(np.median(e.std[:, 0]))):.3f} deg, lambda {float(np.median(e.std[:, 1])):.4f}, "
         f"length {float(np.median(e.std[:, 2])):.4g} {units}",
+        *_routes(result, units),
     ]
-    for k, (name, r) in enumerate(result.routes.items()):
-        free = r.metrics.get("rmse_without_bounds")
-        out.append(f"{'' if k else 'routes':12}{name:13} {ROUTES[name]}: predicted RMSE {r.metrics['rmse']:.4g} {units}, max "
-                   f"{r.metrics['max_error']:.4g} {units}" + (f" ({free:.4g} {units} without the bounds)" if free is not None else ""))
     why = "recommended" if route == result.recommended else f"as asked; recommended {result.recommended}"
     held = e.deviations.held if e.deviations.held is not None else np.zeros(M, bool)
     out.append(f"corrected   {route} ({why}), {c.status}{', short of the target' if c.shortfall else ''}: lambda changed in "
@@ -49,18 +44,31 @@ def report(result, units: str) -> list[str]:
     return out
 
 
+def _systematic(e) -> str:
+    s, sd = e.systematic, e.systematic_std
+    return (f"  systematic theta offset {math.degrees(s[0]):+.3f} +- {math.degrees(sd[0]):.3f} deg, lambda offset {s[1]:+.4f} +- {sd[1]:.4f}, "
+            f"length scale {s[2]:.4f} +- {sd[2]:.4f}")
+
+
+def _routes(result, units: str) -> list[str]:
+    out = []
+    for k, (name, r) in enumerate(result.routes.items()):
+        free = r.metrics.get("rmse_without_bounds")
+        out.append(f"{'' if k else 'routes':12}{name:13} {ROUTES[name]}: predicted RMSE {r.metrics['rmse']:.4g} {units}, max "
+                   f"{r.metrics['max_error']:.4g} {units}" + (f" ({free:.4g} {units} without the bounds)" if free is not None else ""))
+    return out
+
+
 def report_several(result, units: str) -> list[str]:
     """The lines ``vine-nlp correct`` prints for a tube of several actuators: per actuator what the estimate found (or
     that no measurement saw it), per state the error as built and the predicted one."""
     e, ab, c, built = result.estimate, result.as_built, result.corrected, result.built
-    s, sd = e.systematic, e.systematic_std
     states = {m.state for m in result.measurements}
     out = [f"estimate    {e.status}, {e.rounds} pair-and-solve rounds, {e.iterations} iterations, {e.solve_time_s:.2f} s; "
            f"{sum(m.points.shape[0] for m in result.measurements)} points of {len(states)} state(s) ({', '.join(sorted(states))}), "
            f"{len({m.build for m in result.measurements})} build(s)",
            f"  fit       measured points to the estimated lines: RMSE {ab.metrics['rmse']:.4g} {units}, max {ab.metrics['max_error']:.4g} {units}",
-           f"  systematic theta offset {math.degrees(s[0]):+.3f} +- {math.degrees(sd[0]):.3f} deg, lambda offset {s[1]:+.4f} +- {sd[1]:.4f}, "
-           f"length scale {s[2]:.4f} +- {sd[2]:.4f}"]
+           _systematic(e)]
     for k, name in enumerate(built.names):
         if name not in e.stats["measured"]:
             out.append(f"  actuator {name}: not measured, kept nominal")
@@ -74,8 +82,7 @@ def report_several(result, units: str) -> list[str]:
     for st in c.state_metrics:
         out.append(f"  state {st}{'' if st in states else ' (not measured)'}: RMSE to the target as built {ab.state_metrics[st]['rmse']:.4g} {units}, "
                    f"corrected (predicted) {c.state_metrics[st]['rmse']:.4g} {units}")
-    for k, (name, r) in enumerate(result.routes.items()):
-        out.append(f"{'' if k else 'routes':12}{name:13} {ROUTES[name]}: predicted RMSE {r.metrics['rmse']:.4g} {units} (all states)")
+    out += _routes(result, units)
     route = ",".join(result.adjust)
     why = "recommended" if route == result.recommended else f"as asked; recommended {result.recommended}"
     out.append(f"corrected   {route} ({why}), {c.status}{', short of the target' if c.shortfall else ''}")
