@@ -39,3 +39,25 @@ def draw_deviations(nominal: Routing, sigmas: Sigmas, systematic=(0.0, 0.0, 0.0)
     sl = sigmas.length if sigmas.relative_length else sigmas.length / nominal.length
     return Deviations(systematic[0] + sigmas.theta * e[:, 0], systematic[1] + sigmas.lam * e[:, 1],
                       systematic[2] * (1.0 + sl * e[:, 2]), lambda_min)
+
+
+def simulate_state(nominal, devs, D: float, active, state: str = "", line: str = "outer", count: int = 300, noise: float = 0.0,
+                   seed: int = 0) -> np.ndarray:
+    """``simulate_build`` of a tube of several actuators (model.actuators.Lines ``nominal``, Deviations per actuator, the
+    length ratio shared) in the state whose actuators ``active`` are pulled."""
+    from vine_nlp.methods.correct.several import realized
+    from vine_nlp.model.actuators import state_line
+
+    built = realized(nominal, devs)
+    cum = np.concatenate([[0.0], np.cumsum(built.length)])
+    l = np.linspace(0.0, cum[-1], count)
+    j = np.clip(np.searchsorted(cum, l, side="right") - 1, 0, built.segments - 1)
+    P, _ = state_line(built, D, active, state)(j, np.clip((l - cum[j]) / built.length[j], 0.0, 1.0), LINE_SIDE[line])
+    rng = np.random.default_rng(seed)
+    return (P + noise * rng.standard_normal(P.shape))[rng.permutation(count)]
+
+
+def draw_line_deviations(nominal, sigmas: Sigmas, systematic=(0.0, 0.0, 0.0), seed: int = 0, lambda_min=0.4) -> list:
+    """``draw_deviations`` per actuator of ``nominal`` (Lines), one length ratio for the tube."""
+    devs = [draw_deviations(nominal.routing(k), sigmas, systematic, seed + 7 * k, lambda_min=lambda_min) for k in range(nominal.count)]
+    return [Deviations(d.theta, d.lam, devs[0].length_ratio, d.lambda_min) for d in devs]

@@ -72,7 +72,7 @@ def design(tmp_path_factory):
     ls = lines()
     problem = ActuatorsProblem("d", D, (Line("A"), Line("B")), STATES, targets=sample_states(ls, D, STATES, 41), units="cm")
     result = evaluate(problem, ls, status="optimal")
-    write_actuators_archive(path, ProblemFile(str(path), "# made by the test\n", "actuators", "d", "cm", problem), "nlp", result)
+    write_actuators_archive(path, ProblemFile(str(path), "# made by the test\n", "actuators", "d", "cm", problem), {"nlp": result})
     return path
 
 

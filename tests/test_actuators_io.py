@@ -139,15 +139,18 @@ def test_a_design_short_of_its_tolerance_is_written_with_its_status_and_rerun_fo
         assert np.allclose(back.shapes[s].center, fwd.shapes[s].center, atol=1e-12)
 
 
-@pytest.mark.parametrize("command", [["correct", "m.csv", "-o", "c.h5"], ["calibrate", "-o", "c.toml"]], ids=lambda c: c[0])
-def test_commands_of_one_actuator_refuse_an_archive_of_several(tmp_path, command, capsys):
+@pytest.mark.parametrize("command, message", [
+    (["correct", "m.csv", "-o", "c.h5"], "/problem@kind: correct needs a design archive with a target (this is 'actuators-forward')"),
+    (["calibrate", "-o", "c.toml"], "/correction: not a correction archive (made by vine-nlp correct)"),
+], ids=["correct", "calibrate"])
+def test_correct_and_calibrate_of_a_forward_archive_of_several_are_one_line(tmp_path, command, message, capsys):
+    """correct and calibrate read archives of several actuators (tests/test_correct_actuators.py); a forward one is
+    no design and no correction: one line, exit 2, nothing written."""
     from vine_nlp.front.cli import main
 
     r, out, _ = _run(tmp_path, FORWARD)
     assert r.returncode == 0
     argv = [command[0], str(out), *[str(tmp_path / a) if "." in a else a for a in command[1:]]]
     assert main(argv) == 2
-    err = capsys.readouterr().err
-    assert err == (f"error: {out}: kind: an archive of several actuators: `{command[0]}` reads one actuator's routing and "
-                   "does not take it yet (show, plot, template, view, animate, export, analyze and forward --run do)\n")
+    assert capsys.readouterr().err == f"error: {out}: {message}\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["o.h5", "p.toml"]

@@ -452,7 +452,7 @@ def load(path) -> Project:
 
 
 def correct(archive, measured, *, run=None, lines=("outer",), adjust=None, free_pose=False, sigmas=None,
-            measurement_sigma=None, output=None):
+            measurement_sigma=None, output=None, states=None):
     """Measure-and-correct a built robot (``vine-nlp correct``): estimate what was built, then the routing to build next.
 
     Parameters
@@ -476,6 +476,9 @@ def correct(archive, measured, *, run=None, lines=("outer",), adjust=None, free_
         Standard deviation of the measurement noise, in the archive's units.
     output : str or Path, optional
         Where to write the correction archive (``/runs/as_built``, ``/runs/corrected``, every measurement).
+    states : list of str, optional
+        An archive of several actuators: the state each measurement was taken in, one per measurement or one for all
+        (``--state``; not needed where the archive has one state).
 
     Returns
     -------
@@ -488,7 +491,8 @@ def correct(archive, measured, *, run=None, lines=("outer",), adjust=None, free_
     vine_nlp.errors.InputError
         A bad archive or measurement file, an unknown run, mismatched lines (the command line's errors).
     """
-    kw = dict(run=run, lines=tuple(lines), adjust=adjust and tuple(adjust), free_pose=free_pose, sigmas=sigmas, measurement_sigma=measurement_sigma)
+    kw = dict(run=run, lines=tuple(lines), adjust=adjust and tuple(adjust), free_pose=free_pose, sigmas=sigmas, measurement_sigma=measurement_sigma,
+              states=states)
     if output is not None:
         return correct_to_file(archive, list(measured), output, **kw)
     return correct_files(archive, list(measured), **kw)[0]

@@ -19,6 +19,8 @@ TOL = 1e-9
 
 def built_nominal(archive):
     """The nominal last built, from a correction archive's /correction/builds (ValueError when there is none)."""
+    if archive.kind.startswith("actuators"):
+        raise ValueError("for one actuator (an archive of several: `template --run corrected` draws the corrected lines)")
     b = 0
     while f"correction/builds/{b}/lambda" in archive.extra:
         b += 1

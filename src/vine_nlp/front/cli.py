@@ -422,6 +422,7 @@ def _add_correct_arguments(p) -> None:
     p.add_argument("--line", default="outer", metavar="LINE[,LINE...]", help="measured line: center, inner or outer; one per file or one for all (default outer)")
     p.add_argument("--adjust", choices=("lambda", "lambda,theta"), metavar="lambda|lambda,theta", help="the route taken as /runs/corrected: lambda (stoppers or pouches on this robot) or lambda,theta (the line drawn anew on a new tube); default: the recommended one (both are predicted)")
     p.add_argument("--free-pose", action="store_true", help="the measurement is in an unknown frame: estimate its rigid pose")
+    p.add_argument("--state", action="append", type=ff.run_name, metavar="NAME", help="several actuators: the state a MEASURED file was measured in; once per file, in order, or once for all (optional where the archive has one state)")
     add_sigma_args(p)
     p.add_argument("--sigma-measurement", type=ff.bounded(0, limits.MAX_COORDINATE, above=True), metavar="S", help="measurement noise, in units (default 1 mm)")
     p.add_argument("--plot", metavar="FIG.png", help="measured, estimated and corrected shapes; deviations per segment")
@@ -582,9 +583,6 @@ def _commands(parser) -> str:
 
 
 # commands that read one actuator's routing from an archive: not yet for archives of several actuators (io.actuators)
-ONE_ACTUATOR = ("correct", "calibrate")
-
-
 def several_actuators(path) -> bool:
     """Whether ``path`` is an archive of several actuators: its kind attribute alone (the command reads and checks
     the whole archive next)."""
@@ -597,12 +595,7 @@ def several_actuators(path) -> bool:
 
 
 def _one_actuator_only(args) -> None:
-    """One error line, before any work, for a command that cannot read an archive of several actuators yet, and
-    for --state on an archive of one actuator."""
-    for path in [getattr(args, "archive", None), *(getattr(args, "archives", None) or [])] if args.command in ONE_ACTUATOR else ():
-        if several_actuators(path):
-            raise InputError(path, "kind", f"an archive of several actuators: `{args.command}` reads one actuator's routing and does "
-                             "not take it yet (show, plot, template, view, animate, export, analyze and forward --run do)")
+    """One error line, before any work, for --state on an archive of one actuator."""
     path = getattr(args, "archive", None) or getattr(args, "source", None)
     if getattr(args, "state", None) is not None and Path(path).is_file() and not several_actuators(path):
         raise InputError(path, "--state", "an archive of one actuator has no states (--state is for archives of several actuators)")

@@ -22,7 +22,6 @@ ROUTES = {"lambda": "stoppers or pouches on this robot", "lambda,theta": "the li
 def report(result, units: str) -> list[str]:
     """The lines ``vine-nlp correct`` prints."""
     e, ab, c = result.estimate, result.as_built, result.corrected
-    s, sd = e.systematic, e.systematic_std
     M = e.routing.segments
     dl, dt = c.routing.lam - result.built.lam, np.degrees(c.routing.theta - result.built.theta)
     route = ",".join(result.adjust)
@@ -31,21 +30,62 @@ def report(result, units: str) -> list[str]:
         f"{sum(m.points.shape[0] for m in result.measurements)} points of {len({m.build for m in result.measurements})} build(s)",
         f"  fit       measured points to the estimated line: RMSE {ab.metrics['rmse']:.4g} {units}, max {ab.metrics['max_error']:.4g} {units}",
         f"  built     error to the target as built: RMSE {ab.metrics['target_rmse']:.4g} {units}, max {ab.metrics['target_max_error']:.4g} {units}",
-        f"  systematic theta offset {math.degrees(s[0]):+.3f} +- {math.degrees(sd[0]):.3f} deg, lambda offset {s[1]:+.4f} +- {sd[1]:.4f}, "
-        f"length scale {s[2]:.4f} +- {sd[2]:.4f}",
+        _systematic(e),
         f"  per segment (median std): theta {math.degrees(float(np.median(e.std[:, 0]))):.3f} deg, lambda {float(np.median(e.std[:, 1])):.4f}, "
         f"length {float(np.median(e.std[:, 2])):.4g} {units}",
+        *_routes(result, units),
     ]
-    for k, (name, r) in enumerate(result.routes.items()):
-        free = r.metrics.get("rmse_without_bounds")
-        out.append(f"{'' if k else 'routes':12}{name:13} {ROUTES[name]}: predicted RMSE {r.metrics['rmse']:.4g} {units}, max "
-                   f"{r.metrics['max_error']:.4g} {units}" + (f" ({free:.4g} {units} without the bounds)" if free is not None else ""))
     why = "recommended" if route == result.recommended else f"as asked; recommended {result.recommended}"
     held = e.deviations.held if e.deviations.held is not None else np.zeros(M, bool)
     out.append(f"corrected   {route} ({why}), {c.status}{', short of the target' if c.shortfall else ''}: lambda changed in "
                f"{int(np.sum(np.abs(dl) > 1e-6))} of {M} segments (largest {float(np.max(np.abs(dl), initial=0)):.4f}; "
                f"{int(held.sum())} held: built against 1, their error beyond it unknown)"
                + (f", theta in {int(np.sum(np.abs(dt) > 1e-6))} (largest {float(np.max(np.abs(dt), initial=0)):.2f} deg)" if "theta" in route else ""))
+    return out
+
+
+def _systematic(e) -> str:
+    s, sd = e.systematic, e.systematic_std
+    return (f"  systematic theta offset {math.degrees(s[0]):+.3f} +- {math.degrees(sd[0]):.3f} deg, lambda offset {s[1]:+.4f} +- {sd[1]:.4f}, "
+            f"length scale {s[2]:.4f} +- {sd[2]:.4f}")
+
+
+def _routes(result, units: str) -> list[str]:
+    out = []
+    for k, (name, r) in enumerate(result.routes.items()):
+        free = r.metrics.get("rmse_without_bounds")
+        out.append(f"{'' if k else 'routes':12}{name:13} {ROUTES[name]}: predicted RMSE {r.metrics['rmse']:.4g} {units}, max "
+                   f"{r.metrics['max_error']:.4g} {units}" + (f" ({free:.4g} {units} without the bounds)" if free is not None else ""))
+    return out
+
+
+def report_several(result, units: str) -> list[str]:
+    """The lines ``vine-nlp correct`` prints for a tube of several actuators: per actuator what the estimate found (or
+    that no measurement saw it), per state the error as built and the predicted one."""
+    e, ab, c, built = result.estimate, result.as_built, result.corrected, result.built
+    states = {m.state for m in result.measurements}
+    out = [f"estimate    {e.status}, {e.rounds} pair-and-solve rounds, {e.iterations} iterations, {e.solve_time_s:.2f} s; "
+           f"{sum(m.points.shape[0] for m in result.measurements)} points of {len(states)} state(s) ({', '.join(sorted(states))}), "
+           f"{len({m.build for m in result.measurements})} build(s)",
+           f"  fit       measured points to the estimated lines: RMSE {ab.metrics['rmse']:.4g} {units}, max {ab.metrics['max_error']:.4g} {units}",
+           _systematic(e)]
+    for k, name in enumerate(built.names):
+        if name not in e.stats["measured"]:
+            out.append(f"  actuator {name}: not measured, kept nominal")
+            continue
+        act, d = built.lam[k] < 1, e.deviations[k]
+        dl, dt = c.lines.lam[k] - built.lam[k], np.degrees(c.lines.theta[k] - built.theta[k])
+        out.append(f"  actuator {name}: lambda deviation median {float(np.median(d.lam[act])) if act.any() else 0:+.4f} (std "
+                   f"{float(np.median(e.std[name][act, 1])) if act.any() else 0:.4f}), theta {math.degrees(float(np.median(d.theta))):+.3f} deg; "
+                   f"corrected lambda in {int(np.sum(np.abs(dl) > 1e-6))} of {int(act.sum())} actuated segments (largest "
+                   f"{float(np.max(np.abs(dl), initial=0)):.4f})" + (f", theta in {int(np.sum(np.abs(dt) > 1e-6))}" if "theta" in result.adjust else ""))
+    for st in c.state_metrics:
+        out.append(f"  state {st}{'' if st in states else ' (not measured)'}: RMSE to the target as built {ab.state_metrics[st]['rmse']:.4g} {units}, "
+                   f"corrected (predicted) {c.state_metrics[st]['rmse']:.4g} {units}")
+    out += _routes(result, units)
+    route = ",".join(result.adjust)
+    why = "recommended" if route == result.recommended else f"as asked; recommended {result.recommended}"
+    out.append(f"corrected   {route} ({why}), {c.status}{', short of the target' if c.shortfall else ''}")
     return out
 
 
@@ -93,10 +133,16 @@ def cmd_correct(args) -> int:
         raise InputError("command line", "--sigma-*", "the construction-error sigmas must be > 0")
     lines = tuple(x.strip() for x in args.line.split(","))
     adjust = tuple(x.strip() for x in args.adjust.split(",")) if args.adjust else None
+    from vine_nlp.front.cli import several_actuators
+
+    several = several_actuators(args.archive)
+    if fig and several:
+        raise InputError(args.plot, "--plot", "not for an archive of several actuators yet (`vine-nlp show OUT.h5` prints each state's error as built and corrected)")
     result, archive, builds, settings = correct_files(args.archive, args.measured, run=args.run, lines=lines, adjust=adjust,
-                                                      free_pose=args.free_pose, sigmas=sig, measurement_sigma=args.sigma_measurement)
+                                                      free_pose=args.free_pose, sigmas=sig, measurement_sigma=args.sigma_measurement,
+                                                      states=args.state)
     write_correction_archive(out, archive, result, builds, settings)
-    for line in report(result, archive.units):
+    for line in (report_several if several else report)(result, archive.units):
         print(line)
     print(f"archive -> {out}")
     short = shortfall(result)

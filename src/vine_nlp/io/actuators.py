@@ -145,31 +145,35 @@ def _design(f, data, design, name, units, diameter, lines, active, targets):
 # ---------------------------------------------------------------- archives
 
 
-def write_actuators_archive(path, problem_file, run: str, result: ActuatorsResult) -> None:
-    """Write the archive atomically: the standard part and the extension (module docstring)."""
-    problem, lines, D = problem_file.problem, result.lines, problem_file.problem.diameter
+def write_actuators_archive(path, problem_file, runs: dict, extra: dict | None = None, extend=None) -> None:
+    """Write the archive atomically: the standard part and the extension (module docstring) of every run of ``runs``
+    (name -> ActuatorsResult), ``extra`` datasets and ``extend(h5)`` (a correction's: io.correction)."""
+    problem, D = problem_file.problem, problem_file.problem.diameter
     targets = problem.targets or {}
-    extra = {f"targets/{s}/points": t for s, t in targets.items()}
-    archive = Archive(name=problem_file.name, kind=problem_file.kind, source=problem_file.source, diameter=D,
-                      units=problem_file.units, target=next(iter(targets.values()), None), runs={run: result}, extra=extra)
+    archive = Archive(name=problem_file.name, kind=problem_file.kind, source=problem_file.source, diameter=D, units=problem_file.units,
+                      target=next(iter(targets.values()), None), runs=dict(runs),
+                      extra={f"targets/{s}/points": t for s, t in targets.items()} | (extra or {}))
 
-    def extend(h5):
-        g = h5[f"runs/{run}"]
-        g.attrs["actuators"] = json.dumps(list(lines.names))
-        g.attrs["states"] = json.dumps({s: list(a) for s, a in problem.states.items()})
-        phi = lines.phi(D)
-        for k, nm in enumerate(lines.names):
-            d = g.create_group(f"actuators/{nm}/design")
-            for key, v in (("theta", lines.theta[k]), ("lambda", lines.lam[k]), ("phi", phi[k])):
-                d.create_dataset(key, data=v)
-        for s, shape in result.shapes.items():
-            sg = g.create_group(f"states/{s}")
-            for line in ("center", "inner", "outer"):
-                sg.create_dataset(f"shape/{line}", data=getattr(shape, line))
-            if s in result.state_metrics:
-                sg.create_group("metrics").attrs.update({k: float(v) for k, v in result.state_metrics[s].items()})
+    def more(h5):
+        for run, result in runs.items():
+            g, lines = h5[f"runs/{run}"], result.lines
+            g.attrs["actuators"] = json.dumps(list(lines.names))
+            g.attrs["states"] = json.dumps({s: list(a) for s, a in problem.states.items()})
+            phi = lines.phi(D)
+            for k, nm in enumerate(lines.names):
+                d = g.create_group(f"actuators/{nm}/design")
+                for key, v in (("theta", lines.theta[k]), ("lambda", lines.lam[k]), ("phi", phi[k])):
+                    d.create_dataset(key, data=v)
+            for s, shape in result.shapes.items():
+                sg = g.create_group(f"states/{s}")
+                for line in ("center", "inner", "outer"):
+                    sg.create_dataset(f"shape/{line}", data=getattr(shape, line))
+                if s in result.state_metrics:
+                    sg.create_group("metrics").attrs.update({k: float(v) for k, v in result.state_metrics[s].items()})
+        if extend is not None:
+            extend(h5)
 
-    write_archive(path, archive, extend=extend)
+    write_archive(path, archive, extend=more)
 
 
 def read_actuators_archive(path, run: str | None = None):

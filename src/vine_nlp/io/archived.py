@@ -16,6 +16,7 @@ import numpy as np
 from vine_nlp.errors import InputError
 from vine_nlp.io.problems import LoadedProblem, parse_problem
 from vine_nlp.io.validate import parse_toml
+from vine_nlp.methods.actuators import ActuatorsProblem, Line
 from vine_nlp.model.routing import MEASURED_LINES
 from vine_nlp.problem import DesignOptions, DesignProblem, FitProblem, ForwardProblem
 
@@ -58,3 +59,26 @@ def problem_of_archive(archive, runs: dict, path):
         return FitProblem(archive.name, archive.diameter, np.asarray(archive.extra["measured/points"]),
                           line if line in MEASURED_LINES else "outer", first.routing, units=archive.units)
     return LoadedProblem(name=archive.name, diameter=archive.diameter, units=archive.units, target=archive.target)
+
+
+def archived_actuators(archive, path, run) -> ActuatorsProblem:
+    """The problem of an archive of several actuators (``run``: an ActuatorsResult of it, its lines and states): the
+    stored source parsed with every state's target the archived ``/targets/<state>/points`` (module docstring); the
+    actuators' defaults where the source does not parse. InputError naming a state without an archived target."""
+    states = {s: tuple(v) for s, v in run.stats["states"].items()}
+    targets = {s: np.asarray(archive.extra[f"targets/{s}/points"], float) for s in states if f"targets/{s}/points" in archive.extra}
+    if len(targets) < len(states):
+        raise InputError(str(path), f"/targets/{next(s for s in states if s not in targets)}/points", "missing: correct needs every state's target")
+    problem = None
+    try:
+        data = parse_toml(str(path), archive.source)
+        for item in data.get("states", []):
+            if isinstance(item, dict) and item.get("name") in targets:
+                t = targets[item["name"]]
+                item["target"] = {"curve": "polyline", "control_points": t.tolist(), "samples": len(t)}
+        problem = parse_problem({k: v for k, v in data.items() if k != "calibration"}, str(path), archive.source).problem
+    except (InputError, AttributeError, TypeError):
+        pass
+    if not isinstance(problem, ActuatorsProblem) or problem.names != run.lines.names:
+        problem = ActuatorsProblem(archive.name, archive.diameter, tuple(Line(n) for n in run.lines.names), states)
+    return dataclasses.replace(problem, states=states, targets=targets, units=archive.units)

@@ -23,20 +23,25 @@ Bad files raise :class:`vine_nlp.errors.InputError` (archives: ``ArchiveError``)
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 
 import h5py
 import numpy as np
 
 from vine_nlp.errors import InputError
 from vine_nlp.io import limits
+from vine_nlp.io.actuators import write_actuators_archive
 from vine_nlp.io.archive import Archive, ArchiveError, load_archive, write_archive
 from vine_nlp.io.calibration import check_calibration
 from vine_nlp.io.data_files import check_spread, read_csv
 from vine_nlp.io.h5read import decode_attr, open_archive
 from vine_nlp.io.validate import SourceFile
-from vine_nlp.methods.correct import CorrectionResult, Measurement
+from vine_nlp.methods.actuators import ActuatorsResult
+from vine_nlp.methods.correct import CorrectionResult, Deviations, Measurement
+from vine_nlp.model.actuators import Lines
 from vine_nlp.model.routing import MEASURED_LINES, Routing
 
 FORMAT = "vine_nlp/correction"
@@ -67,7 +72,7 @@ class CorrectionState:
     systematic: np.ndarray | None = None
     systematic_std: np.ndarray | None = None
     uncertainty: dict = field(default_factory=dict)
-    deviation: dict = field(default_factory=dict)
+    deviation: dict | list | None = field(default_factory=dict)  # several actuators: Deviations per actuator, or None
 
 
 def write_correction_archive(path, base: Archive, result: CorrectionResult, builds: list, settings: dict) -> None:
@@ -75,7 +80,10 @@ def write_correction_archive(path, base: Archive, result: CorrectionResult, buil
 
     ``base``: the archive that was corrected (its target, problem and runs other than as_built and
     corrected are kept); ``builds``: the nominal of every build so far, oldest first (the last is
-    ``result.built``); ``settings``: attributes of /correction (adjust, free_pose, sigmas, built_run)."""
+    ``result.built``); ``settings``: attributes of /correction (adjust, free_pose, sigmas, built_run). A tube of
+    several actuators: :func:`_write_several`."""
+    if isinstance(result.corrected, ActuatorsResult):
+        return _write_several(path, base, result, builds, settings)
     runs = {k: v for k, v in base.runs.items() if k not in RUNS}
     runs["as_built"], runs["corrected"] = result.as_built, result.corrected
     for name, r in result.routes.items():
@@ -107,6 +115,46 @@ def write_correction_archive(path, base: Archive, result: CorrectionResult, buil
             ab.create_dataset(f"deviation/{name}", data=v)
 
     write_archive(path, archive, extend=extend)
+
+
+def _write_several(path, base: Archive, result: CorrectionResult, builds: list, settings: dict) -> None:
+    """The correction archive of a tube of several actuators (spec "As-built correction"): ``base``'s runs (each an
+    ActuatorsResult) but a correction's, ``as_built``, ``corrected`` and both routes' in the several-actuator layout, the
+    deviations and uncertainties per actuator under /runs/as_built/actuators/<name>/ and the length's under
+    /runs/as_built/; /measured/<state>/points (every point of the state so far) and /measured/<state>/<k>/points;
+    /correction/builds/<b>/{theta, lambda (K, M), phi0 (K,), length (M,), initial_pose}."""
+    runs = {k: v for k, v in base.runs.items() if k not in RUNS} | {"as_built": result.as_built, "corrected": result.corrected}
+    runs |= {f"corrected_{name.replace(',', '_')}": r for name, r in result.routes.items()}
+    extra = {k: v for k, v in base.extra.items() if k.split("/")[0] not in ("measured", "correction", "targets")}
+    by_state = {}
+    for m in result.measurements:
+        by_state.setdefault(m.state, []).append(m)
+    for st, ms in by_state.items():
+        extra[f"measured/{st}/points"] = np.concatenate([m.points for m in ms])
+        extra |= {f"measured/{st}/{k}/points": m.points for k, m in enumerate(ms)}
+    for b, r in enumerate(builds):
+        for name, v in (("theta", r.theta), ("lambda", r.lam), ("phi0", r.phi0), ("length", r.length), ("initial_pose", r.initial_pose)):
+            extra[f"correction/builds/{b}/{name}"] = v
+    est = result.estimate
+    extra |= {"correction/systematic": est.systematic, "correction/systematic_std": est.systematic_std}
+    states = result.corrected.stats["states"]
+    problem = SimpleNamespace(diameter=base.diameter, states=states, targets={st: base.extra[f"targets/{st}/points"] for st in states})
+
+    def extend(h5):
+        h5["correction"].attrs.update(format=FORMAT, builds=len(builds), systematic_names="theta_offset_rad,lambda_offset,length_scale", **settings)
+        for st, ms in by_state.items():
+            for k, m in enumerate(ms):
+                h5[f"measured/{st}/{k}"].attrs.update(line=m.line, file=m.file, build=int(m.build))
+        ab, names = h5["runs/as_built"], est.routing.names
+        for k, name in enumerate(names):
+            for key, v in (("deviation/theta", est.deviations[k].theta), ("deviation/lambda", est.deviations[k].lam),
+                           ("uncertainty/theta", est.std[name][:, 0]), ("uncertainty/lambda", est.std[name][:, 1])):
+                ab.create_dataset(f"actuators/{name}/{key}", data=v)
+        ab.create_dataset("deviation/length_ratio", data=est.deviations[0].length_ratio)
+        ab.create_dataset("uncertainty/length", data=est.std[names[0]][:, 2])
+
+    write_actuators_archive(path, SimpleNamespace(problem=problem, name=base.name, kind=base.kind, source=base.source, units=base.units),
+                            runs, extra, extend)
 
 
 def read_correction(path) -> tuple[Archive, CorrectionState | None]:
@@ -144,8 +192,9 @@ def _state(file, h5, a: Archive) -> CorrectionState:
     B = _attr(file, g, "builds", (int,))
     if not 1 <= B <= limits.MAX_RUNS:
         raise ArchiveError(file, "/correction@builds", f"must be 1..{limits.MAX_RUNS}, got {B}")
-    builds = _builds(file, a, B)
-    ms = _measurements(file, h5, a, B)
+    several = a.kind.startswith("actuators")
+    builds = _builds_several(file, h5, a, B) if several else _builds(file, a, B)
+    ms = _measurements(file, h5, a, B, several)
     attrs = {name: _attr(file, g, name, (str, int, float, bool)) for name in g.attrs}
     sysv, sys_sd = a.extra.get("correction/systematic"), a.extra.get("correction/systematic_std")
     for key, v in (("systematic", sysv), ("systematic_std", sys_sd)):
@@ -159,7 +208,7 @@ def _state(file, h5, a: Archive) -> CorrectionState:
             check_calibration(table, "")
         except InputError as e:
             raise ArchiveError(file, f"/correction/{key}", e.reason.replace("must", f"{e.key.split('.')[-1]} must", 1)) from None
-    unc, dev = _as_built_spread(file, h5, builds[0].theta.size)
+    unc, dev = _deviations_several(file, h5, builds[-1]) if several else _as_built_spread(file, h5, builds[0].theta.size)
     return CorrectionState(builds, ms, attrs, np.asarray(sysv, float), np.asarray(sys_sd, float), unc, dev)
 
 
@@ -183,26 +232,30 @@ def _builds(file, a: Archive, B: int) -> list:
     return builds
 
 
-def _measurements(file, h5, a: Archive, B: int) -> list:
-    """Every measurement kept (/measured/k), each of one of the B builds; at least one."""
-    ms, mg, k = [], h5.get("measured"), 0
-    while mg is not None and str(k) in mg:
-        node = mg[str(k)]
-        pts = a.extra.get(f"measured/{k}/points")
-        if pts is None:
-            raise ArchiveError(file, f"/measured/{k}/points", "missing")
-        line = _attr(file, node, "line", (str,))
-        if line not in MEASURED_LINES:
-            raise ArchiveError(file, f"/measured/{k}@line", f"must be one of {', '.join(MEASURED_LINES)}, got {line!r}")
-        build = _attr(file, node, "build", (int,))
-        if not 0 <= build < B:
-            raise ArchiveError(file, f"/measured/{k}@build", f"must be 0..{B - 1}, got {build}")
-        try:  # the rule of a measurement read from a file: archived, it was one
-            check_spread(file, pts.astype(float), a.diameter, MIN_MEASURED_POINTS)
-        except InputError as e:
-            raise ArchiveError(file, f"/measured/{k}/points", e.reason) from None
-        ms.append(Measurement(pts.astype(float), line, build, "archive", _attr(file, node, "file", (str,), False, "")))
-        k += 1
+def _measurements(file, h5, a: Archive, B: int, several: bool = False) -> list:
+    """Every measurement kept (/measured/k; several actuators: /measured/<state>/k), each of one of the B builds;
+    at least one."""
+    ms, top = [], h5.get("measured")
+    groups = [(st, f"measured/{st}") for st in (top if top is not None else ())] if several else [("", "measured")]
+    for state, key in groups:
+        mg, k = h5.get(key), 0
+        while isinstance(mg, h5py.Group) and str(k) in mg:
+            node, at = mg[str(k)], f"{key}/{k}"
+            pts = a.extra.get(f"{at}/points")
+            if pts is None:
+                raise ArchiveError(file, f"/{at}/points", "missing")
+            line = _attr(file, node, "line", (str,))
+            if line not in MEASURED_LINES:
+                raise ArchiveError(file, f"/{at}@line", f"must be one of {', '.join(MEASURED_LINES)}, got {line!r}")
+            build = _attr(file, node, "build", (int,))
+            if not 0 <= build < B:
+                raise ArchiveError(file, f"/{at}@build", f"must be 0..{B - 1}, got {build}")
+            try:  # the rule of a measurement read from a file: archived, it was one
+                check_spread(file, pts.astype(float), a.diameter, MIN_MEASURED_POINTS)
+            except InputError as e:
+                raise ArchiveError(file, f"/{at}/points", e.reason) from None
+            ms.append(Measurement(pts.astype(float), line, build, "archive", _attr(file, node, "file", (str,), False, ""), state))
+            k += 1
     if sum(len(m.points) for m in ms) > MAX_MEASURED_POINTS:
         raise ArchiveError(file, "/measured", f"{sum(len(m.points) for m in ms)} measured points in all: at most {MAX_MEASURED_POINTS}")
     if not ms:
@@ -225,3 +278,40 @@ def _as_built_spread(file, h5, M: int) -> tuple[dict, dict]:
                     raise ArchiveError(file, f"/runs/as_built/{grp}/{n}", f"must be {M} finite values")
                 out[n] = v
     return unc, dev
+
+
+def _builds_several(file, h5, a: Archive, B: int) -> list:
+    """The B nominal Lines built so far (/correction/builds/b: theta and lambda (K, M), phi0 (K,), length (M,))."""
+    try:
+        names = tuple(json.loads(decode_attr(h5["runs/as_built"].attrs["actuators"])))
+    except (KeyError, ValueError, TypeError):
+        raise ArchiveError(file, "/runs/as_built@actuators", "missing or not the JSON list of the actuators") from None
+    builds = []
+    for b in range(B):
+        key = f"correction/builds/{b}"
+        try:
+            theta, lam, phi0, length, pose = (a.extra[f"{key}/{n}"].astype(float) for n in ("theta", "lambda", "phi0", "length", "initial_pose"))
+        except KeyError as exc:
+            raise ArchiveError(file, f"/{key}", f"missing {exc.args[0].rsplit('/', 1)[-1]}") from None
+        M = builds[0].segments if builds else length.size
+        if theta.shape != (len(names), M) or lam.shape != theta.shape or phi0.shape != (len(names),) or length.shape != (M,) or pose.shape != (4, 4):
+            raise ArchiveError(file, f"/{key}", f"theta and lambda need ({len(names)}, {M}) values, phi0 one per actuator, length one per segment (the same in every build), initial_pose 4 x 4")
+        if np.any(length <= 0) or np.any(lam <= 0) or np.any(lam > 1):
+            raise ArchiveError(file, f"/{key}", "lengths must be > 0 and lambdas in (0, 1]")
+        builds.append(Lines(names, theta, lam, phi0, length, pose))
+    return builds
+
+
+def _deviations_several(file, h5, latest: Lines) -> tuple[dict, list | None]:
+    """The as-built estimate's deviations per actuator (Deviations, the length ratio shared), None where not stored."""
+    ab, M = h5.get("runs/as_built"), latest.segments
+    at = [f"actuators/{n}/deviation/{q}" for n in latest.names for q in ("theta", "lambda")] + ["deviation/length_ratio"]
+    if ab is None or any(k not in ab for k in at):
+        return {}, None
+    v = {}
+    for k in at:
+        v[k] = np.asarray(ab[k][()], float)
+        if v[k].shape != (M,) or not np.all(np.isfinite(v[k])):
+            raise ArchiveError(file, f"/runs/as_built/{k}", f"must be {M} finite values")
+    ratio = v["deviation/length_ratio"]
+    return {}, [Deviations(v[f"actuators/{n}/deviation/theta"], v[f"actuators/{n}/deviation/lambda"], ratio) for n in latest.names]

@@ -72,7 +72,7 @@ def declared(problem: ActuatorsProblem, M: int) -> tuple:
             LENGTH, Var("b", lambda a, ref: (np.arange(ref.size) == ref.size - 1, 1.0), size=S)), SimpleNamespace(**per)
 
 
-def _rx(a):
+def rx(a):
     c, s = ca.cos(a), ca.sin(a)
     return ca.vertcat(ca.horzcat(1, 0, 0), ca.horzcat(0, c, -s), ca.horzcat(0, s, c))
 
@@ -86,10 +86,10 @@ def local_motion(th, lam, ph, dl, u):
         Rs, ps = twist_parts(kc, tc, u * dl * lc)
         if i:
             p = p + ca.mtimes(R, ca.vertcat(-u * dl, 0, 0))
-        Rin = _rx(ph[i])
+        Rin = rx(ph[i])
         out = ph[i] + 2 * ca.tan(th[i]) * u * dl
         p = p + ca.mtimes(R, ca.mtimes(Rin, ca.vertcat(*ps)))
-        R = ca.mtimes(R, ca.mtimes(ca.mtimes(Rin, ca.vertcat(*[ca.horzcat(*r) for r in Rs])), _rx(-out)))
+        R = ca.mtimes(R, ca.mtimes(ca.mtimes(Rin, ca.vertcat(*[ca.horzcat(*r) for r in Rs])), rx(-out)))
     return R, p
 
 
@@ -169,9 +169,13 @@ class _NLP:
             self.solvers[features] = ca.nlpsol("actuators", "ipopt", self.nlp | {"g": g}, self.opts)
         return self.solvers[features]
 
+    def at(self, name: str) -> np.ndarray:
+        """Where a declared variable lives in x, a row per line (state, for the pairing): (K, M)."""
+        return self.lay.var[name].reshape(self.M, -1).T
+
     def get(self, x, name: str) -> np.ndarray:
         """A declared variable of a solution x, a row per line (state, for the pairing): (K, M)."""
-        return np.asarray(x)[self.lay.var[name].reshape(self.M, -1)].T
+        return np.asarray(x)[self.at(name)]
 
     def pairing(self, x) -> np.ndarray:
         """(M+1, S) each segment's ends as fractions of each state's target chord."""
@@ -228,14 +232,8 @@ def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> Ac
     B = np.asarray(o.base_pose, float) if o.base == "fixed" else guess.initial_pose
     guess = Lines(guess.names, guess.theta, guess.lam, guess.phi0, guess.length, B)
     nlp = _NLP(problem, M, B[:3, :3], guess.length / D)
-    lay, frames = nlp.lay, _rollout(problem, guess, D)
-    x0 = lay.pack_x(frames, poses=np.r_[0.0, 0.0, 0.0, B[:3, 3] / D], globals_=guess.phi0, theta=guess.theta.T, lam=guess.lam.T,
-                    phi=guess.phi(D)[:, 1:].T, length=guess.length / D, b=np.column_stack([c[n::n] for c in _fractions(problem, guess, n)]))
-    lims = declared(problem, M)[1]
-    lbx, ubx = lay.bounds(X0=frames[:, :, 0], **box(lims, np.full(M, guess.length.mean() / D), lay.variables))
-    lbx[lay.X[0]] = ubx[lay.X[0]] = frames[:, :, 0]  # each state's first frame: the base (fixed) or unused (a free base's pose)
-    lbx[lay.globals[0]] = ubx[lay.globals[0]] = 0.0  # the first line starts at phi = 0
-    L, lmin = lay.var["lam"].reshape(M, -1).T, np.reshape(lims.lambda_min, (M, K))[0]  # L: (K, M) where each lambda lives
+    x0, lbx, ubx, lims = start(problem, nlp, guess)
+    L, lmin = nlp.at("lam"), np.reshape(lims.lambda_min, (M, K))[0]  # L: (K, M) where each lambda lives
     iters, status, rounds, lbg = 0, "optimal", 0, nlp.lbg
     stages = ["relaxed"] + (["assigned"] if nlp.exclusive else []) + (["margin"] if o.correction_margin > 0 else [])
     for stage in stages:
@@ -258,6 +256,39 @@ def design_actuators(problem: ActuatorsProblem, starts: int | None = None) -> Ac
     lines = unwound(_lines(nlp, problem, x0, B), D, o.base == "fixed", np.reshape(lims.theta_max, (M, K))[0])
     return evaluate(problem, lines, "nlp", bounds=nlp.pairing(x0).T, status=status,
                     solve_time_s=time.perf_counter() - t0, iterations=iters, stats=stats)
+
+
+def start(problem: ActuatorsProblem, nlp: _NLP, lines: Lines):
+    """(x0, lbx, ubx, the lines' bounds): the NLP's start at ``lines`` (its base the pose's) and the declared variables'
+    bounds, each state's first frame fixed at the base and the first line's phi_k[0] at 0."""
+    D, M, n, lay = problem.diameter, nlp.M, problem.options.points_per_segment, nlp.lay
+    frames, B = _rollout(problem, lines, D), lines.initial_pose
+    x0 = lay.pack_x(frames, poses=np.r_[0.0, 0.0, 0.0, B[:3, 3] / D], globals_=lines.phi0, theta=lines.theta.T, lam=lines.lam.T,
+                    phi=lines.phi(D)[:, 1:].T, length=lines.length / D, b=np.column_stack([c[n::n] for c in _fractions(problem, lines, n)]))
+    lims = declared(problem, M)[1]
+    lbx, ubx = lay.bounds(X0=frames[:, :, 0], **box(lims, np.full(M, lines.length.mean() / D), lay.variables))
+    lbx[lay.X[0]] = ubx[lay.X[0]] = frames[:, :, 0]  # each state's first frame: the base (fixed) or unused (a free base's pose)
+    lbx[lay.globals[0]] = ubx[lay.globals[0]] = 0.0  # the first line starts at phi = 0
+    return x0, lbx, ubx, lims
+
+
+def correction_nlp(problem: ActuatorsProblem, lines: Lines, bounds: dict):
+    """(realized Lines, status, stats) of the NLP from ``lines`` with the base, the lengths and every phi_k[0] fixed;
+    line k's theta and lambda within ``bounds[k]`` = ((lo, hi) of theta, (lo, hi) of lambda), fixed for a line not
+    in it (the correction of a built robot: methods.correct.several)."""
+    t0, D = time.perf_counter(), problem.diameter
+    pf = replace(problem, options=replace(problem.options, base="fixed", base_pose=lines.initial_pose))
+    nlp = _NLP(pf, lines.segments, lines.initial_pose[:3, :3], lines.length / D)
+    x0, lbx, ubx, _ = start(pf, nlp, lines)
+    T, L = nlp.at("theta"), nlp.at("lam")
+    for at in (nlp.lay.var["length"], nlp.lay.globals, T, L):
+        lbx[at] = ubx[at] = x0[at]
+    for k, (th, lam) in bounds.items():
+        for at, (lo, hi) in ((T[k], th), (L[k], lam)):
+            lbx[at], ubx[at] = lo, hi
+            x0[at] = np.clip(x0[at], lo, hi)
+    x, status, iters, rounds = _stage(nlp, pf, x0, (lbx, ubx, nlp.lbg), 0.0, lines.initial_pose, settings.ACTUATORS_ROUNDS)
+    return _lines(nlp, pf, x, lines.initial_pose), status, {"iterations": iters, "rounds": rounds, "solve_time_s": time.perf_counter() - t0}
 
 
 def _stage(nlp: _NLP, problem, x0, box, mu, B, rounds: int):
@@ -380,4 +411,4 @@ def assign(lam: np.ndarray, exclusive) -> np.ndarray:
     return keep
 
 
-__all__ = ["design_actuators", "exclusive_pairs", "initial_lines", "assign"]
+__all__ = ["design_actuators", "correction_nlp", "exclusive_pairs", "initial_lines", "assign", "rx"]

@@ -144,6 +144,15 @@ def state_shape(lines: Lines, D: float, active, seg, frac, state: str = "") -> S
     return Shape(center, center + 0.5 * D * normal, center - 0.5 * D * normal)
 
 
+def state_line(lines: Lines, D: float, active, state: str = ""):
+    """(seg, frac, side) -> (points side D along the normal of :func:`state_shape`'s frames, their unit tangents):
+    a state's center (side 0), actuator (1/2) or opposite (-1/2) line, what a measurement of the state sees."""
+    def at(seg, frac, side):
+        world = _at(lines, D, active, seg, frac, state)[0]
+        return world[:, :3, 3] + side * D * world[:, :3, 1], world[:, :3, 0]
+    return at
+
+
 def actuator_lines(lines: Lines, D: float, active, seg, frac, state: str = "") -> dict:
     """{actuator: (P, 3)} where every actuator's line lies on the tube in a state, at the points of
     :func:`state_shape` (the material frame there turned to the line's angle around the tube)."""

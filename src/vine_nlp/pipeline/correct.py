@@ -10,14 +10,17 @@ from pathlib import Path
 import numpy as np
 
 from vine_nlp.errors import InputError
+from vine_nlp.io.actuators import read_actuators_archive
 from vine_nlp.io.archive import Archive
-from vine_nlp.io.archived import archived_problem
+from vine_nlp.io.archived import archived_actuators, archived_problem
 from vine_nlp.io.calibration import Calibration
 from vine_nlp.io.correction import MAX_MEASURED_POINTS, MIN_MEASURED_POINTS, read_correction, read_measured, write_correction_archive
 from vine_nlp.io.data_files import check_spread
+from vine_nlp.methods import settings
 from vine_nlp.methods.correct import ADJUST, Deviations, Measurement, combine_systematic, correct
+from vine_nlp.methods.correct.several import correct_several
 from vine_nlp.model.pairing import pair_points
-from vine_nlp.model.routing import MEASURED_LINES, Sigmas
+from vine_nlp.model.routing import MEASURED_LINES, Sigmas, actuated
 from vine_nlp.model.units import mm_per_unit
 from vine_nlp.pipeline.runs import judge_load
 
@@ -25,12 +28,13 @@ PLAUSIBLE_MEDIAN = 5.0  # median distance of the measured points to the estimate
 
 
 def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=None, free_pose=False, sigmas=None,
-                  measurement_sigma=None):
+                  measurement_sigma=None, states=None):
     """Read an archive (a design archive, or the path of a correction archive: its earlier measurements are used
     too, its estimate is the warm start) and the points measured on the robot built from run ``run`` (CSV files or
     (K, 3) arrays; ``lines``: one for all or one per file), estimate and correct (``adjust``: the route taken, None:
     the recommended one); no file written. Returns (CorrectionResult, base Archive, builds (Routing, oldest first),
-    the /correction attributes). Raises InputError: a bad archive or CSV, an unknown run, mismatched lines."""
+    the /correction attributes). Raises InputError: a bad archive or CSV, an unknown run, mismatched lines.
+    An archive of several actuators: ``states`` names the state of each file (or one for all): :func:`_correct_several`."""
     archive_path, archive, state, run = _built_run(archive_path, run)
     lines = tuple(lines)
     if len(lines) not in (1, len(measured)):
@@ -44,12 +48,20 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
     pts = [_points(p, k) for k, p in enumerate(measured)]
     for k, (p, f) in enumerate(zip(pts, measured)):
         check_spread(f if isinstance(f, (str, Path)) else f"measured[{k}]", p, archive.diameter, MIN_MEASURED_POINTS)
-    problem = archived_problem(archive, archive_path, run)
     mm = mm_per_unit(archive.units)  # for the default measurement sigma of 1 mm
     if measurement_sigma is None and mm is None:
         raise InputError("command line", "--sigma-measurement", f"archive units {archive.units!r}: give the measurement sigma in them")
     if measurement_sigma is not None and not measurement_sigma > 0:
         raise InputError("command line", "--sigma-measurement", f"must be > 0, got {measurement_sigma}")
+    sigmas = sigmas or Sigmas.from_degrees(1.0, 0.02, 0.02)
+    measurement_sigma = measurement_sigma or settings.DEFAULT_MEASUREMENT_SIGMA_MM / (mm or 10.0)
+    if archive.kind.startswith("actuators"):
+        if free_pose:
+            raise InputError("command line", "--free-pose", "not for an archive of several actuators yet (measure in its frame)")
+        return _correct_several(archive_path, archive, state, run, measured, pts, lines, adjust, sigmas, measurement_sigma, states)
+    if states:
+        raise InputError(archive_path, "--state", "an archive of one actuator has no states (--state is for archives of several actuators)")
+    problem = archived_problem(archive, archive_path, run)
     built = archive.runs[run].routing
     builds = (list(state.builds) if state else []) + [built]
     if any(b.segments != built.segments for b in builds):
@@ -61,7 +73,6 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
                        Path(f).name if isinstance(f, (str, Path)) else f"measured[{k}]")
            for k, (p, f) in enumerate(zip(pts, measured))]
     ms = (list(state.measurements) if state else []) + new
-    sigmas = sigmas or Sigmas.from_degrees(1.0, 0.02, 0.02)
     # round 2 and later start from the last round's estimate (its deviations and systematic parts)
     dev = state.deviation if state is not None and len(state.deviation) == 3 else None
     start = Deviations(dev["theta"], dev["lambda"], dev["length_ratio"]) if dev else None
@@ -71,10 +82,50 @@ def correct_files(archive_path, measured, *, run=None, lines=("outer",), adjust=
     if problem.load is not None:  # the robot as built and the correction to build, under the problem's [load]
         judge_load(problem, result.as_built)
         result.corrected.shortfall = tuple(result.corrected.shortfall) + tuple(judge_load(problem, result.corrected))
-    settings = {"built_run": run, "adjust": ",".join(result.adjust), "recommended": result.recommended, "free_pose": bool(free_pose), "sigma_theta_rad": sigmas.theta,
-                "sigma_lambda": sigmas.lam, "sigma_length": sigmas.length, "relative_length": bool(sigmas.relative_length),
-                "sigma_measurement": result.estimate.stats["measurement_sigma"]}
-    return result, archive, builds, settings
+    return result, archive, builds, _settings(run, result, free_pose, sigmas)
+
+
+def _settings(run, result, free_pose, sigmas) -> dict:
+    """The /correction attributes."""
+    return {"built_run": run, "adjust": ",".join(result.adjust), "recommended": result.recommended, "free_pose": bool(free_pose), "sigma_theta_rad": sigmas.theta,
+            "sigma_lambda": sigmas.lam, "sigma_length": sigmas.length, "relative_length": bool(sigmas.relative_length),
+            "sigma_measurement": result.estimate.stats["measurement_sigma"]}
+
+
+def _correct_several(path, archive, state, run, measured, pts, lines, adjust, sigmas, sigma_m, names):
+    """``correct_files`` of an archive of several actuators (spec "As-built correction"): each measurement names its
+    state (``names``: one per file, or one for all; none where the archive has one state); the runs returned in the
+    archive are ActuatorsResults, the builds Lines."""
+    runs = {r: read_actuators_archive(path, r)[1] for r in archive.runs}
+    problem = archived_actuators(archive, path, runs[run])
+    names = list(names or ())
+    if not names and len(problem.states) == 1:
+        names = list(problem.states)
+    if len(names) not in (1, len(measured)):
+        raise InputError("command line", "--state", f"one state for all files or one per file ({len(measured)}), got {len(names)}"
+                         + ("" if names else f"; the archive's states: {', '.join(problem.states)}"))
+    built = runs[run].lines
+    for s in names:
+        if s not in problem.states:
+            raise InputError(path, "--state", f"no state {s!r} (states: {', '.join(problem.states)})")
+        if not actuated(built.lam[built.index(problem.states[s])]).any():
+            raise InputError(path, "--state", f"state {s!r}: its actuators ({', '.join(problem.states[s])}) have no actuator on any "
+                             f"segment of run {run}: its shape is straight and shows no deviation")
+    builds = (list(state.builds) if state else []) + [built]
+    if any(b.segments != built.segments or b.names != built.names for b in builds):
+        raise InputError(path, f"/runs/{run}/actuators", "the builds of one robot need the same actuators and segments")
+    new = [Measurement(p, lines[0] if len(lines) == 1 else lines[k], len(builds) - 1, "archive",
+                       Path(f).name if isinstance(f, (str, Path)) else f"measured[{k}]", names[0] if len(names) == 1 else names[k])
+           for k, (p, f) in enumerate(zip(pts, measured))]
+    old = list(state.measurements) if state else []
+    if unknown := [m.state for m in old if m.state not in problem.states]:
+        raise InputError(path, f"/measured/{unknown[0]}", "a measurement of a state the archive does not have")
+    start = state.deviation if state is not None and state.deviation else None
+    result = correct_several(problem, builds, old + new, adjust=adjust, sigmas=sigmas, measurement_sigma=sigma_m, start=start,
+                             start_systematic=state.systematic if start else None)
+    _check_plausible(result, new, problem.diameter, archive.units)
+    archive.runs = runs
+    return result, archive, builds, _settings(run, result, False, sigmas)
 
 
 def _built_run(archive_path, run):
@@ -89,7 +140,7 @@ def _built_run(archive_path, run):
         if not archive_path.exists():
             raise InputError(archive_path, "ARCHIVE", "no such file")
         archive, state = read_correction(archive_path)
-    if archive.kind != "design" or archive.target is None:
+    if archive.kind not in ("design", "actuators") or archive.target is None:
         raise InputError(archive_path, "/problem@kind", f"correct needs a design archive with a target (this is {archive.kind!r})")
     if run is None:
         run = "corrected" if state is not None and "corrected" in archive.runs else archive.default_run()

@@ -115,7 +115,7 @@ class Outcome:
         if self.problem_file.kind == "multishape":
             write_multishape_archive(path, self.problem_file, self.runs["multishape"])
         elif self.problem_file.kind in ("actuators", "actuators-forward"):
-            write_actuators_archive(path, self.problem_file, self.last, self.runs[self.last])
+            write_actuators_archive(path, self.problem_file, {self.last: self.runs[self.last]})
         elif self.problem_file.kind == "tip":
             write_tip_archive(path, self.problem_file, self.runs["tip"])
         else:

@@ -166,19 +166,24 @@ def correct(problem: DesignProblem, nominals: list, measurements: list, *, adjus
     ab_res.metrics.update(rmse=float(np.sqrt(np.mean(d**2))), max_error=float(d.max()), **routing_metrics(est.routing))
     trust = THETA_TRUST * sigmas.theta if theta_trust is None else theta_trust
     routes = {",".join(r): _route(problem, pairing, est, nominals[-1], r, trust) for r in ADJUST}
-    sig_m = est.stats["measurement_sigma"]
-    lo, lt = routes["lambda"], routes["lambda,theta"]
+    moved = [replace(m, points=in_frame(m.points, m, est.transform), frame="archive", build=m.build % len(nominals)) for m in measurements]
+    ab_res.stats["total_time_s"] = time.perf_counter() - t0
+    return recommend(CorrectionResult(nominals[-1], ab_res, None, est, moved, (), routes), adjust)
+
+
+def recommend(result: CorrectionResult, adjust=None) -> CorrectionResult:
+    """``result`` with its recommended route and the route taken (``adjust``, None: the recommended one) among its
+    ``routes`` (module docstring)."""
+    lo, lt = result.routes["lambda"], result.routes["lambda,theta"]
     if lo.clear != lt.clear:
         recommended = "lambda" if lo.clear else "lambda,theta"
     else:
-        gain = lt.metrics["rmse"] * ROUTE_GAIN <= lo.metrics["rmse"] and lo.metrics["rmse"] - lt.metrics["rmse"] > sig_m
+        gain = lt.metrics["rmse"] * ROUTE_GAIN <= lo.metrics["rmse"] and lo.metrics["rmse"] - lt.metrics["rmse"] > result.estimate.stats["measurement_sigma"]
         recommended = "lambda,theta" if gain else "lambda"
     chosen = recommended if adjust is None else ",".join(adjust)
-    for name, r in routes.items():
+    for name, r in result.routes.items():
         r.stats |= {"route": name, "recommended": recommended}
-    moved = [replace(m, points=in_frame(m.points, m, est.transform), frame="archive", build=m.build % len(nominals)) for m in measurements]
-    ab_res.stats["total_time_s"] = time.perf_counter() - t0
-    return CorrectionResult(nominals[-1], ab_res, routes[chosen], est, moved, tuple(chosen.split(",")), routes, recommended)
+    return replace(result, corrected=result.routes[chosen], adjust=tuple(chosen.split(",")), recommended=recommended)
 
 
 def _route(problem, pairing, est: Estimate, built: Routing, adjust, trust) -> Result:

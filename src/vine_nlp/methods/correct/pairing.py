@@ -36,6 +36,7 @@ class Measurement:
     build: int = -1  # index into the builds; -1: the latest
     frame: str = "archive"
     file: str = ""
+    state: str = ""  # a tube of several actuators: the state it was measured in
 
     def __post_init__(self):
         object.__setattr__(self, "points", np.asarray(self.points, float).reshape(-1, 3))
@@ -66,14 +67,17 @@ class Pairs:
     point: np.ndarray  # the paired points of the model line
 
 
-def pair_with_line(points: np.ndarray, routing: Routing, D: float, side: float, per_segment: int = SAMPLES_PER_SEGMENT) -> Pairs:
+def pair_with_line(points: np.ndarray, routing: Routing, D: float, side: float, per_segment: int = SAMPLES_PER_SEGMENT, line=None) -> Pairs:
     """Pairs of measured points with the model line (``side``: offset along the normal in D): each point's place
     along the tube is the closest point of the center line (its cross-section: the line on the surface may wind
     around the tube where theta is large, and a wrong roll would pair it with the wrong turn), its pair the line's
-    point there."""
+    point there. ``line(seg, frac, side)``: (points, tangents) of another chain on the routing's lengths (a state of
+    several actuators, model.actuators.state_line); default the routing's own."""
     seg, frac = segment_end_samples(routing.length, per_segment)
-    F = chain_frames(routing.theta, routing.lam, routing.length, D, routing.initial_pose)
-    P, _ = line_points(routing, D, seg, frac, 0.0, F)
+    if line is None:
+        F = chain_frames(routing.theta, routing.lam, routing.length, D, routing.initial_pose)
+        line = lambda s, f, sd: line_points(routing, D, s, f, sd, F)  # noqa: E731
+    P, _ = line(seg, frac, 0.0)
     cum = np.concatenate([[0.0], np.cumsum(routing.length)])
     lmat = cum[seg] + frac * routing.length[seg]
     d = np.diff(P, axis=0)
@@ -92,7 +96,7 @@ def pair_with_line(points: np.ndarray, routing: Routing, D: float, side: float, 
     l = lmat[piece] + uu * (lmat[piece + 1] - lmat[piece])
     j = np.clip(np.searchsorted(cum, l, side="right") - 1, 0, routing.segments - 1)
     f = np.clip((l - cum[j]) / routing.length[j], 0.0, 1.0)
-    Pj, t = line_points(routing, D, j, f, side, F)
+    Pj, t = line(j, f, side)
     end = ((piece == 0) & (uu <= 0.0)) | ((piece == d.shape[0] - 1) & (uu >= 1.0))
     t[end] = 0.0
     return Pairs(j, f, t, l, Pj)
