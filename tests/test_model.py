@@ -5,6 +5,7 @@ import math
 import casadi as ca
 import numpy as np
 import pytest
+from paper_model import paper_segment_transform
 
 from vine_nlp.model import (
     center_rates,
@@ -19,32 +20,12 @@ from vine_nlp.model import (
 )
 from vine_nlp.model.chain import segment_end_samples
 from vine_nlp.model.helix import helix_from_curvature, helix_turns
-from vine_nlp.model.segment import assemble
 
 rng = np.random.default_rng(1)
 CASES = [(math.radians(t), lam, D) for t, lam, D in [
     (10, 0.7, 2.62), (-10, 0.7, 2.62), (2.5, 0.4, 2.62), (50, 0.75, 2.62), (59.9, 0.45, 3.3),
     (-59.9, 0.9, 1.0), (30, 0.99, 4.77), (-45, 0.5, 2.43), (1e-3, 0.95, 2.0), (0.0, 0.6, 2.0),
 ]]
-
-
-def paper_segment_transform(theta, lam, length, D):
-    """The paper's printed T^{j+1}_j in R_c, b, L form, with the erratum corrected (numpy only).
-
-    The independent reference the chain is checked against; 0/0 on a straight tube (lam = 1, theta = 0)."""
-    h = helix_forward(np.asarray(theta, float), np.asarray(lam, float), D)
-    R, b = h.R_c, h.b
-    Lh = np.sqrt(R**2 + b**2)
-    dl = np.asarray(length, float) * h.lambda_c
-    a = dl / Lh
-    ca_, sa = np.cos(a), np.sin(a)
-    Rm = [
-        [R**2 / Lh**2 * ca_ + b**2 / Lh**2, -R / Lh * sa, R * b / Lh**2 * (1 - ca_)],
-        [R / Lh * sa, ca_, -b / Lh * sa],
-        [R * b / Lh**2 * (1 - ca_), b / Lh * sa, b**2 / Lh**2 * ca_ + R**2 / Lh**2],
-    ]
-    p = [R**2 / Lh * sa + b**2 / Lh * a, R * (1 - ca_), R * b / Lh * (a - sa)]
-    return assemble(Rm, p)
 
 
 def test_paper_check_value_pitch():
