@@ -5,7 +5,7 @@ import math
 import casadi as ca
 import numpy as np
 import pytest
-from paper_model import paper_segment_transform
+from paper_model import line_offset_angles, paper_segment_transform
 
 from vine_nlp.model import (
     center_rates,
@@ -13,7 +13,6 @@ from vine_nlp.model import (
     helix_forward,
     helix_inverse,
     helix_self_collides,
-    line_offset_angles,
     phi_from_theta,
     segment_transform,
     shape_lines,
