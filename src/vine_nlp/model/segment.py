@@ -99,8 +99,6 @@ def segment_point(theta, lam, length, D, u):
     return p
 
 
-
-
 def so3_exp(w):
     """Rotation matrix exp([w]x) (Rodrigues), finite with finite derivatives at w = 0.
 
