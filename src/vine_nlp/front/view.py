@@ -169,7 +169,8 @@ def tube_vertices(shape: dict, D: float, count: int) -> np.ndarray:
 
 
 def tube_faces(count: int, ring: int = RING) -> np.ndarray:
-    """Triangles (i, j, k) over :func:`tube_vertices`: the side between neighbouring rings and both caps."""
+    """Triangles (i, j, k) over ``count`` rings of ``ring`` vertices, then the base and tip centers (:func:`tube_vertices`,
+    ``front.export.tube_mesh``): the side between neighbouring rings and both caps."""
     i = np.arange(count - 1)[:, None] * ring
     k = np.arange(ring)[None, :]
     k1 = (k + 1) % ring
