@@ -25,13 +25,14 @@ trimesh is imported inside the functions that need it (a heavy package).
 from __future__ import annotations
 
 import math
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from vine_nlp.errors import InputError
 from vine_nlp.front import palette
-from vine_nlp.front.files import check_output, within_limits
+from vine_nlp.front.files import check_output, output_format, within_limits
 from vine_nlp.front.states import picked_states, samples, state_lines
 from vine_nlp.front.view import tube_faces
 from vine_nlp.io.archive import Archive, write_atomic
@@ -41,17 +42,10 @@ from vine_nlp.model.units import METRES_PER_UNIT
 from vine_nlp.problem import Routing
 
 FORMATS = (".stl", ".obj", ".ply", ".glb")
+mesh_format = partial(output_format, formats=FORMATS, what="mesh")  # an output's format by its extension (ValueError)
 RING = 64
 ACTUATOR_DIAMETER = 0.1  # of D
 TUBE_RGBA = [90, 140, 200, 255]
-
-
-def mesh_format(path) -> str:
-    """The export format of ``path`` by its extension (ValueError for an unknown one)."""
-    ext = Path(path).suffix.lower()
-    if ext not in FORMATS:
-        raise ValueError(f"unknown mesh format {ext or '(none)'!r}: use {', '.join(FORMATS)}")
-    return ext
 
 
 def tube_lines(routing: Routing, D: float, spacing: float | None = None):

@@ -35,6 +35,7 @@ import csv
 import io
 import math
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +48,7 @@ from matplotlib.ticker import MultipleLocator
 
 from vine_nlp.analysis.buildability import buildability, gap_fractions
 from vine_nlp.front import palette
+from vine_nlp.front.files import output_format
 from vine_nlp.front.show import build_settings, source_table
 from vine_nlp.front.states import line_kinds, picked_states
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
@@ -251,14 +253,7 @@ def _layout_one(length_cm, circumference_cm, W, H, unit_per_cm):
 
 
 TEMPLATE_FORMATS = (".pdf", ".svg", ".dxf")
-
-
-def template_format(path) -> str:
-    """The template format of ``path`` by its extension (ValueError for an unknown one)."""
-    ext = Path(path).suffix.lower()
-    if ext not in TEMPLATE_FORMATS:
-        raise ValueError(f"unknown template format {ext or '(none)'!r}: use {', '.join(TEMPLATE_FORMATS)}")
-    return ext
+template_format = partial(output_format, formats=TEMPLATE_FORMATS, what="template")  # an output's format by its extension (ValueError)
 
 
 def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str = "A4", run: str | None = None,
