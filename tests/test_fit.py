@@ -18,7 +18,6 @@ from vine_nlp.methods.fit import (
     fit_frames,
     fit_lines,
     fit_problem,
-    icp,
     invert_transform,
     model_lines,
     pose_starts,
@@ -187,40 +186,6 @@ def test_bad_input_is_rejected():
         fit_problem(FitProblem("few", 3.0, np.zeros((2, 3)), "outer", routing))
     with pytest.raises(ValueError):
         fit_problem(FitProblem("free", 3.0, np.random.default_rng(0).normal(size=(10, 3)), "outer", routing, free=("theta",)))
-
-
-# ---------------------------------------------------------------- ICP of general paths
-
-
-@pytest.mark.parametrize("seed", [0, 1])
-def test_icp_recovers_a_rigid_transform_exactly(seed):
-    D = 4.77
-    routing = smooth_routing(seed, M=120, lam=0.7)
-    target = model_lines(routing, D)[0]["inner"]
-    T_true = random_pose(seed + 50)
-    source = apply_transform(invert_transform(T_true), target[::3])
-    source = source[np.random.default_rng(seed).permutation(len(source))]
-    T, rmse, max_error = icp(source, target)
-    assert np.abs(T - T_true).max() < 1e-8
-    assert rmse < 1e-8 and max_error < 1e-8
-    # from a given start close to the answer as well
-    T2, rmse2, _ = icp(source, target, initial=T_true @ _small_rotation())
-    assert np.abs(T2 - T_true).max() < 1e-8
-
-
-def _small_rotation():
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec([0.05, -0.03, 0.04]).as_matrix()
-    T[:3, 3] = [0.3, -0.2, 0.1]
-    return T
-
-
-def test_icp_to_a_point_cloud():
-    rng = np.random.default_rng(4)
-    target = rng.normal(size=(200, 3)) * [10, 4, 2]
-    T_true = random_pose(9, spread=5)
-    T, rmse, _ = icp(apply_transform(invert_transform(T_true), target), target, path=False)
-    assert np.abs(T - T_true).max() < 1e-9 and rmse < 1e-9
 
 
 # ---------------------------------------------------------------- frame sequences (Fig. 9(d)) and figures
