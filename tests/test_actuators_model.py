@@ -5,9 +5,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from paper_model import paper_segment_transform
 
 from vine_nlp.io.problems import load_problem
-from vine_nlp.model import chain_frames, forward_shape, paper_segment_transform, phi_from_theta
+from vine_nlp.model import chain_frames, forward_shape, phi_from_theta
 from vine_nlp.model.actuators import Lines, TwoLines, actuator_lines, forward_states, owners, roll, state_shape, too_close
 from vine_nlp.model.chain import segment_end_samples
 

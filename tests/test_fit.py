@@ -1,4 +1,4 @@
-"""Model validation (paper Sec. V): pose and lambda fits, best-fit helices, ICP, frame sequences.
+"""Model validation (paper Sec. V): pose and lambda fits, ICP, frame sequences.
 
 Synthetic measurements: model lines in a random pose, shuffled, with Gaussian
 noise of 1.4 mm RMS (0.14 cm / sqrt(3) per coordinate), like the paper's
@@ -14,20 +14,15 @@ from scipy.spatial.transform import Rotation
 from vine_nlp.methods.fit import (
     Polyline,
     apply_transform,
-    best_fit_helix,
-    best_fit_helix_pair,
     describe_fit,
     fit_frames,
     fit_lines,
     fit_problem,
-    icp,
     invert_transform,
     model_lines,
-    parameter_errors,
     pose_starts,
     r_squared,
 )
-from vine_nlp.model import helix_forward
 from vine_nlp.model.shape import forward_shape
 from vine_nlp.problem import FitProblem, Routing
 
@@ -191,94 +186,6 @@ def test_bad_input_is_rejected():
         fit_problem(FitProblem("few", 3.0, np.zeros((2, 3)), "outer", routing))
     with pytest.raises(ValueError):
         fit_problem(FitProblem("free", 3.0, np.random.default_rng(0).normal(size=(10, 3)), "outer", routing, free=("theta",)))
-
-
-# ---------------------------------------------------------------- ICP of general paths
-
-
-@pytest.mark.parametrize("seed", [0, 1])
-def test_icp_recovers_a_rigid_transform_exactly(seed):
-    D = 4.77
-    routing = smooth_routing(seed, M=120, lam=0.7)
-    target = model_lines(routing, D)[0]["inner"]
-    T_true = random_pose(seed + 50)
-    source = apply_transform(invert_transform(T_true), target[::3])
-    source = source[np.random.default_rng(seed).permutation(len(source))]
-    T, rmse, max_error = icp(source, target)
-    assert np.abs(T - T_true).max() < 1e-8
-    assert rmse < 1e-8 and max_error < 1e-8
-    # from a given start close to the answer as well
-    T2, rmse2, _ = icp(source, target, initial=T_true @ _small_rotation())
-    assert np.abs(T2 - T_true).max() < 1e-8
-
-
-def _small_rotation():
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec([0.05, -0.03, 0.04]).as_matrix()
-    T[:3, 3] = [0.3, -0.2, 0.1]
-    return T
-
-
-def test_icp_to_a_point_cloud():
-    rng = np.random.default_rng(4)
-    target = rng.normal(size=(200, 3)) * [10, 4, 2]
-    T_true = random_pose(9, spread=5)
-    T, rmse, _ = icp(apply_transform(invert_transform(T_true), target), target, path=False)
-    assert np.abs(T - T_true).max() < 1e-9 and rmse < 1e-9
-
-
-# ---------------------------------------------------------------- best-fit helices (Figs. 5(b), 6)
-
-
-@pytest.mark.parametrize("theta_deg, lam, D", [(10.0, 0.7, 2.62), (-25.0, 0.5, 2.62), (30.0, 0.99, 4.77)])
-def test_best_fit_helix_pair_returns_the_actuator(theta_deg, lam, D):
-    theta = math.radians(theta_deg)
-    routing = Routing(theta=np.full(30, theta), lam=lam, length=np.ones(30))
-    lines, *_ = model_lines(routing, D)
-    T = random_pose(int(abs(theta_deg)))
-    rng = np.random.default_rng(0)
-    inner = apply_transform(T, lines["inner"])[rng.permutation(len(lines["inner"]))]
-    outer = apply_transform(T, lines["outer"])[rng.permutation(len(lines["outer"]))]
-    fit = best_fit_helix_pair(inner, outer)
-    assert fit["theta"] == pytest.approx(theta, abs=1e-6)
-    assert fit["lam"] == pytest.approx(lam, abs=1e-6)
-    assert fit["D"] == pytest.approx(D, abs=1e-6)
-    h = helix_forward(theta, lam, D)
-    assert fit["R_i"] == pytest.approx(h.R_i, abs=1e-6) and fit["R_o"] == pytest.approx(h.R_o, abs=1e-6)
-    assert fit["b"] == pytest.approx(h.b, abs=1e-6)
-    assert fit["rmse"] < 1e-8 and fit["r2"] == pytest.approx(1.0, abs=1e-12)
-    errors = parameter_errors(fit, (theta, lam, D))
-    for key in ("R_i", "R_o", "b", "theta", "lam", "D"):
-        assert abs(errors[key]["error"]) < 1e-6 and abs(errors[key]["percent"]) < 1e-3
-    # the axis: model points are at distance |R| from it
-    a, p = fit["axis_dir"], fit["axis_point"]
-    rel = outer - p
-    radial = np.linalg.norm(rel - np.outer(rel @ a, a), axis=1)
-    assert np.allclose(radial, h.R_o, atol=1e-6)
-
-
-def test_best_fit_helix_of_a_noisy_flat_helix():
-    # theta 2.5 deg, lambda 0.4: pitch 2 pi b = 1.58 cm, about one turn. Orthogonal distances
-    # alone would prefer a dense coil through all points; the fit must not.
-    theta, lam, D = math.radians(2.5), 0.4, 2.62
-    clean = samples(Routing(theta=np.full(30, theta), lam=lam, length=np.ones(30)), D, "outer", 200)
-    _, X, _ = measure(clean, 8)
-    fit = best_fit_helix(X)
-    h = helix_forward(theta, lam, D)
-    assert fit["R"] == pytest.approx(h.R_o, rel=0.02)
-    assert fit["b"] == pytest.approx(h.b, rel=0.05)
-    assert fit["rmse"] < 0.15
-
-
-def test_parameter_errors_are_relative_to_the_model():
-    theta, lam, D = math.radians(5), 0.5, 2.62
-    h = helix_forward(theta, lam, D)
-    fitted = {"R_i": h.R_i * 1.1, "R_o": h.R_o, "b": h.b * 0.9, "theta": theta * 1.2, "lam": lam, "D": D}
-    e = parameter_errors(fitted, (theta, lam, D))
-    assert e["R_i"]["percent"] == pytest.approx(10.0 * np.sign(h.R_i))
-    assert e["b"]["percent"] == pytest.approx(-10.0)
-    assert e["theta"]["relative"] == pytest.approx(0.2)
-    assert e["R_o"]["error"] == 0.0
 
 
 # ---------------------------------------------------------------- frame sequences (Fig. 9(d)) and figures

@@ -195,17 +195,17 @@ def test_a_failing_item_is_reported_and_the_others_finish(tmp_path, monkeypatch)
 
 
 def test_an_archive_hdf5_refuses_fails_its_item_alone(tmp_path, monkeypatch):
-    from vine_nlp.front.sweep import executors
+    from vine_nlp.pipeline import runs as pipeline_runs  # where every door's archive is written (Outcome.write)
 
     path = _write_sweep(tmp_path / "in")
-    real = executors.write_archive
+    real = pipeline_runs.write_archive
 
     def refuses(where, archive):
         if archive.name == "tiny-0001":  # as h5py refuses a text with NUL
             raise ValueError("VLEN strings do not support embedded NULLs")
         real(where, archive)
 
-    monkeypatch.setattr(executors, "write_archive", refuses)
+    monkeypatch.setattr(pipeline_runs, "write_archive", refuses)
     report = sw.run_sweep(load_sweep(path), tmp_path / "out", workers=1, progress=False)
     assert (report.done, report.failed) == (3, 1)
     assert report.failures == [("tiny-0001", "nlp", "cannot archive the result (ValueError: VLEN strings do not support "

@@ -47,10 +47,7 @@ def design_archive(obstacles=None) -> Archive:
     """A design archive with runs nlp and greedy (two routings) and the nlp shape as target."""
     nlp = run_forward(ForwardProblem("wave", D, routing()))
     greedy = run_forward(ForwardProblem("wave", D, routing(phase=0.3)))
-    extra = {}
-    for k, ob in enumerate(obstacles or []):
-        extra.update({f"obstacles/{k}/{key}": np.asarray(v) for key, v in ob.items()})
-    return Archive("wave", "design", "", D, target=nlp.shape.center, runs={"nlp": nlp, "greedy": greedy}, extra=extra)
+    return Archive("wave", "design", "", D, target=nlp.shape.center, runs={"nlp": nlp, "greedy": greedy}, obstacles=list(obstacles or []))
 
 
 @pytest.fixture(scope="module")
@@ -79,9 +76,10 @@ def external_scripts(html: str) -> list[str]:
 
 
 def test_figure_traces_frames_and_sliders():
-    a = design_archive([{"center": [0.0, 0.0, -6.0], "radius": 2.0},
-                        {"center": [5.0, 5.0, 0.0], "size": [1.0, 2.0, 3.0]},
-                        {"vertices": [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], "faces": [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]}])
+    from vine_nlp.model.obstacles import Box, Mesh, Sphere
+
+    a = design_archive([Sphere((0.0, 0.0, -6.0), 2.0), Box((5.0, 5.0, 0.0), (1.0, 2.0, 3.0)),
+                        Mesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])])
     fig = view.view_figure(a)
     names = [t.name for t in fig.data]
     per_run = ["tube (true D)", "actuator line", "opposite line (twist)", "center line"]

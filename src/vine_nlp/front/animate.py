@@ -31,6 +31,7 @@ import os
 import shutil
 import subprocess
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +39,7 @@ import numpy as np
 from vine_nlp.analysis.collision import growth_contacts, routing_clearance
 from vine_nlp.analysis.obstacles import ModelLine, after_growth_routing
 from vine_nlp.front import palette
+from vine_nlp.front.files import output_format
 from vine_nlp.front.plot import equal_view_3d, label_3d_axes
 from vine_nlp.front.states import picked_states, state_lines
 from vine_nlp.front.view import run_shape, tube_rings
@@ -47,16 +49,9 @@ from vine_nlp.problem import Routing
 
 MODES = ("grow", "after", "both")
 MOVIE_FORMATS = (".gif", ".mp4")
+movie_format = partial(output_format, formats=MOVIE_FORMATS, what="movie")  # an output's format by its extension (ValueError)
 FRAMES = 41  # t = 0, 0.025, ..., 1: every step of analyze's actuation after growth (0.05) is a frame
 WIDTH_PX, HEIGHT_PX, DPI = 1280, 680, 100  # legible at its own size: 10-15 pt text at 100 dpi
-
-
-def movie_format(path) -> str:
-    """The movie format of ``path`` by its extension (ValueError for an unknown one)."""
-    ext = Path(path).suffix.lower()
-    if ext not in MOVIE_FORMATS:
-        raise ValueError(f"unknown movie format {ext or '(none)'!r}: use {', '.join(MOVIE_FORMATS)}")
-    return ext
 
 
 def ffmpeg_available() -> bool:

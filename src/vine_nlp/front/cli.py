@@ -415,9 +415,7 @@ def _output_format(out, module, function):
 
 
 def _add_correct_arguments(p) -> None:
-    p.add_argument("archive", metavar="ARCHIVE.h5")
     p.add_argument("measured", nargs="+", metavar="MEASURED.csv", help="points measured on the built robot (rows x y z, any order)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.h5")
     p.add_argument("--run", type=ff.run_name, help="the nominal that was built (default: corrected in a correction archive, else the design run)")
     p.add_argument("--line", default="outer", metavar="LINE[,LINE...]", help="measured line: center, inner or outer; one per file or one for all (default outer)")
     p.add_argument("--adjust", choices=("lambda", "lambda,theta"), metavar="lambda|lambda,theta", help="the route taken as /runs/corrected: lambda (stoppers or pouches on this robot) or lambda,theta (the line drawn anew on a new tube); default: the recommended one (both are predicted)")
@@ -426,8 +424,23 @@ def _add_correct_arguments(p) -> None:
     add_sigma_args(p)
     p.add_argument("--sigma-measurement", type=ff.bounded(0, limits.MAX_COORDINATE, above=True), metavar="S", help="measurement noise, in units (default 1 mm)")
     p.add_argument("--plot", metavar="FIG.png", help="measured, estimated and corrected shapes; deviations per segment")
-    p.add_argument("--force", action="store_true", help="overwrite existing output files")
 
+
+def _command(sub, name: str, text: str, output: str | None, *source, **how):
+    """A command's parser: its help line ``text``, its positional argument ``source`` (``how``: as add_argument
+    takes it) and, where it writes one, ``-o OUTPUT`` (its metavar)."""
+    p = sub.add_parser(name, help=text)
+    p.add_argument(*source, **how)
+    if output:
+        p.add_argument("-o", "--output", required=True, metavar=output)
+    return p
+
+
+def _done(p, func, force: str | None = None) -> None:
+    """The command's ``--force`` (its help; none for a command that writes nothing) and the function it runs."""
+    if force:
+        p.add_argument("--force", action="store_true", help=force)
+    p.set_defaults(func=func)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -439,21 +452,17 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
 
-    f = sub.add_parser("forward", help="shape of a given routing -> result archive")
-    f.add_argument("problem", metavar="PROBLEM.toml|ARCHIVE.h5", help="a forward problem, or an archive whose stored routing is re-run")
-    f.add_argument("-o", "--output", required=True, metavar="OUT.h5")
+    f = _command(sub, "forward", "shape of a given routing -> result archive", "OUT.h5", "problem", metavar="PROBLEM.toml|ARCHIVE.h5",
+                 help="a forward problem, or an archive whose stored routing is re-run")
     f.add_argument("--run", type=ff.run_name, help="with an archive: which run's routing (default: its default run)")
     f.add_argument("--plot", metavar="FIG.png", help="also draw the shape (png or pdf)")
-    f.add_argument("--force", action="store_true", help="overwrite existing output files")
-    f.set_defaults(func=cmd_solve)
+    _done(f, cmd_solve, "overwrite existing output files")
 
     for name, text in (
         ("design", "inverse design of a routing for a target curve -> result archive"),
         ("compare", "nlp and the greedy, each free and buildable, on one problem: one archive, a table on stdout"),
     ):
-        d = sub.add_parser(name, help=text)
-        d.add_argument("problem", metavar="PROBLEM.toml")
-        d.add_argument("-o", "--output", required=True, metavar="OUT.h5")
+        d = _command(sub, name, text, "OUT.h5", "problem", metavar="PROBLEM.toml")
         if name == "design":
             d.add_argument("--method", choices=METHODS, help="default: the problem's [design] method (nlp)")
             d.add_argument("--warm", metavar="ARCHIVE.h5", help="nlp: start from the design in an earlier archive")
@@ -467,11 +476,9 @@ def build_parser() -> argparse.ArgumentParser:
         d.add_argument("--budget", type=ff.bounded(0, limits.MAX_SECONDS), metavar="S", help="seconds for the whole design: no start, hop or round begins after it (the first start always runs; a design it cut is status max_time, exit 1) and the corner search ends within it (default: no bound, the corner search the problem's [design] budget, 20 s; 0: the first start alone, no search)")
         d.add_argument("--workers", type=ff.bounded(1, limits.MAX_WORKERS, True), default=1, metavar="N", help="nlp: run the starts in N processes")
         d.add_argument("--plot", metavar="FIG.png", help="also draw the result (png or pdf)")
-        d.add_argument("--force", action="store_true", help="overwrite existing output files")
-        d.set_defaults(func=cmd_solve)
+        _done(d, cmd_solve, "overwrite existing output files")
 
-    an = sub.add_parser("analyze", help="self-collision, growth order and manufacturing tolerance of a design")
-    an.add_argument("archive", metavar="OUT.h5")
+    an = _command(sub, "analyze", "self-collision, growth order and manufacturing tolerance of a design", None, "archive", metavar="OUT.h5")
     an.add_argument("--run", type=ff.run_name, help="which run (default: nlp, greedy, forward, ...)")
     an.add_argument("--state", type=ff.run_name, help="several actuators: this state alone (default: every state)")
     add_sigma_args(an)
@@ -482,81 +489,63 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--clearance-figure", metavar="FIG.png", help="clearance along the tube")
     an.add_argument("--load-figure", metavar="FIG.png", help="[load]: bending moment and capacity along the tube and over growth")
     an.add_argument("--write-metrics", action="store_true", help="store the figures as metrics of the run in the archive")
-    an.set_defaults(func=cmd_analyze)
+    _done(an, cmd_analyze)
 
-    sw = sub.add_parser("sweep", help="many design problems: one archive per item, summary.csv and a summary figure")
-    sw.add_argument("sweep", metavar="SWEEP.toml")
-    sw.add_argument("-o", "--output", required=True, metavar="DIR")
+    sw = _command(sub, "sweep", "many design problems: one archive per item, summary.csv and a summary figure", "DIR", "sweep",
+                  metavar="SWEEP.toml")
     sw.add_argument("--workers", type=ff.bounded(0, limits.MAX_WORKERS, True), metavar="N", help="local worker processes (default: all cores)")
     sw.add_argument("--scheduler", metavar="ADDRESS", help="run on a Dask distributed cluster (e.g. tcp://host:8786)")
-    sw.add_argument("--force", action="store_true", help="redo items whose archives exist")
-    sw.set_defaults(func=cmd_sweep)
+    _done(sw, cmd_sweep, "redo items whose archives exist")
 
-    ft = sub.add_parser("fit", help="fit the model of a known routing to measured points (pose, optionally lambda)")
-    ft.add_argument("problem", metavar="PROBLEM.toml")
-    ft.add_argument("-o", "--output", required=True, metavar="OUT.h5")
+    ft = _command(sub, "fit", "fit the model of a known routing to measured points (pose, optionally lambda)", "OUT.h5", "problem",
+                  metavar="PROBLEM.toml")
     ft.add_argument("--starts", dest="fit_starts", type=ff.bounded(1, limits.MAX_STARTS, True), default=24, metavar="N", help="starting orientations of the global pose search")
     ft.add_argument("--seed", type=ff.bounded(0, limits.MAX_SEED, True), default=0)
     ft.add_argument("--plot", metavar="FIG.png", help="measured points against the fitted model, error against length")
     ft.add_argument("--frames", nargs="+", metavar="FRAME.csv", help="also fit these frames of the same actuator in order")
     ft.add_argument("--frames-plot", metavar="FIG.png", help="with --frames: lambda over frames and error against length")
-    ft.add_argument("--force", action="store_true", help="overwrite existing output files")
-    ft.set_defaults(func=cmd_solve)
+    _done(ft, cmd_solve, "overwrite existing output files")
 
-    pl = sub.add_parser("plot", help="figures of an archive (png or pdf)")
-    pl.add_argument("archive", metavar="OUT.h5")
-    pl.add_argument("-o", "--output", required=True, metavar="FIG.png")
-    pl.add_argument("--force", action="store_true", help="overwrite an existing figure")
-    pl.set_defaults(func=cmd_plot)
+    pl = _command(sub, "plot", "figures of an archive (png or pdf)", "FIG.png", "archive", metavar="OUT.h5")
+    _done(pl, cmd_plot, "overwrite an existing figure")
 
-    t = sub.add_parser("template", help="1:1 fabrication template (PDF, or SVG/DXF in mm) and cut list (CSV) of a design")
-    t.add_argument("archive", metavar="OUT.h5")
-    t.add_argument("-o", "--output", required=True, metavar="TEMPLATE.pdf|.svg|.dxf")
+    t = _command(sub, "template", "1:1 fabrication template (PDF, or SVG/DXF in mm) and cut list (CSV) of a design",
+                 "TEMPLATE.pdf|.svg|.dxf", "archive", metavar="OUT.h5")
     t.add_argument("--csv", metavar="CUTS.csv", help="also write one row per segment")
     t.add_argument("--paper", choices=("A4", "Letter"), default="A4")
     t.add_argument("--run", type=ff.run_name, help="which run of the archive (default: nlp, greedy or forward)")
     t.add_argument("--changes", action="store_true", help="correction archives: also list, and frame on the template, the segments whose stoppers change against the robot built last")
-    t.add_argument("--force", action="store_true", help="overwrite existing output files")
-    t.set_defaults(func=cmd_template)
+    _done(t, cmd_template, "overwrite existing output files")
 
-    vw = sub.add_parser("view", help="interactive 3-D view (one HTML file, offline) of an archive or a sweep directory")
-    vw.add_argument("source", metavar="ARCHIVE.h5|SWEEPDIR")
-    vw.add_argument("-o", "--output", required=True, metavar="VIEW.html")
+    vw = _command(sub, "view", "interactive 3-D view (one HTML file, offline) of an archive or a sweep directory", "VIEW.html", "source",
+                  metavar="ARCHIVE.h5|SWEEPDIR")
     vw.add_argument("--run", type=ff.run_name, help="show only this run (default: every run, toggled in the legend)")
-    vw.add_argument("--force", action="store_true", help="overwrite an existing file")
-    vw.set_defaults(func=cmd_view)
+    _done(vw, cmd_view, "overwrite an existing file")
 
-    am = sub.add_parser("animate", help="movie: growth while actuated beside actuation after growth (GIF or MP4)")
-    am.add_argument("archive", metavar="ARCHIVE.h5")
-    am.add_argument("-o", "--output", required=True, metavar="MOVIE.gif|MOVIE.mp4")
+    am = _command(sub, "animate", "movie: growth while actuated beside actuation after growth (GIF or MP4)", "MOVIE.gif|MOVIE.mp4",
+                  "archive", metavar="ARCHIVE.h5")
     am.add_argument("--mode", choices=("grow", "after", "both"), default="both", help="one actuator (several: state to state)")
     am.add_argument("--run", type=ff.run_name, help="which run (default: nlp, greedy, forward, ...)")
     am.add_argument("--frames", type=ff.bounded(2, limits.MAX_FRAMES, True), default=41, metavar="N",
                     help="frames (default 41: a frame at every t analyze looks at)")
     am.add_argument("--fps", type=ff.bounded(1, limits.MAX_FPS, True), default=10, metavar="N", help="frames per second (default 10)")
-    am.add_argument("--force", action="store_true", help="overwrite an existing file")
-    am.set_defaults(func=cmd_animate)
+    _done(am, cmd_animate, "overwrite an existing file")
 
-    ex = sub.add_parser("export", help="the tube as a closed triangle mesh (STL, OBJ, PLY, glTF .glb)")
-    ex.add_argument("archive", metavar="ARCHIVE.h5")
-    ex.add_argument("-o", "--output", required=True, metavar="TUBE.stl|.obj|.ply|.glb")
+    ex = _command(sub, "export", "the tube as a closed triangle mesh (STL, OBJ, PLY, glTF .glb)", "TUBE.stl|.obj|.ply|.glb", "archive",
+                  metavar="ARCHIVE.h5")
     ex.add_argument("--run", type=ff.run_name, help="which run (default: nlp, greedy, forward, ...)")
     ex.add_argument("--state", type=ff.run_name, help="several actuators: this state alone, in OUT (default: every state, OUT.<state>.ext each)")
-    ex.add_argument("--force", action="store_true", help="overwrite existing files")
-    ex.set_defaults(func=cmd_export)
+    _done(ex, cmd_export, "overwrite existing files")
 
-    co = sub.add_parser("correct", help="estimate a built robot from measured points and correct it -> correction archive")
+    co = _command(sub, "correct", "estimate a built robot from measured points and correct it -> correction archive", "OUT.h5", "archive",
+                  metavar="ARCHIVE.h5")
     _add_correct_arguments(co)
-    co.set_defaults(func=cmd_correct)
-    cb = sub.add_parser("calibrate", help="systematic construction errors over several correction archives -> CAL.toml")
-    cb.add_argument("archives", nargs="+", metavar="ARCHIVE.h5", help="correction archives of prototypes of one construction method")
-    cb.add_argument("-o", "--output", required=True, metavar="CAL.toml")
-    cb.add_argument("--force", action="store_true", help="overwrite an existing file")
-    cb.set_defaults(func=cmd_calibrate)
+    _done(co, cmd_correct, "overwrite existing output files")
+    cb = _command(sub, "calibrate", "systematic construction errors over several correction archives -> CAL.toml", "CAL.toml", "archives",
+                  nargs="+", metavar="ARCHIVE.h5", help="correction archives of prototypes of one construction method")
+    _done(cb, cmd_calibrate, "overwrite an existing file")
 
-    sh = sub.add_parser("show", help="readable summary of an archive")
-    sh.add_argument("archive", metavar="OUT.h5")
-    sh.set_defaults(func=cmd_show)
+    _done(_command(sub, "show", "readable summary of an archive", None, "archive", metavar="OUT.h5"), cmd_show)
     return p
 
 

@@ -25,14 +25,16 @@ trimesh is imported inside the functions that need it (a heavy package).
 from __future__ import annotations
 
 import math
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from vine_nlp.errors import InputError
 from vine_nlp.front import palette
-from vine_nlp.front.files import check_output, within_limits
+from vine_nlp.front.files import check_output, output_format, within_limits
 from vine_nlp.front.states import picked_states, samples, state_lines
+from vine_nlp.front.view import tube_faces
 from vine_nlp.io.archive import Archive, write_atomic
 from vine_nlp.model import shape_lines
 from vine_nlp.model.actuators import Lines
@@ -40,17 +42,10 @@ from vine_nlp.model.units import METRES_PER_UNIT
 from vine_nlp.problem import Routing
 
 FORMATS = (".stl", ".obj", ".ply", ".glb")
+mesh_format = partial(output_format, formats=FORMATS, what="mesh")  # an output's format by its extension (ValueError)
 RING = 64
 ACTUATOR_DIAMETER = 0.1  # of D
 TUBE_RGBA = [90, 140, 200, 255]
-
-
-def mesh_format(path) -> str:
-    """The export format of ``path`` by its extension (ValueError for an unknown one)."""
-    ext = Path(path).suffix.lower()
-    if ext not in FORMATS:
-        raise ValueError(f"unknown mesh format {ext or '(none)'!r}: use {', '.join(FORMATS)}")
-    return ext
 
 
 def tube_lines(routing: Routing, D: float, spacing: float | None = None):
@@ -108,18 +103,8 @@ def tube_mesh(line, diameter: float, normal=None, ring: int = RING):
     a = 2 * math.pi * np.arange(ring) / ring
     r = 0.5 * diameter
     rings = line[:, None, :] + r * (np.cos(a)[None, :, None] * N[:, None, :] + np.sin(a)[None, :, None] * B[:, None, :])
-    P = len(line)
     V = np.concatenate([rings.reshape(-1, 3), line[:1], line[-1:]])
-    i = np.arange(P - 1)[:, None] * ring
-    k = np.arange(ring)[None, :]
-    k1 = (k + 1) % ring
-    v00, v01, v10, v11 = i + k, i + k1, i + ring + k, i + ring + k1
-    side = np.concatenate([np.stack([v00, v11, v10], -1).reshape(-1, 3), np.stack([v00, v01, v11], -1).reshape(-1, 3)])
-    base, tip = P * ring, P * ring + 1
-    kk = np.arange(ring)
-    caps = np.concatenate([np.stack([np.full(ring, base), (kk + 1) % ring, kk], -1),
-                           np.stack([np.full(ring, tip), (P - 1) * ring + kk, (P - 1) * ring + (kk + 1) % ring], -1)])
-    mesh = trimesh.Trimesh(vertices=V, faces=np.concatenate([side, caps]), process=False)
+    mesh = trimesh.Trimesh(vertices=V, faces=tube_faces(len(line), ring), process=False)
     if mesh.volume < 0:
         mesh.invert()
     return mesh

@@ -38,6 +38,14 @@ def figure_format(figure_path) -> str:
     return fmt
 
 
+def output_format(path, formats: tuple, what: str) -> str:
+    """The extension of ``path`` where it is one of ``formats`` (ValueError naming the ``what`` format otherwise)."""
+    ext = Path(path).suffix.lower()
+    if ext not in formats:
+        raise ValueError(f"unknown {what} format {ext or '(none)'!r}: use {', '.join(formats)}")
+    return ext
+
+
 def read_archive(path, key="ARCHIVE"):
     """The archive at ``path``, validated; any problem is one InputError ``(path, dataset, reason)``
     (``key``: the command-line argument that named it, for a path that is no file at all)."""

@@ -99,18 +99,16 @@ def plot_fit(source, path=None, extras=None, title=None):
     return fig
 
 
-def plot_frames(results, path, units: str = "cm", show: int = 5, title=None, frame_times=None):
-    """Lambda over the frames of a sequence and the error against length of a few frames.
-
-    ``results``: the list from :func:`vine_nlp.methods.fit.fit_frames` (frames that could not be fitted are gaps);
-    ``show``: how many frames (evenly spread, labelled with their lambda) get an error-against-length curve;
-    ``frame_times``: optional x values instead of the frame index."""
+def plot_frames(results, path, units: str = "cm", title=None, show: int = 5):
+    """Lambda over the frames of a sequence and the error against length of ``show`` frames (evenly spread,
+    labelled with their lambda). ``results``: the list from :func:`vine_nlp.methods.fit.fit_frames` (frames that
+    could not be fitted are gaps)."""
     lam, rmse = np.array([r[0] for r in results], float), np.array([r[1] for r in results], float)
-    x = np.arange(lam.size) if frame_times is None else np.asarray(frame_times, float)
+    x = np.arange(lam.size)
     fig = Figure(figsize=(11, 4.2))
     a1, a2 = fig.subplots(1, 2)
     a1.plot(x, lam, "o-", ms=3, lw=1.0, color="tab:blue")
-    a1.set_xlabel("frame" if frame_times is None else "time")
+    a1.set_xlabel("frame")
     a1.set_ylabel(r"fitted $\lambda$", color="tab:blue")
     a1.grid(alpha=0.3)
     a1b = a1.twinx()

@@ -34,7 +34,7 @@ from mpl_toolkits.mplot3d.art3d import Line3DCollection
 from vine_nlp.front import palette
 from vine_nlp.front.files import figure_format
 from vine_nlp.front.show import ordered_runs, source_table
-from vine_nlp.front.view import tube_rings
+from vine_nlp.front.view import obstacle_surface, tube_rings
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
 from vine_nlp.model import chain_frames, chain_points
 from vine_nlp.model.obstacles import Box, Capsule, Mesh, Plane, Sphere
@@ -178,24 +178,10 @@ def draw_obstacles(ax, obstacles, view=None, color=palette.OBSTACLE, alpha: floa
     b_view = np.r_[hi, -lo]
     drawn = []
     style = dict(color=color, alpha=alpha, linewidth=0, edgecolor="none", antialiased=False, shade=True)
-    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 25), np.linspace(0, np.pi, 13))
     for ob in obstacles:
         tris = None
-        if isinstance(ob, Sphere):
-            c, r = np.array(ob.center), ob.radius
-            X, Y, Z = c[0] + r * np.cos(u) * np.sin(v), c[1] + r * np.sin(u) * np.sin(v), c[2] + r * np.cos(v)
-            ax.plot_surface(X, Y, Z, **style).set_rasterized(True)
-            drawn.append(np.column_stack([X.ravel(), Y.ravel(), Z.ravel()]))
-        elif isinstance(ob, Capsule):
-            a, b, r = np.array(ob.p0), np.array(ob.p1), ob.radius
-            axis, e1, e2 = ob.rounded_box()[1].T  # the capsule's frame: its axis first
-            # one surface: hemisphere at p0, cylinder, hemisphere at p1 (polar angle 0..pi)
-            w = np.linspace(0, 2 * np.pi, 25)
-            pol = np.r_[np.linspace(0, 0.5 * np.pi, 7), np.linspace(0.5 * np.pi, np.pi, 7)]
-            W, P = np.meshgrid(w, pol)
-            base = np.where(np.arange(len(pol))[:, None] < 7, 0.0, 1.0)
-            pts = (a + base[..., None] * (b - a) - r * np.cos(P)[..., None] * axis
-                   + r * np.sin(P)[..., None] * (np.cos(W)[..., None] * e1 + np.sin(W)[..., None] * e2))
+        if isinstance(ob, (Sphere, Capsule)):
+            pts = obstacle_surface(ob)
             ax.plot_surface(pts[..., 0], pts[..., 1], pts[..., 2], **style).set_rasterized(True)
             drawn.append(pts.reshape(-1, 3))
         elif isinstance(ob, Mesh):

@@ -35,6 +35,7 @@ import csv
 import io
 import math
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -47,6 +48,7 @@ from matplotlib.ticker import MultipleLocator
 
 from vine_nlp.analysis.buildability import buildability, gap_fractions
 from vine_nlp.front import palette
+from vine_nlp.front.files import output_format
 from vine_nlp.front.show import build_settings, source_table
 from vine_nlp.front.states import line_kinds, picked_states
 from vine_nlp.io.archive import Archive, load_archive, write_atomic
@@ -190,19 +192,12 @@ def _pieces(s_a, c_a, s_b, c_b, C):
     return out
 
 
-def layout(length_cm: float, circumference_cm: float, paper: str, orientation: str = "auto", unit_per_cm: float = 1.0) -> Layout:
-    """Strips and pages for a tube ``length_cm`` long with a band ``circumference_cm`` wide.
-
-    orientation "auto" takes the orientation with fewer pages (then fewer strips; landscape on a tie).
-    Tile coordinates are returned in problem units (``unit_per_cm`` units per cm).
-    """
+def layout(length_cm: float, circumference_cm: float, paper: str, unit_per_cm: float = 1.0) -> Layout:
+    """Strips and pages for a tube ``length_cm`` long with a band ``circumference_cm`` wide, in the orientation with
+    fewer pages (then fewer strips; landscape on a tie). Tile coordinates in problem units (``unit_per_cm`` per cm)."""
     name, (pw, ph) = _paper(paper)
-    options = {"portrait": (pw, ph), "landscape": (ph, pw)}
-    if orientation not in ("auto", *options):
-        raise ValueError(f"orientation must be auto, portrait or landscape, not {orientation!r}")
     best = None
-    for ori in (("landscape", "portrait") if orientation == "auto" else (orientation,)):
-        W, H = options[ori]
+    for ori, (W, H) in (("landscape", (ph, pw)), ("portrait", (pw, ph))):
         L = _layout_one(length_cm, circumference_cm, W, H, unit_per_cm)
         cand = Layout(name, ori, W, H, *L)
         key = (cand.pages, len(cand.tiles))
@@ -251,18 +246,11 @@ def _layout_one(length_cm, circumference_cm, W, H, unit_per_cm):
 
 
 TEMPLATE_FORMATS = (".pdf", ".svg", ".dxf")
-
-
-def template_format(path) -> str:
-    """The template format of ``path`` by its extension (ValueError for an unknown one)."""
-    ext = Path(path).suffix.lower()
-    if ext not in TEMPLATE_FORMATS:
-        raise ValueError(f"unknown template format {ext or '(none)'!r}: use {', '.join(TEMPLATE_FORMATS)}")
-    return ext
+template_format = partial(output_format, formats=TEMPLATE_FORMATS, what="template")  # an output's format by its extension (ValueError)
 
 
 def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str = "A4", run: str | None = None,
-                   spam: bool | None = None, orientation: str = "auto", changes: list | None = None) -> dict:
+                   spam: bool | None = None, changes: list | None = None) -> dict:
     """Write the 1:1 fabrication template of ``run`` (default: the archive's default run): a multi-page PDF, or
     one SVG or DXF sheet in millimetres (by the extension of ``pdf_path``), and CUTS.csv, all atomically.
 
@@ -281,7 +269,7 @@ def write_template(archive_path_or_archive, pdf_path, csv_path=None, paper: str 
     spam = kind == "spam" if spam is None else bool(spam)
     table = cut_table(a, name, "spam" if spam else (None if kind in ("tendon", "programmed") else "tendon"))
     table |= {"changes": {int(r["segment"]): r for r in (changes or [])}, "spam": spam, "style": STYLE}
-    info = _write(a, name, [table], pdf_path, csv_path, paper, orientation)
+    info = _write(a, name, [table], pdf_path, csv_path, paper)
     return info | {"spam": spam, **split_counts(table, spam), "changes": len(table["changes"]), "unactuated": _none_count(table),
                    "refused": table["refused"]}
 
@@ -296,12 +284,12 @@ def write_actuators_template(path, out, csv_path=None, paper: str = "A4", run: s
         routing = Routing(theta=ls.theta[k], lam=ls.lam[k], length=ls.length)
         tables.append(cut_table(a, name, routing=routing, phi0=float(ls.phi0[k]), settings=base | {"kind": kind, "lambda_min": lmin})
                       | {"name": line, "spam": kind == "spam", "style": line_style(k, line), "changes": {}})
-    info = _write(a, name, tables, out, csv_path, paper, "auto")
+    info = _write(a, name, tables, out, csv_path, paper)
     return info | {"actuators": {t["name"]: {"spam": t["spam"], **split_counts(t, t["spam"]), "unactuated": _none_count(t),
                                              "refused": t["refused"]} for t in tables}}
 
 
-def _write(a: Archive, name: str, tables: list, path, csv_path, paper: str, orientation: str) -> dict:
+def _write(a: Archive, name: str, tables: list, path, csv_path, paper: str) -> dict:
     """Lay out and write the template of ``tables`` (one per line, the first's ends and segments drawn for all)."""
     fmt = template_format(path)
     if a.units not in CM_PER_UNIT:
@@ -309,7 +297,7 @@ def _write(a: Archive, name: str, tables: list, path, csv_path, paper: str, orie
     table = tables[0]
     k = CM_PER_UNIT[a.units]
     L = float(table["s_end"][-1]) if len(table["s_end"]) else 0.0
-    lay = layout(L * k, math.pi * a.diameter * k, paper, orientation, unit_per_cm=1.0 / k)
+    lay = layout(L * k, math.pi * a.diameter * k, paper, unit_per_cm=1.0 / k)
     pages, size = lay.pages, (lay.width_mm, lay.height_mm)
 
     def write_cuts():

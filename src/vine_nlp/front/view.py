@@ -46,6 +46,7 @@ from vine_nlp.io.archive import Archive, load_archive, write_atomic
 from vine_nlp.model import shape_lines
 from vine_nlp.model.actuators import owners
 from vine_nlp.model.chain import segment_end_samples
+from vine_nlp.model.obstacles import Box, Mesh, Plane, Sphere
 from vine_nlp.problem import Routing
 
 GROWTH_STEPS = 20  # slider steps of growth (21 positions, 0 to full length)
@@ -108,93 +109,40 @@ def run_shape(routing: Routing, D: float, lam=None, upto: float | None = None, t
     return {"center": center, "inner": inner, "outer": outer, "s": l, "theta": routing.theta[seg], "lam": lam[seg], "error": err}
 
 
-def obstacles(archive: Archive) -> list[dict]:
-    """The archive's obstacles as dicts (``shape`` and one array per parameter), in order of k.
-
-    Reads ``archive.obstacles`` where the archive reader provides it, else the
-    ``obstacles/<k>/<param>`` datasets; a missing ``shape`` is told by the parameters.
-    """
-    given = getattr(archive, "obstacles", None)
-    if given:  # obstacle objects (kind, parameters()) or dicts
-        return [{**o.parameters(), "shape": o.kind, "name": getattr(o, "name", "")} if hasattr(o, "parameters") else dict(o)
-                for o in given]
-    found: dict = {}
-    for key, value in archive.extra.items():
-        parts = key.strip("/").split("/")
-        if len(parts) == 3 and parts[0] == "obstacles":
-            found.setdefault(parts[1], {})[parts[2]] = value
-    out = []
-    for k in sorted(found, key=lambda v: (not v.isdigit(), int(v) if v.isdigit() else 0, v)):
-        o = found[k]
-        shape = o.get("shape")
-        if isinstance(shape, (bytes, np.bytes_)):
-            shape = shape.decode()
-        if shape is None:
-            shape = ("mesh" if "faces" in o else "plane" if "normal" in o else "capsule" if "p0" in o
-                     else "box" if "size" in o else "sphere" if "radius" in o else None)
-        if shape is not None:
-            out.append({**o, "shape": str(shape)})
-    return out
+def obstacle_surface(ob) -> np.ndarray:
+    """A (rows, columns, 3) grid over the surface of a Sphere or Capsule (the figure's and the view's)."""
+    w = np.linspace(0, 2 * np.pi, 25)
+    if isinstance(ob, Sphere):
+        W, P = np.meshgrid(w, np.linspace(0, np.pi, 13))
+        return np.array(ob.center) + ob.radius * np.stack([np.cos(W) * np.sin(P), np.sin(W) * np.sin(P), np.cos(P)], -1)
+    a, b, r = np.array(ob.p0), np.array(ob.p1), ob.radius
+    axis, e1, e2 = ob.rounded_box()[1].T  # the capsule's frame: its axis first
+    # one surface: hemisphere at p0, cylinder, hemisphere at p1 (polar angle 0..pi)
+    pol = np.r_[np.linspace(0, 0.5 * np.pi, 7), np.linspace(0.5 * np.pi, np.pi, 7)]
+    W, P = np.meshgrid(w, pol)
+    base = np.where(np.arange(len(pol))[:, None] < 7, 0.0, 1.0)
+    return (a + base[..., None] * (b - a) - r * np.cos(P)[..., None] * axis
+            + r * np.sin(P)[..., None] * (np.cos(W)[..., None] * e1 + np.sin(W)[..., None] * e2))
 
 
-def obstacle_mesh(o: dict, extent: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """Triangles (vertices, faces) drawing an obstacle; planes as a square of side 2 ``extent``."""
-    shape = o["shape"]
-    if shape == "mesh":
-        return np.asarray(o["vertices"], float), np.asarray(o["faces"], int)
-    if shape == "sphere":
-        u, v = np.meshgrid(np.linspace(0, 2 * math.pi, 25), np.linspace(0, math.pi, 13))
-        p = np.stack([np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v)], -1)
-        return _grid_mesh(np.asarray(o["center"], float) + float(np.asarray(o["radius"])) * p)
-    if shape == "box":
-        c, size = np.asarray(o["center"], float), np.asarray(o["size"], float)
-        R = _box_rotation(o)
-        corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)]) * size
+def obstacle_mesh(ob, extent: float) -> tuple[np.ndarray, np.ndarray]:
+    """Triangles (vertices, faces) drawing an obstacle (``vine_nlp.model.obstacles``); a plane as a square of side
+    2 ``extent``."""
+    if isinstance(ob, Mesh):
+        return ob.vertices, ob.faces
+    if isinstance(ob, Box):
         faces = [[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]]
-        return c + corners @ R.T, np.array(faces)
-    if shape == "capsule":
-        p0, p1, r = np.asarray(o["p0"], float), np.asarray(o["p1"], float), float(np.asarray(o["radius"]))
-        axis = p1 - p0
-        L = float(np.linalg.norm(axis))
-        e3 = axis / L if L > 0 else np.array([0.0, 0.0, 1.0])
-        e1 = np.cross(e3, [1.0, 0, 0] if abs(e3[0]) < 0.9 else [0, 1.0, 0])
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(e3, e1)
-        u = np.linspace(0, 2 * math.pi, 25)
-        v = np.linspace(-0.5 * math.pi, 0.5 * math.pi, 14)
-        rows = []
-        for vi in v:  # lower half sphere at p0, upper at p1
-            base = p0 if vi <= 0 else p1
-            rows.append(base + r * (np.sin(vi) * e3 + np.cos(vi) * (np.cos(u)[:, None] * e1 + np.sin(u)[:, None] * e2)))
-        return _grid_mesh(np.array(rows))
-    if shape == "plane":
-        p, n = np.asarray(o["point"], float), np.asarray(o["normal"], float)
-        n = n / np.linalg.norm(n)
-        e1 = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(n, e1)
-        V = np.array([p + extent * (a * e1 + b * e2) for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+        return ob.corners(), np.array(faces)
+    if isinstance(ob, Plane):
+        _, e1, e2 = ob.rounded_box()[1].T  # two directions in the plane
+        V = np.array([np.array(ob.point) + extent * (a * e1 + b * e2) for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
         return V, np.array([[0, 1, 2], [0, 2, 3]])
-    return None
-
-
-def _box_rotation(o):
-    if "rotation" in o:
-        return np.asarray(o["rotation"], float).reshape(3, 3)
-    if "rotation_deg" in o:
-        from scipy.spatial.transform import Rotation
-
-        return Rotation.from_euler("xyz", np.asarray(o["rotation_deg"], float), degrees=True).as_matrix()
-    return np.eye(3)
-
-
-def _grid_mesh(grid):
+    grid = obstacle_surface(ob)
     rows, cols = grid.shape[:2]
-    V = grid.reshape(-1, 3)
     idx = np.arange(rows * cols).reshape(rows, cols)
     a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
-    return V, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    return grid.reshape(-1, 3), np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
 
 
 # ------------------------------------------------------------------ archive view
@@ -221,7 +169,8 @@ def tube_vertices(shape: dict, D: float, count: int) -> np.ndarray:
 
 
 def tube_faces(count: int, ring: int = RING) -> np.ndarray:
-    """Triangles (i, j, k) over :func:`tube_vertices`: the side between neighbouring rings and both caps."""
+    """Triangles (i, j, k) over ``count`` rings of ``ring`` vertices, then the base and tip centers (:func:`tube_vertices`,
+    ``front.export.tube_mesh``): the side between neighbouring rings and both caps."""
     i = np.arange(count - 1)[:, None] * ring
     k = np.arange(ring)[None, :]
     k1 = (k + 1) % ring
@@ -303,15 +252,12 @@ def view_figure(archive: Archive, run: str | None = None):
                                    hovertemplate="target<extra></extra>"))
     allp = np.concatenate(pts)
     extent = float(np.ptp(allp, axis=0).max()) or 10 * D
-    for k, o in enumerate(obstacles(archive)):
-        mesh = obstacle_mesh(o, 0.6 * extent)
-        if mesh is None:
-            continue
-        V, F = mesh
+    for k, o in enumerate(archive.obstacles):
+        V, F = obstacle_mesh(o, 0.6 * extent)
         pts.append(V)
         fig.add_trace(go.Mesh3d(**_xyz(V), i=F[:, 0], j=F[:, 1], k=F[:, 2], color=palette.OBSTACLE, opacity=0.35, showlegend=True,
-                                name=f"obstacle {k} {o['name']} ({o['shape']})" if o.get("name") else f"obstacle {k} ({o['shape']})",
-                                hovertemplate=f"obstacle {k}: {o['shape']}<extra></extra>"))
+                                name=f"obstacle {k} {o.name} ({o.kind})" if o.name else f"obstacle {k} ({o.kind})",
+                                hovertemplate=f"obstacle {k}: {o.kind}<extra></extra>"))
     run_traces = list(range(TRACES_PER_RUN * len(names)))
     total = max(float(np.sum(archive.runs[n].routing.length)) for n in names)
     frames, grow_steps, after_steps = [], [], []

@@ -5,7 +5,7 @@ its segment times the partial segment (the fraction as data). Which pairs: an ac
 the rule :class:`_Pairs`). Start from design_nlp's result; detect the contact regions of the current design
 (analysis.collision.routing_clearance, with a detection margin); constrain, for every sampled point of a region, the
 pair with its closest partner, plus each region's continuous minimum; re-solve warm; until the continuous minimum
-clearance is >= D + min_gap (to ``tol_gap`` D). Pairs are never dropped. Between the rows, and as material points slide
+clearance is >= D + min_gap (to settings.CLEARANCE_TOL D). Pairs are never dropped. Between the rows, and as material points slide
 along the tube, the clearance can dip below the target: after a solve the rows' target rises by settings.RAISE_FACTOR
 times the shortfall, but only where every short region has a constrained pair near its minimum (a dip between rows that
 hold); a region without one is a new contact and gets its pairs instead (raising for it pushed tight coils ever farther
@@ -30,7 +30,7 @@ from vine_nlp.methods.blocks import BlockType
 from vine_nlp.methods.buildable import inherited_bounds
 from vine_nlp.methods.common import pair_points
 from vine_nlp.methods.nlp import chain_guess, design_nlp, extended_solver, nlp_parameters, result_of, start_x
-from vine_nlp.methods.settings import RAISE_FACTOR, ROUNDS
+from vine_nlp.methods.settings import CLEARANCE_DETECT, CLEARANCE_STEP, CLEARANCE_TOL, RAISE_FACTOR, ROUNDS
 from vine_nlp.methods.transcription import Chain, segment_point_index
 from vine_nlp.methods.variables import POINT
 from vine_nlp.model.segment import segment_function
@@ -153,32 +153,28 @@ def _add_pairs(active, new, tol):
             active.append((a, b))
 
 
-def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, pairs=None, rounds: int = ROUNDS,
-                          detect_margin: float | None = None, exclude_arc: float | None = None, start: Result | None = None,
-                          tol_gap: float = 1e-7, pair_step: float | None = None, **kw) -> Result:
+def design_with_clearance(problem: DesignProblem, min_gap: float = 0.0, start: Result | None = None, **kw) -> Result:
     """Inverse design with |r_c(l_a) - r_c(l_b)| >= D + min_gap at the contact pairs (active-set loop).
 
-    ``start``: a design to start from (default: design_nlp(problem, **kw)); returned (a copy) when it is already clear
-    and no ``pairs`` are given. ``pairs``: extra (l_a, l_b) material-coordinate pairs (problem units) constrained from
-    the first solve on (at least one). ``detect_margin`` (default D/4): pairs closer than D + min_gap + margin are
-    constrained. ``exclude_arc`` (default pi (D + min_gap) / 2): nearer points along the tube are neighbours, never
-    paired. The loop stops when the continuous minimum clearance (analysis.collision.routing_clearance) is >= D +
-    min_gap - tol_gap D and no region needs new rows, or after ``rounds`` solves. stats: clearance_rounds,
-    clearance_pairs, min_clearance, start_rmse, start_min_clearance; iterations and ipopt_time_s summed over the rounds."""
+    ``start``: a design to start from (default: design_nlp(problem, **kw)); returned (a copy) when it is already clear.
+    Pairs closer than D + min_gap + settings.CLEARANCE_DETECT D are constrained; points nearer than pi (D + min_gap) / 2
+    along the tube are neighbours, never paired. The loop stops when the continuous minimum clearance
+    (analysis.collision.routing_clearance) is >= D + min_gap - settings.CLEARANCE_TOL D and no region needs new rows,
+    or after settings.ROUNDS solves. stats: clearance_rounds, clearance_pairs, min_clearance, start_rmse,
+    start_min_clearance; iterations and ipopt_time_s summed over the rounds."""
     D = problem.diameter
     # neighbours: half a turn of the tightest circle that keeps them D + min_gap apart (analysis.collision,
     # "Neighbours", with D + min_gap for D): nearer points of any tube bent more gently are farther apart
     # than that, and a row between them would ask for a chord longer than their arc
-    exclude_arc = 0.5 * math.pi * (D + min_gap) if exclude_arc is None else float(exclude_arc)
+    exclude_arc = 0.5 * math.pi * (D + min_gap)
     stats = drive.Stats()
     start = start or design_nlp(problem, **kw)
-    rule = _Pairs(problem, start, min_gap, 0.25 * D if detect_margin is None else float(detect_margin), exclude_arc,
-                  tol_gap * D, 0.5 * D if pair_step is None else float(pair_step), pairs)
+    rule = _Pairs(problem, start, min_gap, CLEARANCE_DETECT * D, exclude_arc, CLEARANCE_TOL * D, CLEARANCE_STEP * D)
     first = rule.check
-    if first["clearance"] >= rule.need - rule.tol and not pairs:
+    if first["clearance"] >= rule.need - rule.tol:
         best, check, solves = dataclasses.replace(start, metrics=dict(start.metrics), stats=dict(start.stats), met=dict(start.met)), first, 0
     else:
-        found = drive.refine(rule, rounds, stats=stats)
+        found = drive.refine(rule, ROUNDS, stats=stats)
         best, check, solves = stats.stamp(found.best), found.verdict.report, found.rounds
     best.met["clearance"] = bool(check["clearance"] >= rule.need - rule.tol)
     best.stats.update({"clearance_rounds": solves, "clearance_met": best.met["clearance"], "clearance_pairs": len(rule.active),
@@ -191,14 +187,14 @@ class _Pairs:
     """The clearance's active set, a rule of ``drive.refine``: the pairs of the contact regions (from the start
     and every round), the rows' target raised for dips between rows that hold."""
 
-    def __init__(self, problem, start, min_gap, margin, exclude_arc, tol, step, pairs):
+    def __init__(self, problem, start, min_gap, margin, exclude_arc, tol, step):
         self.problem, self.start, self.D = problem, start, problem.diameter
         self.need, self.tol, self.step, self.exclude_arc = self.D + min_gap, tol, step, exclude_arc
         self.detect = min_gap + margin
         self.pairing = pair_points(problem.target, problem.options.points_per_segment)
         self.R0g = start.routing.initial_pose[:3, :3].copy()
         self.params = nlp_parameters(problem, self.pairing, self.R0g)
-        self.active = [(float(a), float(b)) for a, b in (pairs or [])]
+        self.active = []
         self.row_margin = 0.0
         self.check = routing_clearance(start.routing, self.D, exclude_arc=exclude_arc, margin=self.detect)
 

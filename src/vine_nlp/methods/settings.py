@@ -157,6 +157,9 @@ MESH_ROUNDS = 12
 # an active set's requirement rises by this times what the last round still misses where that is a dip between
 # rows that hold: the loop then ends in one or two more solves (clearance, obstacles)
 RAISE_FACTOR = 1.5
+# clearance: pairs closer than D + min_gap + CLEARANCE_DETECT D get rows, about CLEARANCE_STEP D apart along each side
+# of a contact; the loop ends at D + min_gap - CLEARANCE_TOL D (a design clear to round-off)
+CLEARANCE_DETECT, CLEARANCE_STEP, CLEARANCE_TOL = 0.25, 0.5, 1e-7
 # obstacles: a re-solve before the last round stops here and the next round goes on with fresh active sets (a
 # warm re-solve after new slots could crawl to IPOPT's limit; "Obstacles")
 ROUND_MAX_ITER = 400

@@ -1,30 +1,17 @@
 """The piecewise-helix chain (paper eq. iterativeTransform) and the actuator angle phi(s).
 
 T^{j+1}_w = T^j_w T^{j+1}_j, with non-uniform segment lengths and any initial pose
-T^0_w. Numbers give numpy arrays; CasADi symbols give lists of 4x4 expressions
-(single shooting, for small windows; the NLP uses multiple shooting instead)."""
+T^0_w, in numpy (the NLP chains the segments by multiple shooting instead: methods.transcription)."""
 
 from __future__ import annotations
 
-import casadi as ca
 import numpy as np
 
-from vine_nlp.model.ops import is_symbolic
 from vine_nlp.model.segment import segment_transform
 
 
 def chain_frames(theta, lam, length, D, initial_pose=None):
-    """Frames T^j_w at all segment ends, j = 0..M.
-
-    numpy: returns (M+1, 4, 4). CasADi (any symbolic argument): a list of M+1 4x4 expressions."""
-    if is_symbolic(theta, lam, length, D, initial_pose):
-        m = max(_length(theta), _length(lam), _length(length))
-        T = ca.SX.eye(4) if initial_pose is None else initial_pose
-        frames = [T]
-        for j in range(m):
-            T = ca.mtimes(T, segment_transform(_at(theta, j), _at(lam, j), _at(length, j), D))
-            frames.append(T)
-        return frames
+    """Frames T^j_w at all segment ends, j = 0..M (numpy): (M+1, 4, 4)."""
     theta, lam, length = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, float)) for v in (theta, lam, length)))
     steps = segment_transform(theta, lam, length, D)
     frames = np.empty((theta.size + 1, 4, 4))
@@ -32,16 +19,6 @@ def chain_frames(theta, lam, length, D, initial_pose=None):
     for j in range(theta.size):
         frames[j + 1] = frames[j] @ steps[j]
     return frames
-
-
-def _length(v):
-    if isinstance(v, (ca.SX, ca.MX, ca.DM)):
-        return v.numel()
-    return np.size(v)
-
-
-def _at(v, j):
-    return v if _length(v) == 1 else v[j]
 
 
 def chain_points(theta, lam, length, D, segment, fraction, initial_pose=None, frames=None):
@@ -79,9 +56,6 @@ def phi_from_theta(theta, length, D):
     """Actuator angle around the tube at the segment ends, phi[0] = 0 (paper eq. phi(s_j)).
 
     phi(s_{j+1}) = phi(s_j) + (2/D) tan(theta_j) dl_j."""
-    if is_symbolic(theta, length, D):
-        steps = 2.0 / D * ca.tan(theta) * length
-        return ca.vertcat(0, ca.cumsum(steps))
     steps = 2.0 / D * np.tan(np.asarray(theta, float)) * np.asarray(length, float)
     return np.concatenate([[0.0], np.cumsum(steps)])
 

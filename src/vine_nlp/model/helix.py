@@ -94,20 +94,6 @@ def helix_from_curvature(kappa_c, tau_c, D):
     return theta, lam
 
 
-
-
-def line_offset_angles(theta, lam):
-    """Angles alpha_{c,i}, alpha_{c,o} between the center tangent and the inner/outer tangents.
-
-    The paper's alpha_{c,i} = atan(b/R_i) - atan(b/R_c) and alpha_{c,o} = atan(b/R_c) - atan(b/R_o), taken with
-    quadrant-correct angles and simplified (the common factor lam^2 - 2 lam cos 2theta + 1 > 0 cancels): alpha_{c,i} =
-    atan2(sin 2theta, lam + cos 2theta), alpha_{c,o} = atan2(lam sin 2theta, 1 + lam cos 2theta). They add up to 2 theta
-    (eq. tangent_dot) and equal theta each on a straight tube."""
-    L = lib(theta, lam)
-    c2, s2 = L.cos(2 * theta), L.sin(2 * theta)
-    return L.arctan2(s2, lam + c2), L.arctan2(lam * s2, 1 + lam * c2)
-
-
 def helix_turns(theta, lam, D, length):
     """Number of turns around the helix axis of a uniform section of unactuated length ``length``."""
     L = lib(theta, lam, D, length)

@@ -13,7 +13,7 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from vine_nlp.model.helix import center_rates, helix_forward
+from vine_nlp.model.helix import center_rates
 from vine_nlp.model.ops import is_symbolic, lib, safe_series
 
 # Taylor coefficients in x = phi^2 of sin(phi)/phi, (1 - cos phi)/phi^2, (phi - sin phi)/phi^3.
@@ -97,27 +97,6 @@ def segment_point(theta, lam, length, D, u):
     Same as the translation of segment_transform(theta, lam, u * length, D)."""
     _, p = segment_parts(theta, lam, u * length, D)
     return p
-
-
-
-
-def paper_segment_transform(theta, lam, length, D):
-    """The paper's printed T^{j+1}_j in R_c, b, L form, with the erratum corrected (numpy only).
-
-    Kept as an independent reference for tests; 0/0 on a straight tube (lam = 1, theta = 0)."""
-    h = helix_forward(np.asarray(theta, float), np.asarray(lam, float), D)
-    R, b = h.R_c, h.b
-    Lh = np.sqrt(R**2 + b**2)
-    dl = np.asarray(length, float) * h.lambda_c
-    a = dl / Lh
-    ca_, sa = np.cos(a), np.sin(a)
-    Rm = [
-        [R**2 / Lh**2 * ca_ + b**2 / Lh**2, -R / Lh * sa, R * b / Lh**2 * (1 - ca_)],
-        [R / Lh * sa, ca_, -b / Lh * sa],
-        [R * b / Lh**2 * (1 - ca_), b / Lh * sa, b**2 / Lh**2 * ca_ + R**2 / Lh**2],
-    ]
-    p = [R**2 / Lh * sa + b**2 / Lh * a, R * (1 - ca_), R * b / Lh * (a - sa)]
-    return assemble(Rm, p)
 
 
 def so3_exp(w):

@@ -21,8 +21,7 @@ from pathlib import Path
 
 from vine_nlp.errors import InputError
 from vine_nlp.front.sweep.summary import cells
-from vine_nlp.io.actuators import write_actuators_archive
-from vine_nlp.io.archive import Archive, OutputError, write_archive
+from vine_nlp.io.archive import OutputError
 
 LOCK_FILE = ".sweep.lock"  # DIR's lock; its second word is the sweep's token (see _reaches)
 MAX_CHUNK = 8  # items per task at most
@@ -68,16 +67,14 @@ def write_item(out_dir, item: str, problem_file, runs: dict) -> dict:
 
     No runs: the item has no archive (a stale one is removed). Raises OutputError (disk full,
     ...) and whatever HDF5 refuses to store. The pipeline's outcome of an item feeds this."""
+    from vine_nlp.pipeline import Outcome  # the solvers load with it: in a worker, or in a parent that forks no more
+
     path = Path(out_dir) / f"{item}.h5"
     if not runs:
         path.unlink(missing_ok=True)
         return {}
-    pf = problem_file
-    if pf.kind == "actuators":  # the spec's layout of several actuators (its one run, "nlp")
-        write_actuators_archive(path, pf, "nlp", runs["nlp"])
-        return {m: cells(r) for m, r in runs.items()}
-    write_archive(path, Archive(name=pf.name, kind=pf.kind, source=pf.source, diameter=pf.problem.diameter,
-                                units=pf.units, target=pf.problem.target, runs=runs))
+    # the archive every door writes for the problem's kind (several actuators: its one run, "nlp")
+    Outcome(problem_file, runs, ("nlp",) if problem_file.kind == "actuators" else tuple(runs)).write(path)
     return {m: cells(r) for m, r in runs.items()}
 
 

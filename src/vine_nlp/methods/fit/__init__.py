@@ -3,22 +3,17 @@
 Everything here compares measured points with the geometric model of a *known*
 routing; only the rigid pose (and, for an sPAM, the shared lambda) is estimated.
 
-* ``align``: rigid transforms, pose starts, ICP and polish; :func:`icp` aligns a
-  measured path to a modeled one (Figs. 7 and 8).
+* ``align``: rigid transforms, pose starts, ICP and polish.
 * ``model_fit``: :func:`fit_problem` / :func:`fit_lines` (``vine-nlp fit``), the pose
   (and lambda) fit of measured points to the model's center, inner or outer line.
-* ``helix``: :func:`best_fit_helix`, :func:`best_fit_helix_pair`,
-  :func:`parameter_errors`, the free helix fits of Sec. V-A1.
 * ``frames``: :func:`fit_frames`, lambda per frame of an actuated sequence (Fig. 9(d)).
 
 Transforms are 4x4 homogeneous matrices. ``T`` returned by the fits maps measured
 points into the model frame (``T @ measured ~ model``)."""
 
-from vine_nlp.methods.fit.align import Polyline, apply_transform, icp, invert_transform, pose_starts, r_squared
+from vine_nlp.methods.fit.align import Polyline, apply_transform, invert_transform, pose_starts, r_squared
 from vine_nlp.methods.fit.frames import FrameFit, fit_frames
-from vine_nlp.methods.fit.helix import best_fit_helix, best_fit_helix_pair, parameter_errors
 from vine_nlp.methods.fit.model_fit import describe_fit, fit_lines, fit_problem, model_lines
 
-__all__ = ["fit_problem", "fit_lines", "fit_frames", "FrameFit", "icp", "best_fit_helix", "best_fit_helix_pair",
-           "parameter_errors", "r_squared", "model_lines", "describe_fit", "pose_starts", "Polyline", "apply_transform",
-           "invert_transform"]
+__all__ = ["fit_problem", "fit_lines", "fit_frames", "FrameFit", "r_squared", "model_lines", "describe_fit", "pose_starts",
+           "Polyline", "apply_transform", "invert_transform"]

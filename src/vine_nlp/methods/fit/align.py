@@ -1,10 +1,10 @@
 """Rigid alignment of measured points to a model line: pose starts, ICP and a Gauss-Newton polish.
 
 Transforms are 4x4 homogeneous matrices; ``T`` maps measured points into the model frame (``T @ measured ~ model``). The
-model line is a :class:`Polyline` (distances are to the polyline, or to the points of a cloud). :func:`fit_pose` is the
-global search: principal-axis alignments times the 24 rotations of the octahedral group, plus seeded random rotations
-(:func:`pose_starts`), each refined by ICP (closest point, Kabsch SVD update) on a subsample, the best few polished by a
-damped Gauss-Newton on the point-to-line distances. :func:`icp` aligns general paths (paper Figs. 7 and 8)."""
+model line is a :class:`Polyline` (distances are to the polyline). :func:`fit_pose` is the global search: principal-axis
+alignments times the 24 rotations of the octahedral group, plus seeded random rotations (:func:`pose_starts`), each
+refined by ICP (closest point, Kabsch SVD update) on a subsample, the best few polished by a damped Gauss-Newton on the
+point-to-line distances."""
 
 from __future__ import annotations
 
@@ -88,16 +88,16 @@ def pose_starts(source, target, starts: int = 24, seed: int = 0) -> list[np.ndar
 
 
 class Polyline:
-    """A densely sampled line; closest points on it (``path=False``: on its vertices only)."""
+    """A densely sampled line; closest points on it (a line of one point: that point)."""
 
-    def __init__(self, points, s_tube=None, path: bool = True):
+    def __init__(self, points, s_tube=None):
         p = np.asarray(points, float).reshape(-1, 3)
         if p.shape[0] == 0:
             raise ValueError("a model line needs at least one point")
         keep = np.r_[True, np.linalg.norm(np.diff(p, axis=0), axis=1) > 0]
         self.p = p[keep]
         self.s_tube = None if s_tube is None else np.asarray(s_tube, float)[keep]
-        self.path = path and self.p.shape[0] >= 2
+        self.path = self.p.shape[0] >= 2
         from scipy.spatial import cKDTree  # SciPy loads where it is used: the command line starts faster
         self.tree = cKDTree(self.p)
         if self.path:
@@ -116,8 +116,8 @@ class Polyline:
         """Closest points of (K, 3) ``x``: (closest, distance, s, tangent, free_end).
 
         ``s`` is the arc length of the closest point along the line, ``tangent`` the unit direction of its piece and
-        ``free_end`` marks points whose closest point is an end of the line (or a vertex, for ``path=False``): their
-        residual is not perpendicular to the line."""
+        ``free_end`` marks points whose closest point is an end of the line (or a line's one point): their residual is
+        not perpendicular to the line."""
         x = np.asarray(x, float)
         K = x.shape[0]
         if not self.path:
@@ -312,26 +312,3 @@ def fit_pose(sets, starts_T, global_iter=ICP_GLOBAL_ITER, top=POLISH_TOP, polish
             best = PoseFit(T, mse, 0)
     best.iterations = iters
     return best
-
-
-# ---------------------------------------------------------------- ICP of general paths
-
-
-def icp(source, target, initial=None, max_iter: int = 100, tol: float = 1e-10, *, path: bool = True, starts: int = 24, seed: int = 0):
-    """Rigid alignment of ``source`` points onto ``target`` (paper Figs. 7 and 8).
-
-    ``target`` is a modeled path (ordered samples, distances to its polyline) or, with ``path=False``, a point cloud
-    (distances to its points). ``initial``: a 4x4 starting transform; None runs the global start set of
-    :func:`pose_starts` (``starts`` of them). Point-to-closest-point ICP with Kabsch updates, then a point-to-line
-    Gauss-Newton polish.
-
-    Returns (T, rmse, max_error): T maps source onto target."""
-    src = clean_points(source, "source")
-    sets = [PointSet(src, Polyline(np.asarray(target, float), path=path))]
-    if initial is None:
-        T = fit_pose(sets, pose_starts(src, sets[0].line.p, starts, seed)).T
-    else:
-        T, _, _ = icp_refine(sets, np.asarray(initial, float), max_iter=max_iter, tol=tol)
-    T, _, _ = polish_pose(sets, T, max_iter=max_iter, tol=tol)
-    _, d, *_ = sets[0].line.project(apply_transform(T, src))
-    return T, float(np.sqrt(np.mean(d**2))), float(d.max())

@@ -151,13 +151,11 @@ class LineFitter:
         return best["lam"], best["fit"]
 
 
-def fit_lines(routing: Routing, diameter: float, measured: dict, free=(), starts: int = 24, seed: int = 0,
-              spacing: float = FIT_SPACING, lambda_bounds=LAMBDA_BOUNDS, warm_start=None):
+def fit_lines(routing: Routing, diameter: float, measured: dict, free=(), starts: int = 24, seed: int = 0):
     """Fit the model of ``routing`` to measured lines sharing one rigid pose.
 
     ``measured``: {"center" | "inner" | "outer": (K, 3) points in any order}; several lines are fitted together, as the
     paper does for the inner and outer lines of its static helices. ``free``: () or ("lambda",) (one shared lambda).
-    ``warm_start``: optional 4x4 measured -> model transform tried besides the global starts.
 
     Returns (Result, extras): see :func:`fit_problem`."""
     t0 = time.perf_counter()
@@ -165,21 +163,19 @@ def fit_lines(routing: Routing, diameter: float, measured: dict, free=(), starts
     unknown = set(free) - {"lambda"}
     if unknown:
         raise ValueError(f"free parameters must be () or ('lambda',), not {free}")
-    fitter = LineFitter(routing, diameter, measured, starts=starts, seed=seed, spacing=spacing)
-    warm = [] if warm_start is None else [np.asarray(warm_start, float)]
+    fitter = LineFitter(routing, diameter, measured, starts=starts, seed=seed)
     lam_fit = None
     if "lambda" in free:
-        lam0 = float(np.mean(routing.lam))
-        lam_fit, pose = fitter.fit_lambda(lam0, lambda_bounds, warm=warm)
+        lam_fit, pose = fitter.fit_lambda(float(np.mean(routing.lam)))
     else:
-        pose = fitter.pose(None, warm=warm, full=True)
-    result, extras = finish_fit(fitter, lam_fit, pose.T, free, spacing)
+        pose = fitter.pose(None)
+    result, extras = finish_fit(fitter, lam_fit, pose.T, free, FIT_SPACING)
     result.solve_time_s = time.perf_counter() - t0
     result.iterations = fitter.iterations
     result.stats.update(starts=starts, seed=seed)
     if "lambda" in free:
         grid, costs = fitter.grid
-        result.stats.update(lambda_bounds=list(lambda_bounds), lambda_grid=grid.tolist(), lambda_grid_rmse=costs.tolist())
+        result.stats.update(lambda_bounds=list(LAMBDA_BOUNDS), lambda_grid=grid.tolist(), lambda_grid_rmse=costs.tolist())
     return result, extras
 
 

@@ -34,7 +34,6 @@ from vine_nlp.methods.common import evaluate, pair_points
 from vine_nlp.methods.nlp import chain_guess, design_bounds, design_nlp, extended_solver, nlp_parameters, result_of, start_x
 from vine_nlp.methods.obstacles.plan import Plan
 from vine_nlp.methods.obstacles.push import pushed_start
-from vine_nlp.methods.obstacles.rows import MESH_K
 from vine_nlp.methods.settings import BLOCKED_WEIGHT, MESH_BLOCKED_WEIGHT, MESH_WEIGHT_RAMP
 from vine_nlp.problem import DesignProblem, Result
 
@@ -96,14 +95,13 @@ class Rounds:
         return self.plan.fill_extra(self.built, x, res.routing)
 
 
-def design_with_obstacles(problem: DesignProblem, start: Result | None = None, rounds: int = settings.ROUNDS, ts=None,
-                          k: int = MESH_K, spacing: float = settings.SAMPLE_SPACING, **kw) -> Result:
+def design_with_obstacles(problem: DesignProblem, start: Result | None = None, rounds: int = settings.ROUNDS,
+                          spacing: float = settings.SAMPLE_SPACING, **kw) -> Result:
     """Inverse design that keeps the tube ``problem.obstacle_margin`` clear of ``problem.obstacles``.
 
     ``start``: the obstacle-free design (default design_nlp(problem, **kw)), returned (with the obstacle metrics) when
     it already clears; ``rounds``: solves of the active-set loop at most (settings.MESH_ROUNDS at least with a mesh);
-    ``ts``: growth "after", the shapes t with rows (default the report's grid); ``k``: nearest triangles per mesh
-    sample; ``spacing``: target sample spacing, units of D. Returns the best round (method "nlp_obstacles";
+    ``spacing``: target sample spacing, units of D. Returns the best round (method "nlp_obstacles";
     ``drive.rank``) with metrics min_obstacle_gap (and min_obstacle_gap_after) and stats obstacle_rounds,
     obstacle_clear, obstacle_samples_per_segment, obstacle_margin, growth, start_rmse, start_min_obstacle_gap,
     obstacle_raise (the rows' extra requirement, units), obstacle_slots (primitive slots per segment); iterations,
@@ -111,7 +109,7 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
     stats = drive.Stats()
     start = start or design_nlp(problem, **kw)
     D = problem.diameter
-    plan = Plan(problem.obstacles, D, problem.obstacle_margin, problem.growth, start.routing.length, problem.actuator, ts, k, spacing)
+    plan = Plan(problem.obstacles, D, problem.obstacle_margin, problem.growth, start.routing.length, problem.actuator, spacing)
     first = plan.report(start.routing)
     stats0 = {"obstacle_margin": plan.margin, "growth": plan.growth, "start_rmse": float(start.metrics["rmse"]),
               "start_min_obstacle_gap": float(first["min_gap"])}

@@ -54,16 +54,15 @@ from vine_nlp.problem import Routing
 class Plan:
     """What the rows of one problem need: samples per segment, shapes (t), the data of every block."""
 
-    def __init__(self, obstacles, D, margin, growth, lengths, actuator, ts=None, k=MESH_K, spacing=settings.SAMPLE_SPACING):
+    def __init__(self, obstacles, D, margin, growth, lengths, actuator, spacing=settings.SAMPLE_SPACING):
         self.obstacles, self.D, self.margin, self.growth = tuple(obstacles), float(D), float(margin), growth
         if growth == "after":
-            grid = np.linspace(0.0, 1.0, DEFAULT_AFTER_STEPS + 1) if ts is None else np.asarray(ts, float)
-            self.grid = [float(t) for t in grid if t < 1.0]
+            self.grid = [float(t) for t in np.linspace(0.0, 1.0, DEFAULT_AFTER_STEPS + 1) if t < 1.0]
             self.report_ts = sorted(set(self.grid) | {1.0})
         else:
             self.grid, self.report_ts = [], None
         self.levels = min(settings.AFTER_SLOTS, len(self.grid))
-        self.k = int(min([k] + [len(o.faces) for o in obstacles if isinstance(o, Mesh)]))
+        self.k = int(min([MESH_K] + [len(o.faces) for o in obstacles if isinstance(o, Mesh)]))
         longest = float(np.max(lengths)) / D
         self.S = int(min(settings.MAX_SAMPLES, max(2, math.ceil(settings.LENGTH_SLACK * longest / spacing))))
         self.kappa = curvature_bound(1.0, actuator.theta_max, actuator.lambda_min)

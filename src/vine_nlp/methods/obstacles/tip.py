@@ -15,7 +15,6 @@ from vine_nlp.methods import drive, settings
 from vine_nlp.methods.obstacles.design import Rounds
 from vine_nlp.methods.obstacles.plan import Plan
 from vine_nlp.methods.obstacles.push import pushed_chain
-from vine_nlp.methods.obstacles.rows import MESH_K
 from vine_nlp.methods.structure import frames12
 from vine_nlp.methods.tip import buildable_tip, design_tip, start_guesses, tip_bounds, tip_data, tip_result, tip_spec
 from vine_nlp.methods.transcription import get_solver
@@ -32,12 +31,11 @@ def tip_design(problem: TipProblem, starts: int | None = None, progress=None) ->
     return design_tip(problem, starts=starts, progress=progress)
 
 
-def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, rounds: int = settings.ROUNDS, ts=None,
-                              k: int = MESH_K, spacing: float = settings.SAMPLE_SPACING, progress=None, thorough: bool = False) -> Result:
+def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, progress=None, thorough: bool = False) -> Result:
     """Least-actuation tip design that keeps the tube ``problem.obstacle_margin`` clear of ``problem.obstacles``.
 
     ``starts``: the tip design's (default options.starts), after the obstacle-free tip design and its chain
-    pushed out (module docstring); ``rounds``, ``ts``, ``k``, ``spacing`` as design_with_obstacles';
+    pushed out (module docstring), each a loop of at most settings.ROUNDS solves;
     ``progress(done, total)`` after every start; ``thorough``: every start, the best kept (a lower
     objective, at several times the cost). Returns the best start by :func:`rank`, metrics as design_tip's
     plus min_obstacle_gap, stats obstacle_* as design_with_obstacles'."""
@@ -45,7 +43,7 @@ def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, ro
     free = stats.absorb(design_tip(problem, starts=starts, thorough=True))
     D = problem.diameter
     plan = Plan(problem.obstacles, D, problem.obstacle_margin, problem.growth, np.full(problem.segments, problem.length / problem.segments),
-                problem.actuator, ts, k, spacing)
+                problem.actuator)
     first = plan.report(free.routing)
     stats0 = {"obstacle_margin": plan.margin, "growth": plan.growth, "start_min_obstacle_gap": float(first["min_gap"]),
               "start_actuation_contraction": float(free.metrics["actuation_contraction"])}
@@ -58,11 +56,11 @@ def design_tip_with_obstacles(problem: TipProblem, starts: int | None = None, ro
     # each made when it is tried: the pushed chain costs a design solve
     guesses = [lambda: free.routing, lambda: pushed_chain(problem, plan, free.routing)]
     guesses += [lambda g=g: Routing(theta=g[0], lam=g[1], length=g[2], initial_pose=problem.initial_pose) for g in start_guesses(problem, n)]
-    found = drive.multistart(lambda routing: _tip_start(problem, plan, routing, rounds), guesses, key=rank,
+    found = drive.multistart(lambda routing: _tip_start(problem, plan, routing), guesses, key=rank,
                              accept=None if thorough else (lambda r: r.status == "optimal" and r.met["obstacles"]), progress=progress)
     best = drive.record_starts(found, stats, always=True)
     if best.converged and best.met["obstacles"]:  # buildable: the classes' lambda bounds, the rows' loop again
-        built = buildable_tip(problem, best, lambda r, lam: _tip_start(problem, plan, r, rounds, lam))
+        built = buildable_tip(problem, best, lambda r, lam: _tip_start(problem, plan, r, lam))
         if built is not best and built.met.get("obstacles"):
             built.stats, best = best.stats | built.stats, stats.absorb(built)
     best.method = "tip"
@@ -78,7 +76,7 @@ def rank(result: Result) -> tuple:
     return drive.rank(result, clear, result.objective if result.converged else result.metrics["tip_error"])
 
 
-def _tip_start(problem: TipProblem, plan: Plan, routing: Routing, rounds: int, lam=None) -> Result:
+def _tip_start(problem: TipProblem, plan: Plan, routing: Routing, lam=None) -> Result:
     """One start: the tip NLP with obstacle rows from ``routing`` (its frames on its chain), the active-set loop;
     ``lam``: lambda's bounds (a buildable design's classes)."""
     o, D = problem.options, problem.diameter
@@ -96,7 +94,7 @@ def _tip_start(problem: TipProblem, plan: Plan, routing: Routing, rounds: int, l
     x = plan.fill_extra(first, first.pack_x(frames12(fr, D)[None], theta=routing.theta, lam=routing.lam, length=routing.length / D), routing)
     rule = Rounds(plan, routing, data, solver, tip_data(problem), tip_bounds(first, problem, lam),
                   lambda sol: tip_result(problem, sol), stop_at_cap=True)
-    found = drive.refine(rule, rounds, x, stats)
+    found = drive.refine(rule, settings.ROUNDS, x, stats)
     best, rep = stats.stamp(found.best), found.verdict.report
     best.metrics.update(obstacle_metrics(rep))
     best.stats.update(obstacle_rounds=found.rounds, obstacle_clear=bool(rep["clear"]), obstacle_after_t=list(plan.ts))
