@@ -260,13 +260,15 @@ class Reclassify:
         return None
 
 
-def race(solve: Callable, candidates, start: Routing, build: Build, stats: drive.Stats) -> tuple[np.ndarray, Routing]:
+def race(solve: Callable, candidates, start: Routing, build: Build, stats: drive.Stats) -> list[tuple[np.ndarray, Routing]]:
     """The error diffusion's phases raced (issue 46): each phase's classes ``solve(act, start, cap)`` for settings.PHASE_ITER
-    iterations from ``start`` (unwound); (the classes of the lowest RMSE, its iterate unwound): the one to solve fully.
-    Every solve counts in ``stats``."""
+    iterations from ``start`` (unwound); [(classes, iterate unwound)] of the lowest RMSE and of the lowest objective (one
+    where they agree): the ones to solve fully (an iterate's RMSE and objective each ranked some phases unlike the full
+    solves: results/benchmarks/buildable.md). Every solve counts in ``stats``."""
     found = [stats.absorb(solve(act, unwind(start, act, build), settings.PHASE_ITER)) for act in candidates]
-    k = int(np.argmin([r.metrics["rmse"] if np.isfinite(r.metrics["rmse"]) else np.inf for r in found]))
-    return candidates[k], unwind(found[k].routing, candidates[k], build)
+    keys = ([r.metrics["rmse"] for r in found], [r.objective for r in found])
+    best = dict.fromkeys(int(np.argmin(np.where(np.isfinite(k), k, np.inf))) for k in keys)
+    return [(candidates[k], unwind(found[k].routing, candidates[k], build)) for k in best]
 
 
 def buildable_spec(problem: DesignProblem, pairing, build: Build) -> Spec:
@@ -320,11 +322,16 @@ def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Res
         best, rounds = dataclasses.replace(start, stats=dict(start.stats)), 0  # inside its classes' bounds: the margins force nothing
     else:
         raced = len(others) + 1 if others else 0
-        if others:  # the phases raced: the best's iterate solved fully (warm), no flips after it
-            act, r0 = race(lambda a, r, cap: solve_classes(problem, pairing, build, a, r, cap=cap)[0], [act, *others], r0, build, stats)
-        rule = Reclassify(lambda a, r, k: solve_classes(problem, pairing, build, a, r, k), act, build, limit, flips=flips or problem.load is not None)
-        found = drive.refine(rule, settings.BUILDABLE_ROUNDS, r0, stats)
-        best, act, rounds = found.best, rule.act, found.rounds + raced
+        starts = [(act, r0)]
+        if others:  # the phases raced: the best's iterates solved fully (warm), no flips after them
+            starts = race(lambda a, r, cap: solve_classes(problem, pairing, build, a, r, cap=cap)[0], [act, *others], r0, build, stats)
+        done = []
+        for a, r in starts:
+            rule = Reclassify(lambda a, r, k: solve_classes(problem, pairing, build, a, r, k), a, build, limit, flips=flips or problem.load is not None)
+            found = drive.refine(rule, settings.BUILDABLE_ROUNDS, r, stats)
+            done.append((not found.best.converged, found.best.metrics["rmse"], len(done), found.best, rule.act, found.rounds))
+        _, _, _, best, act, rounds = min(done, key=lambda d: d[:3])
+        rounds = sum(d[5] for d in done) + raced
     # a solve may leave an unactuated run's turning beyond half a turn: the same shape the shortest way round
     r = unwind(best.routing, act, build)
     short = evaluate(problem, Routing(theta=r.theta, lam=best.routing.lam, length=r.length, initial_pose=r.initial_pose), pairing, "nlp", status=best.status,
