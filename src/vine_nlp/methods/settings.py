@@ -256,7 +256,7 @@ BUILDABLE_ROUNDS, BUILDABLE_REPAIRS = 8, 2  # solves at most; of them, re-solves
 # 20 -> 3 iterations; the 125-knot sweep's 67 re-solved knots 950 -> 767 at 0.05 against 0.01; bezier-a's 0.12 took more warm than cold)
 WARM_CLIP = 0.05
 ROUND_ITER = 200  # a later round (other classes) that needs more is not taken: bezier-c's 6th round ran 1009 iterations for nothing
-# the error diffusion's phases (share of the step, the pair's bend as the step): each a first solve, the best kept; the
+# the error diffusion's phases (share of the step, the pair's bend as the step): raced (PHASE_ITER), the best solved fully; the
 # design's error on a gently bent target depends on where the isolated actuators fall (bezier-c: 0.27 mm at 0.5, 0.11 at 0.35)
 DIFFUSION = ((0.5, False), (0.35, False), (0.7, False), (0.5, True))
 # the phases race this many iterations each from the free design, the lowest RMSE's then solved fully (issue 46: bezier (a)-(c)
