@@ -184,23 +184,30 @@ def test_reclassify_rule_flips_what_the_multipliers_ask_for(act, limit, lie, rou
     assert found.best.metrics["rmse"] == 1.0 and found.rounds == rounds
 
 
-def test_reclassify_tries_the_phases_from_one_start_and_keeps_the_best():
-    """Over the budget: every phase solved from the same start, the lowest RMSE kept, no flips after them; within
-    the budget at the first: no other phase."""
+def test_the_race_keeps_the_lowest_rmse_and_the_lowest_objective_after_a_few_iterations_and_no_flips_follow():
+    """Every phase solved settings.PHASE_ITER iterations from the same start (counted); the classes and iterates (unwound)
+    of the lowest RMSE and of the lowest objective, once where they agree; the full solve from one takes no flips."""
     seen = []
 
-    def fake(act, start, round=0):
-        seen.append(start.lam[0])
-        return _Fake(WANT)(act, start)
+    def capped(act, start, cap, objective=None):
+        seen.append((start.lam[0], cap))
+        res, _ = _Fake(WANT)(act, start)
+        res.objective = res.metrics["rmse"] if objective is None else objective[len(seen) - 1]
+        res.routing.theta[:] = 0.1 * len(seen)  # which solve's iterate
+        return res
 
-    far, near = ~WANT, WANT ^ (np.arange(8) == 0)  # 9 and 2 RMSE
-    rule = B.Reclassify(fake, far, build(min_feature=0.0), limit=0.5, others=[near, WANT])
-    found = drive.refine(rule, settings.BUILDABLE_ROUNDS, START)
-    np.testing.assert_array_equal(rule.act, WANT)
-    assert found.best.metrics["rmse"] == 1.0 and found.rounds == 3 and seen == [0.9] * 3  # each from START, nothing after
+    far, near = ~WANT, WANT ^ (np.arange(8) == 0)  # RMSE 9 and 2
+    stats = drive.Stats()
+    (act, start), = B.race(capped, [far, near, WANT], START, build(min_feature=0.0), stats)
+    np.testing.assert_array_equal(act, WANT)
+    assert seen == [(0.9, settings.PHASE_ITER)] * 3 and stats.solves == 3
+    np.testing.assert_array_equal(start.lam == 1.0, ~WANT)  # the winner's iterate, unwound: theta 0 on the last run
+    assert start.theta[0] == pytest.approx(0.3)
     seen.clear()
-    rule = B.Reclassify(fake, WANT, build(min_feature=0.0), limit=1.5, others=[far, near])
-    assert drive.refine(rule, settings.BUILDABLE_ROUNDS, START).rounds == 1 and len(seen) == 1
+    found = B.race(lambda a, r, cap: capped(a, r, cap, [3.0, 0.5, 1.0]), [far, near, WANT], START, build(min_feature=0.0), stats)
+    assert [a.tolist() for a, _ in found] == [WANT.tolist(), near.tolist()] and found[1][1].theta[1] == pytest.approx(0.2)
+    rule = B.Reclassify(_Fake(WANT), near, build(min_feature=0.0), limit=0.5, flips=False)
+    assert drive.refine(rule, settings.BUILDABLE_ROUNDS, START).rounds == 1 and np.array_equal(rule.act, near)
 
 
 def test_phases_are_distinct_and_the_default_comes_first():
