@@ -21,8 +21,9 @@ the tube cannot follow past its detour pulled the neighbouring segments into a z
 chosen on the bundled problems and the speed scenes (results/BENCHMARKS.md, "Obstacles").
 
 Buildable (issue 46). Classes (:func:`_classes`): the pushed start's own bends decide where the actuators go next
-to the obstacles (target points within settings.NEAR_CLASSES D of the margin, and a segment either side), the
-target's bends elsewhere: the pushed start's error diffusion carried the detour's bends on along the run, and
+to the obstacles (target points within settings.NEAR_CLASSES D of the margin, or where the pushed start is more than
+settings.NEAR_DETOUR D off the target: its whole detour; and a segment either side), the target's bends elsewhere
+(by the margin alone, issue 33's slot scene's detour was cut straight: no clear design in 7 rounds, 56 s): the pushed start's error diffusion carried the detour's bends on along the run, and
 away from the walls the design then bent where the target does not (helices at theta_max beside straight runs).
 Polish (primitives only): the clear design solved once more (the loop's next round: warm, the same rows, cut at
 settings.ROUND_MAX_ITER iterations)
@@ -46,6 +47,7 @@ from vine_nlp.methods.obstacles.plan import Plan
 from vine_nlp.methods.obstacles.push import pushed_start
 from vine_nlp.methods.obstacles.rows import MESH_K
 from vine_nlp.methods.settings import BLOCKED_WEIGHT, MESH_BLOCKED_WEIGHT, MESH_WEIGHT_RAMP
+from vine_nlp.model import shape_lines
 from vine_nlp.problem import DesignProblem, Result
 
 RUN = "nlp"  # the obstacle design is the problem's design (archived as run "nlp"); the obstacle-free start: START_RUN
@@ -192,8 +194,10 @@ def _classes(problem: DesignProblem, pairing, routing, build: Build) -> np.ndarr
     ``routing`` near the obstacles, the target's elsewhere."""
     tg, D = problem.target, problem.diameter
     i = np.arange(tg.shape[0] - 1)
+    off = np.linalg.norm(shape_lines(routing.theta, routing.lam, routing.length, D, pairing.seg, pairing.frac, routing.initial_pose)[0] - tg, axis=1)
     near = np.zeros(routing.segments, bool)
-    near[pairing.seg[i[min_gap(tg[i], D, problem.obstacles).min(axis=1) < problem.obstacle_margin + settings.NEAR_CLASSES * D]]] = True
+    near[pairing.seg[i[(min_gap(tg[i], D, problem.obstacles).min(axis=1) < problem.obstacle_margin + settings.NEAR_CLASSES * D)
+                       | (off[i] > settings.NEAR_DETOUR * D)]]] = True
     near = np.convolve(near, np.ones(3), "same") > 0
     act = np.where(near, classify(chain_bends(routing, D), routing.length, build), classify(target_bends(problem, pairing), routing.length, build))
     return merge_short(act, routing.length, build.min_feature)
