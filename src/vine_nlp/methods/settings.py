@@ -204,6 +204,9 @@ PLANAR = 1e-9  # |torsion sum| / sum |chord|^3 below this: a target planar to ro
 BLOCKED_WEIGHT = 0.1  # weight of the target points closer than the margin to an obstacle (their fit cannot be exact)
 MESH_BLOCKED_WEIGHT = 0.01  # the same where the scene has a mesh (module docstring, "Weights")
 MESH_WEIGHT_RAMP = 1.0  # units of D: with a mesh, weights rise from MESH_BLOCKED_WEIGHT at the margin to 1 at margin + this
+POLISH_RAMP = 3.0  # units of D: the buildable design's polish, weights from BLOCKED_WEIGHT at the margin to 1 at margin + this
+NEAR_CLASSES = 1.0  # units of D beyond the margin: the buildable classes follow the pushed start's bends this near an obstacle
+NEAR_DETOUR = 0.1  # units of D: ... and where the pushed start is this far off the target (its detour)
 # obstacles.rows
 MESH_K = 6  # nearest triangles per mesh sample (the plan's default)
 TRI_EPS = 1e-9  # sqrt(d2 + eps^2) (units of D): finite gradients at distance 0

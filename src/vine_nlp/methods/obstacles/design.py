@@ -18,7 +18,18 @@ primitives, MESH_BLOCKED_WEIGHT where the scene has a mesh; heavier blocked poin
 into the target away from the obstacles, lighter ones (with a mesh) sent it round the far side. With a mesh
 the weight rises from the margin over MESH_WEIGHT_RAMP (quadratically): points just outside the margin that
 the tube cannot follow past its detour pulled the neighbouring segments into a zig-zag. The values were
-chosen on the bundled problems and the speed scenes (results/BENCHMARKS.md, "Obstacles")."""
+chosen on the bundled problems and the speed scenes (results/BENCHMARKS.md, "Obstacles").
+
+Buildable (issue 46). Classes (:func:`_classes`): the pushed start's own bends decide where the actuators go next
+to the obstacles (target points within settings.NEAR_CLASSES D of the margin, or where the pushed start is more than
+settings.NEAR_DETOUR D off the target: its whole detour; and a segment either side), the target's bends elsewhere
+(by the margin alone, issue 33's slot scene's detour was cut straight: no clear design in 7 rounds, 56 s): the pushed start's error diffusion carried the detour's bends on along the run, and
+away from the walls the design then bent where the target does not (helices at theta_max beside straight runs).
+Polish (primitives only): the clear design solved once more (the loop's next round: warm, the same rows, cut at
+settings.ROUND_MAX_ITER iterations)
+with the fit weights rising from BLOCKED_WEIGHT at the margin to 1 at margin + settings.POLISH_RAMP D (as with a
+mesh): the points just outside the margin that a detour cannot follow pulled the design off the target away from
+the walls; kept where it converges clear (a round in obstacle_rounds). The figures: results/benchmarks/scenes.md."""
 
 from __future__ import annotations
 
@@ -29,12 +40,13 @@ import numpy as np
 from vine_nlp.analysis.buildability import buildability
 from vine_nlp.analysis.obstacles import min_gap, obstacle_metrics
 from vine_nlp.methods import drive, settings
-from vine_nlp.methods.buildable import Build, chain_bends, classify, lambda_bounds, made_buildable, unwind
+from vine_nlp.methods.buildable import Build, chain_bends, classify, lambda_bounds, made_buildable, merge_short, target_bends, unwind
 from vine_nlp.methods.common import evaluate, pair_points
 from vine_nlp.methods.nlp import chain_guess, design_bounds, design_nlp, extended_solver, nlp_parameters, result_of, start_x
 from vine_nlp.methods.obstacles.plan import Plan
 from vine_nlp.methods.obstacles.push import pushed_start
 from vine_nlp.methods.settings import BLOCKED_WEIGHT, MESH_BLOCKED_WEIGHT, MESH_WEIGHT_RAMP
+from vine_nlp.model import shape_lines
 from vine_nlp.problem import DesignProblem, Result
 
 RUN = "nlp"  # the obstacle design is the problem's design (archived as run "nlp"); the obstacle-free start: START_RUN
@@ -53,9 +65,10 @@ class Rounds:
     def __init__(self, plan: Plan, routing, data: dict, solver, params: dict, bounds: tuple, result, stop_at_cap: bool = False,
                  warm: bool = False):
         self.plan, self.routing, self.data, self.solver, self.params, self.bounds = plan, routing, data, solver, params, bounds
-        self.result, self.stop_at_cap, self.warm = result, stop_at_cap, warm
+        self.result, self.stop_at_cap, self.warm, self.offset = result, stop_at_cap, warm, 0
 
     def solve(self, x, round, last):
+        round, last = round + self.offset, last and not self.offset  # a loop that goes on (the polish): warm, cut
         if round:
             self.data = self.plan.data(self.routing)
         warm = self.warm and round > 0
@@ -80,7 +93,7 @@ class Rounds:
         # only a converged answer's multipliers start the next round (from a capped solve's, the warm re-solves
         # wandered off: a box scene's RMSE 0.4 -> 94 cm)
         duals = sol.stats.pop("duals", zero)
-        self.duals = duals if sol.status == "optimal" else (zero[0], np.zeros(0))
+        self.duals, self.x = (duals if sol.status == "optimal" else (zero[0], np.zeros(0))), sol.x
         return sol.x, self.result(sol)
 
     def judge(self, res):
@@ -129,13 +142,20 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
         return evaluate(problem, routing, pairing, METHOD, status=res.status, iterations=res.iterations, stats=res.stats,
                         objective=res.objective, hessian=res.hessian, solve_time_s=res.solve_time_s, met=res.met)
 
-    # one loop of the buildable problem: the classes of the pushed start's own bends, their lambda bounds
-    act = classify(chain_bends(routing, problem.diameter), routing.length, build)
+    # one loop of the buildable problem: the classes (module docstring, "Buildable"), their lambda bounds
+    act = _classes(problem, pairing, routing, build)
     lam = lambda_bounds(act, routing.length, build)
     r0 = unwind(dataclasses.replace(routing, lam=np.clip(routing.lam, *lam)), act, build)
-    best, found = _rounds(problem, plan, pairing, r0, rounds, stats, lam)
-    how = "classes of the pushed start"
+    best, found, rule = _rounds(problem, plan, pairing, r0, rounds, stats, lam)
+    how = "classes of the pushed start near the obstacles"
     if best.converged and found.verdict.report["clear"]:
+        if not plan.has_mesh:  # the polish: one solve more, warm, cut at settings.ROUND_MAX_ITER
+            rule.params, rule.routing, rule.offset = rule.params | {"cells": rule.polish}, best.routing, 1
+            again = drive.refine(rule, 1, rule.x, stats)
+            again.rounds += found.rounds
+            if again.best.converged and again.verdict.report["clear"]:
+                best, how = again.best, how + ", polished"
+            found = again if best is again.best else dataclasses.replace(found, rounds=again.rounds)
         best = finish(best, unwind(best.routing, act, build))
         best.buildable = True
     else:  # the free loop from the pushed start, then made buildable from its answer
@@ -143,7 +163,7 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
         plan.reset_rounds()
         plan.choose_levels(first)
         plan.data(start.routing)
-        best, found = _rounds(problem, plan, pairing, routing, rounds, stats)
+        best, found, _ = _rounds(problem, plan, pairing, routing, rounds, stats)
     rep = buildability(best.routing, build.D, build.kind, build.lambda_min, build.margin, build.min_feature, build.pose is None)
     if best.converged and found.verdict.report["clear"] and (not best.buildable or rep.below):  # (again: the lengths moved)
         built = made_buildable(best, build, lambda r, lam: _again(problem, plan, pairing, r, rounds, lam), finish)
@@ -162,19 +182,34 @@ def design_with_obstacles(problem: DesignProblem, start: Result | None = None, r
 
 def _again(problem: DesignProblem, plan: Plan, pairing, routing, rounds: int, lam) -> Result:
     """The loop from a design with lambda's bounds ``lam``: its best round, status "not clear" where it does not clear."""
-    res, found = _rounds(problem, plan, pairing, routing, rounds, drive.Stats(), lam)
+    res, found, _ = _rounds(problem, plan, pairing, routing, rounds, drive.Stats(), lam)
     res.stats["obstacle_rounds"], res.met["obstacles"] = found.rounds, bool(found.verdict.report["clear"])
     return res if res.met["obstacles"] else dataclasses.replace(res, status="not clear")
 
 
+def _classes(problem: DesignProblem, pairing, routing, build: Build) -> np.ndarray:
+    """Where the obstacle design has actuators (module docstring, "Buildable"): the bends of the pushed start
+    ``routing`` near the obstacles, the target's elsewhere."""
+    tg, D = problem.target, problem.diameter
+    i = np.arange(tg.shape[0] - 1)
+    off = np.linalg.norm(shape_lines(routing.theta, routing.lam, routing.length, D, pairing.seg, pairing.frac, routing.initial_pose)[0] - tg, axis=1)
+    near = np.zeros(routing.segments, bool)
+    near[pairing.seg[i[(min_gap(tg[i], D, problem.obstacles).min(axis=1) < problem.obstacle_margin + settings.NEAR_CLASSES * D)
+                       | (off[i] > settings.NEAR_DETOUR * D)]]] = True
+    near = np.convolve(near, np.ones(3), "same") > 0
+    act = np.where(near, classify(chain_bends(routing, D), routing.length, build), classify(target_bends(problem, pairing), routing.length, build))
+    return merge_short(act, routing.length, build.min_feature)
+
+
 def _rounds(problem: DesignProblem, plan: Plan, pairing, routing, rounds: int, stats: drive.Stats, lam=None):
-    """The active-set loop from ``routing`` (its frames on its chain): (the best round, drive.refine's answer);
-    ``lam``: lambda's bounds (a buildable design's classes)."""
+    """The active-set loop from ``routing`` (its frames on its chain): (the best round, drive.refine's answer, the
+    rule: its ``polish`` the fit's cells for the polish); ``lam``: lambda's bounds (a buildable design's classes)."""
     D = problem.diameter
     R0g = routing.initial_pose[:3, :3].copy()
     params = nlp_parameters(problem, pairing, R0g)
     factor, ramp = (MESH_BLOCKED_WEIGHT, MESH_WEIGHT_RAMP) if plan.has_mesh else (BLOCKED_WEIGHT, 0.0)
-    params["cells"] = _weigh_blocked(problem, pairing, params["cells"], factor, ramp)
+    cells = params["cells"]
+    params["cells"] = _weigh_blocked(problem, pairing, cells, factor, ramp)
 
     def solver(round, last, warm=False):  # cached per spec: new only when the slots grew; a re-solve before the last is cut
         return extended_solver(problem, pairing, (plan.term,), plan.extra, settings.ROUND_MAX_ITER if 0 < round and not last else None,
@@ -192,8 +227,10 @@ def _rounds(problem: DesignProblem, plan: Plan, pairing, routing, rounds: int, s
     dl0 = routing.length / D
     bounds = first_solver.bounds(**box | {"length": (box["length"][0], np.where(dl0 > dl_hi, settings.LENGTH_SLACK * dl0, dl_hi))})
     x = plan.fill_extra(first_solver, start_x(first_solver, chain_guess(problem, routing), D, "chain"), routing)
-    found = drive.refine(Rounds(plan, routing, data, solver, params, bounds, result, warm=True), rounds, x, stats)
-    return found.best, found
+    rule = Rounds(plan, routing, data, solver, params, bounds, result, warm=True)
+    rule.polish = _weigh_blocked(problem, pairing, cells, factor, settings.POLISH_RAMP)
+    found = drive.refine(rule, rounds, x, stats)
+    return found.best, found, rule
 
 def _weigh_blocked(problem: DesignProblem, pairing, cells: np.ndarray, factor: float, ramp: float = 0.0) -> np.ndarray:
     """The cells with the weights of the blocked target points (where the tube cannot be: closer than
