@@ -16,9 +16,8 @@ from pathlib import Path
 from vine_nlp import __version__
 from vine_nlp.errors import InputError
 from vine_nlp.front import files as ff
-from vine_nlp.front.files import add_sigma_args, archive_run, check_figure, check_output, read_archive, sigmas
+from vine_nlp.front.files import add_sigma_args, archive_run, check_figure, check_output, read_archive, several_actuators, sigmas
 from vine_nlp.io import limits, outputs
-from vine_nlp.io.h5read import open_archive
 from vine_nlp.methods import blas, compiled
 from vine_nlp.model.units import mm_per_unit
 from vine_nlp.pipeline.request import COMPARE
@@ -569,18 +568,6 @@ def _commands(parser) -> str:
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     rows = [f"  {c.dest:<10s} {c.help}" for c in sub._choices_actions]
     return "\n".join(["usage: vine-nlp COMMAND [options]   (vine-nlp --help; vine-nlp COMMAND --help: its options)", "commands:", *rows])
-
-
-# commands that read one actuator's routing from an archive: not yet for archives of several actuators (io.actuators)
-def several_actuators(path) -> bool:
-    """Whether ``path`` is an archive of several actuators: its kind attribute alone (the command reads and checks
-    the whole archive next)."""
-    if not (path and Path(path).suffix.lower() in (".h5", ".hdf5") and Path(path).is_file()):
-        return False
-    with open_archive(path) as h5:
-        kind = h5["problem"].attrs.get("kind") if "problem" in h5 else None
-    kind = kind.decode(errors="replace") if isinstance(kind, bytes) else kind
-    return isinstance(kind, str) and kind.startswith("actuators")
 
 
 def _one_actuator_only(args) -> None:

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 
 from vine_nlp.errors import InputError
-from vine_nlp.front.files import check_figure, check_output, sigmas
+from vine_nlp.front.files import check_figure, check_output, several_actuators, sigmas
 from vine_nlp.front.plot import equal_view_3d, label_3d_axes, save_figure
 from vine_nlp.io.archived import archived_problem
 from vine_nlp.io.calibration import write_calibration
@@ -133,7 +133,6 @@ def cmd_correct(args) -> int:
         raise InputError("command line", "--sigma-*", "the construction-error sigmas must be > 0")
     lines = tuple(x.strip() for x in args.line.split(","))
     adjust = tuple(x.strip() for x in args.adjust.split(",")) if args.adjust else None
-    from vine_nlp.front.cli import several_actuators
 
     several = several_actuators(args.archive)
     if fig and several:

@@ -8,6 +8,7 @@ from pathlib import Path
 from vine_nlp.errors import InputError
 from vine_nlp.io import limits, outputs
 from vine_nlp.io.archive import load_archive
+from vine_nlp.io.h5read import open_archive
 from vine_nlp.model.routing import Sigmas
 
 FIGURE_FORMATS = ("png", "pdf", "svg")
@@ -115,3 +116,14 @@ def add_sigma_args(p) -> None:
     p.add_argument("--sigma-lambda", type=bounded(0, 1), default=0.02, metavar="S", help="construction error of lambda (default 0.02)")
     p.add_argument("--sigma-length", type=bounded(0, 1), default=0.02, metavar="F", help="relative error of segment lengths (default 0.02)")
     p.add_argument("--sigma-length-abs", type=bounded(0, limits.MAX_COORDINATE), metavar="L", help="absolute error of segment lengths instead, in units")
+
+
+def several_actuators(path) -> bool:
+    """Whether ``path`` is an archive of several actuators: its kind attribute alone (the command reads and checks
+    the whole archive next)."""
+    if not (path and Path(path).suffix.lower() in (".h5", ".hdf5") and Path(path).is_file()):
+        return False
+    with open_archive(path) as h5:
+        kind = h5["problem"].attrs.get("kind") if "problem" in h5 else None
+    kind = kind.decode(errors="replace") if isinstance(kind, bytes) else kind
+    return isinstance(kind, str) and kind.startswith("actuators")
