@@ -200,7 +200,7 @@ def icp_refine(sets, T, max_iter=100, tol=1e-10):
     for it in range(1, max_iter + 1):
         c, d, *_ = project_all(sets, apply_transform(T, X))
         cost = float(np.mean(d**2))
-        if prev - cost <= tol * prev or cost == 0.0:
+        if (it > 1 and prev - cost <= tol * prev) or cost == 0.0:  # prev is inf on the first pass: inf <= inf
             return T, cost, it
         prev = cost
         T = make_transform(*_kabsch(X, c))
