@@ -35,9 +35,8 @@ def report(result, units: str) -> list[str]:
         f"length {float(np.median(e.std[:, 2])):.4g} {units}",
         *_routes(result, units),
     ]
-    why = "recommended" if route == result.recommended else f"as asked; recommended {result.recommended}"
     held = e.deviations.held if e.deviations.held is not None else np.zeros(M, bool)
-    out.append(f"corrected   {route} ({why}), {c.status}{', short of the target' if c.shortfall else ''}: lambda changed in "
+    out.append(f"{_corrected(result)}: lambda changed in "
                f"{int(np.sum(np.abs(dl) > 1e-6))} of {M} segments (largest {float(np.max(np.abs(dl), initial=0)):.4f}; "
                f"{int(held.sum())} held: built against 1, their error beyond it unknown)"
                + (f", theta in {int(np.sum(np.abs(dt) > 1e-6))} (largest {float(np.max(np.abs(dt), initial=0)):.2f} deg)" if "theta" in route else ""))
@@ -83,10 +82,15 @@ def report_several(result, units: str) -> list[str]:
         out.append(f"  state {st}{'' if st in states else ' (not measured)'}: RMSE to the target as built {ab.state_metrics[st]['rmse']:.4g} {units}, "
                    f"corrected (predicted) {c.state_metrics[st]['rmse']:.4g} {units}")
     out += _routes(result, units)
-    route = ",".join(result.adjust)
-    why = "recommended" if route == result.recommended else f"as asked; recommended {result.recommended}"
-    out.append(f"corrected   {route} ({why}), {c.status}{', short of the target' if c.shortfall else ''}")
+    out.append(_corrected(result))
     return out
+
+
+def _corrected(result) -> str:
+    """The closing line's start, both reports': the route taken, why, the corrected design's status."""
+    route, c = ",".join(result.adjust), result.corrected
+    why = "recommended" if route == result.recommended else f"as asked; recommended {result.recommended}"
+    return f"corrected   {route} ({why}), {c.status}{', short of the target' if c.shortfall else ''}"
 
 
 def correction_figure(result, problem, units: str = "cm"):
