@@ -7,7 +7,8 @@ functions) and ``VINE_NLP_CODEGEN=on`` (compiled, cached). Every run's routing (
 and the two are compared: the goal is 1e-6, the same exit status and the same runs.
 
 Problems: problems/*.toml and the scene set's files (benchmarks/.cache/scenes/files, made by bench_scenes.py).
-Records go to benchmarks/.cache/first-later/<setting>.pkl, and a run resumes from them (--fresh starts over).
+Records go to benchmarks/.cache/first-later/<setting>.pkl, and a run resumes from them; they are not tied to a
+version of the code, so after a change start over with --fresh.
 It takes about 10 minutes compiled and 17 interpreted on 2 cores.
 Writes results/benchmarks/first-later.md.
 
@@ -63,20 +64,19 @@ def child(setting: str, out: Path) -> None:
 
 
 def compare(first: dict, later: dict) -> tuple[list, list]:
-    """(max abs routing difference, name) of every problem in both, and the problems whose exit, runs or error differ."""
+    """(max abs routing difference, name) of every problem whose two runs ended alike (the same error, or the same exit
+    status and runs), and (name, first, later) of the problems whose outcome differs."""
+    def outcome(r):
+        return r.get("error"), r.get("exit"), sorted(r.get("runs", {}))
+
     diffs, unlike = [], []
     for key in sorted(set(first) & set(later)):
         a, b = first[key], later[key]
-        if "error" in a or "error" in b or a["exit"] != b["exit"] or a["runs"].keys() != b["runs"].keys():
-            if a.get("error") != b.get("error") or a.get("exit") != b.get("exit") or "error" not in a:
-                unlike.append((key, a.get("error", a.get("exit")), b.get("error", b.get("exit"))))
+        if outcome(a) != outcome(b):
+            unlike.append((key, a.get("error", a.get("exit")), b.get("error", b.get("exit"))))
             continue
-        worst = 0.0
-        for name, ra in a["runs"].items():
-            for k, v in ra.items():
-                w = b["runs"][name][k]
-                worst = max(worst, float(np.max(np.abs(v - w))) if v.shape == w.shape and v.size else (0.0 if v.shape == w.shape else np.inf))
-        diffs.append((worst, key))
+        pairs = [(v, b["runs"][name][k]) for name, ra in a.get("runs", {}).items() for k, v in ra.items()]
+        diffs.append((max((float(np.max(np.abs(v - w), initial=0.0)) if v.shape == w.shape else np.inf for v, w in pairs), default=0.0), key))
     return sorted(diffs, reverse=True), unlike
 
 
