@@ -141,6 +141,19 @@ def phases(bends, length, build: Build) -> list[np.ndarray]:
     return out
 
 
+def band(problem: DesignProblem, pairing=None) -> tuple[np.ndarray, np.ndarray] | None:
+    """The buildable design in one solve where nothing is left to decide (issue 46): the lambda box (lo, hi) of the
+    classes where every phase actuates every segment by the target's own bends (a helix, a trefoil), the target's
+    chords as the lengths; None where a free design decides the classes (straight or gentle runs), and where the
+    base is fixed, a load, obstacles or one shared lambda take the design their own way."""
+    build = Build.of(problem)
+    if build.pose is not None or build.shared or problem.load is not None or getattr(problem, "obstacles", ()):
+        return None
+    pairing = pairing or pair_points(problem.target, problem.options.points_per_segment)
+    found = phases(target_bends(problem, pairing), pairing.segment_chord, build)
+    return lambda_bounds(found[0], pairing.segment_chord, build) if len(found) == 1 and found[0].all() else None
+
+
 def merge_short(act, length, min_feature: float) -> np.ndarray:
     """An inner piece shorter than min_feature takes its neighbours' class (the shortest first)."""
     act = np.array(act, bool)
@@ -341,9 +354,10 @@ def design_buildable(problem: DesignProblem, start: Result, pairing=None) -> Res
     best = short if short.metrics["rmse"] <= best.metrics["rmse"] * (1 + 1e-9) else best
     best.stats |= {k: v for k, v in start.stats.items() if k.startswith(("start", "best_start", "hops", "corner"))}
     best.buildable = True
-    best.stats |= {"buildable": True, "buildable_actuated": int(act.sum()), "buildable_free_rmse": float(start.metrics["rmse"]),
-                   "buildable_budget": float(limit), "buildable_rounds": rounds, "correction_margin": build.margin,
-                   "min_feature": build.min_feature}
+    # a start solved inside the band (:func:`band`) is the buildable problem's own answer, not a free design
+    first = {"buildable_one_solve": True} if start.stats.get("lambda_band") else {"buildable_free_rmse": float(start.metrics["rmse"])}
+    best.stats |= first | {"buildable": True, "buildable_actuated": int(act.sum()), "buildable_budget": float(limit), "buildable_rounds": rounds,
+                           "correction_margin": build.margin, "min_feature": build.min_feature}
     return stats.stamp(best)
 
 

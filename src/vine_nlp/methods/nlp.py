@@ -129,11 +129,12 @@ def _solve(problem, guess, pairing, frames, warm, hessian, max_iter, method: Met
     M, n = pairing.segments, pairing.n
     R0g = guess.initial_pose[:3, :3]
     data = nlp_parameters(problem, pairing, R0g)
-    bounds = design_bounds(problem, pairing)
+    bounds = design_bounds(problem, pairing) | ({} if method.band is None else {"lam": method.band})
     solver = get_solver(M, n, problem.actuator.shared_lambda, max_iter, method.tol, warm, hessian)
     lbx, ubx = solver.bounds(**bounds)
     sol = solver.solve(start_x(solver, guess, D, frames), solver.pack_params(data), lbx, ubx)
-    return result_of(problem, pairing, sol, R0g, "nlp", method=method, max_iter=max_iter, hessian=hessian)
+    band = {} if method.band is None else {"lambda_band": True}
+    return result_of(problem, pairing, sol, R0g, "nlp", method=method, max_iter=max_iter, hessian=hessian, **band)
 
 
 def result_of(problem, pairing, sol: Solution, R0g, run, method: Method | None = None, **extra) -> Result:

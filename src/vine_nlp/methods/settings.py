@@ -12,7 +12,7 @@ why its value (grouped by the module that uses it); the figures that chose them 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 from vine_nlp.problem import DesignOptions
 
@@ -109,8 +109,10 @@ class Method:
 
     ``starts``: multi-start; ``hops``: basin-hopping rounds; ``max_iter``, ``tol``: IPOPT's; ``hessian``: "auto"
     (the drive's schedule), "exact" or "gauss-newton"; ``budget``: seconds of the corner search (0: none);
-    ``seed``: every random choice; ``rounds``: active-set solves at most. The defaults of what a problem file may
-    set are its ``[design]`` table's (``DesignOptions``): one default each."""
+    ``seed``: every random choice; ``rounds``: active-set solves at most; ``band``: a lambda box (lo, hi) per segment
+    every solve of the plain NLP keeps (the buildable design's one solve, ``methods.buildable.band``; None: the
+    actuator's). The defaults of what a problem file may set are its ``[design]`` table's (``DesignOptions``): one
+    default each."""
 
     starts: int = DesignOptions.starts
     hops: int = DesignOptions.hops
@@ -120,6 +122,7 @@ class Method:
     budget: float = DesignOptions.budget  # a safety stop: the polyline (d)'s corner search ends well within it
     seed: int = DesignOptions.seed
     rounds: int = 6  # active sets (clearance pairs, obstacle rows): the bundled problems end in 1-3 ("Obstacles")
+    band: tuple | None = field(default=None, compare=False)
 
     @classmethod
     def of(cls, options) -> "Method":

@@ -33,7 +33,7 @@ from vine_nlp.io.actuators import write_actuators_archive
 from vine_nlp.io.archive import Archive, write_archive
 from vine_nlp.io.formulations import write_multishape_archive, write_tip_archive
 from vine_nlp.io.problems import ProblemFile
-from vine_nlp.methods import actuators, blas, drive, mirror, settings
+from vine_nlp.methods import actuators, blas, buildable, drive, mirror, settings
 from vine_nlp.methods.actuators_design import design_actuators
 from vine_nlp.methods.buildable import design_buildable, missed
 from vine_nlp.methods.clearance import design_with_clearance
@@ -173,10 +173,12 @@ def _design_as_given(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, 
     runs = {}
     for m in methods:
         if m == "nlp":
-            free = design_nlp(problem, starts=rq.starts, workers=rq.workers, warm=rq.warm, progress=rq.progress, hops=rq.hops,
-                              budget=rq.budget, note=rq.note)
+            # the buildable problem in one solve where the target leaves no class to decide (issue 46), else a free design first
+            band = buildable.band(problem)
+            kw = dict(starts=rq.starts, workers=rq.workers, warm=rq.warm, progress=rq.progress, hops=rq.hops, budget=rq.budget, note=rq.note)
+            free = design_nlp(problem, method=settings.Method.of(problem.options).with_(band=band), **kw)
             if "nlp_free" in methods:  # compare: the free design kept before it, a figure only (not decisive)
-                runs["nlp_free"] = free
+                runs["nlp_free"] = free if band is None else design_nlp(problem, **kw)
             # the buildable design from the free one (issue 31; robust and clearance keep its classes); among obstacles a
             # design that cuts one only starts theirs
             runs[m] = design_buildable(problem, free) if not problem.obstacles or _clears(problem, free) else free
