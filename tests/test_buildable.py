@@ -12,7 +12,7 @@ import vine_nlp as vn
 from vine_nlp.analysis.buildability import buildability, pieces, turning
 from vine_nlp.api import ArgumentError
 from vine_nlp.front.cli import main
-from vine_nlp.io.problem_file import load_problem
+from vine_nlp.io.problem_file import ProblemFile, load_problem
 from vine_nlp.methods import buildable as B
 from vine_nlp.methods import drive, settings
 from vine_nlp.methods.nlp import design_nlp
@@ -20,6 +20,8 @@ from vine_nlp.model import shape_lines
 from vine_nlp.model.chain import segment_end_samples
 from vine_nlp.model.helix import center_rates
 from vine_nlp.model.routing import Routing
+from vine_nlp.pipeline import Request
+from vine_nlp.pipeline import run as run_pipeline
 from vine_nlp.problem import Actuator, DesignOptions, DesignProblem, Result
 
 HOOK = "problems/hook.toml"
@@ -101,6 +103,47 @@ def test_a_buildable_routing_is_recovered():
     np.testing.assert_array_equal(res.routing.lam == 1.0, lam == 1.0)
     assert res.metrics["rmse"] < 5e-4 * D  # the build effort's pull on the actuated thetas: 0.003 mm here
     assert np.allclose(res.routing.lam, lam, atol=0.01) and np.allclose(res.routing.theta[5:8], theta[5:8], atol=math.radians(0.2))
+
+
+def _bent_everywhere(M=16, n=6, D=2.0, **options):
+    """A target the forward model makes from a routing actuated on every segment, inside the margins."""
+    lam = np.linspace(0.6, 0.85, M)
+    theta = np.radians(np.linspace(-20.0, 25.0, M))
+    length = np.full(M, 2.0)
+    seg, frac = segment_end_samples(length, n)
+    center = shape_lines(theta, lam, length, D, seg, frac, np.eye(4))[0]
+    return DesignProblem("bent", D, center, Actuator(), DesignOptions(points_per_segment=n, **options)), theta, lam
+
+
+def test_a_target_bent_everywhere_is_designed_in_one_solve():
+    """Issue 46: where the target's bends actuate every segment in every phase, the buildable problem is solved
+    once, inside the band (no free design, no round), and the known routing comes back."""
+    pb, theta, lam = _bent_everywhere()
+    lo, hi = B.band(pb)
+    b = B.Build.of(pb)
+    assert np.all(lo == b.lo) and np.all(hi <= 1 - b.margin) and np.all(hi > lam.max())
+    res = vn.solve(pb).result
+    assert res.ok and res.stats["buildable_one_solve"] and res.stats["lambda_band"] and res.stats["buildable_rounds"] == 0
+    assert "buildable_free_rmse" not in res.stats  # no free design was made
+    assert res.stats["solves"] == 1 and res.metrics["rmse"] < 1e-4 * pb.diameter
+    np.testing.assert_allclose(res.routing.lam, lam, atol=1e-3)
+    np.testing.assert_allclose(res.routing.theta, theta, atol=math.radians(0.1))
+    assert B.missed(pb, res) == []
+
+
+def test_the_band_only_where_nothing_is_left_to_decide():
+    pb, _, _ = _bent_everywhere()
+    assert B.band(load_problem(HOOK).problem) is None  # a straight run: the free design decides the classes
+    assert B.band(dataclasses.replace(pb, actuator=Actuator(kind="spam"))) is None  # one lambda: its own band
+    fixed = dataclasses.replace(pb, options=dataclasses.replace(pb.options, base="fixed", base_pose=np.eye(4)))
+    assert B.band(fixed) is None  # a fixed base: the rounds place the line
+
+
+def test_compare_shows_the_free_design_beside_the_one_solve():
+    """compare's nlp_free is a free design (lambda up to 1, no band) where the nlp run was solved inside the band."""
+    pb, _, _ = _bent_everywhere(M=10)
+    found = run_pipeline(ProblemFile(kind="design", name="bent", path=None, problem=pb, source="", units="cm"), Request(methods=("nlp_free", "nlp")))
+    assert found.runs["nlp"].stats["buildable_one_solve"] and "lambda_band" not in found.runs["nlp_free"].stats
 
 
 def test_unwinding_keeps_the_shape_and_takes_the_shortest_way():
