@@ -37,6 +37,7 @@ that far apart ((w_a + w_b)/2 > pi D/2) is made exclusive.
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 import time
@@ -93,6 +94,7 @@ def local_motion(th, lam, ph, dl, u):
     return R, p
 
 
+@functools.lru_cache(maxsize=None)
 def _functions(a: int, n: int):
     """SX functions of ``a`` active lines: step (X, th, lam, ph, dl) -> X', points (X, th, lam, ph, dl) -> 3 x n
     at u = 0, 1/n, ..., (n-1)/n, and the tip (u = 1)."""
@@ -105,10 +107,17 @@ def _functions(a: int, n: int):
     return step, ca.Function("pts", [X, th, lam, ph, dl], [ca.horzcat(*pts)])
 
 
+_BUILT: dict = {}  # the solvers built in this process, per structure (:meth:`_NLP.solver`)
+
+
 class _NLP:
-    """The NLP of one problem, built once (expanded to SX: every segment's motion and points one call of an SX
-    function per number of active lines, mapped over the segments); the stages and pairing rounds change only
-    bounds and parameters. ``lay``: where each declared variable lives (``methods.structure.Layout``, a level per state)."""
+    """The NLP of one problem (expanded to SX: every segment's motion and points one call of an SX function per
+    number of active lines, mapped over the segments); the stages and pairing rounds change only bounds and
+    parameters. Its solvers are built once per structure in a process (segments, points, the states' lines, the
+    exclusive and spaced pairs, the base, IPOPT's limit and tolerance): the data (targets, the guess's lengths, the
+    smoothness weights, the base's rotation) are parameters (``data``), so every door, correction round and sweep
+    item of one structure reuses them (building one costs seconds). ``lay``: where each declared variable lives
+    (``methods.structure.Layout``, a level per state)."""
 
     def __init__(self, problem: ActuatorsProblem, M: int, R0g: np.ndarray, h: np.ndarray):
         D, o, fixed = problem.diameter, problem.options, problem.options.base == "fixed"
@@ -123,29 +132,33 @@ class _NLP:
         self.P = n * M + 1  # model points per state: n per segment and the tip
         # the stage-1 penalty weight, then per state the model points' fractions c0 of the state's length at the
         # pairing, the target there and its derivative in c (the pairing linearized: exact where c = c0)
-        par = ca.MX.sym("p", 1 + 7 * self.P * S)
+        par = ca.MX.sym("p", 1 + 7 * self.P * S + M + 11)
+        hp, wt, wl = par[-M - 11: -11], par[-11], par[-10]  # the data: the guess's lengths, the smoothness weights
+        Rg = ca.reshape(par[-9:], 3, 3)  # and the guess's base rotation (column-major)
+        self.data = np.r_[h, o.smooth_theta, o.smooth_lambda, np.asarray(R0g, float).ravel(order="F")]
         rows = [(ca.vec(ph[:, 1:] - ph[:, :-1] - 2 * ca.tan(th) * ca.repmat(dl, K, 1)), 0.0, 0.0)]  # (expression, lower, upper)
         w, p = (x[lay.pose[0, i: i + 3].tolist()] for i in (0, 3)) if not fixed else (None, None)  # rotation vector about R0g, position
-        J, fns = 0, {}
+        J, lines = 0, []
         for s, active in enumerate(problem.states.values()):
             ks = [idx[a] for a in active]
-            step, pts = fns.setdefault(len(ks), _functions(len(ks), n))
+            lines.append(tuple(ks))
+            step, pts = _functions(len(ks), n)
             Xs = ca.reshape(x[lay.X[:, s].ravel().tolist()], 12, M + 1)  # the state's frames: its base, every segment's end
             q = ca.reshape(par[1 + 7 * self.P * s: 1 + 7 * self.P * (s + 1)], 7, self.P)
             bs = b[:, s].T  # the target's segment ends, fractions of its chord (variables: the pairing is designed too)
             c = ca.horzcat(ca.vec(ca.repmat(bs[:, :M], n, 1) + ca.mtimes(ca.DM(np.arange(n) / n), ca.diff(bs, 1, 1))).T, 1)
             T = q[1:4, :] + q[4:7, :] * ca.repmat(c - q[0, :], 3, 1)
             if not fixed:  # a free base is the pose (the state's first frame is fixed by its bounds, unused)
-                Xs = ca.horzcat(ca.vertcat(ca.vec(ca.mtimes(ca.DM(R0g), so3_exp(w))), p), Xs[:, 1:])
+                Xs = ca.horzcat(ca.vertcat(ca.vec(ca.mtimes(Rg, so3_exp(w))), p), Xs[:, 1:])
             args = [Xs[:, :-1], th[ks, :], lam[ks, :], ph[ks, :-1], dl]
             rows.append((ca.vec(Xs[:, 1:] - step.map(M)(*args)), 0.0, 0.0))
             J += ca.sumsqr(pts.map(M)(*args) - T[:, :-1]) + ca.sumsqr(Xs[9:, -1] - T[:, -1])
         J = J / (S * self.P)
         # smoothness of theta and lambda along the tube (h: the guess's segment lengths, L their sum)
         if M > 1:
-            hm = ca.DM(0.5 * (h[1:] + h[:-1])).T
-            J += o.smooth_theta / h.sum() * ca.sum2(ca.sum1(ca.diff(th, 1, 1) ** 2) / hm)
-            J += o.smooth_lambda / h.sum() * ca.sum2(ca.sum1(ca.diff(lam, 1, 1) ** 2) / hm)
+            hm = (0.5 * (hp[1:] + hp[:-1])).T
+            J += wt / ca.sum1(hp) * ca.sum2(ca.sum1(ca.diff(th, 1, 1) ** 2) / hm)
+            J += wl / ca.sum1(hp) * ca.sum2(ca.sum1(ca.diff(lam, 1, 1) ** 2) / hm)
         # exclusive pairs (stage 1 penalty) and widths (1 - cos(phi_a - phi_b) at every segment end)
         self.exclusive, pairs = exclusive_pairs(problem)
         mu = par[0]
@@ -158,16 +171,22 @@ class _NLP:
         path = ca.repmat(dl, K, 1) / ca.cos(th)  # each line's length along it per segment (K, M)
         gap = (1 - lam) * path  # the stopper gaps: alone, partners' together, and the stoppers (``features``)
         self.features = ca.vertcat(*(ca.vec(e) for e in (gap, gap[:, :-1] + gap[:, 1:], lam * path)))
-        self.nlp, self.solvers = {"x": x, "f": J, "g": ca.vertcat(*(e for e, _, _ in rows)), "p": par}, {}
+        self.nlp = {"x": x, "f": J, "g": ca.vertcat(*(e for e, _, _ in rows)), "p": par}
         self.opts = quiet(o.max_iter, o.tol) | CHAIN | EXACT_BOUNDS | {"expand": True}
+        self.key = (M, n, fixed, tuple(lines), K, tuple(self.exclusive), tuple(pairs), o.max_iter, o.tol)
 
     def solver(self, features: bool):
         """The solver (built on first use) without or with the features' rows (the last stage's only: free rows
         in the others would cost iterations)."""
-        if features not in self.solvers:
+        key = self.key + (features,)
+        if key not in _BUILT:
             g = ca.vertcat(self.nlp["g"], self.features) if features else self.nlp["g"]
-            self.solvers[features] = ca.nlpsol("actuators", "ipopt", self.nlp | {"g": g}, self.opts)
-        return self.solvers[features]
+            _BUILT[key] = ca.nlpsol("actuators", "ipopt", self.nlp | {"g": g}, self.opts)
+        return _BUILT[key]
+
+    def params(self, mu: float, paired: np.ndarray) -> np.ndarray:
+        """The parameter vector: the stage's penalty weight, the targets at the pairing, the data."""
+        return np.r_[mu, paired, self.data]
 
     def at(self, name: str) -> np.ndarray:
         """Where a declared variable lives in x, a row per line (state, for the pairing): (K, M)."""
@@ -300,7 +319,7 @@ def _stage(nlp: _NLP, problem, x0, box, mu, B, rounds: int):
     for _ in range(rounds):
         c = _pairing_fractions(nlp.pairing(x0), n)
         solver = nlp.solver(lbg.size > nlp.lbg.size)
-        sol = solver(x0=x0, p=np.r_[mu, _paired(problem, c)], lbx=lbx, ubx=ubx, lbg=lbg, ubg=np.r_[nlp.ubg, np.full(lbg.size - nlp.ubg.size, np.inf)])
+        sol = solver(x0=x0, p=nlp.params(mu, _paired(problem, c)), lbx=lbx, ubx=ubx, lbg=lbg, ubg=np.r_[nlp.ubg, np.full(lbg.size - nlp.ubg.size, np.inf)])
         st = solver.stats()
         x0, iters, solves = np.asarray(sol["x"]).ravel(), iters + int(st.get("iter_count", 0)), solves + 1
         status = {"Solve_Succeeded": "optimal", "Solved_To_Acceptable_Level": "acceptable",
