@@ -172,14 +172,16 @@ class _NLP:
         gap = (1 - lam) * path  # the stopper gaps: alone, partners' together, and the stoppers (``features``)
         self.features = ca.vertcat(*(ca.vec(e) for e in (gap, gap[:, :-1] + gap[:, 1:], lam * path)))
         self.nlp = {"x": x, "f": J, "g": ca.vertcat(*(e for e, _, _ in rows)), "p": par}
-        self.opts = quiet(o.max_iter, o.tol) | CHAIN | EXACT_BOUNDS | {"expand": True}
+        self.opts = quiet(o.max_iter, o.tol) | CHAIN | EXACT_BOUNDS | {"expand": True, "ipopt.constr_mult_init_max": 0.0}
         self.key = (M, n, fixed, tuple(lines), K, tuple(self.exclusive), tuple(pairs), o.max_iter, o.tol)
 
     def solver(self):
         """The solver (built on first use in the process, per structure), with the features' rows: bounded in the
-        last stage, free (-inf) before it. One build, not one with and one without them: a build is most of a
-        design's time and the free rows cost no iterations (the bundled problems: 117 and 135 iterations, against
-        125 and 136 with two solvers; results/benchmarks/actuators.md)."""
+        last stage, free (-inf) before it. One build, not one with and one without them: a build is seconds, most of
+        a design's time. The constraint multipliers start at 0 (``self.opts``): IPOPT's least-squares estimate gave
+        the free rows multipliers that cost iterations (the three-way tube of bench_actuators: 683 iterations, 463 from
+        0, 262 with two solvers; its whole design 27.8 / 18.1 / 18.7 s; the bundled base/tip 11.0 s with two solvers,
+        6.8 s now; results/benchmarks/actuators.md)."""
         if self.key not in _BUILT:
             _BUILT[self.key] = ca.nlpsol("actuators", "ipopt", self.nlp | {"g": ca.vertcat(self.nlp["g"], self.features)}, self.opts)
         return _BUILT[self.key]
