@@ -104,3 +104,36 @@ def test_one_line_on_a_fixed_base_keeps_the_base_exactly():
     r = design_actuators(p)
     assert r.ok, r.shortfall
     assert np.array_equal(r.lines.initial_pose, pose) and r.state_metrics["a"]["rmse"] < 0.01
+
+
+def test_a_solver_built_for_one_problem_serves_another_of_its_structure():
+    """The solvers are kept per structure with the data as parameters: a problem designed on a solver built for
+    another (other targets, smoothness, lengths) gets the design a fresh build gives, and at most
+    settings.ACTUATORS_KEPT solvers stay."""
+    import dataclasses
+
+    from vine_nlp.methods import actuators_design as A
+    from vine_nlp.methods import settings
+
+    th = np.array([np.full(M, 0.05), np.full(M, -0.05)])
+    lam = np.array([np.full(M, 0.8), np.full(M, 0.85)])
+    states = {"left": ("L",), "right": ("R",)}
+    first = _problem(Lines(("L", "R"), th, lam, [0, 2.5], np.full(M, 2.5)), states, widths=(0.5, 0.5))
+    other = _problem(Lines(("L", "R"), 1.5 * th, lam - 0.1, [0, 2.5], np.full(M, 2.0)), states, widths=(0.5, 0.5))
+    other = dataclasses.replace(other, options=dataclasses.replace(other.options, smooth_theta=0.01))
+    A._BUILT.clear()
+    fresh = design_actuators(other)
+    A._BUILT.clear()
+    design_actuators(first)
+    (built,) = A._BUILT.values()
+    reused = design_actuators(other)
+    assert list(A._BUILT.values()) == [built]  # the same solver
+    np.testing.assert_allclose(reused.lines.theta, fresh.lines.theta, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(reused.lines.lam, fresh.lines.lam, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(reused.lines.length, fresh.lines.length, rtol=0, atol=1e-9)
+    assert reused.iterations == fresh.iterations and reused.ok
+    truth = Lines(("L", "R"), th, lam, [0, 2.5], np.full(M, 2.5))
+    for n in (3, 4):  # other structures (points per segment): the oldest solver goes
+        design_actuators(ActuatorsProblem("t", D, first.actuators, states, targets=sample_states(truth, D, states, M * n + 1),
+                                          options=DesignOptions(points_per_segment=n)))
+    assert settings.ACTUATORS_KEPT == 2 and len(A._BUILT) == 2 and built not in A._BUILT.values()

@@ -107,7 +107,7 @@ def _functions(a: int, n: int):
     return step, ca.Function("pts", [X, th, lam, ph, dl], [ca.horzcat(*pts)])
 
 
-_BUILT: dict = {}  # the solvers built in this process, per structure (:meth:`_NLP.solver`)
+_BUILT: dict = {}  # the solvers built in this process, per structure, the latest settings.ACTUATORS_KEPT (:meth:`_NLP.solver`)
 
 
 class _NLP:
@@ -182,9 +182,11 @@ class _NLP:
         the free rows multipliers that cost iterations (the three-way tube of bench_actuators: 683 iterations, 463 from
         0, 262 with two solvers; its whole design 27.8 / 18.1 / 18.7 s; the bundled base/tip 11.0 s with two solvers,
         6.8 s now; results/benchmarks/actuators.md)."""
-        if self.key not in _BUILT:
-            _BUILT[self.key] = ca.nlpsol("actuators", "ipopt", self.nlp | {"g": ca.vertcat(self.nlp["g"], self.features)}, self.opts)
-        return _BUILT[self.key]
+        solver = _BUILT.pop(self.key, None) or ca.nlpsol("actuators", "ipopt", self.nlp | {"g": ca.vertcat(self.nlp["g"], self.features)}, self.opts)
+        _BUILT[self.key] = solver  # the latest used last
+        for key in list(_BUILT)[: -settings.ACTUATORS_KEPT]:
+            del _BUILT[key]
+        return solver
 
     def params(self, mu: float, paired: np.ndarray) -> np.ndarray:
         """The parameter vector: the stage's penalty weight, the targets at the pairing, the data."""

@@ -287,6 +287,7 @@ ACTUATORS_ROUNDS = 3  # pairing rounds of the last stage at most (the others: on
 ACTUATORS_GAIN = 0.05  # ... and while a round lowers the objective by this fraction at least
 ACTUATORS_REPAIR_TOL = 1e-5  # the linearized target holds where no paired fraction of a target's chord moved more than this
 ACTUATORS_MIN_PIECE = 0.05  # a segment pairs with at least this fraction of 1/M of every target
+ACTUATORS_KEPT = 2  # built solvers kept per process (a design's and a correction's): each holds its SX Hessian, about 300 MB to build
 ACTUATORS_ON = 1e-3  # a line contracts on a segment (for the assignment) where 1 - lambda exceeds this
 # loads (design under self-weight and payload)
 LOAD_POINTS = 4  # points per segment carrying its weight in the moment recursion (the dense check tightens the rest)

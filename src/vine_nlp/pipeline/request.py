@@ -13,7 +13,8 @@ from vine_nlp.model.routing import Routing, Sigmas
 from vine_nlp.problem import METHODS
 
 # greedy_filtered: the paper's low-pass filter of the greedy design; nlp_free: the free design (the one the
-# buildable nlp starts from, or one of its own where the nlp is one solve), kept as its own run; greedy_buildable: the greedy under the buildable rules (methods.greedy)
+# buildable nlp starts from, or one of its own where the nlp is one solve), kept as its own run;
+# greedy_buildable: the greedy under the buildable rules (methods.greedy)
 DESIGN_METHODS = (*METHODS, "greedy_filtered", "nlp_free", "greedy_buildable")
 COMPARE = ("nlp", "nlp_free", "greedy", "greedy_buildable", "greedy_filtered")  # free and buildable, both methods
 
