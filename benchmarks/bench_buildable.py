@@ -119,21 +119,20 @@ SPEED = ("trefoil-m4", "bezier-a", "bezier-b", "bezier-c", "hook", "polyline-d")
 
 
 def speed(names, repeats: int):
-    """Per problem: the free design (design_nlp) alone against the buildable one as the pipeline makes it (one solve
-    inside the band where ``B.band`` gives one, else the free design and design_buildable's rounds), alternating
+    """Per problem: the free design (design_nlp) alone against the buildable one as the pipeline makes it
+    (``B.first_design``: one solve inside the band where it gives one, else the free design; then design_buildable), alternating
     ``repeats`` times after one unmeasured run each (compiled code cached): median times, their ratio, the buildable
     design's rounds, solves and IPOPT iterations, and both RMSEs."""
     rows = []
     for name in names:
         pb = load_problem(ROOT / "problems" / f"{name}.toml").problem
         mm, tf, tb = MM_PER_UNIT[pb.units], [], []
-        method = settings.Method.of(pb.options).with_(band=B.band(pb))
-        B.design_buildable(pb, design_nlp(pb, method=method))
+        B.design_buildable(pb, B.first_design(pb))
         for _ in range(repeats):
             t0 = time.perf_counter()
             free = design_nlp(pb)
             t1 = time.perf_counter()
-            start = design_nlp(pb, method=method)
+            start = B.first_design(pb)
             b = B.design_buildable(pb, start)
             t2 = time.perf_counter()
             tf.append(t1 - t0)

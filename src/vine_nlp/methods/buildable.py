@@ -38,7 +38,7 @@ import numpy as np
 from vine_nlp.analysis.buildability import MM_PER_UNIT, POUCH_LAMBDA_MIN, buildability, default_min_feature, partners, pieces, wrap_angle
 from vine_nlp.methods import drive, settings
 from vine_nlp.methods.common import Guess, evaluate, pair_points
-from vine_nlp.methods.nlp import design_bounds, nlp_parameters, result_of, start_x
+from vine_nlp.methods.nlp import design_bounds, design_nlp, nlp_parameters, result_of, start_x
 from vine_nlp.methods.structure import Structure, frames12
 from vine_nlp.methods.transcription import Chain, Smoothness, SoftTip, Spec, get_solver
 from vine_nlp.model.chain import phi_from_theta
@@ -152,6 +152,12 @@ def band(problem: DesignProblem, pairing=None) -> tuple[np.ndarray, np.ndarray] 
     pairing = pairing or pair_points(problem.target, problem.options.points_per_segment)
     found = phases(target_bends(problem, pairing), pairing.segment_chord, build)
     return lambda_bounds(found[0], pairing.segment_chord, build) if len(found) == 1 and found[0].all() else None
+
+
+def first_design(problem: DesignProblem, **kw) -> Result:
+    """The design :func:`design_buildable` starts from: one solve inside the :func:`band` where it gives one (stats
+    lambda_band), else the free design; ``kw``: ``design_nlp``'s (starts, workers, warm, progress, hops, budget, note)."""
+    return design_nlp(problem, method=settings.Method.of(problem.options).with_(band=band(problem)), **kw)
 
 
 def merge_short(act, length, min_feature: float) -> np.ndarray:

@@ -33,9 +33,9 @@ from vine_nlp.io.actuators import write_actuators_archive
 from vine_nlp.io.archive import Archive, write_archive
 from vine_nlp.io.formulations import write_multishape_archive, write_tip_archive
 from vine_nlp.io.problems import ProblemFile
-from vine_nlp.methods import actuators, blas, buildable, drive, mirror, settings
+from vine_nlp.methods import actuators, blas, drive, mirror, settings
 from vine_nlp.methods.actuators_design import design_actuators
-from vine_nlp.methods.buildable import design_buildable, missed
+from vine_nlp.methods.buildable import design_buildable, first_design, missed
 from vine_nlp.methods.clearance import design_with_clearance
 from vine_nlp.methods.common import evaluate, pair_points, run_forward
 from vine_nlp.methods.fit import fit_frames, fit_problem
@@ -174,11 +174,10 @@ def _design_as_given(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, 
     for m in methods:
         if m == "nlp":
             # the buildable problem in one solve where the target leaves no class to decide (issue 46), else a free design first
-            band = buildable.band(problem)
             kw = dict(starts=rq.starts, workers=rq.workers, warm=rq.warm, progress=rq.progress, hops=rq.hops, budget=rq.budget, note=rq.note)
-            free = design_nlp(problem, method=settings.Method.of(problem.options).with_(band=band), **kw)
+            free = first_design(problem, **kw)
             if "nlp_free" in methods:  # compare: the free design kept before it, a figure only (not decisive)
-                runs["nlp_free"] = free if band is None else design_nlp(problem, **kw)
+                runs["nlp_free"] = design_nlp(problem, **kw) if free.stats.get("lambda_band") else free
             # the buildable design from the free one (issue 31; robust and clearance keep its classes); among obstacles a
             # design that cuts one only starts theirs
             runs[m] = design_buildable(problem, free) if not problem.obstacles or _clears(problem, free) else free
