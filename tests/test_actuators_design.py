@@ -2,8 +2,12 @@
 routings are met; no state ever has two active lines on a segment; lines that may share a segment keep their
 widths apart."""
 
+import dataclasses
+
 import numpy as np
 
+from vine_nlp.methods import actuators_design as A
+from vine_nlp.methods import settings
 from vine_nlp.methods.actuators import ActuatorsProblem, Line, evaluate, sample_states, unbuilt
 from vine_nlp.methods.actuators_design import assign, design_actuators, dither, exclusive_pairs, unwound
 from vine_nlp.model.actuators import Lines, forward_states, owners, too_close
@@ -110,11 +114,6 @@ def test_a_solver_built_for_one_problem_serves_another_of_its_structure():
     """The solvers are kept per structure with the data as parameters: a problem designed on a solver built for
     another (other targets, smoothness, lengths) gets the design a fresh build gives, and at most
     settings.ACTUATORS_KEPT solvers stay."""
-    import dataclasses
-
-    from vine_nlp.methods import actuators_design as A
-    from vine_nlp.methods import settings
-
     th = np.array([np.full(M, 0.05), np.full(M, -0.05)])
     lam = np.array([np.full(M, 0.8), np.full(M, 0.85)])
     states = {"left": ("L",), "right": ("R",)}
