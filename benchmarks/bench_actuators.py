@@ -97,7 +97,7 @@ def main():
                  "Every design in this run; times are wall-clock on a machine shared with other work (ratios measured "
                  "in the same run). Single designs: `vine_nlp.design` of each state's target alone (buildable, as a user "
                  "gets it), timed after one unmeasured run each (its compiled functions built, as on every later run; "
-                 "the one-tube design has no compiled form: its solver, expanded to SX, is built in every process). The one-tube RMSE pairs each target point with the model by the design's own pairing (where "
+                 "the one-tube design on its compiled segment blocks, as on every run after a machine's first; its solver is built in every process, a fraction of a second). The one-tube RMSE pairs each target point with the model by the design's own pairing (where "
                  "each segment's ends fall on the target is designed too); a single design pairs by equal chord per "
                  "segment: the two RMSEs are not measured with the same pairing.", table(["case", "worst state RMSE", "time ratio (one tube / singles)", "goals met"], summary), *blocks)
 

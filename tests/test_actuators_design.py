@@ -4,7 +4,9 @@ widths apart."""
 
 import dataclasses
 
+import casadi as ca
 import numpy as np
+import pytest
 
 from vine_nlp.methods import actuators_design as A
 from vine_nlp.methods import settings
@@ -136,3 +138,56 @@ def test_a_solver_built_for_one_problem_serves_another_of_its_structure():
         design_actuators(ActuatorsProblem("t", D, first.actuators, states, targets=sample_states(truth, D, states, M * n + 1),
                                           options=DesignOptions(points_per_segment=n)))
     assert settings.ACTUATORS_KEPT == 2 and len(A._BUILT) == 2 and built not in A._BUILT.values()
+
+
+def _base_tip(fixed=False):
+    th = np.array([np.full(M, 0.1), np.full(M, -0.05)])
+    lam = np.ones((2, M))
+    lam[0, : M // 2], lam[1, M // 2:] = 0.7, 0.75
+    p = _problem(Lines(("A", "B"), th, lam, [0, 1.9], np.full(M, 2.5)), {"a": ("A",), "b": ("B",), "ab": ("A", "B")})
+    if fixed:
+        p = dataclasses.replace(p, options=dataclasses.replace(p.options, base="fixed"))
+    return p
+
+
+@pytest.mark.parametrize("fixed", [False, True])
+def test_the_blocks_derivatives_are_casadis_own(fixed):
+    """The derivatives IPOPT gets, assembled per (state, segment) block, equal CasADi's automatic ones of the whole
+    NLP (the same f and g) at a random point: the gradient, the constraint Jacobian and the Lagrangian's Hessian."""
+    p = _base_tip(fixed)
+    nlp = A._NLP(p, M, np.eye(3), np.full(M, 2.5 / D))
+    problem, derivatives = nlp._assembled.ipopt(nlp.pieces.params[0][1], per_block=True)
+    x, par, f, g = problem["x"], problem["p"], problem["f"], problem["g"]
+    rng = np.random.default_rng(4)
+    xv, pv = rng.uniform(-0.5, 0.5, x.numel()), rng.uniform(0.1, 1.0, par.numel())
+    sigma, lam_g = 0.7, rng.normal(size=g.numel())
+    own = ca.Function("own", [x, par], [ca.gradient(f, x), ca.jacobian(g, x), ca.triu(ca.hessian(sigma * f + ca.dot(ca.DM(lam_g), g), x)[0])])
+    grad, jac, hess = (np.array(ca.densify(v)) for v in own(xv, pv))
+    np.testing.assert_allclose(np.array(derivatives["grad_f"](xv, pv)[1]).ravel(), grad.ravel(), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(np.array(ca.densify(derivatives["jac_g"](xv, pv)[1])), jac, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(np.array(ca.densify(derivatives["hess_lag"](xv, pv, sigma, lam_g))), hess, rtol=1e-9, atol=1e-9)
+
+
+def test_compiled_blocks_take_the_interpreted_steps(monkeypatch, tmp_path):
+    """One file, one design: the blocks compiled (later runs) give the design of the interpreted ones (a first run,
+    while the compiler works) exactly."""
+    from vine_nlp.methods import compiled
+
+    monkeypatch.setenv("VINE_NLP_CODEGEN", "on")
+    monkeypatch.setenv("VINE_NLP_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("VINE_NLP_CFLAGS", "-O0")
+    if compiled.compiler() is None:
+        pytest.skip("no C compiler on this machine")
+    th = np.array([np.full(M, 0.05), np.full(M, -0.05)])
+    lam = np.array([np.full(M, 0.8), np.full(M, 0.85)])
+    p = _problem(Lines(("L", "R"), th, lam, [0, 2.5], np.full(M, 2.5)), {"left": ("L",), "right": ("R",)}, widths=(0.5, 0.5))
+    A._BUILT.clear()
+    fast = design_actuators(p)
+    assert sorted(tmp_path.rglob("blk-*.so"))  # the segment blocks (the first segment's and the others') compiled
+    monkeypatch.setenv("VINE_NLP_CODEGEN", "off")
+    A._BUILT.clear()
+    slow = design_actuators(p)
+    assert fast.ok and fast.iterations == slow.iterations
+    for got, want in ((fast.lines.theta, slow.lines.theta), (fast.lines.lam, slow.lines.lam), (fast.lines.length, slow.lines.length)):
+        np.testing.assert_array_equal(got, want)
+    A._BUILT.clear()

@@ -12,7 +12,11 @@ segment's motion. A segment of a state moves G by the product of its active line
 G_k = Rx(phi_k[j]) H(theta_k, lambda_k, l_j) Rx(-phi_k[j+1]), separated by translations -l_j along x: every G_k
 with lambda_k = 1 is a translation l_j, so the product is the model exactly wherever at most one active line has
 lambda < 1 (and a smooth stand-in where several do, used only on the way). phi_k[j+1] = phi_k[j] + 2 tan(theta_k[j])
-l_j / D are constraints.
+l_j / D are constraints. Each (state, segment) is one block of ``methods.blocks`` (its continuity rows and its points'
+fit, with its own SX derivatives, mapped over the segments and scattered by ``methods.transcription``'s assembly; a
+free base's pose enters the first segment's); the tips, the smoothness, the penalty and the phi, pairing and width
+rows are global (CasADi's derivatives).
+Expanded whole to SX instead, the Lagrangian's Hessian was 5.2 million instructions and 24 ms an evaluation.
 
 Pairing: a state's model points sit at n equal fractions of each segment; where each segment's ends fall on the
 state's target (fractions of its chord) are variables too, so the shared segment lengths can serve shapes whose
@@ -50,9 +54,11 @@ import numpy as np
 from vine_nlp.analysis.buildability import default_min_feature, partners, pieces, wrap_angle
 from vine_nlp.methods import settings
 from vine_nlp.methods.actuators import ActuatorsProblem, ActuatorsResult, evaluate
+from vine_nlp.methods.blocks import BlockType, block_functions
 from vine_nlp.methods.common import geometric_guess, pair_points
 from vine_nlp.methods.settings import CHAIN, EXACT_BOUNDS, quiet
 from vine_nlp.methods.structure import Layout, Structure, frames12
+from vine_nlp.methods.transcription import Pieces, _Assembled
 from vine_nlp.methods.variables import LAM, LENGTH, THETA, Var, box
 from vine_nlp.model.actuators import Lines, roll
 from vine_nlp.model.helix import center_rates
@@ -107,82 +113,113 @@ def _functions(a: int, n: int):
     return step, ca.Function("pts", [X, th, lam, ph, dl], [ca.horzcat(*pts)])
 
 
+@functools.lru_cache(maxsize=None)
+def _segment_block(a: int, n: int, head: str) -> BlockType:
+    """One segment of one state with ``a`` active lines: its continuity rows X_{j+1} - step(...) and its points' fit
+    w sum_i |r(u_i) - T_i|^2, T_i the target linearized at the pairing (module docstring), with its own SX derivatives
+    (``methods.blocks``: CasADi's automatic derivatives of the whole NLP cost several times more per iteration).
+    v: the segment's start (``head`` "X": the frame X_j (12); "X0": the first segment's, a fixed base's; "pose": the
+    first segment's from a free base's pose w, p (6), X_0 = [vec(R0g exp(w)); p]), the active lines' theta, lambda and
+    phi at the start (a each), the length, the pairing's ends b_j (none for the first segment: 0) and b_{j+1}, then
+    X_{j+1} (12); d: per point its c0, the target there and its slope in c (7 n), the weight w (and R0g, "pose")."""
+    step, pts = _functions(a, n)
+    nh, first = (6 if head == "pose" else 12), head != "X"
+    v, d = ca.SX.sym("v", nh + 3 * a + 2 + (not first) + 12), ca.SX.sym("d", 7 * n + 1 + 9 * (head == "pose"))
+    h, th, lam, ph = v[:nh], v[nh: nh + a], v[nh + a: nh + 2 * a], v[nh + 2 * a: nh + 3 * a]
+    dl, b0, b1, Xn = v[nh + 3 * a], 0 if first else v[-14], v[-13], v[-12:]
+    X = ca.vertcat(ca.vec(ca.mtimes(ca.reshape(d[-9:], 3, 3), so3_exp(h[:3]))), h[3:]) if head == "pose" else h
+    q = ca.reshape(d[: 7 * n], 7, n)
+    c = b0 + (b1 - b0) * ca.DM(np.arange(n) / n).T
+    T = q[1:4, :] + q[4:7, :] * ca.repmat(c - q[0, :], 3, 1)
+    f = d[7 * n] * ca.sumsqr(pts(X, th, lam, ph, dl) - T)
+    return BlockType(f"actuators_segment_{a}_{n}_{head}", ca.Function("actuators_segment", [v, d], [f, Xn - step(X, th, lam, ph, dl)]),
+                     budget=settings.ACTUATORS_BLOCK_BUDGET)
+
+
 _BUILT: dict = {}  # the solvers built in this process, per structure, the latest settings.ACTUATORS_KEPT (:meth:`_NLP.solver`)
 
 
 class _NLP:
-    """The NLP of one problem (expanded to SX: every segment's motion and points one call of an SX function per
-    number of active lines, mapped over the segments); the stages and pairing rounds change only bounds and
-    parameters. Its solvers are built once per structure in a process (segments, points, the states' lines, the
-    exclusive and spaced pairs, the base, IPOPT's limit and tolerance): the data (targets, the guess's lengths, the
-    smoothness weights, the base's rotation) are parameters (``data``), so every door, correction round and sweep
-    item of one structure reuses them (building one costs seconds). ``lay``: where each declared variable lives
-    (``methods.structure.Layout``, a level per state)."""
+    """The NLP of one problem: per state and segment one block (:func:`_segment_block`, SX with its own derivatives,
+    mapped over the segments and scattered: ``methods.transcription``'s assembly), the rest global; the stages and
+    pairing rounds change only bounds and parameters. Its solvers are built once per structure in a process
+    (segments, points, the states' lines, the exclusive and spaced pairs, the base, IPOPT's limit and tolerance): the
+    data (targets, the guess's lengths, the smoothness weights, the base's rotation) are parameters (``data``), so
+    every door, correction round and sweep item of one structure reuses them. ``lay``: where each declared variable
+    lives (``methods.structure.Layout``, a level per state)."""
 
     def __init__(self, problem: ActuatorsProblem, M: int, R0g: np.ndarray, h: np.ndarray):
         D, o, fixed = problem.diameter, problem.options, problem.options.base == "fixed"
         K, S = len(problem.actuators), len(problem.states)
         self.K, self.M, self.S, self.D = K, M, S, D
         n, idx = o.points_per_segment, {nm: k for k, nm in enumerate(problem.names)}
-        self.lay = lay = Layout(Structure(M, K=S, pose="fixed" if fixed else "shared", globals=K, variables=declared(problem, M)[0]))
-        self.x = x = ca.MX.sym("x", lay.size)
+        lay = self.lay = Layout(Structure(M, K=S, pose="fixed" if fixed else "shared", globals=K, variables=declared(problem, M)[0]))
+        pc = self.pieces = Pieces(lay)
+        x = pc.x
         th, lam, phi, dl, b = (ca.reshape(x[lay.var[v].reshape(M, -1).ravel().tolist()], -1, M) for v in ("theta", "lam", "phi", "length", "b"))
         ph = ca.horzcat(x[lay.globals.tolist()], phi)  # (K, M+1): phi_k[0] and at every segment's end
         b = ca.horzcat(ca.DM.zeros(S, 1), b).T  # (M+1, S): the pairing's segment ends (fractions of each target's chord)
         self.P = n * M + 1  # model points per state: n per segment and the tip
         # the stage-1 penalty weight, then per state the model points' fractions c0 of the state's length at the
         # pairing, the target there and its derivative in c (the pairing linearized: exact where c = c0)
-        par = ca.MX.sym("p", 1 + 7 * self.P * S + M + 11)
+        par = pc.param("p", (1 + 7 * self.P * S + M + 11, 1))
         hp, wt, wl = par[-M - 11: -11], par[-11], par[-10]  # the data: the guess's lengths, the smoothness weights
-        Rg = ca.reshape(par[-9:], 3, 3)  # and the guess's base rotation (column-major)
+        Rg = par[-9:]  # and the guess's base rotation (column-major)
         self.data = np.r_[h, o.smooth_theta, o.smooth_lambda, np.asarray(R0g, float).ravel(order="F")]
-        rows = [(ca.vec(ph[:, 1:] - ph[:, :-1] - 2 * ca.tan(th) * ca.repmat(dl, K, 1)), 0.0, 0.0)]  # (expression, lower, upper)
-        w, p = (x[lay.pose[0, i: i + 3].tolist()] for i in (0, 3)) if not fixed else (None, None)  # rotation vector about R0g, position
-        J, lines = 0, []
+        at = {v: lay.var[v].reshape(M, -1) for v in ("theta", "lam", "phi", "length", "b")}
+        w, lines = 1.0 / (S * self.P), []
         for s, active in enumerate(problem.states.values()):
             ks = [idx[a] for a in active]
             lines.append(tuple(ks))
-            step, pts = _functions(len(ks), n)
-            Xs = ca.reshape(x[lay.X[:, s].ravel().tolist()], 12, M + 1)  # the state's frames: its base, every segment's end
             q = ca.reshape(par[1 + 7 * self.P * s: 1 + 7 * self.P * (s + 1)], 7, self.P)
-            bs = b[:, s].T  # the target's segment ends, fractions of its chord (variables: the pairing is designed too)
-            c = ca.horzcat(ca.vec(ca.repmat(bs[:, :M], n, 1) + ca.mtimes(ca.DM(np.arange(n) / n), ca.diff(bs, 1, 1))).T, 1)
-            T = q[1:4, :] + q[4:7, :] * ca.repmat(c - q[0, :], 3, 1)
-            if not fixed:  # a free base is the pose (the state's first frame is fixed by its bounds, unused)
-                Xs = ca.horzcat(ca.vertcat(ca.vec(ca.mtimes(Rg, so3_exp(w))), p), Xs[:, 1:])
-            args = [Xs[:, :-1], th[ks, :], lam[ks, :], ph[ks, :-1], dl]
-            rows.append((ca.vec(Xs[:, 1:] - step.map(M)(*args)), 0.0, 0.0))
-            J += ca.sumsqr(pts.map(M)(*args) - T[:, :-1]) + ca.sumsqr(Xs[9:, -1] - T[:, -1])
-        J = J / (S * self.P)
+            Q = ca.vertcat(ca.reshape(q[:, : n * M], 7 * n, M), ca.DM.ones(1, M) * w)
+            for js, head in ((range(1), "X0" if fixed else "pose"), (range(1, M), "X")):
+                if not js:
+                    continue
+                index = np.array([np.r_[lay.pose[0] if head == "pose" else lay.X[j, s], at["theta"][j, ks], at["lam"][j, ks],
+                                        lay.globals[ks] if j == 0 else at["phi"][j - 1, ks], at["length"][j],
+                                        [] if j == 0 else at["b"][j - 1, s], at["b"][j, s], lay.X[j + 1, s]] for j in js]).T
+                data = Q[:, js.start: js.stop]
+                pc.add_block(_segment_block(len(ks), n, head), index, ca.vertcat(data, Rg) if head == "pose" else data)
+            # the tip pairs with the target's end (c = 1)
+            pc.add_term("fit", w * ca.sumsqr(x[lay.X[M, s, 9:].tolist()] - q[1:4, -1] - q[4:7, -1] * (1 - q[0, -1])))
         # smoothness of theta and lambda along the tube (h: the guess's segment lengths, L their sum)
         if M > 1:
             hm = (0.5 * (hp[1:] + hp[:-1])).T
-            J += wt / ca.sum1(hp) * ca.sum2(ca.sum1(ca.diff(th, 1, 1) ** 2) / hm)
-            J += wl / ca.sum1(hp) * ca.sum2(ca.sum1(ca.diff(lam, 1, 1) ** 2) / hm)
+            pc.add_term("smooth", wt / ca.sum1(hp) * ca.sum2(ca.sum1(ca.diff(th, 1, 1) ** 2) / hm))
+            pc.add_term("smooth", wl / ca.sum1(hp) * ca.sum2(ca.sum1(ca.diff(lam, 1, 1) ** 2) / hm))
         # exclusive pairs (stage 1 penalty) and widths (1 - cos(phi_a - phi_b) at every segment end)
         self.exclusive, pairs = exclusive_pairs(problem)
         mu = par[0]
         for a, c in self.exclusive:
-            J += mu * ca.sum2((1 - lam[a, :]) * (1 - lam[c, :])) / M
-        rows.append((ca.vec(ca.diff(b, 1, 0)), settings.ACTUATORS_MIN_PIECE / M, np.inf))  # each piece a fraction of 1/M at least
-        w = problem.widths
-        rows += [((1 - ca.cos(ph[a, :] - ph[c, :])).T, 1 - math.cos(min(math.pi, (w[a] + w[c]) / D)), np.inf) for a, c in pairs]
-        self.lbg, self.ubg = (np.concatenate([np.full(e.numel(), r[i]) for e, *r in rows]) for i in (0, 1))
+            pc.add_term("exclusive", mu * ca.sum2((1 - lam[a, :]) * (1 - lam[c, :])) / M)
+        pc.add_rows("phi", ph[:, 1:] - ph[:, :-1] - 2 * ca.tan(th) * ca.repmat(dl, K, 1), 0.0, 0.0)
+        pc.add_rows("pieces", ca.diff(b, 1, 0), settings.ACTUATORS_MIN_PIECE / M, np.inf)  # each piece a fraction of 1/M at least
+        wd = problem.widths
+        for a, c in pairs:
+            pc.add_rows("widths", (1 - ca.cos(ph[a, :] - ph[c, :])).T, 1 - math.cos(min(math.pi, (wd[a] + wd[c]) / D)), np.inf)
+        own = sum(r[1].numel() for r in pc.rows) + sum(bl.bt.nr * bl.index.shape[1] for bl in pc.blocks)
         path = ca.repmat(dl, K, 1) / ca.cos(th)  # each line's length along it per segment (K, M)
         gap = (1 - lam) * path  # the stopper gaps: alone, partners' together, and the stoppers (``features``)
         self.features = ca.vertcat(*(ca.vec(e) for e in (gap, gap[:, :-1] + gap[:, 1:], lam * path)))
-        self.nlp = {"x": x, "f": J, "g": ca.vertcat(*(e for e, _, _ in rows)), "p": par}
-        self.opts = quiet(o.max_iter, o.tol) | CHAIN | EXACT_BOUNDS | {"expand": True, "ipopt.constr_mult_init_max": 0.0}
+        pc.add_rows("features", self.features, -np.inf, np.inf)  # bounded per stage (``_stage``)
+        # compiled where methods.compiled allows (cached on disk per block; interpreted while the compiler works:
+        # the same arithmetic, so a first run and later runs take the same steps)
+        self._assembled = _Assembled(pc, {bl.bt: block_functions(bl.bt, True) for bl in pc.blocks}, "exact")
+        self.lbg, self.ubg = self._assembled.lbg[:own], self._assembled.ubg[:own]
+        self.opts = quiet(o.max_iter, o.tol) | CHAIN | EXACT_BOUNDS | {"ipopt.constr_mult_init_max": 0.0}
         self.key = (M, n, fixed, tuple(lines), K, tuple(self.exclusive), tuple(pairs), o.max_iter, o.tol)
 
     def solver(self):
         """The solver (built on first use in the process, per structure), with the features' rows: bounded in the
-        last stage, free (-inf) before it. One build, not one with and one without them: a build is seconds, most of
-        a design's time. The constraint multipliers start at 0 (``self.opts``): IPOPT's least-squares estimate gave
-        the free rows multipliers that cost iterations (the three-way tube of bench_actuators: 683 iterations, 463 from
-        0, 262 with two solvers; its whole design 27.8 / 18.1 / 18.7 s; the bundled base/tip 11.0 s with two solvers,
-        6.8 s now; results/benchmarks/actuators.md)."""
-        solver = _BUILT.pop(self.key, None) or ca.nlpsol("actuators", "ipopt", self.nlp | {"g": ca.vertcat(self.nlp["g"], self.features)}, self.opts)
+        last stage, free (-inf) before it. One build, not one with and one without them (a build cost seconds when
+        the NLP was expanded whole). The constraint multipliers start at 0 (``self.opts``): IPOPT's least-squares
+        estimate gave the free rows multipliers that cost iterations (the three-way tube of bench_actuators: 683
+        iterations, 463 from 0, 262 with two solvers; results/benchmarks/actuators.md)."""
+        solver = _BUILT.pop(self.key, None)
+        if solver is None:
+            problem, derivatives = self._assembled.ipopt(self.pieces.params[0][1], per_block=True)
+            solver = ca.nlpsol("actuators", "ipopt", problem, self.opts | derivatives)
         _BUILT[self.key] = solver  # the latest used last
         for key in list(_BUILT)[: -settings.ACTUATORS_KEPT]:
             del _BUILT[key]

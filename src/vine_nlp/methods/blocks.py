@@ -40,12 +40,14 @@ class Samples:
 class BlockType:
     """A per-stage piece: ``fn`` (v (nv), d (nd)) -> (f (1), r (nr)), SX; ``residual`` (v, d) -> res,
     the weighted residuals whose 2 J^T J is the block's Gauss-Newton Hessian (None: exact); ``samples``:
-    the same piece as a map of a smaller one (None: none)."""
+    the same piece as a map of a smaller one (None: none); ``budget``: compiled on its own up to this many
+    SX instructions (None: settings.BLOCK_BUDGET)."""
 
     name: str
     fn: ca.Function
     residual: ca.Function | None = None
     samples: Samples | None = None
+    budget: int | None = None
 
     @property
     def nv(self) -> int:
@@ -100,7 +102,7 @@ def _c_functions(bt: BlockType, *setting) -> tuple:
     fn, grad, jac, hess, gn = sx = _sx_functions(bt)
     v, d = ca.SX.sym("v", bt.nv), ca.SX.sym("d", bt.fn.size1_in(1))
     own = [ca.Function(f"{bt.name}_f", [v, d], bt.fn(v, d)), grad, jac, hess] + ([gn] if gn is not hess else [])
-    c = compiled.block_functions(bt.name, own)
+    c = compiled.block_functions(bt.name, own, bt.budget)
     return sx if c is None else (*c[:4], c[4] if gn is not hess else c[3])
 
 

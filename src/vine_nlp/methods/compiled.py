@@ -262,15 +262,15 @@ def wait(timeout: float | None = None) -> bool:
     return True
 
 
-def block_functions(name: str, functions: list) -> list | None:
+def block_functions(name: str, functions: list, budget: int | None = None) -> list | None:
     """Compiled copies of one block type's SX ``functions`` (value, derivatives), for a solver whose
     structure seldom recurs (an active set): the structure stays interpreted, its blocks run as C.
 
     Cached on disk per the functions' serialized form, so every structure built of the same block
     types (each new active set of pairs) loads them. None where they stay interpreted: codegen off, no
-    compiler, a failed compile, or more than BLOCK_BUDGET instructions."""
+    compiler, a failed compile, or more than ``budget`` instructions (None: BLOCK_BUDGET)."""
     import casadi as ca
-    if mode() == "off" or sum(f.n_instructions() for f in functions) > BLOCK_BUDGET:
+    if mode() == "off" or sum(f.n_instructions() for f in functions) > (BLOCK_BUDGET if budget is None else budget):
         return None
     digest = hashlib.sha256("\0".join(f.serialize() for f in functions).encode()).hexdigest()
     path = library(f"block {digest}", lambda: functions, prefix="blk", what=f"the block {name}")

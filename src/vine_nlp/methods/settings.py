@@ -193,6 +193,10 @@ TIE_RTOL = 1e-6
 # triangles) would take longer than the solves it speeds up; such a block is a map of one sample's
 # (blocks.Samples), whose block is compiled instead ("Active sets on compiled blocks")
 BLOCK_BUDGET = 30_000
+# a several-actuator segment block (one state's segment, one or two active lines: about 32k and 97k instructions
+# with its derivatives) is compiled all the same: once per machine, in the background (gcc -O1 about 7 s for one
+# line), and its Hessian then runs 6.6x faster than interpreted, most of an iteration (results/benchmarks/actuators.md)
+ACTUATORS_BLOCK_BUDGET = 150_000
 # greedy
 LAMBDA_START = 0.75  # paper: lambda_{1:k,0} = 0.75
 GREEDY_SPREAD = 0.5  # random starts: half-width of the box around the carried-over values, x bound range
@@ -287,7 +291,7 @@ ACTUATORS_ROUNDS = 3  # pairing rounds of the last stage at most (the others: on
 ACTUATORS_GAIN = 0.05  # ... and while a round lowers the objective by this fraction at least
 ACTUATORS_REPAIR_TOL = 1e-5  # the linearized target holds where no paired fraction of a target's chord moved more than this
 ACTUATORS_MIN_PIECE = 0.05  # a segment pairs with at least this fraction of 1/M of every target
-ACTUATORS_KEPT = 2  # built solvers kept per process (a design's and a correction's): each holds its SX Hessian, about 300 MB to build
+ACTUATORS_KEPT = 2  # built solvers kept per process (a design's and a correction's; the process with both bundled designs peaks at 120 MB)
 ACTUATORS_ON = 1e-3  # a line contracts on a segment (for the assignment) where 1 - lambda exceeds this
 # loads (design under self-weight and payload)
 LOAD_POINTS = 4  # points per segment carrying its weight in the moment recursion (the dense check tightens the rest)

@@ -68,7 +68,47 @@ class _Block:
     term: str = "fit"  # the objective term its f reports to
 
 
-class Chain:
+class Pieces:
+    """An NLP as pieces over a decision vector laid out by ``methods.structure.Layout``: per-stage blocks (each with its
+    own SX derivatives), global objective terms and global rows, and its parameters. ``_Assembled`` turns it into
+    the functions IPOPT takes. The chain (:class:`Chain`) is one; the several-actuator NLP another."""
+
+    def __init__(self, lay: Layout):
+        self.lay = lay
+        self.x = ca.MX.sym("x", lay.size)
+        self.params: list[tuple[str, ca.MX]] = []
+        self.blocks: list[_Block] = []
+        self.terms: dict[str, ca.MX] = {}
+        self.rows: list[tuple[str, ca.MX, np.ndarray, np.ndarray]] = []
+
+    def gather(self, index: np.ndarray) -> ca.MX:
+        """x at an (a, b) index array, as an (a, b) MX."""
+        index = np.asarray(index, int)
+        return ca.reshape(self.x[index.T.ravel().tolist()], *index.shape)
+
+    def param(self, name: str, shape) -> ca.MX:
+        if any(name == n for n, _ in self.params):
+            raise ValueError(f"parameter {name!r} declared twice")
+        p = ca.MX.sym(name, *shape)
+        self.params.append((name, p))
+        return p
+
+    def add_block(self, bt: BlockType, index, data, lb=None, ub=None, term: str = "fit") -> None:
+        index = np.asarray(index, int).reshape(bt.nv, -1)
+        lb = np.zeros(bt.nr) if lb is None else np.broadcast_to(np.asarray(lb, float), (bt.nr,)).copy()
+        ub = np.zeros(bt.nr) if ub is None else np.broadcast_to(np.asarray(ub, float), (bt.nr,)).copy()
+        self.blocks.append(_Block(bt, index, data, lb, ub, term))
+
+    def add_term(self, name: str, expr) -> None:
+        self.terms[name] = self.terms.get(name, 0) + expr
+
+    def add_rows(self, name: str, expr, lb, ub) -> None:
+        expr = ca.vec(expr)
+        n = expr.numel()
+        self.rows.append((name, expr, np.broadcast_to(np.asarray(lb, float), (n,)).copy(), np.broadcast_to(np.asarray(ub, float), (n,)).copy()))
+
+
+class Chain(Pieces):
     """Symbolic views of the chain's variables and the pieces a formulation adds to them.
 
     Views (MX, units of D): ``x``, ``theta``, ``dl`` (1 x M), ``lam_of(k)`` (1 x M),
@@ -77,13 +117,8 @@ class Chain:
     objective terms and global rows. ``get_solver(spec)`` turns it into one solver."""
 
     def __init__(self, s: Structure):
-        self.s, self.lay = s, Layout(s)
-        lay = self.lay
-        self.x = x = ca.MX.sym("x", lay.size)
-        self.params: list[tuple[str, ca.MX]] = []
-        self.blocks: list[_Block] = []
-        self.terms: dict[str, ca.MX] = {}
-        self.rows: list[tuple[str, ca.MX, np.ndarray, np.ndarray]] = []
+        super().__init__(Layout(s))
+        self.s, lay, x = s, self.lay, self.x
         self.theta = x[lay.theta.tolist()].T
         self.dl = x[lay.dl.tolist()].T
         self.extra = ca.reshape(x[lay.extra.ravel().tolist()], s.extra, s.M) if s.extra else None
@@ -108,33 +143,6 @@ class Chain:
 
     def lam_of(self, k: int = 0) -> ca.MX:
         return self.x[self.lay.lam[:, k].tolist()].T
-
-    def gather(self, index: np.ndarray) -> ca.MX:
-        """x at an (a, b) index array, as an (a, b) MX."""
-        index = np.asarray(index, int)
-        return ca.reshape(self.x[index.T.ravel().tolist()], *index.shape)
-
-    # pieces
-    def param(self, name: str, shape) -> ca.MX:
-        if any(name == n for n, _ in self.params):
-            raise ValueError(f"parameter {name!r} declared twice")
-        p = ca.MX.sym(name, *shape)
-        self.params.append((name, p))
-        return p
-
-    def add_block(self, bt: BlockType, index, data, lb=None, ub=None, term: str = "fit") -> None:
-        index = np.asarray(index, int).reshape(bt.nv, -1)
-        lb = np.zeros(bt.nr) if lb is None else np.broadcast_to(np.asarray(lb, float), (bt.nr,)).copy()
-        ub = np.zeros(bt.nr) if ub is None else np.broadcast_to(np.asarray(ub, float), (bt.nr,)).copy()
-        self.blocks.append(_Block(bt, index, data, lb, ub, term))
-
-    def add_term(self, name: str, expr) -> None:
-        self.terms[name] = self.terms.get(name, 0) + expr
-
-    def add_rows(self, name: str, expr, lb, ub) -> None:
-        expr = ca.vec(expr)
-        n = expr.numel()
-        self.rows.append((name, expr, np.broadcast_to(np.asarray(lb, float), (n,)).copy(), np.broadcast_to(np.asarray(ub, float), (n,)).copy()))
 
 
 # ---------------------------------------------------------------- terms every chain may take
