@@ -231,3 +231,30 @@ def test_state_on_an_archive_of_one_actuator_is_refused(tmp_path, capsys):
     assert capsys.readouterr().err == (f"error: {path}: --state: an archive of one actuator has no states (--state is for archives "
                                        "of several actuators)\n")
     assert not (tmp_path / "o.h5").exists()
+
+
+def test_the_residuals_jacobian_by_the_chain_rule_is_casadis_own():
+    """The estimate's residuals and their Jacobian (each point's residual in its segment's frame, times that frame's
+    derivative in the parameters) equal CasADi's automatic Jacobian of the same residuals written whole, at a random
+    point: two measurements (states base and tip), the point-major order, the weight."""
+    import casadi as ca
+
+    from vine_nlp.methods.correct.pairing import LINE_SIDE, Measurement
+    from vine_nlp.methods.correct.several import _Model, _pairs, _point
+
+    problem, nominal = load_problem(PROBLEM).problem, truth()
+    devs = draw_line_deviations(nominal, SIGMAS, TRUTH, seed=2)
+    D = problem.diameter
+    ms = [Measurement(simulate_state(nominal, devs, D, problem.states[s], s, "outer", 40, NOISE, seed), state=s)
+          for s, seed in (("base", 7), ("tip", 8))]
+    model = _Model([nominal], problem.states, [0, 1], D, [a.actuator.lambda_min for a in problem.actuators])
+    pairs = _pairs([nominal], [d for d in devs], problem.states, ms, D)
+    z = np.random.default_rng(5).normal(0.0, 0.02, model.n)
+    for m, pr in zip(ms, pairs):
+        chain = model.chain(m.state, 0)
+        whole = ca.vertcat(*[_point(D)(ca.vertcat(ca.vec(chain[j][0]), chain[j][1], *chain[j][2:]), f, LINE_SIDE[m.line] * D, m.points[i], pr.tangent[i])
+                             for i, (j, f) in enumerate(zip(pr.seg, pr.frac))]) * 2.0
+        fn = ca.Function("whole", [model.z], [whole, ca.jacobian(whole, model.z)])
+        r, J = (np.asarray(ca.densify(v)) for v in fn(z))
+        np.testing.assert_allclose(model.residuals(z, m, pr, 2.0), r.ravel(), rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(model.residuals(z, m, pr, 2.0, jacobian=True), J, rtol=1e-9, atol=1e-10)

@@ -6,8 +6,10 @@ segment and lambda deviation where it has an actuator, the shared log length rat
 (theta offset, lambda offset, log length scale: one construction method, whatever line it builds). Every measurement
 is of one state of one build: its points pair with that state's line (``pairing.pair_with_line`` on
 ``model.actuators.state_line``), point to line; pairs are re-made until they stop moving (ICP). Each round is solved
-by SciPy's trust-region least squares on the CasADi residuals and their exact Jacobian; the Gauss-Newton Hessian at
-the estimate is the Laplace approximation's (the uncertainty). An actuator active in no measured state keeps its
+by SciPy's trust-region least squares on the residuals and their exact Jacobian: each segment's start frame, line,
+lambda and length as CasADi functions of the parameters, differentiated once per estimate, and each point's residual
+in its segment's (the chain rule, per point; differentiating every round's residuals whole cost 1.5 s a command); the
+Gauss-Newton Hessian at the estimate is the Laplace approximation's (the uncertainty). An actuator active in no measured state keeps its
 nominal exactly (nothing shows its deviations).
 
 Correction: the design NLP of ``methods.actuators_design`` over the realized lines, every state against its own target;
@@ -113,11 +115,26 @@ class _Model:
             self.chains[s, b] = out
         return self.chains[s, b]
 
-    def residuals(self, m, pairs, weight):
-        """Point-to-line residuals of measurement ``m`` at its pairs (settings.SLIDE of the tangent part kept)."""
-        chain, fn = self.chain(m.state, m.build % len(self.builds)), _point(self.D)
-        side = LINE_SIDE[m.line] * self.D
-        return [fn(*chain[j], f, side, m.points[i], pairs.tangent[i]) * weight for i, (j, f) in enumerate(zip(pairs.seg, pairs.frac))]
+    def segments(self, s, b) -> tuple:
+        """Functions z -> G (15 x M: each segment's start frame A (column-major), p, its theta, lambda and length) and
+        z -> dG/dz (15 M x n, G column-major) of a state on a build: differentiated once per round's model, not once per
+        round's pairs (the residuals' Jacobian follows by the chain rule, :meth:`residuals`)."""
+        if ("G", s, b) not in self.chains:
+            G = ca.horzcat(*[ca.vertcat(ca.vec(A), p, th, la, l) for A, p, th, la, l in self.chain(s, b)])
+            self.chains["G", s, b] = (ca.Function("G", [self.z], [G]), ca.Function("dG", [self.z], [ca.jacobian(ca.vec(G), self.z)]))
+        return self.chains["G", s, b]
+
+    def residuals(self, z, m, pairs, weight, jacobian: bool = False):
+        """Point-to-line residuals of measurement ``m`` at its pairs (settings.SLIDE of the tangent part kept) at z
+        ((3 N,), point-major), or their Jacobian (3 N x n): each point's residual in its segment's G, times dG/dz."""
+        G, dG = self.segments(m.state, m.build % len(self.builds))
+        side, N = LINE_SIDE[m.line] * self.D, len(pairs.seg)
+        args = (G(z)[:, pairs.seg.tolist()], ca.DM(pairs.frac).T, side, ca.DM(m.points).T, ca.DM(pairs.tangent).T)
+        if not jacobian:
+            return weight * np.asarray(_point(self.D).map(N)(*args)).ravel(order="F")
+        dr = np.asarray(_point_jacobian(self.D).map(N)(*args)).reshape(3, 15, N, order="F")  # point i's 3 x 15 at [:, :, i]
+        dg = np.asarray(dG(z)).reshape(-1, 15, self.n)[np.asarray(pairs.seg)]  # (N, 15, n)
+        return weight * np.einsum("abn,nbz->naz", dr, dg).reshape(3 * N, self.n)
 
 
 @lru_cache(maxsize=4)
@@ -135,13 +152,23 @@ def _parts(th, lam, l, D):
 
 @lru_cache(maxsize=4)
 def _point(D: float):
-    """The point-to-line residual (A, p, theta, lambda, length, fraction, side, measured point, tangent) -> (3,)."""
-    A, p, m, t = ca.SX.sym("A", 3, 3), ca.SX.sym("p", 3), ca.SX.sym("m", 3), ca.SX.sym("t", 3)
-    th, lam, l, f, side = (ca.SX.sym(n) for n in ("th", "lam", "l", "f", "side"))
+    """The point-to-line residual (g (15): A, p, theta, lambda, length of the segment; fraction, side, measured point,
+    tangent) -> (3,)."""
+    g, m, t = ca.SX.sym("g", 15), ca.SX.sym("m", 3), ca.SX.sym("t", 3)
+    f, side = ca.SX.sym("f"), ca.SX.sym("side")
+    A, p, th, lam, l = ca.reshape(g[:9], 3, 3), g[9:12], g[12], g[13], g[14]
     Rs, ps = _parts(th, lam, f * l, D)
     R = ca.mtimes(A, Rs)
     e = p + ca.mtimes(A, ps) + side * R[:, 1] - m
-    return ca.Function("point", [A, p, th, lam, l, f, side, m, t], [e - (1.0 - settings.SLIDE) * t * ca.dot(t, e)])
+    return ca.Function("point", [g, f, side, m, t], [e - (1.0 - settings.SLIDE) * t * ca.dot(t, e)])
+
+
+@lru_cache(maxsize=4)
+def _point_jacobian(D: float):
+    """d(point)/dg (3 x 15) of :func:`_point`."""
+    fn = _point(D)
+    g, f, side, m, t = (ca.SX.sym(n, *fn.size_in(i)) for i, n in enumerate(("g", "f", "side", "m", "t")))
+    return ca.Function("point_jacobian", [g, f, side, m, t], [ca.jacobian(fn(g, f, side, m, t), g)])
 
 
 def _deviations(z, model: _Model, latest: Lines, lambda_min) -> list:
@@ -184,6 +211,7 @@ def estimate_lines(builds: list, measurements: list, states: dict, D: float, sig
     prior = ca.vertcat(*[(model.dth[k] - model.g[0]) / sigmas.theta for k in measured],
                        *[(model.dlam[kj] - model.g[1]) / sigmas.lam for kj in model.lam_at],
                        (model.rho - model.g[2]) / ca.DM(s_len), model.g / ca.DM(systematic_sigmas))
+    prior_fn, prior_jac = ca.Function("prior", [model.z], [prior]), ca.Function("prior_J", [model.z], [ca.jacobian(prior, model.z)])
     z = np.zeros(model.n)
     if start is not None:  # the previous round's deviations and systematic parts
         z = _pack(model, start, start_systematic)
@@ -193,11 +221,9 @@ def estimate_lines(builds: list, measurements: list, states: dict, D: float, sig
     for _ in range(rounds):
         done += 1
         pairs = _pairs(builds, devs, states, measurements, D)
-        res = ca.vertcat(*[r for m, pr in zip(measurements, pairs) for r in model.residuals(m, pr, 1.0 / measurement_sigma)], prior)
-        fun, jac = ca.Function("r", [model.z], [res]), ca.Function("J", [model.z], [ca.jacobian(res, model.z)])
+        fun, jac = _least_squares(model, measurements, pairs, 1.0 / measurement_sigma, prior_fn, prior_jac)
         with blas.limited():
-            sol = least_squares(lambda x: np.asarray(fun(x)).ravel(), z, jac=lambda x: jac(x).full(), bounds=model.bounds,
-                                method="trf", xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=200)
+            sol = least_squares(fun, z, jac=jac, bounds=model.bounds, method="trf", xtol=1e-10, ftol=1e-10, gtol=1e-10, max_nfev=200)
         z, iters, status = sol.x, iters + sol.nfev, "optimal" if sol.status > 0 else "max_iter"
         devs = _deviations(z, model, latest, lambda_min)
         new = _pairs(builds, devs, states, measurements, D)
@@ -205,7 +231,7 @@ def estimate_lines(builds: list, measurements: list, states: dict, D: float, sig
         if moved < 1e-3 * D:
             break
     with blas.limited():  # the Laplace approximation: the Gauss-Newton Hessian's inverse
-        J = jac(z).full()
+        J = jac(z)
         sd = np.sqrt(np.maximum(np.diag(np.linalg.pinv(J.T @ J)), 0.0))
     ab = realized(latest, devs)
     std = {n: np.column_stack([np.zeros((M, 2)), ab.length * sd[model.rho_idx]]) for n in latest.names}
@@ -224,6 +250,18 @@ def estimate_lines(builds: list, measurements: list, states: dict, D: float, sig
                     status=status, iterations=iters, solve_time_s=time.perf_counter() - t0, rounds=done,
                     stats={"measurement_sigma": measurement_sigma, "points": N, "builds": len(builds),
                            "measured": [latest.names[k] for k in measured], "free_pose": False, "pairs_moved": moved})
+
+
+def _least_squares(model: _Model, measurements, pairs, weight, prior_fn, prior_jac):
+    """(residuals, Jacobian) of one ICP round as functions of z: every measurement's at its pairs, then the prior."""
+
+    def fun(z):
+        return np.concatenate([model.residuals(z, m, pr, weight) for m, pr in zip(measurements, pairs)] + [np.asarray(prior_fn(z)).ravel()])
+
+    def jac(z):
+        return np.vstack([model.residuals(z, m, pr, weight, jacobian=True) for m, pr in zip(measurements, pairs)] + [np.asarray(prior_jac(z))])
+
+    return fun, jac
 
 
 def _pairs(builds, devs, states, measurements, D) -> list:
