@@ -37,10 +37,13 @@ WARM = {"ipopt.warm_start_init_point": "yes", "ipopt.mu_init": 1e-6, "ipopt.warm
 # the plain chain's Gauss-Newton solve from a guess ("Compiled NLP functions", "Sweep"): Mehrotra's probing
 # barrier rule (Gauss-Newton converges on more targets), MUMPS's own scalings off (IPOPT scales already; on
 # these small banded systems the pass is a large share of a factorization), constraint multipliers from
-# zero (one factorization less; the continuity rows hold at a start on the target). Exact-Hessian and warm
-# solves keep CHAIN alone: the corner search's local minimum is sensitive to every bit of its start.
+# zero (one factorization less; the continuity rows hold at a start on the target), no residual check of each
+# step (fast_step_computation: 10 % of the 125-knot sweep's solver time, the same iterations and designs to 1e-10;
+# results/benchmarks/buildable.md, "sixth session"). Exact-Hessian and warm solves keep CHAIN alone: the corner
+# search's local minimum is sensitive to every bit of its start (with fast steps there the hook took 2051
+# iterations instead of 260, polyline (d) another corner design).
 GAUSS_NEWTON = {"ipopt.mu_oracle": "probing", "ipopt.mumps_permuting_scaling": 0, "ipopt.mumps_scaling": 0,
-                "ipopt.constr_mult_init_max": 0.0}
+                "ipopt.constr_mult_init_max": 0.0, "ipopt.fast_step_computation": "yes"}
 # rows that are hard requirements (clearance, obstacles, the robust recursion): held tightly, no early stop.
 # 1e-8 (units of D: a quarter of a micrometre on these tubes): at 1e-10 IPOPT went on for hundreds of
 # iterations at the optimum's objective, its infeasibility jumping between 1e-7 and 1e-1 on the nearly
