@@ -58,7 +58,7 @@ from vine_nlp.methods.blocks import BlockType, block_functions
 from vine_nlp.methods.common import geometric_guess, pair_points
 from vine_nlp.methods.settings import CHAIN, EXACT_BOUNDS, quiet
 from vine_nlp.methods.structure import Layout, Structure, frames12
-from vine_nlp.methods.transcription import Pieces, _Assembled
+from vine_nlp.methods.transcription import Assembled, Pieces
 from vine_nlp.methods.variables import LAM, LENGTH, THETA, Var, box
 from vine_nlp.model.actuators import Lines, roll
 from vine_nlp.model.helix import center_rates
@@ -205,8 +205,8 @@ class _NLP:
         pc.add_rows("features", self.features, -np.inf, np.inf)  # bounded per stage (``_stage``)
         # compiled where methods.compiled allows (cached on disk per block; interpreted while the compiler works:
         # the same arithmetic, so a first run and later runs take the same steps)
-        self._assembled = _Assembled(pc, {bl.bt: block_functions(bl.bt, True) for bl in pc.blocks}, "exact")
-        self.lbg, self.ubg = self._assembled.lbg[:own], self._assembled.ubg[:own]
+        self.assembled = Assembled(pc, {bl.bt: block_functions(bl.bt, True) for bl in pc.blocks}, "exact")
+        self.lbg, self.ubg = self.assembled.lbg[:own], self.assembled.ubg[:own]
         self.opts = quiet(o.max_iter, o.tol) | CHAIN | EXACT_BOUNDS | {"ipopt.constr_mult_init_max": 0.0}
         self.key = (M, n, fixed, tuple(lines), K, tuple(self.exclusive), tuple(pairs), o.max_iter, o.tol)
 
@@ -218,7 +218,7 @@ class _NLP:
         iterations, 463 from 0, 262 with two solvers; results/benchmarks/actuators.md)."""
         solver = _BUILT.pop(self.key, None)
         if solver is None:
-            problem, derivatives = self._assembled.ipopt(self.pieces.params[0][1], per_block=True)
+            problem, derivatives = self.assembled.ipopt(self.pieces.params[0][1], per_block=True)
             solver = ca.nlpsol("actuators", "ipopt", problem, self.opts | derivatives)
         _BUILT[self.key] = solver  # the latest used last
         for key in list(_BUILT)[: -settings.ACTUATORS_KEPT]:

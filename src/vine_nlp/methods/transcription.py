@@ -70,7 +70,7 @@ class _Block:
 
 class Pieces:
     """An NLP as pieces over a decision vector laid out by ``methods.structure.Layout``: per-stage blocks (each with its
-    own SX derivatives), global objective terms and global rows, and its parameters. ``_Assembled`` turns it into
+    own SX derivatives), global objective terms and global rows, and its parameters. ``Assembled`` turns it into
     the functions IPOPT takes. The chain (:class:`Chain`) is one; the several-actuator NLP another."""
 
     def __init__(self, lay: Layout):
@@ -214,7 +214,7 @@ def clear_caches() -> None:
     segment_function.cache_clear()
 
 
-class _Assembled:
+class Assembled:
     """The NLP of a chain: objective f and rows g (blocks, mapped SX, first; then global rows), their bounds,
     the objective per term, and the derivatives IPOPT takes (per block type SX, mapped and
     scattered; global parts automatic)."""
@@ -308,7 +308,7 @@ class Solver:
         kinds = {getattr(t, "compile", True) for t in spec.terms}
         whole = kinds <= {True}
         per_block = not whole and kinds <= {True, "blocks"}
-        nlp = _Assembled(c, {b.bt: block_functions(b.bt, per_block) for b in c.blocks}, spec.hessian)
+        nlp = Assembled(c, {b.bt: block_functions(b.bt, per_block) for b in c.blocks}, spec.hessian)
         self.lbg, self.ubg = nlp.lbg, nlp.ubg
         self.problem = {"x": x, "p": p, "f": nlp.f, "g": nlp.g}  # symbolic, for derivative checks and benchmarks
         code = repr((spec.structure, spec.terms, spec.hessian, "ipopt"))  # the generated code's: not the options
