@@ -196,10 +196,10 @@ TIE_RTOL = 1e-6
 # triangles) would take longer than the solves it speeds up; such a block is a map of one sample's
 # (blocks.Samples), whose block is compiled instead ("Active sets on compiled blocks")
 BLOCK_BUDGET = 30_000
-# a several-actuator segment block (one state's segment, one or two active lines: about 32k and 97k instructions
-# with its derivatives) is compiled all the same: once per machine, in the background (gcc -O1 about 7 s for one
-# line), and its Hessian then runs 6.6x faster than interpreted, most of an iteration (results/benchmarks/actuators.md)
-ACTUATORS_BLOCK_BUDGET = 150_000
+# a several-actuator segment block (one state's segment with one, two or three active lines: about 32k, 97k and 208k
+# instructions with its derivatives) is compiled all the same: once per machine, in the background (gcc -O1 7, 12
+# and 32 s), and its Hessian, most of an iteration, then runs 6.6x, 9.3x and 10.9x faster than interpreted
+ACTUATORS_BLOCK_BUDGET = 250_000
 # greedy
 LAMBDA_START = 0.75  # paper: lambda_{1:k,0} = 0.75
 GREEDY_SPREAD = 0.5  # random starts: half-width of the box around the carried-over values, x bound range
