@@ -156,7 +156,7 @@ def test_the_blocks_derivatives_are_casadis_own(fixed):
     NLP (the same f and g) at a random point: the gradient, the constraint Jacobian and the Lagrangian's Hessian."""
     p = _base_tip(fixed)
     nlp = A._NLP(p, M, np.eye(3), np.full(M, 2.5 / D))
-    problem, derivatives = nlp.assembled.ipopt(nlp.pieces.params[0][1], per_block=True)
+    problem, derivatives = nlp.assembled.ipopt(nlp.p, per_block=True)
     x, par, f, g = problem["x"], problem["p"], problem["f"], problem["g"]
     rng = np.random.default_rng(4)
     xv, pv = rng.uniform(-0.5, 0.5, x.numel()), rng.uniform(0.1, 1.0, par.numel())

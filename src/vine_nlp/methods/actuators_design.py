@@ -162,7 +162,7 @@ class _NLP:
         self.P = n * M + 1  # model points per state: n per segment and the tip
         # the stage-1 penalty weight, then per state the model points' fractions c0 of the state's length at the
         # pairing, the target there and its derivative in c (the pairing linearized: exact where c = c0)
-        par = pc.param("p", (1 + 7 * self.P * S + M + 11, 1))
+        par = self.p = pc.param("p", (1 + 7 * self.P * S + M + 11, 1))
         hp, wt, wl = par[-M - 11: -11], par[-11], par[-10]  # the data: the guess's lengths, the smoothness weights
         Rg = par[-9:]  # and the guess's base rotation (column-major)
         self.data = np.r_[h, o.smooth_theta, o.smooth_lambda, np.asarray(R0g, float).ravel(order="F")]
@@ -198,7 +198,6 @@ class _NLP:
         wd = problem.widths
         for a, c in pairs:
             pc.add_rows("widths", (1 - ca.cos(ph[a, :] - ph[c, :])).T, 1 - math.cos(min(math.pi, (wd[a] + wd[c]) / D)), np.inf)
-        own = sum(r[1].numel() for r in pc.rows) + sum(bl.bt.nr * bl.index.shape[1] for bl in pc.blocks)
         path = ca.repmat(dl, K, 1) / ca.cos(th)  # each line's length along it per segment (K, M)
         gap = (1 - lam) * path  # the stopper gaps: alone, partners' together, and the stoppers (``features``)
         self.features = ca.vertcat(*(ca.vec(e) for e in (gap, gap[:, :-1] + gap[:, 1:], lam * path)))
@@ -206,6 +205,7 @@ class _NLP:
         # compiled where methods.compiled allows (cached on disk per block; interpreted while the compiler works:
         # the same arithmetic, so a first run and later runs take the same steps)
         self.assembled = Assembled(pc, {bl.bt: block_functions(bl.bt, True) for bl in pc.blocks}, "exact")
+        own = self.assembled.lbg.size - self.features.numel()  # the rows before the features
         self.lbg, self.ubg = self.assembled.lbg[:own], self.assembled.ubg[:own]
         self.opts = quiet(o.max_iter, o.tol) | CHAIN | EXACT_BOUNDS | {"ipopt.constr_mult_init_max": 0.0}
         self.key = (M, n, fixed, tuple(lines), K, tuple(self.exclusive), tuple(pairs), o.max_iter, o.tol)
@@ -218,7 +218,7 @@ class _NLP:
         iterations, 463 from 0, 262 with two solvers; results/benchmarks/actuators.md)."""
         solver = _BUILT.pop(self.key, None)
         if solver is None:
-            problem, derivatives = self.assembled.ipopt(self.pieces.params[0][1], per_block=True)
+            problem, derivatives = self.assembled.ipopt(self.p, per_block=True)
             solver = ca.nlpsol("actuators", "ipopt", problem, self.opts | derivatives)
         _BUILT[self.key] = solver  # the latest used last
         for key in list(_BUILT)[: -settings.ACTUATORS_KEPT]:

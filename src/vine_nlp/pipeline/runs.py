@@ -175,12 +175,12 @@ def _design_as_given(problem: DesignProblem, rq: Request) -> tuple[dict, tuple, 
         if m == "nlp":
             # the buildable problem in one solve where the target leaves no class to decide (issue 46), else a free design first
             kw = dict(starts=rq.starts, workers=rq.workers, warm=rq.warm, progress=rq.progress, hops=rq.hops, budget=rq.budget, note=rq.note)
-            free = first_design(problem, **kw)
+            start = first_design(problem, **kw)
             if "nlp_free" in methods:  # compare: the free design kept before it, a figure only (not decisive)
-                runs["nlp_free"] = design_nlp(problem, **kw) if free.stats.get("lambda_band") else free
-            # the buildable design from the free one (issue 31; robust and clearance keep its classes); among obstacles a
+                runs["nlp_free"] = design_nlp(problem, **kw) if start.stats.get("lambda_band") else start
+            # the buildable design from its start (issue 31; robust and clearance keep its classes); among obstacles a
             # design that cuts one only starts theirs
-            runs[m] = design_buildable(problem, free) if not problem.obstacles or _clears(problem, free) else free
+            runs[m] = design_buildable(problem, start) if not problem.obstacles or _clears(problem, start) else start
         elif m == "greedy":
             runs[m] = design_greedy(problem, progress=rq.progress)
         elif m == "greedy_buildable":  # from the greedy's own design where it was made

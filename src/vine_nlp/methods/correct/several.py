@@ -79,7 +79,7 @@ class _Model:
         for (k, j), i in zip(self.lam_at, self.lam_idx):
             lo[i], hi[i] = max(lambda_min[k], 0.05) - latest.lam[k, j], 1.0 - latest.lam[k, j]
         lo[self.rho_idx], hi[self.rho_idx] = math.log(0.5), math.log(2.0)
-        self.bounds, self.chains = (lo, hi), {}
+        self.bounds, self.chains, self.segment_fns = (lo, hi), {}, {}
 
     def lines(self, b):
         """Build b's realized theta, lambda (K x M nested lists of SX), lengths (M) and phi (K x M+1)."""
@@ -117,12 +117,12 @@ class _Model:
 
     def segments(self, s, b) -> tuple:
         """Functions z -> G (15 x M: each segment's start frame A (column-major), p, its theta, lambda and length) and
-        z -> dG/dz (15 M x n, G column-major) of a state on a build: differentiated once per round's model, not once per
-        round's pairs (the residuals' Jacobian follows by the chain rule, :meth:`residuals`)."""
-        if ("G", s, b) not in self.chains:
+        z -> dG/dz (15 M x n, G column-major) of a state on a build: differentiated once per estimate, not once per
+        ICP round (the residuals' Jacobian follows by the chain rule, :meth:`residuals`)."""
+        if (s, b) not in self.segment_fns:
             G = ca.horzcat(*[ca.vertcat(ca.vec(A), p, th, la, l) for A, p, th, la, l in self.chain(s, b)])
-            self.chains["G", s, b] = (ca.Function("G", [self.z], [G]), ca.Function("dG", [self.z], [ca.jacobian(ca.vec(G), self.z)]))
-        return self.chains["G", s, b]
+            self.segment_fns[s, b] = (ca.Function("G", [self.z], [G]), ca.Function("dG", [self.z], [ca.jacobian(ca.vec(G), self.z)]))
+        return self.segment_fns[s, b]
 
     def residuals(self, z, m, pairs, weight, jacobian: bool = False):
         """Point-to-line residuals of measurement ``m`` at its pairs (settings.SLIDE of the tangent part kept) at z
