@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from vine_nlp.methods import actuators_design as A
-from vine_nlp.methods import settings
+from vine_nlp.methods import compiled, settings
 from vine_nlp.methods.actuators import ActuatorsProblem, Line, evaluate, sample_states, unbuilt
 from vine_nlp.methods.actuators_design import assign, design_actuators, dither, exclusive_pairs, unwound
 from vine_nlp.model.actuators import Lines, forward_states, owners, too_close
@@ -171,8 +171,6 @@ def test_the_blocks_derivatives_are_casadis_own(fixed):
 def test_compiled_blocks_take_the_interpreted_steps(monkeypatch, tmp_path):
     """One file, one design: the blocks compiled (later runs) give the design of the interpreted ones (a first run,
     while the compiler works) exactly."""
-    from vine_nlp.methods import compiled
-
     monkeypatch.setenv("VINE_NLP_CODEGEN", "on")
     monkeypatch.setenv("VINE_NLP_CACHE_DIR", str(tmp_path))
     monkeypatch.setenv("VINE_NLP_CFLAGS", "-O0")

@@ -10,6 +10,7 @@ import io
 import math
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 import pytest
 from simulate import draw_line_deviations, simulate_state
@@ -20,7 +21,8 @@ from vine_nlp.io.calibration import read_calibration
 from vine_nlp.io.correction import read_correction
 from vine_nlp.io.problem_file import load_problem
 from vine_nlp.methods.actuators import evaluate
-from vine_nlp.methods.correct.several import realized
+from vine_nlp.methods.correct.pairing import LINE_SIDE, Measurement
+from vine_nlp.methods.correct.several import _Model, _pairs, _point, realized
 from vine_nlp.model.actuators import Lines
 from vine_nlp.model.routing import Sigmas
 
@@ -237,11 +239,6 @@ def test_the_residuals_jacobian_by_the_chain_rule_is_casadis_own():
     """The estimate's residuals and their Jacobian (each point's residual in its segment's frame, times that frame's
     derivative in the parameters) equal CasADi's automatic Jacobian of the same residuals written whole, at a random
     point: two measurements (states base and tip), the point-major order, the weight."""
-    import casadi as ca
-
-    from vine_nlp.methods.correct.pairing import LINE_SIDE, Measurement
-    from vine_nlp.methods.correct.several import _Model, _pairs, _point
-
     problem, nominal = load_problem(PROBLEM).problem, truth()
     devs = draw_line_deviations(nominal, SIGMAS, TRUTH, seed=2)
     D = problem.diameter
